@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# `make bench`: writes bench/results/ - kernel throughput per SIMD variant
+# next to the measured memory bandwidth, the seed's Table 3.3 job, quality
+# figures and example pictures. Every figure of one run is measured side by
+# side on the same machine; medians of repeated runs.
+# Usage: bench/run.sh BUILD_DIR [--quick]
+set -euo pipefail
+build=${1:-build}; shift || true
+cd "$(dirname "$0")/.."
+out=bench/results
+mkdir -p "$out"
+bash deploy/install-deps.sh --bench
+{
+  echo "machine: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2- | sed 's/^ //'), $(nproc) cores"
+  echo "date: $(date -u +%Y-%m-%dT%H:%MZ)"
+  echo "commit: $(git rev-parse --short HEAD 2>/dev/null || echo unknown)"
+} > "$out/machine.txt"
+echo "== kernels"
+"$build"/bench/bench_kernels --csv "$out/kernels.csv" "$@" | tee "$out/kernels.txt"
+echo "== Table 3.3 job and quality"
+/usr/bin/python3 bench/table33.py --build "$build" --out "$out" "$@"

@@ -1,0 +1,83 @@
+/* image.h - image files in and out. All file access goes through
+ * OpenImageIO in image_oiio.cpp (the only C++ in texsyn); this header is its
+ * C API, plus pixel helpers in image.c.
+ *
+ * An image keeps the pixel type it had on disk where it matters (8-bit,
+ * 16-bit, half and float), so a 16-bit TIFF in gives a 16-bit TIFF out, and
+ * carries the file's metadata (GeoTIFF georeferencing, resolution, ICC
+ * profile, ...) so outputs derived from one input can pass it through. */
+#ifndef TS_IMAGE_H
+#define TS_IMAGE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+typedef enum {
+  TS_PIX_U8 = 0, /* uint8 */
+  TS_PIX_U16,    /* uint16 */
+  TS_PIX_F16,    /* IEEE half, stored as its raw uint16 bits */
+  TS_PIX_F32     /* float */
+} ts_pixtype;
+
+typedef struct ts_meta ts_meta; /* opaque: the source file's metadata */
+
+typedef struct {
+  int width, height, channels;
+  ts_pixtype type;
+  void *pixels;  /* width*height*channels samples, interleaved, row-major */
+  ts_meta *meta; /* NULL, or metadata read from the file */
+} ts_image;
+
+typedef struct {
+  uint64_t max_pixels; /* width*height limit; refuse larger headers */
+} ts_image_limits;
+
+#define TS_IMAGE_DEFAULT_MAX_PIXELS (256ull * 1024 * 1024)
+
+size_t ts_pixtype_size(ts_pixtype t);
+const char *ts_pixtype_name(ts_pixtype t);
+
+/* Allocates a zeroed image (no metadata). 0, TS_EINVAL or TS_ENOMEM. */
+int ts_image_alloc(ts_image *img, int width, int height, int channels,
+                   ts_pixtype type, char *err);
+void ts_image_free(ts_image *img);
+
+/* Reads any format OpenImageIO knows (PNG, JPEG, TIFF incl. tiled, OpenEXR,
+ * ...). Other sample types are converted to the nearest kept type (e.g. int8
+ * and uint32 -> float). limits may be NULL for the defaults. Errors name the
+ * file and the reason: TS_ENOENT, TS_EFORMAT (unreadable or truncated),
+ * TS_ETOOBIG (over limits), TS_ENOMEM. */
+int ts_image_read(const char *path, ts_image *img,
+                  const ts_image_limits *limits, char *err);
+
+/* Writes img to path, the format chosen from the extension. If meta_from is
+ * not NULL, its metadata is passed through (the geometry and pixel type are
+ * img's own). A type the format cannot store is converted by OpenImageIO
+ * (e.g. float to 8-bit for PNG). Writes to a temporary name in the same
+ * directory and renames, so a failed write never leaves a partial file. */
+int ts_image_write(const char *path, const ts_image *img,
+                   const ts_meta *meta_from, char *err);
+
+/* Metadata value lookup for tests and reports: writes the attribute named
+ * `name` as text into out (at most outlen bytes). 0 or TS_ENOENT. */
+int ts_meta_get(const ts_meta *meta, const char *name, char *out,
+                size_t outlen);
+
+/* --- pixel helpers (image.c) --------------------------------------------- */
+
+/* Sample (x, y, c) as a float in [0, 1] for integer types, as is for float. */
+float ts_image_sample(const ts_image *img, int x, int y, int c);
+
+/* 8-bit luminance plane (BT.601 weights on the first three channels; the
+ * first channel of grey or grey+alpha images). Floats are clamped to [0, 1].
+ * out holds width*height bytes. */
+void ts_image_luma8(const ts_image *img, uint8_t *out);
+/* 8-bit plane of channel c, same conversion rules. */
+void ts_image_channel8(const ts_image *img, int c, uint8_t *out);
+
+/* dst pixel (dx, dy) = src pixel (sx, sy), all channels; dst and src must
+ * have the same channels and type. */
+void ts_image_copy_pixel(ts_image *dst, int dx, int dy, const ts_image *src,
+                         int sx, int sy);
+
+#endif

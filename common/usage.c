@@ -1,0 +1,68 @@
+/* usage.c - see usage.h. */
+#include "usage.h"
+
+#include <math.h>
+#include <stdlib.h>
+
+#include "error.h"
+
+int ts_usage_init(ts_usage *u, const ts_refgrid *g, int wb) {
+  u->grid = *g;
+  u->wb = wb;
+  u->total = 0;
+  u->count = calloc((size_t)g->w * (size_t)g->h, sizeof(uint32_t));
+  u->u = calloc(g->total ? g->total : 1, sizeof(uint32_t));
+  if (u->count == NULL || u->u == NULL) {
+    ts_usage_free(u);
+    return TS_ENOMEM;
+  }
+  /* Valid blocks form a rectangle of corners; they cover this region. */
+  u->usable = (uint64_t)(g->nx + wb - 1) * (uint64_t)(g->ny + wb - 1);
+  return 0;
+}
+
+void ts_usage_free(ts_usage *u) {
+  free(u->count);
+  free(u->u);
+  u->count = NULL;
+  u->u = NULL;
+}
+
+/* Adds delta uses of pixel (px, py) to every valid block containing it. */
+static void add_pixel(ts_usage *u, int px, int py, int delta) {
+  u->count[(long)py * u->grid.w + px] += (uint32_t)delta;
+  u->total += (uint64_t)(int64_t)delta;
+  for (int by = py - u->wb + 1; by <= py; by++)
+    for (int bx = px - u->wb + 1; bx <= px; bx++) {
+      int64_t j = ts_refgrid_index(&u->grid, bx, by);
+      if (j >= 0) u->u[j] += (uint32_t)delta;
+    }
+}
+
+void ts_usage_commit(ts_usage *u, int x, int y, int w, int h, int delta) {
+  for (int dy = 0; dy < h; dy++)
+    for (int dx = 0; dx < w; dx++) add_pixel(u, x + dx, y + dy, delta);
+}
+
+uint64_t ts_usage_factor(const ts_usage *u, double alpha, uint64_t d1) {
+  if (u->total == 0 || !(alpha > 0.0)) return 0;
+  /* K = alpha * d1 * usable / (total * wb^2), alpha in 1/256 steps. */
+  unsigned __int128 num = (unsigned __int128)(uint64_t)llround(alpha * 256.0) * d1 * u->usable;
+  unsigned __int128 den = (unsigned __int128)256 * u->total * (uint64_t)(u->wb * u->wb);
+  unsigned __int128 k = (num << 32) / den;
+  return k > UINT64_MAX ? UINT64_MAX : (uint64_t)k;
+}
+
+void ts_usage_stats(const ts_usage *u, double *mean, double *variance) {
+  const ts_refgrid *g = &u->grid;
+  double sum = 0.0, sum2 = 0.0;
+  for (int y = g->y0; y < g->y0 + g->ny + u->wb - 1; y++)
+    for (int x = g->x0; x < g->x0 + g->nx + u->wb - 1; x++) {
+      double c = u->count[(long)y * g->w + x];
+      sum += c;
+      sum2 += c * c;
+    }
+  double n = (double)u->usable;
+  *mean = n > 0 ? sum / n : 0.0;
+  *variance = n > 0 ? sum2 / n - (*mean) * (*mean) : 0.0;
+}

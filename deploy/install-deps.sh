@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# Installs the Debian packages texsyn needs, only those that are missing.
+# Called by `make test`, `make demo`, `make bench` and .ci/run; safe to rerun.
+set -euo pipefail
+
+PACKAGES=(
+  build-essential pkg-config
+  libopenimageio-dev openimageio-tools # image I/O (OpenImageIO) + oiiotool for tests
+  libmodbus-dev                        # Modbus TCP monitoring plane
+  libcmocka-dev                        # unit tests
+  python3-pytest python3-numpy         # integration tests and checks
+  valgrind
+)
+# Plots for `make bench` only.
+[ "${1:-}" = "--bench" ] && PACKAGES+=(python3-matplotlib)
+
+missing=()
+for p in "${PACKAGES[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+[ ${#missing[@]} -eq 0 ] && exit 0
+
+echo "install-deps: installing ${missing[*]}"
+SUDO=""
+[ "$(id -u)" -eq 0 ] || SUDO="sudo"
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -qq
+$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null

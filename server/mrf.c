@@ -1,0 +1,445 @@
+/* mrf.c - see mrf.h.
+ *
+ * Per level, coarsest first (seed 002 §3.3): the canvas is initialised with
+ * noise drawn from the reference histogram (§3.4, seeded), scanned by a
+ * skewed wavefront of blocks with the causal L-shaped multi-scale
+ * neighbourhood (§3.4, schedule.h), then the torus seam is revisited with
+ * the full neighbourhood so the output tiles without a seam. Each block
+ * copies the reference block whose neighbourhood is nearest in weighted L1
+ * (+ the usage penalty, §3.7.2). Colour is gathered through the final copy
+ * map (§3.8). */
+#include "mrf.h"
+
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "error.h"
+#include "plane.h"
+#include "rng.h"
+#include "schedule.h"
+#include "usage.h"
+
+void ts_mrf_params_default(ts_mrf_params *p) {
+  memset(p, 0, sizeof(*p));
+  p->levels = 5;
+  p->wn = 7;
+  p->wb = 3;
+  p->coarse_weight = 1.0;
+  p->seed = 1;
+  p->max_pixels = TS_IMAGE_DEFAULT_MAX_PIXELS;
+}
+
+static double now_seconds(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_MONOTONIC, &ts);
+  return ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+/* Appends one problem line to msg. */
+static void problem(char *msg, size_t len, int *count, const char *fmt, ...)
+    __attribute__((format(printf, 4, 5)));
+static void problem(char *msg, size_t len, int *count, const char *fmt, ...) {
+  size_t used = strlen(msg);
+  if (used + 4 >= len) return;
+  if (*count > 0) msg[used++] = '\n';
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(msg + used, len - used, fmt, ap);
+  va_end(ap);
+  (*count)++;
+}
+
+static int nplanes_for(const ts_mrf_params *p, int channels) {
+  if (!p->rgb_search || channels < 3) return 1;
+  return 3;
+}
+
+/* Level sizes: the reference halves with floor (eq. 2.3), the canvas with
+ * ceil so every output size works on the torus. */
+static void level_sizes(int w, int h, int levels, int *lw, int *lh, int ceil_mode) {
+  lw[0] = w;
+  lh[0] = h;
+  for (int l = 1; l < levels; l++) {
+    lw[l] = ceil_mode ? (lw[l - 1] + 1) / 2 : lw[l - 1] / 2;
+    lh[l] = ceil_mode ? (lh[l - 1] + 1) / 2 : lh[l - 1] / 2;
+  }
+}
+
+static void check_reference_levels(const ts_mrf_params *p, int ref_w, int ref_h,
+                                   char *msg, size_t len, int *count) {
+  int rw[TS_MRF_MAX_LEVELS], rh[TS_MRF_MAX_LEVELS];
+  level_sizes(ref_w, ref_h, p->levels, rw, rh, 0);
+  for (int l = p->levels - 1; l >= 0; l--) {
+    ts_shape s;
+    ts_refgrid g;
+    char err[TS_ERR_LEN];
+    int coarse = l < p->levels - 1;
+    if (ts_shape_init(&s, TS_SHAPE_FULL, p->wn, p->wb, coarse, 1, p->coarse_weight, err) != 0) return;
+    int bad = rw[l] < 1 || rh[l] < 1 ||
+              ts_refgrid_init(&g, &s, rw[l], rh[l], coarse ? rw[l + 1] : 0, coarse ? rh[l + 1] : 0,
+                              p->parity, err) != 0;
+    ts_shape_free(&s);
+    if (bad) {
+      problem(msg, len, count,
+              "--levels %d: the reference (%dx%d) is %dx%d at level %d, too small for a %dx%d "
+              "neighbourhood%s; use fewer levels, a smaller --wn or a larger reference",
+              p->levels, ref_w, ref_h, rw[l], rh[l], l, p->wn, p->wn,
+              p->parity ? " in every parity class" : "");
+      return;
+    }
+  }
+}
+
+int ts_mrf_check(const ts_mrf_params *p, int ref_w, int ref_h, int channels,
+                 char *msg, size_t len) {
+  int n = 0;
+  msg[0] = '\0';
+  if (p->width < 1 || p->height < 1)
+    problem(msg, len, &n, "--size %dx%d: width and height must be at least 1", p->width, p->height);
+  else if ((uint64_t)p->width * (uint64_t)p->height > p->max_pixels)
+    problem(msg, len, &n, "--size %dx%d: %llu pixels exceed the limit of %llu (raise --max-pixels)",
+            p->width, p->height, (unsigned long long)p->width * p->height,
+            (unsigned long long)p->max_pixels);
+  if (p->wb < 1 || p->wb % 2 == 0 || p->wb > 15)
+    problem(msg, len, &n, "--wb %d: the block width must be odd, 1..15", p->wb);
+  if (p->wn % 2 == 0 || p->wn < 3 || p->wn > TS_MAX_WN)
+    problem(msg, len, &n, "--wn %d: the neighbourhood width must be odd, 3..%d", p->wn, TS_MAX_WN);
+  else if (p->wn < p->wb + 2)
+    problem(msg, len, &n, "--wn %d: the neighbourhood must be wider than the block (--wb %d), at least %d",
+            p->wn, p->wb, p->wb + 2);
+  if (p->levels < 1 || p->levels > TS_MRF_MAX_LEVELS)
+    problem(msg, len, &n, "--levels %d: need 1..%d", p->levels, TS_MRF_MAX_LEVELS);
+  else if (p->stop_level < 0 || p->stop_level >= p->levels)
+    problem(msg, len, &n, "--stop-level %d: need 0..%d (below --levels)", p->stop_level, p->levels - 1);
+  if (!(p->usage_weight >= 0.0 && p->usage_weight <= 100.0))
+    problem(msg, len, &n, "--usage-weight %g: need 0..100 (0 = off)", p->usage_weight);
+  if (!(p->coarse_weight > 0.0 && p->coarse_weight <= 100.0))
+    problem(msg, len, &n, "--coarse-weight %g: need more than 0, at most 100", p->coarse_weight);
+  if (channels < 1 || channels > 16)
+    problem(msg, len, &n, "reference has %d channels: need 1..16", channels);
+  if (n > 0) return TS_EINVAL; /* the checks below need sane parameters */
+  int cw[TS_MRF_MAX_LEVELS], ch[TS_MRF_MAX_LEVELS];
+  level_sizes(p->width, p->height, p->levels, cw, ch, 1);
+  int top = p->levels - 1;
+  if (cw[top] < p->wn || ch[top] < p->wn)
+    problem(msg, len, &n,
+            "--levels %d: the output is only %dx%d at the coarsest level, smaller than the "
+            "%dx%d neighbourhood; use fewer levels or a larger --size",
+            p->levels, cw[top], ch[top], p->wn, p->wn);
+  if (ref_w < p->wn || ref_h < p->wn)
+    problem(msg, len, &n, "the reference (%dx%d) is smaller than the %dx%d neighbourhood", ref_w,
+            ref_h, p->wn, p->wn);
+  else
+    check_reference_levels(p, ref_w, ref_h, msg, len, &n);
+  return n > 0 ? TS_EINVAL : 0;
+}
+
+/* ---- engine state ------------------------------------------------------ */
+
+typedef struct {
+  const ts_mrf_params *p;
+  ts_search *search;
+  ts_mrf_progress_fn *progress;
+  void *progress_ctx;
+  ts_mrf_progress prog;
+  int nplanes;
+  int levels;
+  ts_plane ref[TS_MAX_PLANES][TS_MRF_MAX_LEVELS];
+  ts_plane canvas[TS_MAX_PLANES][TS_MRF_MAX_LEVELS];
+  int cw[TS_MRF_MAX_LEVELS], ch[TS_MRF_MAX_LEVELS];
+  /* current level */
+  int level;
+  ts_levelplanes ref_lp, canvas_lp;
+  ts_refgrid grid;
+  ts_usage usage;
+  uint32_t *copy; /* (x, y) per canvas pixel at this level */
+  int set_ids[2];
+  uint64_t steps;
+  /* per-step scratch */
+  uint32_t cap;
+  uint8_t *queries, *klass;
+  ts_l1_best *best;
+  ts_commit *commits;
+} engine;
+
+static int ensure_step_scratch(engine *e, uint32_t n, uint32_t vbytes) {
+  if (n <= e->cap) return 0;
+  free(e->queries);
+  free(e->klass);
+  free(e->best);
+  free(e->commits);
+  e->queries = malloc((size_t)n * vbytes);
+  e->klass = malloc(n);
+  e->best = malloc(sizeof(ts_l1_best) * n);
+  e->commits = malloc(sizeof(ts_commit) * 2 * n);
+  e->cap = n;
+  if (!e->queries || !e->klass || !e->best || !e->commits) {
+    e->cap = 0;
+    return TS_ENOMEM;
+  }
+  return 0;
+}
+
+/* Fills the level's canvas with reference pixels from uniformly random
+ * positions (noise with the reference histogram, §3.4). */
+static void init_noise(engine *e) {
+  ts_rng rng;
+  ts_rng_seed(&rng, e->p->seed, (uint64_t)e->level);
+  const ts_plane *r0 = e->ref_lp.fine[0];
+  int w = e->cw[e->level], h = e->ch[e->level];
+  for (long i = 0; i < (long)w * h; i++) {
+    int x = (int)ts_rng_below(&rng, (uint32_t)r0->w);
+    int y = (int)ts_rng_below(&rng, (uint32_t)r0->h);
+    for (int p = 0; p < e->nplanes; p++) e->canvas[p][e->level].px[i] = ts_plane_at(e->ref_lp.fine[p], x, y);
+    e->copy[2 * i] = (uint32_t)x;
+    e->copy[2 * i + 1] = (uint32_t)y;
+  }
+}
+
+static double level_cost(int l) { return 1.0 / (double)(1ull << (2 * l)); }
+
+static uint64_t unit_distance(const ts_shape *s) {
+  return (uint64_t)s->wfine * s->nfine_px * s->nplanes + (uint64_t)s->wcoarse * s->ncoarse_px * s->nplanes;
+}
+
+/* Copies reference block (sx, sy) onto canvas block b; records the copy. */
+static void place_block(engine *e, const ts_block *b, int sx, int sy) {
+  int w = e->cw[e->level];
+  for (int dy = 0; dy < b->h; dy++)
+    for (int dx = 0; dx < b->w; dx++) {
+      long o = (long)(b->y + dy) * w + (b->x + dx);
+      for (int p = 0; p < e->nplanes; p++)
+        e->canvas[p][e->level].px[o] = ts_plane_at(e->ref_lp.fine[p], sx + dx, sy + dy);
+      e->copy[2 * o] = (uint32_t)(sx + dx);
+      e->copy[2 * o + 1] = (uint32_t)(sy + dy);
+    }
+}
+
+/* One pass over a schedule. `replace`: the blocks were placed before (seam
+ * pass), so their old copies leave the usage counts. */
+static int run_pass(engine *e, const ts_schedule *sch, const ts_shape *shape, int set_id,
+                    int replace, char *err) {
+  uint32_t vb = ts_shape_bytes(shape);
+  uint64_t d1 = unit_distance(shape);
+  int w = e->cw[e->level];
+  for (uint32_t t = 0; t < sch->nsteps; t++) {
+    const ts_block *blocks = sch->blocks + sch->step_start[t];
+    uint32_t n = sch->step_start[t + 1] - sch->step_start[t];
+    if (ensure_step_scratch(e, n, vb) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
+    for (uint32_t i = 0; i < n; i++) {
+      ts_vec_query(shape, &e->canvas_lp, blocks[i].x, blocks[i].y, e->queries + (size_t)i * vb);
+      e->klass[i] = (uint8_t)ts_refgrid_class(&e->grid, blocks[i].x, blocks[i].y);
+    }
+    /* One penalty snapshot per step, however the step is split. */
+    uint64_t usage_k = e->p->usage_weight > 0 ? ts_usage_factor(&e->usage, e->p->usage_weight, d1) : 0;
+    uint32_t chunk = e->p->max_batch ? e->p->max_batch : n;
+    for (uint32_t i0 = 0; i0 < n; i0 += chunk) {
+      uint32_t m = n - i0 < chunk ? n - i0 : chunk;
+      ts_query_batch qb = {m, e->queries + (size_t)i0 * vb, NULL, e->klass + i0, usage_k};
+      int rc = ts_search_query(e->search, set_id, &qb, e->best + i0, err);
+      if (rc != 0) return rc;
+    }
+    uint32_t nc = 0;
+    for (uint32_t i = 0; i < n; i++) {
+      const ts_block *b = &blocks[i];
+      if (e->best[i].index >= e->grid.total)
+        return ts_error(err, TS_EPROTO, "search returned no match for a block");
+      if (replace) {
+        long o = (long)b->y * w + b->x;
+        ts_commit old = {(int32_t)e->copy[2 * o], (int32_t)e->copy[2 * o + 1], b->w, b->h, -1};
+        e->commits[nc++] = old;
+      }
+      int c, sx, sy;
+      uint32_t rank;
+      ts_refgrid_split(&e->grid, e->best[i].index, &c, &rank);
+      ts_refgrid_pos(&e->grid, c, rank, &sx, &sy);
+      place_block(e, b, sx, sy);
+      ts_commit add = {sx, sy, b->w, b->h, 1};
+      e->commits[nc++] = add;
+    }
+    for (uint32_t i = 0; i < nc; i++)
+      ts_usage_commit(&e->usage, e->commits[i].x, e->commits[i].y, e->commits[i].w, e->commits[i].h,
+                      e->commits[i].delta);
+    for (int k = 0; k < 2; k++) {
+      int rc = ts_search_commit(e->search, e->set_ids[k], e->commits, nc, err);
+      if (rc != 0) return rc;
+    }
+    e->prog.done += n;
+    e->prog.work_done += n * level_cost(e->level);
+    if (e->progress) e->progress(e->progress_ctx, &e->prog);
+  }
+  return 0;
+}
+
+static int build_reference(engine *e, const ts_image *ref) {
+  int rw = ref->width, rh = ref->height;
+  uint8_t *buf = malloc((size_t)rw * rh);
+  if (buf == NULL) return TS_ENOMEM;
+  int rc = 0;
+  for (int p = 0; p < e->nplanes && rc == 0; p++) {
+    if (e->nplanes == 1) ts_image_luma8(ref, buf);
+    else ts_image_channel8(ref, p, buf);
+    ts_plane base = {rw, rh, buf};
+    rc = ts_pyramid_build(&base, e->levels, e->ref[p]);
+  }
+  free(buf);
+  return rc;
+}
+
+static int synthesize_level(engine *e, int l, char *err) {
+  const ts_mrf_params *p = e->p;
+  int coarse = l < e->levels - 1;
+  e->level = l;
+  e->ref_lp.nplanes = e->canvas_lp.nplanes = e->nplanes;
+  for (int k = 0; k < e->nplanes; k++) {
+    e->ref_lp.fine[k] = &e->ref[k][l];
+    e->ref_lp.coarse[k] = coarse ? &e->ref[k][l + 1] : NULL;
+    e->canvas_lp.fine[k] = &e->canvas[k][l];
+    e->canvas_lp.coarse[k] = coarse ? &e->canvas[k][l + 1] : NULL;
+    if (ts_plane_alloc(&e->canvas[k][l], e->cw[l], e->ch[l]) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
+  }
+  ts_shape causal, full;
+  int rc = ts_shape_init(&causal, TS_SHAPE_CAUSAL, p->wn, p->wb, coarse, e->nplanes, p->coarse_weight, err);
+  if (rc != 0) return rc;
+  rc = ts_shape_init(&full, TS_SHAPE_FULL, p->wn, p->wb, coarse, e->nplanes, p->coarse_weight, err);
+  if (rc != 0) {
+    ts_shape_free(&causal);
+    return rc;
+  }
+  const ts_plane *r0 = e->ref_lp.fine[0];
+  ts_schedule scan = {0}, seam = {0};
+  e->set_ids[0] = e->set_ids[1] = -1;
+  rc = ts_refgrid_init(&e->grid, &causal, r0->w, r0->h, coarse ? e->ref[0][l + 1].w : 0,
+                       coarse ? e->ref[0][l + 1].h : 0, p->parity, err);
+  if (rc == 0 && (rc = ts_usage_init(&e->usage, &e->grid, p->wb)) != 0) ts_error(err, rc, "out of memory");
+  e->copy = rc == 0 ? malloc(sizeof(uint32_t) * 2 * (size_t)e->cw[l] * e->ch[l]) : NULL;
+  if (rc == 0 && e->copy == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
+  if (rc == 0 && (rc = ts_schedule_wavefront(&scan, e->cw[l], e->ch[l], p->wb, p->wn)) == 0)
+    rc = ts_schedule_seam(&seam, e->cw[l], e->ch[l], p->wb, p->wn);
+  if (rc == 0) {
+    ts_refset rs_causal = {&causal, &e->grid, &e->ref_lp}, rs_full = {&full, &e->grid, &e->ref_lp};
+    rc = ts_search_prepare(e->search, &rs_causal, &e->set_ids[0], err);
+    if (rc == 0) rc = ts_search_prepare(e->search, &rs_full, &e->set_ids[1], err);
+  }
+  if (rc == 0) {
+    init_noise(e);
+    e->prog.level = l;
+    e->prog.done = 0;
+    e->prog.total = scan.nblocks + seam.nblocks;
+    e->steps = scan.nsteps + seam.nsteps;
+    rc = run_pass(e, &scan, &causal, e->set_ids[0], 0, err);
+    if (rc == 0) rc = run_pass(e, &seam, &full, e->set_ids[1], 1, err);
+  }
+  for (int k = 0; k < 2; k++)
+    if (e->set_ids[k] >= 0) ts_search_release(e->search, e->set_ids[k]);
+  ts_schedule_free(&scan);
+  ts_schedule_free(&seam);
+  ts_shape_free(&causal);
+  ts_shape_free(&full);
+  return rc;
+}
+
+static void engine_free(engine *e) {
+  for (int p = 0; p < TS_MAX_PLANES; p++) {
+    ts_pyramid_free(e->ref[p], e->levels);
+    ts_pyramid_free(e->canvas[p], e->levels);
+  }
+  ts_usage_free(&e->usage);
+  free(e->copy);
+  free(e->queries);
+  free(e->klass);
+  free(e->best);
+  free(e->commits);
+}
+
+static uint64_t level_blocks(int w, int h, int wb) {
+  uint64_t rows = (uint64_t)(h + wb - 1) / wb, cols = (uint64_t)(w + wb - 1) / wb;
+  return rows * cols + rows + cols - 1;
+}
+
+/* Full result: reference pixels of any type gathered through the copy map
+ * (§3.8). Preview (stop_level > 0): the level's luminance plane. */
+static int gather_output(engine *e, const ts_image *ref, ts_mrf_result *res, char *err) {
+  int l = e->level, w = e->cw[l], h = e->ch[l];
+  int rc = l == 0 ? ts_image_alloc(&res->image, w, h, ref->channels, ref->type, err)
+                  : ts_image_alloc(&res->image, w, h, 1, TS_PIX_U8, err);
+  if (rc != 0) return rc;
+  if (l > 0) memcpy(res->image.pixels, e->canvas[0][l].px, (size_t)w * h);
+  for (int y = 0; l == 0 && y < h; y++)
+    for (int x = 0; x < w; x++) {
+      long o = (long)y * w + x;
+      ts_image_copy_pixel(&res->image, x, y, ref, (int)e->copy[2 * o], (int)e->copy[2 * o + 1]);
+    }
+  res->copy_map = e->copy;
+  e->copy = NULL;
+  res->usage = e->usage.count;
+  e->usage.count = NULL;
+  res->ref_w = e->ref[0][l].w;
+  res->ref_h = e->ref[0][l].h;
+  return 0;
+}
+
+int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *search,
+                      ts_mrf_progress_fn *progress, void *progress_ctx, ts_mrf_result *res,
+                      char *err) {
+  memset(res, 0, sizeof(*res));
+  char msg[2048];
+  if (ts_mrf_check(p, ref->width, ref->height, ref->channels, msg, sizeof(msg)) != 0)
+    return ts_error(err, TS_EINVAL, "%s", msg);
+  double t_start = now_seconds();
+  engine e;
+  memset(&e, 0, sizeof(e));
+  e.p = p;
+  e.search = search;
+  e.progress = progress;
+  e.progress_ctx = progress_ctx;
+  e.levels = p->levels;
+  e.nplanes = nplanes_for(p, ref->channels);
+  e.prog.levels = p->levels;
+  level_sizes(p->width, p->height, p->levels, e.cw, e.ch, 1);
+  for (int l = 0; l < p->levels; l++)
+    e.prog.work_total += (double)level_blocks(e.cw[l], e.ch[l], p->wb) * level_cost(l);
+  int rc = build_reference(&e, ref);
+  if (rc != 0) rc = ts_error(err, rc, "cannot build the reference pyramid: %s", ts_strerror(rc));
+  for (int l = p->levels - 1; l >= p->stop_level && rc == 0; l--) {
+    double t0 = now_seconds();
+    uint64_t pairs0 = search->stats.pairs;
+    ts_mrf_level_stats *ls = &res->level[l];
+    ls->ref_w = e.ref[0][l].w;
+    ls->ref_h = e.ref[0][l].h;
+    ls->out_w = e.cw[l];
+    ls->out_h = e.ch[l];
+    if (l > 0) {
+      ts_usage_free(&e.usage);
+      free(e.copy);
+      e.copy = NULL;
+    }
+    rc = synthesize_level(&e, l, err);
+    ls->vectors = e.grid.total;
+    ls->blocks = e.prog.total;
+    ls->steps = e.steps;
+    ls->pairs = search->stats.pairs - pairs0;
+    ls->seconds = now_seconds() - t0;
+    /* Level l+2 is no longer needed as anyone's coarse part. */
+    for (int k = 0; k < e.nplanes && l + 2 < p->levels; k++) ts_plane_free(&e.canvas[k][l + 2]);
+  }
+  if (rc == 0) {
+    ts_usage_stats(&e.usage, &res->usage_mean, &res->usage_variance);
+    rc = gather_output(&e, ref, res, err);
+  }
+  engine_free(&e);
+  res->seconds = now_seconds() - t_start;
+  if (rc != 0) ts_mrf_result_free(res);
+  return rc;
+}
+
+void ts_mrf_result_free(ts_mrf_result *res) {
+  ts_image_free(&res->image);
+  free(res->copy_map);
+  free(res->usage);
+  res->copy_map = NULL;
+  res->usage = NULL;
+}

@@ -1,0 +1,75 @@
+/* mrf.h - multi-resolution MRF block synthesis (Stahlhut 2004, seed 002
+ * §3.2-§3.5, §3.7, §3.8): full synthesis of a texture of any size from a
+ * reference, tileable (torus), searched exactly through the search
+ * interface. */
+#ifndef TS_MRF_H
+#define TS_MRF_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "image.h"
+#include "search.h"
+
+#define TS_MRF_MAX_LEVELS 12
+
+typedef struct {
+  int width, height;    /* output size */
+  int levels;           /* pyramid levels L (default 5) */
+  int wn, wb;           /* neighbourhood and block widths (7, 3) */
+  int parity;           /* parity control, §3.3.3 (off) */
+  double usage_weight;  /* alpha of the usage penalty, eq. 3.5 (0 = off) */
+  double coarse_weight; /* lambda: coarse part weight relative to area (1) */
+  uint64_t seed;        /* noise initialisation */
+  int rgb_search;       /* search on every colour channel, not luminance */
+  uint64_t max_pixels;  /* output size limit */
+  uint32_t max_batch;   /* split a step into batches of at most this many
+                           queries (0 = whole steps); never changes results */
+  int stop_level;       /* stop after this level (0 = full synthesis); the
+                           output is then that level's luminance, a preview */
+} ts_mrf_params;
+
+void ts_mrf_params_default(ts_mrf_params *p);
+
+/* Checks parameters against a reference of ref_w x ref_h with `channels`
+ * channels. Returns 0, or TS_EINVAL with every problem found listed in msg
+ * (one per line). */
+int ts_mrf_check(const ts_mrf_params *p, int ref_w, int ref_h, int channels,
+                 char *msg, size_t msglen);
+
+typedef struct {
+  int level, levels;     /* level being synthesised (counts down to 0) */
+  uint64_t done, total;  /* blocks of this level */
+  /* Work of all levels in units of a level-0 block's cost (a block at
+   * level l costs about 4^-l of one at level 0), for an ETA. */
+  double work_done, work_total;
+} ts_mrf_progress;
+
+typedef void ts_mrf_progress_fn(void *ctx, const ts_mrf_progress *p);
+
+typedef struct {
+  double seconds;
+  uint64_t blocks, steps, pairs;
+  int ref_w, ref_h, out_w, out_h;
+  uint32_t vectors; /* reference vectors at this level */
+} ts_mrf_level_stats;
+
+typedef struct {
+  ts_image image;      /* output, same type and channels as the reference */
+  uint32_t *copy_map;  /* width*height (x, y) pairs into the reference */
+  uint32_t *usage;     /* ref_w*ref_h counters of level 0 */
+  int ref_w, ref_h;
+  double usage_mean, usage_variance; /* over the usable reference pixels */
+  double seconds;
+  ts_mrf_level_stats level[TS_MRF_MAX_LEVELS];
+} ts_mrf_result;
+
+/* Synthesises p->width x p->height (or, with stop_level > 0, the
+ * 8-bit luminance of that level at its size) from ref using `search`. progress may be
+ * NULL. On success res owns its buffers (ts_mrf_result_free). */
+int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref,
+                      ts_search *search, ts_mrf_progress_fn *progress,
+                      void *progress_ctx, ts_mrf_result *res, char *err);
+void ts_mrf_result_free(ts_mrf_result *res);
+
+#endif

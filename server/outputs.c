@@ -1,0 +1,101 @@
+/* outputs.c - see outputs.h. */
+#include "outputs.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <strings.h>
+#include <unistd.h>
+
+#include "error.h"
+#include "image.h"
+
+int ts_write_copy_map_image(const char *path, const uint32_t *map, int w, int h, int ref_w,
+                            int ref_h, char *err) {
+  ts_image img;
+  int rc = ts_image_alloc(&img, w, h, 3, TS_PIX_U16, err);
+  if (rc != 0) return rc;
+  uint16_t *px = img.pixels;
+  double sx = ref_w > 1 ? 65535.0 / (ref_w - 1) : 0, sy = ref_h > 1 ? 65535.0 / (ref_h - 1) : 0;
+  for (long i = 0; i < (long)w * h; i++) {
+    px[3 * i] = (uint16_t)(map[2 * i] * sx + 0.5);
+    px[3 * i + 1] = (uint16_t)(map[2 * i + 1] * sy + 0.5);
+    px[3 * i + 2] = 0;
+  }
+  rc = ts_image_write(path, &img, NULL, err);
+  ts_image_free(&img);
+  return rc;
+}
+
+/* Writes to a temporary file and renames, like ts_image_write. */
+int ts_write_copy_map_raw(const char *path, const uint32_t *map, int w, int h, char *err) {
+  char tmp[4096];
+  snprintf(tmp, sizeof(tmp), "%s.tmp-%ld", path, (long)getpid());
+  FILE *f = fopen(tmp, "wb");
+  if (f == NULL) return ts_error(err, TS_EIO, "cannot write %s: %m", path);
+  uint8_t buf[8];
+  int ok = 1;
+  for (long i = 0; ok && i < 2L * w * h; i++) {
+    for (int b = 0; b < 4; b++) buf[b] = (uint8_t)(map[i] >> (8 * b));
+    ok = fwrite(buf, 4, 1, f) == 1;
+  }
+  ok = (fclose(f) == 0) && ok;
+  if (!ok || rename(tmp, path) != 0) {
+    unlink(tmp);
+    return ts_error(err, TS_EIO, "cannot write %s: %m", path);
+  }
+  return 0;
+}
+
+static int has_ext(const char *path, const char *ext) {
+  size_t n = strlen(path), e = strlen(ext);
+  return n >= e && strcasecmp(path + n - e, ext) == 0;
+}
+
+int ts_write_usage_map(const char *path, const uint32_t *usage, int w, int h, char *err) {
+  ts_image img;
+  int rc = ts_image_alloc(&img, w, h, 1, TS_PIX_F32, err);
+  if (rc != 0) return rc;
+  int raw = has_ext(path, ".tif") || has_ext(path, ".tiff") || has_ext(path, ".exr");
+  uint32_t max = 1;
+  for (long i = 0; i < (long)w * h; i++)
+    if (usage[i] > max) max = usage[i];
+  float *px = img.pixels;
+  for (long i = 0; i < (long)w * h; i++) px[i] = raw ? (float)usage[i] : (float)usage[i] / (float)max;
+  rc = ts_image_write(path, &img, NULL, err);
+  ts_image_free(&img);
+  return rc;
+}
+
+int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const ts_search *search,
+                    const ts_mrf_result *res, char *err) {
+  char tmp[4096];
+  snprintf(tmp, sizeof(tmp), "%s.tmp-%ld", path, (long)getpid());
+  FILE *f = fopen(tmp, "w");
+  if (f == NULL) return ts_error(err, TS_EIO, "cannot write %s: %m", path);
+  fprintf(f, "{\n  \"engine\": \"mrf\",\n  \"search\": {\"mode\": \"exact\", \"lossy\": [], "
+             "\"backend\": \"%s\", \"simd\": \"%s\", \"threads\": %d},\n",
+          search->ops->name, search->simd->name, threads);
+  fprintf(f, "  \"params\": {\"width\": %d, \"height\": %d, \"levels\": %d, \"wn\": %d, \"wb\": %d, "
+             "\"parity\": %s, \"usage_weight\": %g, \"coarse_weight\": %g, \"seed\": %llu, "
+             "\"rgb_search\": %s, \"stop_level\": %d},\n",
+          p->width, p->height, p->levels, p->wn, p->wb, p->parity ? "true" : "false", p->usage_weight,
+          p->coarse_weight, (unsigned long long)p->seed, p->rgb_search ? "true" : "false",
+          p->stop_level);
+  fprintf(f, "  \"seconds\": %.4f,\n  \"usage\": {\"mean\": %.6f, \"variance\": %.6f},\n  \"levels\": [\n",
+          res->seconds, res->usage_mean, res->usage_variance);
+  for (int l = p->levels - 1; l >= p->stop_level; l--) {
+    const ts_mrf_level_stats *s = &res->level[l];
+    fprintf(f, "    {\"level\": %d, \"ref\": [%d, %d], \"out\": [%d, %d], \"vectors\": %u, "
+               "\"blocks\": %llu, \"steps\": %llu, \"comparisons\": %llu, \"seconds\": %.4f}%s\n",
+            l, s->ref_w, s->ref_h, s->out_w, s->out_h, s->vectors, (unsigned long long)s->blocks,
+            (unsigned long long)s->steps, (unsigned long long)s->pairs, s->seconds,
+            l > p->stop_level ? "," : "");
+  }
+  fprintf(f, "  ]\n}\n");
+  if (fclose(f) != 0 || rename(tmp, path) != 0) {
+    unlink(tmp);
+    return ts_error(err, TS_EIO, "cannot write %s: %m", path);
+  }
+  return 0;
+}

@@ -1,0 +1,98 @@
+/* search.h - the one interface the engines use to find best matches.
+ *
+ * An engine prepares a reference set (the planes, shape and grid of one
+ * pyramid level: everything needed to build the vectors, never the vectors
+ * themselves, so a remote backend ships images, not hundreds of MB), then
+ * asks batches of queries against it. Batch composition and order belong to
+ * the engine; a backend returns, for every query, the exact global minimum
+ * with ties to the lowest global index, so results never depend on the
+ * backend, its thread count or how it slices the set.
+ *
+ * Backends: local (a thread pool on this machine, search_local.c); the
+ * cluster backend implements the same operations over the network. */
+#ifndef TS_SEARCH_H
+#define TS_SEARCH_H
+
+#include <stdint.h>
+
+#include "l1.h"
+#include "neigh.h"
+
+/* What a backend needs to build a reference vector set. The pointed-to data
+ * must stay alive until the set is released. */
+typedef struct {
+  const ts_shape *shape;
+  const ts_refgrid *grid;
+  const ts_levelplanes *ref;
+} ts_refset;
+
+/* Source blocks copied since the last batch: feeds the backend's replica of
+ * the usage counters (usage.h). */
+typedef struct {
+  int32_t x, y;  /* reference level coordinates of the copied pixels */
+  uint16_t w, h; /* copied size (blocks at the canvas edge are clipped) */
+  int32_t delta; /* +1 copied, -1 overwritten again (seam pass) */
+} ts_commit;
+
+typedef struct {
+  uint32_t nq;
+  const uint8_t *queries; /* nq vectors of ts_shape_bytes(shape) bytes */
+  const uint8_t *masks;   /* NULL, or nq masks laid out like queries */
+  const uint8_t *klass;   /* class (parity) of each query; NULL = all 0 */
+  uint64_t usage_k;       /* penalty factor (usage.h); 0 = no penalty */
+} ts_query_batch;
+
+typedef struct {
+  uint64_t batches, queries;
+  uint64_t pairs; /* query-vector comparisons */
+  double scan_seconds;
+} ts_search_stats;
+
+typedef struct ts_search ts_search;
+
+typedef struct {
+  const char *name;
+  /* Builds a set; *id identifies it in later calls. */
+  int (*prepare)(ts_search *s, const ts_refset *set, int *id, char *err);
+  /* Records copied blocks in the set's usage replica. */
+  int (*commit)(ts_search *s, int id, const ts_commit *c, uint32_t n,
+                char *err);
+  /* Answers a batch: out[i] = best match of query i, global index. */
+  int (*query)(ts_search *s, int id, const ts_query_batch *b, ts_l1_best *out,
+               char *err);
+  void (*release)(ts_search *s, int id);
+  void (*destroy)(ts_search *s);
+} ts_search_ops;
+
+struct ts_search {
+  const ts_search_ops *ops;
+  const ts_l1_impl *simd; /* kernel variant in use (for reports) */
+  ts_search_stats stats;
+};
+
+static inline int ts_search_prepare(ts_search *s, const ts_refset *set,
+                                    int *id, char *err) {
+  return s->ops->prepare(s, set, id, err);
+}
+static inline int ts_search_commit(ts_search *s, int id, const ts_commit *c,
+                                   uint32_t n, char *err) {
+  return s->ops->commit(s, id, c, n, err);
+}
+static inline int ts_search_query(ts_search *s, int id,
+                                  const ts_query_batch *b, ts_l1_best *out,
+                                  char *err) {
+  return s->ops->query(s, id, b, out, err);
+}
+static inline void ts_search_release(ts_search *s, int id) {
+  s->ops->release(s, id);
+}
+static inline void ts_search_destroy(ts_search *s) {
+  if (s != NULL) s->ops->destroy(s);
+}
+
+/* Local backend on nthreads threads (>= 1) with the given kernel variant
+ * (NULL = ts_l1_select). */
+int ts_search_local_create(ts_search **out, int nthreads,
+                           const ts_l1_impl *simd, char *err);
+
+#endif

@@ -1,0 +1,100 @@
+"""End-to-end synthesis through the real CLI, on the shared CC0 textures."""
+import pytest
+
+from conftest import SANITIZED, quality, run, synth
+
+
+def read(path):
+    return path.read_bytes()
+
+
+def test_threads_give_identical_bytes(texsyn, data, tmp_path):
+    ref = data / "textures" / "brick.png"
+    outs = []
+    for t in (1, 2, 3):
+        out = tmp_path / f"t{t}.png"
+        cmap = tmp_path / f"t{t}.raw"
+        synth(texsyn, ref, out, (160, 144), "--levels", "4", "--threads", t, "--copy-map-raw", cmap)
+        outs.append((read(out), read(cmap)))
+    assert outs[0] == outs[1] == outs[2]
+    assert len(outs[0][1]) == 160 * 144 * 8
+
+
+def test_every_simd_variant_gives_identical_bytes(texsyn, data, tmp_path):
+    ref = data / "textures" / "grass.png"
+    variants = [l.split()[0] for l in run(texsyn, "simd").stdout.splitlines()]
+    assert "scalar" in variants and len(variants) >= 2
+    results = {}
+    for v in variants:
+        out = tmp_path / f"{v}.png"
+        rep = synth(texsyn, ref, out, (72, 64), "--levels", "3", "--parity", env={"TEXSYN_SIMD": v})
+        assert rep["search"]["simd"] == v
+        results[v] = read(out)
+    assert len(set(results.values())) == 1, "variants disagree"
+
+
+def test_forcing_unknown_simd_variant_is_a_clear_error(texsyn, data, tmp_path):
+    p = run(texsyn, "synth", "--ref", data / "textures" / "brick.png", "-o", tmp_path / "x.png",
+            "--size", "64x64", env={"TEXSYN_SIMD": "sse9"}, check=False)
+    assert p.returncode != 0
+    assert "sse9" in p.stderr
+
+
+def test_seed_determines_output(texsyn, data, tmp_path):
+    ref = data / "textures" / "brick.png"
+    a, b, c = (tmp_path / n for n in ("a.png", "b.png", "c.png"))
+    synth(texsyn, ref, a, (96, 96), "--levels", "3", "--seed", "5")
+    synth(texsyn, ref, b, (96, 96), "--levels", "3", "--seed", "5")
+    synth(texsyn, ref, c, (96, 96), "--levels", "3", "--seed", "6")
+    assert read(a) == read(b)
+    assert read(a) != read(c)
+
+
+@pytest.mark.parametrize("texture", ["brick", "grass"])
+def test_output_tiles_without_seam(texsyn, data, tmp_path, texture):
+    """Windows across the torus seam (the joins of a 2x2 tiling) match the
+    reference as well as inner windows do."""
+    ref = data / "textures" / f"{texture}.png"
+    out = tmp_path / "o.png"
+    synth(texsyn, ref, out, (256, 256), "--levels", "4")
+    q = quality(texsyn, ref, out, samples=2500)
+    assert q["seam_n"] >= 2000 and q["inner_n"] == 2500
+    assert q["seam_mean"] <= q["inner_mean"] * 1.10, q
+
+
+@pytest.mark.parametrize("texture", ["brick", "grass"])
+def test_quality_far_better_than_block_shuffle(texsyn, data, tmp_path, texture):
+    ref = data / "textures" / f"{texture}.png"
+    out = tmp_path / "o.png"
+    synth(texsyn, ref, out, (256, 256), "--levels", "4")
+    q = quality(texsyn, ref, out)
+    for block in (3, 16):
+        shuf = tmp_path / f"shuffle{block}.png"
+        run(texsyn, "shuffle", "--ref", ref, "-o", shuf, "--size", "256x256", "--block", block)
+        qs = quality(texsyn, ref, shuf)
+        assert q["inner_mean"] < 0.75 * qs["inner_mean"], (texture, block, q, qs)
+
+
+def test_usage_weight_lowers_usage_variance(texsyn, data, tmp_path):
+    ref = data / "textures" / "brick.png"
+    off = synth(texsyn, ref, tmp_path / "off.png", (192, 192), "--levels", "4")
+    on = synth(texsyn, ref, tmp_path / "on.png", (192, 192), "--levels", "4", "--usage-weight", "4")
+    assert on["usage"]["variance"] < off["usage"]["variance"]
+    assert on["usage"]["mean"] == pytest.approx(off["usage"]["mean"])
+
+
+@pytest.mark.sanitize
+def test_small_job_with_all_side_outputs(texsyn, data, tmp_path):
+    ref = data / "textures" / "brick.png"
+    out = tmp_path / "o.png"
+    rep = synth(texsyn, ref, out, (50, 38), "--levels", "2", "--parity", "--usage-weight", "1",
+                "--copy-map", tmp_path / "cm.png", "--copy-map-raw", tmp_path / "cm.raw",
+                "--usage-map", tmp_path / "u.tif")
+    assert rep["search"]["mode"] == "exact" and rep["search"]["lossy"] == []
+    assert [l["level"] for l in rep["levels"]] == [1, 0]
+    raw = (tmp_path / "cm.raw").read_bytes()
+    assert len(raw) == 50 * 38 * 8
+    xs = [int.from_bytes(raw[i:i + 4], "little") for i in range(0, len(raw), 8)]
+    assert max(xs) < 512
+    for f in ("o.png", "cm.png", "u.tif"):
+        assert (tmp_path / f).stat().st_size > 0

@@ -1,0 +1,293 @@
+/* test_mrf.c - the synthesis engine: exactness against an independent
+ * brute-force backend, independence from batching and threads, colour
+ * gathering, parameter errors. */
+#include <stdlib.h>
+
+#include "error.h"
+#include "image.h"
+#include "mrf.h"
+#include "rng.h"
+#include "search.h"
+#include "ts_test.h"
+#include "usage.h"
+
+/* ---- a brute-force search backend: one query at a time, plain loops ---- */
+
+typedef struct {
+  int used;
+  ts_shape shape;
+  ts_refgrid grid;
+  ts_levelplanes ref;
+  ts_usage usage;
+} brute_set;
+
+typedef struct {
+  ts_search base;
+  brute_set sets[4];
+} brute_search;
+
+static int brute_prepare(ts_search *s, const ts_refset *rs, int *id, char *err) {
+  brute_search *b = (brute_search *)s;
+  int k = 0;
+  while (b->sets[k].used) k++;
+  brute_set *st = &b->sets[k];
+  st->used = 1;
+  /* copy the shape: the engine frees its own at the end of the level */
+  assert_int_equal(ts_shape_init(&st->shape, rs->shape->kind, rs->shape->wn, rs->shape->wb,
+                                 rs->shape->wc > 0, rs->shape->nplanes, 1.0, err), 0);
+  st->shape.wfine = rs->shape->wfine;
+  st->shape.wcoarse = rs->shape->wcoarse;
+  st->grid = *rs->grid;
+  st->ref = *rs->ref;
+  assert_int_equal(ts_usage_init(&st->usage, rs->grid, rs->shape->wb), 0);
+  *id = k;
+  return 0;
+}
+
+static int brute_commit(ts_search *s, int id, const ts_commit *c, uint32_t n, char *err) {
+  (void)err;
+  brute_set *st = &((brute_search *)s)->sets[id];
+  for (uint32_t i = 0; i < n; i++) ts_usage_commit(&st->usage, c[i].x, c[i].y, c[i].w, c[i].h, c[i].delta);
+  return 0;
+}
+
+static int brute_query(ts_search *s, int id, const ts_query_batch *qb, ts_l1_best *out, char *err) {
+  (void)err;
+  brute_set *st = &((brute_search *)s)->sets[id];
+  uint32_t vb = ts_shape_bytes(&st->shape), fine = st->shape.nfine_chunks * 8;
+  uint8_t vec[TS_L1_MAX_CHUNKS * 8];
+  for (uint32_t q = 0; q < qb->nq; q++) {
+    const uint8_t *qv = qb->queries + (size_t)q * vb;
+    out[q].dist = UINT64_MAX;
+    out[q].index = UINT32_MAX;
+    for (uint32_t j = 0; j < st->grid.total; j++) {
+      int c, x, y;
+      uint32_t i;
+      ts_refgrid_split(&st->grid, j, &c, &i);
+      if (c != (qb->klass ? qb->klass[q] : 0)) continue;
+      ts_refgrid_pos(&st->grid, c, i, &x, &y);
+      ts_vec_ref(&st->shape, &st->ref, x, y, vec);
+      uint64_t df = 0, dc = 0;
+      for (uint32_t k = 0; k < vb; k++) {
+        int d = qv[k] > vec[k] ? qv[k] - vec[k] : vec[k] - qv[k];
+        if (k < fine) df += (uint64_t)d;
+        else dc += (uint64_t)d;
+      }
+      uint64_t d = df * st->shape.wfine + dc * st->shape.wcoarse +
+                   ts_usage_penalty(st->usage.u[j], qb->usage_k);
+      if (d < out[q].dist) {
+        out[q].dist = d;
+        out[q].index = j;
+      }
+    }
+  }
+  s->stats.queries += qb->nq;
+  return 0;
+}
+
+static void brute_release(ts_search *s, int id) {
+  brute_set *st = &((brute_search *)s)->sets[id];
+  ts_shape_free(&st->shape);
+  ts_usage_free(&st->usage);
+  st->used = 0;
+}
+
+static void brute_destroy(ts_search *s) { free(s); }
+
+static const ts_search_ops brute_ops = {"brute", brute_prepare, brute_commit, brute_query,
+                                        brute_release, brute_destroy};
+
+static ts_search *brute_create(void) {
+  brute_search *b = calloc(1, sizeof(*b));
+  b->base.ops = &brute_ops;
+  return &b->base;
+}
+
+/* ---- fixtures ------------------------------------------------------------ */
+
+/* A structured 8-bit RGB reference: stripes + blobs + noise. */
+static void make_reference(ts_image *img, int w, int h, ts_pixtype type) {
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_image_alloc(img, w, h, 3, type, err), 0);
+  ts_rng rng;
+  ts_rng_seed(&rng, 7, 0);
+  for (int y = 0; y < h; y++)
+    for (int x = 0; x < w; x++) {
+      int v[3] = {(x * 9 + y * 3) % 200 + (int)ts_rng_below(&rng, 40), ((x / 5 + y / 7) % 3) * 90,
+                  (int)ts_rng_below(&rng, 255)};
+      for (int c = 0; c < 3; c++) {
+        long o = ((long)y * w + x) * 3 + c;
+        if (type == TS_PIX_U8) ((uint8_t *)img->pixels)[o] = (uint8_t)v[c];
+        else ((uint16_t *)img->pixels)[o] = (uint16_t)(v[c] * 257 + c);
+      }
+    }
+}
+
+static ts_mrf_params small_params(void) {
+  ts_mrf_params p;
+  ts_mrf_params_default(&p);
+  p.width = 40;
+  p.height = 34;
+  p.levels = 3;
+  p.wn = 7;
+  p.wb = 3;
+  p.seed = 11;
+  return p;
+}
+
+static void run(const ts_mrf_params *p, const ts_image *ref, ts_search *s, ts_mrf_result *res) {
+  char err[TS_ERR_LEN] = "";
+  int rc = ts_mrf_synthesize(p, ref, s, NULL, NULL, res, err);
+  if (rc != 0) fail_msg("synthesis failed: %s", err);
+}
+
+static void assert_same_result(const ts_mrf_result *a, const ts_mrf_result *b) {
+  size_t n = (size_t)a->image.width * a->image.height;
+  assert_memory_equal(a->copy_map, b->copy_map, n * 2 * sizeof(uint32_t));
+  assert_memory_equal(a->image.pixels, b->image.pixels, n * 3 * ts_pixtype_size(a->image.type));
+}
+
+/* The engine with the SIMD local backend on whole steps equals the
+ * brute-force backend fed one query per batch: the search is exact and the
+ * batching changes nothing - with and without parity and usage penalty. */
+static void engine_matches_brute_force(void **state) {
+  (void)state;
+  ts_image ref;
+  make_reference(&ref, 36, 32, TS_PIX_U8);
+  for (int variant = 0; variant < 3; variant++) {
+    ts_mrf_params p = small_params();
+    p.parity = variant == 1;
+    p.usage_weight = variant == 2 ? 1.5 : 0.0;
+    ts_search *local, *brute = brute_create();
+    char err[TS_ERR_LEN];
+    assert_int_equal(ts_search_local_create(&local, 2, NULL, err), 0);
+    ts_mrf_result a, b;
+    run(&p, &ref, local, &a);
+    p.max_batch = 1;
+    run(&p, &ref, brute, &b);
+    assert_same_result(&a, &b);
+    ts_mrf_result_free(&a);
+    ts_mrf_result_free(&b);
+    ts_search_destroy(local);
+    ts_search_destroy(brute);
+  }
+  ts_image_free(&ref);
+}
+
+static void threads_and_variants_give_same_bytes(void **state) {
+  (void)state;
+  ts_image ref;
+  make_reference(&ref, 48, 40, TS_PIX_U8);
+  ts_mrf_params p = small_params();
+  p.width = 64;
+  p.height = 50;
+  ts_mrf_result base;
+  ts_search *s;
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_search_local_create(&s, 1, ts_l1_impl_get(TS_SIMD_SCALAR), err), 0);
+  run(&p, &ref, s, &base);
+  ts_search_destroy(s);
+  for (int v = 0; v < TS_SIMD_COUNT; v++) {
+    const ts_l1_impl *impl = ts_l1_impl_get((ts_simd)v);
+    if (impl == NULL) continue;
+    for (int threads = 1; threads <= 3; threads++) {
+      ts_mrf_result r;
+      assert_int_equal(ts_search_local_create(&s, threads, impl, err), 0);
+      run(&p, &ref, s, &r);
+      assert_same_result(&base, &r);
+      ts_mrf_result_free(&r);
+      ts_search_destroy(s);
+    }
+  }
+  ts_mrf_result_free(&base);
+  ts_image_free(&ref);
+}
+
+static void seed_changes_output(void **state) {
+  (void)state;
+  ts_image ref;
+  make_reference(&ref, 48, 40, TS_PIX_U8);
+  ts_mrf_params p = small_params();
+  ts_search *s;
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_search_local_create(&s, 2, NULL, err), 0);
+  ts_mrf_result a, b, c;
+  run(&p, &ref, s, &a);
+  run(&p, &ref, s, &b);
+  p.seed = 12;
+  run(&p, &ref, s, &c);
+  assert_same_result(&a, &b);
+  size_t n = (size_t)p.width * p.height * 3;
+  assert_true(memcmp(a.image.pixels, c.image.pixels, n) != 0);
+  ts_mrf_result_free(&a);
+  ts_mrf_result_free(&b);
+  ts_mrf_result_free(&c);
+  ts_search_destroy(s);
+  ts_image_free(&ref);
+}
+
+/* 16-bit RGB in, 16-bit RGB out, every pixel a reference pixel at the copy
+ * map's position; usage counts add up to the output area. */
+static void colour_is_gathered_through_copy_map(void **state) {
+  (void)state;
+  ts_image ref;
+  make_reference(&ref, 40, 36, TS_PIX_U16);
+  ts_mrf_params p = small_params();
+  p.rgb_search = 1;
+  ts_search *s;
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_search_local_create(&s, 2, NULL, err), 0);
+  ts_mrf_result r;
+  run(&p, &ref, s, &r);
+  assert_int_equal(r.image.type, TS_PIX_U16);
+  assert_int_equal(r.image.channels, 3);
+  const uint16_t *out = r.image.pixels, *in = ref.pixels;
+  for (long i = 0; i < (long)p.width * p.height; i++) {
+    uint32_t x = r.copy_map[2 * i], y = r.copy_map[2 * i + 1];
+    assert_true(x < 40 && y < 36);
+    for (int c = 0; c < 3; c++) assert_int_equal(out[3 * i + c], in[((long)y * 40 + x) * 3 + c]);
+  }
+  uint64_t total = 0;
+  for (int i = 0; i < 40 * 36; i++) total += r.usage[i];
+  assert_int_equal(total, (uint64_t)p.width * p.height);
+  ts_mrf_result_free(&r);
+  ts_search_destroy(s);
+  ts_image_free(&ref);
+}
+
+static void bad_parameters_are_all_listed(void **state) {
+  (void)state;
+  ts_mrf_params p = small_params();
+  p.wb = 4;
+  p.wn = 2;
+  p.levels = 0;
+  p.usage_weight = -1;
+  char msg[2048];
+  assert_int_equal(ts_mrf_check(&p, 64, 64, 3, msg, sizeof(msg)), TS_EINVAL);
+  assert_non_null(strstr(msg, "--wb 4"));
+  assert_non_null(strstr(msg, "--wn 2"));
+  assert_non_null(strstr(msg, "--levels 0"));
+  assert_non_null(strstr(msg, "--usage-weight"));
+  p = small_params();
+  p.wn = 3;
+  p.wb = 3;
+  assert_int_equal(ts_mrf_check(&p, 64, 64, 3, msg, sizeof(msg)), TS_EINVAL);
+  assert_non_null(strstr(msg, "wider than the block"));
+  p = small_params();
+  p.levels = 6; /* 64 -> 2 at level 5 */
+  assert_int_equal(ts_mrf_check(&p, 64, 64, 3, msg, sizeof(msg)), TS_EINVAL);
+  assert_non_null(strstr(msg, "coarsest level"));
+  assert_non_null(strstr(msg, "reference"));
+  p = small_params();
+  assert_int_equal(ts_mrf_check(&p, 64, 64, 3, msg, sizeof(msg)), 0);
+}
+
+static const struct CMUnitTest tests[] = {
+    cmocka_unit_test(engine_matches_brute_force),
+    cmocka_unit_test(threads_and_variants_give_same_bytes),
+    cmocka_unit_test(seed_changes_output),
+    cmocka_unit_test(colour_is_gathered_through_copy_map),
+    cmocka_unit_test(bad_parameters_are_all_listed),
+};
+
+TS_TEST_MAIN(tests)

@@ -1,0 +1,108 @@
+/* test_schedule.c - block scheduling: every schedule is conflict-free, covers
+ * the canvas exactly once, and the wavefront keeps the causal order. */
+#include <stdlib.h>
+
+#include "schedule.h"
+#include "ts_test.h"
+
+/* Every pixel covered by exactly one block. */
+static void assert_covers(const ts_schedule *s) {
+  int n = s->width * s->height;
+  uint8_t *hit = calloc((size_t)n, 1);
+  for (uint32_t i = 0; i < s->nblocks; i++) {
+    const ts_block *b = &s->blocks[i];
+    for (int y = b->y; y < b->y + b->h; y++)
+      for (int x = b->x; x < b->x + b->w; x++) hit[y * s->width + x]++;
+  }
+  for (int i = 0; i < n; i++) assert_int_equal(hit[i], 1);
+  free(hit);
+}
+
+static void wavefront_sizes_are_conflict_free(void **state) {
+  (void)state;
+  const int sizes[][2] = {{1024, 1024}, {64, 64}, {65, 31}, {7, 7}, {9, 30}, {57, 19},
+                          {100, 3},     {3, 100}, {19, 10}, {33, 33}, {512, 17}};
+  const int params[][2] = {{7, 3}, {5, 3}, {9, 3}, {11, 3}, {7, 1}, {9, 5}, {15, 3}};
+  for (size_t i = 0; i < sizeof(sizes) / sizeof(sizes[0]); i++)
+    for (size_t j = 0; j < sizeof(params) / sizeof(params[0]); j++) {
+      int w = sizes[i][0], h = sizes[i][1], wn = params[j][0], wb = params[j][1];
+      if (w * h > 70000 && (wn != 7 || wb != 3)) continue; /* keep it quick */
+      ts_schedule s;
+      assert_int_equal(ts_schedule_wavefront(&s, w, h, wb, wn), 0);
+      assert_int_equal(ts_schedule_conflicts(&s), 0);
+      assert_covers(&s);
+      ts_schedule_free(&s);
+    }
+}
+
+/* The seed's Table 3.3 canvas: 1024/3 does not divide, the last column and
+ * row are 1 pixel wide; skew 2 gives about cols + 2 * rows steps. */
+static void wavefront_1024_is_wide(void **state) {
+  (void)state;
+  ts_schedule s;
+  assert_int_equal(ts_schedule_wavefront(&s, 1024, 1024, 3, 7), 0);
+  assert_int_equal(s.rows, 342);
+  assert_int_equal(s.cols, 342);
+  assert_int_equal(s.skew, 2);
+  assert_int_equal(s.nsteps, 341 + 2 * 341 + 1);
+  assert_true(s.nblocks / s.nsteps > 100);
+  assert_int_equal(s.blocks[s.nblocks - 1].w, 1);
+  ts_schedule_free(&s);
+}
+
+/* In the wavefront, every block of the causal window that precedes a block
+ * in row-major order (without wrapping) is in an earlier step. */
+static void wavefront_keeps_causal_order(void **state) {
+  (void)state;
+  ts_schedule s;
+  assert_int_equal(ts_schedule_wavefront(&s, 90, 60, 3, 11), 0);
+  uint32_t *step = malloc(sizeof(uint32_t) * s.rows * s.cols);
+  for (uint32_t t = 0; t < s.nsteps; t++)
+    for (uint32_t i = s.step_start[t]; i < s.step_start[t + 1]; i++)
+      step[(s.blocks[i].y / 3) * s.cols + s.blocks[i].x / 3] = t;
+  int k = (s.halo + 2) / 3; /* block rows/cols the window reaches */
+  for (int r = 0; r < s.rows; r++)
+    for (int c = 0; c < s.cols; c++) {
+      uint32_t me = step[r * s.cols + c];
+      for (int dr = -k; dr <= 0; dr++)
+        for (int dc = -k; dc <= k; dc++) {
+          if (dr == 0 && dc >= 0) continue;
+          int rr = r + dr, cc = c + dc;
+          if (rr < 0 || cc < 0 || cc >= s.cols) continue;
+          assert_true(step[rr * s.cols + cc] < me);
+        }
+    }
+  free(step);
+  ts_schedule_free(&s);
+}
+
+static void seam_covers_first_row_and_column(void **state) {
+  (void)state;
+  const int sizes[][2] = {{1024, 1024}, {64, 48}, {10, 10}, {31, 9}, {7, 7}};
+  for (size_t i = 0; i < sizeof(sizes) / sizeof(sizes[0]); i++) {
+    ts_schedule s;
+    assert_int_equal(ts_schedule_seam(&s, sizes[i][0], sizes[i][1], 3, 7), 0);
+    assert_int_equal(s.nblocks, (uint32_t)(s.rows + s.cols - 1));
+    assert_int_equal(ts_schedule_conflicts(&s), 0);
+    for (uint32_t b = 0; b < s.nblocks; b++) assert_true(s.blocks[b].x == 0 || s.blocks[b].y == 0);
+    assert_true(s.nsteps <= 6); /* a colouring, not a chain */
+    ts_schedule_free(&s);
+  }
+}
+
+static void schedule_rejects_bad_geometry(void **state) {
+  (void)state;
+  ts_schedule s;
+  assert_int_not_equal(ts_schedule_wavefront(&s, 0, 10, 3, 7), 0);
+  assert_int_not_equal(ts_schedule_seam(&s, 10, 10, 0, 7), 0);
+}
+
+static const struct CMUnitTest tests[] = {
+    cmocka_unit_test(wavefront_sizes_are_conflict_free),
+    cmocka_unit_test(wavefront_1024_is_wide),
+    cmocka_unit_test(wavefront_keeps_causal_order),
+    cmocka_unit_test(seam_covers_first_row_and_column),
+    cmocka_unit_test(schedule_rejects_bad_geometry),
+};
+
+TS_TEST_MAIN(tests)
