@@ -13,11 +13,8 @@ int ts_coarse_width(int wn) {
 }
 
 static int fine_in_shape(ts_shape_kind kind, int dx, int dy, int wb) {
-  int in_block_rows = dy >= 0 && dy < wb;
-  int in_block_cols = dx >= 0 && dx < wb;
-  if (in_block_rows && in_block_cols) return 0; /* the block itself */
-  if (kind == TS_SHAPE_FULL) return 1;
-  return dy < 0 || (in_block_rows && dx < 0);
+  if (kind == TS_SHAPE_SQUARE) return 1;
+  return dy < 0 || (dy < wb && dx < 0);
 }
 
 static uint64_t gcd64(uint64_t a, uint64_t b) {
@@ -29,7 +26,10 @@ static uint64_t gcd64(uint64_t a, uint64_t b) {
   return a;
 }
 
+/* Weights from the pixel counts of the neighbourhood proper (the square
+ * without the block, Table 3.1, or the L). */
 static void shape_set_weights(ts_shape *s, double coarse_weight) {
+  int nfine = s->kind == TS_SHAPE_SQUARE ? s->wn * s->wn - s->wb * s->wb : s->nfine_px;
   if (s->wc == 0) {
     s->wfine = 1;
     s->wcoarse = 0;
@@ -39,7 +39,7 @@ static void shape_set_weights(ts_shape *s, double coarse_weight) {
    * 16 * n_coarse to stay integral; lambda quantised to 1/16 of a pixel
    * ratio. Reduced by the gcd so distances stay small. */
   uint64_t wf = 16ull * (uint64_t)s->ncoarse_px;
-  uint64_t wc = (uint64_t)llround(coarse_weight * 16.0 * s->nfine_px);
+  uint64_t wc = (uint64_t)llround(coarse_weight * 16.0 * nfine);
   uint64_t g = gcd64(wf, wc);
   if (g == 0) g = 1;
   s->wfine = (uint32_t)(wf / g);

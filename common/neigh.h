@@ -8,8 +8,9 @@
  * level). Full synthesis uses the causal L-shaped fine part: the
  * (W_N-W_B)/2 rows above the block across the whole window width and the
  * (W_N-W_B)/2 columns left of it in the block rows (the seed leaves the
- * shape open for W_B > 1; this is the digest's reading). The seam pass uses
- * the full square.
+ * shape open for W_B > 1; this is the digest's reading). The square shape
+ * is the whole W_N x W_N window, block included, for masked queries (the
+ * variable mask of §3.2.6 picks the pixels that count).
  *
  * Vector layout: [fine part, plane by plane | zero pad to 8 bytes]
  * [coarse part, plane by plane | zero pad to 8 bytes], so the L1 kernels see
@@ -27,7 +28,7 @@
 #define TS_MAX_PLANES 4
 #define TS_MAX_WN 41
 
-typedef enum { TS_SHAPE_CAUSAL = 0, TS_SHAPE_FULL = 1 } ts_shape_kind;
+typedef enum { TS_SHAPE_CAUSAL = 0, TS_SHAPE_SQUARE = 1 } ts_shape_kind;
 
 typedef struct {
   int wn, wb, wc; /* fine window, block and coarse window widths; wc 0 = none */

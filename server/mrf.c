@@ -3,8 +3,9 @@
  * Per level, coarsest first (seed 002 §3.3): the canvas is initialised with
  * noise drawn from the reference histogram (§3.4, seeded), scanned by a
  * skewed wavefront of blocks with the causal L-shaped multi-scale
- * neighbourhood (§3.4, schedule.h), then the torus seam is revisited with
- * the full neighbourhood so the output tiles without a seam. Each block
+ * neighbourhood (§3.4, schedule.h); where a window wraps onto blocks placed
+ * earlier, it uses them too (masked full window), so the output tiles
+ * without a seam. Each block
  * copies the reference block whose neighbourhood is nearest in weighted L1
  * (+ the usage penalty, §3.7.2). Colour is gathered through the final copy
  * map (§3.8). */
@@ -77,7 +78,7 @@ static void check_reference_levels(const ts_mrf_params *p, int ref_w, int ref_h,
     ts_refgrid g;
     char err[TS_ERR_LEN];
     int coarse = l < p->levels - 1;
-    if (ts_shape_init(&s, TS_SHAPE_FULL, p->wn, p->wb, coarse, 1, p->coarse_weight, err) != 0) return;
+    if (ts_shape_init(&s, TS_SHAPE_SQUARE, p->wn, p->wb, coarse, 1, p->coarse_weight, err) != 0) return;
     int bad = rw[l] < 1 || rh[l] < 1 ||
               ts_refgrid_init(&g, &s, rw[l], rh[l], coarse ? rw[l + 1] : 0, coarse ? rh[l + 1] : 0,
                               p->parity, err) != 0;
@@ -139,6 +140,23 @@ int ts_mrf_check(const ts_mrf_params *p, int ref_w, int ref_h, int channels,
 
 /* ---- engine state ------------------------------------------------------ */
 
+/* A block is searched with the causal L-shaped neighbourhood (plain), or -
+ * when its full window already holds placed blocks outside the L, which
+ * happens only where the window wraps around the torus or meets the
+ * clipped last row or column - with the full window and a variable mask
+ * (§3.2.6) that keeps the L and every placed pixel. So the last column also
+ * matches the first one on its right and the last row the first row below
+ * it: the seams of the torus are matched like any inner join. */
+enum { SHAPE_PLAIN = 0, SHAPE_MASKED = 1 };
+
+
+typedef struct {
+  uint32_t n;
+  uint8_t *queries, *masks, *klass;
+  uint32_t *block; /* index of each query's block within the step */
+  ts_l1_best *best;
+} query_group;
+
 typedef struct {
   const ts_mrf_params *p;
   ts_search *search;
@@ -156,35 +174,52 @@ typedef struct {
   ts_refgrid grid;
   ts_usage usage;
   uint32_t *copy; /* (x, y) per canvas pixel at this level */
+  uint32_t *prev_copy; /* the same of the level above */
+  uint8_t *done;  /* 1 where a block was placed at this level */
+  ts_shape shape[2]; /* SHAPE_PLAIN: causal L; SHAPE_MASKED: full window */
   int set_ids[2];
   uint64_t steps;
-  /* per-step scratch */
+  /* per-step scratch: one query group per shape */
   uint32_t cap;
-  uint8_t *queries, *klass;
-  ts_l1_best *best;
+  query_group group[2];
   ts_commit *commits;
 } engine;
 
-static int ensure_step_scratch(engine *e, uint32_t n, uint32_t vbytes) {
-  if (n <= e->cap) return 0;
-  free(e->queries);
-  free(e->klass);
-  free(e->best);
-  free(e->commits);
-  e->queries = malloc((size_t)n * vbytes);
-  e->klass = malloc(n);
-  e->best = malloc(sizeof(ts_l1_best) * n);
-  e->commits = malloc(sizeof(ts_commit) * 2 * n);
-  e->cap = n;
-  if (!e->queries || !e->klass || !e->best || !e->commits) {
-    e->cap = 0;
-    return TS_ENOMEM;
-  }
-  return 0;
+static void group_free(query_group *g) {
+  free(g->queries);
+  free(g->masks);
+  free(g->klass);
+  free(g->block);
+  free(g->best);
+  memset(g, 0, sizeof(*g));
 }
 
-/* Fills the level's canvas with reference pixels from uniformly random
- * positions (noise with the reference histogram, §3.4). */
+static int ensure_step_scratch(engine *e, uint32_t n) {
+  if (n <= e->cap) return 0;
+  free(e->commits);
+  e->commits = malloc(sizeof(ts_commit) * n);
+  int ok = e->commits != NULL;
+  for (int k = 0; k < 2; k++) {
+    query_group *g = &e->group[k];
+    size_t vb = ts_shape_bytes(&e->shape[k]);
+    group_free(g);
+    g->queries = malloc(n * vb);
+    g->masks = malloc(n * vb);
+    g->klass = malloc(n);
+    g->block = malloc(sizeof(uint32_t) * n);
+    g->best = malloc(sizeof(ts_l1_best) * n);
+    ok = ok && g->queries && g->masks && g->klass && g->block && g->best;
+  }
+  e->cap = ok ? n : 0;
+  return ok ? 0 : TS_ENOMEM;
+}
+
+static uint64_t level_blocks(int w, int h, int wb) {
+  return (uint64_t)((h + wb - 1) / wb) * (uint64_t)((w + wb - 1) / wb);
+}
+
+/* Fills the coarsest level's canvas with reference pixels from uniformly
+ * random positions (noise with the reference histogram, §3.4, seeded). */
 static void init_noise(engine *e) {
   ts_rng rng;
   ts_rng_seed(&rng, e->p->seed, (uint64_t)e->level);
@@ -197,6 +232,28 @@ static void init_noise(engine *e) {
     e->copy[2 * i] = (uint32_t)x;
     e->copy[2 * i + 1] = (uint32_t)y;
   }
+}
+
+/* Fills a finer level's canvas with the prediction of the coarser level's
+ * copy map: every pixel from where its coarse pixel's source points, doubled
+ * (the copy-map extrapolation of §3.6.6). Blocks are still all searched;
+ * the prediction only stands in for what is not placed yet, so the first
+ * row and column see around the torus what the last ones will likely
+ * become, and the scan closes the torus without a seam. */
+static void init_prediction(engine *e) {
+  int l = e->level, w = e->cw[l], h = e->ch[l], cw = e->cw[l + 1], chh = e->ch[l + 1];
+  const ts_plane *r0 = e->ref_lp.fine[0];
+  for (int y = 0; y < h; y++)
+    for (int x = 0; x < w; x++) {
+      long cx = (long)x * cw / w, cy = (long)y * chh / h, co = cy * cw + cx;
+      long sx = 2 * (long)e->prev_copy[2 * co] + (x - 2 * cx), sy = 2 * (long)e->prev_copy[2 * co + 1] + (y - 2 * cy);
+      sx = sx < 0 ? 0 : sx >= r0->w ? r0->w - 1 : sx;
+      sy = sy < 0 ? 0 : sy >= r0->h ? r0->h - 1 : sy;
+      long o = (long)y * w + x;
+      for (int p = 0; p < e->nplanes; p++) e->canvas[p][l].px[o] = ts_plane_at(e->ref_lp.fine[p], (int)sx, (int)sy);
+      e->copy[2 * o] = (uint32_t)sx;
+      e->copy[2 * o + 1] = (uint32_t)sy;
+    }
 }
 
 static double level_cost(int l) { return 1.0 / (double)(1ull << (2 * l)); }
@@ -215,58 +272,116 @@ static void place_block(engine *e, const ts_block *b, int sx, int sy) {
         e->canvas[p][e->level].px[o] = ts_plane_at(e->ref_lp.fine[p], sx + dx, sy + dy);
       e->copy[2 * o] = (uint32_t)(sx + dx);
       e->copy[2 * o + 1] = (uint32_t)(sy + dy);
+      e->done[o] = 1;
     }
 }
 
-/* One pass over a schedule. `replace`: the blocks were placed before (seam
- * pass), so their old copies leave the usage counts. */
-static int run_pass(engine *e, const ts_schedule *sch, const ts_shape *shape, int set_id,
-                    int replace, char *err) {
-  uint32_t vb = ts_shape_bytes(shape);
-  uint64_t d1 = unit_distance(shape);
-  int w = e->cw[e->level];
-  for (uint32_t t = 0; t < sch->nsteps; t++) {
-    const ts_block *blocks = sch->blocks + sch->step_start[t];
-    uint32_t n = sch->step_start[t + 1] - sch->step_start[t];
-    if (ensure_step_scratch(e, n, vb) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
-    for (uint32_t i = 0; i < n; i++) {
-      ts_vec_query(shape, &e->canvas_lp, blocks[i].x, blocks[i].y, e->queries + (size_t)i * vb);
-      e->klass[i] = (uint8_t)ts_refgrid_class(&e->grid, blocks[i].x, blocks[i].y);
+/* Builds the masked square-window query of block b when its window holds
+ * pixels placed at this level outside the causal L, which happens only
+ * where the window wraps around the torus onto placed blocks (the last rows
+ * and columns) or meets a clipped block; returns 0 (use the plain query)
+ * otherwise. The mask keeps the L (placed pixels, or still the initial
+ * noise or prediction) and every placed pixel, never the pixels b writes.
+ * So the last row and column also match the first ones across the seam.
+ * A block clipped at the last row or column writes only part of its W_B
+ * square; the rest of the square is ordinary neighbourhood. */
+static int masked_query(engine *e, const ts_block *b, uint8_t *query, uint8_t *mask) {
+  const ts_shape *sq = &e->shape[SHAPE_MASKED];
+  int w = e->cw[e->level], h = e->ch[e->level], differs = 0;
+  uint32_t n = 0;
+  for (int k = 0; k < sq->nfine_px; k++) {
+    int dx = sq->fine_dx[k], dy = sq->fine_dy[k];
+    int in_l = dy < 0 || (dy < sq->wb && dx < 0);
+    int written = dx >= 0 && dx < b->w && dy >= 0 && dy < b->h;
+    int x = ((b->x + dx) % w + w) % w, y = ((b->y + dy) % h + h) % h;
+    int placed = !written && e->done[(long)y * w + x];
+    int known = placed || in_l;
+    differs |= in_l != known;
+    mask[n++] = known ? 0xFF : 0x00;
+  }
+  if (!differs) return 0;
+  for (int p = 1; p < sq->nplanes; p++, n += (uint32_t)sq->nfine_px) memcpy(mask + n, mask, (size_t)sq->nfine_px);
+  memset(mask + n, 0xFF, ts_shape_bytes(sq) - n); /* coarse part and padding: always used */
+  ts_vec_query(sq, &e->canvas_lp, b->x, b->y, query);
+  return 1;
+}
+
+static void build_queries(engine *e, const ts_block *blocks, uint32_t n) {
+  query_group *plain = &e->group[SHAPE_PLAIN], *masked = &e->group[SHAPE_MASKED];
+  size_t vb_plain = ts_shape_bytes(&e->shape[SHAPE_PLAIN]), vb_full = ts_shape_bytes(&e->shape[SHAPE_MASKED]);
+  plain->n = masked->n = 0;
+  for (uint32_t i = 0; i < n; i++) {
+    uint8_t klass = (uint8_t)ts_refgrid_class(&e->grid, blocks[i].x, blocks[i].y);
+    query_group *g = masked;
+    if (!masked_query(e, &blocks[i], masked->queries + masked->n * vb_full, masked->masks + masked->n * vb_full)) {
+      g = plain;
+      ts_vec_query(&e->shape[SHAPE_PLAIN], &e->canvas_lp, blocks[i].x, blocks[i].y,
+                   plain->queries + plain->n * vb_plain);
     }
-    /* One penalty snapshot per step, however the step is split. */
-    uint64_t usage_k = e->p->usage_weight > 0 ? ts_usage_factor(&e->usage, e->p->usage_weight, d1) : 0;
-    uint32_t chunk = e->p->max_batch ? e->p->max_batch : n;
-    for (uint32_t i0 = 0; i0 < n; i0 += chunk) {
-      uint32_t m = n - i0 < chunk ? n - i0 : chunk;
-      ts_query_batch qb = {m, e->queries + (size_t)i0 * vb, NULL, e->klass + i0, usage_k};
-      int rc = ts_search_query(e->search, set_id, &qb, e->best + i0, err);
-      if (rc != 0) return rc;
-    }
-    uint32_t nc = 0;
-    for (uint32_t i = 0; i < n; i++) {
-      const ts_block *b = &blocks[i];
-      if (e->best[i].index >= e->grid.total)
+    g->klass[g->n] = klass;
+    g->block[g->n++] = i;
+  }
+}
+
+/* Searches one group, split into batches of at most max_batch. */
+static int search_group(engine *e, int k, uint64_t usage_k, char *err) {
+  query_group *g = &e->group[k];
+  size_t vb = ts_shape_bytes(&e->shape[k]);
+  uint32_t chunk = e->p->max_batch ? e->p->max_batch : (g->n ? g->n : 1);
+  for (uint32_t i0 = 0; i0 < g->n; i0 += chunk) {
+    uint32_t m = g->n - i0 < chunk ? g->n - i0 : chunk;
+    ts_query_batch qb = {m, g->queries + i0 * vb, k == SHAPE_MASKED ? g->masks + i0 * vb : NULL,
+                         g->klass + i0, usage_k};
+    int rc = ts_search_query(e->search, e->set_ids[k], &qb, g->best + i0, err);
+    if (rc != 0) return rc;
+  }
+  return 0;
+}
+
+/* Places every block of the step and records the copies in the usage
+ * counters, here and in the backend's replicas. */
+static int place_step(engine *e, const ts_block *blocks, char *err) {
+  uint32_t nc = 0;
+  for (int k = 0; k < 2; k++) {
+    const query_group *g = &e->group[k];
+    for (uint32_t i = 0; i < g->n; i++) {
+      const ts_block *b = &blocks[g->block[i]];
+      if (g->best[i].index >= e->grid.total)
         return ts_error(err, TS_EPROTO, "search returned no match for a block");
-      if (replace) {
-        long o = (long)b->y * w + b->x;
-        ts_commit old = {(int32_t)e->copy[2 * o], (int32_t)e->copy[2 * o + 1], b->w, b->h, -1};
-        e->commits[nc++] = old;
-      }
       int c, sx, sy;
       uint32_t rank;
-      ts_refgrid_split(&e->grid, e->best[i].index, &c, &rank);
+      ts_refgrid_split(&e->grid, g->best[i].index, &c, &rank);
       ts_refgrid_pos(&e->grid, c, rank, &sx, &sy);
       place_block(e, b, sx, sy);
       ts_commit add = {sx, sy, b->w, b->h, 1};
       e->commits[nc++] = add;
+      ts_usage_commit(&e->usage, sx, sy, b->w, b->h, 1);
     }
-    for (uint32_t i = 0; i < nc; i++)
-      ts_usage_commit(&e->usage, e->commits[i].x, e->commits[i].y, e->commits[i].w, e->commits[i].h,
-                      e->commits[i].delta);
+  }
+  for (int k = 0; k < 2; k++) {
+    int rc = ts_search_commit(e->search, e->set_ids[k], e->commits, nc, err);
+    if (rc != 0) return rc;
+  }
+  return 0;
+}
+
+/* Runs a schedule step by step, every block of a step searched against the
+ * canvas as the previous step left it (schedule.h). */
+static int run_steps(engine *e, const ts_schedule *sch, char *err) {
+  uint64_t d1[2] = {unit_distance(&e->shape[0]), unit_distance(&e->shape[1])};
+  for (uint32_t t = 0; t < sch->nsteps; t++) {
+    const ts_block *blocks = sch->blocks + sch->step_start[t];
+    uint32_t n = sch->step_start[t + 1] - sch->step_start[t];
+    if (ensure_step_scratch(e, n) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
+    build_queries(e, blocks, n);
     for (int k = 0; k < 2; k++) {
-      int rc = ts_search_commit(e->search, e->set_ids[k], e->commits, nc, err);
+      /* One penalty snapshot per step, however the step is split. */
+      uint64_t usage_k = e->p->usage_weight > 0 ? ts_usage_factor(&e->usage, e->p->usage_weight, d1[k]) : 0;
+      int rc = search_group(e, k, usage_k, err);
       if (rc != 0) return rc;
     }
+    int rc = place_step(e, blocks, err);
+    if (rc != 0) return rc;
     e->prog.done += n;
     e->prog.work_done += n * level_cost(e->level);
     if (e->progress) e->progress(e->progress_ctx, &e->prog);
@@ -301,44 +416,44 @@ static int synthesize_level(engine *e, int l, char *err) {
     e->canvas_lp.coarse[k] = coarse ? &e->canvas[k][l + 1] : NULL;
     if (ts_plane_alloc(&e->canvas[k][l], e->cw[l], e->ch[l]) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
   }
-  ts_shape causal, full;
-  int rc = ts_shape_init(&causal, TS_SHAPE_CAUSAL, p->wn, p->wb, coarse, e->nplanes, p->coarse_weight, err);
-  if (rc != 0) return rc;
-  rc = ts_shape_init(&full, TS_SHAPE_FULL, p->wn, p->wb, coarse, e->nplanes, p->coarse_weight, err);
-  if (rc != 0) {
-    ts_shape_free(&causal);
-    return rc;
+  int rc = ts_shape_init(&e->shape[SHAPE_PLAIN], TS_SHAPE_CAUSAL, p->wn, p->wb, coarse, e->nplanes,
+                         p->coarse_weight, err);
+  if (rc == 0)
+    rc = ts_shape_init(&e->shape[SHAPE_MASKED], TS_SHAPE_SQUARE, p->wn, p->wb, coarse, e->nplanes,
+                       p->coarse_weight, err);
+  if (rc == 0) { /* masked queries weigh each pixel as plain ones do */
+    e->shape[SHAPE_MASKED].wfine = e->shape[SHAPE_PLAIN].wfine;
+    e->shape[SHAPE_MASKED].wcoarse = e->shape[SHAPE_PLAIN].wcoarse;
   }
   const ts_plane *r0 = e->ref_lp.fine[0];
-  ts_schedule scan = {0}, seam = {0};
+  ts_schedule scan = {0};
   e->set_ids[0] = e->set_ids[1] = -1;
-  rc = ts_refgrid_init(&e->grid, &causal, r0->w, r0->h, coarse ? e->ref[0][l + 1].w : 0,
-                       coarse ? e->ref[0][l + 1].h : 0, p->parity, err);
+  e->cap = 0; /* the shapes' sizes changed */
+  if (rc == 0)
+    rc = ts_refgrid_init(&e->grid, &e->shape[SHAPE_PLAIN], r0->w, r0->h, coarse ? e->ref[0][l + 1].w : 0,
+                         coarse ? e->ref[0][l + 1].h : 0, p->parity, err);
   if (rc == 0 && (rc = ts_usage_init(&e->usage, &e->grid, p->wb)) != 0) ts_error(err, rc, "out of memory");
-  e->copy = rc == 0 ? malloc(sizeof(uint32_t) * 2 * (size_t)e->cw[l] * e->ch[l]) : NULL;
-  if (rc == 0 && e->copy == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
-  if (rc == 0 && (rc = ts_schedule_wavefront(&scan, e->cw[l], e->ch[l], p->wb, p->wn)) == 0)
-    rc = ts_schedule_seam(&seam, e->cw[l], e->ch[l], p->wb, p->wn);
-  if (rc == 0) {
-    ts_refset rs_causal = {&causal, &e->grid, &e->ref_lp}, rs_full = {&full, &e->grid, &e->ref_lp};
-    rc = ts_search_prepare(e->search, &rs_causal, &e->set_ids[0], err);
-    if (rc == 0) rc = ts_search_prepare(e->search, &rs_full, &e->set_ids[1], err);
+  size_t npx = (size_t)e->cw[l] * e->ch[l];
+  e->copy = rc == 0 ? malloc(sizeof(uint32_t) * 2 * npx) : NULL;
+  e->done = rc == 0 ? calloc(npx, 1) : NULL;
+  if (rc == 0 && (e->copy == NULL || e->done == NULL)) rc = ts_error(err, TS_ENOMEM, "out of memory");
+  if (rc == 0) rc = ts_schedule_wavefront(&scan, e->cw[l], e->ch[l], p->wb, p->wn);
+  for (int k = 0; rc == 0 && k < 2; k++) {
+    ts_refset rs = {&e->shape[k], &e->grid, &e->ref_lp};
+    rc = ts_search_prepare(e->search, &rs, &e->set_ids[k], err);
   }
   if (rc == 0) {
-    init_noise(e);
+    if (coarse) init_prediction(e);
+    else init_noise(e);
     e->prog.level = l;
     e->prog.done = 0;
-    e->prog.total = scan.nblocks + seam.nblocks;
-    e->steps = scan.nsteps + seam.nsteps;
-    rc = run_pass(e, &scan, &causal, e->set_ids[0], 0, err);
-    if (rc == 0) rc = run_pass(e, &seam, &full, e->set_ids[1], 1, err);
+    e->prog.total = level_blocks(e->cw[l], e->ch[l], p->wb);
+    e->steps = scan.nsteps;
+    rc = run_steps(e, &scan, err);
   }
   for (int k = 0; k < 2; k++)
     if (e->set_ids[k] >= 0) ts_search_release(e->search, e->set_ids[k]);
   ts_schedule_free(&scan);
-  ts_schedule_free(&seam);
-  ts_shape_free(&causal);
-  ts_shape_free(&full);
   return rc;
 }
 
@@ -349,16 +464,15 @@ static void engine_free(engine *e) {
   }
   ts_usage_free(&e->usage);
   free(e->copy);
-  free(e->queries);
-  free(e->klass);
-  free(e->best);
+  free(e->prev_copy);
+  free(e->done);
+  for (int k = 0; k < 2; k++) {
+    group_free(&e->group[k]);
+    ts_shape_free(&e->shape[k]);
+  }
   free(e->commits);
 }
 
-static uint64_t level_blocks(int w, int h, int wb) {
-  uint64_t rows = (uint64_t)(h + wb - 1) / wb, cols = (uint64_t)(w + wb - 1) / wb;
-  return rows * cols + rows + cols - 1;
-}
 
 /* Full result: reference pixels of any type gathered through the copy map
  * (§3.8). Preview (stop_level > 0): the level's luminance plane. */
@@ -412,10 +526,14 @@ int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *se
     ls->ref_h = e.ref[0][l].h;
     ls->out_w = e.cw[l];
     ls->out_h = e.ch[l];
-    if (l > 0) {
+    if (l < p->levels - 1) { /* the previous level's state */
       ts_usage_free(&e.usage);
-      free(e.copy);
+      free(e.prev_copy);
+      e.prev_copy = e.copy;
+      free(e.done);
       e.copy = NULL;
+      e.done = NULL;
+      for (int k = 0; k < 2; k++) ts_shape_free(&e.shape[k]);
     }
     rc = synthesize_level(&e, l, err);
     ls->vectors = e.grid.total;

@@ -74,7 +74,7 @@ int ts_quality_measure(ts_search *search, const ts_plane *ref, const ts_plane *i
                        uint32_t samples, uint64_t seed, ts_quality *q, char *err) {
   ts_shape shape;
   ts_refgrid grid;
-  int rc = ts_shape_init(&shape, TS_SHAPE_FULL, wn, 1, 0, 1, 1.0, err);
+  int rc = ts_shape_init(&shape, TS_SHAPE_SQUARE, wn, 1, 0, 1, 1.0, err);
   if (rc != 0) return rc;
   rc = ts_refgrid_init(&grid, &shape, ref->w, ref->h, 0, 0, 0, err);
   int half = wn / 2, set = -1;

@@ -130,49 +130,6 @@ int ts_schedule_wavefront(ts_schedule *s, int width, int height, int wb, int wn)
   return rc;
 }
 
-typedef struct {
-  const uint32_t *step;
-  uint32_t n;
-  uint32_t taken[MAX_SPAN * MAX_SPAN]; /* colours of coloured neighbours */
-} colour_ctx;
-
-static int note_colour(void *p, int d) {
-  colour_ctx *cc = p;
-  if (cc->step[d] != UINT32_MAX) cc->taken[cc->n++] = cc->step[d];
-  return 0;
-}
-
-/* Smallest colour no coloured neighbour has. */
-static void colour_block(ts_schedule *s, uint32_t *step, int r, int c) {
-  static _Thread_local colour_ctx cc;
-  cc.step = step;
-  cc.n = 0;
-  for_window_blocks(s, r, c, note_colour, &cc);
-  uint32_t k = 0;
-  for (int again = 1; again;) {
-    again = 0;
-    for (uint32_t i = 0; i < cc.n; i++)
-      if (cc.taken[i] == k) {
-        k++;
-        again = 1;
-      }
-  }
-  step[r * s->cols + c] = k;
-}
-
-int ts_schedule_seam(ts_schedule *s, int width, int height, int wb, int wn) {
-  uint32_t *step;
-  int rc = schedule_init(s, width, height, wb, wn, &step);
-  if (rc != 0) return rc;
-  for (int i = 0; i < s->rows * s->cols; i++) step[i] = UINT32_MAX;
-  for (int c = 0; c < s->cols; c++) colour_block(s, step, 0, c);
-  for (int r = 1; r < s->rows; r++) colour_block(s, step, r, 0);
-  rc = build_lists(s, step);
-  free(step);
-  if (rc != 0) ts_schedule_free(s);
-  return rc;
-}
-
 void ts_schedule_free(ts_schedule *s) {
   free(s->step_start);
   free(s->blocks);

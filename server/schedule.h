@@ -17,10 +17,7 @@
  * that of a row-major scan; ~min(rows, cols/s) blocks run per step. When a
  * canvas size makes the torus wrap put two blocks of one step into each
  * other's window, s grows until it does not (in the limit: row-major).
- *
- * The seam pass revisits the first block row and column (whose windows
- * wrapped onto noise during the scan) with the full neighbourhood; its
- * blocks are coloured greedily so neighbours land in different steps. */
+ */
 #ifndef TS_SCHEDULE_H
 #define TS_SCHEDULE_H
 
@@ -34,7 +31,7 @@ typedef struct {
 typedef struct {
   int width, height, wb, halo; /* halo = (W_N - W_B) / 2 */
   int rows, cols;
-  int skew; /* wavefront skew; 0 for colourings and row-major fallback */
+  int skew; /* wavefront skew; 0 for the row-major fallback */
   uint32_t nsteps, nblocks;
   uint32_t *step_start; /* nsteps + 1 offsets into blocks */
   ts_block *blocks;     /* by step, row-major within a step */
@@ -42,7 +39,6 @@ typedef struct {
 
 int ts_schedule_wavefront(ts_schedule *s, int width, int height, int wb,
                           int wn);
-int ts_schedule_seam(ts_schedule *s, int width, int height, int wb, int wn);
 void ts_schedule_free(ts_schedule *s);
 
 /* Number of ordered pairs of distinct blocks in one step where one lies in

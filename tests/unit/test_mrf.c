@@ -58,6 +58,7 @@ static int brute_query(ts_search *s, int id, const ts_query_batch *qb, ts_l1_bes
   uint8_t vec[TS_L1_MAX_CHUNKS * 8];
   for (uint32_t q = 0; q < qb->nq; q++) {
     const uint8_t *qv = qb->queries + (size_t)q * vb;
+    const uint8_t *mv = qb->masks ? qb->masks + (size_t)q * vb : NULL;
     out[q].dist = UINT64_MAX;
     out[q].index = UINT32_MAX;
     for (uint32_t j = 0; j < st->grid.total; j++) {
@@ -70,6 +71,7 @@ static int brute_query(ts_search *s, int id, const ts_query_batch *qb, ts_l1_bes
       uint64_t df = 0, dc = 0;
       for (uint32_t k = 0; k < vb; k++) {
         int d = qv[k] > vec[k] ? qv[k] - vec[k] : vec[k] - qv[k];
+        if (mv != NULL && mv[k] == 0) d = 0;
         if (k < fine) df += (uint64_t)d;
         else dc += (uint64_t)d;
       }

@@ -6,7 +6,8 @@
 #include "neigh.h"
 #include "ts_test.h"
 
-/* Table 3.1 of seed 002: pixel count = W_N^2 - W_B^2 + W_C^2 with W_B = 3. */
+/* Table 3.1 of seed 002: pixel count = W_N^2 - W_B^2 + W_C^2 with W_B = 3
+ * (the square shape holds the block too). */
 static void full_shape_matches_table_3_1(void **state) {
   (void)state;
   const int wn[] = {5, 7, 9, 11, 13, 15};
@@ -16,8 +17,8 @@ static void full_shape_matches_table_3_1(void **state) {
     ts_shape s;
     char err[TS_ERR_LEN];
     assert_int_equal(ts_coarse_width(wn[i]), wc[i]);
-    assert_int_equal(ts_shape_init(&s, TS_SHAPE_FULL, wn[i], 3, 1, 1, 1.0, err), 0);
-    assert_int_equal(s.nfine_px + s.ncoarse_px, total[i]);
+    assert_int_equal(ts_shape_init(&s, TS_SHAPE_SQUARE, wn[i], 3, 1, 1, 1.0, err), 0);
+    assert_int_equal(s.nfine_px - 9 + s.ncoarse_px, total[i]);
     ts_shape_free(&s);
   }
 }
@@ -110,7 +111,7 @@ static void query_reads_torus_and_matches_reference(void **state) {
   for (int i = 0; i < 8 * 6; i++) coarse.px[i] = (uint8_t)(i * 29 + 5);
   ts_shape s;
   char err[TS_ERR_LEN];
-  assert_int_equal(ts_shape_init(&s, TS_SHAPE_FULL, 7, 3, 1, 1, 1.0, err), 0);
+  assert_int_equal(ts_shape_init(&s, TS_SHAPE_SQUARE, 7, 3, 1, 1, 1.0, err), 0);
   ts_levelplanes lp = {1, {&fine}, {&coarse}};
   uint8_t a[TS_L1_MAX_CHUNKS * 8], b[TS_L1_MAX_CHUNKS * 8];
   /* Inside, a query equals the reference vector of the same position. */

@@ -76,32 +76,17 @@ static void wavefront_keeps_causal_order(void **state) {
   ts_schedule_free(&s);
 }
 
-static void seam_covers_first_row_and_column(void **state) {
-  (void)state;
-  const int sizes[][2] = {{1024, 1024}, {64, 48}, {10, 10}, {31, 9}, {7, 7}};
-  for (size_t i = 0; i < sizeof(sizes) / sizeof(sizes[0]); i++) {
-    ts_schedule s;
-    assert_int_equal(ts_schedule_seam(&s, sizes[i][0], sizes[i][1], 3, 7), 0);
-    assert_int_equal(s.nblocks, (uint32_t)(s.rows + s.cols - 1));
-    assert_int_equal(ts_schedule_conflicts(&s), 0);
-    for (uint32_t b = 0; b < s.nblocks; b++) assert_true(s.blocks[b].x == 0 || s.blocks[b].y == 0);
-    assert_true(s.nsteps <= 6); /* a colouring, not a chain */
-    ts_schedule_free(&s);
-  }
-}
-
 static void schedule_rejects_bad_geometry(void **state) {
   (void)state;
   ts_schedule s;
   assert_int_not_equal(ts_schedule_wavefront(&s, 0, 10, 3, 7), 0);
-  assert_int_not_equal(ts_schedule_seam(&s, 10, 10, 0, 7), 0);
+  assert_int_not_equal(ts_schedule_wavefront(&s, 10, 10, 0, 7), 0);
 }
 
 static const struct CMUnitTest tests[] = {
     cmocka_unit_test(wavefront_sizes_are_conflict_free),
     cmocka_unit_test(wavefront_1024_is_wide),
     cmocka_unit_test(wavefront_keeps_causal_order),
-    cmocka_unit_test(seam_covers_first_row_and_column),
     cmocka_unit_test(schedule_rejects_bad_geometry),
 };
 

@@ -1,0 +1,702 @@
+/* image_oiio.cpp - image files through OpenImageIO; see image.h.
+ *
+ * The only C++ in texsyn: a thin shim that keeps OpenImageIO's types and
+ * exceptions on this side of an extern "C" boundary. Every entry point
+ * catches everything and answers with a TS_E* code and one line in err.
+ *
+ * Three things OpenImageIO 2.4 does not do for us, handled here:
+ *  - A failed read is not always a false return: libtiff strip errors and
+ *    libjpeg's "premature end of file" leave read_image() true with a
+ *    pending error. Any pending error after a read fails it, so a truncated
+ *    file never yields a partially grey image.
+ *  - Its per-thread global error message outlives the call that set it; we
+ *    clear it on entry and exit so one call's failure never shows in the
+ *    next call's message.
+ *  - It neither reads nor writes GeoTIFF tags. We read the raw tags from
+ *    the first TIFF directory into the metadata and, when writing a TIFF,
+ *    append them to the file OpenImageIO wrote (see "GeoTIFF" below). */
+#include <errno.h>
+#include <fcntl.h>
+#include <stdio.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <new>
+#include <string>
+#include <vector>
+
+#include <OpenImageIO/imageio.h>
+#include <OpenImageIO/strutil.h>
+
+extern "C" {
+#include "error.h"
+#include "image.h"
+}
+#include "image_meta.h"
+
+using OIIO::ImageInput;
+using OIIO::ImageOutput;
+using OIIO::ImageSpec;
+using OIIO::ParamValue;
+using OIIO::ParamValueList;
+using OIIO::TypeDesc;
+
+struct ts_meta {
+  ParamValueList attribs;
+};
+
+/* --- small helpers ------------------------------------------------------- */
+
+/* OpenImageIO messages can span lines; err holds one. */
+static std::string ts_oneline(std::string s) {
+  for (char &ch : s)
+    if (ch == '\n' || ch == '\r') ch = ' ';
+  while (!s.empty() && s.back() == ' ') s.pop_back();
+  return s.empty() ? std::string("no reason given") : s;
+}
+
+/* Clears OpenImageIO's per-thread global error on entry and on exit. */
+struct ts_oiio_errscope {
+  ts_oiio_errscope() { OIIO::geterror(); }
+  ~ts_oiio_errscope() {
+    try {
+      OIIO::geterror();
+    } catch (...) {
+    }
+  }
+};
+
+static TypeDesc ts_oiio_type(ts_pixtype t) {
+  switch (t) {
+  case TS_PIX_U8:
+    return TypeDesc::UINT8;
+  case TS_PIX_U16:
+    return TypeDesc::UINT16;
+  case TS_PIX_F16:
+    return TypeDesc::HALF;
+  case TS_PIX_F32:
+    break;
+  }
+  return TypeDesc::FLOAT;
+}
+
+/* The type an image is kept in: the file's own for uint8, uint16, half and
+ * float; float for anything else (int8, int16, uint32, double, ...), which
+ * OpenImageIO scales to [0, 1] ([-1, 1] for signed) as usual. */
+static ts_pixtype ts_kept_type(TypeDesc t) {
+  switch (t.basetype) {
+  case TypeDesc::UINT8:
+    return TS_PIX_U8;
+  case TypeDesc::UINT16:
+    return TS_PIX_U16;
+  case TypeDesc::HALF:
+    return TS_PIX_F16;
+  default:
+    return TS_PIX_F32;
+  }
+}
+
+/* Channels of different types (EXR half colour with float depth, ...) share
+ * the narrowest type that holds all of them exactly. */
+static ts_pixtype ts_spec_type(const ImageSpec &spec) {
+  if (spec.channelformats.empty()) return ts_kept_type(spec.format);
+  ts_pixtype t = ts_kept_type(spec.channelformats[0]);
+  for (TypeDesc cf : spec.channelformats) {
+    ts_pixtype u = ts_kept_type(cf);
+    if (u == t) continue;
+    bool ints = (t == TS_PIX_U8 || t == TS_PIX_U16) && (u == TS_PIX_U8 || u == TS_PIX_U16);
+    t = ints ? TS_PIX_U16 : TS_PIX_F32;
+  }
+  return t;
+}
+
+/* --- GeoTIFF ------------------------------------------------------------- *
+ *
+ * The georeferencing of a GeoTIFF lives in six private TIFF tags (plus two
+ * GDAL ones for metadata and nodata). We keep them verbatim, as typed
+ * attributes, never decoding the GeoKey directory: passing the raw tags on
+ * is what keeps every key, known to us or not, intact.
+ *
+ * Writing appends the values and a copy of the first directory with these
+ * entries added to the end of the file OpenImageIO wrote, then points the
+ * header at the new directory. Nothing already written moves, so every
+ * offset in the old entries stays valid; the old directory (a few hundred
+ * bytes) becomes unreferenced. Both byte orders and BigTIFF are handled. */
+
+enum { TS_TIFF_ASCII = 2, TS_TIFF_SHORT = 3, TS_TIFF_DOUBLE = 12 };
+
+struct ts_geotag {
+  uint16_t tag, type;
+  const char *name;
+};
+
+static const ts_geotag kGeoTags[] = {
+    {33550, TS_TIFF_DOUBLE, "GeoTIFF:ModelPixelScale"},
+    {33922, TS_TIFF_DOUBLE, "GeoTIFF:ModelTiePoint"},
+    {34264, TS_TIFF_DOUBLE, "GeoTIFF:ModelTransformation"},
+    {34735, TS_TIFF_SHORT, "GeoTIFF:GeoKeyDirectory"},
+    {34736, TS_TIFF_DOUBLE, "GeoTIFF:GeoDoubleParams"},
+    {34737, TS_TIFF_ASCII, "GeoTIFF:GeoAsciiParams"},
+    {42112, TS_TIFF_ASCII, "GDAL:Metadata"},
+    {42113, TS_TIFF_ASCII, "GDAL:NoData"},
+};
+
+/* Sanity bounds: a directory or a tag larger than this is corrupt. */
+static const uint64_t kTiffMaxEntries = 4096;
+static const uint64_t kTiffMaxValues = 1u << 20;
+
+static const ts_geotag *ts_geotag_find(uint64_t tag) {
+  for (const ts_geotag &g : kGeoTags)
+    if (g.tag == tag) return &g;
+  return nullptr;
+}
+
+static bool ts_is_geo_attr(const std::string &name) {
+  for (const ts_geotag &g : kGeoTags)
+    if (OIIO::Strutil::iequals(name, g.name)) return true;
+  return false;
+}
+
+struct ts_file_closer {
+  void operator()(FILE *f) const { fclose(f); }
+};
+typedef std::unique_ptr<FILE, ts_file_closer> ts_file;
+
+/* An open TIFF: byte order ("MM" is big-endian), BigTIFF or classic, the
+ * file size and the offset of the first directory. */
+struct ts_tiff {
+  FILE *f;
+  bool be, big;
+  uint64_t size, ifd;
+  int word() const { return big ? 8 : 4; }    /* count and offset width */
+  int entry() const { return big ? 20 : 12; } /* directory entry size */
+};
+
+static uint64_t ts_tiff_get(const ts_tiff &t, const uint8_t *p, int n) {
+  uint64_t v = 0;
+  for (int i = 0; i < n; i++) v |= (uint64_t)p[t.be ? n - 1 - i : i] << (8 * i);
+  return v;
+}
+
+static void ts_tiff_put(const ts_tiff &t, uint8_t *p, int n, uint64_t v) {
+  for (int i = 0; i < n; i++) p[t.be ? n - 1 - i : i] = (uint8_t)(v >> (8 * i));
+}
+
+static bool ts_tiff_pread(const ts_tiff &t, uint64_t off, void *buf, uint64_t n) {
+  return off <= t.size && n <= t.size - off && fseeko(t.f, (off_t)off, SEEK_SET) == 0 &&
+         fread(buf, 1, n, t.f) == n;
+}
+
+static bool ts_tiff_pwrite(const ts_tiff &t, uint64_t off, const void *buf, size_t n) {
+  return fseeko(t.f, (off_t)off, SEEK_SET) == 0 && fwrite(buf, 1, n, t.f) == n;
+}
+
+static bool ts_tiff_open(ts_tiff &t, FILE *f) {
+  uint8_t h[16];
+  t.f = f;
+  if (fseeko(f, 0, SEEK_END) != 0) return false;
+  off_t end = ftello(f);
+  if (end < 0) return false;
+  t.size = (uint64_t)end;
+  if (!ts_tiff_pread(t, 0, h, 8)) return false;
+  if (h[0] == 'I' && h[1] == 'I')
+    t.be = false;
+  else if (h[0] == 'M' && h[1] == 'M')
+    t.be = true;
+  else
+    return false;
+  uint64_t magic = ts_tiff_get(t, h + 2, 2);
+  t.big = magic == 43;
+  if (magic == 42) {
+    t.ifd = ts_tiff_get(t, h + 4, 4);
+    return true;
+  }
+  if (!t.big || !ts_tiff_pread(t, 0, h, 16) || ts_tiff_get(t, h + 4, 2) != 8 ||
+      ts_tiff_get(t, h + 6, 2) != 0)
+    return false;
+  t.ifd = ts_tiff_get(t, h + 8, 8);
+  return true;
+}
+
+/* The first directory's raw entries and its next-directory offset. */
+struct ts_tiff_dir {
+  std::vector<uint8_t> entries;
+  uint64_t next;
+};
+
+static bool ts_tiff_read_dir(const ts_tiff &t, ts_tiff_dir &d) {
+  int cw = t.big ? 8 : 2; /* entry count width */
+  uint8_t b[8];
+  if (!ts_tiff_pread(t, t.ifd, b, cw)) return false;
+  uint64_t n = ts_tiff_get(t, b, cw);
+  if (n == 0 || n > kTiffMaxEntries) return false;
+  d.entries.resize(n * t.entry());
+  if (!ts_tiff_pread(t, t.ifd + cw, d.entries.data(), d.entries.size()) ||
+      !ts_tiff_pread(t, t.ifd + cw + d.entries.size(), b, t.word()))
+    return false;
+  d.next = ts_tiff_get(t, b, t.word());
+  return true;
+}
+
+/* Values of the entry at e, tsize bytes each, inline or at their offset. */
+static bool ts_tiff_values(const ts_tiff &t, const uint8_t *e, int tsize,
+                           std::vector<uint8_t> &out) {
+  uint64_t count = ts_tiff_get(t, e + 4, t.word());
+  if (count == 0 || count > kTiffMaxValues) return false;
+  const uint8_t *field = e + 4 + t.word();
+  out.resize(count * tsize);
+  if (out.size() <= (size_t)t.word()) {
+    memcpy(out.data(), field, out.size());
+    return true;
+  }
+  return ts_tiff_pread(t, ts_tiff_get(t, field, t.word()), out.data(), out.size());
+}
+
+static void ts_geo_add(const ts_tiff &t, const ts_geotag &g, const std::vector<uint8_t> &v,
+                       ParamValueList &attrs) {
+  if (g.type == TS_TIFF_ASCII) {
+    std::string s(v.begin(), v.end());
+    while (!s.empty() && s.back() == '\0') s.pop_back();
+    attrs.add_or_replace(ParamValue(g.name, OIIO::string_view(s)));
+    return;
+  }
+  if (g.type == TS_TIFF_SHORT) {
+    std::vector<uint16_t> s(v.size() / 2);
+    for (size_t i = 0; i < s.size(); i++) s[i] = (uint16_t)ts_tiff_get(t, &v[2 * i], 2);
+    attrs.add_or_replace(
+        ParamValue(g.name, TypeDesc(TypeDesc::UINT16, (int)s.size()), 1, s.data()));
+    return;
+  }
+  std::vector<double> d(v.size() / 8);
+  for (size_t i = 0; i < d.size(); i++) {
+    uint64_t bits = ts_tiff_get(t, &v[8 * i], 8);
+    memcpy(&d[i], &bits, 8);
+  }
+  attrs.add_or_replace(ParamValue(g.name, TypeDesc(TypeDesc::DOUBLE, (int)d.size()), 1, d.data()));
+}
+
+/* Adds the GeoTIFF tags of path's first directory to attrs. A malformed
+ * tag is skipped, not an error: the pixels are still good. */
+static void ts_geo_read(const char *path, ParamValueList &attrs) {
+  ts_file f(fopen(path, "rb"));
+  ts_tiff t;
+  ts_tiff_dir d;
+  if (!f || !ts_tiff_open(t, f.get()) || !ts_tiff_read_dir(t, d)) return;
+  std::vector<uint8_t> v;
+  for (size_t off = 0; off < d.entries.size(); off += t.entry()) {
+    const uint8_t *e = &d.entries[off];
+    const ts_geotag *g = ts_geotag_find(ts_tiff_get(t, e, 2));
+    if (g == nullptr || ts_tiff_get(t, e + 2, 2) != g->type) continue;
+    int tsize = g->type == TS_TIFF_DOUBLE ? 8 : g->type == TS_TIFF_SHORT ? 2 : 1;
+    if (ts_tiff_values(t, e, tsize, v)) ts_geo_add(t, *g, v, attrs);
+  }
+}
+
+/* One entry to add: its tag, type, count and values in file byte order. */
+struct ts_geo_entry {
+  const ts_geotag *g;
+  uint64_t count;
+  std::vector<uint8_t> data;
+};
+
+/* The GeoTIFF attributes of attrs serialised for file t. Attributes of the
+ * wrong type (not from a GeoTIFF) are left out. */
+static std::vector<ts_geo_entry> ts_geo_collect(const ts_tiff &t, const ParamValueList &attrs) {
+  std::vector<ts_geo_entry> out;
+  for (const ts_geotag &g : kGeoTags) {
+    auto p = attrs.find(g.name, TypeDesc::UNKNOWN, false);
+    if (p == attrs.end()) continue;
+    ts_geo_entry e{&g, 0, {}};
+    TypeDesc ty = p->type();
+    size_t n = ty.basevalues() * (size_t)p->nvalues();
+    if (g.type == TS_TIFF_ASCII && ty == OIIO::TypeString && n == 1) {
+      std::string s = p->get_string();
+      e.data.assign(s.begin(), s.end());
+      e.data.push_back('\0');
+    } else if (g.type == TS_TIFF_SHORT && ty.basetype == TypeDesc::UINT16) {
+      const uint16_t *s = (const uint16_t *)p->data();
+      e.data.resize(2 * n);
+      for (size_t i = 0; i < n; i++) ts_tiff_put(t, &e.data[2 * i], 2, s[i]);
+    } else if (g.type == TS_TIFF_DOUBLE && ty.basetype == TypeDesc::DOUBLE) {
+      const double *s = (const double *)p->data();
+      e.data.resize(8 * n);
+      for (size_t i = 0; i < n; i++) {
+        uint64_t bits;
+        memcpy(&bits, &s[i], 8);
+        ts_tiff_put(t, &e.data[8 * i], 8, bits);
+      }
+    } else {
+      continue;
+    }
+    e.count = g.type == TS_TIFF_ASCII ? e.data.size() : n;
+    if (e.count == 0 || e.count > kTiffMaxValues) continue;
+    out.push_back(std::move(e));
+  }
+  return out;
+}
+
+static bool ts_has_geo(const ParamValueList &attrs) {
+  for (const ParamValue &p : attrs)
+    if (ts_is_geo_attr(p.name().string())) return true;
+  return false;
+}
+
+/* Appends attrs' GeoTIFF tags to the TIFF at path (see above). */
+static bool ts_geo_write(const char *path, const ParamValueList &attrs, std::string &why) {
+  ts_file f(fopen(path, "r+b"));
+  ts_tiff t;
+  ts_tiff_dir d;
+  if (!f) {
+    why = strerror(errno);
+    return false;
+  }
+  if (!ts_tiff_open(t, f.get()) || !ts_tiff_read_dir(t, d)) {
+    why = "cannot parse the TIFF directory to add GeoTIFF tags";
+    return false;
+  }
+  std::vector<ts_geo_entry> geo = ts_geo_collect(t, attrs);
+  /* Old entries minus any of ours, then ours; sorted by tag as TIFF wants. */
+  std::vector<std::vector<uint8_t>> entries;
+  for (size_t off = 0; off < d.entries.size(); off += t.entry())
+    if (ts_geotag_find(ts_tiff_get(t, &d.entries[off], 2)) == nullptr)
+      entries.emplace_back(d.entries.begin() + off, d.entries.begin() + off + t.entry());
+  uint64_t pos = (t.size + 7) & ~(uint64_t)7; /* word-aligned append */
+  static const uint8_t zeros[8] = {0};
+  bool ok = ts_tiff_pwrite(t, t.size, zeros, pos - t.size);
+  for (const ts_geo_entry &g : geo) {
+    std::vector<uint8_t> e(t.entry(), 0);
+    ts_tiff_put(t, &e[0], 2, g.g->tag);
+    ts_tiff_put(t, &e[2], 2, g.g->type);
+    ts_tiff_put(t, &e[4], t.word(), g.count);
+    if (g.data.size() <= (size_t)t.word()) {
+      memcpy(&e[4 + t.word()], g.data.data(), g.data.size());
+    } else {
+      ts_tiff_put(t, &e[4 + t.word()], t.word(), pos);
+      ok = ok && ts_tiff_pwrite(t, pos, g.data.data(), g.data.size());
+      uint64_t end = pos + g.data.size();
+      pos = (end + 7) & ~(uint64_t)7;
+      ok = ok && ts_tiff_pwrite(t, end, zeros, pos - end);
+    }
+    entries.push_back(std::move(e));
+  }
+  std::sort(entries.begin(), entries.end(),
+            [&t](const std::vector<uint8_t> &a, const std::vector<uint8_t> &b) {
+              return ts_tiff_get(t, a.data(), 2) < ts_tiff_get(t, b.data(), 2);
+            });
+  int cw = t.big ? 8 : 2;
+  std::vector<uint8_t> dir(cw + entries.size() * t.entry() + t.word());
+  ts_tiff_put(t, dir.data(), cw, entries.size());
+  for (size_t i = 0; i < entries.size(); i++)
+    memcpy(&dir[cw + i * t.entry()], entries[i].data(), t.entry());
+  ts_tiff_put(t, &dir[dir.size() - t.word()], t.word(), d.next);
+  if (!t.big && pos + dir.size() > UINT32_MAX) {
+    why = "GeoTIFF tags would push the file past the 4 GiB classic TIFF limit";
+    return false;
+  }
+  uint8_t head[8];
+  ts_tiff_put(t, head, t.word(), pos);
+  ok = ok && ts_tiff_pwrite(t, pos, dir.data(), dir.size()) &&
+       ts_tiff_pwrite(t, t.big ? 8 : 4, head, t.word());
+  if (!ok || fclose(f.release()) != 0) {
+    why = strerror(errno);
+    return false;
+  }
+  return true;
+}
+
+/* --- metadata ------------------------------------------------------------ */
+
+/* Whether a source attribute is passed on to an output. Dropped: whatever
+ * describes how the source was encoded rather than what the image is
+ * (compression, strip and tile layout, bit depth, JPEG subsampling,
+ * OpenImageIO's reader notes, EXIF pixel dimensions, thumbnails), which
+ * the target format and our own defaults decide; and the GeoTIFF tags,
+ * which only TIFF outputs get, written by ts_geo_write. Kept: everything
+ * else, e.g. resolution, ICC profile, colour space, EXIF/IPTC, captions. */
+static bool ts_meta_passes(const std::string &name) {
+  static const char *const keep[] = {"oiio:ColorSpace", "oiio:Gamma"};
+  static const char *const drop_prefix[] = {
+      "oiio:", "tiff:", "png:", "jpeg:", "openexr:", "thumbnail_"};
+  static const char *const drop[] = {"compression",          "CompressionQuality",
+                                     "planarconfig",         "textureformat",
+                                     "Exif:PixelXDimension", "Exif:PixelYDimension"};
+  for (const char *k : keep)
+    if (OIIO::Strutil::iequals(name, k)) return true;
+  for (const char *p : drop_prefix)
+    if (OIIO::Strutil::istarts_with(name, p)) return false;
+  for (const char *d : drop)
+    if (OIIO::Strutil::iequals(name, d)) return false;
+  return !ts_is_geo_attr(name);
+}
+
+/* --- read ---------------------------------------------------------------- */
+
+/* Frees a partly built image unless released (errors and exceptions). */
+struct ts_image_holder {
+  ts_image img = {};
+  ~ts_image_holder() { ts_image_free(&img); }
+};
+
+static int ts_check_spec(const char *path, const ImageSpec &s, uint64_t max_pixels, char *err) {
+  if (s.width <= 0 || s.height <= 0 || s.nchannels <= 0)
+    return ts_error(err, TS_EFORMAT, "%s: invalid image size %dx%d with %d channels", path, s.width,
+                    s.height, s.nchannels);
+  if (s.depth > 1)
+    return ts_error(err, TS_EFORMAT, "%s: volume images (depth %d) are not supported", path,
+                    s.depth);
+  if (s.deep) return ts_error(err, TS_EFORMAT, "%s: deep images are not supported", path);
+  if (s.nchannels > TS_IMAGE_MAX_CHANNELS)
+    return ts_error(err, TS_EFORMAT, "%s: %d channels; at most %d are supported", path, s.nchannels,
+                    TS_IMAGE_MAX_CHANNELS);
+  uint64_t pixels = (uint64_t)s.width * (uint64_t)s.height;
+  if (pixels > max_pixels)
+    return ts_error(err, TS_ETOOBIG,
+                    "%s: %dx%d image (%llu pixels) is over the limit of %llu "
+                    "pixels; raise it with --max-pixels",
+                    path, s.width, s.height, (unsigned long long)pixels,
+                    (unsigned long long)max_pixels);
+  return 0;
+}
+
+/* Opens path ourselves first: OpenImageIO reports a missing file, a
+ * directory and a permission problem all as "could not open". */
+static int ts_check_file(const char *path, char *err) {
+  int fd = open(path, O_RDONLY | O_NONBLOCK);
+  if (fd < 0) {
+    if (errno == ENOENT || errno == ENOTDIR)
+      return ts_error(err, TS_ENOENT, "%s: no such file", path);
+    return ts_error(err, TS_EIO, "%s: %s", path, strerror(errno));
+  }
+  struct stat st;
+  int rc = fstat(fd, &st);
+  close(fd);
+  if (rc == 0 && !S_ISREG(st.st_mode))
+    return ts_error(err, TS_EFORMAT, "%s: not a regular file", path);
+  return 0;
+}
+
+static int ts_read(const char *path, ts_image *out, const ts_image_limits *limits, char *err) {
+  int rc = ts_check_file(path, err);
+  if (rc != 0) return rc;
+  ImageSpec config;
+  config.attribute("oiio:UnassociatedAlpha", 1); /* pixel values as stored */
+  auto in = ImageInput::open(path, &config);
+  if (!in)
+    return ts_error(err, TS_EFORMAT, "%s: not a readable image: %s", path,
+                    ts_oneline(OIIO::geterror()).c_str());
+  in->geterror(); /* notes from parsing the header do not fail the read */
+  const ImageSpec &spec = in->spec();
+  uint64_t max_pixels = limits != nullptr && limits->max_pixels != 0 ? limits->max_pixels
+                                                                     : TS_IMAGE_DEFAULT_MAX_PIXELS;
+  rc = ts_check_spec(path, spec, max_pixels, err);
+  if (rc != 0) return rc;
+
+  ts_image_holder h;
+  char why[TS_ERR_LEN];
+  ts_pixtype type = ts_spec_type(spec);
+  rc = ts_image_alloc(&h.img, spec.width, spec.height, spec.nchannels, type, why);
+  if (rc != 0) return ts_error(err, rc, "%s: %s", path, why);
+  bool ok = in->read_image(0, 0, 0, spec.nchannels, ts_oiio_type(type), h.img.pixels);
+  std::string reason = in->geterror();
+  if (!ok || !reason.empty())
+    return ts_error(err, TS_EFORMAT, "%s: unreadable or truncated image: %s", path,
+                    ts_oneline(reason).c_str());
+
+  std::unique_ptr<ts_meta> meta(new ts_meta);
+  meta->attribs = spec.extra_attribs;
+  if (OIIO::Strutil::iequals(in->format_name(), "tiff")) ts_geo_read(path, meta->attribs);
+  h.img.meta = meta.release();
+  *out = h.img;
+  h.img = ts_image{};
+  return 0;
+}
+
+/* --- write --------------------------------------------------------------- */
+
+/* The sample type a format is given: what it stores natively, or the
+ * nearest it holds. Formats not named here get the image's type and
+ * OpenImageIO converts to what they hold. */
+static TypeDesc ts_out_type(const std::string &fmt, ts_pixtype t) {
+  if (fmt == "png") return t == TS_PIX_U16 ? TypeDesc::UINT16 : TypeDesc::UINT8;
+  if (fmt == "jpeg") return TypeDesc::UINT8;
+  if (fmt == "tiff" && t == TS_PIX_F16) return TypeDesc::FLOAT;    /* half TIFF is rare */
+  if (fmt == "openexr" && t == TS_PIX_U8) return TypeDesc::HALF;   /* exact for 8 bits */
+  if (fmt == "openexr" && t == TS_PIX_U16) return TypeDesc::FLOAT; /* exact for 16 */
+  return ts_oiio_type(t);
+}
+
+/* JPEG holds grey or RGB: alpha and extra channels are left out. */
+static int ts_out_channels(const std::string &fmt, int channels) {
+  if (fmt == "jpeg") return channels >= 3 ? 3 : 1;
+  return channels;
+}
+
+static void ts_out_channel_names(ImageSpec &spec) {
+  if (spec.nchannels == 1) {
+    spec.channelnames = {"Y"};
+    spec.alpha_channel = -1;
+  } else if (spec.nchannels == 2) {
+    spec.channelnames = {"Y", "A"};
+    spec.alpha_channel = 1;
+  }
+}
+
+/* Lossless defaults, JPEG at quality 95. Pixel values are written as they
+ * are: OpenImageIO must not premultiply or unpremultiply alpha. */
+static void ts_out_defaults(const std::string &fmt, ImageSpec &spec) {
+  spec.attribute("oiio:UnassociatedAlpha", 1);
+  if (fmt == "jpeg") spec.attribute("compression", "jpeg:95");
+  if (fmt == "tiff" || fmt == "openexr") spec.attribute("compression", "zip");
+}
+
+/* Removes the temporary file unless the write was committed. */
+struct ts_tmpfile {
+  std::string path;
+  bool keep = false;
+  ~ts_tmpfile() {
+    if (!keep) unlink(path.c_str());
+  }
+};
+
+static std::atomic<unsigned> ts_tmp_seq{0};
+
+static int ts_check_image(const char *path, const ts_image *img, char *err) {
+  if (img == nullptr || img->pixels == nullptr)
+    return ts_error(err, TS_EINVAL, "%s: no image to write", path);
+  if (img->width <= 0 || img->height <= 0 || img->channels < 1 ||
+      img->channels > TS_IMAGE_MAX_CHANNELS || ts_pixtype_size(img->type) == 0)
+    return ts_error(err, TS_EINVAL, "%s: invalid image %dx%d, %d channels, type %d", path,
+                    img->width, img->height, img->channels, (int)img->type);
+  return 0;
+}
+
+static int ts_sync(const char *path, std::string &why) {
+  int fd = open(path, O_RDONLY);
+  if (fd < 0 || fsync(fd) != 0) {
+    why = strerror(errno);
+    if (fd >= 0) close(fd);
+    return -1;
+  }
+  close(fd);
+  return 0;
+}
+
+static int ts_write(const char *path, const ts_image *img, const ts_meta *meta_from, char *err) {
+  int rc = ts_check_image(path, img, err);
+  if (rc != 0) return rc;
+  /* The temporary name keeps the directory (rename must not cross file
+   * systems); the format is chosen from path's own extension. Declared
+   * before the writer, so the writer is closed before the file goes. */
+  ts_tmpfile tmp;
+  tmp.path =
+      std::string(path) + ".tmp-" + std::to_string(getpid()) + "-" + std::to_string(ts_tmp_seq++);
+  auto out = ImageOutput::create(path);
+  if (!out)
+    return ts_error(err, TS_EINVAL,
+                    "%s: no image format for this file name; use .png, .jpg, "
+                    ".tif or .exr",
+                    path);
+  std::string fmt = out->format_name();
+  ImageSpec spec(img->width, img->height, ts_out_channels(fmt, img->channels),
+                 ts_out_type(fmt, img->type));
+  ts_out_channel_names(spec);
+  if (meta_from != nullptr)
+    for (const ParamValue &p : meta_from->attribs)
+      if (ts_meta_passes(p.name().string())) spec.extra_attribs.add_or_replace(p);
+  ts_out_defaults(fmt, spec);
+
+  size_t tsize = ts_pixtype_size(img->type);
+  OIIO::stride_t xstride = (OIIO::stride_t)(img->channels * tsize);
+  std::string why;
+  bool ok = out->open(tmp.path, spec);
+  if (ok) {
+    ok = out->write_image(ts_oiio_type(img->type), img->pixels, xstride, xstride * img->width);
+    ok = out->close() && ok; /* close even after a failed write */
+  }
+  if (!ok) why = ts_oneline(out->geterror());
+  if (ok && fmt == "tiff" && meta_from != nullptr && ts_has_geo(meta_from->attribs))
+    ok = ts_geo_write(tmp.path.c_str(), meta_from->attribs, why);
+  /* fsync before rename: after a crash the name holds the old file or the
+   * whole new one, never an empty one. */
+  ok = ok && ts_sync(tmp.path.c_str(), why) == 0;
+  if (ok && rename(tmp.path.c_str(), path) != 0) {
+    why = strerror(errno);
+    ok = false;
+  }
+  if (!ok) return ts_error(err, TS_EIO, "%s: cannot write image: %s", path, why.c_str());
+  tmp.keep = true;
+  return 0;
+}
+
+/* --- C API --------------------------------------------------------------- */
+
+extern "C" int ts_image_read(const char *path, ts_image *img, const ts_image_limits *limits,
+                             char *err) {
+  if (img == nullptr) return ts_error(err, TS_EINVAL, "no image to read into");
+  *img = ts_image{};
+  if (path == nullptr || *path == '\0') return ts_error(err, TS_EINVAL, "no image file name given");
+  try {
+    ts_oiio_errscope scope;
+    return ts_read(path, img, limits, err);
+  } catch (const std::bad_alloc &) {
+    return ts_error(err, TS_ENOMEM, "%s: out of memory reading the image", path);
+  } catch (const std::exception &e) {
+    return ts_error(err, TS_EFORMAT, "%s: unreadable image: %s", path,
+                    ts_oneline(e.what()).c_str());
+  } catch (...) {
+    return ts_error(err, TS_EFORMAT, "%s: unreadable image", path);
+  }
+}
+
+extern "C" int ts_image_write(const char *path, const ts_image *img, const ts_meta *meta_from,
+                              char *err) {
+  if (path == nullptr || *path == '\0')
+    return ts_error(err, TS_EINVAL, "no output file name given");
+  try {
+    ts_oiio_errscope scope;
+    return ts_write(path, img, meta_from, err);
+  } catch (const std::bad_alloc &) {
+    return ts_error(err, TS_ENOMEM, "%s: out of memory writing the image", path);
+  } catch (const std::exception &e) {
+    return ts_error(err, TS_EIO, "%s: cannot write image: %s", path, ts_oneline(e.what()).c_str());
+  } catch (...) {
+    return ts_error(err, TS_EIO, "%s: cannot write image", path);
+  }
+}
+
+extern "C" int ts_meta_get(const ts_meta *meta, const char *name, char *out, size_t outlen) {
+  if (meta == nullptr || name == nullptr) return TS_ENOENT;
+  try {
+    auto p = meta->attribs.find(name, TypeDesc::UNKNOWN, false);
+    if (p == meta->attribs.end()) return TS_ENOENT;
+    if (out != nullptr && outlen > 0) {
+      /* At most as many elements as could fit, each taking >= 1 char. */
+      int maxn = (int)std::min<size_t>(outlen, 1u << 20);
+      snprintf(out, outlen, "%s", p->get_string(maxn).c_str());
+    }
+    return 0;
+  } catch (...) {
+    return TS_ENOENT;
+  }
+}
+
+extern "C" int ts_meta_set(ts_meta **meta, const char *name, const char *value) {
+  if (meta == nullptr || name == nullptr || *name == '\0' || value == nullptr) return TS_EINVAL;
+  try {
+    std::unique_ptr<ts_meta> fresh;
+    if (*meta == nullptr) fresh.reset(new ts_meta);
+    ts_meta *m = *meta != nullptr ? *meta : fresh.get();
+    m->attribs.add_or_replace(ParamValue(name, OIIO::string_view(value)), false);
+    if (fresh) *meta = fresh.release();
+    return 0;
+  } catch (...) {
+    return TS_ENOMEM;
+  }
+}
+
+extern "C" void ts_meta_free(ts_meta *meta) { delete meta; }

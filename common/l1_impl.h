@@ -1,0 +1,59 @@
+/* l1_impl.h - internals shared by the L1 kernel files (l1.c, l1_scalar.c,
+ * l1_x86.c); not part of the public interface. */
+#ifndef TS_L1_IMPL_H
+#define TS_L1_IMPL_H
+
+#include <stdalign.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "l1.h"
+
+/* Any real distance is below 2^53 (SAD < 2^20 times a 32-bit weight, plus a
+ * 32-bit penalty). Padding lanes of the last group get TS_L1_INVALID added,
+ * so they never beat a real vector and are recognised when lanes are
+ * reduced. TS_L1_NONE marks a lane that has seen nothing; both stay below
+ * 2^63, which lets the AVX2 and SSE2 kernels compare with signed 64-bit ops. */
+#define TS_L1_INVALID ((uint64_t)1 << 62)
+#define TS_L1_NONE ((uint64_t)INT64_MAX)
+
+/* Running best of one query per lane: lane j has seen vectors 8*g + j and
+ * keeps the smallest distance and the first group g that reached it. */
+typedef struct {
+  alignas(64) uint64_t dist[TS_L1_GROUP];
+  uint64_t grp[TS_L1_GROUP];
+} ts__l1_lanes;
+
+/* True when (dist, index) beats *best under the "smallest distance, then
+ * smallest index" rule. */
+static inline int ts__l1_better(uint64_t dist, uint32_t index, const ts_l1_best *best) {
+  return dist < best->dist || (dist == best->dist && index < best->index);
+}
+
+void ts__l1_lanes_reset(ts__l1_lanes *lanes, size_t n);
+/* Reduces each query's lanes to one candidate and merges it into best. */
+void ts__l1_lanes_reduce(const ts__l1_lanes *lanes, size_t n, ts_l1_best *best);
+
+/* Distances of one query to the 8 vectors of one group, fine and coarse
+ * parts apart (sad[0] fine, sad[1] coarse). `grp` points at the group. */
+typedef void ts__l1_group_fn(const uint8_t *grp, const uint8_t *query, const uint8_t *mask,
+                             uint32_t nchunks, uint32_t nfine, uint32_t sad[2][TS_L1_GROUP]);
+/* Scan driver for the kernels that work one group at a time (scalar, MMX);
+ * `batch` picks the cache-blocked loop order. */
+void ts__l1_scan_groups(const ts_l1_set *set, uint32_t g0, uint32_t g1, const uint8_t *queries,
+                        const uint8_t *masks, const uint32_t *penalty, uint32_t nq,
+                        ts_l1_best *best, int batch, ts__l1_group_fn *fn);
+
+/* Reference sets are walked in blocks of about this many bytes, small enough
+ * to stay in L1 while every query of a batch passes over them, next to the
+ * queries and lane states, also on CPUs with a 32 KB L1 (32 KB blocks were
+ * only ~2% faster on Zen 5's 48 KB L1). */
+#define TS_L1_BLOCK_BYTES 16384
+
+ts_l1_scan_fn ts__l1_scalar_single, ts__l1_scalar_batch;
+ts_l1_scan_fn ts__l1_mmx_single, ts__l1_mmx_batch;
+ts_l1_scan_fn ts__l1_sse2_single, ts__l1_sse2_batch;
+ts_l1_scan_fn ts__l1_avx2_single, ts__l1_avx2_batch;
+ts_l1_scan_fn ts__l1_avx512_single, ts__l1_avx512_batch;
+
+#endif
