@@ -17,9 +17,9 @@ log=$(mktemp)
 status=0
 bash tests/run-unit.sh build | tee "$log"; [ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log"
 bash tests/run-integration.sh build | tee "$log"; [ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log"
-export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:abort_on_error=1}
+export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:abort_on_error=1:fast_unwind_on_malloc=0}
 export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
-[ -f tests/lsan.supp ] && export LSAN_OPTIONS="suppressions=$PWD/tests/lsan.supp"
+export LSAN_OPTIONS="suppressions=$PWD/tests/lsan.supp"
 TEXSYN_TEST_TIMEOUT_MULTIPLIER=4 bash tests/run-unit.sh build-asan | tee "$log"
 [ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log"
 TEXSYN_SANITIZED=1 bash tests/run-integration.sh build-asan -m sanitize | tee "$log"

@@ -16,19 +16,6 @@
 #include "image_meta.h"
 #include "ts_test.h"
 
-/* Sanitizer hooks (unused without ASan). OpenImageIO 2.4's PNG reader
- * builds its error string in a libpng read callback and libpng then
- * longjmps past the string's destructor: 31 bytes lost per truncated PNG,
- * inside OpenImageIO, and nothing we can free. The suppression names that
- * callback, which only the slow unwinder sees (libstdc++ has no frame
- * pointers). */
-const char *__asan_default_options(void);
-const char *__asan_default_options(void) { return "fast_unwind_on_malloc=0"; }
-const char *__lsan_default_suppressions(void);
-const char *__lsan_default_suppressions(void) {
-  return "leak:OpenImageIO_v2_4::PNGInput::PngReadCallback\n";
-}
-
 /* --- fixture: a scratch directory per test ------------------------------ */
 
 typedef struct {
