@@ -6,13 +6,13 @@
 
 #include "error.h"
 
-int ts_usage_init(ts_usage *u, const ts_refgrid *g, int wb) {
+int ts_usage_init(ts_usage *u, const ts_refgrid *g, int wb, int with_blocks) {
   u->grid = *g;
   u->wb = wb;
   u->total = 0;
   u->count = calloc((size_t)g->w * (size_t)g->h, sizeof(uint32_t));
-  u->u = calloc(g->total ? g->total : 1, sizeof(uint32_t));
-  if (u->count == NULL || u->u == NULL) {
+  u->u = with_blocks ? calloc(g->total ? g->total : 1, sizeof(uint32_t)) : NULL;
+  if (u->count == NULL || (with_blocks && u->u == NULL)) {
     ts_usage_free(u);
     return TS_ENOMEM;
   }
@@ -32,6 +32,7 @@ void ts_usage_free(ts_usage *u) {
 static void add_pixel(ts_usage *u, int px, int py, int delta) {
   u->count[(long)py * u->grid.w + px] += (uint32_t)delta;
   u->total += (uint64_t)(int64_t)delta;
+  if (u->u == NULL) return;
   for (int by = py - u->wb + 1; by <= py; by++)
     for (int bx = px - u->wb + 1; bx <= px; bx++) {
       int64_t j = ts_refgrid_index(&u->grid, bx, by);

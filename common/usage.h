@@ -26,12 +26,15 @@ typedef struct {
   ts_refgrid grid;
   int wb;
   uint32_t *count; /* grid.w * grid.h counters */
-  uint32_t *u;     /* grid.total block sums, by global vector index */
+  uint32_t *u;     /* grid.total block sums, by global vector index; NULL
+                      when only the map is kept (no penalty) */
   uint64_t total;  /* sum of all counters */
   uint64_t usable; /* pixels covered by at least one valid block */
 } ts_usage;
 
-int ts_usage_init(ts_usage *u, const ts_refgrid *g, int wb);
+/* with_blocks: also keep the block sums U_j the penalty needs (81 updates
+ * per copied 3x3 block instead of 9). */
+int ts_usage_init(ts_usage *u, const ts_refgrid *g, int wb, int with_blocks);
 void ts_usage_free(ts_usage *u);
 /* Records that the w x h pixels at (x, y) of the reference were copied
  * (delta +1) or that such a copy was overwritten again (delta -1). */

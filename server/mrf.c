@@ -432,14 +432,14 @@ static int synthesize_level(engine *e, int l, char *err) {
   if (rc == 0)
     rc = ts_refgrid_init(&e->grid, &e->shape[SHAPE_PLAIN], r0->w, r0->h, coarse ? e->ref[0][l + 1].w : 0,
                          coarse ? e->ref[0][l + 1].h : 0, p->parity, err);
-  if (rc == 0 && (rc = ts_usage_init(&e->usage, &e->grid, p->wb)) != 0) ts_error(err, rc, "out of memory");
+  if (rc == 0 && (rc = ts_usage_init(&e->usage, &e->grid, p->wb, p->usage_weight > 0)) != 0) ts_error(err, rc, "out of memory");
   size_t npx = (size_t)e->cw[l] * e->ch[l];
   e->copy = rc == 0 ? malloc(sizeof(uint32_t) * 2 * npx) : NULL;
   e->done = rc == 0 ? calloc(npx, 1) : NULL;
   if (rc == 0 && (e->copy == NULL || e->done == NULL)) rc = ts_error(err, TS_ENOMEM, "out of memory");
   if (rc == 0) rc = ts_schedule_wavefront(&scan, e->cw[l], e->ch[l], p->wb, p->wn);
   for (int k = 0; rc == 0 && k < 2; k++) {
-    ts_refset rs = {&e->shape[k], &e->grid, &e->ref_lp};
+    ts_refset rs = {&e->shape[k], &e->grid, &e->ref_lp, p->usage_weight > 0};
     rc = ts_search_prepare(e->search, &rs, &e->set_ids[k], err);
   }
   if (rc == 0) {

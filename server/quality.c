@@ -81,7 +81,7 @@ int ts_quality_measure(ts_search *search, const ts_plane *ref, const ts_plane *i
   point *pts = malloc(sizeof(point) * (samples ? samples : 1));
   if (rc == 0 && pts == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
   ts_levelplanes lp = {1, {ref}, {NULL}};
-  ts_refset rs = {&shape, &grid, &lp};
+  ts_refset rs = {&shape, &grid, &lp, 0};
   if (rc == 0) rc = ts_search_prepare(search, &rs, &set, err);
   if (rc == 0) {
     /* Windows are centred on the point: a W_B = 1 "block" at (x, y). */

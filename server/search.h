@@ -24,6 +24,7 @@ typedef struct {
   const ts_shape *shape;
   const ts_refgrid *grid;
   const ts_levelplanes *ref;
+  int usage; /* batches will carry a usage penalty: keep usage replicas */
 } ts_refset;
 
 /* Source blocks copied since the last batch: feeds the backend's replica of
@@ -54,7 +55,8 @@ typedef struct {
   const char *name;
   /* Builds a set; *id identifies it in later calls. */
   int (*prepare)(ts_search *s, const ts_refset *set, int *id, char *err);
-  /* Records copied blocks in the set's usage replica. */
+  /* Records copied blocks in the set's usage replica (a no-op for a set
+   * prepared without usage). */
   int (*commit)(ts_search *s, int id, const ts_commit *c, uint32_t n,
                 char *err);
   /* Answers a batch: out[i] = best match of query i, global index. */

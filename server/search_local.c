@@ -64,7 +64,7 @@ static int local_prepare(ts_search *s, const ts_refset *rs, int *id,
   local_set *st = &ls->sets[slot];
   memset(st, 0, sizeof(*st));
   st->grid = *rs->grid;
-  int rc = ts_usage_init(&st->usage, rs->grid, rs->shape->wb);
+  int rc = rs->usage ? ts_usage_init(&st->usage, rs->grid, rs->shape->wb, 1) : 0;
   for (int c = 0; rc == 0 && c < rs->grid->nclass; c++) {
     rc = ts_vecset_build(rs->shape, rs->grid, rs->ref, c, 0, rs->grid->count[c], &st->cls[c]);
     if (rc == 0) {
@@ -90,6 +90,7 @@ static int local_commit(ts_search *s, int id, const ts_commit *c, uint32_t n,
                         char *err) {
   local_set *st = set_get((local_search *)s, id);
   if (st == NULL) return ts_error(err, TS_EINVAL, "unknown reference set %d", id);
+  if (st->usage.count == NULL) return 0;
   for (uint32_t i = 0; i < n; i++) {
     if (c[i].x < 0 || c[i].y < 0 || c[i].x + c[i].w > st->grid.w || c[i].y + c[i].h > st->grid.h)
       return ts_error(err, TS_EINVAL, "commit outside the reference");
@@ -156,6 +157,8 @@ static int local_query(ts_search *s, int id, const ts_query_batch *b,
   local_set *st = set_get(ls, id);
   if (st == NULL) return ts_error(err, TS_EINVAL, "unknown reference set %d", id);
   if (b->nq == 0) return 0;
+  if (b->usage_k != 0 && st->usage.u == NULL)
+    return ts_error(err, TS_EINVAL, "a usage penalty on a set prepared without usage");
   uint32_t vbytes = st->cls[0].nchunks * TS_L1_CHUNK;
   if (ensure_scratch(ls, b->nq, vbytes) != 0)
     return ts_error(err, TS_ENOMEM, "out of memory for a batch of %u queries", b->nq);

@@ -39,7 +39,7 @@ static int brute_prepare(ts_search *s, const ts_refset *rs, int *id, char *err) 
   st->shape.wcoarse = rs->shape->wcoarse;
   st->grid = *rs->grid;
   st->ref = *rs->ref;
-  assert_int_equal(ts_usage_init(&st->usage, rs->grid, rs->shape->wb), 0);
+  assert_int_equal(ts_usage_init(&st->usage, rs->grid, rs->shape->wb, 1), 0);
   *id = k;
   return 0;
 }
