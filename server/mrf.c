@@ -353,9 +353,9 @@ static int place_step(engine *e, const ts_block *blocks, char *err) {
       ts_refgrid_split(&e->grid, g->best[i].index, &c, &rank);
       ts_refgrid_pos(&e->grid, c, rank, &sx, &sy);
       place_block(e, b, sx, sy);
-      ts_commit add = {sx, sy, b->w, b->h, 1};
+      ts_commit add = {sx, sy, b->w, b->h};
       e->commits[nc++] = add;
-      ts_usage_commit(&e->usage, sx, sy, b->w, b->h, 1);
+      ts_usage_commit(&e->usage, sx, sy, b->w, b->h);
     }
   }
   for (int k = 0; k < 2; k++) {
