@@ -594,14 +594,22 @@ static void test_l1_select_forced(void **state) {
 }
 
 static const struct CMUnitTest tests[] = {
-    cmocka_unit_test(test_l1_set_layout),      cmocka_unit_test(test_l1_best_merge),
-    cmocka_unit_test(test_l1_distance_reference), cmocka_unit_test(test_l1_shapes),
-    cmocka_unit_test(test_l1_weights),         cmocka_unit_test(test_l1_masks),
-    cmocka_unit_test(test_l1_penalty),         cmocka_unit_test(test_l1_ties),
-    cmocka_unit_test(test_l1_subranges),       cmocka_unit_test(test_l1_batch_sizes),
-    cmocka_unit_test(test_l1_overflow_bounds), cmocka_unit_test(test_l1_simd_from_name),
-    cmocka_unit_test(test_l1_impl_get),        cmocka_unit_test(test_l1_select_default),
-    cmocka_unit_test(test_l1_select_unknown),  cmocka_unit_test(test_l1_select_forced),
+    cmocka_unit_test(test_l1_set_layout),
+    cmocka_unit_test(test_l1_best_merge),
+    cmocka_unit_test(test_l1_distance_reference),
+    cmocka_unit_test(test_l1_shapes),
+    cmocka_unit_test(test_l1_weights),
+    cmocka_unit_test(test_l1_masks),
+    cmocka_unit_test(test_l1_penalty),
+    cmocka_unit_test(test_l1_ties),
+    cmocka_unit_test(test_l1_subranges),
+    cmocka_unit_test(test_l1_batch_sizes),
+    cmocka_unit_test(test_l1_overflow_bounds),
+    cmocka_unit_test(test_l1_simd_from_name),
+    cmocka_unit_test(test_l1_impl_get),
+    cmocka_unit_test(test_l1_select_default),
+    cmocka_unit_test(test_l1_select_unknown),
+    cmocka_unit_test(test_l1_select_forced),
 };
 
 TS_TEST_MAIN(tests)
