@@ -137,6 +137,32 @@ def plot(out, best, sys_levels, scalar):
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out / "table33.png", dpi=110)
+    plot_kernels(plt, out)
+
+
+def plot_kernels(plt, out):
+    """Bytes per cycle of every variant, single and batched, cache and memory."""
+    import csv
+    path = out / "kernels.csv"
+    if not path.exists():
+        return
+    rows = [r for r in csv.DictReader(path.open()) if r["nchunks"] == "7" and r["kind"] in ("single", "batch")
+            and r["nq"] in ("1", "128")]
+    variants = list(dict.fromkeys(r["variant"] for r in rows))
+    fig, ax = plt.subplots(figsize=(7, 4))
+    width = 0.2
+    for i, (kind, where) in enumerate([("single", "cache"), ("batch", "cache"), ("single", "mem"), ("batch", "mem")]):
+        vals = [next((float(r["bytes_per_cycle"]) for r in rows if r["variant"] == v and r["kind"] == kind
+                      and r["where"] == where), 0.0) for v in variants]
+        ax.bar([k + (i - 1.5) * width for k in range(len(variants))], vals, width, label=f"{kind}, {where}")
+    ax.axhline(64, color="grey", linestyle=":", label="64 B/cycle")
+    ax.set_xticks(range(len(variants)))
+    ax.set_xticklabels(variants)
+    ax.set_ylabel("reference bytes per cycle per core")
+    ax.set_title("L1 scan throughput, W_N=7 vectors (56 B), 1 core")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "kernels.png", dpi=110)
 
 
 def main():
