@@ -3,6 +3,7 @@
 #
 #   make            build binaries into build/
 #   make test       install missing packages, build, run every test
+#   make test-valgrind  the unit tests under valgrind
 #   make bench      run benchmarks, write bench/results/
 #   make demo       install missing packages, run an embedded synthesis
 #   make clean
@@ -40,7 +41,7 @@ UNIT_BINS = $(UNIT_SRC:tests/unit/%.c=$(BUILD)/tests/%)
 BENCH_SRC = $(wildcard bench/*.c)
 BENCH_BINS = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
 
-.PHONY: all deps test test-unit test-integration test-san bench demo clean
+.PHONY: all deps test test-unit test-integration test-valgrind bench demo clean
 all: $(BINS) $(UNIT_BINS) $(BENCH_BINS)
 
 $(BUILD)/%.o: %.c
@@ -82,6 +83,10 @@ test-unit: all
 
 test-integration: all
 	bash tests/run-integration.sh $(BUILD)
+
+# Every unit test under valgrind memcheck (about 4 minutes; not in `test`).
+test-valgrind: deps all
+	bash tests/run-valgrind.sh $(BUILD)
 
 bench: deps all
 	bash bench/run.sh $(BUILD)

@@ -28,21 +28,21 @@ void ts_usage_free(ts_usage *u) {
   u->u = NULL;
 }
 
-/* Adds one use of pixel (px, py) to every valid block containing it. */
-static void add_pixel(ts_usage *u, int px, int py) {
-  u->count[(long)py * u->grid.w + px]++;
-  u->total++;
+/* Adds delta uses of pixel (px, py) to every valid block containing it. */
+static void add_pixel(ts_usage *u, int px, int py, int delta) {
+  u->count[(long)py * u->grid.w + px] += (uint32_t)delta;
+  u->total += (uint64_t)(int64_t)delta;
   if (u->u == NULL) return;
   for (int by = py - u->wb + 1; by <= py; by++)
     for (int bx = px - u->wb + 1; bx <= px; bx++) {
       int64_t j = ts_refgrid_index(&u->grid, bx, by);
-      if (j >= 0) u->u[j]++;
+      if (j >= 0) u->u[j] += (uint32_t)delta;
     }
 }
 
-void ts_usage_commit(ts_usage *u, int x, int y, int w, int h) {
+void ts_usage_commit(ts_usage *u, int x, int y, int w, int h, int delta) {
   for (int dy = 0; dy < h; dy++)
-    for (int dx = 0; dx < w; dx++) add_pixel(u, x + dx, y + dy);
+    for (int dx = 0; dx < w; dx++) add_pixel(u, x + dx, y + dy, delta);
 }
 
 uint64_t ts_usage_factor(const ts_usage *u, double alpha, uint64_t d1) {

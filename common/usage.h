@@ -36,8 +36,9 @@ typedef struct {
  * per copied 3x3 block instead of 9). */
 int ts_usage_init(ts_usage *u, const ts_refgrid *g, int wb, int with_blocks);
 void ts_usage_free(ts_usage *u);
-/* Records that the w x h pixels at (x, y) of the reference were copied. */
-void ts_usage_commit(ts_usage *u, int x, int y, int w, int h);
+/* Records that the w x h pixels at (x, y) of the reference were copied
+ * (delta +1), or that such a copy was replaced (delta -1). */
+void ts_usage_commit(ts_usage *u, int x, int y, int w, int h, int delta);
 /* Penalty factor K (32.32 fixed point) for alpha and D1 (see above). */
 uint64_t ts_usage_factor(const ts_usage *u, double alpha, uint64_t d1);
 

@@ -8,8 +8,8 @@ PACKAGES=(
   libopenimageio-dev openimageio-tools # image I/O (OpenImageIO) + oiiotool for tests
   libmodbus-dev                        # Modbus TCP monitoring plane
   libcmocka-dev                        # unit tests
-  python3-pytest python3-numpy         # integration tests and checks
-  valgrind
+  python3-pytest                       # integration tests
+  valgrind                             # make test-valgrind
 )
 # Plots for `make bench` only.
 [ "${1:-}" = "--bench" ] && PACKAGES+=(python3-matplotlib)

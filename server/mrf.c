@@ -29,6 +29,7 @@ void ts_mrf_params_default(ts_mrf_params *p) {
   p->wn = 7;
   p->wb = 3;
   p->coarse_weight = 1.0;
+  p->refine = 2;
   p->seed = 1;
   p->max_pixels = TS_IMAGE_DEFAULT_MAX_PIXELS;
 }
@@ -117,6 +118,8 @@ int ts_mrf_check(const ts_mrf_params *p, int ref_w, int ref_h, int channels,
     problem(msg, len, &n, "--stop-level %d: need 0..%d (below --levels)", p->stop_level, p->levels - 1);
   if (!(p->usage_weight >= 0.0 && p->usage_weight <= 100.0))
     problem(msg, len, &n, "--usage-weight %g: need 0..100 (0 = off)", p->usage_weight);
+  if (p->refine < 0 || p->refine > 20)
+    problem(msg, len, &n, "--refine %d: need 0..20 sweeps", p->refine);
   if (!(p->coarse_weight > 0.0 && p->coarse_weight <= 100.0))
     problem(msg, len, &n, "--coarse-weight %g: need more than 0, at most 100", p->coarse_weight);
   if (channels < 1 || channels > 16)
@@ -197,7 +200,7 @@ static void group_free(query_group *g) {
 static int ensure_step_scratch(engine *e, uint32_t n) {
   if (n <= e->cap) return 0;
   free(e->commits);
-  e->commits = malloc(sizeof(ts_commit) * n);
+  e->commits = malloc(sizeof(ts_commit) * 2 * n);
   int ok = e->commits != NULL;
   for (int k = 0; k < 2; k++) {
     query_group *g = &e->group[k];
@@ -214,8 +217,15 @@ static int ensure_step_scratch(engine *e, uint32_t n) {
   return ok ? 0 : TS_ENOMEM;
 }
 
-static uint64_t level_blocks(int w, int h, int wb) {
-  return (uint64_t)((h + wb - 1) / wb) * (uint64_t)((w + wb - 1) / wb);
+/* Refinement sweeps at level l: all levels but the finest, whose cost
+ * (16x a level above) would dominate and whose layout the coarser levels
+ * already fixed. */
+static int refine_sweeps(const ts_mrf_params *p, int l) { return l > 0 ? p->refine : 0; }
+
+/* Blocks searched at a level: the scan and the refinement sweeps. */
+static uint64_t level_blocks(const ts_mrf_params *p, int l, int w, int h) {
+  uint64_t n = (uint64_t)((h + p->wb - 1) / p->wb) * (uint64_t)((w + p->wb - 1) / p->wb);
+  return n * (uint64_t)(1 + refine_sweeps(p, l));
 }
 
 /* Fills the coarsest level's canvas with reference pixels from uniformly
@@ -284,10 +294,12 @@ static void place_block(engine *e, const ts_block *b, int sx, int sy) {
  * noise or prediction) and every placed pixel, never the pixels b writes.
  * So the last row and column also match the first ones across the seam.
  * A block clipped at the last row or column writes only part of its W_B
- * square; the rest of the square is ordinary neighbourhood. */
-static int masked_query(engine *e, const ts_block *b, uint8_t *query, uint8_t *mask) {
+ * square; the rest of the square is ordinary neighbourhood. In a
+ * refinement sweep (refine = 1) every block is searched this way, seeing
+ * all of its window but itself. */
+static int masked_query(engine *e, const ts_block *b, int refine, uint8_t *query, uint8_t *mask) {
   const ts_shape *sq = &e->shape[SHAPE_MASKED];
-  int w = e->cw[e->level], h = e->ch[e->level], differs = 0;
+  int w = e->cw[e->level], h = e->ch[e->level], differs = refine;
   uint32_t n = 0;
   for (int k = 0; k < sq->nfine_px; k++) {
     int dx = sq->fine_dx[k], dy = sq->fine_dy[k];
@@ -306,14 +318,14 @@ static int masked_query(engine *e, const ts_block *b, uint8_t *query, uint8_t *m
   return 1;
 }
 
-static void build_queries(engine *e, const ts_block *blocks, uint32_t n) {
+static void build_queries(engine *e, const ts_block *blocks, uint32_t n, int refine) {
   query_group *plain = &e->group[SHAPE_PLAIN], *masked = &e->group[SHAPE_MASKED];
   size_t vb_plain = ts_shape_bytes(&e->shape[SHAPE_PLAIN]), vb_full = ts_shape_bytes(&e->shape[SHAPE_MASKED]);
   plain->n = masked->n = 0;
   for (uint32_t i = 0; i < n; i++) {
     uint8_t klass = (uint8_t)ts_refgrid_class(&e->grid, blocks[i].x, blocks[i].y);
     query_group *g = masked;
-    if (!masked_query(e, &blocks[i], masked->queries + masked->n * vb_full, masked->masks + masked->n * vb_full)) {
+    if (!masked_query(e, &blocks[i], refine, masked->queries + masked->n * vb_full, masked->masks + masked->n * vb_full)) {
       g = plain;
       ts_vec_query(&e->shape[SHAPE_PLAIN], &e->canvas_lp, blocks[i].x, blocks[i].y,
                    plain->queries + plain->n * vb_plain);
@@ -338,10 +350,19 @@ static int search_group(engine *e, int k, uint64_t usage_k, char *err) {
   return 0;
 }
 
-/* Places every block of the step and records the copies in the usage
- * counters, here and in the backend's replicas. */
-static int place_step(engine *e, const ts_block *blocks, char *err) {
+/* Records a copy (delta +1) or its removal (-1) in the usage counters, here
+ * and (at the end of the step) in the backend's replicas. */
+static void note_copy(engine *e, uint32_t *nc, int x, int y, const ts_block *b, int delta) {
+  ts_commit c = {x, y, b->w, b->h, delta};
+  e->commits[(*nc)++] = c;
+  ts_usage_commit(&e->usage, x, y, b->w, b->h, delta);
+}
+
+/* Places every block of the step; in a refinement sweep the copies they
+ * replace leave the usage counts. */
+static int place_step(engine *e, const ts_block *blocks, int refine, char *err) {
   uint32_t nc = 0;
+  int w = e->cw[e->level];
   for (int k = 0; k < 2; k++) {
     const query_group *g = &e->group[k];
     for (uint32_t i = 0; i < g->n; i++) {
@@ -352,10 +373,12 @@ static int place_step(engine *e, const ts_block *blocks, char *err) {
       uint32_t rank;
       ts_refgrid_split(&e->grid, g->best[i].index, &c, &rank);
       ts_refgrid_pos(&e->grid, c, rank, &sx, &sy);
+      if (refine) {
+        long o = (long)b->y * w + b->x;
+        note_copy(e, &nc, (int)e->copy[2 * o], (int)e->copy[2 * o + 1], b, -1);
+      }
       place_block(e, b, sx, sy);
-      ts_commit add = {sx, sy, b->w, b->h};
-      e->commits[nc++] = add;
-      ts_usage_commit(&e->usage, sx, sy, b->w, b->h);
+      note_copy(e, &nc, sx, sy, b, 1);
     }
   }
   for (int k = 0; k < 2; k++) {
@@ -367,26 +390,40 @@ static int place_step(engine *e, const ts_block *blocks, char *err) {
 
 /* Runs a schedule step by step, every block of a step searched against the
  * canvas as the previous step left it (schedule.h). */
-static int run_steps(engine *e, const ts_schedule *sch, char *err) {
+static int run_steps(engine *e, const ts_schedule *sch, int refine, char *err) {
   uint64_t d1[2] = {unit_distance(&e->shape[0]), unit_distance(&e->shape[1])};
   for (uint32_t t = 0; t < sch->nsteps; t++) {
     const ts_block *blocks = sch->blocks + sch->step_start[t];
     uint32_t n = sch->step_start[t + 1] - sch->step_start[t];
     if (ensure_step_scratch(e, n) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
-    build_queries(e, blocks, n);
+    build_queries(e, blocks, n, refine);
     for (int k = 0; k < 2; k++) {
       /* One penalty snapshot per step, however the step is split. */
       uint64_t usage_k = e->p->usage_weight > 0 ? ts_usage_factor(&e->usage, e->p->usage_weight, d1[k]) : 0;
       int rc = search_group(e, k, usage_k, err);
       if (rc != 0) return rc;
     }
-    int rc = place_step(e, blocks, err);
+    int rc = place_step(e, blocks, refine, err);
     if (rc != 0) return rc;
     e->prog.done += n;
     e->prog.work_done += n * level_cost(e->level);
     if (e->progress) e->progress(e->progress_ctx, &e->prog);
   }
   return 0;
+}
+
+/* One refinement sweep over the level (ICM-like): every block searched again
+ * with its full window, all of it placed now, so joins made early against
+ * little context - and the torus seam, where the scan closes - are
+ * revisited with both sides known. */
+static int run_sweep(engine *e, char *err) {
+  ts_schedule sweep;
+  int rc = ts_schedule_sweep(&sweep, e->cw[e->level], e->ch[e->level], e->p->wb, e->p->wn);
+  if (rc != 0) return ts_error(err, rc, "out of memory");
+  rc = run_steps(e, &sweep, 1, err);
+  e->steps += sweep.nsteps;
+  ts_schedule_free(&sweep);
+  return rc;
 }
 
 static int build_reference(engine *e, const ts_image *ref) {
@@ -447,9 +484,10 @@ static int synthesize_level(engine *e, int l, char *err) {
     else init_noise(e);
     e->prog.level = l;
     e->prog.done = 0;
-    e->prog.total = level_blocks(e->cw[l], e->ch[l], p->wb);
+    e->prog.total = level_blocks(p, l, e->cw[l], e->ch[l]);
     e->steps = scan.nsteps;
-    rc = run_steps(e, &scan, err);
+    rc = run_steps(e, &scan, 0, err);
+    for (int i = 0; rc == 0 && i < refine_sweeps(p, l); i++) rc = run_sweep(e, err);
   }
   for (int k = 0; k < 2; k++)
     if (e->set_ids[k] >= 0) ts_search_release(e->search, e->set_ids[k]);
@@ -515,7 +553,7 @@ int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *se
   e.prog.levels = p->levels;
   level_sizes(p->width, p->height, p->levels, e.cw, e.ch, 1);
   for (int l = 0; l < p->levels; l++)
-    e.prog.work_total += (double)level_blocks(e.cw[l], e.ch[l], p->wb) * level_cost(l);
+    e.prog.work_total += (double)level_blocks(p, l, e.cw[l], e.ch[l]) * level_cost(l);
   int rc = build_reference(&e, ref);
   if (rc != 0) rc = ts_error(err, rc, "cannot build the reference pyramid: %s", ts_strerror(rc));
   for (int l = p->levels - 1; l >= p->stop_level && rc == 0; l--) {

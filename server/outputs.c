@@ -78,10 +78,10 @@ int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const
           search->ops->name, search->simd->name, threads);
   fprintf(f, "  \"params\": {\"width\": %d, \"height\": %d, \"levels\": %d, \"wn\": %d, \"wb\": %d, "
              "\"parity\": %s, \"usage_weight\": %g, \"coarse_weight\": %g, \"seed\": %llu, "
-             "\"rgb_search\": %s, \"stop_level\": %d},\n",
+             "\"rgb_search\": %s, \"stop_level\": %d, \"refine\": %d},\n",
           p->width, p->height, p->levels, p->wn, p->wb, p->parity ? "true" : "false", p->usage_weight,
           p->coarse_weight, (unsigned long long)p->seed, p->rgb_search ? "true" : "false",
-          p->stop_level);
+          p->stop_level, p->refine);
   fprintf(f, "  \"seconds\": %.4f,\n  \"usage\": {\"mean\": %.6f, \"variance\": %.6f},\n  \"levels\": [\n",
           res->seconds, res->usage_mean, res->usage_variance);
   for (int l = p->levels - 1; l >= p->stop_level; l--) {

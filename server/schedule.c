@@ -130,6 +130,19 @@ int ts_schedule_wavefront(ts_schedule *s, int width, int height, int wb, int wn)
   return rc;
 }
 
+int ts_schedule_sweep(ts_schedule *s, int width, int height, int wb, int wn) {
+  uint32_t *step;
+  int rc = schedule_init(s, width, height, wb, wn, &step);
+  if (rc != 0) return rc;
+  uint32_t m = (uint32_t)ceil_div(s->halo, wb) + 1;
+  for (int r = 0; r < s->rows; r++)
+    for (int c = 0; c < s->cols; c++) step[r * s->cols + c] = ((uint32_t)r % m) * m + (uint32_t)c % m;
+  rc = build_lists(s, step);
+  free(step);
+  if (rc != 0) ts_schedule_free(s);
+  return rc;
+}
+
 void ts_schedule_free(ts_schedule *s) {
   free(s->step_start);
   free(s->blocks);

@@ -17,7 +17,12 @@
  * that of a row-major scan; ~min(rows, cols/s) blocks run per step. When a
  * canvas size makes the torus wrap put two blocks of one step into each
  * other's window, s grows until it does not (in the limit: row-major).
- */
+ *
+ * A refinement sweep visits every block once more, in m x m colours
+ * (m = ceil(h/W_B) + 1, by block row and column modulo m), so blocks of one
+ * colour lie outside each other's windows; where the torus wraps with a
+ * size not divisible by m two neighbours can share a colour, and then they
+ * simply see each other's previous state. */
 #ifndef TS_SCHEDULE_H
 #define TS_SCHEDULE_H
 
@@ -39,6 +44,7 @@ typedef struct {
 
 int ts_schedule_wavefront(ts_schedule *s, int width, int height, int wb,
                           int wn);
+int ts_schedule_sweep(ts_schedule *s, int width, int height, int wb, int wn);
 void ts_schedule_free(ts_schedule *s);
 
 /* Number of ordered pairs of distinct blocks in one step where one lies in

@@ -32,6 +32,7 @@ typedef struct {
 typedef struct {
   int32_t x, y;  /* reference level coordinates of the copied pixels */
   uint16_t w, h; /* copied size (blocks at the canvas edge are clipped) */
+  int32_t delta; /* +1 copied, -1 replaced by a refinement sweep */
 } ts_commit;
 
 typedef struct {

@@ -94,7 +94,8 @@ static int local_commit(ts_search *s, int id, const ts_commit *c, uint32_t n,
   for (uint32_t i = 0; i < n; i++) {
     if (c[i].x < 0 || c[i].y < 0 || c[i].x + c[i].w > st->grid.w || c[i].y + c[i].h > st->grid.h)
       return ts_error(err, TS_EINVAL, "commit outside the reference");
-    ts_usage_commit(&st->usage, c[i].x, c[i].y, c[i].w, c[i].h);
+    if (c[i].delta != 1 && c[i].delta != -1) return ts_error(err, TS_EINVAL, "commit delta %d", (int)c[i].delta);
+    ts_usage_commit(&st->usage, c[i].x, c[i].y, c[i].w, c[i].h, c[i].delta);
   }
   return 0;
 }

@@ -13,7 +13,8 @@ for bin in "$build"/tests/test_*; do
   [ -x "$bin" ] || continue
   for name in $("$bin" --list); do
     log="$logdir/$(basename "$bin").$name.log"
-    if timeout "$timeout_s" "$bin" "$name" >"$log" 2>&1 && grep -q "PASSED" "$log" && ! grep -q "FAILED" "$log"; then
+    # TEXSYN_TEST_WRAPPER (e.g. valgrind ...) runs each test under a tool.
+    if timeout "$timeout_s" ${TEXSYN_TEST_WRAPPER:-} "$bin" "$name" >"$log" 2>&1 && grep -q "PASSED" "$log" && ! grep -q "FAILED" "$log"; then
       pass=$((pass + 1)); echo "ok   $(basename "$bin") $name"
     else
       fail=$((fail + 1)); failed+=("$(basename "$bin") $name")

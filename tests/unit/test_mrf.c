@@ -47,7 +47,7 @@ static int brute_prepare(ts_search *s, const ts_refset *rs, int *id, char *err) 
 static int brute_commit(ts_search *s, int id, const ts_commit *c, uint32_t n, char *err) {
   (void)err;
   brute_set *st = &((brute_search *)s)->sets[id];
-  for (uint32_t i = 0; i < n; i++) ts_usage_commit(&st->usage, c[i].x, c[i].y, c[i].w, c[i].h);
+  for (uint32_t i = 0; i < n; i++) ts_usage_commit(&st->usage, c[i].x, c[i].y, c[i].w, c[i].h, c[i].delta);
   return 0;
 }
 

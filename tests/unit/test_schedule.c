@@ -76,6 +76,22 @@ static void wavefront_keeps_causal_order(void **state) {
   ts_schedule_free(&s);
 }
 
+/* A sweep visits every block once in m*m colours; with sizes divisible by
+ * m blocks no two blocks of a colour see each other. */
+static void sweep_colours_cover_canvas(void **state) {
+  (void)state;
+  ts_schedule s;
+  assert_int_equal(ts_schedule_sweep(&s, 96, 60, 3, 7), 0); /* 32 x 20 blocks, m = 2 */
+  assert_int_equal(s.nsteps, 4);
+  assert_int_equal(ts_schedule_conflicts(&s), 0);
+  assert_covers(&s);
+  ts_schedule_free(&s);
+  assert_int_equal(ts_schedule_sweep(&s, 100, 31, 3, 11), 0); /* m = 3, wrapping */
+  assert_int_equal(s.nsteps, 9);
+  assert_covers(&s);
+  ts_schedule_free(&s);
+}
+
 static void schedule_rejects_bad_geometry(void **state) {
   (void)state;
   ts_schedule s;
@@ -87,6 +103,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(wavefront_sizes_are_conflict_free),
     cmocka_unit_test(wavefront_1024_is_wide),
     cmocka_unit_test(wavefront_keeps_causal_order),
+    cmocka_unit_test(sweep_colours_cover_canvas),
     cmocka_unit_test(schedule_rejects_bad_geometry),
 };
 
