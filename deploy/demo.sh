@@ -10,7 +10,9 @@ cd "$(dirname "$0")/.."
 ref=../shared/data/textures/brick.png
 if [ ! -f "$ref" ]; then
   tmp=$(mktemp -d)
-  (cd "$tmp" && apt-get download -qq python3-skimage >/dev/null && dpkg -x python3-skimage_*.deb x)
+  (cd "$tmp" && { apt-get download -qq python3-skimage >/dev/null 2>&1 ||
+    { apt-get update -qq && apt-get download -qq python3-skimage >/dev/null; }; } &&
+    dpkg -x python3-skimage_*.deb x)
   ref=$(find "$tmp/x" -name brick.png | head -n 1)
   [ -n "$ref" ] || { echo "demo: no brick.png in python3-skimage" >&2; exit 1; }
 fi
