@@ -217,15 +217,19 @@ static int ensure_step_scratch(engine *e, uint32_t n) {
   return ok ? 0 : TS_ENOMEM;
 }
 
-/* Refinement sweeps at level l: all levels but the finest, whose cost
- * (16x a level above) would dominate and whose layout the coarser levels
- * already fixed. */
-static int refine_sweeps(const ts_mrf_params *p, int l) { return l > 0 ? p->refine : 0; }
+/* Refinement sweeps cover the whole canvas on every level but the finest.
+ * On the finest, which costs 16x a level above and whose layout the
+ * coarser levels fixed, they cover the band of this many block rows and
+ * columns along each side of the torus seam, where the scan closed. */
+#define SEAM_SWEEP_DEPTH 3
+static int sweep_band(int l) { return l > 0 ? 0 : SEAM_SWEEP_DEPTH; }
 
 /* Blocks searched at a level: the scan and the refinement sweeps. */
 static uint64_t level_blocks(const ts_mrf_params *p, int l, int w, int h) {
-  uint64_t n = (uint64_t)((h + p->wb - 1) / p->wb) * (uint64_t)((w + p->wb - 1) / p->wb);
-  return n * (uint64_t)(1 + refine_sweeps(p, l));
+  uint64_t rows = (uint64_t)(h + p->wb - 1) / p->wb, cols = (uint64_t)(w + p->wb - 1) / p->wb;
+  uint64_t band = (uint64_t)sweep_band(l), swept = rows * cols;
+  if (band > 0 && rows > 2 * band && cols > 2 * band) swept -= (rows - 2 * band) * (cols - 2 * band);
+  return rows * cols + swept * (uint64_t)p->refine;
 }
 
 /* Fills the coarsest level's canvas with reference pixels from uniformly
@@ -412,13 +416,14 @@ static int run_steps(engine *e, const ts_schedule *sch, int refine, char *err) {
   return 0;
 }
 
-/* One refinement sweep over the level (ICM-like): every block searched again
- * with its full window, all of it placed now, so joins made early against
- * little context - and the torus seam, where the scan closes - are
- * revisited with both sides known. */
-static int run_sweep(engine *e, char *err) {
+/* One refinement sweep (ICM-like) over the level, or over the seam band of
+ * `band` block rows and columns: every block searched again with its full
+ * window, all of it placed now, so joins made early against little context
+ * - and the torus seam, where the scan closes - are revisited with both
+ * sides known. */
+static int run_sweep(engine *e, int band, char *err) {
   ts_schedule sweep;
-  int rc = ts_schedule_sweep(&sweep, e->cw[e->level], e->ch[e->level], e->p->wb, e->p->wn);
+  int rc = ts_schedule_sweep(&sweep, e->cw[e->level], e->ch[e->level], e->p->wb, e->p->wn, band);
   if (rc != 0) return ts_error(err, rc, "out of memory");
   rc = run_steps(e, &sweep, 1, err);
   e->steps += sweep.nsteps;
@@ -487,7 +492,7 @@ static int synthesize_level(engine *e, int l, char *err) {
     e->prog.total = level_blocks(p, l, e->cw[l], e->ch[l]);
     e->steps = scan.nsteps;
     rc = run_steps(e, &scan, 0, err);
-    for (int i = 0; rc == 0 && i < refine_sweeps(p, l); i++) rc = run_sweep(e, err);
+    for (int i = 0; rc == 0 && i < p->refine; i++) rc = run_sweep(e, sweep_band(l), err);
   }
   for (int k = 0; k < 2; k++)
     if (e->set_ids[k] >= 0) ts_search_release(e->search, e->set_ids[k]);

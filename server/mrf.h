@@ -20,7 +20,8 @@ typedef struct {
   int parity;           /* parity control, §3.3.3 (off) */
   double usage_weight;  /* alpha of the usage penalty, eq. 3.5 (0 = off) */
   double coarse_weight; /* lambda: coarse part weight relative to area (1) */
-  int refine;           /* refinement sweeps on every level but the finest (2) */
+  int refine;           /* refinement sweeps: whole coarser levels, and the
+                           seam band of the finest (2) */
   uint64_t seed;        /* noise initialisation */
   int rgb_search;       /* search on every colour channel, not luminance */
   uint64_t max_pixels;  /* output size limit */

@@ -130,13 +130,16 @@ int ts_schedule_wavefront(ts_schedule *s, int width, int height, int wb, int wn)
   return rc;
 }
 
-int ts_schedule_sweep(ts_schedule *s, int width, int height, int wb, int wn) {
+int ts_schedule_sweep(ts_schedule *s, int width, int height, int wb, int wn, int band) {
   uint32_t *step;
   int rc = schedule_init(s, width, height, wb, wn, &step);
   if (rc != 0) return rc;
   uint32_t m = (uint32_t)ceil_div(s->halo, wb) + 1;
   for (int r = 0; r < s->rows; r++)
-    for (int c = 0; c < s->cols; c++) step[r * s->cols + c] = ((uint32_t)r % m) * m + (uint32_t)c % m;
+    for (int c = 0; c < s->cols; c++) {
+      int near = r < band || r >= s->rows - band || c < band || c >= s->cols - band;
+      step[r * s->cols + c] = band > 0 && !near ? UINT32_MAX : ((uint32_t)r % m) * m + (uint32_t)c % m;
+    }
   rc = build_lists(s, step);
   free(step);
   if (rc != 0) ts_schedule_free(s);

@@ -22,7 +22,8 @@
  * (m = ceil(h/W_B) + 1, by block row and column modulo m), so blocks of one
  * colour lie outside each other's windows; where the torus wraps with a
  * size not divisible by m two neighbours can share a colour, and then they
- * simply see each other's previous state. */
+ * simply see each other's previous state. With band > 0 only the blocks
+ * within `band` block rows or columns of the torus seam are visited. */
 #ifndef TS_SCHEDULE_H
 #define TS_SCHEDULE_H
 
@@ -44,7 +45,7 @@ typedef struct {
 
 int ts_schedule_wavefront(ts_schedule *s, int width, int height, int wb,
                           int wn);
-int ts_schedule_sweep(ts_schedule *s, int width, int height, int wb, int wn);
+int ts_schedule_sweep(ts_schedule *s, int width, int height, int wb, int wn, int band);
 void ts_schedule_free(ts_schedule *s);
 
 /* Number of ordered pairs of distinct blocks in one step where one lies in

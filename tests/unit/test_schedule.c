@@ -81,14 +81,21 @@ static void wavefront_keeps_causal_order(void **state) {
 static void sweep_colours_cover_canvas(void **state) {
   (void)state;
   ts_schedule s;
-  assert_int_equal(ts_schedule_sweep(&s, 96, 60, 3, 7), 0); /* 32 x 20 blocks, m = 2 */
+  assert_int_equal(ts_schedule_sweep(&s, 96, 60, 3, 7, 0), 0); /* 32 x 20 blocks, m = 2 */
   assert_int_equal(s.nsteps, 4);
   assert_int_equal(ts_schedule_conflicts(&s), 0);
   assert_covers(&s);
   ts_schedule_free(&s);
-  assert_int_equal(ts_schedule_sweep(&s, 100, 31, 3, 11), 0); /* m = 3, wrapping */
+  assert_int_equal(ts_schedule_sweep(&s, 100, 31, 3, 11, 0), 0); /* m = 3, wrapping */
   assert_int_equal(s.nsteps, 9);
   assert_covers(&s);
+  ts_schedule_free(&s);
+  assert_int_equal(ts_schedule_sweep(&s, 90, 60, 3, 7, 3), 0); /* 30 x 20, band 3 */
+  assert_int_equal(s.nblocks, 30 * 20 - 24 * 14);
+  for (uint32_t i = 0; i < s.nblocks; i++) {
+    int r = s.blocks[i].y / 3, c = s.blocks[i].x / 3;
+    assert_true(r < 3 || r >= 17 || c < 3 || c >= 27);
+  }
   ts_schedule_free(&s);
 }
 
