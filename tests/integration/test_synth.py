@@ -1,4 +1,6 @@
 """End-to-end synthesis through the real CLI, on the shared CC0 textures."""
+import subprocess
+
 import pytest
 
 from conftest import SANITIZED, quality, run, synth
@@ -116,3 +118,21 @@ def test_small_job_with_all_side_outputs(texsyn, data, tmp_path):
     assert max(xs) < 512
     for f in ("o.png", "cm.png", "u.tif"):
         assert (tmp_path / f).stat().st_size > 0
+
+
+def oiio_info(path):
+    p = subprocess.run(["oiiotool", "--info", "-v", str(path)], capture_output=True, text=True, check=True)
+    return p.stdout
+
+
+@pytest.mark.sanitize
+@pytest.mark.parametrize("ext,fmt,expect", [("tif", "uint16", "uint16"), ("exr", "half", "half"),
+                                            ("exr", "float", "float")])
+def test_pixel_type_is_kept(texsyn, data, tmp_path, ext, fmt, expect):
+    """16-bit in gives 16-bit out, half gives half, float gives float."""
+    src = tmp_path / f"ref.{ext}"
+    subprocess.run(["oiiotool", str(data / "aerial" / "aero1.jpg"), "-d", fmt, "-o", str(src)], check=True)
+    out = tmp_path / f"out.{ext}"
+    synth(texsyn, src, out, (40, 36), "--levels", "2")
+    head = oiio_info(out).splitlines()[1]  # "<file> :   40 x   36, 3 channel, uint16 tiff"
+    assert " ".join(head.split(":", 1)[1].split()).startswith(f"40 x 36, 3 channel, {expect}"), head
