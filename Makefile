@@ -74,8 +74,8 @@ deps:
 # The whole suite: unit tests (each test in its own process), integration
 # tests driving the real binaries, then the unit tests again under ASan+UBSan.
 test: deps
-	$(MAKE) all
-	$(MAKE) SAN=1 all
+	$(MAKE) -j2 all
+	$(MAKE) -j2 SAN=1 all
 	bash tests/run-all.sh
 
 test-unit: all
