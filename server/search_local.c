@@ -13,6 +13,9 @@
 #include "usage.h"
 
 #define LOCAL_MAX_SETS 8
+/* Below this many comparisons (about 0.2 ms of one core) a batch is scanned
+ * on the calling thread alone. */
+#define LOCAL_INLINE_PAIRS (1u << 19)
 
 typedef struct {
   int used;
@@ -183,10 +186,14 @@ static int local_query(ts_search *s, int id, const ts_query_batch *b,
   ls->vbytes = vbytes;
   ls->usage_k = b->usage_k;
   ls->masked = b->masks != NULL;
+  /* A small batch costs less than waking the pool: scan it on this thread. */
+  uint64_t pairs = 0;
+  for (int c = 0; c < st->grid.nclass; c++) pairs += (uint64_t)(ls->qstart[c + 1] - ls->qstart[c]) * st->grid.count[c];
+  int nt = pairs < LOCAL_INLINE_PAIRS ? 1 : ts_pool_size(ls->pool);
   double t0 = now_seconds();
-  ts_pool_run(ls->pool, scan_slices, ls);
+  if (nt == 1) scan_slices(ls, 0, 1);
+  else ts_pool_run(ls->pool, scan_slices, ls);
   s->stats.scan_seconds += now_seconds() - t0;
-  int nt = ts_pool_size(ls->pool);
   for (int c = 0; c < st->grid.nclass; c++) {
     for (uint32_t r = ls->qstart[c]; r < ls->qstart[c + 1]; r++) {
       ts_l1_best best = ls->tbest[r];
