@@ -28,6 +28,7 @@ typedef struct {
 typedef struct {
   ts_search base;
   ts_pool *pool;
+  uint64_t inline_pairs; /* smaller batches run on the calling thread */
   local_set sets[LOCAL_MAX_SETS];
   /* Per-batch scratch, grown on demand. */
   uint32_t cap_q, cap_bytes;
@@ -189,7 +190,7 @@ static int local_query(ts_search *s, int id, const ts_query_batch *b,
   /* A small batch costs less than waking the pool: scan it on this thread. */
   uint64_t pairs = 0;
   for (int c = 0; c < st->grid.nclass; c++) pairs += (uint64_t)(ls->qstart[c + 1] - ls->qstart[c]) * st->grid.count[c];
-  int nt = pairs < LOCAL_INLINE_PAIRS ? 1 : ts_pool_size(ls->pool);
+  int nt = pairs < ls->inline_pairs ? 1 : ts_pool_size(ls->pool);
   double t0 = now_seconds();
   if (nt == 1) scan_slices(ls, 0, 1);
   else ts_pool_run(ls->pool, scan_slices, ls);
@@ -234,6 +235,10 @@ static const ts_search_ops local_ops = {
     .destroy = local_destroy,
 };
 
+void ts_search_local_set_inline(ts_search *s, uint64_t pairs) {
+  ((local_search *)s)->inline_pairs = pairs;
+}
+
 int ts_search_local_create(ts_search **out, int nthreads,
                            const ts_l1_impl *simd, char *err) {
   *out = NULL;
@@ -252,6 +257,7 @@ int ts_search_local_create(ts_search **out, int nthreads,
   }
   ls->base.ops = &local_ops;
   ls->base.simd = simd;
+  ls->inline_pairs = LOCAL_INLINE_PAIRS;
   *out = &ls->base;
   return 0;
 }

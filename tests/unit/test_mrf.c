@@ -163,6 +163,7 @@ static void engine_matches_brute_force(void **state) {
     ts_search *local, *brute = brute_create();
     char err[TS_ERR_LEN];
     assert_int_equal(ts_search_local_create(&local, 2, NULL, err), 0);
+    ts_search_local_set_inline(local, 0);
     ts_mrf_result a, b;
     run(&p, &ref, local, &a);
     p.max_batch = 1;
@@ -195,6 +196,7 @@ static void threads_and_variants_give_same_bytes(void **state) {
     for (int threads = 1; threads <= 3; threads++) {
       ts_mrf_result r;
       assert_int_equal(ts_search_local_create(&s, threads, impl, err), 0);
+      ts_search_local_set_inline(s, 0); /* every batch through the pool */
       run(&p, &ref, s, &r);
       assert_same_result(&base, &r);
       ts_mrf_result_free(&r);
