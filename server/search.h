@@ -96,8 +96,8 @@ static inline void ts_search_destroy(ts_search *s) {
  * (NULL = ts_l1_select). */
 int ts_search_local_create(ts_search **out, int nthreads,
                            const ts_l1_impl *simd, char *err);
-/* Batches of fewer comparisons than this run on the calling thread
- * (default about 0.2 ms of work); tests set 0 to exercise the pool. */
-void ts_search_local_set_inline(ts_search *s, uint64_t pairs);
+/* Small batches (about 0.2 ms of work) run on the calling thread unless
+ * disabled (tests disable it to drive every batch through the pool). */
+void ts_search_local_set_inline(ts_search *s, int enabled);
 
 #endif

@@ -13,9 +13,18 @@
 #include "usage.h"
 
 #define LOCAL_MAX_SETS 8
-/* Below this many comparisons (about 0.2 ms of one core) a batch is scanned
- * on the calling thread alone. */
+/* Below this many comparisons of 56-byte vectors with the AVX-512 kernel
+ * (about 0.2 ms of one core) a batch is scanned on the calling thread
+ * alone; the threshold shrinks with slower kernels and longer vectors. */
 #define LOCAL_INLINE_PAIRS (1u << 19)
+
+/* Rough speed of each kernel variant relative to scalar (bench/results). */
+static const uint32_t kVariantSpeed[TS_SIMD_COUNT] = {1, 16, 24, 96, 192};
+
+static uint64_t inline_threshold(const ts_l1_impl *simd, uint32_t nchunks) {
+  return (uint64_t)LOCAL_INLINE_PAIRS * kVariantSpeed[simd->id] * 7 /
+         (kVariantSpeed[TS_SIMD_AVX512] * (uint64_t)nchunks);
+}
 
 typedef struct {
   int used;
@@ -28,7 +37,7 @@ typedef struct {
 typedef struct {
   ts_search base;
   ts_pool *pool;
-  uint64_t inline_pairs; /* smaller batches run on the calling thread */
+  int inline_small; /* 0: every batch goes through the pool (tests) */
   local_set sets[LOCAL_MAX_SETS];
   /* Per-batch scratch, grown on demand. */
   uint32_t cap_q, cap_bytes;
@@ -190,7 +199,8 @@ static int local_query(ts_search *s, int id, const ts_query_batch *b,
   /* A small batch costs less than waking the pool: scan it on this thread. */
   uint64_t pairs = 0;
   for (int c = 0; c < st->grid.nclass; c++) pairs += (uint64_t)(ls->qstart[c + 1] - ls->qstart[c]) * st->grid.count[c];
-  int nt = pairs < ls->inline_pairs ? 1 : ts_pool_size(ls->pool);
+  uint64_t limit = ls->inline_small ? inline_threshold(s->simd, st->cls[0].nchunks) : 0;
+  int nt = pairs < limit ? 1 : ts_pool_size(ls->pool);
   double t0 = now_seconds();
   if (nt == 1) scan_slices(ls, 0, 1);
   else ts_pool_run(ls->pool, scan_slices, ls);
@@ -235,8 +245,8 @@ static const ts_search_ops local_ops = {
     .destroy = local_destroy,
 };
 
-void ts_search_local_set_inline(ts_search *s, uint64_t pairs) {
-  ((local_search *)s)->inline_pairs = pairs;
+void ts_search_local_set_inline(ts_search *s, int enabled) {
+  ((local_search *)s)->inline_small = enabled;
 }
 
 int ts_search_local_create(ts_search **out, int nthreads,
@@ -257,7 +267,7 @@ int ts_search_local_create(ts_search **out, int nthreads,
   }
   ls->base.ops = &local_ops;
   ls->base.simd = simd;
-  ls->inline_pairs = LOCAL_INLINE_PAIRS;
+  ls->inline_small = 1;
   *out = &ls->base;
   return 0;
 }
