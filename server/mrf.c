@@ -1,14 +1,14 @@
 /* mrf.c - see mrf.h.
  *
- * Per level, coarsest first (seed 002 §3.3): the canvas is initialised with
- * noise drawn from the reference histogram (§3.4, seeded), scanned by a
- * skewed wavefront of blocks with the causal L-shaped multi-scale
- * neighbourhood (§3.4, schedule.h); where a window wraps onto blocks placed
- * earlier, it uses them too (masked full window), so the output tiles
- * without a seam. Each block
- * copies the reference block whose neighbourhood is nearest in weighted L1
- * (+ the usage penalty, §3.7.2). Colour is gathered through the final copy
- * map (§3.8). */
+ * Per level, coarsest first (seed 002 §3.3): the canvas starts as noise
+ * drawn from the reference histogram (coarsest level, §3.4, seeded) or as
+ * the copy-map prediction of the level above; a skewed wavefront of blocks
+ * scans it with the causal L-shaped multi-scale neighbourhood (§3.4,
+ * schedule.h), where a window wraps onto blocks placed earlier it uses them
+ * too (masked full window), and refinement sweeps revisit the blocks with
+ * their full windows. Each block copies the reference block whose
+ * neighbourhood is nearest in weighted L1 (+ the usage penalty, §3.7.2).
+ * Colour is gathered through the final copy map (§3.8). */
 #include "mrf.h"
 
 #include <stdarg.h>
@@ -149,9 +149,8 @@ int ts_mrf_check(const ts_mrf_params *p, int ref_w, int ref_h, int channels,
  * clipped last row or column - with the full window and a variable mask
  * (§3.2.6) that keeps the L and every placed pixel. So the last column also
  * matches the first one on its right and the last row the first row below
- * it: the seams of the torus are matched like any inner join. */
+ * it: the seams of the torus are matched from both sides. */
 enum { SHAPE_PLAIN = 0, SHAPE_MASKED = 1 };
-
 
 typedef struct {
   uint32_t n;
@@ -253,7 +252,7 @@ static void init_noise(engine *e) {
  * (the copy-map extrapolation of §3.6.6). Blocks are still all searched;
  * the prediction only stands in for what is not placed yet, so the first
  * row and column see around the torus what the last ones will likely
- * become, and the scan closes the torus without a seam. */
+ * become (a better start for closing the torus than noise). */
 static void init_prediction(engine *e) {
   int l = e->level, w = e->cw[l], h = e->ch[l], cw = e->cw[l + 1], chh = e->ch[l + 1];
   const ts_plane *r0 = e->ref_lp.fine[0];
