@@ -4,6 +4,7 @@
 #   make            build binaries into build/
 #   make test       install missing packages, build, run every test
 #   make test-valgrind  the unit tests under valgrind
+#   make fuzz       run the libFuzzer targets for FUZZ_SECONDS each
 #   make bench      run benchmarks, write bench/results/
 #   make demo       install missing packages, run an embedded synthesis
 #   make clean
@@ -41,7 +42,7 @@ UNIT_BINS = $(UNIT_SRC:tests/unit/%.c=$(BUILD)/tests/%)
 BENCH_SRC = $(wildcard bench/*.c)
 BENCH_BINS = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
 
-.PHONY: all deps test test-unit test-integration test-valgrind bench demo clean
+.PHONY: all deps test test-unit test-integration test-valgrind fuzz bench demo clean
 all: $(BINS) $(UNIT_BINS) $(BENCH_BINS)
 
 $(BUILD)/%.o: %.c
@@ -87,6 +88,14 @@ test-integration: all
 # Every unit test under valgrind memcheck (about 4 minutes; not in `test`).
 test-valgrind: deps all
 	bash tests/run-valgrind.sh $(BUILD)
+
+# libFuzzer targets (clang); FUZZ_SECONDS per target, corpus in build-fuzz/.
+FUZZ_SECONDS ?= 30
+fuzz:
+	@mkdir -p build-fuzz/corpus-frame
+	clang -std=c11 -D_GNU_SOURCE -g -O1 -fsanitize=fuzzer,address,undefined -Icommon -Iproto \
+	  tests/fuzz/fuzz_frame.c proto/frame.c common/error.c -o build-fuzz/fuzz_frame
+	build-fuzz/fuzz_frame -max_total_time=$(FUZZ_SECONDS) build-fuzz/corpus-frame
 
 bench: deps all
 	bash bench/run.sh $(BUILD)
