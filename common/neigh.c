@@ -211,10 +211,15 @@ void ts_vec_ref(const ts_shape *s, const ts_levelplanes *ref, int x, int y,
 void ts_vec_query(const ts_shape *s, const ts_levelplanes *canvas, int x,
                   int y, uint8_t *out) {
   uint32_t n = 0;
+  const ts_plane *f0 = canvas->fine[0];
+  int hn = (s->wn - s->wb) / 2;
+  int inside = x >= hn && y >= hn && x + s->wb + hn <= f0->w && y + s->wb + hn <= f0->h;
   for (int p = 0; p < s->nplanes; p++) {
     const ts_plane *pl = canvas->fine[p];
-    for (int k = 0; k < s->nfine_px; k++)
-      out[n++] = ts_plane_wrap(pl, x + s->fine_dx[k], y + s->fine_dy[k]);
+    if (inside) /* no wrap: skip the modulo (most blocks) */
+      for (int k = 0; k < s->nfine_px; k++) out[n++] = ts_plane_at(pl, x + s->fine_dx[k], y + s->fine_dy[k]);
+    else
+      for (int k = 0; k < s->nfine_px; k++) out[n++] = ts_plane_wrap(pl, x + s->fine_dx[k], y + s->fine_dy[k]);
   }
   while (n < s->nfine_chunks * TS_L1_CHUNK) out[n++] = 0;
   if (s->wc > 0) {

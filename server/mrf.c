@@ -303,6 +303,12 @@ static void place_block(engine *e, const ts_block *b, int sx, int sy) {
 static int masked_query(engine *e, const ts_block *b, int refine, uint8_t *query, uint8_t *mask) {
   const ts_shape *sq = &e->shape[SHAPE_MASKED];
   int w = e->cw[e->level], h = e->ch[e->level], differs = refine;
+  int hn = (sq->wn - sq->wb) / 2;
+  /* During the scan, a whole block whose window does not wrap sees exactly
+   * its L placed (schedule.h): the plain query, without looking. */
+  if (!refine && b->w == sq->wb && b->h == sq->wb && b->x >= hn && b->y >= hn &&
+      b->x + sq->wb + hn <= w && b->y + sq->wb + hn <= h)
+    return 0;
   uint32_t n = 0;
   for (int k = 0; k < sq->nfine_px; k++) {
     int dx = sq->fine_dx[k], dy = sq->fine_dy[k];
