@@ -47,6 +47,7 @@ static void drop_consumed(ts_frame_reader *r) {
 
 int ts_frame_reader_feed(ts_frame_reader *r, const void *data, size_t len) {
   drop_consumed(r);
+  if (len == 0) return 0;
   if (len > SIZE_MAX - r->len) return TS_ENOMEM;
   if (r->len + len > r->cap) {
     size_t cap = r->cap ? r->cap : 4096;
