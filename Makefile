@@ -24,19 +24,19 @@ SANFLAGS =
 endif
 
 WARN = -Wall -Wextra -Werror -Wstrict-prototypes -Wno-missing-field-initializers
-CFLAGS_ALL = -std=c11 -D_GNU_SOURCE $(WARN) $(OPT) -g $(SANFLAGS) -Icommon -Iserver -Iproto $(CFLAGS)
+CFLAGS_ALL = -std=c11 -D_GNU_SOURCE $(WARN) $(OPT) -g $(SANFLAGS) -Icommon -Iserver -Iproto -Iworker $(CFLAGS)
 CXXFLAGS_ALL = -std=c++17 -Wall -Wextra -Werror $(OPT) -g $(SANFLAGS) -Icommon $(CXXFLAGS)
 LIBS = -lOpenImageIO -lOpenImageIO_Util -lpthread -lm $(LDLIBS)
 LDFLAGS_ALL = $(SANFLAGS) $(LDFLAGS)
 
 # Mains: everything else in these folders goes into the library.
-MAINS = server/cli.c
-LIB_C = $(filter-out $(MAINS),$(wildcard common/*.c server/*.c proto/*.c))
+MAINS = server/cli.c server/main.c worker/main.c
+LIB_C = $(filter-out $(MAINS),$(wildcard common/*.c server/*.c proto/*.c worker/*.c))
 LIB_CXX = $(wildcard common/*.cpp)
 LIB_OBJ = $(LIB_C:%.c=$(BUILD)/%.o) $(LIB_CXX:%.cpp=$(BUILD)/%.o)
 LIB = $(BUILD)/libtexsyn.a
 
-BINS = $(BUILD)/texsyn
+BINS = $(BUILD)/texsyn $(BUILD)/texsyn-server $(BUILD)/texsyn-worker
 UNIT_SRC = $(wildcard tests/unit/test_*.c)
 UNIT_BINS = $(UNIT_SRC:tests/unit/%.c=$(BUILD)/tests/%)
 BENCH_SRC = $(wildcard bench/*.c)
@@ -59,6 +59,12 @@ $(LIB): $(LIB_OBJ)
 
 # C++ runtime comes in through the OpenImageIO shim, so link with $(CXX).
 $(BUILD)/texsyn: $(BUILD)/server/cli.o $(LIB)
+	$(CXX) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
+
+$(BUILD)/texsyn-server: $(BUILD)/server/main.o $(LIB)
+	$(CXX) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
+
+$(BUILD)/texsyn-worker: $(BUILD)/worker/main.o $(LIB)
 	$(CXX) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
 
 $(BUILD)/tests/%: $(BUILD)/tests/unit/%.o $(LIB)
@@ -91,11 +97,14 @@ test-valgrind: deps all
 
 # libFuzzer targets (clang); FUZZ_SECONDS per target, corpus in build-fuzz/.
 FUZZ_SECONDS ?= 30
+FUZZ_CC = clang -std=c11 -D_GNU_SOURCE -g -O1 -fsanitize=fuzzer,address,undefined -Icommon -Iproto -Iserver
 fuzz:
-	@mkdir -p build-fuzz/corpus-frame
-	clang -std=c11 -D_GNU_SOURCE -g -O1 -fsanitize=fuzzer,address,undefined -Icommon -Iproto \
-	  tests/fuzz/fuzz_frame.c proto/frame.c common/error.c -o build-fuzz/fuzz_frame
+	@mkdir -p build-fuzz/corpus-frame build-fuzz/corpus-msg
+	$(FUZZ_CC) tests/fuzz/fuzz_frame.c proto/frame.c common/error.c -o build-fuzz/fuzz_frame
+	$(FUZZ_CC) tests/fuzz/fuzz_msg.c proto/msg.c proto/frame.c server/jobspec.c server/params.c \
+	  common/error.c -o build-fuzz/fuzz_msg
 	build-fuzz/fuzz_frame -max_total_time=$(FUZZ_SECONDS) build-fuzz/corpus-frame
+	build-fuzz/fuzz_msg -max_total_time=$(FUZZ_SECONDS) build-fuzz/corpus-msg
 
 bench: deps all
 	bash bench/run.sh $(BUILD)

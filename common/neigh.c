@@ -91,6 +91,7 @@ int ts_shape_init(ts_shape *s, ts_shape_kind kind, int wn, int wb,
                     "neighbourhood of %u bytes is too long (max %d)",
                     fine_bytes + coarse_bytes, TS_L1_MAX_CHUNKS * TS_L1_CHUNK);
   }
+  s->coarse_weight = coarse_weight;
   shape_set_weights(s, coarse_weight);
   return 0;
 }
@@ -185,6 +186,21 @@ void ts_refgrid_split(const ts_refgrid *g, uint32_t global, int *c,
   while (k + 1 < g->nclass && global >= g->base[k + 1]) k++;
   *c = k;
   *i = global - g->base[k];
+}
+
+void ts_refgrid_rows(const ts_shape *s, const ts_refgrid *g, int c, uint32_t i0, uint32_t i1,
+                     int *fy0, int *fy1, int *cy0, int *cy1) {
+  int x, ya, yb, hn = (s->wn - s->wb) / 2;
+  ts_refgrid_pos(g, c, i0, &x, &ya);
+  ts_refgrid_pos(g, c, i1 - 1, &x, &yb);
+  *fy0 = ya - hn;
+  *fy1 = yb + s->wb + hn;
+  *cy0 = *cy1 = 0;
+  if (s->wc > 0) {
+    int hc = (s->wc - 1) / 2, half_b = (s->wb - 1) / 2;
+    *cy0 = (ya + half_b) / 2 - hc;
+    *cy1 = (yb + half_b) / 2 + hc + 1;
+  }
 }
 
 void ts_vec_ref(const ts_shape *s, const ts_levelplanes *ref, int x, int y,

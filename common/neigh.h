@@ -38,6 +38,7 @@ typedef struct {
   int16_t *fine_dx, *fine_dy; /* fine offsets from the block's top-left */
   uint32_t nchunks, nfine_chunks;
   uint32_t wfine, wcoarse; /* integer weights of the two parts */
+  double coarse_weight;     /* the lambda they came from (remote rebuilds) */
 } ts_shape;
 
 /* Coarse window width for a fine window width (Table 3.1). */
@@ -82,6 +83,13 @@ int64_t ts_refgrid_index(const ts_refgrid *g, int x, int y);
 /* Class and in-class rank of a global index. */
 void ts_refgrid_split(const ts_refgrid *g, uint32_t global, int *c,
                       uint32_t *i);
+
+/* Rows that vectors [i0, i1) of class c read (i1 > i0): fine rows
+ * [*fy0, *fy1) of the level, coarse rows [*cy0, *cy1) of the coarser one
+ * (0, 0 without a coarse part). A worker needs only these rows. */
+void ts_refgrid_rows(const ts_shape *s, const ts_refgrid *g, int c,
+                     uint32_t i0, uint32_t i1, int *fy0, int *fy1, int *cy0,
+                     int *cy1);
 
 /* Planes at one level: the level itself and the next coarser one. */
 typedef struct {

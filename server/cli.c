@@ -1,7 +1,9 @@
 /* cli.c - the `texsyn` command line.
  *
  *   texsyn synth ...     synthesise a texture (embedded: in-process engine
- *                        and local scan threads; `run` is an alias)
+ *                        and local scan threads; `run` is an alias), or
+ *                        submit it to a coordinator with --server
+ *   texsyn status|watch|fetch|cancel|workers   manage jobs on a coordinator
  *   texsyn quality ...   neighbourhood error of an image against a reference
  *   texsyn shuffle ...   random block shuffle baseline
  *   texsyn simd          list the kernel variants this CPU supports
@@ -15,8 +17,10 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "client.h"
 #include "error.h"
 #include "image.h"
+#include "jobspec.h"
 #include "l1.h"
 #include "mrf.h"
 #include "outputs.h"
@@ -65,6 +69,10 @@ static void usage_synth(FILE *f) {
           "  --stop-level N       stop after pyramid level N and write its luminance at\n"
           "                       that level's size: a quick preview (default 0 = full)\n"
           "  --quiet              no progress bar\n"
+          "  --server HOST:PORT   run the job on a texsyn-server (and its workers) instead\n"
+          "                       of in-process; same options, same output bytes\n"
+          "  --detach             with --server: print the job id and return at once\n"
+          "                       (then texsyn watch/fetch ID)\n"
           "\n"
           "TEXSYN_SIMD=scalar|mmx|sse2|avx2|avx512 forces a kernel variant.\n",
           TS_MRF_MAX_LEVELS, DEFAULT_THREADS, (unsigned long long)TS_IMAGE_DEFAULT_MAX_PIXELS);
@@ -151,14 +159,15 @@ static void progress_draw(void *ctx, const ts_mrf_progress *p) {
 
 typedef struct {
   ts_mrf_params p;
-  const char *ref, *out, *copy_map, *copy_map_raw, *usage_map, *report;
-  int threads, quiet, have_size;
+  const char *ref, *out, *copy_map, *copy_map_raw, *usage_map, *report, *server;
+  int threads, quiet, have_size, detach;
 } synth_opts;
 
 enum {
   OPT_REF = 256, OPT_SIZE, OPT_LEVELS, OPT_WN, OPT_WB, OPT_PARITY, OPT_USAGE, OPT_COARSE,
   OPT_SEED, OPT_RGB, OPT_THREADS, OPT_COPY, OPT_COPY_RAW, OPT_USAGE_MAP, OPT_REPORT,
-  OPT_MAXPIX, OPT_STOP, OPT_REFINE, OPT_QUIET, OPT_HELP, OPT_IMAGE, OPT_SAMPLES, OPT_BLOCK
+  OPT_MAXPIX, OPT_STOP, OPT_REFINE, OPT_QUIET, OPT_HELP, OPT_IMAGE, OPT_SAMPLES, OPT_BLOCK,
+  OPT_SERVER, OPT_DETACH
 };
 
 static const struct option synth_longopts[] = {
@@ -182,6 +191,8 @@ static const struct option synth_longopts[] = {
     {"stop-level", required_argument, 0, OPT_STOP},
     {"refine", required_argument, 0, OPT_REFINE},
     {"quiet", no_argument, 0, OPT_QUIET},
+    {"server", required_argument, 0, OPT_SERVER},
+    {"detach", no_argument, 0, OPT_DETACH},
     {"help", no_argument, 0, OPT_HELP},
     {0, 0, 0, 0}};
 
@@ -209,6 +220,8 @@ static int synth_option(synth_opts *o, int c, const char *arg, char *err) {
   case OPT_STOP: rc = parse_long("--stop-level", arg, -1000, 1000, &v, err); o->p.stop_level = (int)v; break;
   case OPT_REFINE: rc = parse_long("--refine", arg, -1000, 1000, &v, err); o->p.refine = (int)v; break;
   case OPT_QUIET: o->quiet = 1; break;
+  case OPT_SERVER: o->server = arg; break;
+  case OPT_DETACH: o->detach = 1; break;
   default: rc = ts_error(err, TS_EINVAL, "unknown option (see texsyn synth --help)");
   }
   return rc;
@@ -236,6 +249,9 @@ static int synth_parse(int argc, char **argv, synth_opts *o, char *err) {
   if (o->ref == NULL) return ts_error(err, TS_EINVAL, "--ref IMG is required (see texsyn synth --help)");
   if (o->out == NULL) return ts_error(err, TS_EINVAL, "-o OUT is required (see texsyn synth --help)");
   if (!o->have_size) return ts_error(err, TS_EINVAL, "--size WxH is required (see texsyn synth --help)");
+  if (o->detach && o->server == NULL) return ts_error(err, TS_EINVAL, "--detach needs --server");
+  if (o->server != NULL && o->p.stop_level != 0)
+    return ts_error(err, TS_EINVAL, "--stop-level previews run embedded only (drop --server)");
   return 0;
 }
 
@@ -251,6 +267,172 @@ static int write_outputs(const synth_opts *o, const ts_image *ref, const ts_mrf_
     rc = ts_write_usage_map(o->usage_map, res->usage, res->ref_w, res->ref_h, err);
   if (rc == 0 && o->report) rc = ts_write_report(o->report, &o->p, o->threads, search, res, err);
   return rc;
+}
+
+/* ---- the job plane: texsyn synth --server and job commands ---------------- */
+
+/* Writes bytes to path atomically. */
+static int write_bytes(const char *path, const uint8_t *data, size_t len, char *err) {
+  char tmp[4096];
+  snprintf(tmp, sizeof(tmp), "%s.tmp-%ld", path, (long)getpid());
+  FILE *f = fopen(tmp, "wb");
+  if (f == NULL) return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
+  size_t n = len ? fwrite(data, 1, len, f) : 0;
+  if (fclose(f) != 0 || n != len || rename(tmp, path) != 0) {
+    unlink(tmp);
+    return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
+  }
+  return 0;
+}
+
+static uint8_t *slurp(const char *path, uint32_t *len, char *err) {
+  FILE *f = fopen(path, "rb");
+  if (f == NULL) {
+    ts_error(err, TS_EIO, "cannot read %s: %s", path, strerror(errno));
+    return NULL;
+  }
+  uint8_t *buf = NULL;
+  long size = fseek(f, 0, SEEK_END) == 0 ? ftell(f) : -1;
+  if (size < 0 || size > (long)(TS_FRAME_DEFAULT_MAX - 8192)) {
+    ts_error(err, TS_ETOOBIG, "%s: cannot send a reference of %ld bytes (limit %u)", path, size,
+             TS_FRAME_DEFAULT_MAX - 8192);
+  } else if ((buf = malloc((size_t)size + 1)) == NULL) {
+    ts_error(err, TS_ENOMEM, "out of memory");
+  } else if (fseek(f, 0, SEEK_SET) != 0 || fread(buf, 1, (size_t)size, f) != (size_t)size) {
+    ts_error(err, TS_EIO, "cannot read %s", path);
+    free(buf);
+    buf = NULL;
+  }
+  *len = (uint32_t)size;
+  fclose(f);
+  return buf;
+}
+
+/* Where fetched files go, by their name on the coordinator. */
+typedef struct {
+  const char *out, *copy_map, *copy_map_raw, *usage_map, *report;
+} fetch_targets;
+
+static const char *fetch_target(const fetch_targets *t, const char *name) {
+  if (strncmp(name, "out.", 4) == 0) return t->out;
+  if (strcmp(name, "copymap.raw") == 0) return t->copy_map_raw;
+  if (strncmp(name, "copymap.", 8) == 0) return t->copy_map;
+  if (strncmp(name, "usage.", 6) == 0) return t->usage_map;
+  if (strcmp(name, "report.json") == 0) return t->report;
+  return NULL;
+}
+
+static int fetch_job(ts_conn *c, uint64_t id, const fetch_targets *t, char *err) {
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_jobid_write(&w, id);
+  ts_frame f;
+  int rc = ts_client_call(c, TS_MSG_FETCH, &w, 600000, &f, err);
+  ts_wr_free(&w);
+  ts_msg_files m;
+  if (rc == 0) rc = ts_msg_files_read(&f, &m, err);
+  for (uint32_t i = 0; rc == 0 && i < m.n; i++) {
+    const char *path = fetch_target(t, m.name[i]);
+    if (path != NULL) rc = write_bytes(path, m.data[i], m.len[i], err);
+  }
+  return rc;
+}
+
+static void remote_progress(const ts_job_status *s, double start) {
+  char bar[31];
+  int fill = s->permille * 30 / 1000;
+  for (int i = 0; i < 30; i++) bar[i] = i < fill ? '#' : '.';
+  bar[30] = '\0';
+  if (s->state == TS_JOB_QUEUED) {
+    fprintf(stderr, "\rjob %llu queued (%.0fs) ", (unsigned long long)s->id, now_seconds() - start);
+  } else {
+    char eta[32] = "  ?";
+    if (s->eta_ms != UINT32_MAX) snprintf(eta, sizeof(eta), "%5.1fs", s->eta_ms / 1000.0);
+    fprintf(stderr, "\rjob %llu level %d of %d %5.1f%% [%s] ETA %s, %u worker%s ", (unsigned long long)s->id,
+            s->levels - s->level, s->levels, s->permille / 10.0, bar, eta, s->workers, s->workers == 1 ? "" : "s");
+  }
+  fflush(stderr);
+}
+
+/* Follows a job until it ends; its final status in *last. */
+static int watch_job(ts_conn *c, uint64_t id, int show, ts_job_status *last, char *err) {
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_status_req req = {id, 1};
+  ts_msg_status_req_write(&w, &req);
+  int rc = ts_wr_status(&w) ? TS_ENOMEM : ts_net_send(c->fd, TS_MSG_STATUS, 1, w.buf, w.len, err);
+  ts_wr_free(&w);
+  double start = now_seconds();
+  while (rc == 0) {
+    ts_frame f;
+    uint32_t n;
+    rc = ts_client_next(c, TS_MSG_STATUS, -1, &f, err);
+    if (rc == 0) rc = ts_msg_status_read(&f, last, 1, &n, err);
+    if (rc == 0 && n != 1) rc = ts_error(err, TS_EPROTO, "empty status update");
+    if (rc != 0) break;
+    if (show) remote_progress(last, start);
+    if (last->state > TS_JOB_RUNNING) break;
+  }
+  if (show) fputc('\n', stderr);
+  return rc;
+}
+
+static int submit_job(ts_conn *c, const synth_opts *o, uint64_t *id, char *err) {
+  ts_jobspec js;
+  ts_jobspec_default(&js);
+  js.p = o->p;
+  snprintf(js.output, sizeof(js.output), "%s", ts_path_ext(o->out));
+  if (o->copy_map) snprintf(js.copy_map, sizeof(js.copy_map), "%s", ts_path_ext(o->copy_map));
+  if (o->usage_map) snprintf(js.usage_map, sizeof(js.usage_map), "%s", ts_path_ext(o->usage_map));
+  js.copy_map_raw = o->copy_map_raw != NULL;
+  js.report = o->report != NULL;
+  if (js.output[0] == '\0') return ts_error(err, TS_EINVAL, "-o %s: needs an extension (.png, .tif, .exr, ...)", o->out);
+  char spec[TS_SPEC_MAX];
+  int n = ts_jobspec_format(&js, spec, sizeof(spec));
+  if (n < 0) return ts_error(err, TS_ETOOBIG, "job spec too long");
+  uint32_t len;
+  uint8_t *ref = slurp(o->ref, &len, err);
+  if (ref == NULL) return TS_EIO;
+  ts_msg_submit m = {spec, (uint32_t)n, "", ref, len};
+  const char *slash = strrchr(o->ref, '/');
+  snprintf(m.ref_name, sizeof(m.ref_name), "%s", slash ? slash + 1 : o->ref);
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_submit_write(&w, &m);
+  free(ref);
+  ts_frame f;
+  int rc = ts_client_call(c, TS_MSG_SUBMIT, &w, 60000, &f, err);
+  ts_wr_free(&w);
+  if (rc == 0) rc = ts_msg_jobid_read(&f, id, err);
+  return rc;
+}
+
+static int remote_synth(const synth_opts *o) {
+  char err[TS_ERR_LEN] = "";
+  ts_conn c;
+  uint64_t id = 0;
+  int rc = ts_client_connect(&c, o->server, err);
+  if (rc != 0) {
+    fprintf(stderr, "texsyn synth: %s\n", err);
+    return 1;
+  }
+  rc = submit_job(&c, o, &id, err);
+  ts_job_status st = {0};
+  if (rc == 0 && o->detach) {
+    printf("%llu\n", (unsigned long long)id);
+  } else if (rc == 0) {
+    rc = watch_job(&c, id, !o->quiet && isatty(STDERR_FILENO), &st, err);
+    if (rc == 0 && st.state != TS_JOB_DONE)
+      rc = ts_error(err, TS_EINVAL, "job %llu %s%s%s", (unsigned long long)id, ts_job_state_name(st.state),
+                    st.text[0] ? ": " : "", st.text);
+    fetch_targets t = {o->out, o->copy_map, o->copy_map_raw, o->usage_map, o->report};
+    if (rc == 0) rc = fetch_job(&c, id, &t, err);
+    if (rc == 0 && !o->quiet) fprintf(stderr, "texsyn: %s %dx%d (job %llu on %s)\n", o->out, o->p.width, o->p.height,
+                                      (unsigned long long)id, o->server);
+  }
+  if (rc != 0) fprintf(stderr, "texsyn synth: %s\n", err);
+  ts_conn_close(&c);
+  return rc == 0 ? 0 : 1;
 }
 
 static int cmd_synth(int argc, char **argv) {
@@ -274,6 +456,10 @@ static int cmd_synth(int argc, char **argv) {
             ref.width, ref.height, msg);
     ts_image_free(&ref);
     return 2;
+  }
+  if (o.server != NULL) {
+    ts_image_free(&ref);
+    return remote_synth(&o);
   }
   ts_search *search = NULL;
   rc = ts_search_local_create(&search, o.threads, NULL, err);
@@ -421,13 +607,161 @@ static int cmd_simd(void) {
   return rc == 0 ? 0 : 1;
 }
 
+/* ---- job commands --------------------------------------------------------- */
+
+static const char *kJobUsage =
+    "usage: texsyn status [ID] | watch ID | fetch ID -o OUT | cancel ID | workers   [--server HOST:PORT]\n"
+    "\n"
+    "  status [ID]   one job, or every job the coordinator knows\n"
+    "  watch ID      follow a job (level, %% of blocks, ETA, workers) until it ends\n"
+    "  fetch ID      write a finished job's results: -o OUT (the image) and, if the job\n"
+    "                made them, --copy-map F, --copy-map-raw F, --usage-map F, --report F\n"
+    "  cancel ID     stop a queued or running job\n"
+    "  workers       the worker pool: address, threads, kernel, calibrated rate and the\n"
+    "                rate slices are sized with (comparisons/s; measured on batches once\n"
+    "                a lasting deviation rebalanced them), slice share, state, batches\n"
+    "\n"
+    "  --server HOST:PORT   the coordinator (default: $TEXSYN_SERVER, else 127.0.0.1:7070)\n"
+    "  --quiet              no progress bar (watch)\n";
+
+typedef struct {
+  const char *server;
+  uint64_t id;
+  int have_id, quiet;
+  fetch_targets t;
+} job_opts;
+
+static int job_parse(int argc, char **argv, job_opts *o, char *err) {
+  static const struct option longopts[] = {
+      {"server", required_argument, 0, OPT_SERVER},     {"output", required_argument, 0, 'o'},
+      {"copy-map", required_argument, 0, OPT_COPY},     {"copy-map-raw", required_argument, 0, OPT_COPY_RAW},
+      {"usage-map", required_argument, 0, OPT_USAGE_MAP}, {"report", required_argument, 0, OPT_REPORT},
+      {"quiet", no_argument, 0, OPT_QUIET},             {"help", no_argument, 0, OPT_HELP},
+      {0, 0, 0, 0}};
+  memset(o, 0, sizeof(*o));
+  o->server = getenv("TEXSYN_SERVER") ? getenv("TEXSYN_SERVER") : "127.0.0.1:7070";
+  optind = 1;
+  opterr = 0;
+  int c;
+  while ((c = getopt_long(argc, argv, "o:h", longopts, NULL)) != -1) {
+    switch (c) {
+    case OPT_SERVER: o->server = optarg; break;
+    case 'o': o->t.out = optarg; break;
+    case OPT_COPY: o->t.copy_map = optarg; break;
+    case OPT_COPY_RAW: o->t.copy_map_raw = optarg; break;
+    case OPT_USAGE_MAP: o->t.usage_map = optarg; break;
+    case OPT_REPORT: o->t.report = optarg; break;
+    case OPT_QUIET: o->quiet = 1; break;
+    case OPT_HELP: case 'h': printf("%s", kJobUsage); exit(0);
+    default: return ts_error(err, TS_EINVAL, "%s: unknown option or missing value\n%s", argv[optind - 1], kJobUsage);
+    }
+  }
+  if (optind < argc) {
+    int rc = parse_u64("job id", argv[optind], &o->id, err);
+    if (rc != 0) return rc;
+    if (o->id == 0) return ts_error(err, TS_EINVAL, "job ids start at 1");
+    o->have_id = 1;
+    optind++;
+  }
+  if (optind < argc) return ts_error(err, TS_EINVAL, "unexpected argument '%s'", argv[optind]);
+  return 0;
+}
+
+static void print_status(const ts_job_status *s) {
+  printf("%-6llu %-9s", (unsigned long long)s->id, ts_job_state_name(s->state));
+  if (s->state == TS_JOB_RUNNING) {
+    printf(" level %d of %d %5.1f%%", s->levels - s->level, s->levels, s->permille / 10.0);
+    if (s->eta_ms != UINT32_MAX) printf(" ETA %.1fs", s->eta_ms / 1000.0);
+    printf(" %u worker%s", s->workers, s->workers == 1 ? "" : "s");
+  }
+  if (s->text[0]) printf(" %s", s->text);
+  printf("\n");
+}
+
+static int job_status(ts_conn *c, const job_opts *o, char *err) {
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_status_req req = {o->have_id ? o->id : 0, 0};
+  ts_msg_status_req_write(&w, &req);
+  ts_frame f;
+  int rc = ts_client_call(c, TS_MSG_STATUS, &w, 30000, &f, err);
+  ts_wr_free(&w);
+  enum { CAP = 1024 };
+  ts_job_status *s = rc == 0 ? malloc(sizeof(*s) * CAP) : NULL;
+  uint32_t n = 0;
+  if (rc == 0 && s == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
+  if (rc == 0) rc = ts_msg_status_read(&f, s, CAP, &n, err);
+  for (uint32_t i = 0; rc == 0 && i < n; i++) print_status(&s[i]);
+  free(s);
+  return rc;
+}
+
+static int job_workers(ts_conn *c, char *err) {
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_frame f;
+  int rc = ts_client_call(c, TS_MSG_POOL, &w, 30000, &f, err);
+  ts_worker_info *wi = rc == 0 ? malloc(sizeof(*wi) * TS_POOL_MAX_REPORT) : NULL;
+  uint32_t n = 0;
+  if (rc == 0 && wi == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
+  if (rc == 0) rc = ts_msg_pool_read(&f, wi, TS_POOL_MAX_REPORT, &n, err);
+  if (rc == 0) printf("%-24s %7s %-7s %12s %12s %6s %-11s %9s\n", "address", "threads", "simd", "calibrated", "rate",
+                      "share", "state", "batches");
+  for (uint32_t i = 0; rc == 0 && i < n; i++) {
+    const ts_l1_impl *impl = ts_l1_impl_get((ts_simd)wi[i].simd);
+    printf("%-24s %7u %-7s %12.4g %12.4g %5.1f%% %-11s %9llu\n", wi[i].addr, wi[i].threads, impl ? impl->name : "?",
+           (double)wi[i].calibrated, (double)wi[i].rate, wi[i].share / 10.0, ts_worker_state_name(wi[i].state),
+           (unsigned long long)wi[i].batches);
+  }
+  if (rc == 0 && n == 0) printf("(no workers: the coordinator scans by itself)\n");
+  free(wi);
+  return rc;
+}
+
+static int cmd_job(const char *cmd, int argc, char **argv) {
+  char err[TS_ERR_LEN] = "";
+  job_opts o;
+  int rc = job_parse(argc, argv, &o, err);
+  int needs_id = strcmp(cmd, "watch") == 0 || strcmp(cmd, "fetch") == 0 || strcmp(cmd, "cancel") == 0;
+  if (rc == 0 && needs_id && !o.have_id) rc = ts_error(err, TS_EINVAL, "%s needs a job id\n%s", cmd, kJobUsage);
+  if (rc == 0 && strcmp(cmd, "fetch") == 0 && o.t.out == NULL) rc = ts_error(err, TS_EINVAL, "fetch needs -o OUT");
+  if (rc != 0) {
+    fprintf(stderr, "texsyn %s: %s\n", cmd, err);
+    return 2;
+  }
+  ts_conn c;
+  rc = ts_client_connect(&c, o.server, err);
+  if (rc == 0) {
+    ts_job_status st;
+    if (strcmp(cmd, "status") == 0) rc = job_status(&c, &o, err);
+    else if (strcmp(cmd, "workers") == 0) rc = job_workers(&c, err);
+    else if (strcmp(cmd, "fetch") == 0) rc = fetch_job(&c, o.id, &o.t, err);
+    else if (strcmp(cmd, "watch") == 0) {
+      rc = watch_job(&c, o.id, !o.quiet && isatty(STDERR_FILENO), &st, err);
+      if (rc == 0) print_status(&st);
+      if (rc == 0 && st.state != TS_JOB_DONE) rc = TS_EINVAL, snprintf(err, sizeof(err), "job %llu %s", (unsigned long long)o.id, ts_job_state_name(st.state));
+    } else {
+      ts_wr w;
+      ts_wr_init(&w);
+      ts_msg_jobid_write(&w, o.id);
+      ts_frame f;
+      rc = ts_client_call(&c, TS_MSG_CANCEL, &w, 30000, &f, err);
+      ts_wr_free(&w);
+    }
+    ts_conn_close(&c);
+  }
+  if (rc != 0) fprintf(stderr, "texsyn %s: %s\n", cmd, err);
+  return rc == 0 ? 0 : 1;
+}
+
 static void usage_main(FILE *f) {
   fprintf(f,
           "usage: texsyn COMMAND [options]   (texsyn COMMAND --help for details)\n"
           "  synth    synthesise a texture from a reference (alias: run)\n"
           "  quality  neighbourhood error of an image against a reference\n"
           "  shuffle  random block shuffle of a reference (a baseline)\n"
-          "  simd     list the L1 kernel variants this CPU supports\n");
+          "  simd     list the L1 kernel variants this CPU supports\n"
+          "  status   jobs on a coordinator (texsyn-server); also watch, fetch, cancel, workers\n");
 }
 
 int main(int argc, char **argv) {
@@ -440,6 +774,9 @@ int main(int argc, char **argv) {
   if (strcmp(cmd, "quality") == 0) return cmd_quality(argc - 1, argv + 1);
   if (strcmp(cmd, "shuffle") == 0) return cmd_shuffle(argc - 1, argv + 1);
   if (strcmp(cmd, "simd") == 0) return cmd_simd();
+  if (strcmp(cmd, "status") == 0 || strcmp(cmd, "watch") == 0 || strcmp(cmd, "fetch") == 0 ||
+      strcmp(cmd, "cancel") == 0 || strcmp(cmd, "workers") == 0)
+    return cmd_job(cmd, argc - 1, argv + 1);
   if (strcmp(cmd, "--help") == 0 || strcmp(cmd, "-h") == 0 || strcmp(cmd, "help") == 0) {
     usage_main(stdout);
     return 0;

@@ -23,16 +23,6 @@
 #include "schedule.h"
 #include "usage.h"
 
-void ts_mrf_params_default(ts_mrf_params *p) {
-  memset(p, 0, sizeof(*p));
-  p->levels = 5;
-  p->wn = 7;
-  p->wb = 3;
-  p->coarse_weight = 1.0;
-  p->refine = 2;
-  p->seed = 1;
-  p->max_pixels = TS_IMAGE_DEFAULT_MAX_PIXELS;
-}
 
 static double now_seconds(void) {
   struct timespec ts;
@@ -568,7 +558,8 @@ int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *se
   if (rc != 0) rc = ts_error(err, rc, "cannot build the reference pyramid: %s", ts_strerror(rc));
   for (int l = p->levels - 1; l >= p->stop_level && rc == 0; l--) {
     double t0 = now_seconds();
-    uint64_t pairs0 = search->stats.pairs;
+    uint64_t pairs0 = search->stats.pairs, rt0 = search->stats.round_trips;
+    uint64_t bytes0 = search->stats.bytes_out + search->stats.bytes_in;
     ts_mrf_level_stats *ls = &res->level[l];
     ls->ref_w = e.ref[0][l].w;
     ls->ref_h = e.ref[0][l].h;
@@ -588,6 +579,8 @@ int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *se
     ls->blocks = e.prog.total;
     ls->steps = e.steps;
     ls->pairs = search->stats.pairs - pairs0;
+    ls->round_trips = search->stats.round_trips - rt0;
+    ls->wire_bytes = search->stats.bytes_out + search->stats.bytes_in - bytes0;
     ls->seconds = now_seconds() - t0;
     /* Level l+2 is no longer needed as anyone's coarse part. */
     for (int k = 0; k < e.nplanes && l + 2 < p->levels; k++) ts_plane_free(&e.canvas[k][l + 2]);

@@ -52,6 +52,7 @@ typedef void ts_mrf_progress_fn(void *ctx, const ts_mrf_progress *p);
 typedef struct {
   double seconds;
   uint64_t blocks, steps, pairs;
+  uint64_t wire_bytes, round_trips; /* remote search backends only */
   int ref_w, ref_h, out_w, out_h;
   uint32_t vectors; /* reference vectors at this level */
 } ts_mrf_level_stats;

@@ -87,9 +87,11 @@ int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const
   for (int l = p->levels - 1; l >= p->stop_level; l--) {
     const ts_mrf_level_stats *s = &res->level[l];
     fprintf(f, "    {\"level\": %d, \"ref\": [%d, %d], \"out\": [%d, %d], \"vectors\": %u, "
-               "\"blocks\": %llu, \"steps\": %llu, \"comparisons\": %llu, \"seconds\": %.4f}%s\n",
+               "\"blocks\": %llu, \"steps\": %llu, \"comparisons\": %llu, \"wire_bytes\": %llu, "
+               "\"round_trips\": %llu, \"seconds\": %.4f}%s\n",
             l, s->ref_w, s->ref_h, s->out_w, s->out_h, s->vectors, (unsigned long long)s->blocks,
-            (unsigned long long)s->steps, (unsigned long long)s->pairs, s->seconds,
+            (unsigned long long)s->steps, (unsigned long long)s->pairs, (unsigned long long)s->wire_bytes,
+            (unsigned long long)s->round_trips, s->seconds,
             l > p->stop_level ? "," : "");
   }
   fprintf(f, "  ]\n}\n");

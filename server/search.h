@@ -47,6 +47,9 @@ typedef struct {
   uint64_t batches, queries;
   uint64_t pairs; /* query-vector comparisons */
   double scan_seconds;
+  /* Remote backends: payload bytes sent and received, and batch round
+   * trips (one per batch however many workers answer it). */
+  uint64_t bytes_out, bytes_in, round_trips;
 } ts_search_stats;
 
 typedef struct ts_search ts_search;

@@ -52,3 +52,116 @@ def synth(exe, ref, out, size, *extra, env=None):
 def quality(exe, ref, image, samples=1500, wn=7):
     p = run(exe, "quality", "--ref", ref, "--image", image, "--samples", samples, "--wn", wn)
     return json.loads(p.stdout)
+
+
+# ---- daemons -------------------------------------------------------------
+
+import re
+import signal
+import time
+
+
+class Daemon:
+    """A texsyn-server or texsyn-worker started on a kernel-chosen loopback
+    port; stopped (SIGTERM, then SIGKILL) by the fixture that made it."""
+
+    def __init__(self, args, log_path):
+        self.log_path = log_path
+        self.log = open(log_path, "w")
+        self.proc = subprocess.Popen([str(a) for a in args], stdout=subprocess.PIPE,
+                                     stderr=self.log, text=True)
+        line = self.proc.stdout.readline()
+        m = re.search(r"listening on (\S+)", line)
+        if not m:
+            self.stop()
+            raise AssertionError(f"{args[0]} did not start: {line!r}\n{Path(log_path).read_text()}")
+        self.addr = m.group(1)
+        self.port = int(self.addr.rsplit(":", 1)[1])
+
+    def read_log(self):
+        if not self.log.closed:
+            self.log.flush()
+        return Path(self.log_path).read_text()
+
+    def alive(self):
+        return self.proc.poll() is None
+
+    def stop(self):
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        if self.proc.stdout:
+            self.proc.stdout.close()
+        self.log.close()
+        return self.proc.returncode
+
+
+class Cluster:
+    """Workers and a coordinator on loopback, like deploy/local-cluster.sh."""
+
+    def __init__(self, tmp_path):
+        self.tmp = tmp_path
+        self.workers = []
+        self.server = None
+
+    def worker(self, threads=1, *extra, prefix=()):
+        i = len(self.workers)
+        w = Daemon([*prefix, BUILD / "texsyn-worker", "--listen", "127.0.0.1:0", "--threads", threads,
+                    "--name", f"w{i}", *extra], self.tmp / f"worker{i}.log")
+        self.workers.append(w)
+        return w
+
+    def start(self, nworkers=0, threads=1, *server_args):
+        for _ in range(nworkers):
+            self.worker(threads)
+        args = [BUILD / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", self.tmp / "spool",
+                *server_args]
+        if self.workers:
+            args += ["--workers", ",".join(w.addr for w in self.workers)]
+        self.server = Daemon(args, self.tmp / "server.log")
+        self.wait_ready(len(self.workers))
+        return self
+
+    def texsyn(self, *args, check=True, timeout=600):
+        return run(BUILD / "texsyn", *args, "--server", self.server.addr, check=check, timeout=timeout)
+
+    def pool(self):
+        """`texsyn workers` as a list of dicts."""
+        out = self.texsyn("workers").stdout.splitlines()
+        rows = []
+        for line in out[1:]:
+            f = line.split()
+            if len(f) == 8 and f[1].isdigit():
+                rows.append({"addr": f[0], "threads": int(f[1]), "simd": f[2], "calibrated": float(f[3]),
+                             "rate": float(f[4]), "share": float(f[5].rstrip("%")), "state": f[6],
+                             "batches": int(f[7])})
+        return rows
+
+    def wait_ready(self, n, timeout=30):
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            if sum(1 for w in self.pool() if w["state"] == "ready") >= n:
+                return
+            time.sleep(0.05)
+        raise AssertionError(f"{n} workers not ready:\n{self.server.read_log()}")
+
+    def stop(self):
+        codes = []
+        if self.server:
+            codes.append(self.server.stop())
+        for w in self.workers:
+            codes.append(w.stop())
+        return codes
+
+
+@pytest.fixture
+def cluster(tmp_path):
+    for exe in ("texsyn-server", "texsyn-worker"):
+        assert (BUILD / exe).exists(), f"{BUILD / exe} is missing: run make first"
+    c = Cluster(tmp_path)
+    yield c
+    c.stop()

@@ -1,0 +1,502 @@
+/* msg.c - see msg.h. Every reader ends with ts_rd_done(exact): a payload
+ * that is short, or longer than its message, is a protocol error. */
+#include "msg.h"
+
+#include <stdio.h>
+#include <string.h>
+
+#include "error.h"
+
+static int bad(char *err, char type, const char *what) {
+  return ts_error(err, TS_EPROTO, "malformed '%c' message: %s", type, what);
+}
+
+static int finish(const ts_rd *r, char *err, char type) {
+  return ts_rd_done(r, 1) == 0 ? 0 : bad(err, type, "wrong payload length");
+}
+
+void ts_wr_str(ts_wr *w, const char *s) {
+  size_t n = strlen(s);
+  if (n > UINT16_MAX) n = UINT16_MAX;
+  ts_wr_u16(w, (uint16_t)n);
+  ts_wr_bytes(w, s, n);
+}
+
+void ts_rd_str(ts_rd *r, char *buf, size_t cap) {
+  uint16_t n = ts_rd_u16(r);
+  const uint8_t *p = ts_rd_bytes(r, n);
+  buf[0] = '\0';
+  if (p == NULL) return;
+  if (n >= cap || memchr(p, 0, n) != NULL) {
+    r->failed = 1;
+    return;
+  }
+  memcpy(buf, p, n);
+  buf[n] = '\0';
+}
+
+static void wr_f64(ts_wr *w, double v) {
+  uint64_t bits;
+  memcpy(&bits, &v, sizeof(bits));
+  ts_wr_u64(w, bits);
+}
+
+static double rd_f64(ts_rd *r) {
+  uint64_t bits = ts_rd_u64(r);
+  double v;
+  memcpy(&v, &bits, sizeof(v));
+  return v;
+}
+
+static uint32_t le32(const uint8_t *p) {
+  return (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
+}
+
+static uint64_t le64(const uint8_t *p) { return (uint64_t)le32(p) | (uint64_t)le32(p + 4) << 32; }
+
+/* ---- I ------------------------------------------------------------------ */
+
+void ts_msg_ident_write(ts_wr *w, const ts_msg_ident *m) {
+  ts_wr_u8(w, m->role);
+  ts_wr_u32(w, m->caps);
+  ts_wr_u16(w, m->threads);
+  ts_wr_u8(w, m->simd);
+  ts_wr_str(w, m->name);
+}
+
+int ts_msg_ident_read(const ts_frame *f, ts_msg_ident *m, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  m->role = ts_rd_u8(&r);
+  m->caps = ts_rd_u32(&r);
+  m->threads = ts_rd_u16(&r);
+  m->simd = ts_rd_u8(&r);
+  ts_rd_str(&r, m->name, sizeof(m->name));
+  if (finish(&r, err, 'I') != 0) return TS_EPROTO;
+  if (m->role < TS_ROLE_COORD || m->role > TS_ROLE_CLIENT) return bad(err, 'I', "unknown role");
+  if (m->simd >= TS_SIMD_COUNT) return bad(err, 'I', "unknown kernel variant");
+  return 0;
+}
+
+/* ---- C ------------------------------------------------------------------ */
+
+void ts_msg_calib_req_write(ts_wr *w, const ts_msg_calib_req *m) { ts_wr_u32(w, m->millis); }
+
+int ts_msg_calib_req_read(const ts_frame *f, ts_msg_calib_req *m, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  m->millis = ts_rd_u32(&r);
+  if (finish(&r, err, 'C') != 0) return TS_EPROTO;
+  if (m->millis < 1 || m->millis > 10000) return bad(err, 'C', "calibration time outside 1..10000 ms");
+  return 0;
+}
+
+void ts_msg_calib_write(ts_wr *w, const ts_msg_calib *m) {
+  ts_wr_u64(w, m->pairs);
+  ts_wr_u64(w, m->nanos);
+}
+
+int ts_msg_calib_read(const ts_frame *f, ts_msg_calib *m, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  m->pairs = ts_rd_u64(&r);
+  m->nanos = ts_rd_u64(&r);
+  if (finish(&r, err, 'C') != 0) return TS_EPROTO;
+  if (m->pairs == 0 || m->nanos == 0) return bad(err, 'C', "empty calibration");
+  return 0;
+}
+
+/* ---- N ------------------------------------------------------------------ */
+
+static int slice_nclass(const ts_msg_slice *m) { return m->parity ? 4 : 1; }
+
+void ts_msg_slice_write(ts_wr *w, const ts_msg_slice *m) {
+  ts_wr_u32(w, m->set);
+  ts_wr_u32(w, m->gen);
+  ts_wr_u8(w, m->kind);
+  ts_wr_u8(w, m->wn);
+  ts_wr_u8(w, m->wb);
+  ts_wr_u8(w, m->has_coarse);
+  ts_wr_u8(w, m->nplanes);
+  ts_wr_u8(w, m->parity);
+  wr_f64(w, m->coarse_weight);
+  ts_wr_u32(w, m->wfine);
+  ts_wr_u32(w, m->wcoarse);
+  ts_wr_u32(w, (uint32_t)m->w);
+  ts_wr_u32(w, (uint32_t)m->h);
+  ts_wr_u32(w, (uint32_t)m->cw);
+  ts_wr_u32(w, (uint32_t)m->ch);
+  for (int c = 0; c < slice_nclass(m); c++) {
+    ts_wr_u32(w, m->i0[c]);
+    ts_wr_u32(w, m->i1[c]);
+  }
+  ts_wr_u32(w, (uint32_t)m->fy0);
+  ts_wr_u32(w, (uint32_t)m->fy1);
+  ts_wr_u32(w, (uint32_t)m->cy0);
+  ts_wr_u32(w, (uint32_t)m->cy1);
+  size_t frow = (size_t)m->w * (size_t)(m->fy1 - m->fy0);
+  size_t crow = m->has_coarse ? (size_t)m->cw * (size_t)(m->cy1 - m->cy0) : 0;
+  for (int p = 0; p < m->nplanes; p++) ts_wr_bytes(w, m->fine[p], frow);
+  for (int p = 0; p < m->nplanes && crow > 0; p++) ts_wr_bytes(w, m->coarse[p], crow);
+  ts_wr_u8(w, m->usage);
+  if (m->usage == TS_SLICE_USAGE_COUNTS) ts_wr_bytes(w, m->counts, frow * 4);
+}
+
+static int slice_check_geometry(const ts_msg_slice *m, char *err) {
+  if (m->kind > 1) return bad(err, 'N', "unknown neighbourhood shape");
+  if (m->wb < 1 || m->wn <= m->wb || m->wn > 41 || !(m->wn & 1) || !(m->wb & 1))
+    return bad(err, 'N', "window sizes");
+  if (m->nplanes < 1 || m->nplanes > 4 || m->has_coarse > 1 || m->parity > 1)
+    return bad(err, 'N', "planes, coarse or parity flag");
+  if (!(m->coarse_weight >= 0.0 && m->coarse_weight <= 1000.0)) return bad(err, 'N', "coarse weight");
+  if (m->w < m->wn || m->h < m->wn || m->w > TS_SLICE_MAX_SIDE || m->h > TS_SLICE_MAX_SIDE ||
+      (uint64_t)m->w * (uint64_t)m->h > TS_SLICE_MAX_PIXELS)
+    return bad(err, 'N', "level size");
+  if (m->has_coarse && (m->cw < 1 || m->ch < 1 || m->cw > m->w || m->ch > m->h))
+    return bad(err, 'N', "coarse level size");
+  if (m->fy0 < 0 || m->fy0 >= m->fy1 || m->fy1 > m->h) return bad(err, 'N', "fine row range");
+  if (m->has_coarse && (m->cy0 < 0 || m->cy0 >= m->cy1 || m->cy1 > m->ch)) return bad(err, 'N', "coarse row range");
+  for (int c = 0; c < slice_nclass(m); c++)
+    if (m->i0[c] > m->i1[c]) return bad(err, 'N', "vector range");
+  return 0;
+}
+
+int ts_msg_slice_read(const ts_frame *f, ts_msg_slice *m, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  memset(m, 0, sizeof(*m));
+  m->set = ts_rd_u32(&r);
+  m->gen = ts_rd_u32(&r);
+  m->kind = ts_rd_u8(&r);
+  m->wn = ts_rd_u8(&r);
+  m->wb = ts_rd_u8(&r);
+  m->has_coarse = ts_rd_u8(&r);
+  m->nplanes = ts_rd_u8(&r);
+  m->parity = ts_rd_u8(&r);
+  m->coarse_weight = rd_f64(&r);
+  m->wfine = ts_rd_u32(&r);
+  m->wcoarse = ts_rd_u32(&r);
+  m->w = (int32_t)ts_rd_u32(&r);
+  m->h = (int32_t)ts_rd_u32(&r);
+  m->cw = (int32_t)ts_rd_u32(&r);
+  m->ch = (int32_t)ts_rd_u32(&r);
+  for (int c = 0; c < (m->parity ? 4 : 1) && c < 4; c++) {
+    m->i0[c] = ts_rd_u32(&r);
+    m->i1[c] = ts_rd_u32(&r);
+  }
+  m->fy0 = (int32_t)ts_rd_u32(&r);
+  m->fy1 = (int32_t)ts_rd_u32(&r);
+  m->cy0 = (int32_t)ts_rd_u32(&r);
+  m->cy1 = (int32_t)ts_rd_u32(&r);
+  if (r.failed) return bad(err, 'N', "truncated header");
+  int rc = slice_check_geometry(m, err);
+  if (rc != 0) return rc;
+  size_t frow = (size_t)m->w * (size_t)(m->fy1 - m->fy0);
+  size_t crow = m->has_coarse ? (size_t)m->cw * (size_t)(m->cy1 - m->cy0) : 0;
+  for (int p = 0; p < m->nplanes; p++) m->fine[p] = ts_rd_bytes(&r, frow);
+  for (int p = 0; p < m->nplanes && crow > 0; p++) m->coarse[p] = ts_rd_bytes(&r, crow);
+  m->usage = ts_rd_u8(&r);
+  if (m->usage == TS_SLICE_USAGE_COUNTS) m->counts = ts_rd_bytes(&r, frow * 4);
+  if (finish(&r, err, 'N') != 0) return TS_EPROTO;
+  if (m->usage > TS_SLICE_USAGE_COUNTS) return bad(err, 'N', "usage mode");
+  return 0;
+}
+
+void ts_msg_loaded_write(ts_wr *w, const ts_msg_loaded *m) {
+  ts_wr_u32(w, m->set);
+  ts_wr_u32(w, m->gen);
+  ts_wr_u64(w, m->vectors);
+}
+
+int ts_msg_loaded_read(const ts_frame *f, ts_msg_loaded *m, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  m->set = ts_rd_u32(&r);
+  m->gen = ts_rd_u32(&r);
+  m->vectors = ts_rd_u64(&r);
+  return finish(&r, err, 'N');
+}
+
+/* ---- V ------------------------------------------------------------------ */
+
+void ts_msg_query_write(ts_wr *w, uint32_t set, uint32_t gen, const ts_commit *c, uint32_t nc,
+                        const ts_query_batch *b, uint32_t vbytes, uint32_t q0, uint32_t q1) {
+  ts_wr_u32(w, set);
+  ts_wr_u32(w, gen);
+  ts_wr_u32(w, nc);
+  for (uint32_t i = 0; i < nc; i++) {
+    ts_wr_u32(w, (uint32_t)c[i].x);
+    ts_wr_u32(w, (uint32_t)c[i].y);
+    ts_wr_u16(w, c[i].w);
+    ts_wr_u16(w, c[i].h);
+    ts_wr_u8(w, (uint8_t)(int8_t)c[i].delta);
+  }
+  uint32_t nq = q1 - q0;
+  uint8_t flags = (b->masks ? TS_QUERY_MASKS : 0) | (b->klass ? TS_QUERY_CLASSES : 0);
+  ts_wr_u32(w, nq);
+  ts_wr_u32(w, vbytes);
+  ts_wr_u8(w, flags);
+  ts_wr_u64(w, b->usage_k);
+  ts_wr_bytes(w, b->queries + (size_t)q0 * vbytes, (size_t)nq * vbytes);
+  if (b->masks) ts_wr_bytes(w, b->masks + (size_t)q0 * vbytes, (size_t)nq * vbytes);
+  if (b->klass) ts_wr_bytes(w, b->klass + q0, nq);
+}
+
+int ts_msg_query_read(const ts_frame *f, ts_msg_query *m, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  memset(m, 0, sizeof(*m));
+  m->set = ts_rd_u32(&r);
+  m->gen = ts_rd_u32(&r);
+  m->ncommits = ts_rd_u32(&r);
+  if (m->ncommits > f->len / TS_COMMIT_BYTES) return bad(err, 'V', "commit count");
+  m->commits = ts_rd_bytes(&r, (size_t)m->ncommits * TS_COMMIT_BYTES);
+  m->nq = ts_rd_u32(&r);
+  m->vbytes = ts_rd_u32(&r);
+  m->flags = ts_rd_u8(&r);
+  m->usage_k = ts_rd_u64(&r);
+  if (r.failed) return bad(err, 'V', "truncated header");
+  if (m->vbytes == 0 || m->vbytes % TS_L1_CHUNK != 0 || m->vbytes > TS_L1_MAX_CHUNKS * TS_L1_CHUNK)
+    return bad(err, 'V', "vector length");
+  if (m->flags & ~(TS_QUERY_MASKS | TS_QUERY_CLASSES)) return bad(err, 'V', "unknown flags");
+  if (m->nq > f->len / m->vbytes) return bad(err, 'V', "query count");
+  size_t qbytes = (size_t)m->nq * m->vbytes;
+  m->queries = ts_rd_bytes(&r, qbytes);
+  if (m->flags & TS_QUERY_MASKS) m->masks = ts_rd_bytes(&r, qbytes);
+  if (m->flags & TS_QUERY_CLASSES) m->klass = ts_rd_bytes(&r, m->nq);
+  if (finish(&r, err, 'V') != 0) return TS_EPROTO;
+  for (uint32_t i = 0; m->klass != NULL && i < m->nq; i++)
+    if (m->klass[i] > 3) return bad(err, 'V', "query class");
+  for (uint32_t i = 0; i < m->ncommits; i++) {
+    const uint8_t *p = m->commits + (size_t)i * TS_COMMIT_BYTES;
+    if (p[12] != 1 && p[12] != 0xFF) return bad(err, 'V', "commit delta");
+  }
+  return 0;
+}
+
+void ts_msg_commit_at(const ts_msg_query *m, uint32_t i, ts_commit *c) {
+  const uint8_t *p = m->commits + (size_t)i * TS_COMMIT_BYTES;
+  c->x = (int32_t)le32(p);
+  c->y = (int32_t)le32(p + 4);
+  c->w = (uint16_t)(p[8] | p[9] << 8);
+  c->h = (uint16_t)(p[10] | p[11] << 8);
+  c->delta = (int8_t)p[12];
+}
+
+void ts_msg_answer_write(ts_wr *w, uint32_t set, uint32_t gen, uint64_t scan_nanos, uint64_t pairs,
+                         const ts_l1_best *best, uint32_t nq) {
+  ts_wr_u32(w, set);
+  ts_wr_u32(w, gen);
+  ts_wr_u32(w, nq);
+  ts_wr_u64(w, scan_nanos);
+  ts_wr_u64(w, pairs);
+  for (uint32_t i = 0; i < nq; i++) {
+    ts_wr_u32(w, best[i].index);
+    ts_wr_u64(w, best[i].dist);
+  }
+}
+
+int ts_msg_answer_read(const ts_frame *f, ts_msg_answer *m, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  m->set = ts_rd_u32(&r);
+  m->gen = ts_rd_u32(&r);
+  m->nq = ts_rd_u32(&r);
+  m->scan_nanos = ts_rd_u64(&r);
+  m->pairs = ts_rd_u64(&r);
+  if (m->nq > f->len / TS_RESULT_BYTES) return bad(err, 'V', "answer count");
+  m->results = ts_rd_bytes(&r, (size_t)m->nq * TS_RESULT_BYTES);
+  return finish(&r, err, 'V');
+}
+
+void ts_msg_result_at(const ts_msg_answer *m, uint32_t i, ts_l1_best *b) {
+  const uint8_t *p = m->results + (size_t)i * TS_RESULT_BYTES;
+  b->index = le32(p);
+  b->dist = le64(p + 4);
+  b->pad_ = 0;
+}
+
+/* ---- Q ------------------------------------------------------------------ */
+
+void ts_msg_unload_write(ts_wr *w, const ts_msg_unload *m) { ts_wr_u32(w, m->set); }
+
+int ts_msg_unload_read(const ts_frame *f, ts_msg_unload *m, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  m->set = ts_rd_u32(&r);
+  return finish(&r, err, 'Q');
+}
+
+/* ---- E ------------------------------------------------------------------ */
+
+void ts_msg_error_write(ts_wr *w, int code, const char *text) {
+  ts_wr_u32(w, (uint32_t)code);
+  char buf[TS_ERR_LEN];
+  snprintf(buf, sizeof(buf), "%s", text); /* cut to what a reader accepts */
+  ts_wr_str(w, buf);
+}
+
+int ts_msg_error_read(const ts_frame *f, ts_msg_error *m, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  m->code = (int32_t)ts_rd_u32(&r);
+  ts_rd_str(&r, m->text, sizeof(m->text));
+  if (finish(&r, err, 'E') != 0) return TS_EPROTO;
+  if (m->code >= 0) return bad(err, 'E', "error code must be negative");
+  return 0;
+}
+
+/* ---- S ------------------------------------------------------------------ */
+
+void ts_msg_submit_write(ts_wr *w, const ts_msg_submit *m) {
+  ts_wr_u32(w, m->spec_len);
+  ts_wr_bytes(w, m->spec, m->spec_len);
+  ts_wr_str(w, m->ref_name);
+  ts_wr_u32(w, m->ref_len);
+  ts_wr_bytes(w, m->ref, m->ref_len);
+}
+
+int ts_msg_submit_read(const ts_frame *f, ts_msg_submit *m, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  m->spec_len = ts_rd_u32(&r);
+  if (m->spec_len > TS_SPEC_MAX) return bad(err, 'S', "job spec over 4096 bytes");
+  m->spec = (const char *)ts_rd_bytes(&r, m->spec_len);
+  ts_rd_str(&r, m->ref_name, sizeof(m->ref_name));
+  m->ref_len = ts_rd_u32(&r);
+  m->ref = ts_rd_bytes(&r, m->ref_len);
+  if (finish(&r, err, 'S') != 0) return TS_EPROTO;
+  if (m->spec_len > 0 && memchr(m->spec, 0, m->spec_len) != NULL) return bad(err, 'S', "NUL in the job spec");
+  if (m->ref_len == 0) return bad(err, 'S', "empty reference image");
+  return 0;
+}
+
+void ts_msg_jobid_write(ts_wr *w, uint64_t id) { ts_wr_u64(w, id); }
+
+int ts_msg_jobid_read(const ts_frame *f, uint64_t *id, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  *id = ts_rd_u64(&r);
+  return finish(&r, err, (char)f->type);
+}
+
+/* ---- W ------------------------------------------------------------------ */
+
+const char *ts_job_state_name(int state) {
+  static const char *const names[TS_JOB_STATE_COUNT] = {"queued", "running", "done", "failed", "canceled"};
+  return state >= 0 && state < TS_JOB_STATE_COUNT ? names[state] : "unknown";
+}
+
+void ts_msg_status_req_write(ts_wr *w, const ts_msg_status_req *m) {
+  ts_wr_u64(w, m->id);
+  ts_wr_u8(w, m->follow);
+}
+
+int ts_msg_status_req_read(const ts_frame *f, ts_msg_status_req *m, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  m->id = ts_rd_u64(&r);
+  m->follow = ts_rd_u8(&r);
+  if (finish(&r, err, 'W') != 0) return TS_EPROTO;
+  if (m->follow > 1 || (m->follow && m->id == 0)) return bad(err, 'W', "follow needs one job id");
+  return 0;
+}
+
+void ts_msg_status_write(ts_wr *w, const ts_job_status *s, uint32_t n) {
+  ts_wr_u32(w, n);
+  for (uint32_t i = 0; i < n; i++) {
+    ts_wr_u64(w, s[i].id);
+    ts_wr_u8(w, s[i].state);
+    ts_wr_u8(w, s[i].level);
+    ts_wr_u8(w, s[i].levels);
+    ts_wr_u16(w, s[i].permille);
+    ts_wr_u32(w, s[i].eta_ms);
+    ts_wr_u16(w, s[i].workers);
+    ts_wr_str(w, s[i].text);
+  }
+}
+
+int ts_msg_status_read(const ts_frame *f, ts_job_status *s, uint32_t cap, uint32_t *n, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  *n = ts_rd_u32(&r);
+  if (*n > cap) return bad(err, 'W', "more job records than expected");
+  for (uint32_t i = 0; i < *n; i++) {
+    s[i].id = ts_rd_u64(&r);
+    s[i].state = ts_rd_u8(&r);
+    s[i].level = ts_rd_u8(&r);
+    s[i].levels = ts_rd_u8(&r);
+    s[i].permille = ts_rd_u16(&r);
+    s[i].eta_ms = ts_rd_u32(&r);
+    s[i].workers = ts_rd_u16(&r);
+    ts_rd_str(&r, s[i].text, sizeof(s[i].text));
+    if (r.failed) break;
+    if (s[i].state >= TS_JOB_STATE_COUNT || s[i].permille > 1000) return bad(err, 'W', "job state");
+  }
+  return finish(&r, err, 'W');
+}
+
+/* ---- F ------------------------------------------------------------------ */
+
+void ts_msg_files_write(ts_wr *w, const ts_msg_files *m) {
+  ts_wr_u32(w, m->n);
+  for (uint32_t i = 0; i < m->n; i++) {
+    ts_wr_str(w, m->name[i]);
+    ts_wr_u32(w, m->len[i]);
+    ts_wr_bytes(w, m->data[i], m->len[i]);
+  }
+}
+
+int ts_msg_files_read(const ts_frame *f, ts_msg_files *m, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  m->n = ts_rd_u32(&r);
+  if (m->n > TS_FETCH_MAX_FILES) return bad(err, 'F', "too many files");
+  for (uint32_t i = 0; i < m->n; i++) {
+    ts_rd_str(&r, m->name[i], sizeof(m->name[i]));
+    m->len[i] = ts_rd_u32(&r);
+    m->data[i] = ts_rd_bytes(&r, m->len[i]);
+  }
+  return finish(&r, err, 'F');
+}
+
+/* ---- P ------------------------------------------------------------------ */
+
+const char *ts_worker_state_name(int state) {
+  static const char *const names[TS_WORKER_STATE_COUNT] = {"calibrating", "ready", "failed"};
+  return state >= 0 && state < TS_WORKER_STATE_COUNT ? names[state] : "unknown";
+}
+
+void ts_msg_pool_write(ts_wr *w, const ts_worker_info *wi, uint32_t n) {
+  ts_wr_u32(w, n);
+  for (uint32_t i = 0; i < n; i++) {
+    ts_wr_str(w, wi[i].addr);
+    ts_wr_u16(w, wi[i].threads);
+    ts_wr_u8(w, wi[i].simd);
+    ts_wr_u8(w, wi[i].state);
+    ts_wr_u64(w, wi[i].calibrated);
+    ts_wr_u64(w, wi[i].rate);
+    ts_wr_u16(w, wi[i].share);
+    ts_wr_u64(w, wi[i].batches);
+  }
+}
+
+int ts_msg_pool_read(const ts_frame *f, ts_worker_info *wi, uint32_t cap, uint32_t *n, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  *n = ts_rd_u32(&r);
+  if (*n > cap) return bad(err, 'P', "more workers than expected");
+  for (uint32_t i = 0; i < *n; i++) {
+    ts_rd_str(&r, wi[i].addr, sizeof(wi[i].addr));
+    wi[i].threads = ts_rd_u16(&r);
+    wi[i].simd = ts_rd_u8(&r);
+    wi[i].state = ts_rd_u8(&r);
+    wi[i].calibrated = ts_rd_u64(&r);
+    wi[i].rate = ts_rd_u64(&r);
+    wi[i].share = ts_rd_u16(&r);
+    wi[i].batches = ts_rd_u64(&r);
+    if (r.failed) break;
+    if (wi[i].state >= TS_WORKER_STATE_COUNT || wi[i].share > 1000) return bad(err, 'P', "worker record");
+  }
+  return finish(&r, err, 'P');
+}

@@ -1,0 +1,267 @@
+/* msg.h - message bodies of the texsyn wire protocol (proto/PROTOCOL.md).
+ *
+ * One struct per message, one writer and one reader each. Writers append the
+ * payload to a ts_wr (the caller frames it); readers decode a frame's payload
+ * with full bounds checks and semantic range checks, so a reader that
+ * returns 0 hands out a message whose sizes and counts are consistent with
+ * the bytes actually received. Bulk parts (planes, queries, counters) are
+ * not copied: the decoded struct points into the payload, valid as long as
+ * the frame is.
+ *
+ * Data plane (coordinator <-> worker): I identify, C calibrate, N load
+ * slice, V query batch, Q unload, H heartbeat, E error.
+ * Job plane (client <-> coordinator): I identify, S submit, W status/watch,
+ * F fetch, X cancel, P pool. */
+#ifndef TS_MSG_H
+#define TS_MSG_H
+
+#include <stdint.h>
+
+#include "error.h"
+#include "frame.h"
+#include "search.h"
+
+enum {
+  TS_MSG_IDENT = 'I',
+  TS_MSG_CALIBRATE = 'C',
+  TS_MSG_SLICE = 'N',
+  TS_MSG_QUERY = 'V',
+  TS_MSG_UNLOAD = 'Q',
+  TS_MSG_HEARTBEAT = 'H',
+  TS_MSG_ERROR = 'E',
+  TS_MSG_SUBMIT = 'S',
+  TS_MSG_STATUS = 'W',
+  TS_MSG_FETCH = 'F',
+  TS_MSG_CANCEL = 'X',
+  TS_MSG_POOL = 'P',
+};
+
+/* ---- I: identify -------------------------------------------------------- */
+
+enum { TS_ROLE_COORD = 1, TS_ROLE_WORKER = 2, TS_ROLE_CLIENT = 3 };
+#define TS_CAP_MASK 0x1u   /* masked queries */
+#define TS_CAP_PARITY 0x2u /* parity classes */
+#define TS_CAP_USAGE 0x4u  /* usage penalty replicas */
+#define TS_CAP_ALL (TS_CAP_MASK | TS_CAP_PARITY | TS_CAP_USAGE)
+#define TS_MSG_NAME_MAX 128
+
+typedef struct {
+  uint8_t role;
+  uint32_t caps;
+  uint16_t threads; /* scan threads (workers), 0 otherwise */
+  uint8_t simd;     /* ts_simd of the kernel in use */
+  char name[TS_MSG_NAME_MAX]; /* software and version, free text */
+} ts_msg_ident;
+
+void ts_msg_ident_write(ts_wr *w, const ts_msg_ident *m);
+int ts_msg_ident_read(const ts_frame *f, ts_msg_ident *m, char *err);
+
+/* ---- C: calibrate ------------------------------------------------------- */
+
+/* Request: scan the standard set (ts_calib_*) for about `millis`. */
+typedef struct {
+  uint32_t millis;
+} ts_msg_calib_req;
+/* Reply: comparisons done and the time they took: a rate, not seconds. */
+typedef struct {
+  uint64_t pairs, nanos;
+} ts_msg_calib;
+
+void ts_msg_calib_req_write(ts_wr *w, const ts_msg_calib_req *m);
+int ts_msg_calib_req_read(const ts_frame *f, ts_msg_calib_req *m, char *err);
+void ts_msg_calib_write(ts_wr *w, const ts_msg_calib *m);
+int ts_msg_calib_read(const ts_frame *f, ts_msg_calib *m, char *err);
+
+/* ---- N: load slice ------------------------------------------------------ */
+
+enum { TS_SLICE_USAGE_NONE = 0, TS_SLICE_USAGE_ZERO = 1, TS_SLICE_USAGE_COUNTS = 2 };
+#define TS_SLICE_MAX_SIDE 65536
+#define TS_SLICE_MAX_PIXELS (1u << 28)
+
+/* A slice of one reference set: per class the vector range [i0, i1) the
+ * worker scans, and the rows of the level planes those vectors read. The
+ * worker rebuilds shape and grid from the parameters and the vectors from
+ * the rows; wfine/wcoarse let it check it derived the same weights. */
+typedef struct {
+  uint32_t set, gen; /* coordinator's set id, slice generation */
+  uint8_t kind, wn, wb, has_coarse, nplanes, parity;
+  double coarse_weight;
+  uint32_t wfine, wcoarse;
+  int32_t w, h, cw, ch; /* level and coarser level sizes (cw, ch 0: none) */
+  uint32_t i0[4], i1[4]; /* per class (1 class, or 4 with parity) */
+  int32_t fy0, fy1;      /* fine rows [fy0, fy1) follow, plane by plane */
+  int32_t cy0, cy1;      /* coarse rows [cy0, cy1) follow */
+  const uint8_t *fine[4], *coarse[4]; /* first row of the region */
+  uint8_t usage;          /* TS_SLICE_USAGE_* */
+  const uint8_t *counts;  /* COUNTS: u32 LE per fine-region pixel */
+} ts_msg_slice;
+
+void ts_msg_slice_write(ts_wr *w, const ts_msg_slice *m);
+int ts_msg_slice_read(const ts_frame *f, ts_msg_slice *m, char *err);
+
+/* Reply to N: the slice is built; the vectors it holds. */
+typedef struct {
+  uint32_t set, gen;
+  uint64_t vectors;
+} ts_msg_loaded;
+
+void ts_msg_loaded_write(ts_wr *w, const ts_msg_loaded *m);
+int ts_msg_loaded_read(const ts_frame *f, ts_msg_loaded *m, char *err);
+
+/* ---- V: query batch ----------------------------------------------------- */
+
+#define TS_QUERY_MASKS 0x1u
+#define TS_QUERY_CLASSES 0x2u
+#define TS_COMMIT_BYTES 13
+#define TS_RESULT_BYTES 12
+
+typedef struct {
+  uint32_t set, gen;
+  uint32_t ncommits;
+  const uint8_t *commits; /* ncommits x TS_COMMIT_BYTES, ts_msg_commit_at */
+  uint32_t nq, vbytes;
+  uint8_t flags;
+  uint64_t usage_k;
+  const uint8_t *queries, *masks, *klass; /* masks/klass NULL if absent */
+} ts_msg_query;
+
+/* Writes queries [q0, q1) of b (vectors of vbytes) with the commits. */
+void ts_msg_query_write(ts_wr *w, uint32_t set, uint32_t gen,
+                        const ts_commit *c, uint32_t nc,
+                        const ts_query_batch *b, uint32_t vbytes,
+                        uint32_t q0, uint32_t q1);
+int ts_msg_query_read(const ts_frame *f, ts_msg_query *m, char *err);
+void ts_msg_commit_at(const ts_msg_query *m, uint32_t i, ts_commit *c);
+
+/* Reply: per query the best (global index, distance) in the worker's slice
+ * (index UINT32_MAX when its slice of that class is empty), and what the
+ * scan cost, for the coordinator's rate tracking. */
+typedef struct {
+  uint32_t set, gen, nq;
+  uint64_t scan_nanos, pairs;
+  const uint8_t *results; /* nq x TS_RESULT_BYTES, ts_msg_result_at */
+} ts_msg_answer;
+
+void ts_msg_answer_write(ts_wr *w, uint32_t set, uint32_t gen,
+                         uint64_t scan_nanos, uint64_t pairs,
+                         const ts_l1_best *best, uint32_t nq);
+int ts_msg_answer_read(const ts_frame *f, ts_msg_answer *m, char *err);
+void ts_msg_result_at(const ts_msg_answer *m, uint32_t i, ts_l1_best *b);
+
+/* ---- Q: unload ---------------------------------------------------------- */
+
+#define TS_UNLOAD_ALL UINT32_MAX
+typedef struct {
+  uint32_t set; /* or TS_UNLOAD_ALL */
+} ts_msg_unload;
+
+void ts_msg_unload_write(ts_wr *w, const ts_msg_unload *m);
+int ts_msg_unload_read(const ts_frame *f, ts_msg_unload *m, char *err);
+
+/* ---- E: error ----------------------------------------------------------- */
+
+typedef struct {
+  int32_t code; /* a TS_E* code */
+  char text[TS_ERR_LEN];
+} ts_msg_error;
+
+void ts_msg_error_write(ts_wr *w, int code, const char *text);
+int ts_msg_error_read(const ts_frame *f, ts_msg_error *m, char *err);
+
+/* ---- S: submit ---------------------------------------------------------- */
+
+#define TS_SPEC_MAX 4096
+typedef struct {
+  const char *spec;      /* job spec text (jobspec.h), spec_len bytes */
+  uint32_t spec_len;
+  char ref_name[TS_MSG_NAME_MAX]; /* reference file name (for its format) */
+  const uint8_t *ref;    /* reference file bytes */
+  uint32_t ref_len;
+} ts_msg_submit;
+
+void ts_msg_submit_write(ts_wr *w, const ts_msg_submit *m);
+int ts_msg_submit_read(const ts_frame *f, ts_msg_submit *m, char *err);
+
+/* Reply to S, X: the job id. */
+void ts_msg_jobid_write(ts_wr *w, uint64_t id);
+int ts_msg_jobid_read(const ts_frame *f, uint64_t *id, char *err);
+
+/* ---- W: status / watch -------------------------------------------------- */
+
+typedef enum {
+  TS_JOB_QUEUED = 0,
+  TS_JOB_RUNNING,
+  TS_JOB_DONE,
+  TS_JOB_FAILED,
+  TS_JOB_CANCELED,
+  TS_JOB_STATE_COUNT
+} ts_job_state;
+
+const char *ts_job_state_name(int state);
+
+/* Request: one job (id), or every job (id 0); follow: keep sending updates
+ * of that one job until it ends. */
+typedef struct {
+  uint64_t id;
+  uint8_t follow;
+} ts_msg_status_req;
+
+typedef struct {
+  uint64_t id;
+  uint8_t state, level, levels;
+  uint16_t permille;
+  uint32_t eta_ms; /* UINT32_MAX = unknown */
+  uint16_t workers;
+  char text[TS_ERR_LEN]; /* failure reason, or a short description */
+} ts_job_status;
+
+void ts_msg_status_req_write(ts_wr *w, const ts_msg_status_req *m);
+int ts_msg_status_req_read(const ts_frame *f, ts_msg_status_req *m, char *err);
+/* Reply: a count and that many ts_job_status records. */
+void ts_msg_status_write(ts_wr *w, const ts_job_status *s, uint32_t n);
+/* Decodes up to cap records into s; *n = records in the frame. */
+int ts_msg_status_read(const ts_frame *f, ts_job_status *s, uint32_t cap,
+                       uint32_t *n, char *err);
+
+/* ---- F: fetch ----------------------------------------------------------- */
+
+/* Reply: named files (output image, copy maps, usage map, report). */
+#define TS_FETCH_MAX_FILES 8
+typedef struct {
+  uint32_t n;
+  char name[TS_FETCH_MAX_FILES][TS_MSG_NAME_MAX];
+  const uint8_t *data[TS_FETCH_MAX_FILES];
+  uint32_t len[TS_FETCH_MAX_FILES];
+} ts_msg_files;
+
+void ts_msg_files_write(ts_wr *w, const ts_msg_files *m);
+int ts_msg_files_read(const ts_frame *f, ts_msg_files *m, char *err);
+
+/* ---- P: pool ------------------------------------------------------------ */
+
+typedef struct {
+  char addr[TS_MSG_NAME_MAX];
+  uint16_t threads;
+  uint8_t simd, state; /* state: ts_worker_state */
+  uint64_t calibrated; /* comparisons per second at calibration */
+  uint64_t rate;       /* comparisons per second the slices are sized with
+                          (calibrated, then measured on batches) */
+  uint16_t share;      /* slice share, per mille */
+  uint64_t batches;
+} ts_worker_info;
+
+enum { TS_WORKER_CALIBRATING = 0, TS_WORKER_READY, TS_WORKER_FAILED, TS_WORKER_STATE_COUNT };
+const char *ts_worker_state_name(int state);
+
+#define TS_POOL_MAX_REPORT 256
+void ts_msg_pool_write(ts_wr *w, const ts_worker_info *wi, uint32_t n);
+int ts_msg_pool_read(const ts_frame *f, ts_worker_info *wi, uint32_t cap,
+                     uint32_t *n, char *err);
+
+/* Strings: u16 length and bytes, no terminator. */
+void ts_wr_str(ts_wr *w, const char *s);
+/* Copies a string into buf (cap bytes incl. the terminator); fails on an
+ * over-long string or an embedded NUL. */
+void ts_rd_str(ts_rd *r, char *buf, size_t cap);
+
+#endif

@@ -1,0 +1,52 @@
+/* net.h - TCP plumbing shared by the daemons and the client: address
+ * parsing, listening and connecting sockets (TCP_NODELAY: batches are
+ * latency-bound round trips), whole-frame sends and a connection that reads
+ * frames with a deadline. Every failure returns a negative TS_E* code and a
+ * message naming the address. */
+#ifndef TS_NET_H
+#define TS_NET_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "frame.h"
+
+#define TS_NET_ADDR_LEN 128
+
+/* "HOST:PORT" (HOST may be empty for all interfaces, or [v6]); port 0..65535. */
+int ts_net_split(const char *addr, char *host, size_t hostcap, int *port, char *err);
+/* Listens on addr; *port_out (if not NULL) gets the bound port (for port 0). */
+int ts_net_listen(const char *addr, int *fd_out, int *port_out, char *err);
+/* Connects to addr within timeout_ms. */
+int ts_net_connect(const char *addr, int timeout_ms, int *fd_out, char *err);
+/* Accepts a connection (blocking); peer gets "ip:port". */
+int ts_net_accept(int lfd, int *fd_out, char *peer, size_t peercap);
+/* Sets TCP_NODELAY and keepalive on a connected socket. */
+void ts_net_tune(int fd);
+
+/* Sends one frame whole (blocking; no SIGPIPE). */
+int ts_net_send(int fd, uint8_t type, uint32_t id, const void *payload, size_t len, char *err);
+
+typedef struct {
+  int fd;
+  ts_frame_reader rd;
+  char peer[TS_NET_ADDR_LEN];
+} ts_conn;
+
+void ts_conn_init(ts_conn *c, int fd, uint32_t max_payload, const char *peer);
+/* Closes the socket and frees the reader. */
+void ts_conn_close(ts_conn *c);
+/* Next frame, waiting at most timeout_ms (-1 = forever): 1 and *f, or
+ * TS_ETIMEDOUT, TS_ECONN (peer closed or reset), TS_EPROTO / TS_ETOOBIG
+ * (bad stream: close it). *f stays valid until the next call. */
+int ts_conn_recv(ts_conn *c, ts_frame *f, int timeout_ms, char *err);
+/* Reads what the socket holds without blocking: 1 and a frame, 0 (nothing
+ * whole yet), or an error as above. For poll()-driven loops. */
+int ts_conn_pump(ts_conn *c, ts_frame *f, char *err);
+/* A whole frame already buffered: 1 and *f, 0, or an error. */
+int ts_conn_next(ts_conn *c, ts_frame *f, char *err);
+
+/* Monotonic clock. */
+double ts_now(void);
+
+#endif

@@ -1,0 +1,551 @@
+/* jobs.c - see jobs.h. */
+#include "jobs.h"
+
+#include <dirent.h>
+#include <errno.h>
+#include <fcntl.h>
+#include <inttypes.h>
+#include <pthread.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "error.h"
+#include "image.h"
+#include "jobspec.h"
+#include "mrf.h"
+#include "outputs.h"
+
+#define JOBS_PATH 4096
+#define JOBS_SPOOL_LEN 1024 /* longer spool paths are refused */
+#define JOBS_CLIENT_LEN 128
+
+typedef struct job {
+  uint64_t id;
+  char client[JOBS_CLIENT_LEN];
+  char dir[JOBS_SPOOL_LEN + 32];
+  char ref_ext[TS_EXT_LEN];
+  ts_jobspec spec;
+  ts_job_status st;
+  uint64_t version;
+  volatile int cancel;
+  double started;
+  struct job *next; /* all jobs, oldest first */
+} job;
+
+typedef struct client_share {
+  char client[JOBS_CLIENT_LEN];
+  uint64_t started;
+  struct client_share *next;
+} client_share;
+
+struct ts_jobs {
+  ts_jobs_opts o;
+  char spool[JOBS_SPOOL_LEN];
+  pthread_mutex_t lock;
+  pthread_cond_t changed; /* any job's status changed, or a job queued */
+  job *head, *tail;
+  client_share *shares;
+  uint64_t next_id;
+  int stop;
+  int nrunners;
+  pthread_t runners[64];
+};
+
+/* ---- files ------------------------------------------------------------- */
+
+/* Writes data to path atomically (temporary file, fsync, rename). */
+static int write_atomic(const char *path, const void *data, size_t len, char *err) {
+  char tmp[JOBS_PATH + 32];
+  snprintf(tmp, sizeof(tmp), "%s.tmp", path);
+  int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
+  const uint8_t *p = data;
+  size_t left = len;
+  while (left > 0) {
+    ssize_t k = write(fd, p, left);
+    if (k < 0 && errno == EINTR) continue;
+    if (k <= 0) {
+      close(fd);
+      unlink(tmp);
+      return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
+    }
+    p += k;
+    left -= (size_t)k;
+  }
+  if (fsync(fd) != 0 || close(fd) != 0 || rename(tmp, path) != 0) {
+    unlink(tmp);
+    return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
+  }
+  return 0;
+}
+
+/* Reads a whole small file into buf (NUL-terminated); length or -1. */
+static long read_small(const char *path, char *buf, size_t cap) {
+  FILE *f = fopen(path, "rb");
+  if (f == NULL) return -1;
+  size_t n = fread(buf, 1, cap - 1, f);
+  int more = fgetc(f) != EOF;
+  fclose(f);
+  if (more) return -1;
+  buf[n] = '\0';
+  return (long)n;
+}
+
+static void job_path(const job *jb, const char *name, char *out, size_t cap) {
+  snprintf(out, cap, "%s/%s", jb->dir, name);
+}
+
+/* ---- status ------------------------------------------------------------ */
+
+static void job_changed(ts_jobs *j, job *jb) {
+  jb->version++;
+  pthread_cond_broadcast(&j->changed);
+}
+
+static job *job_find(ts_jobs *j, uint64_t id) {
+  for (job *jb = j->head; jb != NULL; jb = jb->next)
+    if (jb->id == id) return jb;
+  return NULL;
+}
+
+static void job_append(ts_jobs *j, job *jb) {
+  if (j->tail) j->tail->next = jb;
+  else j->head = jb;
+  j->tail = jb;
+}
+
+static int job_final(const job *jb) { return jb->st.state >= TS_JOB_DONE; }
+
+/* Records a final state on disk, then in memory. */
+static void job_finish(ts_jobs *j, job *jb, int state, const char *text) {
+  char path[JOBS_PATH + 16], buf[TS_ERR_LEN + 32], err[TS_ERR_LEN];
+  job_path(jb, "state", path, sizeof(path));
+  int n = state == TS_JOB_DONE ? snprintf(buf, sizeof(buf), "done\n")
+          : state == TS_JOB_CANCELED ? snprintf(buf, sizeof(buf), "canceled\n")
+                                     : snprintf(buf, sizeof(buf), "failed: %s\n", text);
+  if (write_atomic(path, buf, (size_t)n, err) != 0) fprintf(stderr, "texsyn-server: %s\n", err);
+  pthread_mutex_lock(&j->lock);
+  jb->st.state = (uint8_t)state;
+  if (state == TS_JOB_DONE) jb->st.permille = 1000;
+  jb->st.eta_ms = 0;
+  snprintf(jb->st.text, sizeof(jb->st.text), "%s", text);
+  job_changed(j, jb);
+  pthread_mutex_unlock(&j->lock);
+}
+
+/* ---- running ----------------------------------------------------------- */
+
+typedef struct {
+  ts_jobs *j;
+  job *jb;
+  double last;
+} progress_ctx;
+
+static void on_progress(void *arg, const ts_mrf_progress *p) {
+  progress_ctx *pc = arg;
+  double now = ts_now();
+  if (now - pc->last < 0.1 && p->done != p->total) return;
+  pc->last = now;
+  double frac = p->work_total > 0 ? p->work_done / p->work_total : 0;
+  pthread_mutex_lock(&pc->j->lock);
+  ts_job_status *st = &pc->jb->st;
+  st->level = (uint8_t)p->level;
+  st->levels = (uint8_t)p->levels;
+  st->permille = (uint16_t)(frac >= 1.0 ? 999 : frac * 1000); /* 1000 = written */
+  double elapsed = now - pc->jb->started;
+  st->eta_ms = frac > 0.001 ? (uint32_t)(elapsed * (1 - frac) / frac * 1000) : UINT32_MAX;
+  st->workers = (uint16_t)ts_cluster_ready(pc->j->o.cluster);
+  job_changed(pc->j, pc->jb);
+  pthread_mutex_unlock(&pc->j->lock);
+}
+
+static int write_results(job *jb, const ts_image *ref, const ts_mrf_result *res, const ts_search *search,
+                         char *err) {
+  const ts_jobspec *s = &jb->spec;
+  char path[JOBS_PATH + 64], name[64];
+  snprintf(name, sizeof(name), "out.%s", s->output);
+  job_path(jb, name, path, sizeof(path));
+  int rc = ts_image_write(path, &res->image, ref->meta, err);
+  if (rc == 0 && s->copy_map[0]) {
+    snprintf(name, sizeof(name), "copymap.%s", s->copy_map);
+    job_path(jb, name, path, sizeof(path));
+    rc = ts_write_copy_map_image(path, res->copy_map, res->image.width, res->image.height, res->ref_w,
+                                 res->ref_h, err);
+  }
+  if (rc == 0 && s->copy_map_raw) {
+    job_path(jb, "copymap.raw", path, sizeof(path));
+    rc = ts_write_copy_map_raw(path, res->copy_map, res->image.width, res->image.height, err);
+  }
+  if (rc == 0 && s->usage_map[0]) {
+    snprintf(name, sizeof(name), "usage.%s", s->usage_map);
+    job_path(jb, name, path, sizeof(path));
+    rc = ts_write_usage_map(path, res->usage, res->ref_w, res->ref_h, err);
+  }
+  if (rc == 0 && s->report) {
+    job_path(jb, "report.json", path, sizeof(path));
+    rc = ts_write_report(path, &s->p, 0, search, res, err);
+  }
+  return rc;
+}
+
+static int run_job(ts_jobs *j, job *jb, char *err) {
+  char path[JOBS_PATH + 32];
+  snprintf(path, sizeof(path), "%s/ref.%s", jb->dir, jb->ref_ext);
+  ts_image_limits limits = {j->o.max_pixels};
+  ts_image ref = {0};
+  int rc = ts_image_read(path, &ref, &limits, err);
+  if (rc != 0) return rc;
+  char msg[2048];
+  jb->spec.p.max_pixels = j->o.max_pixels;
+  if (ts_mrf_check(&jb->spec.p, ref.width, ref.height, ref.channels, msg, sizeof(msg)) != 0) {
+    ts_image_free(&ref);
+    return ts_error(err, TS_EINVAL, "invalid parameters for the %dx%d reference: %s", ref.width, ref.height, msg);
+  }
+  ts_search *search = NULL;
+  rc = ts_search_cluster_create(&search, j->o.cluster, &jb->cancel, err);
+  progress_ctx pc = {j, jb, 0};
+  ts_mrf_result res;
+  if (rc == 0) rc = ts_mrf_synthesize(&jb->spec.p, &ref, search, on_progress, &pc, &res, err);
+  if (rc == 0) {
+    rc = write_results(jb, &ref, &res, search, err);
+    ts_mrf_result_free(&res);
+  }
+  ts_search_destroy(search);
+  ts_image_free(&ref);
+  return rc;
+}
+
+static uint64_t *share_of(ts_jobs *j, const char *client) {
+  for (client_share *s = j->shares; s != NULL; s = s->next)
+    if (strcmp(s->client, client) == 0) return &s->started;
+  client_share *s = calloc(1, sizeof(*s));
+  if (s == NULL) return NULL;
+  snprintf(s->client, sizeof(s->client), "%s", client);
+  s->next = j->shares;
+  j->shares = s;
+  return &s->started;
+}
+
+/* The next job to start (lock held): fewest started jobs per client, then
+ * the oldest. */
+static job *pick_job(ts_jobs *j) {
+  job *best = NULL;
+  uint64_t best_started = UINT64_MAX;
+  for (job *jb = j->head; jb != NULL; jb = jb->next) {
+    if (jb->st.state != TS_JOB_QUEUED) continue;
+    uint64_t *started = share_of(j, jb->client);
+    uint64_t n = started ? *started : 0;
+    if (n < best_started) {
+      best = jb;
+      best_started = n;
+    }
+  }
+  return best;
+}
+
+static void *runner(void *arg) {
+  ts_jobs *j = arg;
+  pthread_mutex_lock(&j->lock);
+  for (;;) {
+    job *jb = NULL;
+    while (!j->stop && (jb = pick_job(j)) == NULL) pthread_cond_wait(&j->changed, &j->lock);
+    if (j->stop) break;
+    uint64_t *started = share_of(j, jb->client);
+    if (started) (*started)++;
+    jb->st.state = TS_JOB_RUNNING;
+    jb->started = ts_now();
+    job_changed(j, jb);
+    pthread_mutex_unlock(&j->lock);
+    char err[TS_ERR_LEN] = "";
+    int rc = run_job(j, jb, err);
+    if (rc != 0 && j->stop) {
+      /* Shutting down mid-job: leave it unfinished so a restart reruns it. */
+    } else if (rc == TS_ECANCELED) job_finish(j, jb, TS_JOB_CANCELED, "canceled by a client");
+    else job_finish(j, jb, rc == 0 ? TS_JOB_DONE : TS_JOB_FAILED, rc == 0 ? "" : err);
+    pthread_mutex_lock(&j->lock);
+  }
+  pthread_mutex_unlock(&j->lock);
+  return NULL;
+}
+
+/* ---- spool ------------------------------------------------------------- */
+
+static int mkdir_p(const char *path) {
+  char buf[JOBS_PATH + 16];
+  snprintf(buf, sizeof(buf), "%s", path);
+  for (char *p = buf + 1; *p; p++) {
+    if (*p != '/') continue;
+    *p = '\0';
+    if (mkdir(buf, 0755) != 0 && errno != EEXIST) return -1;
+    *p = '/';
+  }
+  return mkdir(buf, 0755) != 0 && errno != EEXIST ? -1 : 0;
+}
+
+/* Reloads one job directory; unfinished jobs queue again. */
+static void load_job(ts_jobs *j, uint64_t id) {
+  job *jb = calloc(1, sizeof(*jb));
+  if (jb == NULL) return;
+  jb->id = id;
+  snprintf(jb->dir, sizeof(jb->dir), "%s/jobs/%" PRIu64, j->spool, id);
+  char path[JOBS_PATH + 32], text[TS_SPEC_MAX + 1], err[TS_ERR_LEN];
+  job_path(jb, "job.spec", path, sizeof(path));
+  long n = read_small(path, text, sizeof(text));
+  job_path(jb, "client", path, sizeof(path));
+  if (read_small(path, jb->client, sizeof(jb->client)) < 0) snprintf(jb->client, sizeof(jb->client), "?");
+  job_path(jb, "ref.ext", path, sizeof(path));
+  if (n < 0 || ts_jobspec_parse(text, (size_t)n, &jb->spec, err) != 0 ||
+      read_small(path, jb->ref_ext, sizeof(jb->ref_ext)) <= 0) {
+    free(jb); /* an incomplete submission: never acknowledged */
+    return;
+  }
+  jb->st.id = id;
+  jb->st.levels = (uint8_t)jb->spec.p.levels;
+  jb->st.eta_ms = UINT32_MAX;
+  job_path(jb, "state", path, sizeof(path));
+  if (read_small(path, text, sizeof(text)) > 0) {
+    text[strcspn(text, "\n")] = '\0';
+    if (strcmp(text, "done") == 0) jb->st.state = TS_JOB_DONE, jb->st.permille = 1000;
+    else if (strcmp(text, "canceled") == 0) jb->st.state = TS_JOB_CANCELED;
+    else {
+      jb->st.state = TS_JOB_FAILED;
+      snprintf(jb->st.text, sizeof(jb->st.text), "%.500s", strncmp(text, "failed: ", 8) == 0 ? text + 8 : text);
+    }
+  }
+  job_append(j, jb);
+  if (id >= j->next_id) j->next_id = id + 1;
+}
+
+static int cmp_u64(const void *a, const void *b) {
+  uint64_t x = *(const uint64_t *)a, y = *(const uint64_t *)b;
+  return x < y ? -1 : x > y;
+}
+
+static int load_spool(ts_jobs *j, char *err) {
+  char path[JOBS_PATH + 16];
+  snprintf(path, sizeof(path), "%s/jobs", j->spool);
+  if (mkdir_p(path) != 0) return ts_error(err, TS_EIO, "cannot create the spool %s: %s", path, strerror(errno));
+  DIR *d = opendir(path);
+  if (d == NULL) return ts_error(err, TS_EIO, "cannot read the spool %s: %s", path, strerror(errno));
+  uint64_t *ids = NULL;
+  size_t n = 0, cap = 0;
+  struct dirent *e;
+  while ((e = readdir(d)) != NULL) {
+    char *end;
+    uint64_t id = strtoull(e->d_name, &end, 10);
+    if (*end != '\0' || id == 0 || e->d_name[0] == '0') continue;
+    if (n == cap) {
+      cap = cap ? 2 * cap : 64;
+      uint64_t *p = realloc(ids, cap * sizeof(*ids));
+      if (p == NULL) break;
+      ids = p;
+    }
+    ids[n++] = id;
+  }
+  closedir(d);
+  if (n > 0) qsort(ids, n, sizeof(*ids), cmp_u64);
+  for (size_t i = 0; i < n; i++) load_job(j, ids[i]);
+  free(ids);
+  if (j->next_id == 0) j->next_id = 1;
+  return 0;
+}
+
+int ts_jobs_create(ts_jobs **out, const ts_jobs_opts *o, char *err) {
+  *out = NULL;
+  if (o->runners < 1 || o->runners > 64) return ts_error(err, TS_EINVAL, "--jobs %d: need 1..64", o->runners);
+  ts_jobs *j = calloc(1, sizeof(*j));
+  if (j == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+  j->o = *o;
+  if (strlen(o->spool) >= sizeof(j->spool)) {
+    free(j);
+    return ts_error(err, TS_EINVAL, "--spool: path longer than %d bytes", JOBS_SPOOL_LEN - 1);
+  }
+  snprintf(j->spool, sizeof(j->spool), "%s", o->spool);
+  pthread_mutex_init(&j->lock, NULL);
+  pthread_cond_init(&j->changed, NULL);
+  int rc = load_spool(j, err);
+  for (int i = 0; rc == 0 && i < o->runners; i++) {
+    if (pthread_create(&j->runners[i], NULL, runner, j) != 0) rc = ts_error(err, TS_ENOMEM, "cannot start job runners");
+    else j->nrunners++;
+  }
+  if (rc != 0) {
+    ts_jobs_destroy(j);
+    return rc;
+  }
+  *out = j;
+  return 0;
+}
+
+void ts_jobs_destroy(ts_jobs *j) {
+  if (j == NULL) return;
+  pthread_mutex_lock(&j->lock);
+  j->stop = 1;
+  for (job *jb = j->head; jb != NULL; jb = jb->next) jb->cancel = 1;
+  pthread_cond_broadcast(&j->changed);
+  pthread_mutex_unlock(&j->lock);
+  for (int i = 0; i < j->nrunners; i++) pthread_join(j->runners[i], NULL);
+  while (j->head != NULL) {
+    job *n = j->head->next;
+    free(j->head);
+    j->head = n;
+  }
+  while (j->shares != NULL) {
+    client_share *n = j->shares->next;
+    free(j->shares);
+    j->shares = n;
+  }
+  pthread_mutex_destroy(&j->lock);
+  pthread_cond_destroy(&j->changed);
+  free(j);
+}
+
+int ts_jobs_submit(ts_jobs *j, const char *client, const char *spec, size_t spec_len, const char *ref_name,
+                   const uint8_t *ref, size_t ref_len, uint64_t *id, char *err) {
+  job *jb = calloc(1, sizeof(*jb));
+  if (jb == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+  int rc = ts_jobspec_parse(spec, spec_len, &jb->spec, err);
+  const char *ext = ts_path_ext(ref_name);
+  char ext_ok[TS_EXT_LEN];
+  if (rc == 0) {
+    /* Reuse the spec's extension rule: letters and digits only. */
+    char probe[64];
+    snprintf(probe, sizeof(probe), "output=%s\n", ext);
+    ts_jobspec tmp;
+    if (ext[0] == '\0' || ts_jobspec_parse(probe, strlen(probe), &tmp, err) != 0)
+      rc = ts_error(err, TS_EINVAL, "reference name '%s' needs a plain extension (.png, .tif, ...)", ref_name);
+    else snprintf(ext_ok, sizeof(ext_ok), "%s", tmp.output);
+  }
+  if (rc != 0) {
+    free(jb);
+    return rc;
+  }
+  snprintf(jb->ref_ext, sizeof(jb->ref_ext), "%s", ext_ok);
+  snprintf(jb->client, sizeof(jb->client), "%s", client);
+  pthread_mutex_lock(&j->lock);
+  jb->id = j->next_id++;
+  pthread_mutex_unlock(&j->lock);
+  snprintf(jb->dir, sizeof(jb->dir), "%s/jobs/%" PRIu64, j->spool, jb->id);
+  char path[JOBS_PATH + 32];
+  if (mkdir(jb->dir, 0755) != 0) rc = ts_error(err, TS_EIO, "cannot create %s: %s", jb->dir, strerror(errno));
+  snprintf(path, sizeof(path), "%s/ref.%s", jb->dir, jb->ref_ext);
+  if (rc == 0) rc = write_atomic(path, ref, ref_len, err);
+  job_path(jb, "client", path, sizeof(path));
+  if (rc == 0) rc = write_atomic(path, client, strlen(client), err);
+  job_path(jb, "ref.ext", path, sizeof(path));
+  if (rc == 0) rc = write_atomic(path, jb->ref_ext, strlen(jb->ref_ext), err);
+  /* The spec goes last: a job directory without it was never accepted. */
+  char text[TS_SPEC_MAX];
+  int n = ts_jobspec_format(&jb->spec, text, sizeof(text));
+  job_path(jb, "job.spec", path, sizeof(path));
+  if (rc == 0) rc = n < 0 ? ts_error(err, TS_ETOOBIG, "job spec too long") : write_atomic(path, text, (size_t)n, err);
+  if (rc != 0) {
+    free(jb);
+    return rc;
+  }
+  jb->st.id = jb->id;
+  jb->st.state = TS_JOB_QUEUED;
+  jb->st.levels = (uint8_t)jb->spec.p.levels;
+  jb->st.eta_ms = UINT32_MAX;
+  pthread_mutex_lock(&j->lock);
+  job_append(j, jb);
+  job_changed(j, jb);
+  pthread_mutex_unlock(&j->lock);
+  *id = jb->id;
+  return 0;
+}
+
+int ts_jobs_status(ts_jobs *j, uint64_t id, ts_job_status *out, uint64_t *version) {
+  pthread_mutex_lock(&j->lock);
+  job *jb = job_find(j, id);
+  if (jb != NULL) {
+    *out = jb->st;
+    if (version) *version = jb->version;
+  }
+  pthread_mutex_unlock(&j->lock);
+  return jb ? 0 : TS_ENOENT;
+}
+
+int ts_jobs_wait(ts_jobs *j, uint64_t id, uint64_t *version, int timeout_ms, ts_job_status *out) {
+  struct timespec ts;
+  clock_gettime(CLOCK_REALTIME, &ts);
+  ts.tv_sec += timeout_ms / 1000;
+  ts.tv_nsec += (long)(timeout_ms % 1000) * 1000000L;
+  if (ts.tv_nsec >= 1000000000L) {
+    ts.tv_sec++;
+    ts.tv_nsec -= 1000000000L;
+  }
+  pthread_mutex_lock(&j->lock);
+  job *jb = job_find(j, id);
+  while (jb != NULL && jb->version == *version && !j->stop)
+    if (pthread_cond_timedwait(&j->changed, &j->lock, &ts) == ETIMEDOUT) break;
+  if (jb != NULL) {
+    *out = jb->st;
+    *version = jb->version;
+  }
+  pthread_mutex_unlock(&j->lock);
+  return jb ? 0 : TS_ENOENT;
+}
+
+uint32_t ts_jobs_list(ts_jobs *j, ts_job_status *out, uint32_t cap) {
+  pthread_mutex_lock(&j->lock);
+  uint32_t n = 0;
+  for (job *jb = j->head; jb != NULL && n < cap; jb = jb->next) out[n++] = jb->st;
+  pthread_mutex_unlock(&j->lock);
+  return n;
+}
+
+int ts_jobs_cancel(ts_jobs *j, uint64_t id, char *err) {
+  pthread_mutex_lock(&j->lock);
+  job *jb = job_find(j, id);
+  int rc = 0, queued = 0;
+  if (jb == NULL) rc = ts_error(err, TS_ENOENT, "no job %" PRIu64, id);
+  else if (job_final(jb)) rc = ts_error(err, TS_EINVAL, "job %" PRIu64 " is already %s", id, ts_job_state_name(jb->st.state));
+  else {
+    jb->cancel = 1;
+    queued = jb->st.state == TS_JOB_QUEUED;
+    if (queued) jb->st.state = TS_JOB_CANCELED; /* no runner will take it */
+  }
+  pthread_mutex_unlock(&j->lock);
+  if (queued) job_finish(j, jb, TS_JOB_CANCELED, "canceled by a client");
+  return rc;
+}
+
+int ts_jobs_files(ts_jobs *j, uint64_t id, char names[][TS_MSG_NAME_MAX], char paths[][4096], uint32_t *n,
+                  char *err) {
+  pthread_mutex_lock(&j->lock);
+  job *jb = job_find(j, id);
+  int rc = 0;
+  *n = 0;
+  if (jb == NULL) rc = ts_error(err, TS_ENOENT, "no job %" PRIu64, id);
+  else if (jb->st.state != TS_JOB_DONE)
+    rc = ts_error(err, TS_EINVAL, "job %" PRIu64 " is %s%s%s", id, ts_job_state_name(jb->st.state),
+                  jb->st.text[0] ? ": " : "", jb->st.text);
+  else {
+    const ts_jobspec *s = &jb->spec;
+    char list[5][64];
+    uint32_t k = 0;
+    snprintf(list[k++], 64, "out.%s", s->output);
+    if (s->copy_map[0]) snprintf(list[k++], 64, "copymap.%s", s->copy_map);
+    if (s->copy_map_raw) snprintf(list[k++], 64, "copymap.raw");
+    if (s->usage_map[0]) snprintf(list[k++], 64, "usage.%s", s->usage_map);
+    if (s->report) snprintf(list[k++], 64, "report.json");
+    for (uint32_t i = 0; i < k; i++) {
+      snprintf(names[i], TS_MSG_NAME_MAX, "%.63s", list[i]);
+      snprintf(paths[i], 4096, "%s/%.63s", jb->dir, list[i]);
+    }
+    *n = k;
+  }
+  pthread_mutex_unlock(&j->lock);
+  return rc;
+}
+
+void ts_jobs_counts(ts_jobs *j, uint32_t counts[TS_JOB_STATE_COUNT]) {
+  memset(counts, 0, sizeof(uint32_t) * TS_JOB_STATE_COUNT);
+  pthread_mutex_lock(&j->lock);
+  for (job *jb = j->head; jb != NULL; jb = jb->next) counts[jb->st.state]++;
+  pthread_mutex_unlock(&j->lock);
+}

@@ -1,0 +1,57 @@
+/* jobs.h - the coordinator's job queue and spool.
+ *
+ * A submitted job gets the next id and a directory SPOOL/jobs/ID holding
+ * its spec (job.spec), its reference (ref.EXT), its results and, last, a
+ * `state` file ("done", or "failed: reason"). Everything is written
+ * atomically (temporary name, then rename), so a coordinator killed at any
+ * moment restarts from a consistent spool: finished jobs are served again,
+ * unfinished ones queue again (synthesis is deterministic: same bytes).
+ *
+ * Runner threads (several jobs in flight) take queued jobs fairly between
+ * clients: the next job comes from the client that has had the fewest jobs
+ * started, ties to the oldest job. */
+#ifndef TS_JOBS_H
+#define TS_JOBS_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "cluster.h"
+#include "msg.h"
+
+typedef struct {
+  const char *spool; /* directory, created if missing */
+  int runners;       /* jobs run at once (2) */
+  uint64_t max_pixels; /* reference and output pixel limit */
+  ts_cluster *cluster;
+} ts_jobs_opts;
+
+typedef struct ts_jobs ts_jobs;
+
+/* Opens the spool (reloading earlier jobs) and starts the runners. */
+int ts_jobs_create(ts_jobs **out, const ts_jobs_opts *o, char *err);
+/* Stops the runners (running jobs are abandoned, not failed: they rerun
+ * after a restart) and frees everything. */
+void ts_jobs_destroy(ts_jobs *j);
+
+/* Accepts a job from `client` (a fairness key): checks the spec, stores
+ * spec and reference, queues it. */
+int ts_jobs_submit(ts_jobs *j, const char *client, const char *spec, size_t spec_len,
+                   const char *ref_name, const uint8_t *ref, size_t ref_len, uint64_t *id,
+                   char *err);
+/* Status of one job: 0, or TS_ENOENT. *version changes whenever the
+ * status does. */
+int ts_jobs_status(ts_jobs *j, uint64_t id, ts_job_status *out, uint64_t *version);
+/* Waits up to timeout_ms for job id's version to differ from *version. */
+int ts_jobs_wait(ts_jobs *j, uint64_t id, uint64_t *version, int timeout_ms, ts_job_status *out);
+/* Every job, oldest first; returns how many were written (<= cap). */
+uint32_t ts_jobs_list(ts_jobs *j, ts_job_status *out, uint32_t cap);
+int ts_jobs_cancel(ts_jobs *j, uint64_t id, char *err);
+/* A finished job's result files: names (out.EXT, copymap.EXT, ...) and
+ * their paths in the spool. */
+int ts_jobs_files(ts_jobs *j, uint64_t id, char names[][TS_MSG_NAME_MAX], char paths[][4096],
+                  uint32_t *n, char *err);
+/* Jobs queued / running / done / failed (for monitoring). */
+void ts_jobs_counts(ts_jobs *j, uint32_t counts[TS_JOB_STATE_COUNT]);
+
+#endif

@@ -1,0 +1,475 @@
+/* main.c - texsyn-server, the coordinator.
+ *
+ * One listening port serves both planes: a connection's first frame ('I')
+ * says whether the peer is a worker joining the pool or a client. Workers
+ * go to the cluster (cluster.c), clients get a thread that answers their
+ * requests against the job queue (jobs.c). A bad peer loses its own
+ * connection, never the daemon. */
+#include <errno.h>
+#include <getopt.h>
+#include <inttypes.h>
+#include <pthread.h>
+#include <signal.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/socket.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "cluster.h"
+#include "connset.h"
+#include "error.h"
+#include "image.h"
+#include "jobs.h"
+#include "msg.h"
+#include "net.h"
+
+#define IDENT_TIMEOUT_MS 10000
+
+typedef struct {
+  ts_cluster *cluster;
+  ts_jobs *jobs;
+  uint32_t max_frame;
+  int quiet;
+} server;
+
+static server g_server;
+static volatile sig_atomic_t g_stop;
+
+static ts_connset g_conns;
+
+static void logf_(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+static void logf_(const char *fmt, ...) {
+  char buf[1200];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(buf, sizeof(buf), fmt, ap);
+  va_end(ap);
+  time_t t = time(NULL);
+  struct tm tm;
+  gmtime_r(&t, &tm);
+  fprintf(stderr, "texsyn-server: %04d-%02d-%02dT%02d:%02d:%02dZ %s\n", tm.tm_year + 1900, tm.tm_mon + 1,
+          tm.tm_mday, tm.tm_hour, tm.tm_min, tm.tm_sec, buf);
+}
+
+static void cluster_log(const char *msg) { logf_("%s", msg); }
+
+/* ---- replies ------------------------------------------------------------ */
+
+static int reply(ts_conn *c, uint8_t type, uint32_t id, ts_wr *w) {
+  char err[TS_ERR_LEN];
+  int rc = ts_wr_status(w) != 0 ? TS_ENOMEM : ts_net_send(c->fd, type, id, w->buf, w->len, err);
+  ts_wr_free(w);
+  return rc;
+}
+
+static int reply_error(ts_conn *c, uint32_t id, int code, const char *text) {
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_error_write(&w, code, text);
+  return reply(c, TS_MSG_ERROR, id, &w);
+}
+
+static int serve_submit(ts_conn *c, const ts_frame *f, const char *client) {
+  char err[TS_ERR_LEN];
+  ts_msg_submit m;
+  int rc = ts_msg_submit_read(f, &m, err);
+  uint64_t id = 0;
+  if (rc == 0) rc = ts_jobs_submit(g_server.jobs, client, m.spec, m.spec_len, m.ref_name, m.ref, m.ref_len, &id, err);
+  if (rc != 0) {
+    logf_("refused a job from %s: %s", c->peer, err);
+    return reply_error(c, f->id, rc, err);
+  }
+  logf_("job %" PRIu64 " queued from %s (%s)", id, c->peer, client);
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_jobid_write(&w, id);
+  return reply(c, TS_MSG_SUBMIT, f->id, &w);
+}
+
+static int send_status(ts_conn *c, uint32_t id, const ts_job_status *s, uint32_t n) {
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_status_write(&w, s, n);
+  return reply(c, TS_MSG_STATUS, id, &w);
+}
+
+static int serve_status(ts_conn *c, const ts_frame *f) {
+  char err[TS_ERR_LEN];
+  ts_msg_status_req m;
+  if (ts_msg_status_req_read(f, &m, err) != 0) return reply_error(c, f->id, TS_EPROTO, err);
+  if (m.id == 0) {
+    enum { CAP = 1024 };
+    ts_job_status *all = malloc(sizeof(*all) * CAP);
+    if (all == NULL) return reply_error(c, f->id, TS_ENOMEM, "out of memory");
+    uint32_t n = ts_jobs_list(g_server.jobs, all, CAP);
+    int rc = send_status(c, f->id, all, n);
+    free(all);
+    return rc;
+  }
+  ts_job_status st;
+  uint64_t version;
+  if (ts_jobs_status(g_server.jobs, m.id, &st, &version) != 0) {
+    snprintf(err, sizeof(err), "no job %" PRIu64, m.id);
+    return reply_error(c, f->id, TS_ENOENT, err);
+  }
+  int rc = send_status(c, f->id, &st, 1);
+  /* Watch: one record per change until the job ends. */
+  while (rc == 0 && m.follow && st.state <= TS_JOB_RUNNING && !g_stop) {
+    uint64_t seen = version;
+    ts_jobs_wait(g_server.jobs, m.id, &version, 1000, &st);
+    if (version != seen || st.state > TS_JOB_RUNNING) rc = send_status(c, f->id, &st, 1);
+  }
+  return rc;
+}
+
+/* Reads a result file whole; NULL with a message on failure. */
+static uint8_t *read_file(const char *path, uint32_t *len, char *err) {
+  FILE *fp = fopen(path, "rb");
+  if (fp == NULL) {
+    ts_error(err, TS_EIO, "cannot read %s: %s", path, strerror(errno));
+    return NULL;
+  }
+  struct stat sb;
+  uint8_t *buf = NULL;
+  if (fstat(fileno(fp), &sb) == 0 && sb.st_size < (off_t)UINT32_MAX && (buf = malloc((size_t)sb.st_size + 1)) != NULL &&
+      fread(buf, 1, (size_t)sb.st_size, fp) == (size_t)sb.st_size) {
+    *len = (uint32_t)sb.st_size;
+  } else {
+    free(buf);
+    buf = NULL;
+    ts_error(err, TS_EIO, "cannot read %s", path);
+  }
+  fclose(fp);
+  return buf;
+}
+
+static int serve_fetch(ts_conn *c, const ts_frame *f) {
+  char err[TS_ERR_LEN];
+  uint64_t id;
+  if (ts_msg_jobid_read(f, &id, err) != 0) return reply_error(c, f->id, TS_EPROTO, err);
+  ts_msg_files m;
+  memset(&m, 0, sizeof(m));
+  char (*p)[4096] = malloc(sizeof(char[TS_FETCH_MAX_FILES][4096]));
+  if (p == NULL) return reply_error(c, f->id, TS_ENOMEM, "out of memory");
+  int rc = ts_jobs_files(g_server.jobs, id, m.name, p, &m.n, err);
+  uint8_t *bufs[TS_FETCH_MAX_FILES] = {0};
+  for (uint32_t i = 0; rc == 0 && i < m.n; i++)
+    if ((bufs[i] = read_file(p[i], &m.len[i], err)) == NULL) rc = TS_EIO;
+    else m.data[i] = bufs[i];
+  if (rc == 0) {
+    ts_wr w;
+    ts_wr_init(&w);
+    ts_msg_files_write(&w, &m);
+    rc = reply(c, TS_MSG_FETCH, f->id, &w);
+  } else {
+    rc = reply_error(c, f->id, rc, err);
+  }
+  for (uint32_t i = 0; i < TS_FETCH_MAX_FILES; i++) free(bufs[i]);
+  free(p);
+  return rc;
+}
+
+static int serve_cancel(ts_conn *c, const ts_frame *f) {
+  char err[TS_ERR_LEN];
+  uint64_t id;
+  int rc = ts_msg_jobid_read(f, &id, err);
+  if (rc == 0) rc = ts_jobs_cancel(g_server.jobs, id, err);
+  if (rc != 0) return reply_error(c, f->id, rc, err);
+  logf_("job %" PRIu64 " canceled by %s", id, c->peer);
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_jobid_write(&w, id);
+  return reply(c, TS_MSG_CANCEL, f->id, &w);
+}
+
+static int serve_pool(ts_conn *c, const ts_frame *f) {
+  if (f->len != 0) return reply_error(c, f->id, TS_EPROTO, "malformed 'P' message: payload must be empty");
+  ts_worker_info *wi = malloc(sizeof(*wi) * TS_POOL_MAX_REPORT);
+  if (wi == NULL) return reply_error(c, f->id, TS_ENOMEM, "out of memory");
+  uint32_t n = ts_cluster_info(g_server.cluster, wi, TS_POOL_MAX_REPORT);
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_pool_write(&w, wi, n);
+  free(wi);
+  return reply(c, TS_MSG_POOL, f->id, &w);
+}
+
+/* Answers one client request; a negative return closes the connection. */
+static int serve_request(ts_conn *c, const ts_frame *f, const char *client) {
+  switch (f->type) {
+  case TS_MSG_SUBMIT: return serve_submit(c, f, client);
+  case TS_MSG_STATUS: return serve_status(c, f);
+  case TS_MSG_FETCH: return serve_fetch(c, f);
+  case TS_MSG_CANCEL: return serve_cancel(c, f);
+  case TS_MSG_POOL: return serve_pool(c, f);
+  case TS_MSG_HEARTBEAT: {
+    ts_wr w;
+    ts_wr_init(&w);
+    return reply(c, TS_MSG_HEARTBEAT, f->id, &w);
+  }
+  default: {
+    char msg[64];
+    snprintf(msg, sizeof(msg), "unknown message type 0x%02x", f->type);
+    reply_error(c, f->id, TS_EPROTO, msg);
+    return TS_EPROTO;
+  }
+  }
+}
+
+static void serve_client(ts_conn *c, const ts_msg_ident *ident) {
+  ts_msg_ident me = {TS_ROLE_COORD, TS_CAP_ALL, 0, 0, "texsyn-server 0.3"};
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_ident_write(&w, &me);
+  if (reply(c, TS_MSG_IDENT, 0, &w) != 0) return;
+  char client[TS_MSG_NAME_MAX];
+  snprintf(client, sizeof(client), "%s", ident->name);
+  while (!g_stop) {
+    ts_frame f;
+    char err[TS_ERR_LEN];
+    int rc = ts_conn_recv(c, &f, 1000, err);
+    if (rc == TS_ETIMEDOUT) continue;
+    if (rc == TS_ECONN) return;
+    if (rc < 0) {
+      logf_("protocol error from client %s: %s; closing", c->peer, err);
+      reply_error(c, 0, rc, err);
+      return;
+    }
+    if (serve_request(c, &f, client) != 0) {
+      logf_("client %s: request '%c' failed; closing", c->peer, f.type >= 32 && f.type < 127 ? f.type : '?');
+      return;
+    }
+  }
+}
+
+typedef struct {
+  int fd;
+  char peer[TS_NET_ADDR_LEN];
+} accepted;
+
+static void serve_connection(const accepted *a);
+
+static void *connection_thread(void *arg) {
+  accepted a = *(accepted *)arg;
+  free(arg);
+  serve_connection(&a);
+  return NULL;
+}
+
+/* Takes the connection: closes it, or hands it to the cluster. */
+static void serve_connection(const accepted *ap) {
+  accepted a = *ap;
+  ts_conn c;
+  ts_conn_init(&c, a.fd, g_server.max_frame, a.peer);
+  ts_frame f;
+  ts_msg_ident ident;
+  char err[TS_ERR_LEN];
+  int rc = ts_conn_recv(&c, &f, IDENT_TIMEOUT_MS, err);
+  if (rc == 1 && f.type != TS_MSG_IDENT) rc = ts_error(err, TS_EPROTO, "first message must be 'I' (identify)");
+  if (rc == 1) rc = ts_msg_ident_read(&f, &ident, err);
+  if (rc < 0 && rc != TS_ECONN) {
+    logf_("protocol error from %s: %s; closing", a.peer, err);
+    reply_error(&c, 0, rc, err);
+  }
+  if (rc < 0) {
+    ts_connset_remove(&g_conns, c.fd);
+    ts_conn_close(&c);
+    return;
+  }
+  if (ident.role == TS_ROLE_WORKER) {
+    logf_("worker joining from %s (%s)", a.peer, ident.name);
+    /* The cluster owns the connection from here; it stays in the set while
+     * it is calibrated, so a shutdown meanwhile does not wait for that. */
+    int fd = c.fd;
+    if (ts_cluster_adopt(g_server.cluster, &c, &ident, err) != 0) logf_("worker %s refused: %s", a.peer, err);
+    ts_connset_remove(&g_conns, fd);
+    return;
+  }
+  serve_client(&c, &ident);
+  ts_connset_remove(&g_conns, c.fd);
+  ts_conn_close(&c);
+}
+
+/* ---- options ------------------------------------------------------------ */
+
+static void usage(FILE *f) {
+  fprintf(f,
+          "usage: texsyn-server [options]\n"
+          "\n"
+          "The texsyn coordinator: accepts synthesis jobs from clients (texsyn synth --server),\n"
+          "runs them against a pool of texsyn-worker processes that scan slices of the\n"
+          "reference, and keeps jobs and results in a spool directory.\n"
+          "\n"
+          "  --listen ADDR:PORT        clients and joining workers (default 127.0.0.1:7070;\n"
+          "                            port 0 picks a free port)\n"
+          "  --workers LIST            comma-separated HOST:PORT of workers started with\n"
+          "                            --listen; reconnected when they come back\n"
+          "  --spool DIR               job inputs, state and results (default ./texsyn-spool)\n"
+          "  --jobs N                  jobs run at once, 1..64 (default 2)\n"
+          "  --threads N               scan threads used when no worker is ready (default 2)\n"
+          "  --calibrate-ms MS         calibration scan per worker, 1..10000 (default 200)\n"
+          "  --rebalance-tolerance F   rate deviation that counts, 0.01..10 (default 0.25)\n"
+          "  --rebalance-after S       seconds a deviation must persist before slices are\n"
+          "                            resized, 0..3600 (default 3); shorter spikes are ignored\n"
+          "  --batch-timeout S         floor of a batch's deadline, 0.1..3600 (default 10)\n"
+          "  --pipeline-queries N      queries per batch frame, 1..1048576 (default 256)\n"
+          "  --max-frame BYTES         largest accepted frame payload (default %u)\n"
+          "  --max-pixels N            largest reference or output image (default %llu)\n"
+          "  --quiet                   no startup line\n",
+          TS_FRAME_DEFAULT_MAX, (unsigned long long)TS_IMAGE_DEFAULT_MAX_PIXELS);
+}
+
+typedef struct {
+  const char *listen, *workers, *spool;
+  int jobs, quiet;
+  uint64_t max_pixels;
+  ts_cluster_opts co;
+} server_opts;
+
+static int num(const char *opt, const char *s, double lo, double hi, double *out) {
+  char *end;
+  errno = 0;
+  double v = strtod(s, &end);
+  if (errno != 0 || end == s || *end != '\0' || !(v >= lo && v <= hi)) {
+    fprintf(stderr, "texsyn-server: %s %s: need a number in %g..%g\n", opt, s, lo, hi);
+    return -1;
+  }
+  *out = v;
+  return 0;
+}
+
+static int parse_opts(int argc, char **argv, server_opts *o) {
+  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_PIPE, O_FRAME, O_PIX, O_QUIET, O_HELP };
+  static const struct option longopts[] = {
+      {"listen", required_argument, 0, O_LISTEN}, {"workers", required_argument, 0, O_WORKERS},
+      {"spool", required_argument, 0, O_SPOOL}, {"jobs", required_argument, 0, O_JOBS},
+      {"threads", required_argument, 0, O_THREADS}, {"calibrate-ms", required_argument, 0, O_CAL},
+      {"rebalance-tolerance", required_argument, 0, O_TOL}, {"rebalance-after", required_argument, 0, O_AFTER},
+      {"batch-timeout", required_argument, 0, O_BT}, {"pipeline-queries", required_argument, 0, O_PIPE},
+      {"max-frame", required_argument, 0, O_FRAME}, {"max-pixels", required_argument, 0, O_PIX},
+      {"quiet", no_argument, 0, O_QUIET}, {"help", no_argument, 0, O_HELP}, {0, 0, 0, 0}};
+  memset(o, 0, sizeof(*o));
+  o->listen = "127.0.0.1:7070";
+  o->spool = "texsyn-spool";
+  o->jobs = 2;
+  o->max_pixels = TS_IMAGE_DEFAULT_MAX_PIXELS;
+  ts_cluster_opts_default(&o->co);
+  opterr = 0;
+  int c;
+  double v;
+  while ((c = getopt_long(argc, argv, "h", longopts, NULL)) != -1) {
+    int rc = 0;
+    switch (c) {
+    case O_LISTEN: o->listen = optarg; break;
+    case O_WORKERS: o->workers = optarg; break;
+    case O_SPOOL: o->spool = optarg; break;
+    case O_JOBS: rc = num("--jobs", optarg, 1, 64, &v); o->jobs = (int)v; break;
+    case O_THREADS: rc = num("--threads", optarg, 1, 1024, &v); o->co.local_threads = (int)v; break;
+    case O_CAL: rc = num("--calibrate-ms", optarg, 1, 10000, &v); o->co.calib_millis = (uint32_t)v; break;
+    case O_TOL: rc = num("--rebalance-tolerance", optarg, 0.01, 10, &o->co.tolerance); break;
+    case O_AFTER: rc = num("--rebalance-after", optarg, 0, 3600, &o->co.persist); break;
+    case O_BT: rc = num("--batch-timeout", optarg, 0.1, 3600, &o->co.batch_timeout); break;
+    case O_PIPE: rc = num("--pipeline-queries", optarg, 1, 1 << 20, &v); o->co.pipeline_queries = (uint32_t)v; break;
+    case O_FRAME: rc = num("--max-frame", optarg, 1024, 4294967295.0, &v); o->co.max_frame = (uint32_t)v; break;
+    case O_PIX: rc = num("--max-pixels", optarg, 1, 1e15, &v); o->max_pixels = (uint64_t)v; break;
+    case O_QUIET: o->quiet = 1; break;
+    case O_HELP: case 'h': usage(stdout); exit(0);
+    default:
+      fprintf(stderr, "texsyn-server: %s: unknown option or missing value (see --help)\n", argv[optind - 1]);
+      return -1;
+    }
+    if (rc != 0) return -1;
+  }
+  if (optind < argc) {
+    fprintf(stderr, "texsyn-server: unexpected argument '%s'\n", argv[optind]);
+    return -1;
+  }
+  return 0;
+}
+
+static int add_workers(ts_cluster *c, const char *list) {
+  char buf[4096], err[TS_ERR_LEN];
+  snprintf(buf, sizeof(buf), "%s", list);
+  char *save = NULL;
+  for (char *a = strtok_r(buf, ",", &save); a != NULL; a = strtok_r(NULL, ",", &save))
+    if (ts_cluster_add_address(c, a, err) != 0) {
+      fprintf(stderr, "texsyn-server: --workers: %s\n", err);
+      return -1;
+    }
+  return 0;
+}
+
+static void on_signal(int sig) {
+  (void)sig;
+  g_stop = 1;
+}
+
+int main(int argc, char **argv) {
+  server_opts o;
+  if (parse_opts(argc, argv, &o) != 0) return 2;
+  ts_connset_init(&g_conns);
+  char err[TS_ERR_LEN];
+  struct sigaction sa;
+  memset(&sa, 0, sizeof(sa));
+  sa.sa_handler = on_signal; /* no SA_RESTART: accept() returns on a signal */
+  sigaction(SIGTERM, &sa, NULL);
+  sigaction(SIGINT, &sa, NULL);
+  signal(SIGPIPE, SIG_IGN);
+  int lfd, port;
+  if (ts_net_listen(o.listen, &lfd, &port, err) != 0) {
+    fprintf(stderr, "texsyn-server: %s\n", err);
+    return 1;
+  }
+  g_server.max_frame = o.co.max_frame;
+  if (ts_cluster_create(&g_server.cluster, &o.co, err) != 0) {
+    fprintf(stderr, "texsyn-server: %s\n", err);
+    return 1;
+  }
+  ts_cluster_set_log(g_server.cluster, cluster_log);
+  if (o.workers != NULL && add_workers(g_server.cluster, o.workers) != 0) return 2;
+  ts_jobs_opts jo = {o.spool, o.jobs, o.max_pixels, g_server.cluster};
+  if (ts_jobs_create(&g_server.jobs, &jo, err) != 0) {
+    fprintf(stderr, "texsyn-server: %s\n", err);
+    return 1;
+  }
+  char host[TS_NET_ADDR_LEN];
+  int p0;
+  ts_net_split(o.listen, host, sizeof(host), &p0, err);
+  if (!o.quiet) {
+    printf("texsyn-server listening on %s:%d\n", host, port);
+    fflush(stdout);
+  }
+  logf_("listening on %s:%d, spool %s", host, port, o.spool);
+  while (!g_stop) {
+    accepted *a = malloc(sizeof(*a));
+    if (a == NULL) break;
+    if (ts_net_accept(lfd, &a->fd, a->peer, sizeof(a->peer)) != 0) {
+      free(a);
+      continue;
+    }
+    pthread_t t;
+    if (ts_connset_add(&g_conns, a->fd) != 0) {
+      logf_("refused %s: %d connections open", a->peer, TS_CONNSET_MAX);
+      close(a->fd);
+      free(a);
+      continue;
+    }
+    if (pthread_create(&t, NULL, connection_thread, a) != 0) {
+      ts_connset_remove(&g_conns, a->fd);
+      close(a->fd);
+      free(a);
+      continue;
+    }
+    pthread_detach(t);
+  }
+  logf_("shutting down");
+  close(lfd);
+  ts_connset_close_all(&g_conns);
+  ts_jobs_destroy(g_server.jobs);
+  ts_cluster_destroy(g_server.cluster);
+  return 0;
+}

@@ -1,0 +1,81 @@
+/* fuzz_msg.c - libFuzzer target for every message-body reader and the job
+ * spec parser: the first input byte picks the reader, the rest is the
+ * payload. A reader that accepts a payload must hand out pointers and
+ * counts inside it; any crash or sanitizer report is a bug. Build and run:
+ * make fuzz. */
+#include <stddef.h>
+#include <stdint.h>
+#include <stdlib.h>
+
+#include "error.h"
+#include "jobspec.h"
+#include "msg.h"
+
+int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
+
+static void check_inside(const void *p, size_t n, const uint8_t *base, size_t len) {
+  const uint8_t *q = p;
+  if (p != NULL && (q < base || q + n > base + len)) abort();
+}
+
+int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
+  if (size == 0) return 0;
+  ts_frame f = {data[0], 1, (uint32_t)(size - 1), data + 1};
+  char err[TS_ERR_LEN];
+  switch (data[0] % 12) {
+  case 0: { ts_msg_ident m; ts_msg_ident_read(&f, &m, err); break; }
+  case 1: { ts_msg_calib_req m; ts_msg_calib_req_read(&f, &m, err); ts_msg_calib c; ts_msg_calib_read(&f, &c, err); break; }
+  case 2: {
+    ts_msg_slice m;
+    if (ts_msg_slice_read(&f, &m, err) == 0) {
+      size_t frow = (size_t)m.w * (size_t)(m.fy1 - m.fy0);
+      for (int p = 0; p < m.nplanes; p++) check_inside(m.fine[p], frow, f.payload, f.len);
+      check_inside(m.counts, frow * 4, f.payload, f.len);
+    }
+    break;
+  }
+  case 3: {
+    ts_msg_query m;
+    if (ts_msg_query_read(&f, &m, err) == 0) {
+      check_inside(m.queries, (size_t)m.nq * m.vbytes, f.payload, f.len);
+      check_inside(m.masks, (size_t)m.nq * m.vbytes, f.payload, f.len);
+      check_inside(m.klass, m.nq, f.payload, f.len);
+      for (uint32_t i = 0; i < m.ncommits; i++) {
+        ts_commit c;
+        ts_msg_commit_at(&m, i, &c);
+      }
+    }
+    break;
+  }
+  case 4: {
+    ts_msg_answer m;
+    if (ts_msg_answer_read(&f, &m, err) == 0)
+      for (uint32_t i = 0; i < m.nq; i++) {
+        ts_l1_best b;
+        ts_msg_result_at(&m, i, &b);
+      }
+    break;
+  }
+  case 5: { ts_msg_unload m; ts_msg_unload_read(&f, &m, err); ts_msg_loaded l; ts_msg_loaded_read(&f, &l, err); break; }
+  case 6: { ts_msg_error m; ts_msg_error_read(&f, &m, err); break; }
+  case 7: {
+    ts_msg_submit m;
+    if (ts_msg_submit_read(&f, &m, err) == 0) check_inside(m.ref, m.ref_len, f.payload, f.len);
+    break;
+  }
+  case 8: {
+    ts_msg_status_req r;
+    ts_msg_status_req_read(&f, &r, err);
+    ts_job_status s[4];
+    uint32_t n;
+    ts_msg_status_read(&f, s, 4, &n, err);
+    uint64_t id;
+    ts_msg_jobid_read(&f, &id, err);
+    break;
+  }
+  case 9: { ts_msg_files m; ts_msg_files_read(&f, &m, err); break; }
+  case 10: { ts_worker_info w[4]; uint32_t n; ts_msg_pool_read(&f, w, 4, &n, err); break; }
+  case 11: { ts_jobspec s; ts_jobspec_parse((const char *)f.payload, f.len, &s, err); break; }
+  }
+  return 0;
+}

@@ -1,0 +1,285 @@
+"""The cluster: a coordinator and workers on loopback give the embedded
+run's exact bytes, size slices by calibrated rate, serve several clients at
+once and survive peers that speak garbage."""
+import os
+import signal
+import socket
+import struct
+import subprocess
+import threading
+import time
+
+import pytest
+
+from conftest import BUILD, run, synth
+
+SIZE = (256, 192)
+
+
+def ref_of(data):
+    return data / "textures" / "brick.png"
+
+
+def embedded(texsyn, data, tmp_path, *extra, name="embedded"):
+    out = tmp_path / f"{name}.png"
+    raw = tmp_path / f"{name}.raw"
+    synth(texsyn, ref_of(data), out, SIZE, "--copy-map-raw", raw, *extra)
+    return out.read_bytes(), raw.read_bytes()
+
+
+def remote(cluster, data, tmp_path, *extra, name="remote"):
+    out = tmp_path / f"{name}.png"
+    raw = tmp_path / f"{name}.raw"
+    report = tmp_path / f"{name}.json"
+    w, h = SIZE
+    cluster.texsyn("synth", "--ref", ref_of(data), "-o", out, "--size", f"{w}x{h}", "--quiet",
+                   "--copy-map-raw", raw, "--report", report, *extra)
+    return out.read_bytes(), raw.read_bytes()
+
+
+@pytest.mark.sanitize
+@pytest.mark.parametrize("nworkers", [0, 1, 2, 3])
+def test_cluster_output_is_byte_identical_to_embedded(texsyn, data, cluster, tmp_path, nworkers):
+    want = embedded(texsyn, data, tmp_path)
+    cluster.start(nworkers, 1)
+    got = remote(cluster, data, tmp_path)
+    assert got[0] == want[0], "image differs from the embedded run"
+    assert got[1] == want[1], "copy map differs from the embedded run"
+    if nworkers:
+        assert all(w["batches"] > 0 for w in cluster.pool()), "a worker never answered"
+
+
+@pytest.mark.parametrize("extra", [["--parity"], ["--usage-weight", "2"], ["--rgb-search", "--levels", "4"]])
+def test_unequal_workers_match_embedded_with_parity_usage_colour(texsyn, data, cluster, tmp_path, extra):
+    want = embedded(texsyn, data, tmp_path, *extra)
+    cluster.worker(1)
+    cluster.worker(2)
+    cluster.worker(1)
+    cluster.start()
+    assert remote(cluster, data, tmp_path, *extra) == want
+
+
+class Throttle:
+    """Holds a process to about half speed (SIGSTOP/SIGCONT every 10 ms,
+    like a cgroup CPU quota). A busy loop pinned beside a worker does not
+    slow it mid-job: the scheduler favours the worker, which sleeps between
+    batches, whenever it wakes."""
+
+    def __init__(self, pid):
+        self.pid, self.on = pid, True
+        self.thread = threading.Thread(target=self.run)
+        self.thread.start()
+
+    def run(self):
+        while self.on:
+            os.kill(self.pid, signal.SIGSTOP)
+            time.sleep(0.01)
+            os.kill(self.pid, signal.SIGCONT)
+            time.sleep(0.01)
+
+    def stop(self):
+        self.on = False
+        self.thread.join()
+        os.kill(self.pid, signal.SIGCONT)
+
+
+def rebalances(cluster):
+    return cluster.server.read_log().count("rebalance ")
+
+
+def test_slow_worker_gets_a_proportionally_smaller_slice(data, cluster, tmp_path):
+    cluster.worker(1)
+    cluster.worker(1)
+    slow = Throttle(cluster.workers[1].proc.pid)
+    try:
+        cluster.start(0, 1, "--rebalance-after", "3600")  # keep the calibrated slicing
+        remote(cluster, data, tmp_path)  # slices are cut when a job's sets load
+    finally:
+        slow.stop()
+    pool = cluster.pool()
+    fast, slow = pool[0], pool[1]
+    # Held to half speed, the second worker calibrates at about half the
+    # rate; the noisy shared machine gets a wide margin.
+    assert slow["calibrated"] < 0.75 * fast["calibrated"], pool
+    assert [w["rate"] for w in pool] == [w["calibrated"] for w in pool]
+    total = fast["rate"] + slow["rate"]
+    for w in pool:
+        assert abs(w["share"] - 100 * w["rate"] / total) < 1.0, pool
+    assert slow["share"] < fast["share"]
+
+
+def run_slowed(cluster, data, tmp_path, slow_seconds):
+    """A long job; after 1 s worker 2 runs at half speed for slow_seconds."""
+    w, h = 2048, 1536
+    p = subprocess.Popen([str(BUILD / "texsyn"), "synth", "--server", cluster.server.addr, "--ref",
+                          ref_of(data), "-o", tmp_path / "long.png", "--size", f"{w}x{h}", "--quiet",
+                          "--parity"], stderr=subprocess.PIPE, text=True)
+    time.sleep(1.0)
+    slow = Throttle(cluster.workers[1].proc.pid)
+    t0 = time.time()
+    while p.poll() is None and time.time() - t0 < slow_seconds:
+        time.sleep(0.05)
+    slow.stop()
+    p.wait(timeout=600)
+    assert p.returncode == 0, p.stderr.read()
+    p.stderr.close()
+    return time.time() - t0
+
+
+def test_sustained_slowdown_rebalances(data, cluster, tmp_path):
+    cluster.start(2, 1, "--rebalance-after", "2")
+    elapsed = run_slowed(cluster, data, tmp_path, 600)
+    assert elapsed > 3, "job too short to show a sustained slowdown"
+    assert rebalances(cluster) >= 1, cluster.server.read_log()
+    pool = cluster.pool()
+    assert pool[1]["share"] < 0.8 * pool[0]["share"], pool
+
+
+def test_one_second_spike_does_not_rebalance(data, cluster, tmp_path):
+    cluster.start(2, 1, "--rebalance-after", "3")
+    run_slowed(cluster, data, tmp_path, 1.0)
+    assert rebalances(cluster) == 0, cluster.server.read_log()
+
+
+def test_several_clients_at_once(texsyn, data, cluster, tmp_path):
+    seeds = [1, 2, 3, 4]
+    want = {s: embedded(texsyn, data, tmp_path, "--seed", s, name=f"e{s}") for s in seeds}
+    cluster.start(2, 1)
+    got, errors = {}, []
+
+    def client(seed):
+        try:
+            got[seed] = remote(cluster, data, tmp_path, "--seed", seed, name=f"r{seed}")
+        except Exception as e:  # reported below
+            errors.append(e)
+
+    threads = [threading.Thread(target=client, args=(s,)) for s in seeds]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors
+    for s in seeds:
+        assert got[s] == want[s], f"seed {s} differs"
+
+
+def test_detach_status_watch_fetch(texsyn, data, cluster, tmp_path):
+    want = embedded(texsyn, data, tmp_path)
+    cluster.start(1, 1)
+    w, h = SIZE
+    p = cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "x.png", "--size", f"{w}x{h}",
+                       "--detach", "--copy-map-raw", tmp_path / "x.raw")
+    job = p.stdout.strip()
+    assert job.isdigit(), p.stdout
+    cluster.texsyn("watch", job, "--quiet")
+    assert " done" in cluster.texsyn("status", job).stdout
+    cluster.texsyn("fetch", job, "-o", tmp_path / "f.png", "--copy-map-raw", tmp_path / "f.raw")
+    assert (tmp_path / "f.png").read_bytes() == want[0]
+    assert (tmp_path / "f.raw").read_bytes() == want[1]
+    listing = cluster.texsyn("status").stdout
+    assert job in listing
+    bad = cluster.texsyn("fetch", "999", "-o", tmp_path / "n.png", check=False)
+    assert bad.returncode == 1 and "no job 999" in bad.stderr
+
+
+def test_cancel_a_running_job(data, cluster, tmp_path):
+    cluster.start(1, 1)
+    p = cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "big.png", "--size", "2048x2048",
+                       "--detach")
+    job = p.stdout.strip()
+    deadline = time.time() + 30
+    while "running" not in cluster.texsyn("status", job).stdout and time.time() < deadline:
+        time.sleep(0.05)
+    cluster.texsyn("cancel", job)
+    w = cluster.texsyn("watch", job, "--quiet", check=False)
+    assert w.returncode == 1 and "canceled" in w.stdout + w.stderr
+    again = cluster.texsyn("cancel", job, check=False)
+    assert again.returncode == 1 and "already canceled" in again.stderr
+
+
+def test_bad_job_gets_a_clear_error_and_the_server_goes_on(data, cluster, tmp_path):
+    cluster.start(1, 1)
+    p = cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "x.png", "--size", "64x64",
+                       "--wb", "4", check=False)
+    assert p.returncode != 0 and "--wb" in p.stderr
+    notimg = tmp_path / "fake.png"
+    notimg.write_bytes(b"not an image at all" * 10)
+    p = cluster.texsyn("synth", "--ref", notimg, "-o", tmp_path / "y.png", "--size", "64x64", check=False)
+    assert p.returncode != 0
+    remote(cluster, data, tmp_path)  # still serving
+
+
+# ---- protocol robustness ----------------------------------------------------
+
+def frame(t, payload=b"", ident=1, magic=b"TS", version=1, length=None):
+    n = len(payload) if length is None else length
+    return magic + bytes([version]) + t.encode() + struct.pack("<II", n, ident) + payload
+
+
+def ident_payload(role):
+    name = b"fake-peer"
+    return struct.pack("<BIHB", role, 7, 0, 0) + struct.pack("<H", len(name)) + name
+
+
+BAD_STREAMS = {
+    "garbage": b"GET / HTTP/1.1\r\nHost: x\r\n\r\n" * 4,
+    "bad_version": frame("I", ident_payload(3), version=9),
+    "oversized_length": frame("I", b"", length=0xFFFFFFF0),
+    "truncated_then_close": frame("I", ident_payload(3))[:15],
+    "bad_first_message": frame("V", b"\x00" * 40),
+    "malformed_ident": frame("I", b"\x03\x00"),
+    "nul_in_name": frame("I", struct.pack("<BIHB", 3, 0, 0, 0) + b"\x03\x00a\x00b"),
+}
+
+
+def send_bad(addr, data, one_byte=False):
+    """Sends a stream (whole, or a byte per write), then reads until the
+    peer closes; the peer may close early, right at the first bad byte."""
+    host, port = addr.rsplit(":", 1)
+    with socket.create_connection((host, int(port)), timeout=10) as s:
+        try:
+            if one_byte:
+                for b in data:
+                    s.sendall(bytes([b]))
+            else:
+                s.sendall(data)
+            s.shutdown(socket.SHUT_WR)
+            while s.recv(4096):
+                pass
+        except (ConnectionResetError, BrokenPipeError, socket.timeout):
+            pass
+
+
+@pytest.mark.sanitize
+@pytest.mark.parametrize("one_byte", [False, True])
+def test_server_survives_bad_peers(data, cluster, tmp_path, one_byte):
+    cluster.start(1, 1)
+    for name, stream in BAD_STREAMS.items():
+        send_bad(cluster.server.addr, stream, one_byte=one_byte and len(stream) < 200)
+        assert cluster.server.alive(), f"server died on {name}"
+        assert cluster.pool(), f"server stopped answering after {name}"
+    log = cluster.server.read_log()
+    assert "protocol error" in log and "bad magic" in log and "exceeds the limit" in log
+    remote(cluster, data, tmp_path)
+
+
+@pytest.mark.sanitize
+def test_worker_survives_bad_peers_and_keeps_serving(texsyn, data, cluster, tmp_path):
+    want = embedded(texsyn, data, tmp_path)
+    w = cluster.worker(1)
+    # A fake coordinator: identifies, then sends broken requests.
+    broken = [
+        frame("I", ident_payload(1)) + frame("V", b"\x01\x02\x03"),
+        frame("I", ident_payload(1)) + frame("N", b"\x00" * 30),
+        frame("I", ident_payload(1)) + frame("Z", b""),
+        frame("I", ident_payload(1)) + frame("V", b"", length=0x7FFFFFFF),
+        frame("I", ident_payload(1))[:-3],
+    ]
+    for stream in [*BAD_STREAMS.values(), *broken]:
+        send_bad(w.addr, stream)
+        assert w.alive()
+    for stream in broken[:2]:
+        send_bad(w.addr, stream, one_byte=True)
+    cluster.start()
+    assert remote(cluster, data, tmp_path) == want
+    assert "protocol error" in w.read_log()

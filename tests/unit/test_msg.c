@@ -1,0 +1,317 @@
+/* test_msg.c - message bodies: every writer's output reads back equal;
+ * every strict prefix of a body, and a body with a byte too many, is
+ * refused; counts and sizes that don't fit the payload are refused before
+ * anything is read. Plus the job spec text format. */
+#include <stdlib.h>
+
+#include "error.h"
+#include "jobspec.h"
+#include "msg.h"
+#include "ts_test.h"
+
+static ts_frame frame_of(const ts_wr *w, uint8_t type) {
+  assert_int_equal(ts_wr_status(w), 0);
+  ts_frame f = {type, 7, (uint32_t)w->len, w->buf};
+  return f;
+}
+
+typedef int reader_fn(const ts_frame *f, void *out, char *err);
+
+/* Every strict prefix and one extra byte must fail to decode. */
+static void assert_exact(const ts_wr *w, uint8_t type, reader_fn *read, void *out) {
+  char err[TS_ERR_LEN];
+  uint8_t *buf = malloc(w->len + 1);
+  memcpy(buf, w->buf, w->len);
+  buf[w->len] = 0;
+  for (size_t n = 0; n < w->len; n++) {
+    ts_frame f = {type, 7, (uint32_t)n, buf};
+    assert_true(read(&f, out, err) < 0);
+  }
+  ts_frame f = {type, 7, (uint32_t)w->len + 1, buf};
+  assert_true(read(&f, out, err) < 0);
+  free(buf);
+}
+
+static int rd_ident(const ts_frame *f, void *o, char *e) { return ts_msg_ident_read(f, o, e); }
+static int rd_slice(const ts_frame *f, void *o, char *e) { return ts_msg_slice_read(f, o, e); }
+static int rd_query(const ts_frame *f, void *o, char *e) { return ts_msg_query_read(f, o, e); }
+static int rd_answer(const ts_frame *f, void *o, char *e) { return ts_msg_answer_read(f, o, e); }
+static int rd_submit(const ts_frame *f, void *o, char *e) { return ts_msg_submit_read(f, o, e); }
+static int rd_files(const ts_frame *f, void *o, char *e) { return ts_msg_files_read(f, o, e); }
+static int rd_error(const ts_frame *f, void *o, char *e) { return ts_msg_error_read(f, o, e); }
+
+static void ident_round_trip(void **state) {
+  (void)state;
+  ts_msg_ident in = {TS_ROLE_WORKER, TS_CAP_ALL, 12, TS_SIMD_AVX2, "texsyn-worker test"}, out;
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_ident_write(&w, &in);
+  ts_frame f = frame_of(&w, 'I');
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_msg_ident_read(&f, &out, err), 0);
+  assert_int_equal(out.role, TS_ROLE_WORKER);
+  assert_int_equal(out.threads, 12);
+  assert_int_equal(out.simd, TS_SIMD_AVX2);
+  assert_string_equal(out.name, in.name);
+  assert_exact(&w, 'I', rd_ident, &out);
+  w.buf[0] = 9; /* unknown role */
+  assert_int_equal(ts_msg_ident_read(&f, &out, err), TS_EPROTO);
+  ts_wr_free(&w);
+}
+
+static void slice_round_trip(void **state) {
+  (void)state;
+  uint8_t fine[2][64 * 10], coarse[2][32 * 6], counts[4 * 64 * 10];
+  for (size_t i = 0; i < sizeof(fine[0]); i++) fine[0][i] = (uint8_t)i, fine[1][i] = (uint8_t)(3 * i);
+  for (size_t i = 0; i < sizeof(coarse[0]); i++) coarse[0][i] = (uint8_t)(7 * i), coarse[1][i] = (uint8_t)~i;
+  for (size_t i = 0; i < sizeof(counts); i++) counts[i] = (uint8_t)(i * 13);
+  ts_msg_slice in = {0}, out;
+  in.set = 5, in.gen = 2, in.kind = 0, in.wn = 7, in.wb = 3, in.has_coarse = 1, in.nplanes = 2, in.parity = 1;
+  in.coarse_weight = 0.75, in.wfine = 9, in.wcoarse = 40, in.w = 64, in.h = 64, in.cw = 32, in.ch = 32;
+  for (int c = 0; c < 4; c++) in.i0[c] = (uint32_t)c * 10, in.i1[c] = (uint32_t)c * 10 + 40;
+  in.fy0 = 20, in.fy1 = 30, in.cy0 = 9, in.cy1 = 15;
+  in.fine[0] = fine[0], in.fine[1] = fine[1], in.coarse[0] = coarse[0], in.coarse[1] = coarse[1];
+  in.usage = TS_SLICE_USAGE_COUNTS, in.counts = counts;
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_slice_write(&w, &in);
+  ts_frame f = frame_of(&w, 'N');
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_msg_slice_read(&f, &out, err), 0);
+  assert_int_equal(out.set, 5);
+  assert_int_equal(out.gen, 2);
+  assert_true(out.coarse_weight == 0.75);
+  assert_int_equal(out.i1[3], 70);
+  assert_memory_equal(out.fine[1], fine[1], sizeof(fine[1]));
+  assert_memory_equal(out.coarse[1], coarse[1], sizeof(coarse[1]));
+  assert_memory_equal(out.counts, counts, sizeof(counts));
+  assert_exact(&w, 'N', rd_slice, &out);
+  ts_wr_free(&w);
+}
+
+/* Geometry that would make a worker read outside its planes is refused. */
+static void slice_geometry_is_checked(void **state) {
+  (void)state;
+  static uint8_t px[64 * 70]; /* the writer trusts its caller: room for every case */
+  ts_msg_slice base = {0}, out;
+  base.wn = 7, base.wb = 3, base.nplanes = 1, base.coarse_weight = 1, base.w = 64, base.h = 64;
+  base.i1[0] = 10, base.fy0 = 0, base.fy1 = 64;
+  for (int p = 0; p < 4; p++) base.fine[p] = px;
+  char err[TS_ERR_LEN];
+  for (int k = 0; k < 7; k++) {
+    ts_msg_slice m = base;
+    switch (k) {
+    case 0: m.wb = 4; break;      /* even block */
+    case 1: m.wn = 3; break;      /* window not larger than block */
+    case 2: m.fy1 = 65; break;    /* rows past the level */
+    case 3: m.fy0 = 10, m.fy1 = 10; break;
+    case 4: m.i0[0] = 11; break;  /* empty reversed range */
+    case 5: m.w = 5; break;       /* level smaller than the window */
+    }
+    ts_wr w;
+    ts_wr_init(&w);
+    ts_msg_slice_write(&w, &m);
+    if (k == 6) w.buf[12] = 5; /* nplanes, patched: the writer takes at most 4 */
+    ts_frame f = frame_of(&w, 'N');
+    assert_int_equal(ts_msg_slice_read(&f, &out, err), TS_EPROTO);
+    ts_wr_free(&w);
+  }
+}
+
+static void query_round_trip_with_commits(void **state) {
+  (void)state;
+  enum { NQ = 5, VB = 16 };
+  uint8_t q[NQ * VB], m[NQ * VB], k[NQ] = {0, 1, 2, 3, 1};
+  for (int i = 0; i < NQ * VB; i++) q[i] = (uint8_t)i, m[i] = (uint8_t)(i & 1 ? 0xFF : 0);
+  ts_commit c[2] = {{3, 4, 3, 3, 1}, {-1, 70000, 1, 2, -1}};
+  ts_query_batch b = {NQ, q, m, k, 0x123456789ull};
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_query_write(&w, 9, 3, c, 2, &b, VB, 1, 4); /* queries 1..3 */
+  ts_frame f = frame_of(&w, 'V');
+  ts_msg_query out;
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_msg_query_read(&f, &out, err), 0);
+  assert_int_equal(out.nq, 3);
+  assert_int_equal(out.ncommits, 2);
+  assert_int_equal(out.usage_k, 0x123456789ull);
+  assert_memory_equal(out.queries, q + VB, 3 * VB);
+  assert_memory_equal(out.masks, m + VB, 3 * VB);
+  assert_memory_equal(out.klass, k + 1, 3);
+  ts_commit got;
+  ts_msg_commit_at(&out, 1, &got);
+  assert_int_equal(got.x, -1);
+  assert_int_equal(got.y, 70000);
+  assert_int_equal(got.h, 2);
+  assert_int_equal(got.delta, -1);
+  assert_exact(&w, 'V', rd_query, &out);
+  ts_wr_free(&w);
+}
+
+/* A count that claims more than the payload holds fails before reading. */
+static void query_counts_are_bounded(void **state) {
+  (void)state;
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_wr_u32(&w, 1), ts_wr_u32(&w, 1), ts_wr_u32(&w, 0xFFFFFFFF); /* ncommits */
+  ts_frame f = frame_of(&w, 'V');
+  ts_msg_query out;
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_msg_query_read(&f, &out, err), TS_EPROTO);
+  ts_wr_free(&w);
+  ts_wr_init(&w);
+  ts_wr_u32(&w, 1), ts_wr_u32(&w, 1), ts_wr_u32(&w, 0);
+  ts_wr_u32(&w, 0x7FFFFFFF), ts_wr_u32(&w, 8), ts_wr_u8(&w, 0), ts_wr_u64(&w, 0); /* nq */
+  f = frame_of(&w, 'V');
+  assert_int_equal(ts_msg_query_read(&f, &out, err), TS_EPROTO);
+  ts_wr_free(&w);
+  ts_wr_init(&w);
+  ts_wr_u32(&w, 1), ts_wr_u32(&w, 1), ts_wr_u32(&w, 0);
+  ts_wr_u32(&w, 1), ts_wr_u32(&w, 7), ts_wr_u8(&w, 0), ts_wr_u64(&w, 0); /* vbytes % 8 */
+  ts_wr_bytes(&w, "1234567", 7);
+  f = frame_of(&w, 'V');
+  assert_int_equal(ts_msg_query_read(&f, &out, err), TS_EPROTO);
+  ts_wr_free(&w);
+}
+
+static void answer_round_trip(void **state) {
+  (void)state;
+  ts_l1_best b[3] = {{5, 100, 0}, {UINT64_MAX, UINT32_MAX, 0}, {1ull << 40, 7, 0}};
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_answer_write(&w, 4, 2, 12345, 678, b, 3);
+  ts_frame f = frame_of(&w, 'V');
+  ts_msg_answer a;
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_msg_answer_read(&f, &a, err), 0);
+  assert_int_equal(a.nq, 3);
+  assert_int_equal(a.scan_nanos, 12345);
+  for (uint32_t i = 0; i < 3; i++) {
+    ts_l1_best r;
+    ts_msg_result_at(&a, i, &r);
+    assert_int_equal(r.dist, b[i].dist);
+    assert_int_equal(r.index, b[i].index);
+  }
+  assert_exact(&w, 'V', rd_answer, &a);
+  ts_wr_free(&w);
+}
+
+static void job_plane_round_trips(void **state) {
+  (void)state;
+  char err[TS_ERR_LEN];
+  ts_wr w;
+  /* submit */
+  const char spec[] = "size=64x64\nseed=3\n";
+  const uint8_t ref[] = {1, 2, 3, 4};
+  ts_msg_submit s = {spec, sizeof(spec) - 1, "brick.png", ref, sizeof(ref)}, so;
+  ts_wr_init(&w);
+  ts_msg_submit_write(&w, &s);
+  ts_frame f = frame_of(&w, 'S');
+  assert_int_equal(ts_msg_submit_read(&f, &so, err), 0);
+  assert_int_equal(so.spec_len, s.spec_len);
+  assert_string_equal(so.ref_name, "brick.png");
+  assert_memory_equal(so.ref, ref, sizeof(ref));
+  assert_exact(&w, 'S', rd_submit, &so);
+  ts_wr_free(&w);
+  /* status */
+  ts_job_status st[2] = {{3, TS_JOB_RUNNING, 2, 5, 420, 1500, 3, ""}, {4, TS_JOB_FAILED, 0, 5, 0, 0, 0, "bad"}};
+  ts_job_status sto[2];
+  uint32_t n;
+  ts_wr_init(&w);
+  ts_msg_status_write(&w, st, 2);
+  f = frame_of(&w, 'W');
+  assert_int_equal(ts_msg_status_read(&f, sto, 2, &n, err), 0);
+  assert_int_equal(n, 2);
+  assert_int_equal(sto[0].permille, 420);
+  assert_string_equal(sto[1].text, "bad");
+  assert_int_equal(ts_msg_status_read(&f, sto, 1, &n, err), TS_EPROTO); /* more than the caller holds */
+  ts_wr_free(&w);
+  /* files */
+  ts_msg_files fl = {2, {"out.png", "report.json"}, {ref, (const uint8_t *)spec}, {4, 3}}, flo;
+  ts_wr_init(&w);
+  ts_msg_files_write(&w, &fl);
+  f = frame_of(&w, 'F');
+  assert_int_equal(ts_msg_files_read(&f, &flo, err), 0);
+  assert_string_equal(flo.name[1], "report.json");
+  assert_memory_equal(flo.data[1], spec, 3);
+  assert_exact(&w, 'F', rd_files, &flo);
+  ts_wr_free(&w);
+  /* error */
+  ts_msg_error e;
+  ts_wr_init(&w);
+  ts_msg_error_write(&w, TS_ENOENT, "no job 9");
+  f = frame_of(&w, 'E');
+  assert_int_equal(ts_msg_error_read(&f, &e, err), 0);
+  assert_int_equal(e.code, TS_ENOENT);
+  assert_string_equal(e.text, "no job 9");
+  assert_exact(&w, 'E', rd_error, &e);
+  ts_wr_free(&w);
+}
+
+static void strings_refuse_nul_and_overflow(void **state) {
+  (void)state;
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_wr_u16(&w, 3);
+  ts_wr_bytes(&w, "a\0b", 3);
+  ts_rd r;
+  char buf[16];
+  ts_rd_init(&r, w.buf, w.len);
+  ts_rd_str(&r, buf, sizeof(buf));
+  assert_true(r.failed);
+  ts_wr_free(&w);
+  ts_wr_init(&w);
+  ts_wr_str(&w, "0123456789abcdef0123");
+  ts_rd_init(&r, w.buf, w.len);
+  ts_rd_str(&r, buf, sizeof(buf)); /* 20 bytes into 16 */
+  assert_true(r.failed);
+  ts_wr_free(&w);
+}
+
+static void jobspec_round_trip(void **state) {
+  (void)state;
+  ts_jobspec a, b;
+  ts_jobspec_default(&a);
+  a.p.width = 300, a.p.height = 200, a.p.levels = 4, a.p.parity = 1, a.p.usage_weight = 0.1;
+  a.p.coarse_weight = 1.0 / 3.0, a.p.seed = UINT64_MAX, a.copy_map_raw = 1, a.report = 1;
+  snprintf(a.output, sizeof(a.output), "tif");
+  snprintf(a.usage_map, sizeof(a.usage_map), "exr");
+  char text[TS_SPEC_MAX], err[TS_ERR_LEN];
+  int n = ts_jobspec_format(&a, text, sizeof(text));
+  assert_true(n > 0);
+  assert_int_equal(ts_jobspec_parse(text, (size_t)n, &b, err), 0);
+  assert_int_equal(b.p.width, 300);
+  assert_true(b.p.usage_weight == 0.1);
+  assert_true(b.p.coarse_weight == 1.0 / 3.0); /* 17 digits round-trip */
+  assert_int_equal(b.p.seed, UINT64_MAX);
+  assert_string_equal(b.output, "tif");
+  assert_string_equal(b.usage_map, "exr");
+  assert_string_equal(b.copy_map, "");
+}
+
+static void jobspec_refuses_bad_lines(void **state) {
+  (void)state;
+  const char *bad[] = {"colour=red\n", "size=10\n", "levels=five\n", "output=../../etc/x\n",
+                       "output=png/x\n", "seed=-1\n", "novalue\n", "parity=2\n", "output=\n"};
+  ts_jobspec s;
+  char err[TS_ERR_LEN];
+  for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++)
+    assert_int_equal(ts_jobspec_parse(bad[i], strlen(bad[i]), &s, err), TS_EINVAL);
+  assert_int_equal(ts_jobspec_parse("size=8x8\nbogus=1\n", 17, &s, err), TS_EINVAL);
+  assert_non_null(strstr(err, "line 2"));
+}
+
+static const struct CMUnitTest tests[] = {
+    cmocka_unit_test(ident_round_trip),
+    cmocka_unit_test(slice_round_trip),
+    cmocka_unit_test(slice_geometry_is_checked),
+    cmocka_unit_test(query_round_trip_with_commits),
+    cmocka_unit_test(query_counts_are_bounded),
+    cmocka_unit_test(answer_round_trip),
+    cmocka_unit_test(job_plane_round_trips),
+    cmocka_unit_test(strings_refuse_nul_and_overflow),
+    cmocka_unit_test(jobspec_round_trip),
+    cmocka_unit_test(jobspec_refuses_bad_lines),
+};
+
+TS_TEST_MAIN(tests)

@@ -1,0 +1,427 @@
+/* main.c - texsyn-worker: holds slices of reference sets and scans them
+ * for the coordinator's query batches (proto/PROTOCOL.md).
+ *
+ * Each connection is served by its own thread with blocking reads; the scan
+ * threads form one pool shared by every connection (one batch at a time),
+ * so a worker holding slices of several jobs gives each batch all its
+ * cores. Slices belong to the connection that loaded them and go when it
+ * ends: a coordinator that goes away leaves nothing behind. */
+#include <errno.h>
+#include <getopt.h>
+#include <pthread.h>
+#include <signal.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "calib.h"
+#include "connset.h"
+#include "error.h"
+#include "l1.h"
+#include "msg.h"
+#include "net.h"
+#include "pool.h"
+#include "slice.h"
+
+#define WORKER_MAX_SLICES 64 /* per connection */
+#define HANDSHAKE_MS 10000
+
+typedef struct {
+  int threads, quiet;
+  uint32_t max_frame;
+  const char *name;
+  const ts_l1_impl *simd;
+  ts_pool *pool;
+  pthread_mutex_t pool_lock; /* ts_pool_run is not reentrant */
+  ts_connset conns;
+} worker;
+
+static worker g_w;
+static volatile sig_atomic_t g_stop;
+
+static void wlog(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+static void wlog(const char *fmt, ...) {
+  if (g_w.quiet) return;
+  char buf[1200];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(buf, sizeof(buf), fmt, ap);
+  va_end(ap);
+  time_t t = time(NULL);
+  struct tm tm;
+  gmtime_r(&t, &tm);
+  fprintf(stderr, "texsyn-worker: %04d-%02d-%02dT%02d:%02d:%02dZ %s\n", tm.tm_year + 1900, tm.tm_mon + 1,
+          tm.tm_mday, tm.tm_hour, tm.tm_min, tm.tm_sec, buf);
+}
+
+/* ---- one connection ------------------------------------------------------ */
+
+typedef struct {
+  ts_conn conn;
+  ts_slice *slices[WORKER_MAX_SLICES];
+  ts_l1_best *best;
+  uint32_t cap_best;
+} session;
+
+static int send_reply(session *s, uint8_t type, uint32_t id, ts_wr *w) {
+  char err[TS_ERR_LEN];
+  int rc = ts_wr_status(w) != 0 ? TS_ENOMEM : ts_net_send(s->conn.fd, type, id, w->buf, w->len, err);
+  ts_wr_free(w);
+  return rc;
+}
+
+static int send_error(session *s, uint32_t id, int code, const char *text) {
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_error_write(&w, code, text);
+  return send_reply(s, TS_MSG_ERROR, id, &w);
+}
+
+static int send_ident(session *s, uint32_t id) {
+  ts_msg_ident me = {TS_ROLE_WORKER, TS_CAP_ALL, (uint16_t)g_w.threads, (uint8_t)g_w.simd->id, ""};
+  snprintf(me.name, sizeof(me.name), "texsyn-worker 0.3 %s", g_w.name);
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_ident_write(&w, &me);
+  return send_reply(s, TS_MSG_IDENT, id, &w);
+}
+
+static ts_slice **slot_of(session *s, uint32_t set) {
+  for (int i = 0; i < WORKER_MAX_SLICES; i++)
+    if (s->slices[i] != NULL && ts_slice_set(s->slices[i]) == set) return &s->slices[i];
+  return NULL;
+}
+
+static void unload_all(session *s) {
+  for (int i = 0; i < WORKER_MAX_SLICES; i++) {
+    ts_slice_free(s->slices[i]);
+    s->slices[i] = NULL;
+  }
+}
+
+/* Semantic failures return 1 after an 'E' reply (the connection stays);
+ * a negative return closes it. */
+static int on_calibrate(session *s, const ts_frame *f, char *err) {
+  ts_msg_calib_req req;
+  int rc = ts_msg_calib_req_read(f, &req, err);
+  if (rc != 0) return rc;
+  ts_msg_calib cal;
+  pthread_mutex_lock(&g_w.pool_lock);
+  rc = ts_calib_run(g_w.pool, g_w.simd, req.millis, &cal.pairs, &cal.nanos);
+  pthread_mutex_unlock(&g_w.pool_lock);
+  if (rc != 0) return send_error(s, f->id, rc, "out of memory for calibration") == 0 ? 1 : rc;
+  wlog("calibrated for %s: %.3g comparisons/s", s->conn.peer, (double)cal.pairs / (cal.nanos * 1e-9));
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_calib_write(&w, &cal);
+  return send_reply(s, TS_MSG_CALIBRATE, f->id, &w);
+}
+
+static int on_slice(session *s, const ts_frame *f, char *err) {
+  ts_msg_slice m;
+  int rc = ts_msg_slice_read(f, &m, err);
+  if (rc != 0) return rc;
+  ts_slice *sl;
+  if (ts_slice_load(&sl, &m, err) != 0) return send_error(s, f->id, TS_EINVAL, err) == 0 ? 1 : TS_ECONN;
+  ts_slice **slot = slot_of(s, m.set);
+  for (int i = 0; slot == NULL && i < WORKER_MAX_SLICES; i++)
+    if (s->slices[i] == NULL) slot = &s->slices[i];
+  if (slot == NULL) {
+    ts_slice_free(sl);
+    return send_error(s, f->id, TS_ETOOBIG, "too many slices on one connection") == 0 ? 1 : TS_ECONN;
+  }
+  ts_slice_free(*slot);
+  *slot = sl;
+  ts_msg_loaded ack = {m.set, m.gen, ts_slice_vectors(sl)};
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_loaded_write(&w, &ack);
+  return send_reply(s, TS_MSG_SLICE, f->id, &w);
+}
+
+static double now_nanos(void) { return ts_now() * 1e9; }
+
+static int on_query(session *s, const ts_frame *f, char *err) {
+  ts_msg_query q;
+  int rc = ts_msg_query_read(f, &q, err);
+  if (rc != 0) return rc;
+  ts_slice **slot = slot_of(s, q.set);
+  if (slot == NULL || ts_slice_gen(*slot) != q.gen) {
+    snprintf(err, TS_ERR_LEN, "set %u generation %u is not loaded (have %d)", q.set, q.gen,
+             slot ? (int)ts_slice_gen(*slot) : -1);
+    return send_error(s, f->id, TS_EINVAL, err) == 0 ? 1 : TS_ECONN;
+  }
+  if (q.vbytes != ts_slice_vbytes(*slot)) {
+    snprintf(err, TS_ERR_LEN, "queries of %u bytes for vectors of %u", q.vbytes, ts_slice_vbytes(*slot));
+    return send_error(s, f->id, TS_EINVAL, err) == 0 ? 1 : TS_ECONN;
+  }
+  if (q.nq > s->cap_best) {
+    ts_l1_best *b = realloc(s->best, sizeof(ts_l1_best) * q.nq);
+    if (b == NULL) return send_error(s, f->id, TS_ENOMEM, "out of memory for the answers") == 0 ? 1 : TS_ECONN;
+    s->best = b;
+    s->cap_best = q.nq;
+  }
+  ts_query_batch b = {q.nq, q.queries, q.masks, q.klass, q.usage_k};
+  uint64_t pairs = 0;
+  double t0 = 0;
+  rc = ts_slice_commit_msg(*slot, &q, err);
+  if (rc == 0) {
+    pthread_mutex_lock(&g_w.pool_lock);
+    t0 = now_nanos();
+    rc = ts_slice_scan(*slot, g_w.pool, 0, g_w.simd, &b, s->best, &pairs, err);
+    t0 = now_nanos() - t0;
+    pthread_mutex_unlock(&g_w.pool_lock);
+  }
+  if (rc != 0) return send_error(s, f->id, rc, err) == 0 ? 1 : TS_ECONN;
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_answer_write(&w, q.set, q.gen, (uint64_t)t0, pairs, s->best, q.nq);
+  return send_reply(s, TS_MSG_QUERY, f->id, &w);
+}
+
+static int on_unload(session *s, const ts_frame *f, char *err) {
+  ts_msg_unload m;
+  int rc = ts_msg_unload_read(f, &m, err);
+  if (rc != 0) return rc;
+  if (m.set == TS_UNLOAD_ALL) {
+    unload_all(s);
+  } else {
+    ts_slice **slot = slot_of(s, m.set);
+    if (slot != NULL) {
+      ts_slice_free(*slot);
+      *slot = NULL;
+    }
+  }
+  ts_wr w;
+  ts_wr_init(&w);
+  return send_reply(s, TS_MSG_UNLOAD, f->id, &w);
+}
+
+static int handle(session *s, const ts_frame *f, char *err) {
+  switch (f->type) {
+  case TS_MSG_CALIBRATE: return on_calibrate(s, f, err);
+  case TS_MSG_SLICE: return on_slice(s, f, err);
+  case TS_MSG_QUERY: return on_query(s, f, err);
+  case TS_MSG_UNLOAD: return on_unload(s, f, err);
+  case TS_MSG_HEARTBEAT: {
+    if (f->len != 0) return ts_error(err, TS_EPROTO, "malformed 'H' message: payload must be empty");
+    ts_wr w;
+    ts_wr_init(&w);
+    return send_reply(s, TS_MSG_HEARTBEAT, f->id, &w);
+  }
+  default:
+    return ts_error(err, TS_EPROTO, "unexpected message type 0x%02x", f->type);
+  }
+}
+
+/* Identify: a coordinator that connected to us speaks first; when we
+ * joined a coordinator, we do. */
+static int handshake(session *s, int joined, char *err) {
+  ts_frame f;
+  ts_msg_ident peer;
+  int rc = joined ? send_ident(s, 0) : 0;
+  if (rc == 0) rc = ts_conn_recv(&s->conn, &f, HANDSHAKE_MS, err);
+  if (rc < 0) return rc;
+  if (f.type != TS_MSG_IDENT) return ts_error(err, TS_EPROTO, "first message must be 'I' (identify)");
+  rc = ts_msg_ident_read(&f, &peer, err);
+  if (rc == 0 && peer.role != TS_ROLE_COORD) rc = ts_error(err, TS_EPROTO, "peer is not a coordinator");
+  if (rc == 0 && !joined) rc = send_ident(s, f.id);
+  return rc;
+}
+
+static void serve(int fd, const char *peer, int joined) {
+  session *s = calloc(1, sizeof(*s));
+  if (s == NULL) {
+    close(fd);
+    return;
+  }
+  ts_conn_init(&s->conn, fd, g_w.max_frame, peer);
+  char err[TS_ERR_LEN] = "";
+  int rc = handshake(s, joined, err);
+  if (rc == 0) wlog("coordinator %s connected", peer);
+  while (rc >= 0 && !g_stop) {
+    ts_frame f;
+    rc = ts_conn_recv(&s->conn, &f, 1000, err);
+    if (rc == TS_ETIMEDOUT) {
+      rc = 0;
+      continue;
+    }
+    if (rc >= 0) rc = handle(s, &f, err);
+  }
+  if (rc == TS_ECONN) wlog("%s", err[0] ? err : "connection closed");
+  else if (rc < 0) {
+    wlog("protocol error from %s: %s; closing", peer, err);
+    send_error(s, 0, rc, err);
+  }
+  ts_connset_remove(&g_w.conns, fd);
+  unload_all(s);
+  ts_conn_close(&s->conn);
+  free(s->best);
+  free(s);
+}
+
+/* ---- listening and joining ----------------------------------------------- */
+
+typedef struct {
+  int fd;
+  char peer[TS_NET_ADDR_LEN];
+} accepted;
+
+static void *serve_thread(void *arg) {
+  accepted a = *(accepted *)arg;
+  free(arg);
+  serve(a.fd, a.peer, 0);
+  return NULL;
+}
+
+static void *join_thread(void *arg) {
+  const char *addr = arg;
+  double backoff = 0.2;
+  while (!g_stop) {
+    char err[TS_ERR_LEN];
+    int fd;
+    if (ts_net_connect(addr, 2000, &fd, err) == 0) {
+      backoff = 0.2;
+      if (ts_connset_add(&g_w.conns, fd) == 0) serve(fd, addr, 1);
+      else close(fd);
+    } else {
+      wlog("join %s: %s; retrying in %.1fs", addr, err, backoff);
+    }
+    for (double t = 0; t < backoff && !g_stop; t += 0.05) usleep(50000);
+    backoff = backoff * 2 > 5.0 ? 5.0 : backoff * 2;
+  }
+  return NULL;
+}
+
+static void usage(FILE *f) {
+  fprintf(f,
+          "usage: texsyn-worker (--listen ADDR:PORT | --join HOST:PORT) [options]\n"
+          "\n"
+          "Holds slices of reference vector sets for a texsyn-server and scans them for its\n"
+          "query batches with SIMD L1 kernels on all its threads.\n"
+          "\n"
+          "  --listen ADDR:PORT   wait for the coordinator here (give the address to\n"
+          "                       texsyn-server --workers); port 0 picks a free port\n"
+          "  --join HOST:PORT     connect to the coordinator and announce this worker;\n"
+          "                       reconnects with backoff (0.2 s doubling to 5 s) when lost\n"
+          "  --threads N          scan threads, 1..1024 (default: online CPUs, %ld here)\n"
+          "  --max-frame BYTES    largest accepted frame payload (default %u)\n"
+          "  --name NAME          name shown in logs and to the coordinator\n"
+          "  --quiet              no log lines\n"
+          "\n"
+          "TEXSYN_SIMD=scalar|mmx|sse2|avx2|avx512 forces a kernel variant.\n",
+          sysconf(_SC_NPROCESSORS_ONLN), TS_FRAME_DEFAULT_MAX);
+}
+
+static int parse_num(const char *opt, const char *s, long lo, long hi, long *out) {
+  char *end;
+  errno = 0;
+  long v = strtol(s, &end, 10);
+  if (errno != 0 || end == s || *end != '\0' || v < lo || v > hi) {
+    fprintf(stderr, "texsyn-worker: %s %s: need a whole number in %ld..%ld\n", opt, s, lo, hi);
+    return -1;
+  }
+  *out = v;
+  return 0;
+}
+
+static void on_signal(int sig) {
+  (void)sig;
+  g_stop = 1;
+}
+
+int main(int argc, char **argv) {
+  enum { O_LISTEN = 256, O_JOIN, O_THREADS, O_FRAME, O_NAME, O_QUIET, O_HELP };
+  static const struct option longopts[] = {
+      {"listen", required_argument, 0, O_LISTEN}, {"join", required_argument, 0, O_JOIN},
+      {"threads", required_argument, 0, O_THREADS}, {"max-frame", required_argument, 0, O_FRAME},
+      {"name", required_argument, 0, O_NAME}, {"quiet", no_argument, 0, O_QUIET},
+      {"help", no_argument, 0, O_HELP}, {0, 0, 0, 0}};
+  const char *listen_addr = NULL, *join_addr = NULL;
+  long v;
+  g_w.threads = (int)sysconf(_SC_NPROCESSORS_ONLN);
+  if (g_w.threads < 1) g_w.threads = 1;
+  g_w.max_frame = TS_FRAME_DEFAULT_MAX;
+  g_w.name = "";
+  opterr = 0;
+  int c;
+  while ((c = getopt_long(argc, argv, "h", longopts, NULL)) != -1) {
+    switch (c) {
+    case O_LISTEN: listen_addr = optarg; break;
+    case O_JOIN: join_addr = optarg; break;
+    case O_THREADS: if (parse_num("--threads", optarg, 1, 1024, &v) != 0) return 2; g_w.threads = (int)v; break;
+    case O_FRAME: if (parse_num("--max-frame", optarg, 1024, 0xFFFFFFFFL, &v) != 0) return 2; g_w.max_frame = (uint32_t)v; break;
+    case O_NAME: g_w.name = optarg; break;
+    case O_QUIET: g_w.quiet = 1; break;
+    case O_HELP: case 'h': usage(stdout); return 0;
+    default:
+      fprintf(stderr, "texsyn-worker: %s: unknown option or missing value (see --help)\n", argv[optind - 1]);
+      return 2;
+    }
+  }
+  if (optind < argc || (listen_addr == NULL && join_addr == NULL)) {
+    fprintf(stderr, "texsyn-worker: give --listen ADDR:PORT and/or --join HOST:PORT (see --help)\n");
+    return 2;
+  }
+  char err[TS_ERR_LEN];
+  if (ts_l1_select(&g_w.simd, err) != 0) {
+    fprintf(stderr, "texsyn-worker: %s\n", err);
+    return 2;
+  }
+  if (ts_pool_create(&g_w.pool, g_w.threads) != 0) {
+    fprintf(stderr, "texsyn-worker: cannot start %d scan threads\n", g_w.threads);
+    return 1;
+  }
+  pthread_mutex_init(&g_w.pool_lock, NULL);
+  ts_connset_init(&g_w.conns);
+  struct sigaction sa;
+  memset(&sa, 0, sizeof(sa));
+  sa.sa_handler = on_signal; /* no SA_RESTART: accept() returns on a signal */
+  sigaction(SIGTERM, &sa, NULL);
+  sigaction(SIGINT, &sa, NULL);
+  signal(SIGPIPE, SIG_IGN);
+  int lfd = -1;
+  if (listen_addr != NULL) {
+    int port, given;
+    char host[TS_NET_ADDR_LEN];
+    if (ts_net_split(listen_addr, host, sizeof(host), &given, err) != 0 ||
+        ts_net_listen(listen_addr, &lfd, &port, err) != 0) {
+      fprintf(stderr, "texsyn-worker: %s\n", err);
+      return 1;
+    }
+    printf("texsyn-worker listening on %s:%d\n", host, port);
+    fflush(stdout);
+    wlog("listening on %s:%d, %d threads, %s kernels", host, port, g_w.threads, g_w.simd->name);
+  }
+  pthread_t joiner;
+  int joining = join_addr != NULL && pthread_create(&joiner, NULL, join_thread, (void *)join_addr) == 0;
+  while (!g_stop) {
+    if (lfd < 0) {
+      usleep(100000);
+      continue;
+    }
+    accepted *a = malloc(sizeof(*a));
+    if (a == NULL || ts_net_accept(lfd, &a->fd, a->peer, sizeof(a->peer)) != 0) {
+      free(a);
+      continue;
+    }
+    pthread_t t;
+    if (ts_connset_add(&g_w.conns, a->fd) != 0 || pthread_create(&t, NULL, serve_thread, a) != 0) {
+      ts_connset_remove(&g_w.conns, a->fd);
+      close(a->fd);
+      free(a);
+      continue;
+    }
+    pthread_detach(t);
+  }
+  wlog("shutting down");
+  if (lfd >= 0) close(lfd);
+  ts_connset_close_all(&g_w.conns);
+  if (joining) pthread_join(joiner, NULL);
+  ts_connset_close_all(&g_w.conns);
+  ts_pool_destroy(g_w.pool);
+  return 0;
+}

@@ -1,0 +1,52 @@
+/* slice.h - a slice of one reference set: the vectors of one range per
+ * class, built from the level rows those vectors read, the usage replica
+ * their penalties need, and the scan of a batch against them.
+ *
+ * The same code scans everywhere: on a worker (slices from 'N' messages),
+ * in the local backend (one slice holding every vector) and on a
+ * coordinator that has no worker. So a worker can never disagree with the
+ * embedded engine about a distance. */
+#ifndef TS_SLICE_H
+#define TS_SLICE_H
+
+#include <stdint.h>
+
+#include "l1.h"
+#include "msg.h"
+#include "pool.h"
+#include "search.h"
+#include "usage.h"
+
+typedef struct ts_slice ts_slice;
+
+/* Describes vectors [i0[c], i1[c]) of every class of a set as an 'N'
+ * message: the rows they read (pointers into rs's planes) and, if counts
+ * is not NULL and holds any use, the usage counters of those rows. */
+void ts_slice_describe(ts_msg_slice *m, const ts_refset *rs, const ts_usage *counts, uint32_t set,
+                       uint32_t gen, const uint32_t *i0, const uint32_t *i1);
+
+/* Builds a slice from a described or decoded 'N' message (the message's
+ * bulk data may go away afterwards), with the message's part weights.
+ * Geometry the vectors can't be built from - rows missing from the region,
+ * ranges past a class - is refused with a message. */
+int ts_slice_load(ts_slice **out, const ts_msg_slice *m, char *err);
+void ts_slice_free(ts_slice *s);
+
+uint32_t ts_slice_set(const ts_slice *s);
+uint32_t ts_slice_gen(const ts_slice *s);
+uint64_t ts_slice_vectors(const ts_slice *s);
+uint32_t ts_slice_vbytes(const ts_slice *s);
+
+/* Records copies in the usage replica (a no-op without usage). */
+int ts_slice_commit(ts_slice *s, const ts_commit *c, uint32_t n, char *err);
+/* Applies the commits an 'V' message carries. */
+int ts_slice_commit_msg(ts_slice *s, const ts_msg_query *q, char *err);
+
+/* Scans a batch with `threads` threads of pool (1 = the calling thread
+ * alone): out[i] = best match of query i in this slice, as a global index
+ * (UINT32_MAX if the slice holds no vector of its class). *pairs =
+ * comparisons made. */
+int ts_slice_scan(ts_slice *s, ts_pool *pool, int threads, const ts_l1_impl *simd,
+                  const ts_query_batch *b, ts_l1_best *out, uint64_t *pairs, char *err);
+
+#endif
