@@ -58,6 +58,7 @@ typedef struct {
   int expect;
   uint64_t answered_pairs; /* comparisons the batch's answers report */
   double answered_at;      /* when the last answer arrived */
+  double heard_at;         /* when the worker last sent anything */
 } cl_worker;
 
 typedef struct {
@@ -105,6 +106,7 @@ void ts_cluster_opts_default(ts_cluster_opts *o) {
   o->local_threads = 2;
   o->max_frame = TS_FRAME_DEFAULT_MAX;
   o->pipeline_queries = 256;
+  o->heartbeat = 2.0;
 }
 
 /* ---- frames into an output buffer ------------------------------------- */
@@ -209,6 +211,7 @@ static int admit(ts_cluster *c, ts_conn *conn, const ts_msg_ident *ident, int ad
   if (rc == 0) {
     w->id = ++c->next_worker_id;
     w->state = TS_WORKER_READY;
+    w->heard_at = ts_now();
     c->w[c->nw++] = w;
     if (addr_slot >= 0) c->addrs[addr_slot].worker_id = w->id;
     c->epoch++;
@@ -264,12 +267,46 @@ static int dial(ts_cluster *c, const char *addr, ts_conn *conn, ts_msg_ident *id
   return rc;
 }
 
-/* The cluster's thread: (re)connects configured addresses, reaps failed
- * workers. */
+typedef int cl_reply_fn(void *ctx, cl_worker *w, const ts_frame *f, char *err);
+typedef struct {
+  uint64_t bytes_out, bytes_in;
+} cl_traffic;
+static int exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, cl_reply_fn *fn, void *ctx,
+                    cl_traffic *tr);
+
+static int heartbeat_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
+  (void)ctx;
+  (void)err;
+  if (f->type == TS_MSG_HEARTBEAT) w->expect--;
+  return 0; /* anything else is a stale answer of an abandoned batch */
+}
+
+/* Pings the workers that have been silent for a heartbeat interval, so a
+ * worker that died or hung between jobs leaves the pool (and is dialled
+ * again) before the next batch waits on it (lock held). */
+static void heartbeat_idle(ts_cluster *c) {
+  if (c->o.heartbeat <= 0) return;
+  cl_worker *ws[CL_MAX_WORKERS];
+  int n = 0;
+  double now = ts_now();
+  for (int i = 0; i < c->nw; i++) {
+    cl_worker *w = c->w[i];
+    if (w->state != TS_WORKER_READY || now - w->heard_at < c->o.heartbeat) continue;
+    frame_begin(&w->out, TS_MSG_HEARTBEAT, ++c->next_frame); /* empty payload */
+    w->expect = 1;
+    ws[n++] = w;
+  }
+  cl_traffic tr = {0, 0};
+  if (n > 0) exchange(c, ws, n, 2 * c->o.heartbeat + 1.0, heartbeat_reply, NULL, &tr);
+}
+
+/* The cluster's thread: (re)connects configured addresses, pings idle
+ * workers, reaps failed ones. */
 static void *cluster_thread(void *arg) {
   ts_cluster *c = arg;
   pthread_mutex_lock(&c->lock);
   while (!c->stop) {
+    heartbeat_idle(c);
     reap_failed(c);
     for (int a = 0; a < c->naddrs && !c->stop; a++) {
       if (c->addrs[a].worker_id != 0) continue;
@@ -390,12 +427,6 @@ uint64_t ts_cluster_rebalances(ts_cluster *c) {
 
 /* ---- exchanges --------------------------------------------------------- */
 
-typedef int cl_reply_fn(void *ctx, cl_worker *w, const ts_frame *f, char *err);
-
-typedef struct {
-  uint64_t bytes_out, bytes_in;
-} cl_traffic;
-
 /* Sends every worker's queued output and feeds each reply to fn until
  * every worker has answered its `expect` frames. A worker that fails
  * (connection, protocol, fn's error, deadline) is marked failed and the
@@ -452,6 +483,7 @@ static int exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, cl_rep
           break;
         }
         tr->bytes_in += TS_FRAME_HEADER + f.len;
+        w->heard_at = ts_now();
       }
     }
   }

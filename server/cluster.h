@@ -34,6 +34,8 @@ typedef struct {
   uint32_t max_frame;      /* payload limit of worker replies */
   uint32_t pipeline_queries; /* queries per V frame: later frames are on
                                 the wire while the first is scanned (256) */
+  double heartbeat;        /* seconds of silence before an idle worker is
+                              pinged; no answer in 2x+1 s drops it (2; 0 off) */
 } ts_cluster_opts;
 
 void ts_cluster_opts_default(ts_cluster_opts *o);

@@ -317,6 +317,8 @@ static void usage(FILE *f) {
           "                            resized, 0..3600 (default 3); shorter spikes are ignored\n"
           "  --batch-timeout S         floor of a batch's deadline, 0.1..3600 (default 10)\n"
           "  --pipeline-queries N      queries per batch frame, 1..1048576 (default 256)\n"
+          "  --heartbeat S             ping a worker silent this long; no answer within\n"
+          "                            2S+1 s drops it, 0..3600 (default 2; 0 = off)\n"
           "  --max-frame BYTES         largest accepted frame payload (default %u)\n"
           "  --max-pixels N            largest reference or output image (default %llu)\n"
           "  --quiet                   no startup line\n",
@@ -343,13 +345,14 @@ static int num(const char *opt, const char *s, double lo, double hi, double *out
 }
 
 static int parse_opts(int argc, char **argv, server_opts *o) {
-  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_PIPE, O_FRAME, O_PIX, O_QUIET, O_HELP };
+  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_PIPE, O_HB, O_FRAME, O_PIX, O_QUIET, O_HELP };
   static const struct option longopts[] = {
       {"listen", required_argument, 0, O_LISTEN}, {"workers", required_argument, 0, O_WORKERS},
       {"spool", required_argument, 0, O_SPOOL}, {"jobs", required_argument, 0, O_JOBS},
       {"threads", required_argument, 0, O_THREADS}, {"calibrate-ms", required_argument, 0, O_CAL},
       {"rebalance-tolerance", required_argument, 0, O_TOL}, {"rebalance-after", required_argument, 0, O_AFTER},
       {"batch-timeout", required_argument, 0, O_BT}, {"pipeline-queries", required_argument, 0, O_PIPE},
+      {"heartbeat", required_argument, 0, O_HB},
       {"max-frame", required_argument, 0, O_FRAME}, {"max-pixels", required_argument, 0, O_PIX},
       {"quiet", no_argument, 0, O_QUIET}, {"help", no_argument, 0, O_HELP}, {0, 0, 0, 0}};
   memset(o, 0, sizeof(*o));
@@ -374,6 +377,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
     case O_AFTER: rc = num("--rebalance-after", optarg, 0, 3600, &o->co.persist); break;
     case O_BT: rc = num("--batch-timeout", optarg, 0.1, 3600, &o->co.batch_timeout); break;
     case O_PIPE: rc = num("--pipeline-queries", optarg, 1, 1 << 20, &v); o->co.pipeline_queries = (uint32_t)v; break;
+    case O_HB: rc = num("--heartbeat", optarg, 0, 3600, &o->co.heartbeat); break;
     case O_FRAME: rc = num("--max-frame", optarg, 1024, 4294967295.0, &v); o->co.max_frame = (uint32_t)v; break;
     case O_PIX: rc = num("--max-pixels", optarg, 1, 1e15, &v); o->max_pixels = (uint64_t)v; break;
     case O_QUIET: o->quiet = 1; break;

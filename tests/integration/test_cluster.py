@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from conftest import BUILD, run, synth
+from conftest import BUILD, Daemon, run, synth
 
 SIZE = (256, 192)
 
@@ -283,3 +283,36 @@ def test_worker_survives_bad_peers_and_keeps_serving(texsyn, data, cluster, tmp_
     cluster.start()
     assert remote(cluster, data, tmp_path) == want
     assert "protocol error" in w.read_log()
+
+
+@pytest.mark.sanitize
+def test_joining_workers_match_embedded(texsyn, data, cluster, tmp_path):
+    """Workers started with --join announce themselves to the coordinator."""
+    want = embedded(texsyn, data, tmp_path)
+    cluster.start()
+    for i in range(2):
+        cluster.worker(1, "--join", cluster.server.addr)
+    cluster.wait_ready(2)
+    assert remote(cluster, data, tmp_path) == want
+    assert [w["batches"] > 0 for w in cluster.pool()] == [True, True]
+
+
+def test_idle_worker_that_dies_leaves_the_pool_and_comes_back(texsyn, data, cluster, tmp_path):
+    """Heartbeats find a worker killed between jobs; the coordinator dials
+    its address again and uses it once it is back."""
+    want = embedded(texsyn, data, tmp_path)
+    cluster.start(2, 1, "--heartbeat", "0.5")
+    dead = cluster.workers[1]
+    dead.proc.kill()
+    dead.proc.wait()
+    deadline = time.time() + 10
+    while time.time() < deadline and len(cluster.pool()) != 1:
+        time.sleep(0.1)
+    assert len(cluster.pool()) == 1, "the dead worker is still in the pool"
+    assert "dropped" in cluster.server.read_log()
+    reborn = Daemon([BUILD / "texsyn-worker", "--listen", dead.addr, "--threads", 1],
+                    tmp_path / "reborn.log")
+    cluster.workers.append(reborn)
+    cluster.wait_ready(2)
+    assert remote(cluster, data, tmp_path) == want
+    assert all(w["batches"] > 0 for w in cluster.pool())
