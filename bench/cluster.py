@@ -99,6 +99,30 @@ class Config:
         stop(self.procs)
 
 
+def plot(results, out):
+    """cluster.png: each configuration's runs and median, per mode."""
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print("bench: matplotlib missing, no plot")
+        return
+    fig, axes = plt.subplots(1, len(results), figsize=(10, 4), sharey=False)
+    for ax, (mode, rows) in zip(axes, results.items()):
+        labels = [r["config"].replace(" (", "\n(").replace(" x ", "\nx ") for r in rows]
+        ax.bar(range(len(rows)), [r["median_s"] for r in rows], color="#8aa")
+        for i, r in enumerate(rows):
+            ax.plot([i] * len(r["runs"]), r["runs"], "k.", ms=4)
+            ax.text(i, r["median_s"], f"{r['ratio']:.2f}x", ha="center", va="bottom", fontsize=8)
+        ax.set_xticks(range(len(rows)))
+        ax.set_xticklabels(labels, fontsize=7)
+        ax.set_title(f"Table 3.3 job, {mode}")
+        ax.set_ylabel("wall seconds (bars: median, dots: runs)")
+    fig.tight_layout()
+    fig.savefig(out / "cluster.png", dpi=110)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--build", default="build")
@@ -156,6 +180,7 @@ def main():
                          f"{r['wire_bytes_per_query']:11.1f} {rt:>26s}  {r['identical']}")
         lines.append("")
     (out / "cluster.txt").write_text("\n".join(lines) + "\n")
+    plot(results, out)
     print("\n".join(lines))
     if not all(r["identical"] for rows in results.values() for r in rows):
         sys.exit("bench: a cluster output differs from the embedded one")
