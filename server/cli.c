@@ -71,6 +71,8 @@ static void usage_synth(FILE *f) {
           "  --quiet              no progress bar\n"
           "  --server HOST:PORT   run the job on a texsyn-server (and its workers) instead\n"
           "                       of in-process; same options, same output bytes\n"
+          "                       (default: $TEXSYN_SERVER if set, else in-process)\n"
+          "  --embedded           run in-process even if $TEXSYN_SERVER is set\n"
           "  --detach             with --server: print the job id and return at once\n"
           "                       (then texsyn watch/fetch ID)\n"
           "\n"
@@ -160,14 +162,14 @@ static void progress_draw(void *ctx, const ts_mrf_progress *p) {
 typedef struct {
   ts_mrf_params p;
   const char *ref, *out, *copy_map, *copy_map_raw, *usage_map, *report, *server;
-  int threads, quiet, have_size, detach;
+  int threads, quiet, have_size, detach, embedded;
 } synth_opts;
 
 enum {
   OPT_REF = 256, OPT_SIZE, OPT_LEVELS, OPT_WN, OPT_WB, OPT_PARITY, OPT_USAGE, OPT_COARSE,
   OPT_SEED, OPT_RGB, OPT_THREADS, OPT_COPY, OPT_COPY_RAW, OPT_USAGE_MAP, OPT_REPORT,
   OPT_MAXPIX, OPT_STOP, OPT_REFINE, OPT_QUIET, OPT_HELP, OPT_IMAGE, OPT_SAMPLES, OPT_BLOCK,
-  OPT_SERVER, OPT_DETACH
+  OPT_SERVER, OPT_DETACH, OPT_EMBEDDED
 };
 
 static const struct option synth_longopts[] = {
@@ -193,6 +195,7 @@ static const struct option synth_longopts[] = {
     {"quiet", no_argument, 0, OPT_QUIET},
     {"server", required_argument, 0, OPT_SERVER},
     {"detach", no_argument, 0, OPT_DETACH},
+    {"embedded", no_argument, 0, OPT_EMBEDDED},
     {"help", no_argument, 0, OPT_HELP},
     {0, 0, 0, 0}};
 
@@ -222,9 +225,17 @@ static int synth_option(synth_opts *o, int c, const char *arg, char *err) {
   case OPT_QUIET: o->quiet = 1; break;
   case OPT_SERVER: o->server = arg; break;
   case OPT_DETACH: o->detach = 1; break;
+  case OPT_EMBEDDED: o->embedded = 1; break;
   default: rc = ts_error(err, TS_EINVAL, "unknown option (see texsyn synth --help)");
   }
   return rc;
+}
+
+/* The coordinator from $TEXSYN_SERVER (as left by deploy/local-cluster.sh),
+ * or NULL when it is unset or empty. */
+static const char *env_server(void) {
+  const char *s = getenv("TEXSYN_SERVER");
+  return s != NULL && s[0] != '\0' ? s : NULL;
 }
 
 static int synth_parse(int argc, char **argv, synth_opts *o, char *err) {
@@ -246,12 +257,14 @@ static int synth_parse(int argc, char **argv, synth_opts *o, char *err) {
     if (rc != 0) return rc;
   }
   if (optind < argc) return ts_error(err, TS_EINVAL, "unexpected argument '%s'", argv[optind]);
+  if (o->server != NULL && o->embedded) return ts_error(err, TS_EINVAL, "--server and --embedded exclude each other");
+  if (o->server == NULL && !o->embedded) o->server = env_server();
   if (o->ref == NULL) return ts_error(err, TS_EINVAL, "--ref IMG is required (see texsyn synth --help)");
   if (o->out == NULL) return ts_error(err, TS_EINVAL, "-o OUT is required (see texsyn synth --help)");
   if (!o->have_size) return ts_error(err, TS_EINVAL, "--size WxH is required (see texsyn synth --help)");
   if (o->detach && o->server == NULL) return ts_error(err, TS_EINVAL, "--detach needs --server");
   if (o->server != NULL && o->p.stop_level != 0)
-    return ts_error(err, TS_EINVAL, "--stop-level previews run embedded only (drop --server)");
+    return ts_error(err, TS_EINVAL, "--stop-level previews run embedded only (add --embedded)");
   return 0;
 }
 
@@ -613,7 +626,7 @@ static const char *kJobUsage =
     "usage: texsyn status [ID] | watch ID | fetch ID -o OUT | cancel ID | workers   [--server HOST:PORT]\n"
     "\n"
     "  status [ID]   one job, or every job the coordinator knows\n"
-    "  watch ID      follow a job (level, %% of blocks, ETA, workers) until it ends\n"
+    "  watch ID      follow a job (level, % of blocks, ETA, workers) until it ends\n"
     "  fetch ID      write a finished job's results: -o OUT (the image) and, if the job\n"
     "                made them, --copy-map F, --copy-map-raw F, --usage-map F, --report F\n"
     "  cancel ID     stop a queued or running job\n"
@@ -639,7 +652,7 @@ static int job_parse(int argc, char **argv, job_opts *o, char *err) {
       {"quiet", no_argument, 0, OPT_QUIET},             {"help", no_argument, 0, OPT_HELP},
       {0, 0, 0, 0}};
   memset(o, 0, sizeof(*o));
-  o->server = getenv("TEXSYN_SERVER") ? getenv("TEXSYN_SERVER") : "127.0.0.1:7070";
+  o->server = env_server() ? env_server() : "127.0.0.1:7070";
   optind = 1;
   opterr = 0;
   int c;
@@ -739,7 +752,8 @@ static int cmd_job(const char *cmd, int argc, char **argv) {
     else if (strcmp(cmd, "watch") == 0) {
       rc = watch_job(&c, o.id, !o.quiet && isatty(STDERR_FILENO), &st, err);
       if (rc == 0) print_status(&st);
-      if (rc == 0 && st.state != TS_JOB_DONE) rc = TS_EINVAL, snprintf(err, sizeof(err), "job %llu %s", (unsigned long long)o.id, ts_job_state_name(st.state));
+      if (rc == 0 && st.state != TS_JOB_DONE)
+        rc = ts_error(err, TS_EINVAL, "job %llu %s", (unsigned long long)o.id, ts_job_state_name(st.state));
     } else {
       ts_wr w;
       ts_wr_init(&w);

@@ -677,15 +677,18 @@ static void flush_pending(cl_set *st) {
   st->npending = 0;
 }
 
-/* V frame ids: the batch's sequence number in the top byte (a stale
- * answer never matches) and the frame's first query below. */
+/* V frame ids: the exchange's sequence number in the top byte (a stale
+ * answer never matches) and the frame's first query below, counted over
+ * the concatenated queries of every request of the exchange. */
 #define CL_ID_QUERY_BITS 24
 #define CL_ID_QUERY_MASK ((1u << CL_ID_QUERY_BITS) - 1)
+#define CL_MAX_REQS 64
 
 typedef struct {
-  cl_set *st;
+  cl_set *st[CL_MAX_REQS];
+  uint32_t q0[CL_MAX_REQS + 1]; /* request r holds queries q0[r]..q0[r+1]-1 */
+  uint32_t nreq;
   ts_l1_best *best;
-  uint32_t nq;
   uint32_t seq;
 } batch_ctx;
 
@@ -713,16 +716,19 @@ static int answer_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
   if (f->type != TS_MSG_QUERY) return 0; /* stale reply of an abandoned exchange */
   ts_msg_answer a;
   if (ts_msg_answer_read(f, &a, err) != 0) return TS_EPROTO;
-  if (a.set != b->st->gid || a.gen != b->st->gen) return 0;
   if (f->id >> CL_ID_QUERY_BITS != (b->seq & 0xFF)) return 0;
-  uint32_t q0 = f->id & CL_ID_QUERY_MASK;
-  if (q0 > b->nq || a.nq > b->nq - q0) return ts_error(err, TS_EPROTO, "answer for queries outside the batch");
+  uint32_t q0 = f->id & CL_ID_QUERY_MASK, r = 0;
+  while (r < b->nreq && q0 >= b->q0[r + 1]) r++;
+  if (r == b->nreq) return ts_error(err, TS_EPROTO, "answer for queries outside the batch");
+  const cl_set *st = b->st[r];
+  if (a.set != st->gid || a.gen != st->gen) return 0;
+  if (a.nq > b->q0[r + 1] - q0) return ts_error(err, TS_EPROTO, "answer for queries outside the batch");
   for (uint32_t i = 0; i < a.nq; i++) {
-    ts_l1_best r;
-    ts_msg_result_at(&a, i, &r);
-    if (r.index != UINT32_MAX && r.index >= b->st->grid->total)
-      return ts_error(err, TS_EPROTO, "answer index %u outside the set", r.index);
-    merge_best(&b->best[q0 + i], &r);
+    ts_l1_best res;
+    ts_msg_result_at(&a, i, &res);
+    if (res.index != UINT32_MAX && res.index >= st->grid->total)
+      return ts_error(err, TS_EPROTO, "answer index %u outside the set", res.index);
+    merge_best(&b->best[q0 + i], &res);
   }
   w->answered_pairs += a.pairs;
   if (--w->expect == 0) w->answered_at = ts_now();
@@ -779,79 +785,140 @@ static int query_local(ts_cluster *c, cl_set *st, const ts_query_batch *b, ts_l1
   return rc;
 }
 
-static int cluster_query(ts_search *s, int id, const ts_query_batch *b, ts_l1_best *out, char *err) {
-  cluster_search *cs = (cluster_search *)s;
-  ts_cluster *c = cs->c;
-  cl_set *st = set_get(cs, id);
-  if (st == NULL) return ts_error(err, TS_EINVAL, "unknown reference set %d", id);
-  if (b->nq == 0) return 0;
-  if (b->nq > CL_ID_QUERY_MASK) return ts_error(err, TS_ETOOBIG, "batch of %u queries is too large", b->nq);
-  if (cs->cancel != NULL && *cs->cancel) return ts_error(err, TS_ECANCELED, "job canceled");
-  if (b->usage_k != 0 && !st->with_usage) return ts_error(err, TS_EINVAL, "a usage penalty on a set prepared without usage");
-  if (ensure_best(cs, b->nq) != 0) return ts_error(err, TS_ENOMEM, "out of memory for a batch of %u queries", b->nq);
-  uint32_t vbytes = ts_shape_bytes(st->rs.shape);
-  double t0 = ts_now();
-  pthread_mutex_lock(&c->lock);
-  int rc;
+/* Slices every request's set over the current pool; all of them must end
+ * up cut for the same epoch (a failed load moves it: start again). */
+static int slice_all(cluster_search *cs, batch_ctx *bc, char *err) {
   for (;;) {
-    rc = ensure_slices(cs, st, err);
-    if (rc != 0) break;
-    if (st->local != NULL) {
-      uint64_t pairs = 0;
-      rc = query_local(c, st, b, out, &pairs, err);
-      s->stats.pairs += pairs;
-      break;
+    for (uint32_t r = 0; r < bc->nreq; r++) {
+      int rc = ensure_slices(cs, bc->st[r], err);
+      if (rc != 0) return rc;
     }
-    batch_ctx bc = {st, cs->best, b->nq, ++c->next_frame};
-    double sent_at = ts_now();
-    ts_l1_best_reset(cs->best, b->nq);
-    cl_worker *ws[CL_MAX_WORKERS];
-    int n = st->nslices;
-    for (int i = 0; i < n; i++) {
-      cl_worker *w = ws[i] = st->slices[i].w;
-      w->answered_pairs = 0;
+    uint32_t r = 0;
+    while (r < bc->nreq && bc->st[r]->epoch == cs->c->epoch) r++;
+    if (r == bc->nreq) return 0;
+  }
+}
+
+/* Queues every request's V frames to the workers holding its slices; the
+ * workers involved are collected in ws. */
+static int queue_frames(ts_cluster *c, const batch_ctx *bc, const ts_search_req *req, cl_worker **ws, int *nw,
+                        char *err) {
+  *nw = 0;
+  for (uint32_t r = 0; r < bc->nreq; r++) {
+    cl_set *st = bc->st[r];
+    const ts_query_batch *b = &req[r].b;
+    uint32_t vbytes = ts_shape_bytes(st->rs.shape);
+    for (int i = 0; i < st->nslices; i++) {
+      cl_worker *w = st->slices[i].w;
+      int k = 0;
+      while (k < *nw && ws[k] != w) k++;
+      if (k == *nw) {
+        ws[(*nw)++] = w;
+        w->answered_pairs = 0;
+      }
       for (uint32_t q0 = 0; q0 < b->nq; q0 += c->o.pipeline_queries) {
         uint32_t q1 = q0 + c->o.pipeline_queries < b->nq ? q0 + c->o.pipeline_queries : b->nq;
-        size_t at = frame_begin(&w->out, TS_MSG_QUERY, (bc.seq & 0xFF) << CL_ID_QUERY_BITS | q0);
+        size_t at = frame_begin(&w->out, TS_MSG_QUERY, (bc->seq & 0xFF) << CL_ID_QUERY_BITS | (bc->q0[r] + q0));
+        /* The set's pending commits ride with its first frame. */
         if (q0 == 0) ts_msg_query_write(&w->out, st->gid, st->gen, st->pending, st->npending, b, vbytes, q0, q1);
         else ts_msg_query_write(&w->out, st->gid, st->gen, NULL, 0, b, vbytes, q0, q1);
         frame_end(&w->out, at);
         w->expect++;
       }
-      if (ts_wr_status(&w->out) != 0) {
-        rc = ts_error(err, TS_ENOMEM, "out of memory for a batch");
-        break;
-      }
+      if (ts_wr_status(&w->out) != 0) return ts_error(err, TS_ENOMEM, "out of memory for a batch");
     }
-    if (rc != 0) break;
-    flush_pending(st);
-    cl_traffic tr = {0, 0};
-    int ex = exchange(c, ws, n, c->o.batch_timeout, answer_reply, &bc, &tr);
-    s->stats.bytes_out += tr.bytes_out;
-    s->stats.bytes_in += tr.bytes_in;
-    if (ex == 0) {
-      memcpy(out, cs->best, sizeof(ts_l1_best) * b->nq);
-      for (int i = 0; i < n; i++) track_rate(ws[i], sent_at);
-      check_balance(c, ws, n);
-      break;
-    }
-    /* A worker failed: the epoch moved; slice again and re-ask the batch
-     * (its commits are in the replica now, which the new slices carry). */
   }
-  pthread_mutex_unlock(&c->lock);
+  return 0;
+}
+
+/* Every request in one exchange with the pool (lock held). Returns 0,
+ * TS_ECONN when a worker failed (re-slice and retry), or an error. */
+static int exchange_batch(cluster_search *cs, batch_ctx *bc, const ts_search_req *req, char *err) {
+  ts_cluster *c = cs->c;
+  cl_worker *ws[CL_MAX_WORKERS];
+  int n;
+  bc->seq = ++c->next_frame;
+  ts_l1_best_reset(bc->best, bc->q0[bc->nreq]);
+  double sent_at = ts_now();
+  int rc = queue_frames(c, bc, req, ws, &n, err);
+  if (rc != 0) {
+    for (int i = 0; i < n; i++) ws[i]->out.len = ws[i]->out_off = 0, ws[i]->expect = 0;
+    return rc;
+  }
+  for (uint32_t r = 0; r < bc->nreq; r++) flush_pending(bc->st[r]);
+  cl_traffic tr = {0, 0};
+  rc = exchange(c, ws, n, c->o.batch_timeout, answer_reply, bc, &tr);
+  cs->base.stats.bytes_out += tr.bytes_out;
+  cs->base.stats.bytes_in += tr.bytes_in;
   if (rc == 0) {
-    uint64_t pairs = 0;
-    for (uint32_t i = 0; i < b->nq; i++) {
-      int k = b->klass ? b->klass[i] : 0;
-      pairs += st->grid->count[k];
-    }
-    if (st->local == NULL) s->stats.pairs += pairs;
-    s->stats.batches++;
-    s->stats.queries += b->nq;
-    s->stats.round_trips++;
-    s->stats.scan_seconds += ts_now() - t0;
+    for (int i = 0; i < n; i++) track_rate(ws[i], sent_at);
+    check_balance(c, ws, n);
   }
   return rc;
+}
+
+/* Checks a request against its set; *st = the set. */
+static int check_req(cluster_search *cs, const ts_search_req *r, cl_set **st, char *err) {
+  *st = set_get(cs, r->id);
+  if (*st == NULL) return ts_error(err, TS_EINVAL, "unknown reference set %d", r->id);
+  if (r->b.usage_k != 0 && !(*st)->with_usage)
+    return ts_error(err, TS_EINVAL, "a usage penalty on a set prepared without usage");
+  return 0;
+}
+
+static int cluster_query_many(ts_search *s, const ts_search_req *req, uint32_t nreq, char *err) {
+  cluster_search *cs = (cluster_search *)s;
+  ts_cluster *c = cs->c;
+  if (nreq > CL_MAX_REQS) return ts_error(err, TS_ETOOBIG, "%u requests at once (at most %d)", nreq, CL_MAX_REQS);
+  batch_ctx bc = {.nreq = nreq};
+  for (uint32_t r = 0; r < nreq; r++) {
+    int rc = check_req(cs, &req[r], &bc.st[r], err);
+    if (rc != 0) return rc;
+    if (req[r].b.nq > CL_ID_QUERY_MASK - bc.q0[r]) return ts_error(err, TS_ETOOBIG, "too many queries at once");
+    bc.q0[r + 1] = bc.q0[r] + req[r].b.nq;
+  }
+  uint32_t nq = bc.q0[nreq];
+  if (nq == 0) return 0;
+  if (cs->cancel != NULL && *cs->cancel) return ts_error(err, TS_ECANCELED, "job canceled");
+  if (ensure_best(cs, nq) != 0) return ts_error(err, TS_ENOMEM, "out of memory for a batch of %u queries", nq);
+  bc.best = cs->best;
+  double t0 = ts_now();
+  uint64_t local_pairs = 0;
+  int local = 0, rc;
+  pthread_mutex_lock(&c->lock);
+  do {
+    rc = slice_all(cs, &bc, err);
+    if (rc != 0) break;
+    local = bc.st[0]->local != NULL; /* no worker: every set is local */
+    if (local) {
+      for (uint32_t r = 0; r < nreq && rc == 0; r++) {
+        uint64_t pairs = 0;
+        rc = query_local(c, bc.st[r], &req[r].b, req[r].out, &pairs, err);
+        local_pairs += pairs;
+      }
+      break;
+    }
+    /* A failed worker moved the epoch: slice again and re-ask (the
+     * commits are in the replica now, which the new slices carry). */
+  } while ((rc = exchange_batch(cs, &bc, req, err)) == TS_ECONN);
+  pthread_mutex_unlock(&c->lock);
+  if (rc != 0) return rc;
+  for (uint32_t r = 0; r < nreq; r++) {
+    const ts_query_batch *b = &req[r].b;
+    if (!local) memcpy(req[r].out, bc.best + bc.q0[r], sizeof(ts_l1_best) * b->nq);
+    for (uint32_t i = 0; i < b->nq && !local; i++) s->stats.pairs += bc.st[r]->grid->count[b->klass ? b->klass[i] : 0];
+    s->stats.batches++;
+    s->stats.queries += b->nq;
+  }
+  s->stats.pairs += local_pairs;
+  s->stats.round_trips++;
+  s->stats.scan_seconds += ts_now() - t0;
+  return 0;
+}
+
+static int cluster_query(ts_search *s, int id, const ts_query_batch *b, ts_l1_best *out, char *err) {
+  ts_search_req r = {id, *b, out};
+  return cluster_query_many(s, &r, 1, err);
 }
 
 static int unloaded_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
@@ -905,6 +972,7 @@ static const ts_search_ops cluster_ops = {
     .prepare = cluster_prepare,
     .commit = cluster_commit,
     .query = cluster_query,
+    .query_many = cluster_query_many,
     .release = cluster_release,
     .destroy = cluster_destroy,
 };

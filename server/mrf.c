@@ -334,19 +334,32 @@ static void build_queries(engine *e, const ts_block *blocks, uint32_t n, int ref
   }
 }
 
-/* Searches one group, split into batches of at most max_batch. */
-static int search_group(engine *e, int k, uint64_t usage_k, char *err) {
-  query_group *g = &e->group[k];
-  size_t vb = ts_shape_bytes(&e->shape[k]);
-  uint32_t chunk = e->p->max_batch ? e->p->max_batch : (g->n ? g->n : 1);
-  for (uint32_t i0 = 0; i0 < g->n; i0 += chunk) {
-    uint32_t m = g->n - i0 < chunk ? g->n - i0 : chunk;
-    ts_query_batch qb = {m, g->queries + i0 * vb, k == SHAPE_MASKED ? g->masks + i0 * vb : NULL,
-                         g->klass + i0, usage_k};
-    int rc = ts_search_query(e->search, e->set_ids[k], &qb, g->best + i0, err);
-    if (rc != 0) return rc;
+/* Searches both groups of a step, each split into batches of at most
+ * max_batch, as one set of independent requests (one round trip on a
+ * remote backend). One penalty snapshot per step, however it is split. */
+#define STEP_MAX_REQS 32
+static int search_step(engine *e, const uint64_t d1[2], char *err) {
+  ts_search_req req[STEP_MAX_REQS];
+  uint32_t nr = 0;
+  for (int k = 0; k < 2; k++) {
+    query_group *g = &e->group[k];
+    size_t vb = ts_shape_bytes(&e->shape[k]);
+    uint64_t usage_k = e->p->usage_weight > 0 ? ts_usage_factor(&e->usage, e->p->usage_weight, d1[k]) : 0;
+    uint32_t chunk = e->p->max_batch ? e->p->max_batch : (g->n ? g->n : 1);
+    for (uint32_t i0 = 0; i0 < g->n; i0 += chunk) {
+      uint32_t m = g->n - i0 < chunk ? g->n - i0 : chunk;
+      ts_search_req r = {e->set_ids[k],
+                         {m, g->queries + i0 * vb, k == SHAPE_MASKED ? g->masks + i0 * vb : NULL, g->klass + i0, usage_k},
+                         g->best + i0};
+      req[nr++] = r;
+      if (nr == STEP_MAX_REQS) {
+        int rc = ts_search_query_many(e->search, req, nr, err);
+        if (rc != 0) return rc;
+        nr = 0;
+      }
+    }
   }
-  return 0;
+  return nr ? ts_search_query_many(e->search, req, nr, err) : 0;
 }
 
 /* Records a copy (delta +1) or its removal (-1) in the usage counters, here
@@ -396,13 +409,8 @@ static int run_steps(engine *e, const ts_schedule *sch, int refine, char *err) {
     uint32_t n = sch->step_start[t + 1] - sch->step_start[t];
     if (ensure_step_scratch(e, n) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
     build_queries(e, blocks, n, refine);
-    for (int k = 0; k < 2; k++) {
-      /* One penalty snapshot per step, however the step is split. */
-      uint64_t usage_k = e->p->usage_weight > 0 ? ts_usage_factor(&e->usage, e->p->usage_weight, d1[k]) : 0;
-      int rc = search_group(e, k, usage_k, err);
-      if (rc != 0) return rc;
-    }
-    int rc = place_step(e, blocks, refine, err);
+    int rc = search_step(e, d1, err);
+    if (rc == 0) rc = place_step(e, blocks, refine, err);
     if (rc != 0) return rc;
     e->prog.done += n;
     e->prog.work_done += n * level_cost(e->level);

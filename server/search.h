@@ -47,10 +47,17 @@ typedef struct {
   uint64_t batches, queries;
   uint64_t pairs; /* query-vector comparisons */
   double scan_seconds;
-  /* Remote backends: payload bytes sent and received, and batch round
-   * trips (one per batch however many workers answer it). */
+  /* Remote backends: payload bytes sent and received, and round trips
+   * (one per query or query_many call, however many workers answer). */
   uint64_t bytes_out, bytes_in, round_trips;
 } ts_search_stats;
+
+/* One batch of a ts_search_query_many call. */
+typedef struct {
+  int id;              /* set */
+  ts_query_batch b;
+  ts_l1_best *out;     /* b.nq results */
+} ts_search_req;
 
 typedef struct ts_search ts_search;
 
@@ -65,6 +72,9 @@ typedef struct {
   /* Answers a batch: out[i] = best match of query i, global index. */
   int (*query)(ts_search *s, int id, const ts_query_batch *b, ts_l1_best *out,
                char *err);
+  /* Optional: answers independent batches (no commit between them) at
+   * once - a remote backend in one round trip. NULL = one query each. */
+  int (*query_many)(ts_search *s, const ts_search_req *r, uint32_t n, char *err);
   void (*release)(ts_search *s, int id);
   void (*destroy)(ts_search *s);
 } ts_search_ops;
@@ -87,6 +97,15 @@ static inline int ts_search_query(ts_search *s, int id,
                                   const ts_query_batch *b, ts_l1_best *out,
                                   char *err) {
   return s->ops->query(s, id, b, out, err);
+}
+static inline int ts_search_query_many(ts_search *s, const ts_search_req *r,
+                                       uint32_t n, char *err) {
+  if (s->ops->query_many != NULL) return s->ops->query_many(s, r, n, err);
+  for (uint32_t i = 0; i < n; i++) {
+    int rc = s->ops->query(s, r[i].id, &r[i].b, r[i].out, err);
+    if (rc != 0) return rc;
+  }
+  return 0;
 }
 static inline void ts_search_release(ts_search *s, int id) {
   s->ops->release(s, id);

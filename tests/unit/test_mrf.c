@@ -96,8 +96,12 @@ static void brute_release(ts_search *s, int id) {
 
 static void brute_destroy(ts_search *s) { free(s); }
 
-static const ts_search_ops brute_ops = {"brute", brute_prepare, brute_commit, brute_query,
-                                        brute_release, brute_destroy};
+static const ts_search_ops brute_ops = {.name = "brute",
+                                        .prepare = brute_prepare,
+                                        .commit = brute_commit,
+                                        .query = brute_query,
+                                        .release = brute_release,
+                                        .destroy = brute_destroy};
 
 static ts_search *brute_create(void) {
   brute_search *b = calloc(1, sizeof(*b));
