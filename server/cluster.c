@@ -40,6 +40,9 @@
 /* Batches answered faster than this say nothing reliable about a
  * worker's rate (the round trip dominates). */
 #define CL_MIN_SAMPLE_SECONDS 0.0002
+/* A batch may take this many times its expected scan time before the
+ * workers still owing answers are dropped (see batch_deadline). */
+#define CL_DEADLINE_SLACK 8.0
 
 typedef struct {
   int id;
@@ -56,6 +59,7 @@ typedef struct {
   ts_wr out;
   size_t out_off;
   int expect;
+  uint64_t expected_pairs; /* comparisons the batch asks of it */
   uint64_t answered_pairs; /* comparisons the batch's answers report */
   double answered_at;      /* when the last answer arrived */
   double heard_at;         /* when the worker last sent anything */
@@ -102,7 +106,8 @@ void ts_cluster_opts_default(ts_cluster_opts *o) {
   o->calib_millis = 200;
   o->tolerance = 0.25;
   o->persist = 3.0;
-  o->batch_timeout = 10.0;
+  o->batch_timeout = 2.0;
+  o->max_redispatch = 5;
   o->local_threads = 2;
   o->max_frame = TS_FRAME_DEFAULT_MAX;
   o->pipeline_queries = 256;
@@ -814,7 +819,11 @@ static int queue_frames(ts_cluster *c, const batch_ctx *bc, const ts_search_req 
       while (k < *nw && ws[k] != w) k++;
       if (k == *nw) {
         ws[(*nw)++] = w;
-        w->answered_pairs = 0;
+        w->answered_pairs = w->expected_pairs = 0;
+      }
+      for (uint32_t q = 0; q < b->nq; q++) {
+        int cls = b->klass ? b->klass[q] : 0;
+        w->expected_pairs += st->slices[i].i1[cls] - st->slices[i].i0[cls];
       }
       for (uint32_t q0 = 0; q0 < b->nq; q0 += c->o.pipeline_queries) {
         uint32_t q1 = q0 + c->o.pipeline_queries < b->nq ? q0 + c->o.pipeline_queries : b->nq;
@@ -829,6 +838,18 @@ static int queue_frames(ts_cluster *c, const batch_ctx *bc, const ts_search_req 
     }
   }
   return 0;
+}
+
+/* A batch's deadline: CL_DEADLINE_SLACK times what the slowest worker
+ * should need at the lower of its sized and measured rates, never below
+ * the --batch-timeout floor. A worker missing it is taken for stalled. */
+static double batch_deadline(const ts_cluster *c, cl_worker **ws, int n) {
+  double need = 0;
+  for (int i = 0; i < n; i++) {
+    double rate = fmin(ws[i]->slice_rate, ws[i]->ewma_rate);
+    if (rate > 0) need = fmax(need, (double)ws[i]->expected_pairs / rate);
+  }
+  return fmax(c->o.batch_timeout, CL_DEADLINE_SLACK * need);
 }
 
 /* Every request in one exchange with the pool (lock held). Returns 0,
@@ -847,7 +868,7 @@ static int exchange_batch(cluster_search *cs, batch_ctx *bc, const ts_search_req
   }
   for (uint32_t r = 0; r < bc->nreq; r++) flush_pending(bc->st[r]);
   cl_traffic tr = {0, 0};
-  rc = exchange(c, ws, n, c->o.batch_timeout, answer_reply, bc, &tr);
+  rc = exchange(c, ws, n, batch_deadline(c, ws, n), answer_reply, bc, &tr);
   cs->base.stats.bytes_out += tr.bytes_out;
   cs->base.stats.bytes_in += tr.bytes_in;
   if (rc == 0) {
@@ -884,7 +905,7 @@ static int cluster_query_many(ts_search *s, const ts_search_req *req, uint32_t n
   bc.best = cs->best;
   double t0 = ts_now();
   uint64_t local_pairs = 0;
-  int local = 0, rc;
+  int local = 0, rc, lost = 0;
   pthread_mutex_lock(&c->lock);
   do {
     rc = slice_all(cs, &bc, err);
@@ -899,8 +920,16 @@ static int cluster_query_many(ts_search *s, const ts_search_req *req, uint32_t n
       break;
     }
     /* A failed worker moved the epoch: slice again and re-ask (the
-     * commits are in the replica now, which the new slices carry). */
-  } while ((rc = exchange_batch(cs, &bc, req, err)) == TS_ECONN);
+     * commits are in the replica now, which the new slices carry) -
+     * unless this batch keeps killing workers: then it fails the job
+     * rather than the pool. */
+    rc = exchange_batch(cs, &bc, req, err);
+    if (rc == TS_ECONN && ++lost >= (int)c->o.max_redispatch) {
+      rc = ts_error(err, TS_ECONN, "a batch lost workers %d times in a row; giving up on this job to protect the pool",
+                    lost);
+      break;
+    }
+  } while (rc == TS_ECONN);
   pthread_mutex_unlock(&c->lock);
   if (rc != 0) return rc;
   for (uint32_t r = 0; r < nreq; r++) {

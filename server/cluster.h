@@ -29,7 +29,10 @@ typedef struct {
   uint32_t calib_millis;   /* calibration scan length (200 ms) */
   double tolerance;        /* rate deviation that counts (0.25 = 25 %) */
   double persist;          /* seconds a deviation must last to rebalance (3) */
-  double batch_timeout;    /* floor of a batch's deadline, seconds (10) */
+  double batch_timeout;    /* floor of a batch's deadline, seconds (2); the
+                              deadline is 8x the batch's expected time */
+  uint32_t max_redispatch; /* a batch that loses workers this many times in
+                              a row fails its job (5) */
   int local_threads;       /* scan threads when no worker is ready (2) */
   uint32_t max_frame;      /* payload limit of worker replies */
   uint32_t pipeline_queries; /* queries per V frame: later frames are on

@@ -315,7 +315,10 @@ static void usage(FILE *f) {
           "  --rebalance-tolerance F   rate deviation that counts, 0.01..10 (default 0.25)\n"
           "  --rebalance-after S       seconds a deviation must persist before slices are\n"
           "                            resized, 0..3600 (default 3); shorter spikes are ignored\n"
-          "  --batch-timeout S         floor of a batch's deadline, 0.1..3600 (default 10)\n"
+          "  --batch-timeout S         floor of a batch's deadline, 0.01..3600 (default 2);\n"
+          "                            the deadline is 8x the batch's expected scan time\n"
+          "  --max-redispatch N        a batch that loses workers N times in a row fails\n"
+          "                            its job instead of the pool, 1..1000 (default 5)\n"
           "  --pipeline-queries N      queries per batch frame, 1..1048576 (default 256)\n"
           "  --heartbeat S             ping a worker silent this long; no answer within\n"
           "                            2S+1 s drops it, 0..3600 (default 2; 0 = off)\n"
@@ -345,7 +348,7 @@ static int num(const char *opt, const char *s, double lo, double hi, double *out
 }
 
 static int parse_opts(int argc, char **argv, server_opts *o) {
-  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_PIPE, O_HB, O_FRAME, O_PIX, O_QUIET, O_HELP };
+  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_PIPE, O_HB, O_FRAME, O_PIX, O_QUIET, O_HELP };
   static const struct option longopts[] = {
       {"listen", required_argument, 0, O_LISTEN}, {"workers", required_argument, 0, O_WORKERS},
       {"spool", required_argument, 0, O_SPOOL}, {"jobs", required_argument, 0, O_JOBS},
@@ -353,6 +356,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
       {"rebalance-tolerance", required_argument, 0, O_TOL}, {"rebalance-after", required_argument, 0, O_AFTER},
       {"batch-timeout", required_argument, 0, O_BT}, {"pipeline-queries", required_argument, 0, O_PIPE},
       {"heartbeat", required_argument, 0, O_HB},
+      {"max-redispatch", required_argument, 0, O_REDISPATCH},
       {"max-frame", required_argument, 0, O_FRAME}, {"max-pixels", required_argument, 0, O_PIX},
       {"quiet", no_argument, 0, O_QUIET}, {"help", no_argument, 0, O_HELP}, {0, 0, 0, 0}};
   memset(o, 0, sizeof(*o));
@@ -375,7 +379,8 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
     case O_CAL: rc = num("--calibrate-ms", optarg, 1, 10000, &v); o->co.calib_millis = (uint32_t)v; break;
     case O_TOL: rc = num("--rebalance-tolerance", optarg, 0.01, 10, &o->co.tolerance); break;
     case O_AFTER: rc = num("--rebalance-after", optarg, 0, 3600, &o->co.persist); break;
-    case O_BT: rc = num("--batch-timeout", optarg, 0.1, 3600, &o->co.batch_timeout); break;
+    case O_BT: rc = num("--batch-timeout", optarg, 0.01, 3600, &o->co.batch_timeout); break;
+    case O_REDISPATCH: rc = num("--max-redispatch", optarg, 1, 1000, &v); o->co.max_redispatch = (uint32_t)v; break;
     case O_PIPE: rc = num("--pipeline-queries", optarg, 1, 1 << 20, &v); o->co.pipeline_queries = (uint32_t)v; break;
     case O_HB: rc = num("--heartbeat", optarg, 0, 3600, &o->co.heartbeat); break;
     case O_FRAME: rc = num("--max-frame", optarg, 1024, 4294967295.0, &v); o->co.max_frame = (uint32_t)v; break;

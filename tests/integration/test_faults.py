@@ -1,0 +1,215 @@
+"""Fault injection: workers killed, stalled past the batch deadline or
+restarted at random moments of a job, all workers killed, the coordinator
+killed and restarted, and a loopback proxy that delays, slices, stalls or
+resets the worker connections. Every job must finish with the bytes of
+the fault-free run.
+
+Trials: TEXSYN_FAULT_TRIALS (default 6; `make test-faults` runs 20),
+seeded by TEXSYN_FAULT_SEED (default 2004) so a failing trial can be
+replayed: its seed, fault, victim and moment are in the assertion text."""
+import os
+import random
+import signal
+import socket
+import threading
+import time
+
+import pytest
+
+from conftest import BUILD, Daemon, SANITIZED, run, synth
+
+TRIALS = int(os.environ.get("TEXSYN_FAULT_TRIALS", "6"))
+SEED = int(os.environ.get("TEXSYN_FAULT_SEED", "2004"))
+JOB = ["--size", "384x288", "--usage-weight", "1"]
+# Short deadlines so a stall is detected quickly; calibration kept short.
+SERVER_ARGS = ["--batch-timeout", "0.5", "--calibrate-ms", "50", "--heartbeat", "0.5"]
+STALL = 1.5  # seconds a stopped worker stays stopped: past the 0.5 s deadline
+
+
+def ref_of(data):
+    return data / "textures" / "brick.png"
+
+
+@pytest.fixture(scope="module")
+def expected(texsyn, data, tmp_path_factory):
+    """The fault-free result and how long a 3-worker cluster takes for it."""
+    out = tmp_path_factory.mktemp("expected") / "expected.png"
+    synth(texsyn, ref_of(data), out, (384, 288), *JOB[2:])
+    return out.read_bytes()
+
+
+def submit(cluster, data, out):
+    """Starts `texsyn synth --server` in the background; returns the Popen."""
+    import subprocess
+    args = [BUILD / "texsyn", "synth", "--server", cluster.server.addr, "--ref", ref_of(data), "-o", out,
+            *JOB, "--quiet"]
+    return subprocess.Popen([str(a) for a in args], stderr=subprocess.PIPE, text=True)
+
+
+def finish(proc, timeout=300):
+    _, err = proc.communicate(timeout=timeout)
+    return proc.returncode, err
+
+
+def restart_worker(cluster, w, name):
+    """A new worker process on the dead one's address."""
+    fresh = Daemon([BUILD / "texsyn-worker", "--listen", w.addr, "--threads", 1, "--name", name],
+                   cluster.tmp / f"{name}.log")
+    cluster.workers.append(fresh)
+    return fresh
+
+
+def inject(cluster, fault, victim, rng):
+    w = cluster.workers[victim]
+    if fault == "kill":
+        w.proc.send_signal(signal.SIGKILL)
+    elif fault == "stall":
+        w.proc.send_signal(signal.SIGSTOP)
+        time.sleep(STALL)
+        w.proc.send_signal(signal.SIGCONT)
+    elif fault == "restart":
+        w.proc.send_signal(signal.SIGKILL)
+        w.proc.wait()
+        time.sleep(rng.uniform(0, 0.3))
+        restart_worker(cluster, w, f"restarted{victim}")
+
+
+@pytest.mark.parametrize("trial", range(TRIALS))
+def test_random_worker_fault_keeps_the_bytes(data, cluster, tmp_path, expected, trial):
+    rng = random.Random(SEED * 1000 + trial)
+    fault = rng.choice(["kill", "stall", "restart"])
+    victim = rng.randrange(3)
+    moment = rng.uniform(0.1, 1.2)
+    what = f"seed {SEED} trial {trial}: {fault} worker {victim} at {moment:.2f} s"
+    cluster.start(3, 1, *SERVER_ARGS)
+    out = tmp_path / "out.png"
+    job = submit(cluster, data, out)
+    time.sleep(moment)
+    inject(cluster, fault, victim, rng)
+    code, err = finish(job)
+    assert code == 0, f"{what}: job failed: {err}\n{cluster.server.read_log()}"
+    assert out.read_bytes() == expected, f"{what}: output differs from the fault-free run"
+    assert cluster.server.alive(), what
+
+
+def test_all_workers_killed_coordinator_finishes_alone(data, cluster, tmp_path, expected):
+    cluster.start(3, 1, *SERVER_ARGS)
+    out = tmp_path / "out.png"
+    job = submit(cluster, data, out)
+    time.sleep(0.4)
+    for w in cluster.workers:
+        w.proc.send_signal(signal.SIGKILL)
+    code, err = finish(job)
+    assert code == 0, err
+    assert out.read_bytes() == expected
+    assert cluster.pool() == []
+
+
+def test_coordinator_killed_mid_job_resumes_after_restart(data, cluster, tmp_path, expected):
+    """kill -9 of the coordinator: the job is in the spool, a new
+    coordinator on the same spool runs it again, and the client fetches it
+    by id - same bytes."""
+    cluster.start(2, 1, *SERVER_ARGS)
+    p = cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "unused.png", *JOB, "--detach")
+    job_id = p.stdout.split()[-1]
+    time.sleep(0.5)
+    cluster.server.proc.send_signal(signal.SIGKILL)
+    cluster.server.proc.wait()
+    cluster.server.stop()
+    args = [BUILD / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", cluster.tmp / "spool",
+            "--workers", ",".join(w.addr for w in cluster.workers), *SERVER_ARGS]
+    cluster.server = Daemon(args, cluster.tmp / "server2.log")
+    w = cluster.texsyn("watch", job_id, "--quiet", check=False, timeout=300)
+    assert w.returncode == 0, w.stderr + cluster.server.read_log()
+    out = tmp_path / "out.png"
+    cluster.texsyn("fetch", job_id, "-o", out)
+    assert out.read_bytes() == expected
+
+
+# ---- a fault-injecting proxy ----------------------------------------------
+
+class Proxy:
+    """Forwards one loopback port to a worker, damaging the coordinator's
+    connection on the way: `delay` (2 ms per piece), `onebyte` (every byte
+    its own write), `stall` (forwarding stops for STALL s once, mid-job),
+    `reset` (the connection is reset once after some traffic)."""
+
+    def __init__(self, target, mode):
+        self.target, self.mode = target, mode
+        self.sock = socket.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen(8)
+        self.addr = "127.0.0.1:%d" % self.sock.getsockname()[1]
+        self.damaged = threading.Event()
+        self.stop = False
+        threading.Thread(target=self.accept, daemon=True).start()
+
+    def accept(self):
+        while not self.stop:
+            try:
+                a, _ = self.sock.accept()
+            except OSError:
+                return
+            host, port = self.target.rsplit(":", 1)
+            b = socket.create_connection((host, int(port)))
+            for s in (a, b):
+                s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            threading.Thread(target=self.pump, args=(a, b, True), daemon=True).start()
+            threading.Thread(target=self.pump, args=(b, a, False), daemon=True).start()
+
+    def pump(self, src, dst, to_worker):
+        sent = 0
+        try:
+            while True:
+                data = src.recv(65536)
+                if not data:
+                    break
+                sent += len(data)
+                armed = to_worker and not self.damaged.is_set() and sent > 200_000
+                if self.mode == "reset" and armed:
+                    self.damaged.set()
+                    for s in (src, dst):
+                        s.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, b"\x01\x00\x00\x00\x00\x00\x00\x00")
+                        s.close()
+                    return
+                if self.mode == "stall" and armed:
+                    self.damaged.set()
+                    time.sleep(STALL)
+                if self.mode == "delay":
+                    time.sleep(0.002)
+                if self.mode == "onebyte":
+                    for i in range(len(data)):
+                        dst.sendall(data[i:i + 1])
+                else:
+                    dst.sendall(data)
+        except OSError:
+            pass
+        for s in (src, dst):
+            try:
+                s.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+
+    def close(self):
+        self.stop = True
+        self.sock.close()
+
+
+@pytest.mark.parametrize("mode", ["delay", "onebyte", "stall", "reset"])
+def test_damaging_proxy_keeps_the_bytes(data, cluster, tmp_path, expected, mode):
+    workers = [cluster.worker(1) for _ in range(2)]
+    proxy = Proxy(workers[0].addr, mode)
+    try:
+        args = [BUILD / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", tmp_path / "spool",
+                "--workers", f"{proxy.addr},{workers[1].addr}", *SERVER_ARGS]
+        cluster.server = Daemon(args, tmp_path / "server.log")
+        cluster.wait_ready(2)
+        out = tmp_path / "out.png"
+        code, err = finish(submit(cluster, data, out))
+        assert code == 0, err
+        assert out.read_bytes() == expected
+        if mode in ("stall", "reset"):
+            assert proxy.damaged.is_set(), "the proxy never got to damage the connection"
+            assert "dropped" in cluster.server.read_log()
+    finally:
+        proxy.close()
