@@ -478,7 +478,8 @@ static int cmd_synth(int argc, char **argv) {
   rc = ts_search_local_create(&search, o.threads, NULL, err);
   ts_mrf_result res;
   progress_bar pb = {!o.quiet && isatty(STDERR_FILENO), now_seconds(), 0};
-  if (rc == 0) rc = ts_mrf_synthesize(&o.p, &ref, search, progress_draw, &pb, &res, err);
+  ts_mrf_hooks hooks = {.progress = progress_draw, .progress_ctx = &pb};
+  if (rc == 0) rc = ts_mrf_synthesize(&o.p, &ref, search, &hooks, &res, err);
   if (pb.enabled) fputc('\n', stderr);
   if (rc == 0) {
     rc = write_outputs(&o, &ref, &res, search, err);

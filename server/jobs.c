@@ -13,6 +13,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "checkpoint.h"
 #include "error.h"
 #include "image.h"
 #include "jobspec.h"
@@ -99,6 +100,15 @@ static void job_path(const job *jb, const char *name, char *out, size_t cap) {
   snprintf(out, cap, "%s/%s", jb->dir, name);
 }
 
+/* The state after a job's last finished level (see on_checkpoint). */
+#define JOBS_CHECKPOINT "checkpoint"
+
+static void drop_job_checkpoint(job *jb) {
+  char path[JOBS_PATH + 32];
+  job_path(jb, JOBS_CHECKPOINT, path, sizeof(path));
+  unlink(path);
+}
+
 /* ---- status ------------------------------------------------------------ */
 
 static void job_changed(ts_jobs *j, job *jb) {
@@ -128,6 +138,7 @@ static void job_finish(ts_jobs *j, job *jb, int state, const char *text) {
           : state == TS_JOB_CANCELED ? snprintf(buf, sizeof(buf), "canceled\n")
                                      : snprintf(buf, sizeof(buf), "failed: %s\n", text);
   if (write_atomic(path, buf, (size_t)n, err) != 0) fprintf(stderr, "texsyn-server: %s\n", err);
+  drop_job_checkpoint(jb);
   pthread_mutex_lock(&j->lock);
   jb->st.state = (uint8_t)state;
   if (state == TS_JOB_DONE) jb->st.permille = 1000;
@@ -192,6 +203,85 @@ static int write_results(job *jb, const ts_image *ref, const ts_mrf_result *res,
   return rc;
 }
 
+/* ---- checkpoints ------------------------------------------------------- */
+
+typedef struct {
+  job *jb;
+  uint64_t tag;
+} checkpoint_ctx;
+
+/* The tag that ties a checkpoint to this job's parameters. */
+static uint64_t job_tag(const job *jb) {
+  char text[TS_SPEC_MAX];
+  int n = ts_jobspec_format(&jb->spec, text, sizeof(text));
+  return ts_checkpoint_tag(text, n > 0 ? (size_t)n : 0);
+}
+
+/* Writes the state after a level atomically: a kill at any moment leaves
+ * either the previous checkpoint or this one. */
+static int on_checkpoint(void *arg, const ts_mrf_checkpoint *ck, char *err) {
+  checkpoint_ctx *cc = arg;
+  uint8_t *buf;
+  size_t len;
+  int rc = ts_checkpoint_encode(ck, cc->jb->spec.p.levels, cc->tag, &buf, &len, err);
+  if (rc != 0) return rc;
+  char path[JOBS_PATH + 32];
+  job_path(cc->jb, JOBS_CHECKPOINT, path, sizeof(path));
+  rc = write_atomic(path, buf, len, err);
+  free(buf);
+  if (rc == 0)
+    fprintf(stderr, "texsyn-server: job %" PRIu64 ": checkpoint after level %d (%zu bytes)\n", cc->jb->id,
+            ck->level, len);
+  return rc;
+}
+
+/* Reads a whole file into a malloc'd buffer; 0 or -1. */
+static int read_whole(const char *path, uint8_t **buf, size_t *len) {
+  FILE *f = fopen(path, "rb");
+  if (f == NULL) return -1;
+  struct stat st;
+  int ok = fstat(fileno(f), &st) == 0 && st.st_size > 0;
+  *len = ok ? (size_t)st.st_size : 0;
+  *buf = ok ? malloc(*len) : NULL;
+  ok = *buf != NULL && fread(*buf, 1, *len, f) == *len;
+  fclose(f);
+  if (!ok) free(*buf);
+  return ok ? 0 : -1;
+}
+
+/* The job's last checkpoint, if it has a usable one. A damaged or foreign
+ * one is logged and removed: the job then starts over, which gives the
+ * same bytes, only later. */
+static int load_job_checkpoint(ts_jobs *j, job *jb, uint64_t tag, ts_mrf_checkpoint *ck) {
+  char path[JOBS_PATH + 32], err[TS_ERR_LEN];
+  job_path(jb, JOBS_CHECKPOINT, path, sizeof(path));
+  uint8_t *buf;
+  size_t len;
+  if (read_whole(path, &buf, &len) != 0) return 0;
+  int rc = ts_checkpoint_decode(buf, len, tag, j->o.max_pixels, ck, err);
+  free(buf);
+  if (rc != 0) {
+    fprintf(stderr, "texsyn-server: job %" PRIu64 ": ignoring its checkpoint (%s); starting over\n", jb->id, err);
+    unlink(path);
+    return 0;
+  }
+  fprintf(stderr, "texsyn-server: job %" PRIu64 ": resuming after level %d from its checkpoint\n", jb->id,
+          ck->level);
+  return 1;
+}
+
+static int synthesize_job(ts_jobs *j, job *jb, const ts_image *ref, ts_search *search, ts_mrf_result *res,
+                          char *err) {
+  progress_ctx pc = {j, jb, 0};
+  checkpoint_ctx cc = {jb, job_tag(jb)};
+  ts_mrf_checkpoint resume;
+  int resumed = load_job_checkpoint(j, jb, cc.tag, &resume);
+  ts_mrf_hooks hooks = {on_progress, &pc, on_checkpoint, &cc, resumed ? &resume : NULL};
+  int rc = ts_mrf_synthesize(&jb->spec.p, ref, search, &hooks, res, err);
+  if (resumed) ts_mrf_checkpoint_free(&resume);
+  return rc;
+}
+
 static int run_job(ts_jobs *j, job *jb, char *err) {
   char path[JOBS_PATH + 32];
   snprintf(path, sizeof(path), "%s/ref.%s", jb->dir, jb->ref_ext);
@@ -207,9 +297,8 @@ static int run_job(ts_jobs *j, job *jb, char *err) {
   }
   ts_search *search = NULL;
   rc = ts_search_cluster_create(&search, j->o.cluster, &jb->cancel, err);
-  progress_ctx pc = {j, jb, 0};
   ts_mrf_result res;
-  if (rc == 0) rc = ts_mrf_synthesize(&jb->spec.p, &ref, search, on_progress, &pc, &res, err);
+  if (rc == 0) rc = synthesize_job(j, jb, &ref, search, &res, err);
   if (rc == 0) {
     rc = write_results(jb, &ref, &res, search, err);
     ts_mrf_result_free(&res);

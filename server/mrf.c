@@ -542,20 +542,71 @@ static int gather_output(engine *e, const ts_image *ref, ts_mrf_result *res, cha
   return 0;
 }
 
+/* Hands the level just finished to the checkpoint hook. */
+static int save_checkpoint(engine *e, const ts_mrf_hooks *h, const ts_mrf_result *res, char *err) {
+  int l = e->level;
+  ts_mrf_checkpoint ck = {.level = l, .width = e->cw[l], .height = e->ch[l], .nplanes = e->nplanes, .copy = e->copy};
+  for (int k = 0; k < e->nplanes; k++) ck.planes[k] = e->canvas[k][l].px;
+  memcpy(ck.stats, res->level, sizeof(ck.stats));
+  return h->checkpoint(h->checkpoint_ctx, &ck, err);
+}
+
+/* Takes over a finished level's state: its canvas becomes the coarse part
+ * of the next level and its copy map the prediction. Returns the level to
+ * go on with, or an error when the state does not belong to this job. */
+static int load_checkpoint(engine *e, const ts_mrf_checkpoint *ck, ts_mrf_result *res, char *err) {
+  const ts_mrf_params *p = e->p;
+  int l = ck->level;
+  if (l <= p->stop_level || l >= p->levels || ck->nplanes != e->nplanes || ck->width != e->cw[l] ||
+      ck->height != e->ch[l])
+    return ts_error(err, TS_EINVAL, "the checkpoint (level %d, %dx%d, %d planes) does not belong to this job", l,
+                    ck->width, ck->height, ck->nplanes);
+  size_t npx = (size_t)ck->width * ck->height;
+  const ts_plane *r = &e->ref[0][l];
+  for (size_t i = 0; i < npx; i++)
+    if (ck->copy[2 * i] >= (uint32_t)r->w || ck->copy[2 * i + 1] >= (uint32_t)r->h)
+      return ts_error(err, TS_EINVAL, "the checkpoint's copy map points outside the level-%d reference", l);
+  for (int k = 0; k < e->nplanes; k++) {
+    if (ts_plane_alloc(&e->canvas[k][l], ck->width, ck->height) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
+    memcpy(e->canvas[k][l].px, ck->planes[k], npx);
+  }
+  e->copy = malloc(sizeof(uint32_t) * 2 * npx);
+  if (e->copy == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+  memcpy(e->copy, ck->copy, sizeof(uint32_t) * 2 * npx);
+  e->level = l;
+  for (int k = l; k < p->levels; k++) {
+    res->level[k] = ck->stats[k];
+    e->prog.work_done += (double)level_blocks(p, k, e->cw[k], e->ch[k]) * level_cost(k);
+  }
+  return 0;
+}
+
+/* Frees the state of the level above before level l starts. */
+static void drop_previous_level(engine *e) {
+  ts_usage_free(&e->usage);
+  free(e->prev_copy);
+  e->prev_copy = e->copy;
+  free(e->done);
+  e->copy = NULL;
+  e->done = NULL;
+  for (int k = 0; k < 2; k++) ts_shape_free(&e->shape[k]);
+}
+
 int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *search,
-                      ts_mrf_progress_fn *progress, void *progress_ctx, ts_mrf_result *res,
-                      char *err) {
+                      const ts_mrf_hooks *hooks, ts_mrf_result *res, char *err) {
   memset(res, 0, sizeof(*res));
   char msg[2048];
   if (ts_mrf_check(p, ref->width, ref->height, ref->channels, msg, sizeof(msg)) != 0)
     return ts_error(err, TS_EINVAL, "%s", msg);
+  ts_mrf_hooks none = {0};
+  const ts_mrf_hooks *h = hooks ? hooks : &none;
   double t_start = now_seconds();
   engine e;
   memset(&e, 0, sizeof(e));
   e.p = p;
   e.search = search;
-  e.progress = progress;
-  e.progress_ctx = progress_ctx;
+  e.progress = h->progress;
+  e.progress_ctx = h->progress_ctx;
   e.levels = p->levels;
   e.nplanes = nplanes_for(p, ref->channels);
   e.prog.levels = p->levels;
@@ -564,7 +615,12 @@ int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *se
     e.prog.work_total += (double)level_blocks(p, l, e.cw[l], e.ch[l]) * level_cost(l);
   int rc = build_reference(&e, ref);
   if (rc != 0) rc = ts_error(err, rc, "cannot build the reference pyramid: %s", ts_strerror(rc));
-  for (int l = p->levels - 1; l >= p->stop_level && rc == 0; l--) {
+  int first = p->levels - 1;
+  if (rc == 0 && h->resume) {
+    rc = load_checkpoint(&e, h->resume, res, err);
+    first = h->resume->level - 1;
+  }
+  for (int l = first; l >= p->stop_level && rc == 0; l--) {
     double t0 = now_seconds();
     uint64_t pairs0 = search->stats.pairs, rt0 = search->stats.round_trips;
     uint64_t bytes0 = search->stats.bytes_out + search->stats.bytes_in;
@@ -573,15 +629,7 @@ int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *se
     ls->ref_h = e.ref[0][l].h;
     ls->out_w = e.cw[l];
     ls->out_h = e.ch[l];
-    if (l < p->levels - 1) { /* the previous level's state */
-      ts_usage_free(&e.usage);
-      free(e.prev_copy);
-      e.prev_copy = e.copy;
-      free(e.done);
-      e.copy = NULL;
-      e.done = NULL;
-      for (int k = 0; k < 2; k++) ts_shape_free(&e.shape[k]);
-    }
+    if (l < p->levels - 1) drop_previous_level(&e);
     rc = synthesize_level(&e, l, err);
     ls->vectors = e.grid.total;
     ls->blocks = e.prog.total;
@@ -592,6 +640,7 @@ int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *se
     ls->seconds = now_seconds() - t0;
     /* Level l+2 is no longer needed as anyone's coarse part. */
     for (int k = 0; k < e.nplanes && l + 2 < p->levels; k++) ts_plane_free(&e.canvas[k][l + 2]);
+    if (rc == 0 && l > p->stop_level && h->checkpoint) rc = save_checkpoint(&e, h, res, err);
   }
   if (rc == 0) {
     ts_usage_stats(&e.usage, &res->usage_mean, &res->usage_variance);
@@ -601,6 +650,12 @@ int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *se
   res->seconds = now_seconds() - t_start;
   if (rc != 0) ts_mrf_result_free(res);
   return rc;
+}
+
+void ts_mrf_checkpoint_free(ts_mrf_checkpoint *ck) {
+  for (int k = 0; k < TS_MAX_PLANES; k++) free(ck->planes[k]);
+  free(ck->copy);
+  memset(ck, 0, sizeof(*ck));
 }
 
 void ts_mrf_result_free(ts_mrf_result *res) {

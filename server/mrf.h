@@ -9,6 +9,7 @@
 #include <stdint.h>
 
 #include "image.h"
+#include "neigh.h"
 #include "search.h"
 
 #define TS_MRF_MAX_LEVELS 12
@@ -67,12 +68,44 @@ typedef struct {
   ts_mrf_level_stats level[TS_MRF_MAX_LEVELS];
 } ts_mrf_result;
 
+/* What a finished level hands to the next finer one, and all a restarted
+ * coordinator needs to resume there (per-level checkpoints): the level's
+ * canvas planes and copy map, and the statistics of the levels done. The
+ * rest (reference pyramid, schedules, usage maps) is rebuilt from the job
+ * spec, and synthesis from here on is a function of this state alone, so
+ * a resumed job gives the same bytes as an uninterrupted one. */
+typedef struct {
+  int level;                        /* the finished level */
+  int width, height;                /* its canvas */
+  int nplanes;
+  uint8_t *planes[TS_MAX_PLANES];   /* width*height each */
+  uint32_t *copy;                   /* (x, y) per pixel into that level's reference */
+  ts_mrf_level_stats stats[TS_MRF_MAX_LEVELS]; /* of level .. levels-1 */
+} ts_mrf_checkpoint;
+
+/* Called after every level but the last; the state is the engine's (valid
+ * during the call only). A non-zero return fails the synthesis. */
+typedef int ts_mrf_checkpoint_fn(void *ctx, const ts_mrf_checkpoint *ck, char *err);
+
+typedef struct {
+  ts_mrf_progress_fn *progress;     /* may be NULL */
+  void *progress_ctx;
+  ts_mrf_checkpoint_fn *checkpoint; /* may be NULL */
+  void *checkpoint_ctx;
+  const ts_mrf_checkpoint *resume;  /* start after this level (NULL: from noise) */
+} ts_mrf_hooks;
+
 /* Synthesises p->width x p->height (or, with stop_level > 0, the
- * 8-bit luminance of that level at its size) from ref using `search`. progress may be
- * NULL. On success res owns its buffers (ts_mrf_result_free). */
+ * 8-bit luminance of that level at its size) from ref using `search`.
+ * hooks may be NULL. A resume state that does not fit p and ref is
+ * refused (TS_EINVAL). On success res owns its buffers
+ * (ts_mrf_result_free). */
 int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref,
-                      ts_search *search, ts_mrf_progress_fn *progress,
-                      void *progress_ctx, ts_mrf_result *res, char *err);
+                      ts_search *search, const ts_mrf_hooks *hooks,
+                      ts_mrf_result *res, char *err);
+
+/* Frees what a checkpoint owns (decoded or copied ones, not the engine's). */
+void ts_mrf_checkpoint_free(ts_mrf_checkpoint *ck);
 void ts_mrf_result_free(ts_mrf_result *res);
 
 #endif

@@ -105,14 +105,25 @@ def test_all_workers_killed_coordinator_finishes_alone(data, cluster, tmp_path, 
     assert cluster.pool() == []
 
 
+def wait_for(path, timeout=60):
+    deadline = time.time() + timeout
+    while not path.exists():
+        assert time.time() < deadline, f"{path} never appeared"
+        time.sleep(0.01)
+
+
 def test_coordinator_killed_mid_job_resumes_after_restart(data, cluster, tmp_path, expected):
-    """kill -9 of the coordinator: the job is in the spool, a new
-    coordinator on the same spool runs it again, and the client fetches it
-    by id - same bytes."""
+    """kill -9 of the coordinator once a job has checkpointed a level: a new
+    coordinator on the same spool resumes it from that level, still serves
+    the job finished before the crash, and clients watch and fetch both by
+    id - same bytes."""
     cluster.start(2, 1, *SERVER_ARGS)
+    finished = cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "first.png", *JOB, "--detach")
+    first_id = finished.stdout.split()[-1]
+    cluster.texsyn("watch", first_id, "--quiet", timeout=300)
     p = cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "unused.png", *JOB, "--detach")
     job_id = p.stdout.split()[-1]
-    time.sleep(0.5)
+    wait_for(cluster.tmp / "spool" / "jobs" / job_id / "checkpoint")
     cluster.server.proc.send_signal(signal.SIGKILL)
     cluster.server.proc.wait()
     cluster.server.stop()
@@ -120,10 +131,14 @@ def test_coordinator_killed_mid_job_resumes_after_restart(data, cluster, tmp_pat
             "--workers", ",".join(w.addr for w in cluster.workers), *SERVER_ARGS]
     cluster.server = Daemon(args, cluster.tmp / "server2.log")
     w = cluster.texsyn("watch", job_id, "--quiet", check=False, timeout=300)
-    assert w.returncode == 0, w.stderr + cluster.server.read_log()
-    out = tmp_path / "out.png"
-    cluster.texsyn("fetch", job_id, "-o", out)
-    assert out.read_bytes() == expected
+    log = cluster.server.read_log()
+    assert w.returncode == 0, w.stderr + log
+    assert f"job {job_id}: resuming after level" in log, log
+    for jid in (first_id, job_id):
+        out = tmp_path / f"out{jid}.png"
+        cluster.texsyn("fetch", jid, "-o", out)
+        assert out.read_bytes() == expected, f"job {jid}"
+    assert not (cluster.tmp / "spool" / "jobs" / job_id / "checkpoint").exists()
 
 
 # ---- a fault-injecting proxy ----------------------------------------------

@@ -1,8 +1,9 @@
 /* test_mrf.c - the synthesis engine: exactness against an independent
  * brute-force backend, independence from batching and threads, colour
- * gathering, parameter errors. */
+ * gathering, resuming from checkpoints, parameter errors. */
 #include <stdlib.h>
 
+#include "checkpoint.h"
 #include "error.h"
 #include "image.h"
 #include "mrf.h"
@@ -143,7 +144,7 @@ static ts_mrf_params small_params(void) {
 
 static void run(const ts_mrf_params *p, const ts_image *ref, ts_search *s, ts_mrf_result *res) {
   char err[TS_ERR_LEN] = "";
-  int rc = ts_mrf_synthesize(p, ref, s, NULL, NULL, res, err);
+  int rc = ts_mrf_synthesize(p, ref, s, NULL, res, err);
   if (rc != 0) fail_msg("synthesis failed: %s", err);
 }
 
@@ -263,6 +264,88 @@ static void colour_is_gathered_through_copy_map(void **state) {
   ts_image_free(&ref);
 }
 
+/* Every level's checkpoint, kept as encoded bytes as the spool keeps them. */
+typedef struct {
+  int levels;
+  uint8_t *bytes[TS_MRF_MAX_LEVELS];
+  size_t len[TS_MRF_MAX_LEVELS];
+} saved_checkpoints;
+
+static int keep_checkpoint(void *ctx, const ts_mrf_checkpoint *ck, char *err) {
+  saved_checkpoints *sc = ctx;
+  assert_null(sc->bytes[ck->level]);
+  return ts_checkpoint_encode(ck, sc->levels, 42, &sc->bytes[ck->level], &sc->len[ck->level], err);
+}
+
+/* Resumed after any level, from decoded checkpoint bytes, synthesis gives
+ * the bytes of the uninterrupted run: the checkpoint holds all the state
+ * the finer levels depend on. */
+static void resuming_after_any_level_gives_same_bytes(void **state) {
+  (void)state;
+  ts_image ref;
+  make_reference(&ref, 96, 80, TS_PIX_U8);
+  ts_mrf_params p = small_params();
+  p.levels = 4;
+  p.width = 72;
+  p.height = 56;
+  p.usage_weight = 1.0;
+  ts_search *s;
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_search_local_create(&s, 2, NULL, err), 0);
+  saved_checkpoints sc = {.levels = p.levels};
+  ts_mrf_hooks save = {.checkpoint = keep_checkpoint, .checkpoint_ctx = &sc};
+  ts_mrf_result base;
+  if (ts_mrf_synthesize(&p, &ref, s, &save, &base, err) != 0) fail_msg("%s", err);
+  assert_null(sc.bytes[0]); /* the last level has a result, not a checkpoint */
+  for (int l = 1; l < p.levels; l++) {
+    assert_non_null(sc.bytes[l]);
+    ts_mrf_checkpoint ck;
+    assert_int_equal(ts_checkpoint_decode(sc.bytes[l], sc.len[l], 42, 1u << 20, &ck, err), 0);
+    assert_int_equal(ck.level, l);
+    ts_mrf_hooks resume = {.resume = &ck};
+    ts_mrf_result r;
+    assert_int_equal(ts_mrf_synthesize(&p, &ref, s, &resume, &r, err), 0);
+    assert_same_result(&base, &r);
+    assert_int_equal(r.level[l].blocks, base.level[l].blocks); /* carried statistics */
+    ts_mrf_result_free(&r);
+    ts_mrf_checkpoint_free(&ck);
+    free(sc.bytes[l]);
+  }
+  ts_mrf_result_free(&base);
+  ts_search_destroy(s);
+  ts_image_free(&ref);
+}
+
+/* A checkpoint of another size or level count is refused, not trusted. */
+static void foreign_checkpoint_is_refused(void **state) {
+  (void)state;
+  ts_image ref;
+  make_reference(&ref, 48, 40, TS_PIX_U8);
+  ts_mrf_params p = small_params();
+  ts_search *s;
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_search_local_create(&s, 1, NULL, err), 0);
+  saved_checkpoints sc = {.levels = p.levels};
+  ts_mrf_hooks save = {.checkpoint = keep_checkpoint, .checkpoint_ctx = &sc};
+  ts_mrf_result r;
+  assert_int_equal(ts_mrf_synthesize(&p, &ref, s, &save, &r, err), 0);
+  ts_mrf_result_free(&r);
+  ts_mrf_checkpoint ck;
+  assert_int_equal(ts_checkpoint_decode(sc.bytes[1], sc.len[1], 42, 1u << 20, &ck, err), 0);
+  ts_mrf_hooks resume = {.resume = &ck};
+  p.width += 8;
+  assert_int_equal(ts_mrf_synthesize(&p, &ref, s, &resume, &r, err), TS_EINVAL);
+  assert_non_null(strstr(err, "does not belong to this job"));
+  p.width -= 8;
+  ck.copy[0] = 1000; /* points outside the reference */
+  assert_int_equal(ts_mrf_synthesize(&p, &ref, s, &resume, &r, err), TS_EINVAL);
+  assert_non_null(strstr(err, "outside"));
+  ts_mrf_checkpoint_free(&ck);
+  for (int l = 0; l < TS_MRF_MAX_LEVELS; l++) free(sc.bytes[l]);
+  ts_search_destroy(s);
+  ts_image_free(&ref);
+}
+
 static void bad_parameters_are_all_listed(void **state) {
   (void)state;
   ts_mrf_params p = small_params();
@@ -295,6 +378,8 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(threads_and_variants_give_same_bytes),
     cmocka_unit_test(seed_changes_output),
     cmocka_unit_test(colour_is_gathered_through_copy_map),
+    cmocka_unit_test(resuming_after_any_level_gives_same_bytes),
+    cmocka_unit_test(foreign_checkpoint_is_refused),
     cmocka_unit_test(bad_parameters_are_all_listed),
 };
 
