@@ -26,7 +26,8 @@
   XX(ENOENT, -9, "no such file or object")                            \
   XX(EAUTH, -10, "authentication failed")                             \
   XX(ETIMEDOUT, -11, "timed out")                                     \
-  XX(ECONN, -12, "connection failed")
+  XX(ECONN, -12, "connection failed")                                 \
+  XX(ELIMIT, -13, "limit reached")
 
 enum {
 #define TS_ERR_ENUM(name, val, text) TS_##name = (val),

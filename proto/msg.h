@@ -11,7 +11,7 @@
  * Data plane (coordinator <-> worker): I identify, C calibrate, N load
  * slice, V query batch, Q unload, H heartbeat, E error.
  * Job plane (client <-> coordinator): I identify, S submit, W status/watch,
- * F fetch, X cancel, P pool. */
+ * F fetch, X cancel, D delete, P pool. */
 #ifndef TS_MSG_H
 #define TS_MSG_H
 
@@ -34,6 +34,7 @@ enum {
   TS_MSG_FETCH = 'F',
   TS_MSG_CANCEL = 'X',
   TS_MSG_POOL = 'P',
+  TS_MSG_DELETE = 'D',
 };
 
 /* ---- I: identify -------------------------------------------------------- */

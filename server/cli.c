@@ -624,13 +624,16 @@ static int cmd_simd(void) {
 /* ---- job commands --------------------------------------------------------- */
 
 static const char *kJobUsage =
-    "usage: texsyn status [ID] | watch ID | fetch ID -o OUT | cancel ID | workers   [--server HOST:PORT]\n"
+    "usage: texsyn status [ID] | watch ID | fetch ID -o OUT | cancel ID | delete ID | workers\n"
+    "              [--server HOST:PORT]\n"
     "\n"
     "  status [ID]   one job, or every job the coordinator knows\n"
     "  watch ID      follow a job (level, % of blocks, ETA, workers) until it ends\n"
     "  fetch ID      write a finished job's results: -o OUT (the image) and, if the job\n"
     "                made them, --copy-map F, --copy-map-raw F, --usage-map F, --report F\n"
     "  cancel ID     stop a queued or running job\n"
+    "  delete ID     remove a finished, failed or canceled job and its files from the\n"
+    "                coordinator's spool (frees space under its --max-spool limit)\n"
     "  workers       the worker pool: address, threads, kernel, calibrated rate and the\n"
     "                rate slices are sized with (comparisons/s; measured on batches once\n"
     "                a lasting deviation rebalanced them), slice share, state, batches\n"
@@ -736,7 +739,7 @@ static int cmd_job(const char *cmd, int argc, char **argv) {
   char err[TS_ERR_LEN] = "";
   job_opts o;
   int rc = job_parse(argc, argv, &o, err);
-  int needs_id = strcmp(cmd, "watch") == 0 || strcmp(cmd, "fetch") == 0 || strcmp(cmd, "cancel") == 0;
+  int needs_id = strcmp(cmd, "status") != 0 && strcmp(cmd, "workers") != 0;
   if (rc == 0 && needs_id && !o.have_id) rc = ts_error(err, TS_EINVAL, "%s needs a job id\n%s", cmd, kJobUsage);
   if (rc == 0 && strcmp(cmd, "fetch") == 0 && o.t.out == NULL) rc = ts_error(err, TS_EINVAL, "fetch needs -o OUT");
   if (rc != 0) {
@@ -760,7 +763,7 @@ static int cmd_job(const char *cmd, int argc, char **argv) {
       ts_wr_init(&w);
       ts_msg_jobid_write(&w, o.id);
       ts_frame f;
-      rc = ts_client_call(&c, TS_MSG_CANCEL, &w, 30000, &f, err);
+      rc = ts_client_call(&c, strcmp(cmd, "cancel") == 0 ? TS_MSG_CANCEL : TS_MSG_DELETE, &w, 30000, &f, err);
       ts_wr_free(&w);
     }
     ts_conn_close(&c);
@@ -776,7 +779,8 @@ static void usage_main(FILE *f) {
           "  quality  neighbourhood error of an image against a reference\n"
           "  shuffle  random block shuffle of a reference (a baseline)\n"
           "  simd     list the L1 kernel variants this CPU supports\n"
-          "  status   jobs on a coordinator (texsyn-server); also watch, fetch, cancel, workers\n");
+          "  status   jobs on a coordinator (texsyn-server); also watch, fetch, cancel,\n"
+          "           delete, workers\n");
 }
 
 int main(int argc, char **argv) {
@@ -790,7 +794,7 @@ int main(int argc, char **argv) {
   if (strcmp(cmd, "shuffle") == 0) return cmd_shuffle(argc - 1, argv + 1);
   if (strcmp(cmd, "simd") == 0) return cmd_simd();
   if (strcmp(cmd, "status") == 0 || strcmp(cmd, "watch") == 0 || strcmp(cmd, "fetch") == 0 ||
-      strcmp(cmd, "cancel") == 0 || strcmp(cmd, "workers") == 0)
+      strcmp(cmd, "cancel") == 0 || strcmp(cmd, "delete") == 0 || strcmp(cmd, "workers") == 0)
     return cmd_job(cmd, argc - 1, argv + 1);
   if (strcmp(cmd, "--help") == 0 || strcmp(cmd, "-h") == 0 || strcmp(cmd, "help") == 0) {
     usage_main(stdout);

@@ -34,12 +34,14 @@ typedef struct job {
   uint64_t version;
   volatile int cancel;
   double started;
+  uint64_t bytes; /* on disk, or reserved for results not written yet */
   struct job *next; /* all jobs, oldest first */
 } job;
 
 typedef struct client_share {
   char client[JOBS_CLIENT_LEN];
-  uint64_t started;
+  uint64_t started;    /* jobs started: the fairness count */
+  uint32_t unfinished; /* jobs accepted and not final: the limit's count */
   struct client_share *next;
 } client_share;
 
@@ -51,6 +53,7 @@ struct ts_jobs {
   job *head, *tail;
   client_share *shares;
   uint64_t next_id;
+  uint64_t spool_bytes; /* sum of the jobs' bytes */
   int stop;
   int nrunners;
   pthread_t runners[64];
@@ -100,6 +103,31 @@ static void job_path(const job *jb, const char *name, char *out, size_t cap) {
   snprintf(out, cap, "%s/%s", jb->dir, name);
 }
 
+/* Bytes of the files in a job's directory (it holds no subdirectories). */
+static uint64_t dir_bytes(const char *dir) {
+  DIR *d = opendir(dir);
+  if (d == NULL) return 0;
+  uint64_t total = 0;
+  struct dirent *e;
+  struct stat st;
+  while ((e = readdir(d)) != NULL)
+    if (fstatat(dirfd(d), e->d_name, &st, AT_SYMLINK_NOFOLLOW) == 0 && S_ISREG(st.st_mode))
+      total += (uint64_t)st.st_size;
+  closedir(d);
+  return total;
+}
+
+/* Removes a job's directory and the files in it. */
+static int remove_dir(const char *dir) {
+  DIR *d = opendir(dir);
+  if (d == NULL) return errno == ENOENT ? 0 : -1;
+  struct dirent *e;
+  while ((e = readdir(d)) != NULL)
+    if (strcmp(e->d_name, ".") != 0 && strcmp(e->d_name, "..") != 0) unlinkat(dirfd(d), e->d_name, 0);
+  closedir(d);
+  return rmdir(dir);
+}
+
 /* The state after a job's last finished level (see on_checkpoint). */
 #define JOBS_CHECKPOINT "checkpoint"
 
@@ -128,6 +156,18 @@ static void job_append(ts_jobs *j, job *jb) {
   j->tail = jb;
 }
 
+/* A client's record (lock held); NULL only when out of memory. */
+static client_share *share_of(ts_jobs *j, const char *client) {
+  for (client_share *s = j->shares; s != NULL; s = s->next)
+    if (strcmp(s->client, client) == 0) return s;
+  client_share *s = calloc(1, sizeof(*s));
+  if (s == NULL) return NULL;
+  snprintf(s->client, sizeof(s->client), "%s", client);
+  s->next = j->shares;
+  j->shares = s;
+  return s;
+}
+
 static int job_final(const job *jb) { return jb->st.state >= TS_JOB_DONE; }
 
 /* Records a final state on disk, then in memory. */
@@ -139,7 +179,12 @@ static void job_finish(ts_jobs *j, job *jb, int state, const char *text) {
                                      : snprintf(buf, sizeof(buf), "failed: %s\n", text);
   if (write_atomic(path, buf, (size_t)n, err) != 0) fprintf(stderr, "texsyn-server: %s\n", err);
   drop_job_checkpoint(jb);
+  uint64_t bytes = dir_bytes(jb->dir); /* the reserve becomes what was written */
   pthread_mutex_lock(&j->lock);
+  j->spool_bytes = j->spool_bytes - jb->bytes + bytes;
+  jb->bytes = bytes;
+  client_share *cs = share_of(j, jb->client);
+  if (cs && cs->unfinished > 0) cs->unfinished--;
   jb->st.state = (uint8_t)state;
   if (state == TS_JOB_DONE) jb->st.permille = 1000;
   jb->st.eta_ms = 0;
@@ -308,26 +353,15 @@ static int run_job(ts_jobs *j, job *jb, char *err) {
   return rc;
 }
 
-static uint64_t *share_of(ts_jobs *j, const char *client) {
-  for (client_share *s = j->shares; s != NULL; s = s->next)
-    if (strcmp(s->client, client) == 0) return &s->started;
-  client_share *s = calloc(1, sizeof(*s));
-  if (s == NULL) return NULL;
-  snprintf(s->client, sizeof(s->client), "%s", client);
-  s->next = j->shares;
-  j->shares = s;
-  return &s->started;
-}
-
 /* The next job to start (lock held): fewest started jobs per client, then
  * the oldest. */
 static job *pick_job(ts_jobs *j) {
   job *best = NULL;
   uint64_t best_started = UINT64_MAX;
   for (job *jb = j->head; jb != NULL; jb = jb->next) {
-    if (jb->st.state != TS_JOB_QUEUED) continue;
-    uint64_t *started = share_of(j, jb->client);
-    uint64_t n = started ? *started : 0;
+    if (jb->st.state != TS_JOB_QUEUED || jb->cancel) continue;
+    client_share *cs = share_of(j, jb->client);
+    uint64_t n = cs ? cs->started : 0;
     if (n < best_started) {
       best = jb;
       best_started = n;
@@ -343,8 +377,8 @@ static void *runner(void *arg) {
     job *jb = NULL;
     while (!j->stop && (jb = pick_job(j)) == NULL) pthread_cond_wait(&j->changed, &j->lock);
     if (j->stop) break;
-    uint64_t *started = share_of(j, jb->client);
-    if (started) (*started)++;
+    client_share *cs = share_of(j, jb->client);
+    if (cs) cs->started++;
     jb->st.state = TS_JOB_RUNNING;
     jb->started = ts_now();
     job_changed(j, jb);
@@ -405,8 +439,32 @@ static void load_job(ts_jobs *j, uint64_t id) {
       snprintf(jb->st.text, sizeof(jb->st.text), "%.500s", strncmp(text, "failed: ", 8) == 0 ? text + 8 : text);
     }
   }
+  jb->bytes = dir_bytes(jb->dir);
+  j->spool_bytes += jb->bytes;
+  client_share *cs = share_of(j, jb->client);
+  if (cs && !job_final(jb)) cs->unfinished++;
   job_append(j, jb);
   if (id >= j->next_id) j->next_id = id + 1;
+}
+
+/* The highest id ever given out, kept apart from the job directories so a
+ * deleted job's id is not given out again after a restart. */
+#define JOBS_LAST_ID "last-id"
+
+static void note_last_id(ts_jobs *j, uint64_t id) {
+  char path[JOBS_PATH + 16], text[32], err[TS_ERR_LEN];
+  snprintf(path, sizeof(path), "%s/%s", j->spool, JOBS_LAST_ID);
+  int n = snprintf(text, sizeof(text), "%" PRIu64 "\n", id);
+  if (write_atomic(path, text, (size_t)n, err) != 0) fprintf(stderr, "texsyn-server: %s\n", err);
+}
+
+static uint64_t read_last_id(ts_jobs *j) {
+  char path[JOBS_PATH + 16], text[32];
+  snprintf(path, sizeof(path), "%s/%s", j->spool, JOBS_LAST_ID);
+  if (read_small(path, text, sizeof(text)) <= 0) return 0;
+  char *end;
+  uint64_t id = strtoull(text, &end, 10);
+  return *end == '\n' || *end == '\0' ? id : 0;
 }
 
 static int cmp_u64(const void *a, const void *b) {
@@ -439,6 +497,8 @@ static int load_spool(ts_jobs *j, char *err) {
   if (n > 0) qsort(ids, n, sizeof(*ids), cmp_u64);
   for (size_t i = 0; i < n; i++) load_job(j, ids[i]);
   free(ids);
+  uint64_t last = read_last_id(j);
+  if (j->next_id <= last) j->next_id = last + 1;
   if (j->next_id == 0) j->next_id = 1;
   return 0;
 }
@@ -492,6 +552,55 @@ void ts_jobs_destroy(ts_jobs *j) {
   free(j);
 }
 
+/* Disk a job will use: its reference, and a reserve for its results and
+ * checkpoints (an 8-byte-per-pixel image, the copy maps it asked for, and
+ * a checkpoint of a quarter of the pixels at 9 bytes each) until they are
+ * written and counted. */
+static uint64_t job_reserve(const ts_jobspec *s, size_t ref_len) {
+  uint64_t px = (uint64_t)s->p.width * (uint64_t)s->p.height;
+  uint64_t per_px = 8 + 3 + (s->copy_map[0] ? 8 : 0) + (s->copy_map_raw ? 8 : 0);
+  return ref_len + px * per_px + 65536;
+}
+
+static double mib(uint64_t bytes) { return (double)bytes / (1024.0 * 1024.0); }
+
+/* Checks the limits and takes an id and the disk reserve (lock taken). */
+static int admit(ts_jobs *j, job *jb, size_t ref_len, char *err) {
+  uint64_t need = job_reserve(&jb->spec, ref_len);
+  int rc = 0;
+  pthread_mutex_lock(&j->lock);
+  client_share *cs = share_of(j, jb->client);
+  if (cs == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
+  else if (j->o.max_client_jobs > 0 && cs->unfinished >= j->o.max_client_jobs)
+    rc = ts_error(err, TS_ELIMIT,
+                  "client %s already has %u unfinished jobs, the limit (--max-client-jobs); wait for some to "
+                  "finish or cancel some",
+                  jb->client, cs->unfinished);
+  else if (j->o.max_spool_bytes > 0 && j->spool_bytes + need > j->o.max_spool_bytes)
+    rc = ts_error(err, TS_ELIMIT,
+                  "the spool is full: %.1f MiB of %.1f MiB (--max-spool) in use and this job needs about "
+                  "%.1f MiB; fetch and delete finished jobs (texsyn delete ID) or raise the limit",
+                  mib(j->spool_bytes), mib(j->o.max_spool_bytes), mib(need));
+  if (rc == 0) {
+    cs->unfinished++;
+    jb->bytes = need;
+    j->spool_bytes += need;
+    jb->id = j->next_id++;
+    note_last_id(j, jb->id);
+  }
+  pthread_mutex_unlock(&j->lock);
+  return rc;
+}
+
+/* Gives back what admit took, for a submission that failed. */
+static void unadmit(ts_jobs *j, job *jb) {
+  pthread_mutex_lock(&j->lock);
+  client_share *cs = share_of(j, jb->client);
+  if (cs && cs->unfinished > 0) cs->unfinished--;
+  j->spool_bytes -= jb->bytes;
+  pthread_mutex_unlock(&j->lock);
+}
+
 int ts_jobs_submit(ts_jobs *j, const char *client, const char *spec, size_t spec_len, const char *ref_name,
                    const uint8_t *ref, size_t ref_len, uint64_t *id, char *err) {
   job *jb = calloc(1, sizeof(*jb));
@@ -514,9 +623,11 @@ int ts_jobs_submit(ts_jobs *j, const char *client, const char *spec, size_t spec
   }
   snprintf(jb->ref_ext, sizeof(jb->ref_ext), "%s", ext_ok);
   snprintf(jb->client, sizeof(jb->client), "%s", client);
-  pthread_mutex_lock(&j->lock);
-  jb->id = j->next_id++;
-  pthread_mutex_unlock(&j->lock);
+  rc = admit(j, jb, ref_len, err);
+  if (rc != 0) {
+    free(jb);
+    return rc;
+  }
   snprintf(jb->dir, sizeof(jb->dir), "%s/jobs/%" PRIu64, j->spool, jb->id);
   char path[JOBS_PATH + 32];
   if (mkdir(jb->dir, 0755) != 0) rc = ts_error(err, TS_EIO, "cannot create %s: %s", jb->dir, strerror(errno));
@@ -532,6 +643,8 @@ int ts_jobs_submit(ts_jobs *j, const char *client, const char *spec, size_t spec
   job_path(jb, "job.spec", path, sizeof(path));
   if (rc == 0) rc = n < 0 ? ts_error(err, TS_ETOOBIG, "job spec too long") : write_atomic(path, text, (size_t)n, err);
   if (rc != 0) {
+    remove_dir(jb->dir);
+    unadmit(j, jb);
     free(jb);
     return rc;
   }
@@ -569,8 +682,12 @@ int ts_jobs_wait(ts_jobs *j, uint64_t id, uint64_t *version, int timeout_ms, ts_
   }
   pthread_mutex_lock(&j->lock);
   job *jb = job_find(j, id);
-  while (jb != NULL && jb->version == *version && !j->stop)
-    if (pthread_cond_timedwait(&j->changed, &j->lock, &ts) == ETIMEDOUT) break;
+  /* Found again after every wait: the job may have been deleted meanwhile. */
+  while (jb != NULL && jb->version == *version && !j->stop) {
+    int rc = pthread_cond_timedwait(&j->changed, &j->lock, &ts);
+    jb = job_find(j, id);
+    if (rc == ETIMEDOUT) break;
+  }
   if (jb != NULL) {
     *out = jb->st;
     *version = jb->version;
@@ -594,13 +711,43 @@ int ts_jobs_cancel(ts_jobs *j, uint64_t id, char *err) {
   if (jb == NULL) rc = ts_error(err, TS_ENOENT, "no job %" PRIu64, id);
   else if (job_final(jb)) rc = ts_error(err, TS_EINVAL, "job %" PRIu64 " is already %s", id, ts_job_state_name(jb->st.state));
   else {
+    /* A queued job stays queued, untaken, until job_finish (once). */
+    queued = jb->st.state == TS_JOB_QUEUED && !jb->cancel;
     jb->cancel = 1;
-    queued = jb->st.state == TS_JOB_QUEUED;
-    if (queued) jb->st.state = TS_JOB_CANCELED; /* no runner will take it */
   }
   pthread_mutex_unlock(&j->lock);
   if (queued) job_finish(j, jb, TS_JOB_CANCELED, "canceled by a client");
   return rc;
+}
+
+int ts_jobs_delete(ts_jobs *j, uint64_t id, char *err) {
+  pthread_mutex_lock(&j->lock);
+  job *jb = job_find(j, id), *prev = NULL;
+  int rc = 0;
+  if (jb == NULL) rc = ts_error(err, TS_ENOENT, "no job %" PRIu64, id);
+  else if (!job_final(jb))
+    rc = ts_error(err, TS_EINVAL, "job %" PRIu64 " is %s: cancel it first, or wait for it to end", id,
+                  ts_job_state_name(jb->st.state));
+  else if (remove_dir(jb->dir) != 0)
+    rc = ts_error(err, TS_EIO, "cannot remove %s: %s", jb->dir, strerror(errno));
+  if (rc == 0) {
+    for (job *p = j->head; p != jb; p = p->next) prev = p;
+    if (prev) prev->next = jb->next;
+    else j->head = jb->next;
+    if (j->tail == jb) j->tail = prev;
+    j->spool_bytes -= jb->bytes;
+    free(jb);
+    pthread_cond_broadcast(&j->changed); /* watchers find it gone */
+  }
+  pthread_mutex_unlock(&j->lock);
+  return rc;
+}
+
+uint64_t ts_jobs_spool_bytes(ts_jobs *j) {
+  pthread_mutex_lock(&j->lock);
+  uint64_t n = j->spool_bytes;
+  pthread_mutex_unlock(&j->lock);
+  return n;
 }
 
 int ts_jobs_files(ts_jobs *j, uint64_t id, char names[][TS_MSG_NAME_MAX], char paths[][4096], uint32_t *n,

@@ -9,7 +9,12 @@
  *
  * Runner threads (several jobs in flight) take queued jobs fairly between
  * clients: the next job comes from the client that has had the fewest jobs
- * started, ties to the oldest job. */
+ * started, ties to the oldest job.
+ *
+ * Limits keep one client from crowding out the others: unfinished jobs per
+ * client, and the spool's disk use (inputs, a reserve for the results,
+ * checkpoints) - a submission past either is refused with the reason, and
+ * deleting finished jobs gives the space back. */
 #ifndef TS_JOBS_H
 #define TS_JOBS_H
 
@@ -23,6 +28,8 @@ typedef struct {
   const char *spool; /* directory, created if missing */
   int runners;       /* jobs run at once (2) */
   uint64_t max_pixels; /* reference and output pixel limit */
+  uint32_t max_client_jobs; /* unfinished jobs per client (0 = no limit) */
+  uint64_t max_spool_bytes; /* disk use of all jobs (0 = no limit) */
   ts_cluster *cluster;
 } ts_jobs_opts;
 
@@ -47,6 +54,11 @@ int ts_jobs_wait(ts_jobs *j, uint64_t id, uint64_t *version, int timeout_ms, ts_
 /* Every job, oldest first; returns how many were written (<= cap). */
 uint32_t ts_jobs_list(ts_jobs *j, ts_job_status *out, uint32_t cap);
 int ts_jobs_cancel(ts_jobs *j, uint64_t id, char *err);
+/* Removes a finished (done, failed or canceled) job and its files from the
+ * spool; its id is never given out again. */
+int ts_jobs_delete(ts_jobs *j, uint64_t id, char *err);
+/* Bytes the spool's jobs use (or have reserved for their results). */
+uint64_t ts_jobs_spool_bytes(ts_jobs *j);
 /* A finished job's result files: names (out.EXT, copymap.EXT, ...) and
  * their paths in the spool. */
 int ts_jobs_files(ts_jobs *j, uint64_t id, char names[][TS_MSG_NAME_MAX], char paths[][4096],

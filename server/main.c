@@ -186,6 +186,19 @@ static int serve_cancel(ts_conn *c, const ts_frame *f) {
   return reply(c, TS_MSG_CANCEL, f->id, &w);
 }
 
+static int serve_delete(ts_conn *c, const ts_frame *f) {
+  char err[TS_ERR_LEN];
+  uint64_t id;
+  int rc = ts_msg_jobid_read(f, &id, err);
+  if (rc == 0) rc = ts_jobs_delete(g_server.jobs, id, err);
+  if (rc != 0) return reply_error(c, f->id, rc, err);
+  logf_("job %" PRIu64 " deleted by %s", id, c->peer);
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_jobid_write(&w, id);
+  return reply(c, TS_MSG_DELETE, f->id, &w);
+}
+
 static int serve_pool(ts_conn *c, const ts_frame *f) {
   if (f->len != 0) return reply_error(c, f->id, TS_EPROTO, "malformed 'P' message: payload must be empty");
   ts_worker_info *wi = malloc(sizeof(*wi) * TS_POOL_MAX_REPORT);
@@ -205,6 +218,7 @@ static int serve_request(ts_conn *c, const ts_frame *f, const char *client) {
   case TS_MSG_STATUS: return serve_status(c, f);
   case TS_MSG_FETCH: return serve_fetch(c, f);
   case TS_MSG_CANCEL: return serve_cancel(c, f);
+  case TS_MSG_DELETE: return serve_delete(c, f);
   case TS_MSG_POOL: return serve_pool(c, f);
   case TS_MSG_HEARTBEAT: {
     ts_wr w;
@@ -324,6 +338,10 @@ static void usage(FILE *f) {
           "                            2S+1 s drops it, 0..3600 (default 2; 0 = off)\n"
           "  --max-frame BYTES         largest accepted frame payload (default %u)\n"
           "  --max-pixels N            largest reference or output image (default %llu)\n"
+          "  --max-client-jobs N       unfinished jobs one client may have, 0..1000000\n"
+          "                            (default 100; 0 = no limit)\n"
+          "  --max-spool BYTES         disk the spool's jobs may use, e.g. 500M, 20G\n"
+          "                            (default 16G; 0 = no limit); texsyn delete frees it\n"
           "  --quiet                   no startup line\n",
           TS_FRAME_DEFAULT_MAX, (unsigned long long)TS_IMAGE_DEFAULT_MAX_PIXELS);
 }
@@ -331,7 +349,8 @@ static void usage(FILE *f) {
 typedef struct {
   const char *listen, *workers, *spool;
   int jobs, quiet;
-  uint64_t max_pixels;
+  uint64_t max_pixels, max_spool;
+  uint32_t max_client_jobs;
   ts_cluster_opts co;
 } server_opts;
 
@@ -347,8 +366,24 @@ static int num(const char *opt, const char *s, double lo, double hi, double *out
   return 0;
 }
 
+/* A byte count with an optional binary suffix: 512, 64K, 100M, 16G, 2T. */
+static int bytes_opt(const char *opt, const char *s, uint64_t *out) {
+  char *end;
+  errno = 0;
+  double v = strtod(s, &end);
+  const char *units = "KMGT";
+  const char *u = *end ? strchr(units, *end) : NULL;
+  if (u != NULL && end[1] == '\0') v *= (double)(1ull << (10 * (u - units + 1)));
+  if (errno != 0 || end == s || (*end != '\0' && (u == NULL || end[1] != '\0')) || !(v >= 0 && v < 9.2e18)) {
+    fprintf(stderr, "texsyn-server: %s %s: need a byte count such as 500M or 20G\n", opt, s);
+    return -1;
+  }
+  *out = (uint64_t)v;
+  return 0;
+}
+
 static int parse_opts(int argc, char **argv, server_opts *o) {
-  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_PIPE, O_HB, O_FRAME, O_PIX, O_QUIET, O_HELP };
+  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_QUIET, O_HELP };
   static const struct option longopts[] = {
       {"listen", required_argument, 0, O_LISTEN}, {"workers", required_argument, 0, O_WORKERS},
       {"spool", required_argument, 0, O_SPOOL}, {"jobs", required_argument, 0, O_JOBS},
@@ -358,12 +393,15 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
       {"heartbeat", required_argument, 0, O_HB},
       {"max-redispatch", required_argument, 0, O_REDISPATCH},
       {"max-frame", required_argument, 0, O_FRAME}, {"max-pixels", required_argument, 0, O_PIX},
+      {"max-client-jobs", required_argument, 0, O_CLIENT_JOBS}, {"max-spool", required_argument, 0, O_SPOOL_MAX},
       {"quiet", no_argument, 0, O_QUIET}, {"help", no_argument, 0, O_HELP}, {0, 0, 0, 0}};
   memset(o, 0, sizeof(*o));
   o->listen = "127.0.0.1:7070";
   o->spool = "texsyn-spool";
   o->jobs = 2;
   o->max_pixels = TS_IMAGE_DEFAULT_MAX_PIXELS;
+  o->max_client_jobs = 100;
+  o->max_spool = 16ull << 30;
   ts_cluster_opts_default(&o->co);
   opterr = 0;
   int c;
@@ -385,6 +423,8 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
     case O_HB: rc = num("--heartbeat", optarg, 0, 3600, &o->co.heartbeat); break;
     case O_FRAME: rc = num("--max-frame", optarg, 1024, 4294967295.0, &v); o->co.max_frame = (uint32_t)v; break;
     case O_PIX: rc = num("--max-pixels", optarg, 1, 1e15, &v); o->max_pixels = (uint64_t)v; break;
+    case O_CLIENT_JOBS: rc = num("--max-client-jobs", optarg, 0, 1e6, &v); o->max_client_jobs = (uint32_t)v; break;
+    case O_SPOOL_MAX: rc = bytes_opt("--max-spool", optarg, &o->max_spool); break;
     case O_QUIET: o->quiet = 1; break;
     case O_HELP: case 'h': usage(stdout); exit(0);
     default:
@@ -440,7 +480,7 @@ int main(int argc, char **argv) {
   }
   ts_cluster_set_log(g_server.cluster, cluster_log);
   if (o.workers != NULL && add_workers(g_server.cluster, o.workers) != 0) return 2;
-  ts_jobs_opts jo = {o.spool, o.jobs, o.max_pixels, g_server.cluster};
+  ts_jobs_opts jo = {o.spool, o.jobs, o.max_pixels, o.max_client_jobs, o.max_spool, g_server.cluster};
   if (ts_jobs_create(&g_server.jobs, &jo, err) != 0) {
     fprintf(stderr, "texsyn-server: %s\n", err);
     return 1;
