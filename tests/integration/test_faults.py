@@ -85,11 +85,17 @@ def test_random_worker_fault_keeps_the_bytes(data, cluster, tmp_path, expected, 
     out = tmp_path / "out.png"
     job = submit(cluster, data, out)
     time.sleep(moment)
+    assert job.poll() is None, f"{what}: the job ended before the fault"
     inject(cluster, fault, victim, rng)
     code, err = finish(job)
-    assert code == 0, f"{what}: job failed: {err}\n{cluster.server.read_log()}"
+    log = cluster.server.read_log()
+    assert code == 0, f"{what}: job failed: {err}\n{log}"
     assert out.read_bytes() == expected, f"{what}: output differs from the fault-free run"
     assert cluster.server.alive(), what
+    if fault != "stall":  # a stall may fall between batches and go unnoticed
+        addr = cluster.workers[victim].addr
+        assert any("dropped" in line and addr in line for line in log.splitlines()), \
+            f"{what}: the coordinator never noticed\n{log}"
 
 
 def test_all_workers_killed_coordinator_finishes_alone(data, cluster, tmp_path, expected):
