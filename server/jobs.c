@@ -6,6 +6,7 @@
 #include <fcntl.h>
 #include <inttypes.h>
 #include <pthread.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -58,6 +59,17 @@ struct ts_jobs {
   int nrunners;
   pthread_t runners[64];
 };
+
+static void jobs_log(const ts_jobs *j, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static void jobs_log(const ts_jobs *j, const char *fmt, ...) {
+  char msg[TS_ERR_LEN + 128];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(msg, sizeof(msg), fmt, ap);
+  va_end(ap);
+  if (j->o.log) j->o.log(msg);
+  else fprintf(stderr, "texsyn-server: %s\n", msg);
+}
 
 /* ---- files ------------------------------------------------------------- */
 
@@ -177,7 +189,9 @@ static void job_finish(ts_jobs *j, job *jb, int state, const char *text) {
   int n = state == TS_JOB_DONE ? snprintf(buf, sizeof(buf), "done\n")
           : state == TS_JOB_CANCELED ? snprintf(buf, sizeof(buf), "canceled\n")
                                      : snprintf(buf, sizeof(buf), "failed: %s\n", text);
-  if (write_atomic(path, buf, (size_t)n, err) != 0) fprintf(stderr, "texsyn-server: %s\n", err);
+  if (write_atomic(path, buf, (size_t)n, err) != 0) jobs_log(j, "%s", err);
+  if (state == TS_JOB_DONE) jobs_log(j, "job %" PRIu64 " done in %.2fs", jb->id, ts_now() - jb->started);
+  else jobs_log(j, "job %" PRIu64 " %s%s%s", jb->id, ts_job_state_name((uint8_t)state), text[0] ? ": " : "", text);
   drop_job_checkpoint(jb);
   uint64_t bytes = dir_bytes(jb->dir); /* the reserve becomes what was written */
   pthread_mutex_lock(&j->lock);
@@ -251,6 +265,7 @@ static int write_results(job *jb, const ts_image *ref, const ts_mrf_result *res,
 /* ---- checkpoints ------------------------------------------------------- */
 
 typedef struct {
+  ts_jobs *j;
   job *jb;
   uint64_t tag;
 } checkpoint_ctx;
@@ -275,7 +290,7 @@ static int on_checkpoint(void *arg, const ts_mrf_checkpoint *ck, char *err) {
   rc = write_atomic(path, buf, len, err);
   free(buf);
   if (rc == 0)
-    fprintf(stderr, "texsyn-server: job %" PRIu64 ": checkpoint after level %d (%zu bytes)\n", cc->jb->id,
+    jobs_log(cc->j, "job %" PRIu64 ": checkpoint after level %d (%zu bytes)", cc->jb->id,
             ck->level, len);
   return rc;
 }
@@ -306,11 +321,11 @@ static int load_job_checkpoint(ts_jobs *j, job *jb, uint64_t tag, ts_mrf_checkpo
   int rc = ts_checkpoint_decode(buf, len, tag, j->o.max_pixels, ck, err);
   free(buf);
   if (rc != 0) {
-    fprintf(stderr, "texsyn-server: job %" PRIu64 ": ignoring its checkpoint (%s); starting over\n", jb->id, err);
+    jobs_log(j, "job %" PRIu64 ": ignoring its checkpoint (%s); starting over", jb->id, err);
     unlink(path);
     return 0;
   }
-  fprintf(stderr, "texsyn-server: job %" PRIu64 ": resuming after level %d from its checkpoint\n", jb->id,
+  jobs_log(j, "job %" PRIu64 ": resuming after level %d from its checkpoint", jb->id,
           ck->level);
   return 1;
 }
@@ -318,7 +333,7 @@ static int load_job_checkpoint(ts_jobs *j, job *jb, uint64_t tag, ts_mrf_checkpo
 static int synthesize_job(ts_jobs *j, job *jb, const ts_image *ref, ts_search *search, ts_mrf_result *res,
                           char *err) {
   progress_ctx pc = {j, jb, 0};
-  checkpoint_ctx cc = {jb, job_tag(jb)};
+  checkpoint_ctx cc = {j, jb, job_tag(jb)};
   ts_mrf_checkpoint resume;
   int resumed = load_job_checkpoint(j, jb, cc.tag, &resume);
   ts_mrf_hooks hooks = {on_progress, &pc, on_checkpoint, &cc, resumed ? &resume : NULL};
@@ -455,7 +470,7 @@ static void note_last_id(ts_jobs *j, uint64_t id) {
   char path[JOBS_PATH + 16], text[32], err[TS_ERR_LEN];
   snprintf(path, sizeof(path), "%s/%s", j->spool, JOBS_LAST_ID);
   int n = snprintf(text, sizeof(text), "%" PRIu64 "\n", id);
-  if (write_atomic(path, text, (size_t)n, err) != 0) fprintf(stderr, "texsyn-server: %s\n", err);
+  if (write_atomic(path, text, (size_t)n, err) != 0) jobs_log(j, "%s", err);
 }
 
 static uint64_t read_last_id(ts_jobs *j) {

@@ -55,6 +55,7 @@ static void logf_(const char *fmt, ...) {
           tm.tm_mday, tm.tm_hour, tm.tm_min, tm.tm_sec, buf);
 }
 
+/* The cluster and the job queue log through this: one timestamped line. */
 static void cluster_log(const char *msg) { logf_("%s", msg); }
 
 /* ---- replies ------------------------------------------------------------ */
@@ -480,7 +481,7 @@ int main(int argc, char **argv) {
   }
   ts_cluster_set_log(g_server.cluster, cluster_log);
   if (o.workers != NULL && add_workers(g_server.cluster, o.workers) != 0) return 2;
-  ts_jobs_opts jo = {o.spool, o.jobs, o.max_pixels, o.max_client_jobs, o.max_spool, g_server.cluster};
+  ts_jobs_opts jo = {o.spool, o.jobs, o.max_pixels, o.max_client_jobs, o.max_spool, g_server.cluster, cluster_log};
   if (ts_jobs_create(&g_server.jobs, &jo, err) != 0) {
     fprintf(stderr, "texsyn-server: %s\n", err);
     return 1;

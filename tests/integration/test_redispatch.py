@@ -1,0 +1,151 @@
+"""Bounded re-dispatch: a slice that keeps crashing the workers it is given
+fails its job with a reason, instead of taking the pool down one worker
+after another, and the coordinator goes on serving.
+
+Four real workers sit behind frame-aware proxies that forward frames
+unchanged, except that the first reference set has a "poisoned" slice:
+the worker holding its first vector dies (the proxy resets its
+connection) when it is asked a batch. Re-slicing hands that vector to the
+next worker, which dies too, and so on."""
+import socket
+import struct
+import threading
+
+from conftest import BUILD, Daemon, synth
+
+JOB = ["--size", "96x64", "--levels", "3"]
+
+
+def ref_of(data):
+    return data / "textures" / "brick.png"
+
+
+class Poison:
+    """Shared state: the poisoned set (the first one loaded) and the
+    workers killed so far."""
+
+    def __init__(self, kills):
+        self.lock = threading.Lock()
+        self.set = None
+        self.kills = kills
+        self.killed = []
+
+
+class FrameProxy:
+    """Forwards one loopback port to a worker frame by frame. It remembers
+    the slices loaded through it ('N': set id, then vector ranges at byte
+    46) and resets both connections instead of forwarding a batch ('V') of
+    the poisoned set while it holds that set's first vector."""
+
+    def __init__(self, index, target, poison):
+        self.index, self.target, self.poison = index, target, poison
+        self.first = {}  # set id -> (i0, i1) of class 0 held through this proxy
+        self.sock = socket.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen(8)
+        self.addr = "127.0.0.1:%d" % self.sock.getsockname()[1]
+        threading.Thread(target=self.accept, daemon=True).start()
+
+    def accept(self):
+        while True:
+            try:
+                a, _ = self.sock.accept()
+            except OSError:
+                return
+            host, port = self.target.rsplit(":", 1)
+            b = socket.create_connection((host, int(port)))
+            threading.Thread(target=self.to_worker, args=(a, b), daemon=True).start()
+            threading.Thread(target=self.plain, args=(b, a), daemon=True).start()
+
+    def dies_on(self, frame):
+        kind, body = frame[3:4], frame[12:]
+        p = self.poison
+        with p.lock:
+            if kind == b"N":
+                set_id = struct.unpack_from("<I", body, 0)[0]
+                if p.set is None:
+                    p.set = set_id
+                self.first[set_id] = struct.unpack_from("<II", body, 46)
+            if kind != b"V" or struct.unpack_from("<I", body, 0)[0] != p.set or len(p.killed) >= p.kills:
+                return False
+            i0, i1 = self.first.get(p.set, (1, 1))
+            if i0 == 0 and i1 > 0:
+                p.killed.append(self.index)
+                return True
+        return False
+
+    def to_worker(self, src, dst):
+        buf = b""
+        try:
+            while True:
+                data = src.recv(65536)
+                if not data:
+                    break
+                buf += data
+                while len(buf) >= 12:
+                    length = struct.unpack_from("<I", buf, 4)[0]
+                    if len(buf) < 12 + length:
+                        break
+                    frame, buf = buf[:12 + length], buf[12 + length:]
+                    if self.dies_on(frame):
+                        reset(src, dst)
+                        return
+                    dst.sendall(frame)
+        except OSError:
+            pass
+        close(src, dst)
+
+    def plain(self, src, dst):
+        try:
+            while True:
+                data = src.recv(65536)
+                if not data:
+                    break
+                dst.sendall(data)
+        except OSError:
+            pass
+        close(src, dst)
+
+    def close(self):
+        self.sock.close()
+
+
+def reset(*socks):
+    for s in socks:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+        s.close()
+
+
+def close(*socks):
+    for s in socks:
+        try:
+            s.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+
+
+def test_batch_that_keeps_killing_workers_fails_its_job_not_the_pool(texsyn, data, cluster, tmp_path):
+    workers = [cluster.worker(1) for _ in range(4)]
+    poison = Poison(kills=3)
+    proxies = [FrameProxy(i, w.addr, poison) for i, w in enumerate(workers)]
+    try:
+        args = [BUILD / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", tmp_path / "spool",
+                "--workers", ",".join(p.addr for p in proxies), "--max-redispatch", "3", "--calibrate-ms", "50"]
+        cluster.server = Daemon(args, tmp_path / "server.log")
+        cluster.wait_ready(4)
+        bad = cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "bad.png", *JOB, "--quiet",
+                             check=False)
+        assert bad.returncode != 0
+        assert "lost workers 3 times in a row" in bad.stderr, bad.stderr
+        assert len(poison.killed) == 3 and len(set(poison.killed)) == 3, poison.killed
+        # The pool recovers (the dropped workers are dialled again) and the
+        # next job gives the embedded bytes.
+        cluster.wait_ready(4)
+        cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "good.png", *JOB, "--quiet")
+        want = tmp_path / "want.png"
+        synth(texsyn, ref_of(data), want, (96, 64), *JOB[2:])
+        assert (tmp_path / "good.png").read_bytes() == want.read_bytes()
+        assert cluster.server.alive()
+    finally:
+        for p in proxies:
+            p.close()
