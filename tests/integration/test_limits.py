@@ -1,9 +1,10 @@
 """Limits of the coordinator: unfinished jobs per client and the spool's
 disk use. A submission past a limit is refused with a message that says
 which limit and what to do, other clients' jobs carry on, and deleting
-finished jobs gives the space back (their ids are never reused)."""
-import subprocess
-import time
+finished jobs gives the space back (their ids are never reused). And no
+request names a file outside the spool."""
+import socket
+import struct
 
 from conftest import BUILD, Daemon, run, synth
 
@@ -91,3 +92,68 @@ def test_deleted_ids_are_not_reused_after_a_restart(data, cluster, tmp_path):
     code, again, err = submit(cluster, "dave", data, tmp_path / "d.png", *SMALL)
     assert code == 0, err
     assert int(again) > int(job)
+
+
+# ---- nothing outside the spool ---------------------------------------------
+
+def raw_call(addr, kind, payload):
+    """One request on a fresh connection after the identify exchange;
+    returns (reply type, reply payload)."""
+    name = b"raw-client"
+    ident = struct.pack("<BIHB", 3, 7, 0, 0) + struct.pack("<H", len(name)) + name
+
+    def frame(t, body, fid):
+        return b"TS\x01" + t + struct.pack("<II", len(body), fid) + body
+
+    def read_frame(s):
+        head = recv_exact(s, 12)
+        body = recv_exact(s, struct.unpack_from("<I", head, 4)[0])
+        return head[3:4], body
+
+    host, port = addr.rsplit(":", 1)
+    with socket.create_connection((host, int(port)), timeout=30) as s:
+        s.sendall(frame(b"I", ident, 0))
+        read_frame(s)
+        s.sendall(frame(kind, payload, 7))
+        return read_frame(s)
+
+
+def recv_exact(s, n):
+    buf = b""
+    while len(buf) < n:
+        chunk = s.recv(n - len(buf))
+        assert chunk, "connection closed"
+        buf += chunk
+    return buf
+
+
+def submit_payload(spec, ref_name, ref):
+    spec, name = spec.encode(), ref_name.encode()
+    return struct.pack("<I", len(spec)) + spec + struct.pack("<H", len(name)) + name + struct.pack("<I", len(ref)) + ref
+
+
+def test_requests_cannot_reach_outside_the_spool(data, cluster, tmp_path):
+    """Hostile names in a raw submit: a reference name full of '../' only
+    lends its extension, and outputs with a path in their extension are
+    refused; job ids are numbers, so fetch and delete name nothing else."""
+    cluster.start(0, 1)
+    ref = ref_of(data).read_bytes()
+    spool = cluster.tmp / "spool"
+    before = set(p for p in cluster.tmp.rglob("*") if spool not in p.parents)
+    kind, body = raw_call(cluster.server.addr, b"S",
+                          submit_payload("size=64x48\nlevels=3\n", "../../../../escape/../x/evil.png", ref))
+    assert kind == b"S", body
+    job = str(struct.unpack("<Q", body)[0])
+    files = sorted(p.name for p in (spool / "jobs" / job).iterdir())
+    assert "ref.png" in files, files
+    for spec, name in [("size=64x48\noutput=../../x\n", "a.png"), ("size=64x48\ncopy_map=/etc/passwd\n", "a.png"),
+                       ("size=64x48\n", "evil.png/../../x"), ("size=64x48\n", "noext")]:
+        kind, body = raw_call(cluster.server.addr, b"S", submit_payload(spec, name, ref))
+        assert kind == b"E", (spec, name)
+        assert b"extension" in body or b"output" in body or b"copy_map" in body, body
+    for kind_, payload in [(b"F", struct.pack("<Q", 2**64 - 1)), (b"D", struct.pack("<Q", 0))]:
+        kind, body = raw_call(cluster.server.addr, kind_, payload)
+        assert kind == b"E" and b"no job" in body, body
+    after = set(p for p in cluster.tmp.rglob("*") if spool not in p.parents)
+    assert after == before, after - before
+    run(BUILD / "texsyn", "watch", job, "--quiet", "--server", cluster.server.addr)
