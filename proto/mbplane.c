@@ -1,0 +1,197 @@
+/* mbplane.c - see mbplane.h.
+ *
+ * One thread polls the listening socket, a stop pipe and up to
+ * MB_MAX_CLIENTS client sockets. libmodbus only decodes and answers: its
+ * context is never connected, each client's socket is lent to it for one
+ * request (modbus_set_socket). A client that sends half a request gets
+ * MB_REQUEST_SECONDS to finish it, then loses its connection, so one
+ * client cannot hold the plane for the others. */
+#include "mbplane.h"
+
+#include <errno.h>
+#include <modbus/modbus.h>
+#include <poll.h>
+#include <pthread.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "error.h"
+#include "net.h"
+
+#define MB_MAX_CLIENTS 16
+#define MB_REQUEST_SECONDS 1
+
+struct ts_mbplane {
+  ts_mbplane_opts o;
+  int lfd;
+  int wake[2]; /* a byte here stops the thread */
+  pthread_t thread;
+  modbus_t *mb;
+  modbus_mapping_t *map;
+  int fd[MB_MAX_CLIENTS];
+  char peer[MB_MAX_CLIENTS][TS_NET_ADDR_LEN];
+  int n;
+};
+
+void ts_mb_put32(uint16_t *regs, int at, uint32_t v) {
+  regs[at] = (uint16_t)(v >> 16);
+  regs[at + 1] = (uint16_t)v;
+}
+
+void ts_mb_put64(uint16_t *regs, int at, uint64_t v) {
+  ts_mb_put32(regs, at, (uint32_t)(v >> 32));
+  ts_mb_put32(regs, at + 2, (uint32_t)v);
+}
+
+static void mb_log(const ts_mbplane *m, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static void mb_log(const ts_mbplane *m, const char *fmt, ...) {
+  if (m->o.log == NULL) return;
+  char msg[TS_ERR_LEN];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(msg, sizeof(msg), fmt, ap);
+  va_end(ap);
+  m->o.log(msg);
+}
+
+static void drop_client(ts_mbplane *m, int i, const char *why) {
+  if (why != NULL) mb_log(m, "modbus client %s dropped: %s", m->peer[i], why);
+  close(m->fd[i]);
+  m->n--;
+  m->fd[i] = m->fd[m->n];
+  memcpy(m->peer[i], m->peer[m->n], sizeof(m->peer[i]));
+}
+
+static void accept_client(ts_mbplane *m) {
+  int fd;
+  char peer[TS_NET_ADDR_LEN];
+  if (ts_net_accept(m->lfd, &fd, peer, sizeof(peer)) != 0) return;
+  if (m->n == MB_MAX_CLIENTS) {
+    mb_log(m, "modbus client %s refused: %d clients already connected", peer, MB_MAX_CLIENTS);
+    close(fd);
+    return;
+  }
+  m->fd[m->n] = fd;
+  snprintf(m->peer[m->n], sizeof(m->peer[m->n]), "%s", peer);
+  m->n++;
+}
+
+static int is_coil_write(int function) {
+  return function == MODBUS_FC_WRITE_SINGLE_COIL || function == MODBUS_FC_WRITE_MULTIPLE_COILS;
+}
+
+/* The MBAP header libmodbus does not check on requests: protocol id 0
+ * and a length that counts the bytes after it. */
+static const char *bad_header(const uint8_t *req, int len) {
+  if (req[2] != 0 || req[3] != 0) return "not Modbus TCP (protocol id is not 0)";
+  if (((int)req[4] << 8 | req[5]) != len - 6) return "MBAP length does not match the request";
+  return NULL;
+}
+
+/* Answers one decoded request; -1 if the connection should go. */
+static int answer(ts_mbplane *m, int i, const uint8_t *req, int len) {
+  const char *bad = bad_header(req, len);
+  if (bad != NULL) {
+    mb_log(m, "modbus client %s dropped: %s", m->peer[i], bad);
+    return -1;
+  }
+  int function = req[modbus_get_header_length(m->mb)];
+  m->o.refresh(m->o.ctx, m->map->tab_input_registers, m->map->tab_bits);
+  if (is_coil_write(function) && !m->o.control) {
+    mb_log(m, "modbus client %s: coil write refused (the daemon runs without --modbus-control)", m->peer[i]);
+    return modbus_reply_exception(m->mb, req, MODBUS_EXCEPTION_ILLEGAL_FUNCTION) < 0 ? -1 : 0; /* EOF: dropped */
+  }
+  uint8_t before[TS_MB_MAX_COILS];
+  memcpy(before, m->map->tab_bits, (size_t)m->o.ncoils);
+  if (modbus_reply(m->mb, req, len, m->map) < 0) {
+    mb_log(m, "modbus client %s dropped: %s", m->peer[i], modbus_strerror(errno));
+    return -1;
+  }
+  /* libmodbus validated the write and applied it to the map: pass every
+   * coil it changed on to the daemon. */
+  for (int c = 0; c < m->o.ncoils && is_coil_write(function); c++)
+    if (m->map->tab_bits[c] != before[c] && m->o.write(m->o.ctx, c, m->map->tab_bits[c]) != 0)
+      mb_log(m, "modbus client %s: coil %d could not be set to %d", m->peer[i], c, m->map->tab_bits[c]);
+  return 0;
+}
+
+static void serve_client(ts_mbplane *m, int i) {
+  uint8_t req[MODBUS_TCP_MAX_ADU_LENGTH];
+  modbus_set_socket(m->mb, m->fd[i]);
+  int len = modbus_receive(m->mb, req);
+  if (len == 0) return; /* addressed to another unit: ignored */
+  if (len < 0) {
+    drop_client(m, i, errno == ECONNRESET || errno == 0 ? NULL : modbus_strerror(errno));
+    return;
+  }
+  if (answer(m, i, req, len) != 0) drop_client(m, i, NULL);
+}
+
+static void *plane_thread(void *arg) {
+  ts_mbplane *m = arg;
+  for (;;) {
+    struct pollfd pf[MB_MAX_CLIENTS + 2];
+    pf[0] = (struct pollfd){m->wake[0], POLLIN, 0};
+    pf[1] = (struct pollfd){m->lfd, POLLIN, 0};
+    for (int i = 0; i < m->n; i++) pf[i + 2] = (struct pollfd){m->fd[i], POLLIN, 0};
+    int n = m->n;
+    if (poll(pf, (nfds_t)n + 2, -1) < 0 && errno != EINTR) break;
+    if (pf[0].revents) break;
+    /* Backwards: drop_client moves the last client into the slot. */
+    for (int i = n - 1; i >= 0; i--)
+      if (pf[i + 2].revents) serve_client(m, i);
+    if (pf[1].revents & POLLIN) accept_client(m);
+  }
+  return NULL;
+}
+
+static void plane_free(ts_mbplane *m) {
+  for (int i = 0; i < m->n; i++) close(m->fd[i]);
+  if (m->lfd >= 0) close(m->lfd);
+  for (int k = 0; k < 2; k++)
+    if (m->wake[k] >= 0) close(m->wake[k]);
+  if (m->map) modbus_mapping_free(m->map);
+  if (m->mb) {
+    modbus_set_socket(m->mb, -1);
+    modbus_free(m->mb);
+  }
+  free(m);
+}
+
+int ts_mbplane_start(ts_mbplane **out, const ts_mbplane_opts *o, int *port, char *err) {
+  *out = NULL;
+  if (o->ninput < 0 || o->ninput > TS_MB_MAX_INPUT || o->ncoils < 0 || o->ncoils > TS_MB_MAX_COILS ||
+      (o->ncoils > 0 && o->write == NULL) || o->refresh == NULL)
+    return ts_error(err, TS_EINVAL, "bad Modbus register map");
+  ts_mbplane *m = calloc(1, sizeof(*m));
+  if (m == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+  m->o = *o;
+  m->lfd = m->wake[0] = m->wake[1] = -1;
+  int rc = ts_net_listen(o->listen, &m->lfd, port, err);
+  if (rc == 0 && pipe(m->wake) != 0) rc = ts_error(err, TS_EIO, "pipe: %s", strerror(errno));
+  /* The context only parses and answers; the address is never used. */
+  if (rc == 0 && (m->mb = modbus_new_tcp("127.0.0.1", MODBUS_TCP_DEFAULT_PORT)) == NULL)
+    rc = ts_error(err, TS_ENOMEM, "cannot create a Modbus context: %s", modbus_strerror(errno));
+  if (rc == 0 && (m->map = modbus_mapping_new(o->ncoils, 0, 0, o->ninput)) == NULL)
+    rc = ts_error(err, TS_ENOMEM, "cannot allocate the Modbus register map");
+  if (rc == 0) modbus_set_indication_timeout(m->mb, MB_REQUEST_SECONDS, 0);
+  if (rc == 0 && pthread_create(&m->thread, NULL, plane_thread, m) != 0)
+    rc = ts_error(err, TS_ENOMEM, "cannot start the Modbus thread");
+  if (rc != 0) {
+    plane_free(m);
+    return rc;
+  }
+  *out = m;
+  return 0;
+}
+
+void ts_mbplane_stop(ts_mbplane *m) {
+  if (m == NULL) return;
+  ssize_t k = write(m->wake[1], "x", 1);
+  (void)k;
+  pthread_join(m->thread, NULL);
+  plane_free(m);
+}

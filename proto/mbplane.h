@@ -1,0 +1,49 @@
+/* mbplane.h - a daemon's Modbus TCP monitoring and control plane.
+ *
+ * Every daemon can serve its state as a Modbus register map (input
+ * registers: read-only values; coils: switches such as `drain`) to any
+ * Modbus client - SCADA software, mbpoll, the coordinator's own poller.
+ * The plane runs in its own thread with its own sockets: a slow or hostile
+ * Modbus client can stall only that thread, never scanning or jobs.
+ * Requests are decoded and answered by libmodbus; malformed ones get a
+ * Modbus exception or a dropped connection.
+ *
+ * Values longer than 16 bits take 2 (u32) or 4 (u64) consecutive
+ * registers, most significant word first (ts_mb_put32/64). */
+#ifndef TS_MBPLANE_H
+#define TS_MBPLANE_H
+
+#include <stdint.h>
+
+#define TS_MB_MAX_INPUT 256 /* input registers a map may have */
+#define TS_MB_MAX_COILS 16
+
+typedef struct ts_mbplane ts_mbplane;
+
+/* Fills the input registers and coils with the daemon's current state;
+ * called in the plane's thread before every request is answered. */
+typedef void ts_mb_refresh_fn(void *ctx, uint16_t *input, uint8_t *coils);
+/* A client wrote `value` to coil `addr` (only with control on). 0, or a
+ * negative TS_E* code: the client then gets a Modbus exception. */
+typedef int ts_mb_write_fn(void *ctx, int addr, int value);
+
+typedef struct {
+  const char *listen;   /* ADDR:PORT; port 0 picks one */
+  int control;          /* accept coil writes (else: exception 01) */
+  int ninput, ncoils;   /* map size */
+  ts_mb_refresh_fn *refresh;
+  ts_mb_write_fn *write; /* may be NULL when ncoils is 0 */
+  void *ctx;
+  void (*log)(const char *msg); /* refused writes, dropped clients (may be NULL) */
+} ts_mbplane_opts;
+
+/* Listens and starts the plane's thread; *port gets the bound port. */
+int ts_mbplane_start(ts_mbplane **out, const ts_mbplane_opts *o, int *port, char *err);
+/* Stops the thread and closes every socket. */
+void ts_mbplane_stop(ts_mbplane *m);
+
+/* Stores v at regs[at..] as 2 or 4 registers, most significant first. */
+void ts_mb_put32(uint16_t *regs, int at, uint32_t v);
+void ts_mb_put64(uint16_t *regs, int at, uint64_t v);
+
+#endif
