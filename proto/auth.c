@@ -38,7 +38,7 @@ void ts_auth_clear(ts_auth *a) { sodium_memzero(a, sizeof(*a)); }
 static int check_mode(const char *path, const struct stat *sb, char *err) {
   if (!S_ISREG(sb->st_mode)) return ts_error(err, TS_EINVAL, "secret file %s is not a regular file", path);
   if (sb->st_mode & (S_IRWXG | S_IRWXO))
-    return ts_error(err, TS_EAUTH, "secret file %s is accessible by group or others (mode %04o); run: chmod 600 %s",
+    return ts_error(err, TS_EINVAL, "secret file %s is accessible by group or others (mode %04o); run: chmod 600 %s",
                     path, (unsigned)(sb->st_mode & 07777), path);
   return 0;
 }
