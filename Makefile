@@ -26,7 +26,7 @@ endif
 WARN = -Wall -Wextra -Werror -Wstrict-prototypes -Wno-missing-field-initializers
 CFLAGS_ALL = -std=c11 -D_GNU_SOURCE $(WARN) $(OPT) -g $(SANFLAGS) -Icommon -Iserver -Iproto -Iworker $(CFLAGS)
 CXXFLAGS_ALL = -std=c++17 -Wall -Wextra -Werror $(OPT) -g $(SANFLAGS) -Icommon $(CXXFLAGS)
-LIBS = -lOpenImageIO -lOpenImageIO_Util -lmodbus -lpthread -lm $(LDLIBS)
+LIBS = -lOpenImageIO -lOpenImageIO_Util -lmodbus -lsodium -lpthread -lm $(LDLIBS)
 LDFLAGS_ALL = $(SANFLAGS) $(LDFLAGS)
 
 # Mains: everything else in these folders goes into the library.

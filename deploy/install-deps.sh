@@ -7,6 +7,7 @@ PACKAGES=(
   build-essential pkg-config
   libopenimageio-dev openimageio-tools # image I/O (OpenImageIO) + oiiotool for tests
   libmodbus-dev                        # Modbus TCP monitoring plane
+  libsodium-dev                        # HMAC-SHA-256 connection authentication
   libcmocka-dev                        # unit tests
   python3-pytest                       # integration tests
   valgrind                             # make test-valgrind

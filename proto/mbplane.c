@@ -68,7 +68,7 @@ static void drop_client(ts_mbplane *m, int i, const char *why) {
 static void accept_client(ts_mbplane *m) {
   int fd;
   char peer[TS_NET_ADDR_LEN];
-  if (ts_net_accept(m->lfd, &fd, peer, sizeof(peer)) != 0) return;
+  if (ts_net_accept(m->lfd, &fd, peer, sizeof(peer), NULL) != 0) return;
   if (m->n == MB_MAX_CLIENTS) {
     mb_log(m, "modbus client %s refused: %d clients already connected", peer, MB_MAX_CLIENTS);
     close(fd);

@@ -78,6 +78,29 @@ int ts_msg_ident_read(const ts_frame *f, ts_msg_ident *m, char *err) {
   return 0;
 }
 
+/* ---- A ------------------------------------------------------------------ */
+
+static int auth_has_nonce(uint8_t step) { return step == TS_AUTH_CHALLENGE || step == TS_AUTH_RESPONSE; }
+static int auth_has_mac(uint8_t step) { return step == TS_AUTH_RESPONSE || step == TS_AUTH_PROOF; }
+
+void ts_msg_auth_write(ts_wr *w, const ts_msg_auth *m) {
+  ts_wr_u8(w, m->step);
+  if (auth_has_nonce(m->step)) ts_wr_bytes(w, m->nonce, TS_AUTH_NONCE);
+  if (auth_has_mac(m->step)) ts_wr_bytes(w, m->mac, TS_AUTH_MAC);
+}
+
+int ts_msg_auth_read(const ts_frame *f, ts_msg_auth *m, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  memset(m, 0, sizeof(*m));
+  m->step = ts_rd_u8(&r);
+  if (r.failed || m->step < TS_AUTH_CHALLENGE || m->step > TS_AUTH_PROOF) return bad(err, 'A', "unknown step");
+  const uint8_t *p;
+  if (auth_has_nonce(m->step) && (p = ts_rd_bytes(&r, TS_AUTH_NONCE)) != NULL) memcpy(m->nonce, p, TS_AUTH_NONCE);
+  if (auth_has_mac(m->step) && (p = ts_rd_bytes(&r, TS_AUTH_MAC)) != NULL) memcpy(m->mac, p, TS_AUTH_MAC);
+  return finish(&r, err, 'A');
+}
+
 /* ---- C ------------------------------------------------------------------ */
 
 void ts_msg_calib_req_write(ts_wr *w, const ts_msg_calib_req *m) { ts_wr_u32(w, m->millis); }

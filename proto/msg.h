@@ -8,8 +8,9 @@
  * not copied: the decoded struct points into the payload, valid as long as
  * the frame is.
  *
- * Data plane (coordinator <-> worker): I identify, C calibrate, N load
- * slice, V query batch, Q unload, H heartbeat, E error.
+ * Connection start (every connection): I identify, A authenticate.
+ * Data plane (coordinator <-> worker): C calibrate, N load slice, V query
+ * batch, Q unload, H heartbeat, E error.
  * Job plane (client <-> coordinator): I identify, S submit, W status/watch,
  * F fetch, X cancel, D delete, P pool. */
 #ifndef TS_MSG_H
@@ -23,6 +24,7 @@
 
 enum {
   TS_MSG_IDENT = 'I',
+  TS_MSG_AUTH = 'A',
   TS_MSG_CALIBRATE = 'C',
   TS_MSG_SLICE = 'N',
   TS_MSG_QUERY = 'V',
@@ -44,6 +46,9 @@ enum { TS_ROLE_COORD = 1, TS_ROLE_WORKER = 2, TS_ROLE_CLIENT = 3 };
 #define TS_CAP_PARITY 0x2u /* parity classes */
 #define TS_CAP_USAGE 0x4u  /* usage penalty replicas */
 #define TS_CAP_ALL (TS_CAP_MASK | TS_CAP_PARITY | TS_CAP_USAGE)
+/* The sender has a shared secret and runs the 'A' exchange (auth.h). Not in
+ * TS_CAP_ALL: it says how this process is configured, not what it can do. */
+#define TS_CAP_AUTH 0x8u
 #define TS_MSG_NAME_MAX 128
 
 typedef struct {
@@ -56,6 +61,26 @@ typedef struct {
 
 void ts_msg_ident_write(ts_wr *w, const ts_msg_ident *m);
 int ts_msg_ident_read(const ts_frame *f, ts_msg_ident *m, char *err);
+
+/* ---- A: authenticate --------------------------------------------------- */
+
+/* Three steps after the 'I' exchange when both sides have a secret: the
+ * accepting side's challenge (its nonce), the connecting side's response
+ * (its nonce and its proof), the accepting side's proof. auth.h computes
+ * the proofs; this is only their wire form. */
+#define TS_AUTH_NONCE 32
+#define TS_AUTH_MAC 32
+enum { TS_AUTH_CHALLENGE = 1, TS_AUTH_RESPONSE = 2, TS_AUTH_PROOF = 3 };
+
+typedef struct {
+  uint8_t step;                 /* TS_AUTH_* */
+  uint8_t nonce[TS_AUTH_NONCE]; /* challenge and response */
+  uint8_t mac[TS_AUTH_MAC];     /* response and proof */
+} ts_msg_auth;
+
+void ts_msg_auth_write(ts_wr *w, const ts_msg_auth *m);
+/* Strict: the payload size must be exactly the step's. */
+int ts_msg_auth_read(const ts_frame *f, ts_msg_auth *m, char *err);
 
 /* ---- C: calibrate ------------------------------------------------------- */
 

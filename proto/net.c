@@ -136,7 +136,7 @@ int ts_net_connect(const char *addr, int timeout_ms, int *fd_out, char *err) {
   return 0;
 }
 
-int ts_net_accept(int lfd, int *fd_out, char *peer, size_t peercap) {
+int ts_net_accept(int lfd, int *fd_out, char *peer, size_t peercap, struct sockaddr_storage *addr) {
   struct sockaddr_storage ss;
   socklen_t sl = sizeof(ss);
   int fd = accept4(lfd, (struct sockaddr *)&ss, &sl, SOCK_CLOEXEC);
@@ -151,6 +151,7 @@ int ts_net_accept(int lfd, int *fd_out, char *peer, size_t peercap) {
     port = ntohs(((struct sockaddr_in6 *)&ss)->sin6_port);
   }
   snprintf(peer, peercap, "%s:%d", host, port);
+  if (addr != NULL) *addr = ss;
   ts_net_tune(fd);
   *fd_out = fd;
   return 0;
@@ -202,6 +203,20 @@ void ts_conn_close(ts_conn *c) {
   if (c->fd >= 0) close(c->fd);
   c->fd = -1;
   ts_frame_reader_free(&c->rd);
+}
+
+void ts_conn_close_after_error(ts_conn *c, int timeout_ms) {
+  shutdown(c->fd, SHUT_WR);
+  double deadline = ts_now() + timeout_ms / 1000.0;
+  for (;;) {
+    int left = (int)((deadline - ts_now()) * 1000.0);
+    struct pollfd p = {c->fd, POLLIN, 0};
+    if (left <= 0 || poll(&p, 1, left) <= 0) break;
+    uint8_t buf[4096];
+    ssize_t k = recv(c->fd, buf, sizeof(buf), MSG_DONTWAIT);
+    if (k == 0 || (k < 0 && errno != EAGAIN && errno != EINTR)) break;
+  }
+  ts_conn_close(c);
 }
 
 int ts_conn_next(ts_conn *c, ts_frame *f, char *err) {

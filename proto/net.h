@@ -9,6 +9,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include <sys/socket.h>
+
 #include "frame.h"
 
 #define TS_NET_ADDR_LEN 128
@@ -19,8 +21,9 @@ int ts_net_split(const char *addr, char *host, size_t hostcap, int *port, char *
 int ts_net_listen(const char *addr, int *fd_out, int *port_out, char *err);
 /* Connects to addr within timeout_ms. */
 int ts_net_connect(const char *addr, int timeout_ms, int *fd_out, char *err);
-/* Accepts a connection (blocking); peer gets "ip:port". */
-int ts_net_accept(int lfd, int *fd_out, char *peer, size_t peercap);
+/* Accepts a connection (blocking); peer gets "ip:port", addr (if not
+ * NULL) the peer's address as the kernel gave it. */
+int ts_net_accept(int lfd, int *fd_out, char *peer, size_t peercap, struct sockaddr_storage *addr);
 /* Sets TCP_NODELAY and keepalive on a connected socket. */
 void ts_net_tune(int fd);
 
@@ -36,6 +39,11 @@ typedef struct {
 void ts_conn_init(ts_conn *c, int fd, uint32_t max_payload, const char *peer);
 /* Closes the socket and frees the reader. */
 void ts_conn_close(ts_conn *c);
+/* Closes after a final 'E' to a refused peer: half-closes, then discards
+ * what the peer still sends until it closes (at most timeout_ms). Closing
+ * with its bytes unread would reset the connection, and a reset may
+ * destroy the 'E' before the peer reads it. */
+void ts_conn_close_after_error(ts_conn *c, int timeout_ms);
 /* Next frame, waiting at most timeout_ms (-1 = forever): 1 and *f, or
  * TS_ETIMEDOUT, TS_ECONN (peer closed or reset), TS_EPROTO / TS_ETOOBIG
  * (bad stream: close it). *f stays valid until the next call. */

@@ -75,6 +75,8 @@ static void usage_synth(FILE *f) {
           "  --embedded           run in-process even if $TEXSYN_SERVER is set\n"
           "  --detach             with --server: print the job id and return at once\n"
           "                       (then texsyn watch/fetch ID)\n"
+          "  --secret-file PATH   with --server: the shared secret the coordinator\n"
+          "                       requires (default: $TEXSYN_SECRET_FILE if set)\n"
           "\n"
           "TEXSYN_SIMD=scalar|mmx|sse2|avx2|avx512 forces a kernel variant.\n",
           TS_MRF_MAX_LEVELS, DEFAULT_THREADS, (unsigned long long)TS_IMAGE_DEFAULT_MAX_PIXELS);
@@ -161,7 +163,7 @@ static void progress_draw(void *ctx, const ts_mrf_progress *p) {
 
 typedef struct {
   ts_mrf_params p;
-  const char *ref, *out, *copy_map, *copy_map_raw, *usage_map, *report, *server;
+  const char *ref, *out, *copy_map, *copy_map_raw, *usage_map, *report, *server, *secret_file;
   int threads, quiet, have_size, detach, embedded;
 } synth_opts;
 
@@ -169,7 +171,7 @@ enum {
   OPT_REF = 256, OPT_SIZE, OPT_LEVELS, OPT_WN, OPT_WB, OPT_PARITY, OPT_USAGE, OPT_COARSE,
   OPT_SEED, OPT_RGB, OPT_THREADS, OPT_COPY, OPT_COPY_RAW, OPT_USAGE_MAP, OPT_REPORT,
   OPT_MAXPIX, OPT_STOP, OPT_REFINE, OPT_QUIET, OPT_HELP, OPT_IMAGE, OPT_SAMPLES, OPT_BLOCK,
-  OPT_SERVER, OPT_DETACH, OPT_EMBEDDED
+  OPT_SERVER, OPT_DETACH, OPT_EMBEDDED, OPT_SECRET
 };
 
 static const struct option synth_longopts[] = {
@@ -196,6 +198,7 @@ static const struct option synth_longopts[] = {
     {"server", required_argument, 0, OPT_SERVER},
     {"detach", no_argument, 0, OPT_DETACH},
     {"embedded", no_argument, 0, OPT_EMBEDDED},
+    {"secret-file", required_argument, 0, OPT_SECRET},
     {"help", no_argument, 0, OPT_HELP},
     {0, 0, 0, 0}};
 
@@ -226,6 +229,7 @@ static int synth_option(synth_opts *o, int c, const char *arg, char *err) {
   case OPT_SERVER: o->server = arg; break;
   case OPT_DETACH: o->detach = 1; break;
   case OPT_EMBEDDED: o->embedded = 1; break;
+  case OPT_SECRET: o->secret_file = arg; break;
   default: rc = ts_error(err, TS_EINVAL, "unknown option (see texsyn synth --help)");
   }
   return rc;
@@ -319,6 +323,17 @@ static uint8_t *slurp(const char *path, uint32_t *len, char *err) {
   *len = (uint32_t)size;
   fclose(f);
   return buf;
+}
+
+/* Connects to a coordinator with the shared secret from --secret-file
+ * (path), else $TEXSYN_SECRET_FILE, else none. */
+static int connect_server(ts_conn *c, const char *addr, const char *path, char *err) {
+  if (path == NULL) path = getenv("TEXSYN_SECRET_FILE");
+  ts_auth auth = {0};
+  int rc = path != NULL && path[0] != '\0' ? ts_auth_load(&auth, path, err) : 0;
+  if (rc == 0) rc = ts_client_connect(c, addr, &auth, err);
+  ts_auth_clear(&auth);
+  return rc;
 }
 
 /* Where fetched files go, by their name on the coordinator. */
@@ -424,7 +439,7 @@ static int remote_synth(const synth_opts *o) {
   char err[TS_ERR_LEN] = "";
   ts_conn c;
   uint64_t id = 0;
-  int rc = ts_client_connect(&c, o->server, err);
+  int rc = connect_server(&c, o->server, o->secret_file, err);
   if (rc != 0) {
     fprintf(stderr, "texsyn synth: %s\n", err);
     return 1;
@@ -639,10 +654,12 @@ static const char *kJobUsage =
     "                a lasting deviation rebalanced them), slice share, state, batches\n"
     "\n"
     "  --server HOST:PORT   the coordinator (default: $TEXSYN_SERVER, else 127.0.0.1:7070)\n"
+    "  --secret-file PATH   the shared secret the coordinator requires\n"
+    "                       (default: $TEXSYN_SECRET_FILE if set)\n"
     "  --quiet              no progress bar (watch)\n";
 
 typedef struct {
-  const char *server;
+  const char *server, *secret_file;
   uint64_t id;
   int have_id, quiet;
   fetch_targets t;
@@ -654,7 +671,7 @@ static int job_parse(int argc, char **argv, job_opts *o, char *err) {
       {"copy-map", required_argument, 0, OPT_COPY},     {"copy-map-raw", required_argument, 0, OPT_COPY_RAW},
       {"usage-map", required_argument, 0, OPT_USAGE_MAP}, {"report", required_argument, 0, OPT_REPORT},
       {"quiet", no_argument, 0, OPT_QUIET},             {"help", no_argument, 0, OPT_HELP},
-      {0, 0, 0, 0}};
+      {"secret-file", required_argument, 0, OPT_SECRET}, {0, 0, 0, 0}};
   memset(o, 0, sizeof(*o));
   o->server = env_server() ? env_server() : "127.0.0.1:7070";
   optind = 1;
@@ -663,6 +680,7 @@ static int job_parse(int argc, char **argv, job_opts *o, char *err) {
   while ((c = getopt_long(argc, argv, "o:h", longopts, NULL)) != -1) {
     switch (c) {
     case OPT_SERVER: o->server = optarg; break;
+    case OPT_SECRET: o->secret_file = optarg; break;
     case 'o': o->t.out = optarg; break;
     case OPT_COPY: o->t.copy_map = optarg; break;
     case OPT_COPY_RAW: o->t.copy_map_raw = optarg; break;
@@ -747,7 +765,7 @@ static int cmd_job(const char *cmd, int argc, char **argv) {
     return 2;
   }
   ts_conn c;
-  rc = ts_client_connect(&c, o.server, err);
+  rc = connect_server(&c, o.server, o.secret_file, err);
   if (rc == 0) {
     ts_job_status st;
     if (strcmp(cmd, "status") == 0) rc = job_status(&c, &o, err);
@@ -784,6 +802,11 @@ static void usage_main(FILE *f) {
 }
 
 int main(int argc, char **argv) {
+  char err[TS_ERR_LEN];
+  if (ts_auth_init(err) != 0) {
+    fprintf(stderr, "texsyn: %s\n", err);
+    return 1;
+  }
   if (argc < 2) {
     usage_main(stderr);
     return 2;

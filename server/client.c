@@ -10,7 +10,7 @@
 /* Results can be large images: the client accepts frames up to 4 GiB. */
 #define CLIENT_MAX_FRAME UINT32_MAX
 
-int ts_client_connect(ts_conn *c, const char *addr, char *err) {
+int ts_client_connect(ts_conn *c, const char *addr, const ts_auth *auth, char *err) {
   int fd;
   int rc = ts_net_connect(addr, 5000, &fd, err);
   if (rc != 0) return rc;
@@ -20,14 +20,8 @@ int ts_client_connect(ts_conn *c, const char *addr, char *err) {
   char host[64] = "?";
   gethostname(host, sizeof(host) - 1);
   snprintf(me.name, sizeof(me.name), "%s@%s", user ? user : "?", host);
-  ts_wr w;
-  ts_wr_init(&w);
-  ts_msg_ident_write(&w, &me);
-  ts_frame f;
   ts_msg_ident peer;
-  rc = ts_client_call(c, TS_MSG_IDENT, &w, 10000, &f, err);
-  ts_wr_free(&w);
-  if (rc == 0) rc = ts_msg_ident_read(&f, &peer, err);
+  rc = ts_auth_connect(c, auth, &me, &peer, 10000, err);
   if (rc == 0 && peer.role != TS_ROLE_COORD) rc = ts_error(err, TS_EPROTO, "%s is not a texsyn-server", addr);
   if (rc != 0) ts_conn_close(c);
   return rc;

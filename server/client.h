@@ -3,11 +3,13 @@
 #ifndef TS_CLIENT_H
 #define TS_CLIENT_H
 
+#include "auth.h"
 #include "msg.h"
 #include "net.h"
 
-/* Connects to a coordinator and identifies as a client. */
-int ts_client_connect(ts_conn *c, const char *addr, char *err);
+/* Connects to a coordinator, identifies as a client and, with a secret
+ * (auth may be NULL), authenticates both ways. */
+int ts_client_connect(ts_conn *c, const char *addr, const ts_auth *auth, char *err);
 /* Sends a request and waits for its reply of the same type (timeout_ms, -1
  * forever); an 'E' reply becomes its error code and text. */
 int ts_client_call(ts_conn *c, uint8_t type, const ts_wr *payload, int timeout_ms, ts_frame *reply,

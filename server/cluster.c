@@ -112,6 +112,7 @@ void ts_cluster_opts_default(ts_cluster_opts *o) {
   o->max_frame = TS_FRAME_DEFAULT_MAX;
   o->pipeline_queries = 256;
   o->heartbeat = 2.0;
+  o->auth = NULL;
 }
 
 /* ---- frames into an output buffer ------------------------------------- */
@@ -237,21 +238,11 @@ static void ident_self(ts_msg_ident *m) {
 }
 
 int ts_cluster_adopt(ts_cluster *c, ts_conn *conn, const ts_msg_ident *ident, char *err) {
-  ts_msg_ident me;
-  ident_self(&me);
-  ts_wr wr;
-  ts_wr_init(&wr);
-  ts_msg_ident_write(&wr, &me);
-  int rc = send_frame(conn, TS_MSG_IDENT, 0, &wr, err);
-  ts_wr_free(&wr);
-  if (rc != 0) {
-    ts_conn_close(conn);
-    return rc;
-  }
   return admit(c, conn, ident, -1, err);
 }
 
-/* Connects to a listening worker and identifies both ways (no lock). */
+/* Connects to a listening worker, identifies and authenticates both ways
+ * (no lock). */
 static int dial(ts_cluster *c, const char *addr, ts_conn *conn, ts_msg_ident *ident, char *err) {
   int fd;
   int rc = ts_net_connect(addr, 2000, &fd, err);
@@ -259,14 +250,7 @@ static int dial(ts_cluster *c, const char *addr, ts_conn *conn, ts_msg_ident *id
   ts_conn_init(conn, fd, c->o.max_frame, addr);
   ts_msg_ident me;
   ident_self(&me);
-  ts_wr wr;
-  ts_wr_init(&wr);
-  ts_msg_ident_write(&wr, &me);
-  rc = send_frame(conn, TS_MSG_IDENT, 0, &wr, err);
-  ts_wr_free(&wr);
-  ts_frame f;
-  if (rc == 0) rc = await_reply(conn, TS_MSG_IDENT, 5000, &f, err);
-  if (rc == 0) rc = ts_msg_ident_read(&f, ident, err);
+  rc = ts_auth_connect(conn, c->o.auth, &me, ident, 5000, err);
   if (rc == 0 && ident->role != TS_ROLE_WORKER) rc = ts_error(err, TS_EPROTO, "%s is not a texsyn worker", addr);
   if (rc != 0) ts_conn_close(conn);
   return rc;

@@ -21,6 +21,7 @@
 
 #include <stdint.h>
 
+#include "auth.h"
 #include "msg.h"
 #include "net.h"
 #include "search.h"
@@ -39,6 +40,8 @@ typedef struct {
                                 the wire while the first is scanned (256) */
   double heartbeat;        /* seconds of silence before an idle worker is
                               pinged; no answer in 2x+1 s drops it (2; 0 off) */
+  const ts_auth *auth;     /* shared secret for dialled workers (NULL: none);
+                              must outlive the cluster */
 } ts_cluster_opts;
 
 void ts_cluster_opts_default(ts_cluster_opts *o);
@@ -51,9 +54,9 @@ void ts_cluster_destroy(ts_cluster *c);
 /* A worker listening at addr (from --workers): connected, and reconnected
  * after a failure, by the cluster's own thread. */
 int ts_cluster_add_address(ts_cluster *c, const char *addr, char *err);
-/* A worker that connected to us and identified itself (--join): the
- * cluster answers its 'I', calibrates it and takes ownership of conn (on
- * failure too: conn is closed). */
+/* A worker that connected to us (--join), past identify and
+ * authentication (ts_auth_accept): the cluster calibrates it and takes
+ * ownership of conn (on failure too: conn is closed). */
 int ts_cluster_adopt(ts_cluster *c, ts_conn *conn, const ts_msg_ident *ident, char *err);
 
 /* Pool snapshot for `texsyn workers`; returns the number of entries. */

@@ -1,10 +1,11 @@
 /* main.c - texsyn-server, the coordinator.
  *
  * One listening port serves both planes: a connection's first frame ('I')
- * says whether the peer is a worker joining the pool or a client. Workers
- * go to the cluster (cluster.c), clients get a thread that answers their
- * requests against the job queue (jobs.c). A bad peer loses its own
- * connection, never the daemon. */
+ * says whether the peer is a worker joining the pool or a client. Every
+ * peer authenticates first (auth.h; without a secret only loopback peers
+ * are let in). Workers go to the cluster (cluster.c), clients get a thread
+ * that answers their requests against the job queue (jobs.c). A bad peer
+ * loses its own connection, never the daemon. */
 #include <errno.h>
 #include <getopt.h>
 #include <inttypes.h>
@@ -19,6 +20,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "auth.h"
 #include "cluster.h"
 #include "connset.h"
 #include "error.h"
@@ -28,13 +30,18 @@
 #include "net.h"
 
 #define IDENT_TIMEOUT_MS 10000
+/* How long a refused peer gets to read its 'E' before we close. */
+#define REFUSE_LINGER_MS 1000
 
 typedef struct {
   ts_cluster *cluster;
   ts_jobs *jobs;
   uint32_t max_frame;
   int quiet;
+  ts_auth auth;
 } server;
+
+static const ts_msg_ident kSelf = {TS_ROLE_COORD, TS_CAP_ALL, 0, 0, "texsyn-server 0.3"};
 
 static server g_server;
 static volatile sig_atomic_t g_stop;
@@ -236,11 +243,6 @@ static int serve_request(ts_conn *c, const ts_frame *f, const char *client) {
 }
 
 static void serve_client(ts_conn *c, const ts_msg_ident *ident) {
-  ts_msg_ident me = {TS_ROLE_COORD, TS_CAP_ALL, 0, 0, "texsyn-server 0.3"};
-  ts_wr w;
-  ts_wr_init(&w);
-  ts_msg_ident_write(&w, &me);
-  if (reply(c, TS_MSG_IDENT, 0, &w) != 0) return;
   char client[TS_MSG_NAME_MAX];
   snprintf(client, sizeof(client), "%s", ident->name);
   while (!g_stop) {
@@ -264,6 +266,7 @@ static void serve_client(ts_conn *c, const ts_msg_ident *ident) {
 typedef struct {
   int fd;
   char peer[TS_NET_ADDR_LEN];
+  struct sockaddr_storage addr;
 } accepted;
 
 static void serve_connection(const accepted *a);
@@ -275,24 +278,29 @@ static void *connection_thread(void *arg) {
   return NULL;
 }
 
+/* Ends a connection that failed to start: a refused peer (protected
+ * mode, wrong or missing secret) or one that broke the protocol is told
+ * why in an 'E' and logged. */
+static void end_start(ts_conn *c, int rc, const char *err) {
+  if (rc == TS_EAUTH) logf_("refused %s: %s", c->peer, err);
+  else if (rc != TS_ECONN) logf_("protocol error from %s: %s; closing", c->peer, err);
+  if (rc != TS_ECONN) reply_error(c, 0, rc, err);
+  ts_connset_remove(&g_conns, c->fd);
+  if (rc == TS_EAUTH) ts_conn_close_after_error(c, REFUSE_LINGER_MS);
+  else ts_conn_close(c);
+}
+
 /* Takes the connection: closes it, or hands it to the cluster. */
 static void serve_connection(const accepted *ap) {
   accepted a = *ap;
   ts_conn c;
   ts_conn_init(&c, a.fd, g_server.max_frame, a.peer);
-  ts_frame f;
   ts_msg_ident ident;
   char err[TS_ERR_LEN];
-  int rc = ts_conn_recv(&c, &f, IDENT_TIMEOUT_MS, err);
-  if (rc == 1 && f.type != TS_MSG_IDENT) rc = ts_error(err, TS_EPROTO, "first message must be 'I' (identify)");
-  if (rc == 1) rc = ts_msg_ident_read(&f, &ident, err);
-  if (rc < 0 && rc != TS_ECONN) {
-    logf_("protocol error from %s: %s; closing", a.peer, err);
-    reply_error(&c, 0, rc, err);
-  }
+  int rc = ts_auth_peer_allowed(&g_server.auth, (const struct sockaddr *)&a.addr, err);
+  if (rc == 0) rc = ts_auth_accept(&c, &g_server.auth, &kSelf, &ident, IDENT_TIMEOUT_MS, err);
   if (rc < 0) {
-    ts_connset_remove(&g_conns, c.fd);
-    ts_conn_close(&c);
+    end_start(&c, rc, err);
     return;
   }
   if (ident.role == TS_ROLE_WORKER) {
@@ -343,12 +351,15 @@ static void usage(FILE *f) {
           "                            (default 100; 0 = no limit)\n"
           "  --max-spool BYTES         disk the spool's jobs may use, e.g. 500M, 20G\n"
           "                            (default 16G; 0 = no limit); texsyn delete frees it\n"
+          "  --secret-file PATH        shared secret every client and worker must prove\n"
+          "                            (owner-only file); without one only loopback\n"
+          "                            peers are accepted (protected mode)\n"
           "  --quiet                   no startup line\n",
           TS_FRAME_DEFAULT_MAX, (unsigned long long)TS_IMAGE_DEFAULT_MAX_PIXELS);
 }
 
 typedef struct {
-  const char *listen, *workers, *spool;
+  const char *listen, *workers, *spool, *secret_file;
   int jobs, quiet;
   uint64_t max_pixels, max_spool;
   uint32_t max_client_jobs;
@@ -384,7 +395,7 @@ static int bytes_opt(const char *opt, const char *s, uint64_t *out) {
 }
 
 static int parse_opts(int argc, char **argv, server_opts *o) {
-  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_QUIET, O_HELP };
+  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_SECRET, O_QUIET, O_HELP };
   static const struct option longopts[] = {
       {"listen", required_argument, 0, O_LISTEN}, {"workers", required_argument, 0, O_WORKERS},
       {"spool", required_argument, 0, O_SPOOL}, {"jobs", required_argument, 0, O_JOBS},
@@ -395,6 +406,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
       {"max-redispatch", required_argument, 0, O_REDISPATCH},
       {"max-frame", required_argument, 0, O_FRAME}, {"max-pixels", required_argument, 0, O_PIX},
       {"max-client-jobs", required_argument, 0, O_CLIENT_JOBS}, {"max-spool", required_argument, 0, O_SPOOL_MAX},
+      {"secret-file", required_argument, 0, O_SECRET},
       {"quiet", no_argument, 0, O_QUIET}, {"help", no_argument, 0, O_HELP}, {0, 0, 0, 0}};
   memset(o, 0, sizeof(*o));
   o->listen = "127.0.0.1:7070";
@@ -426,6 +438,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
     case O_PIX: rc = num("--max-pixels", optarg, 1, 1e15, &v); o->max_pixels = (uint64_t)v; break;
     case O_CLIENT_JOBS: rc = num("--max-client-jobs", optarg, 0, 1e6, &v); o->max_client_jobs = (uint32_t)v; break;
     case O_SPOOL_MAX: rc = bytes_opt("--max-spool", optarg, &o->max_spool); break;
+    case O_SECRET: o->secret_file = optarg; break;
     case O_QUIET: o->quiet = 1; break;
     case O_HELP: case 'h': usage(stdout); exit(0);
     default:
@@ -463,6 +476,11 @@ int main(int argc, char **argv) {
   if (parse_opts(argc, argv, &o) != 0) return 2;
   ts_connset_init(&g_conns);
   char err[TS_ERR_LEN];
+  if (ts_auth_init(err) != 0 || (o.secret_file != NULL && ts_auth_load(&g_server.auth, o.secret_file, err) != 0)) {
+    fprintf(stderr, "texsyn-server: %s\n", err);
+    return 2;
+  }
+  o.co.auth = &g_server.auth;
   struct sigaction sa;
   memset(&sa, 0, sizeof(sa));
   sa.sa_handler = on_signal; /* no SA_RESTART: accept() returns on a signal */
@@ -493,11 +511,13 @@ int main(int argc, char **argv) {
     printf("texsyn-server listening on %s:%d\n", host, port);
     fflush(stdout);
   }
-  logf_("listening on %s:%d, spool %s", host, port, o.spool);
+  logf_("listening on %s:%d, spool %s, %s", host, port, o.spool,
+        g_server.auth.enabled ? "peers must prove the shared secret" : "no secret: loopback peers only");
+  if (ts_auth_listen_warning(&g_server.auth, lfd, err)) logf_("%s", err);
   while (!g_stop) {
     accepted *a = malloc(sizeof(*a));
     if (a == NULL) break;
-    if (ts_net_accept(lfd, &a->fd, a->peer, sizeof(a->peer)) != 0) {
+    if (ts_net_accept(lfd, &a->fd, a->peer, sizeof(a->peer), &a->addr) != 0) {
       free(a);
       continue;
     }
@@ -521,5 +541,6 @@ int main(int argc, char **argv) {
   ts_connset_close_all(&g_conns);
   ts_jobs_destroy(g_server.jobs);
   ts_cluster_destroy(g_server.cluster);
+  ts_auth_clear(&g_server.auth);
   return 0;
 }

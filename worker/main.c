@@ -5,7 +5,8 @@
  * threads form one pool shared by every connection (one batch at a time),
  * so a worker holding slices of several jobs gives each batch all its
  * cores. Slices belong to the connection that loaded them and go when it
- * ends: a coordinator that goes away leaves nothing behind. */
+ * ends: a coordinator that goes away leaves nothing behind. Every
+ * connection authenticates first, whichever side opened it (auth.h). */
 #include <errno.h>
 #include <getopt.h>
 #include <pthread.h>
@@ -17,6 +18,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "auth.h"
 #include "calib.h"
 #include "connset.h"
 #include "error.h"
@@ -28,6 +30,8 @@
 
 #define WORKER_MAX_SLICES 64 /* per connection */
 #define HANDSHAKE_MS 10000
+/* How long a refused peer gets to read its 'E' before we close. */
+#define REFUSE_LINGER_MS 1000
 
 typedef struct {
   int threads, quiet;
@@ -37,24 +41,39 @@ typedef struct {
   ts_pool *pool;
   pthread_mutex_t pool_lock; /* ts_pool_run is not reentrant */
   ts_connset conns;
+  ts_auth auth;
 } worker;
 
 static worker g_w;
 static volatile sig_atomic_t g_stop;
 
-static void wlog(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
-static void wlog(const char *fmt, ...) {
-  if (g_w.quiet) return;
+static void vlog(const char *fmt, va_list ap) __attribute__((format(printf, 1, 0)));
+static void vlog(const char *fmt, va_list ap) {
   char buf[1200];
-  va_list ap;
-  va_start(ap, fmt);
   vsnprintf(buf, sizeof(buf), fmt, ap);
-  va_end(ap);
   time_t t = time(NULL);
   struct tm tm;
   gmtime_r(&t, &tm);
   fprintf(stderr, "texsyn-worker: %04d-%02d-%02dT%02d:%02d:%02dZ %s\n", tm.tm_year + 1900, tm.tm_mon + 1,
           tm.tm_mday, tm.tm_hour, tm.tm_min, tm.tm_sec, buf);
+}
+
+static void wlog(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+static void wlog(const char *fmt, ...) {
+  if (g_w.quiet) return;
+  va_list ap;
+  va_start(ap, fmt);
+  vlog(fmt, ap);
+  va_end(ap);
+}
+
+/* Logged even with --quiet: nothing works until it is fixed. */
+static void wwarn(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
+static void wwarn(const char *fmt, ...) {
+  va_list ap;
+  va_start(ap, fmt);
+  vlog(fmt, ap);
+  va_end(ap);
 }
 
 /* ---- one connection ------------------------------------------------------ */
@@ -78,15 +97,6 @@ static int send_error(session *s, uint32_t id, int code, const char *text) {
   ts_wr_init(&w);
   ts_msg_error_write(&w, code, text);
   return send_reply(s, TS_MSG_ERROR, id, &w);
-}
-
-static int send_ident(session *s, uint32_t id) {
-  ts_msg_ident me = {TS_ROLE_WORKER, TS_CAP_ALL, (uint16_t)g_w.threads, (uint8_t)g_w.simd->id, ""};
-  snprintf(me.name, sizeof(me.name), "texsyn-worker 0.3 %s", g_w.name);
-  ts_wr w;
-  ts_wr_init(&w);
-  ts_msg_ident_write(&w, &me);
-  return send_reply(s, TS_MSG_IDENT, id, &w);
 }
 
 static ts_slice **slot_of(session *s, uint32_t set) {
@@ -217,30 +227,45 @@ static int handle(session *s, const ts_frame *f, char *err) {
   }
 }
 
-/* Identify: a coordinator that connected to us speaks first; when we
- * joined a coordinator, we do. */
-static int handshake(session *s, int joined, char *err) {
-  ts_frame f;
-  ts_msg_ident peer;
-  int rc = joined ? send_ident(s, 0) : 0;
-  if (rc == 0) rc = ts_conn_recv(&s->conn, &f, HANDSHAKE_MS, err);
-  if (rc < 0) return rc;
-  if (f.type != TS_MSG_IDENT) return ts_error(err, TS_EPROTO, "first message must be 'I' (identify)");
-  rc = ts_msg_ident_read(&f, &peer, err);
+/* Identify and authenticate: a coordinator that connected to us speaks
+ * first, after protected mode let it in (addr: its address); when we
+ * joined a coordinator (addr NULL), we do. */
+static int handshake(session *s, const struct sockaddr *addr, char *err) {
+  ts_msg_ident me = {TS_ROLE_WORKER, TS_CAP_ALL, (uint16_t)g_w.threads, (uint8_t)g_w.simd->id, ""}, peer;
+  snprintf(me.name, sizeof(me.name), "texsyn-worker 0.3 %s", g_w.name);
+  int rc;
+  if (addr == NULL) {
+    rc = ts_auth_connect(&s->conn, &g_w.auth, &me, &peer, HANDSHAKE_MS, err);
+  } else {
+    rc = ts_auth_peer_allowed(&g_w.auth, addr, err);
+    if (rc == 0) rc = ts_auth_accept(&s->conn, &g_w.auth, &me, &peer, HANDSHAKE_MS, err);
+  }
   if (rc == 0 && peer.role != TS_ROLE_COORD) rc = ts_error(err, TS_EPROTO, "peer is not a coordinator");
-  if (rc == 0 && !joined) rc = send_ident(s, f.id);
   return rc;
 }
 
-static void serve(int fd, const char *peer, int joined) {
+/* Serves one connection until it ends; returns the handshake's result
+ * (0: the connection was established). */
+static int serve(int fd, const char *peer, const struct sockaddr *addr) {
   session *s = calloc(1, sizeof(*s));
   if (s == NULL) {
     close(fd);
-    return;
+    return TS_ENOMEM;
   }
   ts_conn_init(&s->conn, fd, g_w.max_frame, peer);
   char err[TS_ERR_LEN] = "";
-  int rc = handshake(s, joined, err);
+  int rc = handshake(s, addr, err);
+  if (rc == TS_EAUTH) {
+    /* We refused the peer, or the coordinator we joined refused us. */
+    if (addr != NULL) wwarn("refused %s: %s", peer, err);
+    else wwarn("join %s refused: %s", peer, err);
+    if (addr != NULL) send_error(s, 0, rc, err);
+    ts_connset_remove(&g_w.conns, fd);
+    ts_conn_close_after_error(&s->conn, REFUSE_LINGER_MS);
+    free(s);
+    return rc;
+  }
+  int started = rc;
   if (rc == 0) wlog("coordinator %s connected", peer);
   while (rc >= 0 && !g_stop) {
     ts_frame f;
@@ -261,6 +286,7 @@ static void serve(int fd, const char *peer, int joined) {
   ts_conn_close(&s->conn);
   free(s->best);
   free(s);
+  return started;
 }
 
 /* ---- listening and joining ----------------------------------------------- */
@@ -268,12 +294,13 @@ static void serve(int fd, const char *peer, int joined) {
 typedef struct {
   int fd;
   char peer[TS_NET_ADDR_LEN];
+  struct sockaddr_storage addr;
 } accepted;
 
 static void *serve_thread(void *arg) {
   accepted a = *(accepted *)arg;
   free(arg);
-  serve(a.fd, a.peer, 0);
+  serve(a.fd, a.peer, (const struct sockaddr *)&a.addr);
   return NULL;
 }
 
@@ -284,9 +311,9 @@ static void *join_thread(void *arg) {
     char err[TS_ERR_LEN];
     int fd;
     if (ts_net_connect(addr, 2000, &fd, err) == 0) {
-      backoff = 0.2;
-      if (ts_connset_add(&g_w.conns, fd) == 0) serve(fd, addr, 1);
-      else close(fd);
+      /* A refused handshake backs off like a failed connect. */
+      if (ts_connset_add(&g_w.conns, fd) != 0) close(fd);
+      else if (serve(fd, addr, NULL) == 0) backoff = 0.2;
     } else {
       wlog("join %s: %s; retrying in %.1fs", addr, err, backoff);
     }
@@ -310,6 +337,9 @@ static void usage(FILE *f) {
           "  --threads N          scan threads, 1..1024 (default: online CPUs, %ld here)\n"
           "  --max-frame BYTES    largest accepted frame payload (default %u)\n"
           "  --name NAME          name shown in logs and to the coordinator\n"
+          "  --secret-file PATH   shared secret the coordinator must prove and this worker\n"
+          "                       proves to it (owner-only file); without one a --listen\n"
+          "                       worker accepts loopback peers only (protected mode)\n"
           "  --quiet              no log lines\n"
           "\n"
           "TEXSYN_SIMD=scalar|mmx|sse2|avx2|avx512 forces a kernel variant.\n",
@@ -334,13 +364,14 @@ static void on_signal(int sig) {
 }
 
 int main(int argc, char **argv) {
-  enum { O_LISTEN = 256, O_JOIN, O_THREADS, O_FRAME, O_NAME, O_QUIET, O_HELP };
+  enum { O_LISTEN = 256, O_JOIN, O_THREADS, O_FRAME, O_NAME, O_SECRET, O_QUIET, O_HELP };
   static const struct option longopts[] = {
       {"listen", required_argument, 0, O_LISTEN}, {"join", required_argument, 0, O_JOIN},
       {"threads", required_argument, 0, O_THREADS}, {"max-frame", required_argument, 0, O_FRAME},
-      {"name", required_argument, 0, O_NAME}, {"quiet", no_argument, 0, O_QUIET},
+      {"name", required_argument, 0, O_NAME}, {"secret-file", required_argument, 0, O_SECRET},
+      {"quiet", no_argument, 0, O_QUIET},
       {"help", no_argument, 0, O_HELP}, {0, 0, 0, 0}};
-  const char *listen_addr = NULL, *join_addr = NULL;
+  const char *listen_addr = NULL, *join_addr = NULL, *secret_file = NULL;
   long v;
   g_w.threads = (int)sysconf(_SC_NPROCESSORS_ONLN);
   if (g_w.threads < 1) g_w.threads = 1;
@@ -355,6 +386,7 @@ int main(int argc, char **argv) {
     case O_THREADS: if (parse_num("--threads", optarg, 1, 1024, &v) != 0) return 2; g_w.threads = (int)v; break;
     case O_FRAME: if (parse_num("--max-frame", optarg, 1024, 0xFFFFFFFFL, &v) != 0) return 2; g_w.max_frame = (uint32_t)v; break;
     case O_NAME: g_w.name = optarg; break;
+    case O_SECRET: secret_file = optarg; break;
     case O_QUIET: g_w.quiet = 1; break;
     case O_HELP: case 'h': usage(stdout); return 0;
     default:
@@ -367,6 +399,10 @@ int main(int argc, char **argv) {
     return 2;
   }
   char err[TS_ERR_LEN];
+  if (ts_auth_init(err) != 0 || (secret_file != NULL && ts_auth_load(&g_w.auth, secret_file, err) != 0)) {
+    fprintf(stderr, "texsyn-worker: %s\n", err);
+    return 2;
+  }
   if (ts_l1_select(&g_w.simd, err) != 0) {
     fprintf(stderr, "texsyn-worker: %s\n", err);
     return 2;
@@ -394,7 +430,9 @@ int main(int argc, char **argv) {
     }
     printf("texsyn-worker listening on %s:%d\n", host, port);
     fflush(stdout);
-    wlog("listening on %s:%d, %d threads, %s kernels", host, port, g_w.threads, g_w.simd->name);
+    wlog("listening on %s:%d, %d threads, %s kernels, %s", host, port, g_w.threads, g_w.simd->name,
+         g_w.auth.enabled ? "peers must prove the shared secret" : "no secret: loopback peers only");
+    if (ts_auth_listen_warning(&g_w.auth, lfd, err)) wwarn("%s", err);
   }
   pthread_t joiner;
   int joining = join_addr != NULL && pthread_create(&joiner, NULL, join_thread, (void *)join_addr) == 0;
@@ -404,7 +442,7 @@ int main(int argc, char **argv) {
       continue;
     }
     accepted *a = malloc(sizeof(*a));
-    if (a == NULL || ts_net_accept(lfd, &a->fd, a->peer, sizeof(a->peer)) != 0) {
+    if (a == NULL || ts_net_accept(lfd, &a->fd, a->peer, sizeof(a->peer), &a->addr) != 0) {
       free(a);
       continue;
     }
@@ -423,5 +461,6 @@ int main(int argc, char **argv) {
   if (joining) pthread_join(joiner, NULL);
   ts_connset_close_all(&g_w.conns);
   ts_pool_destroy(g_w.pool);
+  ts_auth_clear(&g_w.auth);
   return 0;
 }

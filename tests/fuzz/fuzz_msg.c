@@ -22,7 +22,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   if (size == 0) return 0;
   ts_frame f = {data[0], 1, (uint32_t)(size - 1), data + 1};
   char err[TS_ERR_LEN];
-  switch (data[0] % 12) {
+  switch (data[0] % 13) {
   case 0: { ts_msg_ident m; ts_msg_ident_read(&f, &m, err); break; }
   case 1: { ts_msg_calib_req m; ts_msg_calib_req_read(&f, &m, err); ts_msg_calib c; ts_msg_calib_read(&f, &c, err); break; }
   case 2: {
@@ -76,6 +76,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   case 9: { ts_msg_files m; ts_msg_files_read(&f, &m, err); break; }
   case 10: { ts_worker_info w[4]; uint32_t n; ts_msg_pool_read(&f, w, 4, &n, err); break; }
   case 11: { ts_jobspec s; ts_jobspec_parse((const char *)f.payload, f.len, &s, err); break; }
+  case 12: { ts_msg_auth m; ts_msg_auth_read(&f, &m, err); break; }
   }
   return 0;
 }

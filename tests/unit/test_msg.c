@@ -39,6 +39,7 @@ static int rd_answer(const ts_frame *f, void *o, char *e) { return ts_msg_answer
 static int rd_submit(const ts_frame *f, void *o, char *e) { return ts_msg_submit_read(f, o, e); }
 static int rd_files(const ts_frame *f, void *o, char *e) { return ts_msg_files_read(f, o, e); }
 static int rd_error(const ts_frame *f, void *o, char *e) { return ts_msg_error_read(f, o, e); }
+static int rd_auth(const ts_frame *f, void *o, char *e) { return ts_msg_auth_read(f, o, e); }
 
 static void ident_round_trip(void **state) {
   (void)state;
@@ -301,8 +302,42 @@ static void jobspec_refuses_bad_lines(void **state) {
   assert_non_null(strstr(err, "line 2"));
 }
 
+/* Each step has one exact size (33, 65, 33 bytes); unknown steps and the
+ * size of another step are refused. */
+static void auth_steps_round_trip_and_are_exact(void **state) {
+  (void)state;
+  const size_t sizes[] = {0, 1 + TS_AUTH_NONCE, 1 + TS_AUTH_NONCE + TS_AUTH_MAC, 1 + TS_AUTH_MAC};
+  char err[TS_ERR_LEN];
+  for (uint8_t step = TS_AUTH_CHALLENGE; step <= TS_AUTH_PROOF; step++) {
+    ts_msg_auth in, out;
+    in.step = step;
+    for (int i = 0; i < TS_AUTH_NONCE; i++) in.nonce[i] = (uint8_t)(i + 1);
+    for (int i = 0; i < TS_AUTH_MAC; i++) in.mac[i] = (uint8_t)(0xA0 + i);
+    ts_wr w;
+    ts_wr_init(&w);
+    ts_msg_auth_write(&w, &in);
+    assert_int_equal(w.len, sizes[step]);
+    ts_frame f = frame_of(&w, 'A');
+    assert_int_equal(ts_msg_auth_read(&f, &out, err), 0);
+    assert_int_equal(out.step, step);
+    if (step != TS_AUTH_PROOF) assert_memory_equal(out.nonce, in.nonce, TS_AUTH_NONCE);
+    if (step != TS_AUTH_CHALLENGE) assert_memory_equal(out.mac, in.mac, TS_AUTH_MAC);
+    assert_exact(&w, 'A', rd_auth, &out);
+    ts_wr_free(&w);
+  }
+  uint8_t buf[1 + TS_AUTH_NONCE + TS_AUTH_MAC] = {0};
+  const uint8_t bad_steps[] = {0, 4, 0xFF};
+  for (size_t i = 0; i < sizeof(bad_steps); i++) {
+    buf[0] = bad_steps[i];
+    ts_frame f = {'A', 0, 1 + TS_AUTH_NONCE, buf};
+    ts_msg_auth out;
+    assert_int_equal(ts_msg_auth_read(&f, &out, err), TS_EPROTO);
+  }
+}
+
 static const struct CMUnitTest tests[] = {
     cmocka_unit_test(ident_round_trip),
+    cmocka_unit_test(auth_steps_round_trip_and_are_exact),
     cmocka_unit_test(slice_round_trip),
     cmocka_unit_test(slice_geometry_is_checked),
     cmocka_unit_test(query_round_trip_with_commits),
