@@ -507,13 +507,13 @@ int main(int argc, char **argv) {
   char host[TS_NET_ADDR_LEN];
   int p0;
   ts_net_split(o.listen, host, sizeof(host), &p0, err);
-  if (!o.quiet) {
-    printf("texsyn-server listening on %s:%d\n", host, port);
-    fflush(stdout);
-  }
   logf_("listening on %s:%d, spool %s, %s", host, port, o.spool,
         g_server.auth.enabled ? "peers must prove the shared secret" : "no secret: loopback peers only");
   if (ts_auth_listen_warning(&g_server.auth, lfd, err)) logf_("%s", err);
+  if (!o.quiet) { /* last: whoever waits for this line finds the log written */
+    printf("texsyn-server listening on %s:%d\n", host, port);
+    fflush(stdout);
+  }
   while (!g_stop) {
     accepted *a = malloc(sizeof(*a));
     if (a == NULL) break;

@@ -428,11 +428,11 @@ int main(int argc, char **argv) {
       fprintf(stderr, "texsyn-worker: %s\n", err);
       return 1;
     }
-    printf("texsyn-worker listening on %s:%d\n", host, port);
-    fflush(stdout);
     wlog("listening on %s:%d, %d threads, %s kernels, %s", host, port, g_w.threads, g_w.simd->name,
          g_w.auth.enabled ? "peers must prove the shared secret" : "no secret: loopback peers only");
     if (ts_auth_listen_warning(&g_w.auth, lfd, err)) wwarn("%s", err);
+    printf("texsyn-worker listening on %s:%d\n", host, port); /* last: the log is written */
+    fflush(stdout);
   }
   pthread_t joiner;
   int joining = join_addr != NULL && pthread_create(&joiner, NULL, join_thread, (void *)join_addr) == 0;
