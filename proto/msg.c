@@ -62,6 +62,7 @@ void ts_msg_ident_write(ts_wr *w, const ts_msg_ident *m) {
   ts_wr_u16(w, m->threads);
   ts_wr_u8(w, m->simd);
   ts_wr_str(w, m->name);
+  if (m->modbus_port != 0) ts_wr_u16(w, m->modbus_port);
 }
 
 int ts_msg_ident_read(const ts_frame *f, ts_msg_ident *m, char *err) {
@@ -72,6 +73,7 @@ int ts_msg_ident_read(const ts_frame *f, ts_msg_ident *m, char *err) {
   m->threads = ts_rd_u16(&r);
   m->simd = ts_rd_u8(&r);
   ts_rd_str(&r, m->name, sizeof(m->name));
+  m->modbus_port = r.len - r.off == 2 ? ts_rd_u16(&r) : 0; /* optional trailing field */
   if (finish(&r, err, 'I') != 0) return TS_EPROTO;
   if (m->role < TS_ROLE_COORD || m->role > TS_ROLE_CLIENT) return bad(err, 'I', "unknown role");
   if (m->simd >= TS_SIMD_COUNT) return bad(err, 'I', "unknown kernel variant");

@@ -57,6 +57,7 @@ typedef struct {
   uint16_t threads; /* scan threads (workers), 0 otherwise */
   uint8_t simd;     /* ts_simd of the kernel in use */
   char name[TS_MSG_NAME_MAX]; /* software and version, free text */
+  uint16_t modbus_port; /* the sender's Modbus plane, 0 if none (optional on the wire) */
 } ts_msg_ident;
 
 void ts_msg_ident_write(ts_wr *w, const ts_msg_ident *m);

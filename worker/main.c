@@ -23,6 +23,7 @@
 #include "connset.h"
 #include "error.h"
 #include "l1.h"
+#include "monitor.h"
 #include "msg.h"
 #include "net.h"
 #include "pool.h"
@@ -42,6 +43,7 @@ typedef struct {
   pthread_mutex_t pool_lock; /* ts_pool_run is not reentrant */
   ts_connset conns;
   ts_auth auth;
+  int modbus_port; /* 0: no Modbus plane */
 } worker;
 
 static worker g_w;
@@ -93,6 +95,7 @@ static int send_reply(session *s, uint8_t type, uint32_t id, ts_wr *w) {
 }
 
 static int send_error(session *s, uint32_t id, int code, const char *text) {
+  ts_wmon_error();
   ts_wr w;
   ts_wr_init(&w);
   ts_msg_error_write(&w, code, text);
@@ -105,11 +108,16 @@ static ts_slice **slot_of(session *s, uint32_t set) {
   return NULL;
 }
 
+/* Frees a slice and takes its vectors off the monitor's count. */
+static void drop_slice(ts_slice **slot) {
+  if (*slot == NULL) return;
+  ts_wmon_vectors(-(int64_t)ts_slice_vectors(*slot));
+  ts_slice_free(*slot);
+  *slot = NULL;
+}
+
 static void unload_all(session *s) {
-  for (int i = 0; i < WORKER_MAX_SLICES; i++) {
-    ts_slice_free(s->slices[i]);
-    s->slices[i] = NULL;
-  }
+  for (int i = 0; i < WORKER_MAX_SLICES; i++) drop_slice(&s->slices[i]);
 }
 
 /* Semantic failures return 1 after an 'E' reply (the connection stays);
@@ -124,6 +132,7 @@ static int on_calibrate(session *s, const ts_frame *f, char *err) {
   pthread_mutex_unlock(&g_w.pool_lock);
   if (rc != 0) return send_error(s, f->id, rc, "out of memory for calibration") == 0 ? 1 : rc;
   wlog("calibrated for %s: %.3g comparisons/s", s->conn.peer, (double)cal.pairs / (cal.nanos * 1e-9));
+  ts_wmon_calibrated(cal.nanos > 0 ? (uint64_t)((double)cal.pairs / (cal.nanos * 1e-9)) : 0);
   ts_wr w;
   ts_wr_init(&w);
   ts_msg_calib_write(&w, &cal);
@@ -135,7 +144,10 @@ static int on_slice(session *s, const ts_frame *f, char *err) {
   int rc = ts_msg_slice_read(f, &m, err);
   if (rc != 0) return rc;
   ts_slice *sl;
-  if (ts_slice_load(&sl, &m, err) != 0) return send_error(s, f->id, TS_EINVAL, err) == 0 ? 1 : TS_ECONN;
+  ts_wmon_loading(1);
+  rc = ts_slice_load(&sl, &m, err);
+  ts_wmon_loading(-1);
+  if (rc != 0) return send_error(s, f->id, TS_EINVAL, err) == 0 ? 1 : TS_ECONN;
   ts_slice **slot = slot_of(s, m.set);
   for (int i = 0; slot == NULL && i < WORKER_MAX_SLICES; i++)
     if (s->slices[i] == NULL) slot = &s->slices[i];
@@ -143,8 +155,9 @@ static int on_slice(session *s, const ts_frame *f, char *err) {
     ts_slice_free(sl);
     return send_error(s, f->id, TS_ETOOBIG, "too many slices on one connection") == 0 ? 1 : TS_ECONN;
   }
-  ts_slice_free(*slot);
+  drop_slice(slot);
   *slot = sl;
+  ts_wmon_vectors((int64_t)ts_slice_vectors(sl));
   ts_msg_loaded ack = {m.set, m.gen, ts_slice_vectors(sl)};
   ts_wr w;
   ts_wr_init(&w);
@@ -186,6 +199,7 @@ static int on_query(session *s, const ts_frame *f, char *err) {
     pthread_mutex_unlock(&g_w.pool_lock);
   }
   if (rc != 0) return send_error(s, f->id, rc, err) == 0 ? 1 : TS_ECONN;
+  ts_wmon_batch(q.nq);
   ts_wr w;
   ts_wr_init(&w);
   ts_msg_answer_write(&w, q.set, q.gen, (uint64_t)t0, pairs, s->best, q.nq);
@@ -200,10 +214,7 @@ static int on_unload(session *s, const ts_frame *f, char *err) {
     unload_all(s);
   } else {
     ts_slice **slot = slot_of(s, m.set);
-    if (slot != NULL) {
-      ts_slice_free(*slot);
-      *slot = NULL;
-    }
+    if (slot != NULL) drop_slice(slot);
   }
   ts_wr w;
   ts_wr_init(&w);
@@ -231,7 +242,9 @@ static int handle(session *s, const ts_frame *f, char *err) {
  * first, after protected mode let it in (addr: its address); when we
  * joined a coordinator (addr NULL), we do. */
 static int handshake(session *s, const struct sockaddr *addr, char *err) {
-  ts_msg_ident me = {TS_ROLE_WORKER, TS_CAP_ALL, (uint16_t)g_w.threads, (uint8_t)g_w.simd->id, ""}, peer;
+  ts_msg_ident me = {TS_ROLE_WORKER, TS_CAP_ALL, (uint16_t)g_w.threads, (uint8_t)g_w.simd->id, "",
+                     (uint16_t)g_w.modbus_port},
+               peer;
   snprintf(me.name, sizeof(me.name), "texsyn-worker 0.3 %s", g_w.name);
   int rc;
   if (addr == NULL) {
@@ -278,6 +291,7 @@ static int serve(int fd, const char *peer, const struct sockaddr *addr) {
   }
   if (rc == TS_ECONN) wlog("%s", err[0] ? err : "connection closed");
   else if (rc < 0) {
+    ts_wmon_error();
     wlog("protocol error from %s: %s; closing", peer, err);
     send_error(s, 0, rc, err);
   }
@@ -340,6 +354,9 @@ static void usage(FILE *f) {
           "  --secret-file PATH   shared secret the coordinator must prove and this worker\n"
           "                       proves to it (owner-only file); without one a --listen\n"
           "                       worker accepts loopback peers only (protected mode)\n"
+          "  --modbus [ADDR:]PORT serve the monitoring register map over Modbus TCP\n"
+          "                       (off by default; a bare port listens on loopback)\n"
+          "  --modbus-control     accept coil writes (drain) on the Modbus plane\n"
           "  --quiet              no log lines\n"
           "\n"
           "TEXSYN_SIMD=scalar|mmx|sse2|avx2|avx512 forces a kernel variant.\n",
@@ -358,20 +375,38 @@ static int parse_num(const char *opt, const char *s, long lo, long hi, long *out
   return 0;
 }
 
+static void modbus_log(const char *msg) { wwarn("%s", msg); }
+
+/* Starts the Modbus plane; a bare PORT means loopback. at gets HOST:PORT. */
+static int start_modbus(const char *addr, int control, char *at, char *err) {
+  char full[TS_NET_ADDR_LEN], host[TS_NET_ADDR_LEN - 8];
+  snprintf(full, sizeof(full), "%s%s", strchr(addr, ':') ? "" : "127.0.0.1:", addr);
+  int given, port;
+  int rc = ts_net_split(full, host, sizeof(host), &given, err); /* a host too long fails here */
+  if (rc == 0) rc = ts_wmon_start_modbus(full, control, modbus_log, &port, err);
+  if (rc != 0) return rc;
+  g_w.modbus_port = port;
+  snprintf(at, TS_NET_ADDR_LEN, "%s:%d", host[0] ? host : "0.0.0.0", port);
+  wlog("modbus plane on %s%s", at, control ? ", coil writes accepted" : "");
+  return 0;
+}
+
 static void on_signal(int sig) {
   (void)sig;
   g_stop = 1;
 }
 
 int main(int argc, char **argv) {
-  enum { O_LISTEN = 256, O_JOIN, O_THREADS, O_FRAME, O_NAME, O_SECRET, O_QUIET, O_HELP };
+  enum { O_LISTEN = 256, O_JOIN, O_THREADS, O_FRAME, O_NAME, O_SECRET, O_MODBUS, O_MB_CONTROL, O_QUIET, O_HELP };
   static const struct option longopts[] = {
       {"listen", required_argument, 0, O_LISTEN}, {"join", required_argument, 0, O_JOIN},
       {"threads", required_argument, 0, O_THREADS}, {"max-frame", required_argument, 0, O_FRAME},
       {"name", required_argument, 0, O_NAME}, {"secret-file", required_argument, 0, O_SECRET},
+      {"modbus", required_argument, 0, O_MODBUS}, {"modbus-control", no_argument, 0, O_MB_CONTROL},
       {"quiet", no_argument, 0, O_QUIET},
       {"help", no_argument, 0, O_HELP}, {0, 0, 0, 0}};
-  const char *listen_addr = NULL, *join_addr = NULL, *secret_file = NULL;
+  const char *listen_addr = NULL, *join_addr = NULL, *secret_file = NULL, *modbus_addr = NULL;
+  int modbus_control = 0;
   long v;
   g_w.threads = (int)sysconf(_SC_NPROCESSORS_ONLN);
   if (g_w.threads < 1) g_w.threads = 1;
@@ -387,6 +422,8 @@ int main(int argc, char **argv) {
     case O_FRAME: if (parse_num("--max-frame", optarg, 1024, 0xFFFFFFFFL, &v) != 0) return 2; g_w.max_frame = (uint32_t)v; break;
     case O_NAME: g_w.name = optarg; break;
     case O_SECRET: secret_file = optarg; break;
+    case O_MODBUS: modbus_addr = optarg; break;
+    case O_MB_CONTROL: modbus_control = 1; break;
     case O_QUIET: g_w.quiet = 1; break;
     case O_HELP: case 'h': usage(stdout); return 0;
     default:
@@ -412,6 +449,12 @@ int main(int argc, char **argv) {
     return 1;
   }
   pthread_mutex_init(&g_w.pool_lock, NULL);
+  ts_wmon_init(g_w.threads, g_w.simd->id);
+  char modbus_at[TS_NET_ADDR_LEN] = "";
+  if (modbus_addr != NULL && start_modbus(modbus_addr, modbus_control, modbus_at, err) != 0) {
+    fprintf(stderr, "texsyn-worker: --modbus %s: %s\n", modbus_addr, err);
+    return 1;
+  }
   ts_connset_init(&g_w.conns);
   struct sigaction sa;
   memset(&sa, 0, sizeof(sa));
@@ -431,7 +474,11 @@ int main(int argc, char **argv) {
     wlog("listening on %s:%d, %d threads, %s kernels, %s", host, port, g_w.threads, g_w.simd->name,
          g_w.auth.enabled ? "peers must prove the shared secret" : "no secret: loopback peers only");
     if (ts_auth_listen_warning(&g_w.auth, lfd, err)) wwarn("%s", err);
-    printf("texsyn-worker listening on %s:%d\n", host, port); /* last: the log is written */
+    printf("texsyn-worker listening on %s:%d%s%s%s\n", host, port, modbus_at[0] ? " (modbus " : "", modbus_at,
+           modbus_at[0] ? ")" : ""); /* last: the log is written */
+    fflush(stdout);
+  } else if (modbus_at[0]) {
+    printf("texsyn-worker modbus on %s\n", modbus_at);
     fflush(stdout);
   }
   pthread_t joiner;
@@ -460,6 +507,7 @@ int main(int argc, char **argv) {
   ts_connset_close_all(&g_w.conns);
   if (joining) pthread_join(joiner, NULL);
   ts_connset_close_all(&g_w.conns);
+  ts_wmon_stop_modbus();
   ts_pool_destroy(g_w.pool);
   ts_auth_clear(&g_w.auth);
   return 0;
