@@ -32,7 +32,8 @@ enum {
   TS_MB_IR_RUNNING = 34,   /* jobs running */
   TS_MB_IR_DONE = 35,      /* u32 jobs done */
   TS_MB_IR_FAILED = 37,    /* u32 jobs failed */
-  TS_MB_IR_JOB = 39,       /* u64 id of the running job that started first (0: none) */
+  TS_MB_IR_JOB = 39,       /* u64 id of the running job that started first, else
+                              of the job that ended last (0: none) */
   TS_MB_IR_PROGRESS = 43,  /* that job's progress, per mille */
   TS_MB_IR_LEVEL = 44,     /* the level it synthesises (counts down to 0) */
   TS_MB_IR_ETA = 45,       /* u32 its ETA in seconds (0xFFFFFFFF: unknown) */

@@ -36,6 +36,15 @@ struct ts_mbplane {
   int n;
 };
 
+int ts_mb_listen_addr(const char *arg, char *out, size_t cap, char *host, size_t hostcap, char *err) {
+  int n = snprintf(out, cap, "%s%s", strchr(arg, ':') ? "" : "127.0.0.1:", arg);
+  if (n < 0 || (size_t)n >= cap) return ts_error(err, TS_EINVAL, "--modbus %s: address too long", arg);
+  int port;
+  int rc = ts_net_split(out, host, hostcap, &port, err);
+  if (rc == 0 && host[0] == '\0') snprintf(host, hostcap, "0.0.0.0");
+  return rc;
+}
+
 void ts_mb_put32(uint16_t *regs, int at, uint32_t v) {
   regs[at] = (uint16_t)(v >> 16);
   regs[at + 1] = (uint16_t)v;

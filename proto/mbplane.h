@@ -13,6 +13,7 @@
 #ifndef TS_MBPLANE_H
 #define TS_MBPLANE_H
 
+#include <stddef.h>
 #include <stdint.h>
 
 #define TS_MB_MAX_INPUT 256 /* input registers a map may have */
@@ -41,6 +42,10 @@ typedef struct {
 int ts_mbplane_start(ts_mbplane **out, const ts_mbplane_opts *o, int *port, char *err);
 /* Stops the thread and closes every socket. */
 void ts_mbplane_stop(ts_mbplane *m);
+
+/* The address a --modbus argument means: a bare PORT is loopback. Writes
+ * HOST:PORT to out and the host alone to host (for display). */
+int ts_mb_listen_addr(const char *arg, char *out, size_t cap, char *host, size_t hostcap, char *err);
 
 /* Stores v at regs[at..] as 2 or 4 registers, most significant first. */
 void ts_mb_put32(uint16_t *regs, int at, uint32_t v);

@@ -488,7 +488,7 @@ int ts_msg_files_read(const ts_frame *f, ts_msg_files *m, char *err) {
 /* ---- P ------------------------------------------------------------------ */
 
 const char *ts_worker_state_name(int state) {
-  static const char *const names[TS_WORKER_STATE_COUNT] = {"calibrating", "ready", "failed"};
+  static const char *const names[TS_WORKER_STATE_COUNT] = {"calibrating", "ready", "failed", "draining"};
   return state >= 0 && state < TS_WORKER_STATE_COUNT ? names[state] : "unknown";
 }
 

@@ -277,7 +277,8 @@ typedef struct {
   uint64_t batches;
 } ts_worker_info;
 
-enum { TS_WORKER_CALIBRATING = 0, TS_WORKER_READY, TS_WORKER_FAILED, TS_WORKER_STATE_COUNT };
+/* DRAINING: its Modbus `drain` coil is set; it holds and gets no slice. */
+enum { TS_WORKER_CALIBRATING = 0, TS_WORKER_READY, TS_WORKER_FAILED, TS_WORKER_DRAINING, TS_WORKER_STATE_COUNT };
 const char *ts_worker_state_name(int state);
 
 #define TS_POOL_MAX_REPORT 256

@@ -22,6 +22,7 @@
 #include "image.h"
 #include "jobspec.h"
 #include "l1.h"
+#include "mbclient.h"
 #include "mrf.h"
 #include "outputs.h"
 #include "quality.h"
@@ -798,7 +799,8 @@ static void usage_main(FILE *f) {
           "  shuffle  random block shuffle of a reference (a baseline)\n"
           "  simd     list the L1 kernel variants this CPU supports\n"
           "  status   jobs on a coordinator (texsyn-server); also watch, fetch, cancel,\n"
-          "           delete, workers\n");
+          "           delete, workers\n"
+          "  modbus   read a daemon's Modbus register map, or set its drain/pause coil\n");
 }
 
 int main(int argc, char **argv) {
@@ -816,6 +818,7 @@ int main(int argc, char **argv) {
   if (strcmp(cmd, "quality") == 0) return cmd_quality(argc - 1, argv + 1);
   if (strcmp(cmd, "shuffle") == 0) return cmd_shuffle(argc - 1, argv + 1);
   if (strcmp(cmd, "simd") == 0) return cmd_simd();
+  if (strcmp(cmd, "modbus") == 0) return ts_mbclient_main(argc - 1, argv + 1);
   if (strcmp(cmd, "status") == 0 || strcmp(cmd, "watch") == 0 || strcmp(cmd, "fetch") == 0 ||
       strcmp(cmd, "cancel") == 0 || strcmp(cmd, "delete") == 0 || strcmp(cmd, "workers") == 0)
     return cmd_job(cmd, argc - 1, argv + 1);

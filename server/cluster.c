@@ -11,6 +11,7 @@
 
 #include <errno.h>
 #include <math.h>
+#include <modbus/modbus.h>
 #include <poll.h>
 #include <pthread.h>
 #include <stdarg.h>
@@ -23,6 +24,7 @@
 
 #include "calib.h"
 #include "error.h"
+#include "mbmap.h"
 #include "pool.h"
 #include "slice.h"
 #include "usage.h"
@@ -63,6 +65,7 @@ typedef struct {
   uint64_t answered_pairs; /* comparisons the batch's answers report */
   double answered_at;      /* when the last answer arrived */
   double heard_at;         /* when the worker last sent anything */
+  double mb_heard_at;      /* when its Modbus plane last answered */
 } cl_worker;
 
 typedef struct {
@@ -85,9 +88,10 @@ struct ts_cluster {
   ts_pool *local_pool; /* in-process scanning with no worker */
   const ts_l1_impl *simd;
   void (*log)(const char *msg);
-  pthread_t thread;
-  int stop;
+  pthread_t thread, supervisor;
+  int stop, supervising;
   pthread_cond_t wake;
+  uint64_t batches, queries; /* answered for jobs */
 };
 
 static void default_log(const char *msg) { fprintf(stderr, "texsyn-server: %s\n", msg); }
@@ -108,6 +112,7 @@ void ts_cluster_opts_default(ts_cluster_opts *o) {
   o->persist = 3.0;
   o->batch_timeout = 2.0;
   o->max_redispatch = 5;
+  o->modbus_poll = 1.0;
   o->local_threads = 2;
   o->max_frame = TS_FRAME_DEFAULT_MAX;
   o->pipeline_queries = 256;
@@ -280,7 +285,8 @@ static void heartbeat_idle(ts_cluster *c) {
   double now = ts_now();
   for (int i = 0; i < c->nw; i++) {
     cl_worker *w = c->w[i];
-    if (w->state != TS_WORKER_READY || now - w->heard_at < c->o.heartbeat) continue;
+    if ((w->state != TS_WORKER_READY && w->state != TS_WORKER_DRAINING) || now - w->heard_at < c->o.heartbeat)
+      continue;
     frame_begin(&w->out, TS_MSG_HEARTBEAT, ++c->next_frame); /* empty payload */
     w->expect = 1;
     ws[n++] = w;
@@ -326,6 +332,8 @@ static void *cluster_thread(void *arg) {
   return NULL;
 }
 
+static void *supervisor_thread(void *arg);
+
 int ts_cluster_create(ts_cluster **out, const ts_cluster_opts *o, char *err) {
   *out = NULL;
   ts_cluster *c = calloc(1, sizeof(*c));
@@ -346,6 +354,7 @@ int ts_cluster_create(ts_cluster **out, const ts_cluster_opts *o, char *err) {
     free(c);
     return ts_error(err, TS_ENOMEM, "cannot start the cluster thread");
   }
+  c->supervising = o->modbus_poll > 0 && pthread_create(&c->supervisor, NULL, supervisor_thread, c) == 0;
   *out = c;
   return 0;
 }
@@ -354,9 +363,10 @@ void ts_cluster_destroy(ts_cluster *c) {
   if (c == NULL) return;
   pthread_mutex_lock(&c->lock);
   c->stop = 1;
-  pthread_cond_signal(&c->wake);
+  pthread_cond_broadcast(&c->wake);
   pthread_mutex_unlock(&c->lock);
   pthread_join(c->thread, NULL);
+  if (c->supervising) pthread_join(c->supervisor, NULL);
   for (int i = 0; i < c->nw; i++) worker_free(c->w[i]);
   ts_pool_destroy(c->local_pool);
   pthread_mutex_destroy(&c->lock);
@@ -412,6 +422,126 @@ uint64_t ts_cluster_rebalances(ts_cluster *c) {
   uint64_t n = c->rebalances;
   pthread_mutex_unlock(&c->lock);
   return n;
+}
+
+void ts_cluster_stats_get(ts_cluster *c, ts_cluster_stats *out) {
+  memset(out, 0, sizeof(*out));
+  pthread_mutex_lock(&c->lock);
+  for (int i = 0; i < c->nw; i++)
+    if (c->w[i]->state == TS_WORKER_READY) {
+      out->ready++;
+      out->rate += (uint64_t)c->w[i]->slice_rate;
+    }
+  out->batches = c->batches;
+  out->queries = c->queries;
+  pthread_mutex_unlock(&c->lock);
+}
+
+/* ---- supervision over Modbus ------------------------------------------- */
+
+static int unloaded_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err);
+
+typedef struct {
+  int id;
+  char host[TS_NET_ADDR_LEN];
+  char port[8];
+} mb_target;
+
+/* Whom to read (lock held): live workers that announced a Modbus port,
+ * at the host their data connection comes from. */
+static int mb_targets(ts_cluster *c, mb_target *t) {
+  int n = 0;
+  for (int i = 0; i < c->nw; i++) {
+    cl_worker *w = c->w[i];
+    if (w->ident.modbus_port == 0 || (w->state != TS_WORKER_READY && w->state != TS_WORKER_DRAINING)) continue;
+    t[n].id = w->id;
+    snprintf(t[n].host, sizeof(t[n].host), "%s", w->conn.peer);
+    char *colon = strrchr(t[n].host, ':'); /* "ip:port", "[v6]:port" or "v6:port" */
+    if (colon != NULL) *colon = '\0';
+    if (t[n].host[0] == '[') {
+      memmove(t[n].host, t[n].host + 1, strlen(t[n].host));
+      t[n].host[strcspn(t[n].host, "]")] = '\0';
+    }
+    snprintf(t[n].port, sizeof(t[n].port), "%u", (unsigned)w->ident.modbus_port);
+    n++;
+  }
+  return n;
+}
+
+/* Reads a worker's common register block (no lock): 0, or -1 if its plane
+ * does not answer within half a second. */
+static int mb_read(const mb_target *t, uint16_t *regs) {
+  modbus_t *m = modbus_new_tcp_pi(t->host, t->port);
+  if (m == NULL) return -1;
+  modbus_set_response_timeout(m, 0, 500000);
+  int rc = modbus_connect(m) == 0 &&
+                   modbus_read_input_registers(m, 0, TS_MB_IR_COMMON_END, regs) == TS_MB_IR_COMMON_END
+               ? 0
+               : -1;
+  modbus_close(m);
+  modbus_free(m);
+  return rc;
+}
+
+/* Takes a worker out of the slicing and has it free every slice (lock
+ * held, so no batch is in flight): the next batch re-slices without it. */
+static void begin_drain(ts_cluster *c, cl_worker *w) {
+  w->state = TS_WORKER_DRAINING;
+  c->epoch++;
+  ts_msg_unload m = {TS_UNLOAD_ALL};
+  size_t at = frame_begin(&w->out, TS_MSG_UNLOAD, ++c->next_frame);
+  ts_msg_unload_write(&w->out, &m);
+  frame_end(&w->out, at);
+  w->expect = 1;
+  cl_traffic tr = {0, 0};
+  exchange(c, &w, 1, c->o.batch_timeout, unloaded_reply, NULL, &tr);
+  cl_log(c, "worker %d (%s) draining: its slices are handed back and it gets no new ones", w->id, w->conn.peer);
+}
+
+/* Acts on one worker's registers, or on their absence (lock held). */
+static void mb_apply(ts_cluster *c, int id, int ok, const uint16_t *regs) {
+  cl_worker *w = NULL;
+  for (int i = 0; i < c->nw && w == NULL; i++)
+    if (c->w[i]->id == id) w = c->w[i];
+  if (w == NULL || (w->state != TS_WORKER_READY && w->state != TS_WORKER_DRAINING)) return;
+  double now = ts_now(), silent = 3 * c->o.modbus_poll;
+  if (!ok) {
+    if (now - w->mb_heard_at > silent && now - w->heard_at > fmax(silent, c->o.heartbeat))
+      worker_fail(c, w, "its Modbus and data planes are both silent");
+    return;
+  }
+  w->mb_heard_at = now;
+  int draining = regs[TS_MB_IR_STATE] == TS_MB_DRAINING;
+  if (draining && w->state == TS_WORKER_READY) {
+    begin_drain(c, w);
+  } else if (!draining && w->state == TS_WORKER_DRAINING) {
+    w->state = TS_WORKER_READY;
+    c->epoch++;
+    cl_log(c, "worker %d (%s) no longer draining: it gets slices again", w->id, w->conn.peer);
+  }
+}
+
+static void *supervisor_thread(void *arg) {
+  ts_cluster *c = arg;
+  pthread_mutex_lock(&c->lock);
+  while (!c->stop) {
+    mb_target t[CL_MAX_WORKERS];
+    int n = mb_targets(c, t);
+    pthread_mutex_unlock(&c->lock);
+    uint16_t regs[CL_MAX_WORKERS][TS_MB_IR_COMMON_END];
+    int ok[CL_MAX_WORKERS];
+    for (int i = 0; i < n; i++) ok[i] = mb_read(&t[i], regs[i]) == 0;
+    pthread_mutex_lock(&c->lock);
+    for (int i = 0; i < n && !c->stop; i++) mb_apply(c, t[i].id, ok[i], regs[i]);
+    struct timespec ts;
+    clock_gettime(CLOCK_REALTIME, &ts);
+    double at = (double)ts.tv_sec + ts.tv_nsec * 1e-9 + c->o.modbus_poll;
+    ts.tv_sec = (time_t)at;
+    ts.tv_nsec = (long)((at - (double)ts.tv_sec) * 1e9);
+    if (!c->stop) pthread_cond_timedwait(&c->wake, &c->lock, &ts);
+  }
+  pthread_mutex_unlock(&c->lock);
+  return NULL;
 }
 
 /* ---- exchanges --------------------------------------------------------- */
@@ -925,6 +1055,10 @@ static int cluster_query_many(ts_search *s, const ts_search_req *req, uint32_t n
   }
   s->stats.pairs += local_pairs;
   s->stats.round_trips++;
+  pthread_mutex_lock(&c->lock);
+  c->batches += nreq;
+  c->queries += nq;
+  pthread_mutex_unlock(&c->lock);
   s->stats.scan_seconds += ts_now() - t0;
   return 0;
 }

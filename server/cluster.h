@@ -15,7 +15,13 @@
  * longer than `persist` seconds, every set is re-sliced with the measured
  * rates; shorter spikes are ignored. A worker that fails (connection lost,
  * protocol error, deadline missed) is dropped and the batch is re-asked
- * from the others; with no worker left the coordinator scans in-process. */
+ * from the others; with no worker left the coordinator scans in-process.
+ *
+ * Supervision: workers that serve a Modbus plane (proto/mbmap.h) are read
+ * every `modbus_poll` seconds, apart from the data plane. A worker whose
+ * drain coil is set hands its slices back and gets no new ones until the
+ * coil is cleared; one whose Modbus and data planes are both silent is
+ * dropped. */
 #ifndef TS_CLUSTER_H
 #define TS_CLUSTER_H
 
@@ -42,6 +48,8 @@ typedef struct {
                               pinged; no answer in 2x+1 s drops it (2; 0 off) */
   const ts_auth *auth;     /* shared secret for dialled workers (NULL: none);
                               must outlive the cluster */
+  double modbus_poll;      /* seconds between reads of each worker's Modbus
+                              registers (1; 0 off): drain, liveness */
 } ts_cluster_opts;
 
 void ts_cluster_opts_default(ts_cluster_opts *o);
@@ -63,6 +71,13 @@ int ts_cluster_adopt(ts_cluster *c, ts_conn *conn, const ts_msg_ident *ident, ch
 uint32_t ts_cluster_info(ts_cluster *c, ts_worker_info *out, uint32_t cap);
 int ts_cluster_ready(ts_cluster *c);
 uint64_t ts_cluster_rebalances(ts_cluster *c);
+
+typedef struct {
+  uint32_t ready;           /* workers ready */
+  uint64_t rate;            /* their rates summed, comparisons/s */
+  uint64_t batches, queries; /* answered for jobs, by workers or locally */
+} ts_cluster_stats;
+void ts_cluster_stats_get(ts_cluster *c, ts_cluster_stats *out);
 /* Log sink for daemon messages (default: stderr). */
 void ts_cluster_set_log(ts_cluster *c, void (*log)(const char *msg));
 

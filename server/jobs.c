@@ -56,6 +56,8 @@ struct ts_jobs {
   uint64_t next_id;
   uint64_t spool_bytes; /* sum of the jobs' bytes */
   int stop;
+  int paused; /* no queued job starts */
+  uint64_t last_ended; /* id of the job that ended last */
   int nrunners;
   pthread_t runners[64];
 };
@@ -200,6 +202,7 @@ static void job_finish(ts_jobs *j, job *jb, int state, const char *text) {
   client_share *cs = share_of(j, jb->client);
   if (cs && cs->unfinished > 0) cs->unfinished--;
   jb->st.state = (uint8_t)state;
+  j->last_ended = jb->id;
   if (state == TS_JOB_DONE) jb->st.permille = 1000;
   jb->st.eta_ms = 0;
   snprintf(jb->st.text, sizeof(jb->st.text), "%s", text);
@@ -390,7 +393,7 @@ static void *runner(void *arg) {
   pthread_mutex_lock(&j->lock);
   for (;;) {
     job *jb = NULL;
-    while (!j->stop && (jb = pick_job(j)) == NULL) pthread_cond_wait(&j->changed, &j->lock);
+    while (!j->stop && (j->paused || (jb = pick_job(j)) == NULL)) pthread_cond_wait(&j->changed, &j->lock);
     if (j->stop) break;
     client_share *cs = share_of(j, jb->client);
     if (cs) cs->started++;
@@ -799,4 +802,30 @@ void ts_jobs_counts(ts_jobs *j, uint32_t counts[TS_JOB_STATE_COUNT]) {
   pthread_mutex_lock(&j->lock);
   for (job *jb = j->head; jb != NULL; jb = jb->next) counts[jb->st.state]++;
   pthread_mutex_unlock(&j->lock);
+}
+
+int ts_jobs_current(ts_jobs *j, ts_job_status *out) {
+  pthread_mutex_lock(&j->lock);
+  const job *first = NULL;
+  for (const job *jb = j->head; jb != NULL; jb = jb->next)
+    if (jb->st.state == TS_JOB_RUNNING && (first == NULL || jb->started < first->started)) first = jb;
+  if (first == NULL) first = job_find(j, j->last_ended);
+  if (first != NULL) *out = first->st;
+  pthread_mutex_unlock(&j->lock);
+  return first != NULL ? 0 : TS_ENOENT;
+}
+
+void ts_jobs_pause(ts_jobs *j, int paused) {
+  pthread_mutex_lock(&j->lock);
+  j->paused = paused != 0;
+  pthread_cond_broadcast(&j->changed);
+  pthread_mutex_unlock(&j->lock);
+  jobs_log(j, "queue %s", paused ? "paused: queued jobs wait" : "resumed");
+}
+
+int ts_jobs_paused(ts_jobs *j) {
+  pthread_mutex_lock(&j->lock);
+  int p = j->paused;
+  pthread_mutex_unlock(&j->lock);
+  return p;
 }

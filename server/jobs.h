@@ -66,5 +66,11 @@ int ts_jobs_files(ts_jobs *j, uint64_t id, char names[][TS_MSG_NAME_MAX], char p
                   uint32_t *n, char *err);
 /* Jobs queued / running / done / failed (for monitoring). */
 void ts_jobs_counts(ts_jobs *j, uint32_t counts[TS_JOB_STATE_COUNT]);
+/* The status of the running job that started first, else of the job that
+ * ended last: 0, or TS_ENOENT. */
+int ts_jobs_current(ts_jobs *j, ts_job_status *out);
+/* Paused, no queued job starts (running ones go on); resumed, they do. */
+void ts_jobs_pause(ts_jobs *j, int paused);
+int ts_jobs_paused(ts_jobs *j);
 
 #endif

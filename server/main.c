@@ -26,6 +26,8 @@
 #include "error.h"
 #include "image.h"
 #include "jobs.h"
+#include "mbplane.h"
+#include "smon.h"
 #include "msg.h"
 #include "net.h"
 
@@ -354,13 +356,18 @@ static void usage(FILE *f) {
           "  --secret-file PATH        shared secret every client and worker must prove\n"
           "                            (owner-only file); without one only loopback\n"
           "                            peers are accepted (protected mode)\n"
+          "  --modbus [ADDR:]PORT      serve the monitoring register map over Modbus TCP\n"
+          "                            (off by default; a bare port listens on loopback)\n"
+          "  --modbus-control          accept coil writes (pause) on the Modbus plane\n"
+          "  --modbus-poll S           read each worker's Modbus registers this often:\n"
+          "                            drain, liveness, 0..3600 (default 1; 0 = off)\n"
           "  --quiet                   no startup line\n",
           TS_FRAME_DEFAULT_MAX, (unsigned long long)TS_IMAGE_DEFAULT_MAX_PIXELS);
 }
 
 typedef struct {
-  const char *listen, *workers, *spool, *secret_file;
-  int jobs, quiet;
+  const char *listen, *workers, *spool, *secret_file, *modbus;
+  int jobs, quiet, modbus_control;
   uint64_t max_pixels, max_spool;
   uint32_t max_client_jobs;
   ts_cluster_opts co;
@@ -395,7 +402,7 @@ static int bytes_opt(const char *opt, const char *s, uint64_t *out) {
 }
 
 static int parse_opts(int argc, char **argv, server_opts *o) {
-  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_SECRET, O_QUIET, O_HELP };
+  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_SECRET, O_MODBUS, O_MB_CONTROL, O_MB_POLL, O_QUIET, O_HELP };
   static const struct option longopts[] = {
       {"listen", required_argument, 0, O_LISTEN}, {"workers", required_argument, 0, O_WORKERS},
       {"spool", required_argument, 0, O_SPOOL}, {"jobs", required_argument, 0, O_JOBS},
@@ -407,6 +414,8 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
       {"max-frame", required_argument, 0, O_FRAME}, {"max-pixels", required_argument, 0, O_PIX},
       {"max-client-jobs", required_argument, 0, O_CLIENT_JOBS}, {"max-spool", required_argument, 0, O_SPOOL_MAX},
       {"secret-file", required_argument, 0, O_SECRET},
+      {"modbus", required_argument, 0, O_MODBUS}, {"modbus-control", no_argument, 0, O_MB_CONTROL},
+      {"modbus-poll", required_argument, 0, O_MB_POLL},
       {"quiet", no_argument, 0, O_QUIET}, {"help", no_argument, 0, O_HELP}, {0, 0, 0, 0}};
   memset(o, 0, sizeof(*o));
   o->listen = "127.0.0.1:7070";
@@ -439,6 +448,9 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
     case O_CLIENT_JOBS: rc = num("--max-client-jobs", optarg, 0, 1e6, &v); o->max_client_jobs = (uint32_t)v; break;
     case O_SPOOL_MAX: rc = bytes_opt("--max-spool", optarg, &o->max_spool); break;
     case O_SECRET: o->secret_file = optarg; break;
+    case O_MODBUS: o->modbus = optarg; break;
+    case O_MB_CONTROL: o->modbus_control = 1; break;
+    case O_MB_POLL: rc = num("--modbus-poll", optarg, 0, 3600, &o->co.modbus_poll); break;
     case O_QUIET: o->quiet = 1; break;
     case O_HELP: case 'h': usage(stdout); exit(0);
     default:
@@ -463,6 +475,20 @@ static int add_workers(ts_cluster *c, const char *list) {
       fprintf(stderr, "texsyn-server: --workers: %s\n", err);
       return -1;
     }
+  return 0;
+}
+
+/* Starts the Modbus plane; at gets HOST:PORT for the ready line. */
+static int start_modbus(const server_opts *o, char *at, char *err) {
+  char addr[TS_NET_ADDR_LEN], host[TS_NET_ADDR_LEN - 8];
+  int port;
+  int rc = ts_mb_listen_addr(o->modbus, addr, sizeof(addr), host, sizeof(host), err);
+  if (rc == 0)
+    rc = ts_smon_start(addr, o->modbus_control, g_server.jobs, g_server.cluster, o->co.local_threads, cluster_log,
+                       &port, err);
+  if (rc != 0) return rc;
+  snprintf(at, TS_NET_ADDR_LEN, "%s:%d", host, port);
+  logf_("modbus plane on %s%s", at, o->modbus_control ? ", coil writes accepted" : "");
   return 0;
 }
 
@@ -504,6 +530,11 @@ int main(int argc, char **argv) {
     fprintf(stderr, "texsyn-server: %s\n", err);
     return 1;
   }
+  char modbus_at[TS_NET_ADDR_LEN] = "";
+  if (o.modbus != NULL && start_modbus(&o, modbus_at, err) != 0) {
+    fprintf(stderr, "texsyn-server: --modbus %s: %s\n", o.modbus, err);
+    return 1;
+  }
   char host[TS_NET_ADDR_LEN];
   int p0;
   ts_net_split(o.listen, host, sizeof(host), &p0, err);
@@ -511,7 +542,8 @@ int main(int argc, char **argv) {
         g_server.auth.enabled ? "peers must prove the shared secret" : "no secret: loopback peers only");
   if (ts_auth_listen_warning(&g_server.auth, lfd, err)) logf_("%s", err);
   if (!o.quiet) { /* last: whoever waits for this line finds the log written */
-    printf("texsyn-server listening on %s:%d\n", host, port);
+    printf("texsyn-server listening on %s:%d%s%s%s\n", host, port, modbus_at[0] ? " (modbus " : "", modbus_at,
+           modbus_at[0] ? ")" : "");
     fflush(stdout);
   }
   while (!g_stop) {
@@ -539,6 +571,7 @@ int main(int argc, char **argv) {
   logf_("shutting down");
   close(lfd);
   ts_connset_close_all(&g_conns);
+  if (o.modbus != NULL) ts_smon_stop();
   ts_jobs_destroy(g_server.jobs);
   ts_cluster_destroy(g_server.cluster);
   ts_auth_clear(&g_server.auth);

@@ -23,7 +23,8 @@
 #include "connset.h"
 #include "error.h"
 #include "l1.h"
-#include "monitor.h"
+#include "mbplane.h"
+#include "wmon.h"
 #include "msg.h"
 #include "net.h"
 #include "pool.h"
@@ -377,16 +378,15 @@ static int parse_num(const char *opt, const char *s, long lo, long hi, long *out
 
 static void modbus_log(const char *msg) { wwarn("%s", msg); }
 
-/* Starts the Modbus plane; a bare PORT means loopback. at gets HOST:PORT. */
-static int start_modbus(const char *addr, int control, char *at, char *err) {
-  char full[TS_NET_ADDR_LEN], host[TS_NET_ADDR_LEN - 8];
-  snprintf(full, sizeof(full), "%s%s", strchr(addr, ':') ? "" : "127.0.0.1:", addr);
-  int given, port;
-  int rc = ts_net_split(full, host, sizeof(host), &given, err); /* a host too long fails here */
-  if (rc == 0) rc = ts_wmon_start_modbus(full, control, modbus_log, &port, err);
+/* Starts the Modbus plane; at gets HOST:PORT for the ready line. */
+static int start_modbus(const char *arg, int control, char *at, char *err) {
+  char addr[TS_NET_ADDR_LEN], host[TS_NET_ADDR_LEN - 8];
+  int port;
+  int rc = ts_mb_listen_addr(arg, addr, sizeof(addr), host, sizeof(host), err);
+  if (rc == 0) rc = ts_wmon_start_modbus(addr, control, modbus_log, &port, err);
   if (rc != 0) return rc;
   g_w.modbus_port = port;
-  snprintf(at, TS_NET_ADDR_LEN, "%s:%d", host[0] ? host : "0.0.0.0", port);
+  snprintf(at, TS_NET_ADDR_LEN, "%s:%d", host, port);
   wlog("modbus plane on %s%s", at, control ? ", coil writes accepted" : "");
   return 0;
 }

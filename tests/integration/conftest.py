@@ -77,6 +77,8 @@ class Daemon:
             raise AssertionError(f"{args[0]} did not start: {line!r}\n{Path(log_path).read_text()}")
         self.addr = m.group(1)
         self.port = int(self.addr.rsplit(":", 1)[1])
+        mb = re.search(r"\(modbus (\S+)\)", line)
+        self.modbus = mb.group(1) if mb else None  # HOST:PORT of its Modbus plane
 
     def read_log(self):
         if not self.log.closed:

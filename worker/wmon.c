@@ -1,5 +1,5 @@
-/* monitor.c - see monitor.h. */
-#include "monitor.h"
+/* wmon.c - see wmon.h. */
+#include "wmon.h"
 
 #include <pthread.h>
 

@@ -1,4 +1,4 @@
-/* monitor.h - what a worker tells its Modbus plane (proto/mbmap.h): its
+/* wmon.h - what a worker tells its Modbus plane (proto/mbmap.h): its
  * identity, state and counters, kept up to date by the connection threads,
  * and the `drain` coil. Every function is thread-safe. */
 #ifndef TS_WORKER_MONITOR_H

@@ -1,0 +1,191 @@
+"""The Modbus TCP monitoring and control plane of both daemons, read and
+written with real clients: mbpoll (Debian's command-line Modbus master)
+and `texsyn modbus` (libmodbus in C). Register numbers are the ones in
+proto/mbmap.h and the README."""
+import shutil
+import socket
+import struct
+import subprocess
+import time
+
+import pytest
+
+from conftest import BUILD, run, synth
+
+JOB = ["--size", "384x288", "--usage-weight", "1"]
+SERVER_ARGS = ["--calibrate-ms", "50", "--modbus-poll", "0.2"]
+
+needs_mbpoll = pytest.mark.skipif(shutil.which("mbpoll") is None, reason="mbpoll is not installed")
+
+
+def ref_of(data):
+    return data / "textures" / "brick.png"
+
+
+def mbpoll(addr, *args, write=(), check=True):
+    """mbpoll against HOST:PORT, zero-based addresses, one poll; `write`
+    holds values to write instead of reading."""
+    host, port = addr.rsplit(":", 1)
+    p = subprocess.run(["mbpoll", "-m", "tcp", "-a", "1", "-0", "-1", "-p", port, *map(str, args), host,
+                        *map(str, write)],
+                       capture_output=True, text=True, timeout=30)
+    if check and p.returncode != 0:
+        raise AssertionError(f"mbpoll {args} failed: {p.stdout}{p.stderr}")
+    return p
+
+
+def input_registers(addr, start, count):
+    out = mbpoll(addr, "-t", "3", "-r", start, "-c", count).stdout
+    regs = {}
+    for line in out.splitlines():
+        if line.startswith("["):
+            k, v = line.split(":")
+            regs[int(k.strip("[]"))] = int(v.split()[0]) & 0xFFFF  # "54526 (-11010)"
+    assert len(regs) == count, out
+    return regs
+
+
+def u64(regs, at):
+    return regs[at] << 48 | regs[at + 1] << 32 | regs[at + 2] << 16 | regs[at + 3]
+
+
+def named(addr):
+    """`texsyn modbus HOST:PORT` as a dict."""
+    out = run(BUILD / "texsyn", "modbus", addr).stdout
+    return dict(line.split(" ", 1) for line in out.splitlines())
+
+
+def start(cluster, nworkers, *server_args, control=True):
+    for _ in range(nworkers):
+        cluster.worker(1, "--modbus", "0", *(["--modbus-control"] if control else []))
+    cluster.start(0, 1, *SERVER_ARGS, "--modbus", "0", *(["--modbus-control"] if control else []), *server_args)
+    return cluster
+
+
+def submit(cluster, data, out):
+    args = [BUILD / "texsyn", "synth", "--server", cluster.server.addr, "--ref", ref_of(data), "-o", out, *JOB,
+            "--quiet"]
+    return subprocess.Popen([str(a) for a in args], stderr=subprocess.PIPE, text=True)
+
+
+def wait_until(what, pred, timeout=30):
+    deadline = time.time() + timeout
+    while not pred():
+        assert time.time() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.05)
+
+
+@pytest.fixture(scope="module")
+def expected(texsyn, data, tmp_path_factory):
+    out = tmp_path_factory.mktemp("expected") / "expected.png"
+    synth(texsyn, ref_of(data), out, (384, 288), *JOB[2:])
+    return out.read_bytes()
+
+
+@needs_mbpoll
+@pytest.mark.sanitize
+def test_maps_read_with_mbpoll_and_libmodbus(data, cluster, tmp_path, expected):
+    start(cluster, 2, control=False)
+    w = cluster.workers[0]
+    regs = input_registers(w.modbus, 0, 32)
+    assert regs[0] == 0x5453 and regs[1] == 1 and regs[3] == 2  # magic, protocol, worker
+    assert regs[5] == 1  # threads
+    assert u64(regs, 12) > 0  # calibrated rate
+    before = u64(regs, 24)
+    job = submit(cluster, data, tmp_path / "out.png")
+    wait_until("queries served to grow while the job runs",
+               lambda: job.poll() is None and u64(input_registers(w.modbus, 0, 32), 24) > before)
+    seen = named(cluster.server.modbus)
+    assert seen["role"] == "coordinator" and seen["workers"] == "2"
+    assert job.wait(timeout=300) == 0, job.stderr.read()
+    job.stderr.close()
+    assert (tmp_path / "out.png").read_bytes() == expected
+    server = input_registers(cluster.server.modbus, 32, 16)
+    assert server[32] == 2 and server[35] << 16 | server[36] == 1  # workers, jobs done
+    assert u64(server, 39) == 1 and server[43] == 1000  # the last job, finished
+    worker = named(w.modbus)
+    assert worker["role"] == "worker" and int(worker["queries"]) > before and worker["state"] in ("idle", "scanning")
+
+
+@needs_mbpoll
+def test_writes_need_modbus_control(data, cluster, tmp_path):
+    start(cluster, 1, control=False)
+    for addr in (cluster.workers[0].modbus, cluster.server.modbus):
+        p = mbpoll(addr, "-t", "0", "-r", "0", write=[1], check=False)
+        assert p.returncode != 0 and "Illegal function" in p.stdout + p.stderr, p.stdout + p.stderr
+    p = run(BUILD / "texsyn", "modbus", cluster.workers[0].modbus, "--set", "drain=1", check=False)
+    assert p.returncode == 1 and "--modbus-control" in p.stderr
+    assert "coil write refused" in cluster.workers[0].read_log()
+    assert named(cluster.workers[0].modbus)["state"] != "draining"
+
+
+def test_drain_mid_job_keeps_the_bytes(data, cluster, tmp_path, expected):
+    start(cluster, 3)
+    victim = cluster.workers[1]
+    job = submit(cluster, data, tmp_path / "out.png")
+    wait_until("the job to load slices", lambda: int(named(victim.modbus)["vectors"]) > 0)
+    run(BUILD / "texsyn", "modbus", victim.modbus, "--set", "drain=1")
+    assert job.wait(timeout=300) == 0, job.stderr.read()
+    job.stderr.close()
+    assert (tmp_path / "out.png").read_bytes() == expected
+    wait_until("the drained worker to hold nothing", lambda: named(victim.modbus)["vectors"] == "0")
+    assert named(victim.modbus)["state"] == "draining"
+    states = [w["state"] for w in cluster.pool()]
+    assert states.count("draining") == 1 and states.count("ready") == 2, states
+    assert "draining: its slices are handed back" in cluster.server.read_log()
+    # Cleared, it gets slices again: the next job runs on all three.
+    run(BUILD / "texsyn", "modbus", victim.modbus, "--set", "drain=0")
+    wait_until("the worker to be back", lambda: [w["state"] for w in cluster.pool()].count("ready") == 3)
+    job = submit(cluster, data, tmp_path / "again.png")
+    assert job.wait(timeout=300) == 0
+    job.stderr.close()
+    assert (tmp_path / "again.png").read_bytes() == expected
+    assert int(named(victim.modbus)["batches"]) > 0
+
+
+def test_pause_holds_the_queue(data, cluster, tmp_path, expected):
+    start(cluster, 1)
+    run(BUILD / "texsyn", "modbus", cluster.server.modbus, "--set", "pause=1")
+    assert named(cluster.server.modbus)["paused"] == "1"
+    p = cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "x.png", *JOB, "--detach")
+    job = p.stdout.strip()
+    time.sleep(1.0)
+    assert " queued" in cluster.texsyn("status", job).stdout
+    assert named(cluster.server.modbus)["queued"] == "1"
+    run(BUILD / "texsyn", "modbus", cluster.server.modbus, "--set", "pause=0")
+    cluster.texsyn("watch", job, "--quiet")
+    cluster.texsyn("fetch", job, "-o", tmp_path / "y.png")
+    assert (tmp_path / "y.png").read_bytes() == expected
+
+
+def raw_modbus(addr, frame):
+    host, port = addr.rsplit(":", 1)
+    with socket.create_connection((host, int(port)), timeout=5) as s:
+        s.sendall(frame)
+        try:
+            return s.recv(256)
+        except (ConnectionResetError, socket.timeout):
+            return b""
+
+
+def mbap(pdu, unit=1, tid=7, proto=0):
+    return struct.pack(">HHHB", tid, proto, len(pdu) + 1, unit) + pdu
+
+
+@pytest.mark.sanitize
+def test_malformed_modbus_requests_leave_both_planes_serving(data, cluster, tmp_path):
+    start(cluster, 1)
+    for addr in (cluster.workers[0].modbus, cluster.server.modbus):
+        # Unknown function: exception 01. Out-of-range registers: exception 02.
+        assert raw_modbus(addr, mbap(b"\x41"))[7:9] == b"\xc1\x01"
+        assert raw_modbus(addr, mbap(struct.pack(">BHH", 4, 200, 10)))[7:9] == b"\x84\x02"
+        assert raw_modbus(addr, mbap(struct.pack(">BHH", 3, 0, 1)))[7:9] == b"\x83\x02"  # no holding registers
+        # Garbage, a wrong protocol id, a lying length: the connection is dropped.
+        assert raw_modbus(addr, b"GET / HTTP/1.1\r\nHost: x\r\n\r\n") == b""
+        assert raw_modbus(addr, mbap(struct.pack(">BHH", 4, 0, 1), proto=5)) == b""
+        assert raw_modbus(addr, struct.pack(">HHHB", 1, 0, 50, 1) + b"\x04\x00\x00\x00\x01") == b""
+        assert named(addr)["magic"] == "0x5453"
+    w, h = 96, 64
+    cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "x.png", "--size", f"{w}x{h}", "--levels", "3",
+                   "--quiet")
+    assert cluster.server.alive() and cluster.workers[0].alive()
