@@ -6,7 +6,7 @@ set -euo pipefail
 PACKAGES=(
   build-essential pkg-config
   libopenimageio-dev openimageio-tools # image I/O (OpenImageIO) + oiiotool for tests
-  libmodbus-dev                        # Modbus TCP monitoring plane
+  libmodbus-dev mbpoll                 # Modbus TCP monitoring plane; mbpoll reads it in tests
   libsodium-dev                        # HMAC-SHA-256 connection authentication
   libcmocka-dev                        # unit tests
   python3-pytest                       # integration tests
