@@ -200,7 +200,7 @@ static int on_query(session *s, const ts_frame *f, char *err) {
     pthread_mutex_unlock(&g_w.pool_lock);
   }
   if (rc != 0) return send_error(s, f->id, rc, err) == 0 ? 1 : TS_ECONN;
-  ts_wmon_batch(q.nq);
+  ts_wmon_batch(q.nq, pairs, (uint64_t)t0);
   ts_wr w;
   ts_wr_init(&w);
   ts_msg_answer_write(&w, q.set, q.gen, (uint64_t)t0, pairs, s->best, q.nq);

@@ -1,6 +1,7 @@
 /* wmon.c - see wmon.h. */
 #include "wmon.h"
 
+#include <math.h>
 #include <pthread.h>
 
 #include "error.h"
@@ -15,6 +16,7 @@ static struct {
   int threads, simd, draining;
   uint32_t loading, errors;
   uint64_t rate, vectors, batches, queries;
+  double scan_rate; /* comparisons/s of recent batches, averaged over ~1 s of scanning */
   ts_mbplane *plane;
 } g_mon = {.lock = PTHREAD_MUTEX_INITIALIZER};
 
@@ -44,10 +46,14 @@ void ts_wmon_vectors(int64_t delta) {
   pthread_mutex_unlock(&g_mon.lock);
 }
 
-void ts_wmon_batch(uint32_t queries) {
+void ts_wmon_batch(uint32_t queries, uint64_t pairs, uint64_t nanos) {
   pthread_mutex_lock(&g_mon.lock);
   g_mon.batches++;
   g_mon.queries += queries;
+  if (nanos > 0 && pairs > 0) {
+    double dt = (double)nanos * 1e-9, k = 1.0 - exp(-dt);
+    g_mon.scan_rate = g_mon.scan_rate == 0 ? (double)pairs / dt : g_mon.scan_rate + k * ((double)pairs / dt - g_mon.scan_rate);
+  }
   pthread_mutex_unlock(&g_mon.lock);
 }
 
@@ -86,6 +92,7 @@ static void refresh(void *ctx, uint16_t *ir, uint8_t *coils) {
   ts_mb_put64(ir, TS_MB_IR_VECTORS, g_mon.vectors);
   ts_mb_put64(ir, TS_MB_IR_BATCHES, g_mon.batches);
   ts_mb_put64(ir, TS_MB_IR_QUERIES, g_mon.queries);
+  ts_mb_put64(ir, TS_MB_IR_SCAN_RATE, (uint64_t)g_mon.scan_rate);
   coils[TS_MB_COIL_DRAIN] = (uint8_t)g_mon.draining;
   pthread_mutex_unlock(&g_mon.lock);
 }

@@ -10,7 +10,8 @@ void ts_wmon_init(int threads, int simd);
 void ts_wmon_calibrated(uint64_t rate);  /* comparisons/s */
 void ts_wmon_loading(int delta);         /* +1 when a slice load starts, -1 when it ends */
 void ts_wmon_vectors(int64_t delta);     /* vectors held */
-void ts_wmon_batch(uint32_t queries);    /* a batch answered */
+/* A batch answered: its queries, comparisons and scan time. */
+void ts_wmon_batch(uint32_t queries, uint64_t pairs, uint64_t nanos);
 void ts_wmon_error(void);                /* a failed request or a protocol error */
 /* 1 while the drain coil is set: the coordinator gives no new slices. */
 int ts_wmon_draining(void);
