@@ -66,8 +66,6 @@ typedef struct {
   double answered_at;      /* when the last answer arrived */
   double heard_at;         /* when the worker last sent anything */
   double mb_heard_at;      /* when its Modbus plane last answered */
-  double mb_scan_rate;     /* its own recent scan rate (Modbus), 0 if stale */
-  uint64_t mb_batches;     /* its batch count at the last read */
 } cl_worker;
 
 typedef struct {
@@ -86,7 +84,6 @@ struct ts_cluster {
   uint32_t next_set, next_frame;
   uint64_t epoch; /* bumped when the slicing must change */
   double deviating_since; /* start of the current rate deviation, or 0 */
-  double scan_deviating_since; /* the same for the Modbus scan rates */
   uint64_t rebalances;
   ts_pool *local_pool; /* in-process scanning with no worker */
   const ts_l1_impl *simd;
@@ -471,10 +468,6 @@ static int mb_targets(ts_cluster *c, mb_target *t) {
   return n;
 }
 
-static uint64_t mb_get64(const uint16_t *r, int at) {
-  return (uint64_t)r[at] << 48 | (uint64_t)r[at + 1] << 32 | (uint64_t)r[at + 2] << 16 | r[at + 3];
-}
-
 /* Reads a worker's common register block (no lock): 0, or -1 if its plane
  * does not answer within half a second. */
 static int mb_read(const mb_target *t, uint16_t *regs) {
@@ -518,9 +511,6 @@ static void mb_apply(ts_cluster *c, int id, int ok, const uint16_t *regs) {
     return;
   }
   w->mb_heard_at = now;
-  uint64_t batches = mb_get64(regs, TS_MB_IR_BATCHES);
-  w->mb_scan_rate = batches != w->mb_batches ? (double)mb_get64(regs, TS_MB_IR_SCAN_RATE) : 0; /* idle: stale */
-  w->mb_batches = batches;
   int draining = regs[TS_MB_IR_STATE] == TS_MB_DRAINING;
   if (draining && w->state == TS_WORKER_READY) {
     begin_drain(c, w);
@@ -529,42 +519,6 @@ static void mb_apply(ts_cluster *c, int id, int ok, const uint16_t *regs) {
     c->epoch++;
     cl_log(c, "worker %d (%s) no longer draining: it gets slices again", w->id, w->conn.peer);
   }
-}
-
-/* Rate drift seen from the workers themselves: each worker's recent scan
- * rate (Modbus) against the rate its slices were sized with, relative to
- * the others. A deviation beyond the tolerance that lasts --rebalance-after
- * seconds resizes the slices with these rates (lock held). It needs no
- * batch long enough to time on the data plane, and network delays do not
- * enter it. */
-static void check_scan_balance(ts_cluster *c) {
-  cl_worker *ws[CL_MAX_WORKERS];
-  int n = 0;
-  for (int i = 0; i < c->nw; i++) {
-    cl_worker *w = c->w[i];
-    if (w->state != TS_WORKER_READY) continue;
-    if (w->mb_scan_rate <= 0 || w->slice_rate <= 0) return; /* every ready worker must report */
-    ws[n++] = w;
-  }
-  if (n < 2) return;
-  double mean = 0, dev = 0;
-  for (int i = 0; i < n; i++) mean += ws[i]->mb_scan_rate / ws[i]->slice_rate;
-  mean /= n;
-  for (int i = 0; i < n; i++) dev = fmax(dev, fabs(ws[i]->mb_scan_rate / ws[i]->slice_rate / mean - 1.0));
-  double now = ts_now();
-  if (dev <= c->o.tolerance) {
-    c->scan_deviating_since = 0;
-    return;
-  }
-  if (c->scan_deviating_since == 0) c->scan_deviating_since = now;
-  if (now - c->scan_deviating_since < c->o.persist) return;
-  for (int i = 0; i < n; i++) ws[i]->slice_rate = ws[i]->mb_scan_rate;
-  c->scan_deviating_since = 0;
-  c->deviating_since = 0;
-  c->rebalances++;
-  c->epoch++;
-  cl_log(c, "rebalance %llu: the workers' own scan rates (Modbus) deviated by %.0f%% for %.1fs",
-         (unsigned long long)c->rebalances, dev * 100, c->o.persist);
 }
 
 static void *supervisor_thread(void *arg) {
@@ -579,7 +533,6 @@ static void *supervisor_thread(void *arg) {
     for (int i = 0; i < n; i++) ok[i] = mb_read(&t[i], regs[i]) == 0;
     pthread_mutex_lock(&c->lock);
     for (int i = 0; i < n && !c->stop; i++) mb_apply(c, t[i].id, ok[i], regs[i]);
-    if (n > 0) check_scan_balance(c);
     struct timespec ts;
     clock_gettime(CLOCK_REALTIME, &ts);
     double at = (double)ts.tv_sec + ts.tv_nsec * 1e-9 + c->o.modbus_poll;
