@@ -100,6 +100,28 @@ static const char *bad_header(const uint8_t *req, int len) {
   return NULL;
 }
 
+/* Hands a valid coil write (pdu: function code onwards) to the daemon
+ * before the reply goes out, so a client that sees the write acknowledged
+ * sees its effect too. An invalid one is left to modbus_reply, which
+ * answers it with the right exception. */
+static void apply_coil_write(ts_mbplane *m, int i, const uint8_t *pdu, int len) {
+  int header = modbus_get_header_length(m->mb), addr = pdu[1] << 8 | pdu[2], count, values[TS_MB_MAX_COILS];
+  if (pdu[0] == MODBUS_FC_WRITE_SINGLE_COIL) {
+    int v = pdu[3] << 8 | pdu[4];
+    if (len != header + 5 || (v != 0xFF00 && v != 0)) return;
+    count = 1;
+    values[0] = v != 0;
+  } else {
+    count = pdu[3] << 8 | pdu[4];
+    if (count < 1 || count > TS_MB_MAX_COILS || len != header + 6 + pdu[5] || pdu[5] != (count + 7) / 8) return;
+    for (int k = 0; k < count; k++) values[k] = pdu[6 + k / 8] >> (k % 8) & 1;
+  }
+  if (addr + count > m->o.ncoils) return;
+  for (int k = 0; k < count; k++)
+    if (m->o.write(m->o.ctx, addr + k, values[k]) != 0)
+      mb_log(m, "modbus client %s: coil %d could not be set to %d", m->peer[i], addr + k, values[k]);
+}
+
 /* Answers one decoded request; -1 if the connection should go. */
 static int answer(ts_mbplane *m, int i, const uint8_t *req, int len) {
   const char *bad = bad_header(req, len);
@@ -113,17 +135,11 @@ static int answer(ts_mbplane *m, int i, const uint8_t *req, int len) {
     mb_log(m, "modbus client %s: coil write refused (the daemon runs without --modbus-control)", m->peer[i]);
     return modbus_reply_exception(m->mb, req, MODBUS_EXCEPTION_ILLEGAL_FUNCTION) < 0 ? -1 : 0; /* EOF: dropped */
   }
-  uint8_t before[TS_MB_MAX_COILS];
-  memcpy(before, m->map->tab_bits, (size_t)m->o.ncoils);
+  if (is_coil_write(function)) apply_coil_write(m, i, req + modbus_get_header_length(m->mb), len);
   if (modbus_reply(m->mb, req, len, m->map) < 0) {
     mb_log(m, "modbus client %s dropped: %s", m->peer[i], modbus_strerror(errno));
     return -1;
   }
-  /* libmodbus validated the write and applied it to the map: pass every
-   * coil it changed on to the daemon. */
-  for (int c = 0; c < m->o.ncoils && is_coil_write(function); c++)
-    if (m->map->tab_bits[c] != before[c] && m->o.write(m->o.ctx, c, m->map->tab_bits[c]) != 0)
-      mb_log(m, "modbus client %s: coil %d could not be set to %d", m->peer[i], c, m->map->tab_bits[c]);
   return 0;
 }
 

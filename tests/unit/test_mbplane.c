@@ -105,6 +105,13 @@ static void coil_writes_need_control(void **state) {
   assert_int_equal(modbus_read_bits(c, 0, 2, bits), 2);
   assert_int_equal(bits[0], 0);
   assert_int_equal(bits[1], 1);
+  const uint8_t both[2] = {1, 0};
+  assert_int_equal(modbus_write_bits(c, 0, 2, both), 2); /* applied before the reply */
+  assert_int_equal(d.coil[0], 1);
+  assert_int_equal(d.coil[1], 0);
+  assert_int_equal(modbus_write_bits(c, 1, 2, both), -1); /* past the map: nothing applied */
+  assert_int_equal(errno, EMBXILADD);
+  assert_int_equal(d.coil[1], 0);
   client_free(c);
   ts_mbplane_stop(m);
 }
