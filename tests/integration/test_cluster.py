@@ -182,6 +182,26 @@ def test_detach_status_watch_fetch(texsyn, data, cluster, tmp_path):
     assert bad.returncode == 1 and "no job 999" in bad.stderr
 
 
+@pytest.mark.sanitize
+def test_submission_cut_short_by_a_crash_does_not_block_the_next(texsyn, data, cluster, tmp_path):
+    """A coordinator killed mid-upload leaves a job directory without its
+    spec: never acknowledged, skipped on restart - and its id must not be
+    handed to the next job, whose directory could not be created."""
+    partial = tmp_path / "spool" / "jobs" / "1"
+    partial.mkdir(parents=True)
+    (partial / "ref.png").write_bytes(ref_of(data).read_bytes())
+    cluster.start()
+    args = ["--ref", ref_of(data), "--size", "64x48", "--levels", "3"]
+    p = cluster.texsyn("synth", *args, "-o", tmp_path / "x.png", "--detach")
+    job = p.stdout.strip()
+    assert job == "2", p.stdout
+    cluster.texsyn("watch", job, "--quiet")
+    assert cluster.texsyn("status").stdout.split() == ["2", "done"]
+    cluster.texsyn("fetch", job, "-o", tmp_path / "f.png")
+    run(texsyn, "synth", *args, "-o", tmp_path / "e.png", "--quiet", "--embedded")
+    assert (tmp_path / "f.png").read_bytes() == (tmp_path / "e.png").read_bytes()
+
+
 def test_cancel_a_running_job(data, cluster, tmp_path):
     cluster.start(1, 1)
     p = cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "big.png", "--size", "2048x2048",
