@@ -169,6 +169,8 @@ def test_fifty_jobs_five_clients_one_worker_killed(texsyn, data, cluster, tmp_pa
     assert killed_at is not None, "the run ended before a worker was killed"
     assert victim.proc.wait(timeout=10) == -signal.SIGKILL
     assert "dropped" in log, "the coordinator never noticed the killed worker"
+    # It dials the dead address every 0.5 s for the rest of the run, and says so once.
+    assert log.count(f"worker {victim.addr}: cannot connect") == 1, log
     assert cluster.server.alive()
 
     # None lost, none duplicated: the coordinator knows exactly the 50 ids
