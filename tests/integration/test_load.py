@@ -19,7 +19,7 @@ JOBS_PER_CLIENT = 10
 SYNC_CLIENTS = (0, 1, 2)      # `texsyn synth --server`: waits for each result
 DETACHED_CLIENTS = (3, 4)     # `--detach` all ten, then `watch` and `fetch` each;
                               # 4 submits once 3 has a backlog of ten
-KILL_AFTER_STARTED = 8        # jobs started (running or done) before a worker is killed
+KILL_AFTER_STARTED = 8        # jobs started before a worker is killed, mid-job
 SERVER_ARGS = ["--calibrate-ms", "50", "--heartbeat", "0.5", "--batch-timeout", "0.5"]
 
 # Ten distinct jobs; every client submits all ten in its own order, so the
@@ -154,7 +154,8 @@ def test_fifty_jobs_five_clients_one_worker_killed(texsyn, data, cluster, tmp_pa
             snap = poller.snapshot()
             snapshots.append(snap)
             started = sum(1 for s in snap.values() if s != "queued")
-            if killed_at is None and started >= KILL_AFTER_STARTED:
+            running = "running" in snap.values()
+            if killed_at is None and started >= KILL_AFTER_STARTED and running:
                 victim.proc.send_signal(signal.SIGKILL)
                 killed_at = started
             time.sleep(0.05)
