@@ -6,11 +6,8 @@ import re
 import signal
 import socket
 import struct
-import subprocess
 import threading
 import time
-
-import pytest
 
 from conftest import BUILD, run
 
