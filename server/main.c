@@ -104,7 +104,7 @@ static int serve_status(ts_conn *c, const ts_frame *f) {
   if (m.id == 0) {
     /* Every job, however long the spool's history: a capped listing would
      * leave out the newest. Jobs queued after the count are in the next one. */
-    uint32_t counts[TS_JOB_STATE_COUNT], cap = 1;
+    uint32_t counts[TS_JOB_STATE_COUNT], cap = 1; /* 1: no malloc(0) on an empty spool */
     ts_jobs_counts(g_server.jobs, counts);
     for (int s = 0; s < TS_JOB_STATE_COUNT; s++) cap += counts[s];
     ts_job_status *all = malloc(sizeof(*all) * cap);
