@@ -4,6 +4,7 @@
 #   make            build binaries into build/
 #   make test       install missing packages, build, run every test
 #   make test-valgrind  the unit tests under valgrind
+#   make test-faults    fault injection (TRIALS random trials, default 20) and the load test
 #   make fuzz       run the libFuzzer targets for FUZZ_SECONDS each
 #   make bench      run benchmarks, write bench/results/
 #   make demo       install missing packages, run an embedded synthesis
@@ -42,7 +43,7 @@ UNIT_BINS = $(UNIT_SRC:tests/unit/%.c=$(BUILD)/tests/%)
 BENCH_SRC = $(wildcard bench/*.c)
 BENCH_BINS = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
 
-.PHONY: all deps test test-unit test-integration test-valgrind fuzz bench demo clean
+.PHONY: all deps test test-unit test-integration test-faults test-valgrind fuzz bench demo clean
 all: $(BINS) $(UNIT_BINS) $(BENCH_BINS)
 
 $(BUILD)/%.o: %.c
@@ -90,6 +91,14 @@ test-unit: all
 
 test-integration: all
 	bash tests/run-integration.sh $(BUILD)
+
+# The fault-injection suite with TRIALS random worker faults (`make test`
+# runs 6), then 50 jobs from 5 clients with a worker killed. A failing
+# trial names its seed: replay it with TEXSYN_FAULT_SEED=S.
+TRIALS ?= 20
+test-faults: all
+	TEXSYN_BUILD=$(abspath $(BUILD)) TEXSYN_FAULT_TRIALS=$(TRIALS) /usr/bin/python3 -m pytest -q \
+	  -p no:cacheprovider --durations=5 tests/integration/test_faults.py tests/integration/test_load.py
 
 # Every unit test under valgrind memcheck (about 4 minutes; not in `test`).
 test-valgrind: deps all

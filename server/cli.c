@@ -722,11 +722,12 @@ static int job_status(ts_conn *c, const job_opts *o, char *err) {
   ts_frame f;
   int rc = ts_client_call(c, TS_MSG_STATUS, &w, 30000, &f, err);
   ts_wr_free(&w);
-  enum { CAP = 1024 };
-  ts_job_status *s = rc == 0 ? malloc(sizeof(*s) * CAP) : NULL;
+  /* As many records as the reply can hold: each takes at least 21 bytes. */
+  uint32_t cap = rc == 0 ? f.len / 21 + 1 : 0;
+  ts_job_status *s = rc == 0 ? malloc(sizeof(*s) * cap) : NULL;
   uint32_t n = 0;
-  if (rc == 0 && s == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
-  if (rc == 0) rc = ts_msg_status_read(&f, s, CAP, &n, err);
+  if (rc == 0 && s == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory for %u job records", cap);
+  if (rc == 0) rc = ts_msg_status_read(&f, s, cap, &n, err);
   for (uint32_t i = 0; rc == 0 && i < n; i++) print_status(&s[i]);
   free(s);
   return rc;

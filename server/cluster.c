@@ -71,6 +71,7 @@ typedef struct {
 typedef struct {
   char addr[TS_NET_ADDR_LEN];
   int worker_id; /* live worker from this address, or 0 */
+  int failing;   /* dialling it failed since it last joined (logged once) */
 } cl_addr;
 
 struct ts_cluster {
@@ -316,7 +317,11 @@ static void *cluster_thread(void *arg) {
       pthread_mutex_lock(&c->lock);
       if (rc != 0) {
         c->addrs[a].worker_id = 0;
-        cl_log(c, "worker %s: %s", addr, err);
+        /* A dead worker's address is dialled every 0.5 s: say so once. */
+        if (!c->addrs[a].failing) cl_log(c, "worker %s: %s (dialling it again every 0.5 s)", addr, err);
+        c->addrs[a].failing = 1;
+      } else {
+        c->addrs[a].failing = 0;
       }
     }
     struct timespec ts;

@@ -429,6 +429,9 @@ static int mkdir_p(const char *path) {
 
 /* Reloads one job directory; unfinished jobs queue again. */
 static void load_job(ts_jobs *j, uint64_t id) {
+  /* Ids are never reused, not even an unacknowledged submission's: its
+   * directory is still there and a new job could not be created in it. */
+  if (id >= j->next_id) j->next_id = id + 1;
   job *jb = calloc(1, sizeof(*jb));
   if (jb == NULL) return;
   jb->id = id;
@@ -462,7 +465,6 @@ static void load_job(ts_jobs *j, uint64_t id) {
   client_share *cs = share_of(j, jb->client);
   if (cs && !job_final(jb)) cs->unfinished++;
   job_append(j, jb);
-  if (id >= j->next_id) j->next_id = id + 1;
 }
 
 /* The highest id ever given out, kept apart from the job directories so a

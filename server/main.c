@@ -112,10 +112,14 @@ static int serve_status(ts_conn *c, const ts_frame *f) {
   ts_msg_status_req m;
   if (ts_msg_status_req_read(f, &m, err) != 0) return reply_error(c, f->id, TS_EPROTO, err);
   if (m.id == 0) {
-    enum { CAP = 1024 };
-    ts_job_status *all = malloc(sizeof(*all) * CAP);
+    /* Every job, however long the spool's history: a capped listing would
+     * leave out the newest. Jobs queued after the count are in the next one. */
+    uint32_t counts[TS_JOB_STATE_COUNT], cap = 1; /* 1: no malloc(0) on an empty spool */
+    ts_jobs_counts(g_server.jobs, counts);
+    for (int s = 0; s < TS_JOB_STATE_COUNT; s++) cap += counts[s];
+    ts_job_status *all = malloc(sizeof(*all) * cap);
     if (all == NULL) return reply_error(c, f->id, TS_ENOMEM, "out of memory");
-    uint32_t n = ts_jobs_list(g_server.jobs, all, CAP);
+    uint32_t n = ts_jobs_list(g_server.jobs, all, cap);
     int rc = send_status(c, f->id, all, n);
     free(all);
     return rc;

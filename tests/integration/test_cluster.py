@@ -182,6 +182,49 @@ def test_detach_status_watch_fetch(texsyn, data, cluster, tmp_path):
     assert bad.returncode == 1 and "no job 999" in bad.stderr
 
 
+@pytest.mark.sanitize
+def test_submission_cut_short_by_a_crash_does_not_block_the_next(texsyn, data, cluster, tmp_path):
+    """A coordinator killed mid-upload leaves a job directory without its
+    spec: never acknowledged, skipped on restart - and its id must not be
+    handed to the next job, whose directory could not be created."""
+    partial = tmp_path / "spool" / "jobs" / "1"
+    partial.mkdir(parents=True)
+    (partial / "ref.png").write_bytes(ref_of(data).read_bytes())
+    cluster.start()
+    args = ["--ref", ref_of(data), "--size", "64x48", "--levels", "3"]
+    p = cluster.texsyn("synth", *args, "-o", tmp_path / "x.png", "--detach")
+    job = p.stdout.strip()
+    assert job == "2", p.stdout
+    cluster.texsyn("watch", job, "--quiet")
+    assert cluster.texsyn("status").stdout.split() == ["2", "done"]
+    cluster.texsyn("fetch", job, "-o", tmp_path / "f.png")
+    run(texsyn, "synth", *args, "-o", tmp_path / "e.png", "--quiet", "--embedded")
+    assert (tmp_path / "f.png").read_bytes() == (tmp_path / "e.png").read_bytes()
+
+
+@pytest.mark.sanitize
+def test_status_lists_every_job_of_a_long_spool(data, cluster, tmp_path):
+    """A spool with 1500 finished jobs, and one more submitted: `texsyn
+    status` lists them all, the newest included."""
+    cluster.start()
+    args = ["--ref", ref_of(data), "--size", "64x48", "--levels", "3", "-o", tmp_path / "x.png"]
+    cluster.texsyn("synth", *args, "--quiet")
+    cluster.server.stop()
+    jobs = tmp_path / "spool" / "jobs"
+    for i in range(2, 1501):  # copies of job 1, the reference hard-linked
+        d = jobs / str(i)
+        d.mkdir()
+        for f in (jobs / "1").iterdir():
+            os.link(f, d / f.name)
+    cluster.server = Daemon([BUILD / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", tmp_path / "spool"],
+                            tmp_path / "server2.log")
+    newest = cluster.texsyn("synth", *args, "--detach").stdout.strip()
+    assert newest == "1501", newest
+    rows = [line.split() for line in cluster.texsyn("status").stdout.splitlines()]
+    assert [int(r[0]) for r in rows] == list(range(1, 1502)), rows[-3:]
+    assert all(r[1] == "done" for r in rows[:1500])
+
+
 def test_cancel_a_running_job(data, cluster, tmp_path):
     cluster.start(1, 1)
     p = cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "big.png", "--size", "2048x2048",
