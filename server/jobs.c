@@ -444,7 +444,11 @@ static void load_job(ts_jobs *j, uint64_t id) {
   job_path(jb, "ref.ext", path, sizeof(path));
   if (n < 0 || ts_jobspec_parse(text, (size_t)n, &jb->spec, err) != 0 ||
       read_small(path, jb->ref_ext, sizeof(jb->ref_ext)) <= 0) {
-    free(jb); /* an incomplete submission: never acknowledged */
+    /* An incomplete submission, never acknowledged: its files go, its id
+     * stays taken (last-id). */
+    jobs_log(j, "removing %s: a submission cut short", jb->dir);
+    remove_dir(jb->dir);
+    free(jb);
     return;
   }
   jb->st.id = id;

@@ -185,8 +185,8 @@ def test_detach_status_watch_fetch(texsyn, data, cluster, tmp_path):
 @pytest.mark.sanitize
 def test_submission_cut_short_by_a_crash_does_not_block_the_next(texsyn, data, cluster, tmp_path):
     """A coordinator killed mid-upload leaves a job directory without its
-    spec: never acknowledged, skipped on restart - and its id must not be
-    handed to the next job, whose directory could not be created."""
+    spec: never acknowledged, removed on restart - and its id must not be
+    handed to the next job."""
     partial = tmp_path / "spool" / "jobs" / "1"
     partial.mkdir(parents=True)
     (partial / "ref.png").write_bytes(ref_of(data).read_bytes())
@@ -195,6 +195,7 @@ def test_submission_cut_short_by_a_crash_does_not_block_the_next(texsyn, data, c
     p = cluster.texsyn("synth", *args, "-o", tmp_path / "x.png", "--detach")
     job = p.stdout.strip()
     assert job == "2", p.stdout
+    assert not partial.exists(), "the cut-short submission's files stayed in the spool"
     cluster.texsyn("watch", job, "--quiet")
     assert cluster.texsyn("status").stdout.split() == ["2", "done"]
     cluster.texsyn("fetch", job, "-o", tmp_path / "f.png")
