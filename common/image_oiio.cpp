@@ -563,8 +563,8 @@ static int ts_open(const ts_source &src, const ts_image_limits *limits, ts_input
   const char *format = ts_sniff(head);
   if (format == nullptr) {
     char hex[3 * sizeof(head.b) + 1] = "";
-    for (size_t i = 0; i < head.n; i++)
-      snprintf(hex + 3 * i, sizeof(hex) - 3 * i, "%s%02x", i ? " " : "", head.b[i]);
+    for (size_t i = 0, k = 0; i < head.n; i++, k = strlen(hex))
+      snprintf(hex + k, sizeof(hex) - k, "%s%02x", i ? " " : "", head.b[i]);
     return ts_error(err, TS_EFORMAT,
                     "%s: not a PNG, JPEG, TIFF or OpenEXR image (starts with bytes %s)", src.name,
                     hex);
