@@ -86,10 +86,13 @@ deps:
 	@bash deploy/install-deps.sh
 
 # The whole suite: unit tests (each test in its own process), integration
-# tests driving the real binaries, then the unit tests again under ASan+UBSan.
+# tests driving the real binaries, then the unit tests again under ASan+UBSan;
+# the fuzz seeds and regressions replayed on both builds; each libFuzzer
+# target for 20 s.
 test: deps
 	$(MAKE) -j2 all
 	$(MAKE) -j2 SAN=1 all
+	$(MAKE) -j2 fuzz-build
 	bash tests/run-all.sh
 
 test-unit: all

@@ -30,8 +30,10 @@ report() { # target ok(0/1) log
 # frame the suppression names, so the image target gets it. Other leaks
 # still fail.
 export LSAN_OPTIONS="suppressions=$PWD/tests/lsan.supp"
-asan_for() { # ASAN_OPTIONS for target $1
+asan_for() { # ASAN_OPTIONS for target $1: the caller's when replaying,
+  # libFuzzer's defaults when fuzzing (the slow unwinder costs ~10x speed)
   local o=${ASAN_OPTIONS:-}
+  [ "$mode" = fuzz ] && o=""
   [ "$1" = image ] && o="${o:+$o:}fast_unwind_on_malloc=0"
   echo "$o"
 }
