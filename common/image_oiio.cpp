@@ -4,6 +4,13 @@
  * exceptions on this side of an extern "C" boundary. Every entry point
  * catches everything and answers with a TS_E* code and one line in err.
  *
+ * Reads take a file or a file's bytes in memory (through OpenImageIO's
+ * IOMemReader); both go through ts_open and ts_read, so a reference the
+ * coordinator probes at submit and reads later is checked the same way.
+ * The reader is picked from the first bytes among PNG, JPEG, TIFF and
+ * OpenEXR only: OpenImageIO would otherwise try every plugin it has
+ * (FFmpeg, DICOM, camera raw, ...) on whatever a client sends.
+ *
  * Three things OpenImageIO 2.4 does not do for us, handled here:
  *  - A failed read is not always a false return: libtiff strip errors and
  *    libjpeg's "premature end of file" leave read_image() true with a
