@@ -553,6 +553,80 @@ static int ts_check_spec(const char *name, const ImageSpec &s, const ts_image_li
   return 0;
 }
 
+/* The source as a FILE: the file itself, or fmemopen over the bytes
+ * (fmemopen only reads here; the cast is what its prototype wants). */
+static FILE *ts_source_file(const ts_source &src) {
+  return src.path != nullptr ? fopen(src.path, "rb")
+                             : fmemopen((void *)src.data, src.len, "rb");
+}
+
+/* File bytes fit for a one-line message: printable ASCII as is, the rest
+ * as \xNN, at most 40 bytes shown. */
+static std::string ts_printable(const std::string &raw) {
+  std::string out;
+  for (size_t i = 0; i < raw.size() && i < 40; i++) {
+    unsigned char c = (unsigned char)raw[i];
+    if (c >= 0x20 && c < 0x7f && c != '\\') {
+      out += (char)c;
+    } else {
+      char hex[8];
+      snprintf(hex, sizeof(hex), "\\x%02x", c);
+      out += hex;
+    }
+  }
+  if (raw.size() > 40) out += "...";
+  return out;
+}
+
+/* OpenEXR 3.1 allocates every header attribute at the size the file
+ * claims before reading it (found by fuzz_image: a 707-byte file asking
+ * for 1.2 GB), so the attribute sizes are checked against the bytes the
+ * file has first. Walks the header (every header of a multi-part file):
+ * name, type name, int32 size, value; an empty name ends a header. Only
+ * the sizes are judged; OpenEXR parses the rest. */
+static bool ts_exr_sizes_ok(FILE *f, std::string &why) {
+  if (fseeko(f, 0, SEEK_END) != 0) return false;
+  off_t end = ftello(f);
+  uint8_t v[4];
+  if (end < 8 || fseeko(f, 4, SEEK_SET) != 0 || fread(v, 1, 4, f) != 4) {
+    why = "header cut short";
+    return false;
+  }
+  bool multipart = (v[1] & 0x10) != 0; /* version flag bit 12 */
+  for (int headers = 0;; headers++) {
+    for (int attrs = 0;; attrs++) {
+      std::string text[2];
+      for (int t = 0; t < 2; t++) {
+        int c;
+        while ((c = fgetc(f)) > 0 && text[t].size() < 256) text[t] += (char)c;
+        if (c < 0 || text[t].size() >= 256) {
+          why = c < 0 ? "header cut short" : "header attribute name over 255 bytes";
+          return false;
+        }
+        if (t == 0 && text[0].empty()) break; /* end of this header */
+      }
+      if (text[0].empty()) {
+        if (attrs == 0 && headers > 0) return true; /* the empty header ends the list */
+        break;
+      }
+      uint8_t b[4];
+      if (fread(b, 1, 4, f) != 4) {
+        why = "header cut short";
+        return false;
+      }
+      int64_t size = (int32_t)(b[0] | b[1] << 8 | b[2] << 16 | (uint32_t)b[3] << 24);
+      off_t here = ftello(f);
+      if (size < 0 || here < 0 || size > end - here) {
+        why = "header attribute '" + ts_printable(text[0]) + "' claims " + std::to_string(size) +
+              " bytes, more than the file holds";
+        return false;
+      }
+      if (fseeko(f, (off_t)size, SEEK_CUR) != 0) return false;
+    }
+    if (!multipart) return true;
+  }
+}
+
 /* An open reader and, for bytes in memory, the proxy it reads through
  * (declared first: it must outlive the reader). */
 struct ts_input {
@@ -575,6 +649,13 @@ static int ts_open(const ts_source &src, const ts_image_limits *limits, ts_input
     return ts_error(err, TS_EFORMAT,
                     "%s: not a PNG, JPEG, TIFF or OpenEXR image (starts with bytes %s)", src.name,
                     hex);
+  }
+  if (strcmp(format, "openexr") == 0) {
+    std::string why = "cannot read the header";
+    ts_file f(ts_source_file(src));
+    if (!f || !ts_exr_sizes_ok(f.get(), why))
+      return ts_error(err, TS_EFORMAT, "%s: not a readable openexr image: %s", src.name,
+                      why.c_str());
   }
   ImageSpec config;
   config.attribute("oiio:UnassociatedAlpha", 1); /* pixel values as stored */
@@ -614,9 +695,7 @@ static int ts_read(const ts_source &src, ts_image *out, const ts_image_limits *l
   std::unique_ptr<ts_meta> meta(new ts_meta);
   meta->attribs = spec.extra_attribs;
   if (OIIO::Strutil::iequals(io.in->format_name(), "tiff")) {
-    /* fmemopen only reads here: the cast is what its prototype wants. */
-    FILE *f = src.path != nullptr ? fopen(src.path, "rb")
-                                  : fmemopen((void *)src.data, src.len, "rb");
+    FILE *f = ts_source_file(src);
     if (f != nullptr) ts_geo_read(ts_file(f), meta->attribs);
   }
   h.img.meta = meta.release();

@@ -899,6 +899,12 @@ static void read_refuses_non_images(void **state) {
                             "bytes 89 50)", 2},
       {"bmp.png", "BM\x3a\0\0\0", "not a PNG, JPEG, TIFF or OpenEXR", 6},
       {"head.png", "\x89PNG\r\n\x1a\n", "head.png: not a readable png image", 8},
+      /* Found by fuzz_image: OpenEXR would allocate what the attribute
+       * claims (here 2 GB) before reading it. */
+      {"attr.exr", "\x76\x2f\x31\x01\x02\0\0\0foo\0string\0\xff\xff\xff\x7f",
+       "attr.exr: not a readable openexr image: header attribute 'foo' claims 2147483647 bytes, "
+       "more than the file holds",
+       23},
   };
   char path[PATH_MAX], err[TS_ERR_LEN];
   for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
