@@ -162,7 +162,6 @@ def test_bad_references_submitted_raw_get_a_clear_error(data, cluster, tmp_path)
     cluster.start(1, 1)
     job = start_good_job(cluster, data, tmp_path)
     wait_running(cluster, job)
-    accepted = {}
     for i, (name, (ref, why)) in enumerate(bad_references(data).items()):
         raw = RawClient(cluster.server.addr)  # a malformed message closes it
         job_id, error = raw.submit(name, ref, 10 + i)
@@ -171,21 +170,12 @@ def test_bad_references_submitted_raw_get_a_clear_error(data, cluster, tmp_path)
             why = "empty reference image"
             assert error is not None and why in error[1], error
             continue
-        if name == "cut.png":  # the header is fine: refused when its pixels are read
-            assert error is None, error
-            accepted[name] = job_id
-            continue
         assert job_id is None, f"{name} was queued as job {job_id}"
         code, message = error
         assert code < 0
         assert message.startswith(f"{name}: {why}"), message
         if name.startswith("huge"):
             assert message.endswith(SERVER_LIMIT), message
-    # The cut file's job fails with the reason; the good job completes.
-    for name, bad_job in accepted.items():
-        p = cluster.texsyn("watch", bad_job, "--quiet", check=False)
-        assert p.returncode != 0
-        assert "unreadable or truncated image" in p.stdout + p.stderr, p.stdout + p.stderr
     good = finish_good_job(cluster, job, tmp_path)
     assert good[:8] == b"\x89PNG\r\n\x1a\n" and len(good) > 1000
     log = cluster.server.read_log()
