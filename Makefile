@@ -5,7 +5,7 @@
 #   make test       install missing packages, build, run every test
 #   make test-valgrind  the unit tests under valgrind
 #   make test-faults    fault injection (TRIALS random trials, default 20) and the load test
-#   make fuzz       run the libFuzzer targets for FUZZ_SECONDS each
+#   make fuzz       run each libFuzzer target for FUZZ_SECONDS (default 30)
 #   make bench      run benchmarks, write bench/results/
 #   make demo       install missing packages, run an embedded synthesis
 #   make clean
@@ -40,11 +40,14 @@ LIB = $(BUILD)/libtexsyn.a
 BINS = $(BUILD)/texsyn $(BUILD)/texsyn-server $(BUILD)/texsyn-worker
 UNIT_SRC = $(wildcard tests/unit/test_*.c)
 UNIT_BINS = $(UNIT_SRC:tests/unit/%.c=$(BUILD)/tests/%)
+# The libFuzzer targets' inputs replayed by a plain main() (tests/fuzz).
+FUZZ_TARGETS = frame msg jobspec image
+REPLAY_BINS = $(FUZZ_TARGETS:%=$(BUILD)/tests/replay_%)
 BENCH_SRC = $(wildcard bench/*.c)
 BENCH_BINS = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
 
-.PHONY: all deps test test-unit test-integration test-faults test-valgrind fuzz bench demo clean
-all: $(BINS) $(UNIT_BINS) $(BENCH_BINS)
+.PHONY: all deps test test-unit test-integration test-faults test-valgrind fuzz fuzz-build bench demo clean
+all: $(BINS) $(UNIT_BINS) $(BENCH_BINS) $(REPLAY_BINS)
 
 $(BUILD)/%.o: %.c
 	@mkdir -p $(dir $@)
@@ -72,6 +75,10 @@ $(BUILD)/tests/%: $(BUILD)/tests/unit/%.o $(LIB)
 	@mkdir -p $(dir $@)
 	$(CXX) $(LDFLAGS_ALL) -o $@ $^ $(LIBS) -lcmocka
 
+$(BUILD)/tests/replay_%: $(BUILD)/tests/fuzz/fuzz_%.o $(BUILD)/tests/fuzz/replay.o $(LIB)
+	@mkdir -p $(dir $@)
+	$(CXX) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
+
 $(BUILD)/bench/%: $(BUILD)/bench/%.o $(LIB)
 	@mkdir -p $(dir $@)
 	$(CXX) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
@@ -80,10 +87,13 @@ deps:
 	@bash deploy/install-deps.sh
 
 # The whole suite: unit tests (each test in its own process), integration
-# tests driving the real binaries, then the unit tests again under ASan+UBSan.
+# tests driving the real binaries, then the unit tests again under ASan+UBSan;
+# the fuzz seeds and regressions replayed on both builds; each libFuzzer
+# target for 20 s.
 test: deps
 	$(MAKE) -j2 all
 	$(MAKE) -j2 SAN=1 all
+	$(MAKE) -j2 fuzz-build
 	bash tests/run-all.sh
 
 test-unit: all
@@ -104,16 +114,37 @@ test-faults: all
 test-valgrind: deps all
 	bash tests/run-valgrind.sh $(BUILD)
 
-# libFuzzer targets (clang); FUZZ_SECONDS per target, corpus in build-fuzz/.
+# libFuzzer targets (clang, clang++ for the OpenImageIO shim) in
+# build-fuzz/: each runs FUZZ_SECONDS on build-fuzz/corpus-<target>, seeded
+# from tests/fuzz/seeds/<target> and tests/fuzz/regress/<target>; findings
+# go to build-fuzz/artifacts/. `make test` runs each for 20 s.
 FUZZ_SECONDS ?= 30
-FUZZ_CC = clang -std=c11 -D_GNU_SOURCE -g -O1 -fsanitize=fuzzer,address,undefined -Icommon -Iproto -Iserver
-fuzz:
-	@mkdir -p build-fuzz/corpus-frame build-fuzz/corpus-msg
-	$(FUZZ_CC) tests/fuzz/fuzz_frame.c proto/frame.c common/error.c -o build-fuzz/fuzz_frame
-	$(FUZZ_CC) tests/fuzz/fuzz_msg.c proto/msg.c proto/frame.c server/jobspec.c server/params.c \
-	  common/error.c -o build-fuzz/fuzz_msg
-	build-fuzz/fuzz_frame -max_total_time=$(FUZZ_SECONDS) build-fuzz/corpus-frame
-	build-fuzz/fuzz_msg -max_total_time=$(FUZZ_SECONDS) build-fuzz/corpus-msg
+FUZZ_SAN = -g -O1 -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sanitize-recover=undefined
+FUZZ_CC = clang -std=c11 -D_GNU_SOURCE $(WARN) $(FUZZ_SAN) -fsanitize=fuzzer-no-link -Icommon -Iproto -Iserver
+FUZZ_CXX = clang++ -std=c++17 -Wall -Wextra -Werror $(FUZZ_SAN) -fsanitize=fuzzer-no-link -Icommon
+FUZZ_OBJ_frame = proto/frame.o common/error.o
+FUZZ_OBJ_msg = proto/msg.o proto/frame.o server/jobspec.o server/params.o common/error.o
+FUZZ_OBJ_jobspec = server/jobspec.o server/params.o common/error.o
+FUZZ_OBJ_image = common/image.o common/image_oiio.o common/error.o
+
+build-fuzz/%.o: %.c
+	@mkdir -p $(dir $@)
+	$(FUZZ_CC) -MMD -MP -c $< -o $@
+
+build-fuzz/%.o: %.cpp
+	@mkdir -p $(dir $@)
+	$(FUZZ_CXX) -MMD -MP -c $< -o $@
+
+.PRECIOUS: build-fuzz/%.o
+# Linked by clang++: the shim's UBSan checks need the C++ runtime parts.
+.SECONDEXPANSION:
+build-fuzz/fuzz_%: build-fuzz/tests/fuzz/fuzz_%.o $$(addprefix build-fuzz/,$$(FUZZ_OBJ_$$*))
+	clang++ $(FUZZ_SAN) -fsanitize=fuzzer -o $@ $^ $(if $(filter image,$*),$(LIBS),-lm)
+
+fuzz-build: $(FUZZ_TARGETS:%=build-fuzz/fuzz_%)
+
+fuzz: deps fuzz-build
+	bash tests/run-fuzz.sh fuzz $(FUZZ_SECONDS)
 
 bench: deps all
 	bash bench/run.sh $(BUILD)
@@ -122,6 +153,6 @@ demo: deps all
 	bash deploy/demo.sh $(BUILD)
 
 clean:
-	rm -rf build build-asan
+	rm -rf build build-asan build-fuzz
 
--include $(shell find $(BUILD) -name '*.d' 2>/dev/null)
+-include $(shell find $(BUILD) build-fuzz -name '*.d' 2>/dev/null)

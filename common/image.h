@@ -29,8 +29,15 @@ typedef struct {
 } ts_image;
 
 typedef struct {
-  uint64_t max_pixels; /* width*height limit; refuse larger headers */
+  uint64_t max_pixels; /* width*height limit; refuse larger headers (0: default) */
+  const char *option;  /* how to raise it, named in the message; NULL: "--max-pixels" */
 } ts_image_limits;
+
+/* What a header says, without the pixels. */
+typedef struct {
+  int width, height, channels;
+  ts_pixtype type; /* the type ts_image_read would keep */
+} ts_image_info;
 
 #define TS_IMAGE_DEFAULT_MAX_PIXELS (256ull * 1024 * 1024)
 
@@ -42,13 +49,35 @@ int ts_image_alloc(ts_image *img, int width, int height, int channels,
                    ts_pixtype type, char *err);
 void ts_image_free(ts_image *img);
 
-/* Reads any format OpenImageIO knows (PNG, JPEG, TIFF incl. tiled, OpenEXR,
- * ...). Other sample types are converted to the nearest kept type (e.g. int8
- * and uint32 -> float). limits may be NULL for the defaults. Errors name the
- * file and the reason: TS_ENOENT, TS_EFORMAT (unreadable or truncated),
- * TS_ETOOBIG (over limits), TS_ENOMEM. */
+/* Reads PNG, JPEG, TIFF (incl. tiled and BigTIFF) and OpenEXR files. The
+ * format is told by the file's first bytes, never by its name, and only
+ * these four decoders are ever reached: a daemon reads references from the
+ * network, and OpenImageIO's other readers (video, DICOM, camera raw, ...)
+ * are no surface to offer. Other sample types are converted to the nearest
+ * kept type (e.g. int8 and uint32 -> float). limits may be NULL for the
+ * defaults. The header is checked (size against limits, channels, no
+ * volume or deep data, tile size) before any pixel memory is taken. Errors
+ * name the file and the reason: TS_ENOENT, TS_EFORMAT (empty, not one of
+ * the four formats, unreadable or truncated), TS_ETOOBIG (over limits,
+ * naming the size, the limit and limits->option), TS_ENOMEM. */
 int ts_image_read(const char *path, ts_image *img,
                   const ts_image_limits *limits, char *err);
+
+/* ts_image_read on a file's bytes held in memory (len bytes at data, not
+ * copied); name is what messages call it (e.g. a client's file name). Same
+ * checks, same code path, same results as reading those bytes from a
+ * file. */
+int ts_image_read_mem(const char *name, const void *data, size_t len,
+                      ts_image *img, const ts_image_limits *limits,
+                      char *err);
+
+/* The checks of ts_image_read_mem up to the pixels: the format, the header
+ * and the limits; no pixel is decoded, so this is cheap whatever the size
+ * the header claims. info may be NULL. Same errors as ts_image_read_mem
+ * (a file cut inside its pixels passes: only reading them tells). */
+int ts_image_probe_mem(const char *name, const void *data, size_t len,
+                       const ts_image_limits *limits, ts_image_info *info,
+                       char *err);
 
 /* Writes img to path, the format chosen from the extension. If meta_from is
  * not NULL, its metadata is passed through (the geometry and pixel type are

@@ -4,6 +4,13 @@
  * exceptions on this side of an extern "C" boundary. Every entry point
  * catches everything and answers with a TS_E* code and one line in err.
  *
+ * Reads take a file or a file's bytes in memory (through OpenImageIO's
+ * IOMemReader); both go through ts_open and ts_read, so a reference the
+ * coordinator probes at submit and reads later is checked the same way.
+ * The reader is picked from the first bytes among PNG, JPEG, TIFF and
+ * OpenEXR only: OpenImageIO would otherwise try every plugin it has
+ * (FFmpeg, DICOM, camera raw, ...) on whatever a client sends.
+ *
  * Three things OpenImageIO 2.4 does not do for us, handled here:
  *  - A failed read is not always a false return: libtiff strip errors and
  *    libjpeg's "premature end of file" leave read_image() true with a
@@ -30,6 +37,7 @@
 #include <string>
 #include <vector>
 
+#include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
 #include <OpenImageIO/strutil.h>
 
@@ -280,10 +288,10 @@ static void ts_geo_add(const ts_tiff &t, const ts_geotag &g, const std::vector<u
   attrs.add_or_replace(ParamValue(g.name, TypeDesc(TypeDesc::DOUBLE, (int)d.size()), 1, d.data()));
 }
 
-/* Adds the GeoTIFF tags of path's first directory to attrs. A malformed
- * tag is skipped, not an error: the pixels are still good. */
-static void ts_geo_read(const char *path, ParamValueList &attrs) {
-  ts_file f(fopen(path, "rb"));
+/* Adds the GeoTIFF tags of the first directory of the TIFF in f (a file,
+ * or fmemopen'ed bytes) to attrs. A malformed tag is skipped, not an
+ * error: the pixels are still good. */
+static void ts_geo_read(ts_file f, ParamValueList &attrs) {
   ts_tiff t;
   ts_tiff_dir d;
   if (!f || !ts_tiff_open(t, f.get()) || !ts_tiff_read_dir(t, d)) return;
@@ -442,30 +450,25 @@ struct ts_image_holder {
   ~ts_image_holder() { ts_image_free(&img); }
 };
 
-static int ts_check_spec(const char *path, const ImageSpec &s, uint64_t max_pixels, char *err) {
-  if (s.width <= 0 || s.height <= 0 || s.nchannels <= 0)
-    return ts_error(err, TS_EFORMAT, "%s: invalid image size %dx%d with %d channels", path, s.width,
-                    s.height, s.nchannels);
-  if (s.depth > 1)
-    return ts_error(err, TS_EFORMAT, "%s: volume images (depth %d) are not supported", path,
-                    s.depth);
-  if (s.deep) return ts_error(err, TS_EFORMAT, "%s: deep images are not supported", path);
-  if (s.nchannels > TS_IMAGE_MAX_CHANNELS)
-    return ts_error(err, TS_EFORMAT, "%s: %d channels; at most %d are supported", path, s.nchannels,
-                    TS_IMAGE_MAX_CHANNELS);
-  uint64_t pixels = (uint64_t)s.width * (uint64_t)s.height;
-  if (pixels > max_pixels)
-    return ts_error(err, TS_ETOOBIG,
-                    "%s: %dx%d image (%llu pixels) is over the limit of %llu "
-                    "pixels; raise it with --max-pixels",
-                    path, s.width, s.height, (unsigned long long)pixels,
-                    (unsigned long long)max_pixels);
-  return 0;
-}
+/* Where an image comes from: a file, or a file's bytes in memory. Messages
+ * call it name. */
+struct ts_source {
+  const char *name;
+  const char *path; /* nullptr: the bytes are data[0, len) */
+  const uint8_t *data;
+  size_t len;
+};
+
+/* The first bytes of a file, enough to tell the format. */
+struct ts_head {
+  uint8_t b[8];
+  size_t n;
+};
 
 /* Opens path ourselves first: OpenImageIO reports a missing file, a
- * directory and a permission problem all as "could not open". */
-static int ts_check_file(const char *path, char *err) {
+ * directory and a permission problem all as "could not open". Reads the
+ * first bytes on the way. */
+static int ts_check_file(const char *path, ts_head &head, char *err) {
   int fd = open(path, O_RDONLY | O_NONBLOCK);
   if (fd < 0) {
     if (errno == ENOENT || errno == ENOTDIR)
@@ -474,46 +477,278 @@ static int ts_check_file(const char *path, char *err) {
   }
   struct stat st;
   int rc = fstat(fd, &st);
-  close(fd);
-  if (rc == 0 && !S_ISREG(st.st_mode))
+  if (rc == 0 && !S_ISREG(st.st_mode)) {
+    close(fd);
     return ts_error(err, TS_EFORMAT, "%s: not a regular file", path);
+  }
+  ssize_t n = pread(fd, head.b, sizeof(head.b), 0);
+  int e = errno;
+  close(fd);
+  if (n < 0) return ts_error(err, TS_EIO, "%s: %s", path, strerror(e));
+  head.n = (size_t)n;
   return 0;
 }
 
-static int ts_read(const char *path, ts_image *out, const ts_image_limits *limits, char *err) {
-  int rc = ts_check_file(path, err);
-  if (rc != 0) return rc;
-  ImageSpec config;
-  config.attribute("oiio:UnassociatedAlpha", 1); /* pixel values as stored */
-  auto in = ImageInput::open(path, &config);
-  if (!in)
-    return ts_error(err, TS_EFORMAT, "%s: not a readable image: %s", path,
-                    ts_oneline(OIIO::geterror()).c_str());
-  in->geterror(); /* notes from parsing the header do not fail the read */
-  const ImageSpec &spec = in->spec();
+static int ts_source_head(const ts_source &src, ts_head &head, char *err) {
+  if (src.path != nullptr) return ts_check_file(src.path, head, err);
+  head.n = std::min(src.len, sizeof(head.b));
+  if (head.n > 0) memcpy(head.b, src.data, head.n);
+  return 0;
+}
+
+/* The OpenImageIO reader for a file starting with these bytes, or nullptr
+ * for anything but the four supported formats. */
+static const char *ts_sniff(const ts_head &h) {
+  static const struct {
+    const char *format;
+    uint8_t len;
+    uint8_t magic[8];
+  } kMagic[] = {
+      {"png", 8, {0x89, 'P', 'N', 'G', 0x0d, 0x0a, 0x1a, 0x0a}},
+      {"jpeg", 3, {0xff, 0xd8, 0xff}},
+      {"tiff", 4, {'I', 'I', 42, 0}}, /* classic, little- and big-endian */
+      {"tiff", 4, {'M', 'M', 0, 42}},
+      {"tiff", 4, {'I', 'I', 43, 0}}, /* BigTIFF */
+      {"tiff", 4, {'M', 'M', 0, 43}},
+      {"openexr", 4, {0x76, 0x2f, 0x31, 0x01}},
+  };
+  for (const auto &m : kMagic)
+    if (h.n >= m.len && memcmp(h.b, m.magic, m.len) == 0) return m.format;
+  return nullptr;
+}
+
+static int ts_check_spec(const char *name, const ImageSpec &s, const ts_image_limits *limits,
+                         char *err) {
   uint64_t max_pixels = limits != nullptr && limits->max_pixels != 0 ? limits->max_pixels
                                                                      : TS_IMAGE_DEFAULT_MAX_PIXELS;
-  rc = ts_check_spec(path, spec, max_pixels, err);
-  if (rc != 0) return rc;
+  const char *option =
+      limits != nullptr && limits->option != nullptr ? limits->option : "--max-pixels";
+  if (s.width <= 0 || s.height <= 0 || s.nchannels <= 0)
+    return ts_error(err, TS_EFORMAT, "%s: invalid image size %dx%d with %d channels", name, s.width,
+                    s.height, s.nchannels);
+  if (s.depth > 1)
+    return ts_error(err, TS_EFORMAT, "%s: volume images (depth %d) are not supported", name,
+                    s.depth);
+  if (s.deep) return ts_error(err, TS_EFORMAT, "%s: deep images are not supported", name);
+  if (s.nchannels > TS_IMAGE_MAX_CHANNELS)
+    return ts_error(err, TS_EFORMAT, "%s: %d channels; at most %d are supported", name, s.nchannels,
+                    TS_IMAGE_MAX_CHANNELS);
+  if (!s.channelformats.empty() && s.channelformats.size() != (size_t)s.nchannels)
+    return ts_error(err, TS_EFORMAT, "%s: %zu channel formats for %d channels", name,
+                    s.channelformats.size(), s.nchannels);
+  uint64_t pixels = (uint64_t)s.width * (uint64_t)s.height;
+  if (pixels > max_pixels)
+    return ts_error(err, TS_ETOOBIG,
+                    "%s: %dx%d image (%llu pixels) is over the limit of %llu "
+                    "pixels; raise it with %s",
+                    name, s.width, s.height, (unsigned long long)pixels,
+                    (unsigned long long)max_pixels, option);
+  /* A tiled reader holds whole tiles: a tiny image must not claim huge
+   * ones. */
+  uint64_t tile = (uint64_t)std::max(s.tile_width, 0) * (uint64_t)std::max(s.tile_height, 0);
+  if (s.tile_width < 0 || s.tile_height < 0 || tile > max_pixels)
+    return ts_error(err, TS_ETOOBIG,
+                    "%s: %dx%d tiles are over the limit of %llu pixels; raise it with %s",
+                    name, s.tile_width, s.tile_height, (unsigned long long)max_pixels, option);
+  return 0;
+}
 
+/* The source as a FILE: the file itself, or fmemopen over the bytes
+ * (fmemopen only reads here; the cast is what its prototype wants). */
+static FILE *ts_source_file(const ts_source &src) {
+  return src.path != nullptr ? fopen(src.path, "rb")
+                             : fmemopen((void *)src.data, src.len, "rb");
+}
+
+/* File bytes fit for a one-line message: printable ASCII as is, the rest
+ * as \xNN, at most 40 bytes shown. */
+static std::string ts_printable(const std::string &raw) {
+  std::string out;
+  for (size_t i = 0; i < raw.size() && i < 40; i++) {
+    unsigned char c = (unsigned char)raw[i];
+    if (c >= 0x20 && c < 0x7f && c != '\\') {
+      out += (char)c;
+    } else {
+      char hex[8];
+      snprintf(hex, sizeof(hex), "\\x%02x", c);
+      out += hex;
+    }
+  }
+  if (raw.size() > 40) out += "...";
+  return out;
+}
+
+/* libpng allocates (and this build touches) a text chunk at the length
+ * the file claims: 322 bytes claiming a 1.8 GB tEXt took 1.9 GB of memory
+ * (found by fuzz_image). Every chunk length is checked against the bytes
+ * left first, up to IEND; a file cut short fails here as truncated. */
+static bool ts_png_sizes_ok(FILE *f, std::string &why) {
+  if (fseeko(f, 0, SEEK_END) != 0) return false;
+  off_t end = ftello(f);
+  if (end < 8 || fseeko(f, 8, SEEK_SET) != 0) return false;
+  for (off_t pos = 8; pos < end;) {
+    uint8_t h[8];
+    if (end - pos < 12 || fread(h, 1, 8, f) != 8) {
+      why = "file ends inside a chunk header";
+      return false;
+    }
+    uint32_t len = (uint32_t)h[0] << 24 | h[1] << 16 | h[2] << 8 | h[3];
+    std::string type((const char *)h + 4, 4);
+    if (len > 0x7fffffffu || (off_t)len > end - pos - 12) {
+      why = "chunk '" + ts_printable(type) + "' claims " + std::to_string(len) +
+            " bytes, the file has " + std::to_string((long long)(end - pos - 12)) + " left";
+      return false;
+    }
+    if (type == "IEND") return true;
+    pos += 12 + (off_t)len;
+    if (fseeko(f, pos, SEEK_SET) != 0) return false;
+  }
+  why = "no IEND chunk";
+  return false;
+}
+
+/* OpenEXR 3.1 allocates every header attribute at the size the file
+ * claims before reading it (found by fuzz_image: a 707-byte file asking
+ * for 1.2 GB), so the attribute sizes are checked against the bytes the
+ * file has first. Walks the header (every header of a multi-part file):
+ * name, type name, int32 size, value; an empty name ends a header. Only
+ * the sizes are judged; OpenEXR parses the rest. */
+static bool ts_exr_sizes_ok(FILE *f, std::string &why) {
+  if (fseeko(f, 0, SEEK_END) != 0) return false;
+  off_t end = ftello(f);
+  uint8_t v[4];
+  if (end < 8 || fseeko(f, 4, SEEK_SET) != 0 || fread(v, 1, 4, f) != 4) {
+    why = "header cut short";
+    return false;
+  }
+  bool multipart = (v[1] & 0x10) != 0; /* version flag bit 12 */
+  for (int headers = 0;; headers++) {
+    for (int attrs = 0;; attrs++) {
+      std::string text[2];
+      for (int t = 0; t < 2; t++) {
+        int c;
+        while ((c = fgetc(f)) > 0 && text[t].size() < 256) text[t] += (char)c;
+        if (c < 0 || text[t].size() >= 256) {
+          why = c < 0 ? "header cut short" : "header attribute name over 255 bytes";
+          return false;
+        }
+        if (t == 0 && text[0].empty()) break; /* end of this header */
+      }
+      if (text[0].empty()) {
+        if (attrs == 0 && headers > 0) return true; /* the empty header ends the list */
+        break;
+      }
+      uint8_t b[4];
+      if (fread(b, 1, 4, f) != 4) {
+        why = "header cut short";
+        return false;
+      }
+      int64_t size = (int32_t)(b[0] | b[1] << 8 | b[2] << 16 | (uint32_t)b[3] << 24);
+      off_t here = ftello(f);
+      if (size < 0 || here < 0 || size > end - here) {
+        why = "header attribute '" + ts_printable(text[0]) + "' claims " + std::to_string(size) +
+              " bytes, more than the file holds";
+        return false;
+      }
+      if (fseeko(f, (off_t)size, SEEK_CUR) != 0) return false;
+    }
+    if (!multipart) return true;
+  }
+}
+
+/* An open reader and, for bytes in memory, the proxy it reads through
+ * (declared first: it must outlive the reader). */
+struct ts_input {
+  std::unique_ptr<OIIO::Filesystem::IOMemReader> mem;
+  std::unique_ptr<ImageInput> in;
+};
+
+/* Everything up to the pixels: the format from the first bytes, the
+ * header, the checks. Shared by every read and probe. */
+static int ts_open(const ts_source &src, const ts_image_limits *limits, ts_input &io, char *err) {
+  ts_head head;
+  int rc = ts_source_head(src, head, err);
+  if (rc != 0) return rc;
+  if (head.n == 0) return ts_error(err, TS_EFORMAT, "%s: empty file (0 bytes), not an image", src.name);
+  const char *format = ts_sniff(head);
+  if (format == nullptr) {
+    char hex[3 * sizeof(head.b) + 1] = "";
+    for (size_t i = 0, k = 0; i < head.n; i++, k = strlen(hex))
+      snprintf(hex + k, sizeof(hex) - k, "%s%02x", i ? " " : "", head.b[i]);
+    return ts_error(err, TS_EFORMAT,
+                    "%s: not a PNG, JPEG, TIFF or OpenEXR image (starts with bytes %s)", src.name,
+                    hex);
+  }
+  if (strcmp(format, "openexr") == 0) {
+    std::string why = "cannot read the header";
+    ts_file f(ts_source_file(src));
+    if (!f || !ts_exr_sizes_ok(f.get(), why))
+      return ts_error(err, TS_EFORMAT, "%s: not a readable openexr image: %s", src.name,
+                      why.c_str());
+  }
+  if (strcmp(format, "png") == 0) {
+    std::string why = "cannot read the chunks";
+    ts_file f(ts_source_file(src));
+    if (!f || !ts_png_sizes_ok(f.get(), why))
+      return ts_error(err, TS_EFORMAT, "%s: unreadable or truncated image: %s", src.name,
+                      why.c_str());
+  }
+  ImageSpec config;
+  config.attribute("oiio:UnassociatedAlpha", 1); /* pixel values as stored */
+  if (src.path == nullptr) {
+    io.mem.reset(new OIIO::Filesystem::IOMemReader(src.data, src.len));
+    void *proxy = io.mem.get(); /* how OpenImageIO 2.4's open() takes it */
+    config.attribute("oiio:ioproxy", TypeDesc::PTR, &proxy);
+  }
+  io.in = ImageInput::create(format, false, &config, io.mem.get());
+  if (!io.in)
+    return ts_error(err, TS_EFORMAT, "%s: no %s reader in this OpenImageIO: %s", src.name, format,
+                    ts_oneline(OIIO::geterror()).c_str());
+  ImageSpec spec;
+  if (!io.in->open(src.path != nullptr ? src.path : src.name, spec, config))
+    return ts_error(err, TS_EFORMAT, "%s: not a readable %s image: %s", src.name, format,
+                    ts_oneline(io.in->geterror()).c_str());
+  io.in->geterror(); /* notes from parsing the header do not fail the read */
+  return ts_check_spec(src.name, io.in->spec(), limits, err);
+}
+
+static int ts_read(const ts_source &src, ts_image *out, const ts_image_limits *limits, char *err) {
+  ts_input io;
+  int rc = ts_open(src, limits, io, err);
+  if (rc != 0) return rc;
+  const ImageSpec &spec = io.in->spec();
   ts_image_holder h;
   char why[TS_ERR_LEN];
   ts_pixtype type = ts_spec_type(spec);
   rc = ts_image_alloc(&h.img, spec.width, spec.height, spec.nchannels, type, why);
-  if (rc != 0) return ts_error(err, rc, "%s: %s", path, why);
-  bool ok = in->read_image(0, 0, 0, spec.nchannels, ts_oiio_type(type), h.img.pixels);
-  std::string reason = in->geterror();
+  if (rc != 0) return ts_error(err, rc, "%s: %s", src.name, why);
+  bool ok = io.in->read_image(0, 0, 0, spec.nchannels, ts_oiio_type(type), h.img.pixels);
+  std::string reason = io.in->geterror();
   if (!ok || !reason.empty())
-    return ts_error(err, TS_EFORMAT, "%s: unreadable or truncated image: %s", path,
+    return ts_error(err, TS_EFORMAT, "%s: unreadable or truncated image: %s", src.name,
                     ts_oneline(reason).c_str());
 
   std::unique_ptr<ts_meta> meta(new ts_meta);
   meta->attribs = spec.extra_attribs;
-  if (OIIO::Strutil::iequals(in->format_name(), "tiff")) ts_geo_read(path, meta->attribs);
+  if (OIIO::Strutil::iequals(io.in->format_name(), "tiff")) {
+    FILE *f = ts_source_file(src);
+    if (f != nullptr) ts_geo_read(ts_file(f), meta->attribs);
+  }
   h.img.meta = meta.release();
   *out = h.img;
   h.img = ts_image{};
   return 0;
+}
+
+static int ts_probe(const ts_source &src, const ts_image_limits *limits, ts_image_info *info,
+                    char *err) {
+  ts_input io;
+  int rc = ts_open(src, limits, io, err);
+  if (rc == 0 && info != nullptr) {
+    const ImageSpec &spec = io.in->spec();
+    *info = ts_image_info{spec.width, spec.height, spec.nchannels, ts_spec_type(spec)};
+  }
+  return rc;
 }
 
 /* --- write --------------------------------------------------------------- */
@@ -635,22 +870,48 @@ static int ts_write(const char *path, const ts_image *img, const ts_meta *meta_f
 
 /* --- C API --------------------------------------------------------------- */
 
+/* Runs a read or probe behind the C boundary: every exception becomes a
+ * code and a message naming the file. */
+template <typename F>
+static int ts_guard(const char *name, char *err, F body) {
+  try {
+    ts_oiio_errscope scope;
+    return body();
+  } catch (const std::bad_alloc &) {
+    return ts_error(err, TS_ENOMEM, "%s: out of memory reading the image", name);
+  } catch (const std::exception &e) {
+    return ts_error(err, TS_EFORMAT, "%s: unreadable image: %s", name,
+                    ts_oneline(e.what()).c_str());
+  } catch (...) {
+    return ts_error(err, TS_EFORMAT, "%s: unreadable image", name);
+  }
+}
+
 extern "C" int ts_image_read(const char *path, ts_image *img, const ts_image_limits *limits,
                              char *err) {
   if (img == nullptr) return ts_error(err, TS_EINVAL, "no image to read into");
   *img = ts_image{};
   if (path == nullptr || *path == '\0') return ts_error(err, TS_EINVAL, "no image file name given");
-  try {
-    ts_oiio_errscope scope;
-    return ts_read(path, img, limits, err);
-  } catch (const std::bad_alloc &) {
-    return ts_error(err, TS_ENOMEM, "%s: out of memory reading the image", path);
-  } catch (const std::exception &e) {
-    return ts_error(err, TS_EFORMAT, "%s: unreadable image: %s", path,
-                    ts_oneline(e.what()).c_str());
-  } catch (...) {
-    return ts_error(err, TS_EFORMAT, "%s: unreadable image", path);
-  }
+  ts_source src{path, path, nullptr, 0};
+  return ts_guard(path, err, [&] { return ts_read(src, img, limits, err); });
+}
+
+extern "C" int ts_image_read_mem(const char *name, const void *data, size_t len, ts_image *img,
+                                 const ts_image_limits *limits, char *err) {
+  if (img == nullptr) return ts_error(err, TS_EINVAL, "no image to read into");
+  *img = ts_image{};
+  if (name == nullptr || *name == '\0') name = "(image in memory)";
+  if (data == nullptr && len != 0) return ts_error(err, TS_EINVAL, "%s: no bytes given", name);
+  ts_source src{name, nullptr, (const uint8_t *)data, len};
+  return ts_guard(name, err, [&] { return ts_read(src, img, limits, err); });
+}
+
+extern "C" int ts_image_probe_mem(const char *name, const void *data, size_t len,
+                                  const ts_image_limits *limits, ts_image_info *info, char *err) {
+  if (name == nullptr || *name == '\0') name = "(image in memory)";
+  if (data == nullptr && len != 0) return ts_error(err, TS_EINVAL, "%s: no bytes given", name);
+  ts_source src{name, nullptr, (const uint8_t *)data, len};
+  return ts_guard(name, err, [&] { return ts_probe(src, limits, info, err); });
 }
 
 extern "C" int ts_image_write(const char *path, const ts_image *img, const ts_meta *meta_from,

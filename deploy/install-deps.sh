@@ -11,6 +11,7 @@ PACKAGES=(
   libcmocka-dev                        # unit tests
   python3-pytest                       # integration tests
   valgrind                             # make test-valgrind
+  clang                                # libFuzzer targets (make fuzz; 20 s each in make test)
 )
 # Plots for `make bench` only.
 [ "${1:-}" = "--bench" ] && PACKAGES+=(python3-matplotlib)

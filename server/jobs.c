@@ -24,6 +24,7 @@
 #define JOBS_PATH 4096
 #define JOBS_SPOOL_LEN 1024 /* longer spool paths are refused */
 #define JOBS_CLIENT_LEN 128
+#define JOBS_MAX_PIXELS_OPTION "texsyn-server --max-pixels" /* named in limit errors */
 
 typedef struct job {
   uint64_t id;
@@ -348,7 +349,7 @@ static int synthesize_job(ts_jobs *j, job *jb, const ts_image *ref, ts_search *s
 static int run_job(ts_jobs *j, job *jb, char *err) {
   char path[JOBS_PATH + 32];
   snprintf(path, sizeof(path), "%s/ref.%s", jb->dir, jb->ref_ext);
-  ts_image_limits limits = {j->o.max_pixels};
+  ts_image_limits limits = {j->o.max_pixels, JOBS_MAX_PIXELS_OPTION};
   ts_image ref = {0};
   int rc = ts_image_read(path, &ref, &limits, err);
   if (rc != 0) return rc;
@@ -631,21 +632,18 @@ int ts_jobs_submit(ts_jobs *j, const char *client, const char *spec, size_t spec
   if (jb == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
   int rc = ts_jobspec_parse(spec, spec_len, &jb->spec, err);
   const char *ext = ts_path_ext(ref_name);
-  char ext_ok[TS_EXT_LEN];
-  if (rc == 0) {
-    /* Reuse the spec's extension rule: letters and digits only. */
-    char probe[64];
-    snprintf(probe, sizeof(probe), "output=%s\n", ext);
-    ts_jobspec tmp;
-    if (ext[0] == '\0' || ts_jobspec_parse(probe, strlen(probe), &tmp, err) != 0)
-      rc = ts_error(err, TS_EINVAL, "reference name '%s' needs a plain extension (.png, .tif, ...)", ref_name);
-    else snprintf(ext_ok, sizeof(ext_ok), "%s", tmp.output);
-  }
+  /* The spec's extension rule: letters and digits only. */
+  if (rc == 0 && !ts_ext_valid(ext))
+    rc = ts_error(err, TS_EINVAL, "reference name '%s' needs a plain extension (.png, .tif, ...)", ref_name);
+  /* The reference's header now, so a file that is no image or is over the
+   * limit is refused to its sender at once, not queued to fail later. */
+  ts_image_limits limits = {j->o.max_pixels, JOBS_MAX_PIXELS_OPTION};
+  if (rc == 0) rc = ts_image_probe_mem(ref_name, ref, ref_len, &limits, NULL, err);
   if (rc != 0) {
     free(jb);
     return rc;
   }
-  snprintf(jb->ref_ext, sizeof(jb->ref_ext), "%s", ext_ok);
+  snprintf(jb->ref_ext, sizeof(jb->ref_ext), "%s", ext);
   snprintf(jb->client, sizeof(jb->client), "%s", client);
   rc = admit(j, jb, ref_len, err);
   if (rc != 0) {

@@ -73,6 +73,11 @@ static int parse_ext(const char *v, char *out) {
   return 0;
 }
 
+int ts_ext_valid(const char *ext) {
+  char tmp[TS_EXT_LEN];
+  return ext[0] != '\0' && parse_ext(ext, tmp) == 0;
+}
+
 static int parse_size(const char *v, int *w, int *h) {
   char a[32];
   const char *x = strchr(v, 'x');
@@ -126,5 +131,8 @@ int ts_jobspec_parse(const char *text, size_t len, ts_jobspec *s, char *err) {
     if (rc != 0) return ts_error(err, TS_EINVAL, "job spec line %d: bad value '%s' for %s", line, eq + 1, buf);
   }
   if (s->output[0] == '\0') return ts_error(err, TS_EINVAL, "job spec: output format is required");
+  /* Without it the spec would format as size=0x0, which no parse takes
+   * back: a spooled job would be lost on a restart. */
+  if (s->p.width == 0) return ts_error(err, TS_EINVAL, "job spec: size=WxH is required");
   return 0;
 }

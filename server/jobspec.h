@@ -8,7 +8,7 @@
  *   coarse_weight=1  refine=2  seed=1  rgb_search=0  max_pixels=N
  *   output=png  copy_map=png  copy_map_raw=1  usage_map=tif  report=1
  *
- * `output`, `copy_map` and `usage_map` are file extensions (the format of
+ * `size` is required. `output`, `copy_map` and `usage_map` are file extensions (the format of
  * the file the coordinator writes); empty or absent means not wanted.
  * Doubles are written with 17 significant digits so they round-trip. */
 #ifndef TS_JOBSPEC_H
@@ -35,6 +35,9 @@ int ts_jobspec_format(const ts_jobspec *s, char *buf, size_t cap);
  * the first problem is reported with its line number. Parameter ranges
  * are the engine's business (ts_mrf_check). */
 int ts_jobspec_parse(const char *text, size_t len, ts_jobspec *s, char *err);
+/* 1 if ext is a non-empty extension a spec accepts (letters and digits,
+ * shorter than TS_EXT_LEN), else 0. */
+int ts_ext_valid(const char *ext);
 /* The extension of a path ("png" for "a/b.png"), or "" without one. */
 const char *ts_path_ext(const char *path);
 

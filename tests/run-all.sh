@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # The whole suite, as `make test` runs it: unit tests (each test in its own
 # process) on the normal build, integration tests driving the real binaries,
-# then the unit tests and a short integration subset under ASan+UBSan.
+# then the unit tests and a short integration subset under ASan+UBSan; the
+# fuzz targets' seeds and crash regressions replayed on both builds; each
+# libFuzzer target for TEXSYN_FUZZ_SECONDS (20) seconds.
 # Ends with one "N passed, N failed" line over everything.
 set -u
 cd "$(dirname "$0")/.."
@@ -16,13 +18,18 @@ tally() { # reads a runner's closing "... N passed, N failed" line
 log=$(mktemp)
 status=0
 bash tests/run-unit.sh build | tee "$log"; [ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log"
+bash tests/run-fuzz.sh replay build | tee "$log"; [ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log"
 bash tests/run-integration.sh build | tee "$log"; [ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log"
 export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:abort_on_error=1:fast_unwind_on_malloc=0}
 export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
 export LSAN_OPTIONS="suppressions=$PWD/tests/lsan.supp"
 TEXSYN_TEST_TIMEOUT_MULTIPLIER=4 bash tests/run-unit.sh build-asan | tee "$log"
 [ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log"
+bash tests/run-fuzz.sh replay build-asan | tee "$log"; [ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log"
 TEXSYN_SANITIZED=1 bash tests/run-integration.sh build-asan -m sanitize | tee "$log"
+[ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log"
+# Each libFuzzer target for a bounded time (make fuzz-build; clang).
+bash tests/run-fuzz.sh fuzz "${TEXSYN_FUZZ_SECONDS:-20}" | tee "$log"
 [ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log"
 rm -f "$log"
 if [ $status -ne 0 ] && [ $total_fail -eq 0 ]; then total_fail=1; fi

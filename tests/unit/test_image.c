@@ -8,6 +8,7 @@
 #include <limits.h>
 #include <math.h>
 #include <stdio.h>
+#include <sys/resource.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -15,6 +16,12 @@
 #include "image.h"
 #include "image_meta.h"
 #include "ts_test.h"
+
+#if defined(__SANITIZE_ADDRESS__)
+#define TS_ASAN 1
+#else
+#define TS_ASAN 0
+#endif
 
 /* --- fixture: a scratch directory per test ------------------------------ */
 
@@ -740,6 +747,42 @@ static void be32(uint8_t *p, uint32_t v) {
   p[3] = (uint8_t)v;
 }
 
+/* A 100000 x 100000 header is refused from the header, the same way from
+ * a file, from memory and by the probe: the message names the file, the
+ * size, the limit and the option that raises it. Under a 1 GiB address
+ * space limit: refused before any pixel memory (10 GB) is asked for. */
+static void expect_huge(const char *path, const uint8_t *bytes, size_t n) {
+  struct rlimit old, lim;
+  assert_int_equal(getrlimit(RLIMIT_AS, &old), 0);
+  lim = old;
+  unsigned long vsz_pages = 0;
+  FILE *statm = fopen("/proc/self/statm", "r");
+  if (statm != NULL) {
+    if (fscanf(statm, "%lu", &vsz_pages) != 1) vsz_pages = 0;
+    fclose(statm);
+  }
+  if (!TS_ASAN && vsz_pages > 0) { /* ASan reserves terabytes of address space */
+    lim.rlim_cur = (rlim_t)vsz_pages * (rlim_t)sysconf(_SC_PAGESIZE) + (1ull << 30);
+    assert_int_equal(setrlimit(RLIMIT_AS, &lim), 0);
+  }
+  char err[TS_ERR_LEN];
+  ts_image img;
+  ts_image_info info;
+  expect_read_error(path, TS_ETOOBIG);
+  assert_int_equal(ts_image_read(path, &img, NULL, err), TS_ETOOBIG);
+  assert_non_null(strstr(err, "100000x100000 image (10000000000 pixels)"));
+  assert_non_null(strstr(err, "limit of 268435456 pixels"));
+  assert_non_null(strstr(err, "raise it with --max-pixels"));
+  ts_image_limits server = {1000000, "texsyn-server --max-pixels"};
+  assert_int_equal(ts_image_read_mem("client.img", bytes, n, &img, &server, err), TS_ETOOBIG);
+  assert_null(img.pixels);
+  assert_non_null(strstr(err, "client.img: 100000x100000 image"));
+  assert_non_null(strstr(err, "limit of 1000000 pixels; raise it with texsyn-server --max-pixels"));
+  assert_int_equal(ts_image_probe_mem("client.img", bytes, n, &server, &info, err), TS_ETOOBIG);
+  assert_non_null(strstr(err, "client.img: 100000x100000 image"));
+  assert_int_equal(setrlimit(RLIMIT_AS, &old), 0);
+}
+
 /* A valid PNG header (IHDR with a correct CRC) claiming 100000 x 100000
  * grey pixels, followed by a tiny IDAT: refused from the header alone. */
 static void read_huge_header_refused(void **state) {
@@ -762,12 +805,17 @@ static void read_huge_header_refused(void **state) {
   be32(iend + 8, crc32_png(iend + 4, 4));
   path_of(state, "huge.png", path);
   write_file(path, png, sizeof(png));
-  expect_read_error(path, TS_ETOOBIG);
+  expect_huge(path, png, sizeof(png));
 
   uint8_t buf[1024], pix[16] = {0};
   path_of(state, "huge.tif", path);
-  write_file(path, buf, tt_grey(buf, 0, 100000, 100000, 0, pix, sizeof(pix)));
-  expect_read_error(path, TS_ETOOBIG);
+  size_t n = tt_grey(buf, 0, 100000, 100000, 0, pix, sizeof(pix));
+  write_file(path, buf, n);
+  expect_huge(path, buf, n);
+  path_of(state, "huge-big.tif", path); /* BigTIFF */
+  n = tt_grey(buf, 1, 100000, 100000, 0, pix, sizeof(pix));
+  write_file(path, buf, n);
+  expect_huge(path, buf, n);
 }
 
 static void read_honours_max_pixels(void **state) {
@@ -789,6 +837,136 @@ static void read_honours_max_pixels(void **state) {
   assert_int_equal(ts_image_read(path, &back, &lim, err), 0);
   ts_image_free(&back);
   ts_image_free(&img);
+}
+
+/* Reads a file's bytes as ts_image_read_mem: the same image as from the
+ * file, metadata included. */
+static void expect_mem_same(const char *path) {
+  char err[TS_ERR_LEN], v[256], w[256];
+  size_t n;
+  uint8_t *bytes = read_file(path, &n);
+  ts_image a, b;
+  ts_image_info info;
+  assert_int_equal(ts_image_read(path, &a, NULL, err), 0);
+  assert_int_equal(ts_image_read_mem("mem", bytes, n, &b, NULL, err), 0);
+  assert_same_image(&a, &b);
+  assert_int_equal(ts_image_probe_mem("mem", bytes, n, NULL, &info, err), 0);
+  assert_int_equal(info.width, a.width);
+  assert_int_equal(info.height, a.height);
+  assert_int_equal(info.channels, a.channels);
+  assert_int_equal(info.type, a.type);
+  int geo = ts_meta_get(a.meta, "GeoTIFF:ModelTiePoint", v, sizeof(v));
+  assert_int_equal(ts_meta_get(b.meta, "GeoTIFF:ModelTiePoint", w, sizeof(w)), geo);
+  if (geo == 0) assert_string_equal(v, w);
+  ts_image_free(&a);
+  ts_image_free(&b);
+  free(bytes);
+}
+
+static void read_mem_matches_file(void **state) {
+  static const struct {
+    const char *name;
+    int c;
+    ts_pixtype t;
+  } files[] = {{"m.png", 3, TS_PIX_U8}, {"m16.png", 2, TS_PIX_U16}, {"m.jpg", 3, TS_PIX_U8},
+               {"m.tif", 4, TS_PIX_U16}, {"m.exr", 3, TS_PIX_F16}};
+  char path[PATH_MAX], err[TS_ERR_LEN];
+  for (size_t i = 0; i < sizeof(files) / sizeof(files[0]); i++) {
+    ts_image img;
+    make_image(&img, 24, 16, files[i].c, files[i].t);
+    path_of(state, files[i].name, path);
+    assert_int_equal(ts_image_write(path, &img, NULL, err), 0);
+    expect_mem_same(path);
+    ts_image_free(&img);
+  }
+  uint8_t pix[8 * 4] = {1, 2, 3}, buf[4096];
+  path_of(state, "geo.tif", path);
+  write_file(path, buf, tt_grey(buf, 0, 8, 4, 1, pix, sizeof(pix)));
+  expect_mem_same(path);
+}
+
+/* What the coordinator refuses at submit: each gets one line naming the
+ * file and saying what is wrong, from a file and from memory alike. */
+static void read_refuses_non_images(void **state) {
+  static const struct {
+    const char *name, *bytes, *want;
+    size_t n;
+  } cases[] = {
+      {"empty.png", "", "empty.png: empty file (0 bytes), not an image", 0},
+      {"text.png", "hello, world\n", "text.png: not a PNG, JPEG, TIFF or OpenEXR image (starts "
+                                    "with bytes 68 65 6c 6c 6f 2c 20 77)", 13},
+      {"tiny.png", "\x89P", "tiny.png: not a PNG, JPEG, TIFF or OpenEXR image (starts with "
+                            "bytes 89 50)", 2},
+      {"bmp.png", "BM\x3a\0\0\0", "not a PNG, JPEG, TIFF or OpenEXR", 6},
+      {"head.png", "\x89PNG\r\n\x1a\n", "head.png: unreadable or truncated image: no IEND chunk", 8},
+      /* Found by fuzz_image: libpng took 1.9 GB for a text chunk this
+       * claimed; chunk lengths are now checked against the file first. */
+      {"bigtext.png",
+       "\x89PNG\r\n\x1a\n\0\0\0\x0dIHDR\0\0\0\x08\0\0\0\x08\x08\x02\0\0\0\x4b\x6d\x29\xdc"
+       "\x6d\x66\x6f\x63tEXtabcdefghijkl",
+       "bigtext.png: unreadable or truncated image: chunk 'tEXt' claims 1835429731 bytes, the file "
+       "has 8 left",
+       53},
+      /* Found by fuzz_image: OpenEXR would allocate what the attribute
+       * claims (here 2 GB) before reading it. */
+      {"attr.exr", "\x76\x2f\x31\x01\x02\0\0\0foo\0string\0\xff\xff\xff\x7f",
+       "attr.exr: not a readable openexr image: header attribute 'foo' claims 2147483647 bytes, "
+       "more than the file holds",
+       23},
+  };
+  char path[PATH_MAX], err[TS_ERR_LEN];
+  for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
+    ts_image img;
+    path_of(state, cases[i].name, path);
+    write_file(path, cases[i].bytes, cases[i].n);
+    expect_read_error(path, TS_EFORMAT);
+    assert_int_equal(ts_image_read_mem(cases[i].name, cases[i].bytes, cases[i].n, &img, NULL, err),
+                     TS_EFORMAT);
+    print_message("     err: %s\n", err);
+    assert_non_null(strstr(err, cases[i].want));
+    assert_int_equal(ts_image_probe_mem(cases[i].name, cases[i].bytes, cases[i].n, NULL, NULL, err),
+                     TS_EFORMAT);
+    assert_non_null(strstr(err, cases[i].want));
+  }
+}
+
+/* The probe reads the header only: a JPEG cut inside its pixels passes
+ * it, and the read then fails (a cut PNG fails the chunk walk already); a header with tiles over the limit fails
+ * both. */
+static void probe_reads_the_header_only(void **state) {
+  char path[PATH_MAX], cut[PATH_MAX], err[TS_ERR_LEN];
+  ts_image img;
+  make_image(&img, 64, 64, 3, TS_PIX_U8);
+  write_and_cut(state, "p.jpg", &img, 50, cut);
+  ts_image_free(&img);
+  size_t n;
+  uint8_t *bytes = read_file(cut, &n);
+  ts_image_info info;
+  assert_int_equal(ts_image_probe_mem("cut.jpg", bytes, n, NULL, &info, err), 0);
+  assert_int_equal(info.width, 64);
+  assert_int_equal(info.channels, 3);
+  assert_int_equal(info.type, TS_PIX_U8);
+  assert_int_equal(ts_image_read_mem("cut.jpg", bytes, n, &img, NULL, err), TS_EFORMAT);
+  assert_non_null(strstr(err, "cut.jpg: unreadable or truncated image"));
+  free(bytes);
+
+  /* 16 x 16 pixels in one 65536 x 65536 tile (4 Gpixels). */
+  uint8_t lw[4], lt[4], s8[2], s1[2], off[4], cnt[4], buf[1024];
+  le(lw, 16, 4);
+  le(lt, 65536, 4);
+  le(s8, 8, 2);
+  le(s1, 1, 2);
+  le(off, 8, 4);
+  le(cnt, 16, 4);
+  tt_entry e[] = {{256, T_LONG, 1, lw},  {257, T_LONG, 1, lw},  {258, T_SHORT, 1, s8},
+                  {259, T_SHORT, 1, s1}, {262, T_SHORT, 1, s1}, {277, T_SHORT, 1, s1},
+                  {322, T_LONG, 1, lt},  {323, T_LONG, 1, lt},  {324, T_LONG, 1, off},
+                  {325, T_LONG, 1, cnt}};
+  path_of(state, "tile.tif", path);
+  write_file(path, buf, tt_build(buf, 0, e, 10, buf, 0));
+  expect_read_error(path, TS_ETOOBIG);
+  assert_int_equal(ts_image_read(path, &img, NULL, err), TS_ETOOBIG);
+  assert_non_null(strstr(err, "65536x65536 tiles are over the limit of 268435456 pixels"));
 }
 
 static void write_unknown_extension(void **state) {
@@ -1031,6 +1209,9 @@ static const struct CMUnitTest tests[] = {
     T(read_truncated_tiff),
     T(read_huge_header_refused),
     T(read_honours_max_pixels),
+    T(read_mem_matches_file),
+    T(read_refuses_non_images),
+    T(probe_reads_the_header_only),
     T(write_unknown_extension),
     T(errors_do_not_leak),
     T(write_into_missing_dir),

@@ -300,6 +300,14 @@ static void jobspec_refuses_bad_lines(void **state) {
     assert_int_equal(ts_jobspec_parse(bad[i], strlen(bad[i]), &s, err), TS_EINVAL);
   assert_int_equal(ts_jobspec_parse("size=8x8\nbogus=1\n", 17, &s, err), TS_EINVAL);
   assert_non_null(strstr(err, "line 2"));
+  /* Found by fuzz_jobspec: without a size the spec formatted as size=0x0,
+   * which no parse takes back (a spooled job lost on restart). */
+  assert_int_equal(ts_jobspec_parse("output=png\n", 11, &s, err), TS_EINVAL);
+  assert_non_null(strstr(err, "size=WxH is required"));
+  assert_int_equal(ts_ext_valid("png"), 1);
+  assert_int_equal(ts_ext_valid(""), 0);
+  assert_int_equal(ts_ext_valid("p.g"), 0);
+  assert_int_equal(ts_ext_valid("abcdefghijklmnop"), 0);
 }
 
 /* Each step has one exact size (33, 65, 33 bytes); unknown steps and the
