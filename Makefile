@@ -41,7 +41,7 @@ BINS = $(BUILD)/texsyn $(BUILD)/texsyn-server $(BUILD)/texsyn-worker
 UNIT_SRC = $(wildcard tests/unit/test_*.c)
 UNIT_BINS = $(UNIT_SRC:tests/unit/%.c=$(BUILD)/tests/%)
 # The libFuzzer targets' inputs replayed by a plain main() (tests/fuzz).
-FUZZ_TARGETS = frame msg jobspec image
+FUZZ_TARGETS = frame msg jobspec image checkpoint
 REPLAY_BINS = $(FUZZ_TARGETS:%=$(BUILD)/tests/replay_%)
 BENCH_SRC = $(wildcard bench/*.c)
 BENCH_BINS = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
@@ -126,6 +126,7 @@ FUZZ_OBJ_frame = proto/frame.o common/error.o
 FUZZ_OBJ_msg = proto/msg.o proto/frame.o server/jobspec.o server/params.o common/error.o
 FUZZ_OBJ_jobspec = server/jobspec.o server/params.o common/error.o
 FUZZ_OBJ_image = common/image.o common/image_oiio.o common/error.o
+FUZZ_OBJ_checkpoint = server/checkpoint.o proto/frame.o common/error.o
 
 build-fuzz/%.o: %.c
 	@mkdir -p $(dir $@)

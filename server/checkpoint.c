@@ -11,6 +11,7 @@
  * another job; the exact length a truncated one. */
 #include "checkpoint.h"
 
+#include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -53,17 +54,23 @@ static void write_stats(ts_wr *w, const ts_mrf_level_stats *s) {
   ts_wr_u32(w, (uint32_t)s->out_h);
 }
 
-static void read_stats(ts_rd *r, ts_mrf_level_stats *s) {
+/* Sizes beyond int are refused rather than cut: a checkpoint either
+ * decodes to exactly what was encoded or not at all. */
+static int read_stats(ts_rd *r, ts_mrf_level_stats *s) {
   s->seconds = bits_double(ts_rd_u64(r));
   s->blocks = ts_rd_u64(r);
   s->steps = ts_rd_u64(r);
   s->pairs = ts_rd_u64(r);
   s->wire_bytes = ts_rd_u64(r);
   s->round_trips = ts_rd_u64(r);
-  s->ref_w = (int)(ts_rd_u32(r) & 0x7fffffff);
-  s->ref_h = (int)(ts_rd_u32(r) & 0x7fffffff);
-  s->out_w = (int)(ts_rd_u32(r) & 0x7fffffff);
-  s->out_h = (int)(ts_rd_u32(r) & 0x7fffffff);
+  int *sizes[4] = {&s->ref_w, &s->ref_h, &s->out_w, &s->out_h};
+  int rc = 0;
+  for (int k = 0; k < 4; k++) {
+    uint32_t v = ts_rd_u32(r);
+    if (v > INT32_MAX) rc = TS_EPROTO;
+    *sizes[k] = (int)(v & INT32_MAX);
+  }
+  return rc;
 }
 
 int ts_checkpoint_encode(const ts_mrf_checkpoint *ck, int levels, uint64_t tag, uint8_t **buf, size_t *len,
@@ -144,11 +151,17 @@ int ts_checkpoint_decode(const uint8_t *buf, size_t len, uint64_t tag, uint64_t 
   ck->copy = rc == 0 ? malloc(npx * 8) : NULL;
   if (ck->copy == NULL) rc = TS_ENOMEM;
   for (size_t i = 0; rc == 0 && i < 2 * npx; i++) ck->copy[i] = ts_rd_u32(&r);
-  for (uint32_t s = 0; rc == 0 && s < nstats; s++) read_stats(&r, &ck->stats[ck->level + (int)s]);
+  for (uint32_t s = 0; rc == 0 && s < nstats; s++) rc = read_stats(&r, &ck->stats[ck->level + (int)s]);
   if (rc == 0 && ts_rd_done(&r, 1) != 0) rc = TS_EPROTO;
   if (rc != 0) {
-    ts_mrf_checkpoint_free(ck);
+    ts_checkpoint_free(ck);
     return ts_error(err, rc, rc == TS_ENOMEM ? "out of memory reading a checkpoint" : "malformed checkpoint");
   }
   return 0;
+}
+
+void ts_checkpoint_free(ts_mrf_checkpoint *ck) {
+  for (int k = 0; k < TS_MAX_PLANES; k++) free(ck->planes[k]);
+  free(ck->copy);
+  memset(ck, 0, sizeof(*ck));
 }

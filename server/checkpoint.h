@@ -21,10 +21,13 @@ uint64_t ts_checkpoint_tag(const void *spec, size_t len);
 int ts_checkpoint_encode(const ts_mrf_checkpoint *ck, int levels, uint64_t tag, uint8_t **buf, size_t *len,
                          char *err);
 
-/* Decodes buf into ck (which then owns its buffers: ts_mrf_checkpoint_free).
+/* Decodes buf into ck (which then owns its buffers: ts_checkpoint_free).
  * Refuses, with TS_EPROTO and a reason, anything that is not a whole,
  * intact checkpoint of job `tag` with at most max_pixels pixels. */
 int ts_checkpoint_decode(const uint8_t *buf, size_t len, uint64_t tag, uint64_t max_pixels,
                          ts_mrf_checkpoint *ck, char *err);
+
+/* Frees what a decoded checkpoint owns (never the engine's own state). */
+void ts_checkpoint_free(ts_mrf_checkpoint *ck);
 
 #endif

@@ -342,7 +342,7 @@ static int synthesize_job(ts_jobs *j, job *jb, const ts_image *ref, ts_search *s
   int resumed = load_job_checkpoint(j, jb, cc.tag, &resume);
   ts_mrf_hooks hooks = {on_progress, &pc, on_checkpoint, &cc, resumed ? &resume : NULL};
   int rc = ts_mrf_synthesize(&jb->spec.p, ref, search, &hooks, res, err);
-  if (resumed) ts_mrf_checkpoint_free(&resume);
+  if (resumed) ts_checkpoint_free(&resume);
   return rc;
 }
 

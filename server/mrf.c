@@ -652,12 +652,6 @@ int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *se
   return rc;
 }
 
-void ts_mrf_checkpoint_free(ts_mrf_checkpoint *ck) {
-  for (int k = 0; k < TS_MAX_PLANES; k++) free(ck->planes[k]);
-  free(ck->copy);
-  memset(ck, 0, sizeof(*ck));
-}
-
 void ts_mrf_result_free(ts_mrf_result *res) {
   ts_image_free(&res->image);
   free(res->copy_map);

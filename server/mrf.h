@@ -103,9 +103,6 @@ typedef struct {
 int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref,
                       ts_search *search, const ts_mrf_hooks *hooks,
                       ts_mrf_result *res, char *err);
-
-/* Frees what a checkpoint owns (decoded or copied ones, not the engine's). */
-void ts_mrf_checkpoint_free(ts_mrf_checkpoint *ck);
 void ts_mrf_result_free(ts_mrf_result *res);
 
 #endif

@@ -12,7 +12,7 @@
 set -u
 cd "$(dirname "$0")/.."
 mode=${1:-}
-targets="frame msg jobspec image"
+targets="frame msg jobspec image checkpoint"
 pass=0; fail=0
 inputs() { # the committed inputs of target $1 that exist
   local d

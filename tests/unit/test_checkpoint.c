@@ -48,8 +48,8 @@ static void round_trip_keeps_everything(void **state) {
   assert_true(back.stats[2].seconds == 0.25);
   assert_int_equal(back.stats[2].pairs, 123456789012ull);
   assert_int_equal(back.stats[3].out_w, 7);
-  ts_mrf_checkpoint_free(&back);
-  ts_mrf_checkpoint_free(&ck);
+  ts_checkpoint_free(&back);
+  ts_checkpoint_free(&ck);
   free(buf);
 }
 
@@ -101,7 +101,7 @@ static void damage_is_refused(void **state) {
     refuse(copy, len, 99, 1u << 30, lies[i].reason);
   }
   free(copy);
-  ts_mrf_checkpoint_free(&ck);
+  ts_checkpoint_free(&ck);
   free(buf);
 }
 

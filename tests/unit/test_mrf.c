@@ -308,7 +308,7 @@ static void resuming_after_any_level_gives_same_bytes(void **state) {
     assert_same_result(&base, &r);
     assert_int_equal(r.level[l].blocks, base.level[l].blocks); /* carried statistics */
     ts_mrf_result_free(&r);
-    ts_mrf_checkpoint_free(&ck);
+    ts_checkpoint_free(&ck);
     free(sc.bytes[l]);
   }
   ts_mrf_result_free(&base);
@@ -340,7 +340,7 @@ static void foreign_checkpoint_is_refused(void **state) {
   ck.copy[0] = 1000; /* points outside the reference */
   assert_int_equal(ts_mrf_synthesize(&p, &ref, s, &resume, &r, err), TS_EINVAL);
   assert_non_null(strstr(err, "outside"));
-  ts_mrf_checkpoint_free(&ck);
+  ts_checkpoint_free(&ck);
   for (int l = 0; l < TS_MRF_MAX_LEVELS; l++) free(sc.bytes[l]);
   ts_search_destroy(s);
   ts_image_free(&ref);
