@@ -3,7 +3,7 @@
 # process) on the normal build, integration tests driving the real binaries,
 # then the unit tests and a short integration subset under ASan+UBSan; the
 # fuzz targets' seeds and crash regressions replayed on both builds; each
-# libFuzzer target for TEXSYN_FUZZ_SECONDS (20) seconds.
+# libFuzzer target for TEXSYN_FUZZ_SECONDS (10) seconds.
 # Ends with one "N passed, N failed" line over everything.
 set -u
 cd "$(dirname "$0")/.."
@@ -29,7 +29,7 @@ bash tests/run-fuzz.sh replay build-asan | tee "$log"; [ "${PIPESTATUS[0]}" -eq 
 TEXSYN_SANITIZED=1 bash tests/run-integration.sh build-asan -m sanitize | tee "$log"
 [ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log"
 # Each libFuzzer target for a bounded time (make fuzz-build; clang).
-bash tests/run-fuzz.sh fuzz "${TEXSYN_FUZZ_SECONDS:-20}" | tee "$log"
+bash tests/run-fuzz.sh fuzz "${TEXSYN_FUZZ_SECONDS:-10}" | tee "$log"
 [ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log"
 rm -f "$log"
 if [ $status -ne 0 ] && [ $total_fail -eq 0 ]; then total_fail=1; fi

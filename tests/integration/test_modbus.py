@@ -83,7 +83,6 @@ def expected(texsyn, data, tmp_path_factory):
 
 
 @needs_mbpoll
-@pytest.mark.sanitize
 def test_maps_read_with_mbpoll_and_libmodbus(data, cluster, tmp_path, expected):
     start(cluster, 2, control=False)
     w = cluster.workers[0]
