@@ -122,6 +122,7 @@ def wait_for(path, timeout=60):
         time.sleep(0.01)
 
 
+@pytest.mark.sanitize
 def test_coordinator_killed_mid_job_resumes_after_restart(data, cluster, tmp_path, expected):
     """kill -9 of the coordinator once a job has checkpointed a level: a new
     coordinator on the same spool resumes it from that level, still serves

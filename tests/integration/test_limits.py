@@ -6,6 +6,8 @@ request names a file outside the spool."""
 import socket
 import struct
 
+import pytest
+
 from conftest import BUILD, Daemon, run, synth
 
 SMALL = ["--size", "96x64", "--levels", "3"]
@@ -80,6 +82,7 @@ def test_spool_limit_refuses_until_jobs_are_deleted(texsyn, data, cluster, tmp_p
     assert missing.returncode == 1 and "no job 9999" in missing.stderr
 
 
+@pytest.mark.sanitize
 def test_deleted_ids_are_not_reused_after_a_restart(data, cluster, tmp_path):
     cluster.start(0, 1)
     code, job, err = submit(cluster, "dave", data, tmp_path / "d.png", *SMALL)
@@ -132,6 +135,7 @@ def submit_payload(spec, ref_name, ref):
     return struct.pack("<I", len(spec)) + spec + struct.pack("<H", len(name)) + name + struct.pack("<I", len(ref)) + ref
 
 
+@pytest.mark.sanitize
 def test_requests_cannot_reach_outside_the_spool(data, cluster, tmp_path):
     """Hostile names in a raw submit: a reference name full of '../' only
     lends its extension, and outputs with a path in their extension are

@@ -11,6 +11,8 @@ import socket
 import struct
 import threading
 
+import pytest
+
 from conftest import BUILD, Daemon, synth
 
 JOB = ["--size", "96x64", "--levels", "3"]
@@ -124,6 +126,7 @@ def close(*socks):
             pass
 
 
+@pytest.mark.sanitize
 def test_batch_that_keeps_killing_workers_fails_its_job_not_the_pool(texsyn, data, cluster, tmp_path):
     workers = [cluster.worker(1) for _ in range(4)]
     poison = Poison(kills=3)
