@@ -10,6 +10,7 @@
 
 #define TS_MB_MAGIC 0x5453 /* "TS" */
 #define TS_MB_BUILD 4      /* bumped with every release of the map's meaning */
+#define TS_MB_UNKNOWN 0xFFFF
 
 enum {
   TS_MB_IR_MAGIC = 0,      /* 0x5453 */
@@ -19,6 +20,9 @@ enum {
   TS_MB_IR_STATE = 4,      /* ts_mb_state */
   TS_MB_IR_THREADS = 5,    /* scan threads */
   TS_MB_IR_SIMD = 6,       /* 0 scalar, 1 mmx, 2 sse2, 3 avx2, 4 avx512 */
+  TS_MB_IR_CPU_SHARE = 7,  /* per mille of the time its threads wanted a CPU that they
+                              had one (others waited in the run queue), over the last
+                              ~second; TS_MB_UNKNOWN when they hardly ran */
   TS_MB_IR_UPTIME = 8,     /* u32 seconds since start */
   TS_MB_IR_ERRORS = 10,    /* u32 protocol errors and failed requests */
   TS_MB_IR_RATE = 12,      /* u64 calibrated scan rate, comparisons/s */

@@ -66,6 +66,8 @@ typedef struct {
   double answered_at;      /* when the last answer arrived */
   double heard_at;         /* when the worker last sent anything */
   double mb_heard_at;      /* when its Modbus plane last answered */
+  double cpu_share;        /* share of CPU its threads get (Modbus), < 0 unknown */
+  double share_sized;      /* the share when its slices were last sized, < 0 none */
 } cl_worker;
 
 typedef struct {
@@ -85,6 +87,7 @@ struct ts_cluster {
   uint32_t next_set, next_frame;
   uint64_t epoch; /* bumped when the slicing must change */
   double deviating_since; /* start of the current rate deviation, or 0 */
+  double load_deviating_since; /* the same for CPU-share changes */
   uint64_t rebalances;
   ts_pool *local_pool; /* in-process scanning with no worker */
   const ts_l1_impl *simd;
@@ -114,6 +117,7 @@ void ts_cluster_opts_default(ts_cluster_opts *o) {
   o->batch_timeout = 2.0;
   o->max_redispatch = 5;
   o->modbus_poll = 1.0;
+  o->rebalance_from = TS_REBALANCE_BATCHES | TS_REBALANCE_MODBUS;
   o->local_threads = 2;
   o->max_frame = TS_FRAME_DEFAULT_MAX;
   o->pipeline_queries = 256;
@@ -215,6 +219,7 @@ static int admit(ts_cluster *c, ts_conn *conn, const ts_msg_ident *ident, int ad
   }
   w->conn = *conn;
   w->ident = *ident;
+  w->cpu_share = w->share_sized = -1;
   w->state = TS_WORKER_CALIBRATING;
   ts_wr_init(&w->out);
   int rc = calibrate(c, w, err);
@@ -516,6 +521,7 @@ static void mb_apply(ts_cluster *c, int id, int ok, const uint16_t *regs) {
     return;
   }
   w->mb_heard_at = now;
+  w->cpu_share = regs[TS_MB_IR_CPU_SHARE] == TS_MB_UNKNOWN ? -1.0 : regs[TS_MB_IR_CPU_SHARE] / 1000.0;
   int draining = regs[TS_MB_IR_STATE] == TS_MB_DRAINING;
   if (draining && w->state == TS_WORKER_READY) {
     begin_drain(c, w);
@@ -524,6 +530,46 @@ static void mb_apply(ts_cluster *c, int id, int ok, const uint16_t *regs) {
     c->epoch++;
     cl_log(c, "worker %d (%s) no longer draining: it gets slices again", w->id, w->conn.peer);
   }
+}
+
+/* Load drift seen over Modbus (lock held). Each worker's CPU share is
+ * compared with its share when its slices were last sized: a worker whose
+ * machine got busier gets less CPU and scans slower, whatever its slice
+ * size (unlike its wall-clock scan rate, which a smaller slice inflates).
+ * When these changes differ between workers by more than the tolerance
+ * for --rebalance-after seconds, each rate is scaled by its change. */
+static void check_load_balance(ts_cluster *c) {
+  if (!(c->o.rebalance_from & TS_REBALANCE_MODBUS)) return;
+  cl_worker *ws[CL_MAX_WORKERS];
+  int n = 0;
+  for (int i = 0; i < c->nw; i++) {
+    cl_worker *w = c->w[i];
+    if (w->state != TS_WORKER_READY) continue;
+    if (w->cpu_share <= 0) return; /* idle or no Modbus plane: nothing to compare */
+    if (w->share_sized <= 0) w->share_sized = w->cpu_share; /* the baseline */
+    ws[n++] = w;
+  }
+  if (n < 2) return;
+  double mean = 0, dev = 0;
+  for (int i = 0; i < n; i++) mean += ws[i]->cpu_share / ws[i]->share_sized;
+  mean /= n;
+  for (int i = 0; i < n; i++) dev = fmax(dev, fabs(ws[i]->cpu_share / ws[i]->share_sized / mean - 1.0));
+  double now = ts_now();
+  if (dev <= c->o.tolerance) {
+    c->load_deviating_since = 0;
+    return;
+  }
+  if (c->load_deviating_since == 0) c->load_deviating_since = now;
+  if (now - c->load_deviating_since < c->o.persist) return;
+  for (int i = 0; i < n; i++) {
+    ws[i]->slice_rate *= ws[i]->cpu_share / ws[i]->share_sized;
+    ws[i]->share_sized = ws[i]->cpu_share;
+  }
+  c->load_deviating_since = 0;
+  c->rebalances++;
+  c->epoch++;
+  cl_log(c, "rebalance %llu: the workers' CPU shares (Modbus) changed unevenly by %.0f%% for %.1fs",
+         (unsigned long long)c->rebalances, dev * 100, c->o.persist);
 }
 
 static void *supervisor_thread(void *arg) {
@@ -538,6 +584,7 @@ static void *supervisor_thread(void *arg) {
     for (int i = 0; i < n; i++) ok[i] = mb_read(&t[i], regs[i]) == 0;
     pthread_mutex_lock(&c->lock);
     for (int i = 0; i < n && !c->stop; i++) mb_apply(c, t[i].id, ok[i], regs[i]);
+    if (n > 0) check_load_balance(c);
     struct timespec ts;
     clock_gettime(CLOCK_REALTIME, &ts);
     double at = (double)ts.tv_sec + ts.tv_nsec * 1e-9 + c->o.modbus_poll;
@@ -863,7 +910,7 @@ static int answer_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
  * deviation beyond the tolerance that lasts `persist` seconds re-slices
  * everything with the measured rates (lock held). */
 static void check_balance(ts_cluster *c, cl_worker **ws, int n) {
-  if (n < 2) return;
+  if (n < 2 || !(c->o.rebalance_from & TS_REBALANCE_BATCHES)) return;
   double mean = 0;
   for (int i = 0; i < n; i++) {
     if (ws[i]->ewma_weight < CL_RATE_TAU) return; /* too little measured yet */
@@ -882,7 +929,10 @@ static void check_balance(ts_cluster *c, cl_worker **ws, int n) {
     return;
   }
   if (now - c->deviating_since < c->o.persist) return;
-  for (int i = 0; i < n; i++) ws[i]->slice_rate = ws[i]->ewma_rate;
+  for (int i = 0; i < n; i++) {
+    ws[i]->slice_rate = ws[i]->ewma_rate;
+    ws[i]->share_sized = -1; /* the next Modbus read is the new baseline */
+  }
   c->deviating_since = 0;
   c->rebalances++;
   c->epoch++;

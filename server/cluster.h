@@ -21,7 +21,9 @@
  * every `modbus_poll` seconds, apart from the data plane. A worker whose
  * drain coil is set hands its slices back and gets no new ones until the
  * coil is cleared; one whose Modbus and data planes are both silent is
- * dropped. */
+ * dropped; and when the CPU shares the workers get (other load on their
+ * machines) change unevenly for `persist` seconds, the slices are resized
+ * in proportion. */
 #ifndef TS_CLUSTER_H
 #define TS_CLUSTER_H
 
@@ -31,6 +33,10 @@
 #include "msg.h"
 #include "net.h"
 #include "search.h"
+
+/* What may resize slices: batch timings on the data plane (end to end),
+ * and changes of the workers' CPU shares read over Modbus (load). */
+enum { TS_REBALANCE_BATCHES = 1, TS_REBALANCE_MODBUS = 2 };
 
 typedef struct {
   uint32_t calib_millis;   /* calibration scan length (200 ms) */
@@ -49,7 +55,8 @@ typedef struct {
   const ts_auth *auth;     /* shared secret for dialled workers (NULL: none);
                               must outlive the cluster */
   double modbus_poll;      /* seconds between reads of each worker's Modbus
-                              registers (1; 0 off): drain, liveness */
+                              registers (1; 0 off): drain, liveness, load */
+  int rebalance_from;      /* TS_REBALANCE_* signals that may resize slices (both) */
 } ts_cluster_opts;
 
 void ts_cluster_opts_default(ts_cluster_opts *o);

@@ -364,7 +364,10 @@ static void usage(FILE *f) {
           "                            (off by default; a bare port listens on loopback)\n"
           "  --modbus-control          accept coil writes (pause) on the Modbus plane\n"
           "  --modbus-poll S           read each worker's Modbus registers this often:\n"
-          "                            drain, liveness, 0..3600 (default 1; 0 = off)\n"
+          "                            drain, liveness, load, 0..3600 (default 1; 0 = off)\n"
+          "  --rebalance-from WHAT     what may resize slices: batches (rates timed on the\n"
+          "                            data plane), modbus (changes of the workers' CPU\n"
+          "                            shares) or both (default both)\n"
           "  --quiet                   no startup line\n",
           TS_FRAME_DEFAULT_MAX, (unsigned long long)TS_IMAGE_DEFAULT_MAX_PIXELS);
 }
@@ -405,8 +408,19 @@ static int bytes_opt(const char *opt, const char *s, uint64_t *out) {
   return 0;
 }
 
+static int rebalance_from(const char *s, int *out) {
+  if (strcmp(s, "both") == 0) *out = TS_REBALANCE_BATCHES | TS_REBALANCE_MODBUS;
+  else if (strcmp(s, "batches") == 0) *out = TS_REBALANCE_BATCHES;
+  else if (strcmp(s, "modbus") == 0) *out = TS_REBALANCE_MODBUS;
+  else {
+    fprintf(stderr, "texsyn-server: --rebalance-from %s: need both, batches or modbus\n", s);
+    return -1;
+  }
+  return 0;
+}
+
 static int parse_opts(int argc, char **argv, server_opts *o) {
-  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_SECRET, O_MODBUS, O_MB_CONTROL, O_MB_POLL, O_QUIET, O_HELP };
+  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_SECRET, O_MODBUS, O_MB_CONTROL, O_MB_POLL, O_REBAL_FROM, O_QUIET, O_HELP };
   static const struct option longopts[] = {
       {"listen", required_argument, 0, O_LISTEN}, {"workers", required_argument, 0, O_WORKERS},
       {"spool", required_argument, 0, O_SPOOL}, {"jobs", required_argument, 0, O_JOBS},
@@ -419,7 +433,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
       {"max-client-jobs", required_argument, 0, O_CLIENT_JOBS}, {"max-spool", required_argument, 0, O_SPOOL_MAX},
       {"secret-file", required_argument, 0, O_SECRET},
       {"modbus", required_argument, 0, O_MODBUS}, {"modbus-control", no_argument, 0, O_MB_CONTROL},
-      {"modbus-poll", required_argument, 0, O_MB_POLL},
+      {"modbus-poll", required_argument, 0, O_MB_POLL}, {"rebalance-from", required_argument, 0, O_REBAL_FROM},
       {"quiet", no_argument, 0, O_QUIET}, {"help", no_argument, 0, O_HELP}, {0, 0, 0, 0}};
   memset(o, 0, sizeof(*o));
   o->listen = "127.0.0.1:7070";
@@ -455,6 +469,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
     case O_MODBUS: o->modbus = optarg; break;
     case O_MB_CONTROL: o->modbus_control = 1; break;
     case O_MB_POLL: rc = num("--modbus-poll", optarg, 0, 3600, &o->co.modbus_poll); break;
+    case O_REBAL_FROM: rc = rebalance_from(optarg, &o->co.rebalance_from); break;
     case O_QUIET: o->quiet = 1; break;
     case O_HELP: case 'h': usage(stdout); exit(0);
     default:

@@ -32,10 +32,13 @@ static void print_common(const uint16_t *r) {
   printf("magic 0x%04x\nprotocol %u\nbuild %u\nrole %s\nstate %s\nthreads %u\nsimd %s\n", r[TS_MB_IR_MAGIC],
          r[TS_MB_IR_PROTOCOL], r[TS_MB_IR_BUILD], r[TS_MB_IR_ROLE] == 1 ? "coordinator" : "worker",
          state_name(r[TS_MB_IR_STATE]), r[TS_MB_IR_THREADS], simd ? simd->name : "?");
+  if (r[TS_MB_IR_CPU_SHARE] == TS_MB_UNKNOWN) printf("cpu_share unknown\n");
+  else printf("cpu_share %u\n", r[TS_MB_IR_CPU_SHARE]);
   printf("uptime_s %u\nerrors %u\nrate %llu\nvectors %llu\nbatches %llu\nqueries %llu\n", get32(r, TS_MB_IR_UPTIME),
          get32(r, TS_MB_IR_ERRORS), (unsigned long long)get64(r, TS_MB_IR_RATE),
          (unsigned long long)get64(r, TS_MB_IR_VECTORS), (unsigned long long)get64(r, TS_MB_IR_BATCHES),
          (unsigned long long)get64(r, TS_MB_IR_QUERIES));
+  printf("scan_rate %llu\n", (unsigned long long)get64(r, TS_MB_IR_SCAN_RATE));
 }
 
 static void print_coordinator(const uint16_t *r) {

@@ -1,8 +1,10 @@
 /* wmon.c - see wmon.h. */
 #include "wmon.h"
 
+#include <dirent.h>
 #include <math.h>
 #include <pthread.h>
+#include <stdio.h>
 
 #include "error.h"
 #include "frame.h"
@@ -17,12 +19,16 @@ static struct {
   uint32_t loading, errors;
   uint64_t rate, vectors, batches, queries;
   double scan_rate; /* comparisons/s of recent batches, averaged over ~1 s of scanning */
+  uint64_t ran_ns, waited_ns; /* schedstat totals at the last CPU-share sample */
+  double sampled_at;
+  uint16_t cpu_share;         /* per mille, or TS_MB_UNKNOWN */
   ts_mbplane *plane;
 } g_mon = {.lock = PTHREAD_MUTEX_INITIALIZER};
 
 void ts_wmon_init(int threads, int simd) {
   pthread_mutex_lock(&g_mon.lock);
   g_mon.started = ts_now();
+  g_mon.cpu_share = TS_MB_UNKNOWN;
   g_mon.threads = threads;
   g_mon.simd = simd;
   pthread_mutex_unlock(&g_mon.lock);
@@ -70,6 +76,45 @@ int ts_wmon_draining(void) {
   return d;
 }
 
+/* Time this process's threads ran on a CPU and waited runnable for one,
+ * summed over /proc/self/task/<tid>/schedstat (Linux, nanoseconds). */
+static int read_schedstat(uint64_t *ran, uint64_t *waited) {
+  DIR *d = opendir("/proc/self/task");
+  if (d == NULL) return -1;
+  *ran = *waited = 0;
+  struct dirent *e;
+  while ((e = readdir(d)) != NULL) {
+    if (e->d_name[0] == '.') continue;
+    char path[300];
+    snprintf(path, sizeof(path), "/proc/self/task/%s/schedstat", e->d_name);
+    FILE *f = fopen(path, "r");
+    unsigned long long r, w;
+    if (f != NULL && fscanf(f, "%llu %llu", &r, &w) == 2) {
+      *ran += r;
+      *waited += w;
+    }
+    if (f != NULL) fclose(f);
+  }
+  closedir(d);
+  return 0;
+}
+
+/* The CPU share over the last half second or more (lock held): a worker
+ * sharing its cores with other load waits in the run queue, and its scans
+ * slow down in proportion, whatever the size of its slice. */
+static void sample_cpu_share(void) {
+  double now = ts_now();
+  if (now - g_mon.sampled_at < 0.5) return;
+  uint64_t ran, waited;
+  if (read_schedstat(&ran, &waited) != 0) return;
+  uint64_t dr = ran - g_mon.ran_ns, dw = waited - g_mon.waited_ns;
+  /* Under 20 ms of demand says nothing: the worker was idle. */
+  g_mon.cpu_share = g_mon.sampled_at > 0 && dr + dw >= 20000000 ? (uint16_t)(dr * 1000 / (dr + dw)) : TS_MB_UNKNOWN;
+  g_mon.ran_ns = ran;
+  g_mon.waited_ns = waited;
+  g_mon.sampled_at = now;
+}
+
 static ts_mb_state state_locked(void) {
   if (g_mon.draining) return TS_MB_DRAINING;
   if (g_mon.loading > 0) return TS_MB_LOADING;
@@ -86,6 +131,8 @@ static void refresh(void *ctx, uint16_t *ir, uint8_t *coils) {
   ir[TS_MB_IR_STATE] = (uint16_t)state_locked();
   ir[TS_MB_IR_THREADS] = (uint16_t)g_mon.threads;
   ir[TS_MB_IR_SIMD] = (uint16_t)g_mon.simd;
+  sample_cpu_share();
+  ir[TS_MB_IR_CPU_SHARE] = g_mon.cpu_share;
   ts_mb_put32(ir, TS_MB_IR_UPTIME, (uint32_t)(ts_now() - g_mon.started));
   ts_mb_put32(ir, TS_MB_IR_ERRORS, g_mon.errors);
   ts_mb_put64(ir, TS_MB_IR_RATE, g_mon.rate);

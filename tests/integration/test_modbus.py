@@ -2,7 +2,9 @@
 written with real clients: mbpoll (Debian's command-line Modbus master)
 and `texsyn modbus` (libmodbus in C). Register numbers are the ones in
 proto/mbmap.h and the README."""
+import os
 import shutil
+import signal
 import socket
 import struct
 import subprocess
@@ -188,3 +190,77 @@ def test_malformed_modbus_requests_leave_both_planes_serving(data, cluster, tmp_
     cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "x.png", "--size", f"{w}x{h}", "--levels", "3",
                    "--quiet")
     assert cluster.server.alive() and cluster.workers[0].alive()
+
+
+class Hog:
+    """Two busy loops pinned with a worker to one CPU: another tenant's
+    load. The worker then gets about a third of that CPU."""
+
+    def __init__(self, cpu):
+        self.procs = [subprocess.Popen(["/usr/bin/python3", "-c", "while True: pass"],
+                                       preexec_fn=lambda: os.sched_setaffinity(0, {cpu})) for _ in range(2)]
+
+    def stop(self):
+        for p in self.procs:
+            p.kill()
+            p.wait()
+
+
+@pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="needs two CPUs")
+def test_load_read_over_modbus_rebalances(data, cluster, tmp_path):
+    """Each worker pinned to its own CPU; mid-job the second one's CPU gets
+    another tenant. Its CPU share, read over Modbus, drops against the
+    first one's for longer than --rebalance-after, and its slice shrinks
+    (batch timings are told to stay out of it); the output keeps its
+    bytes."""
+    start(cluster, 2, "--rebalance-after", "1", "--rebalance-tolerance", "0.2", "--rebalance-from", "modbus")
+    cpus = sorted(os.sched_getaffinity(0))
+    for worker, cpu in zip(cluster.workers, cpus[:2]):
+        for tid in os.listdir(f"/proc/{worker.proc.pid}/task"):
+            os.sched_setaffinity(int(tid), {cpu})
+    w, h = 1536, 1152
+    out = tmp_path / "long.png"
+    p = subprocess.Popen([str(BUILD / "texsyn"), "synth", "--server", cluster.server.addr, "--ref",
+                          str(ref_of(data)), "-o", str(out), "--size", f"{w}x{h}", "--quiet"],
+                         stderr=subprocess.PIPE, text=True)
+    wait_until("a CPU-share baseline", lambda: all(named(x.modbus)["cpu_share"] != "unknown" for x in cluster.workers))
+    time.sleep(0.5)
+
+    def ratio():
+        pool = cluster.pool()
+        return pool[1]["share"] / pool[0]["share"]
+
+    before = ratio()
+    hog = Hog(cpus[1])
+    line = "CPU shares (Modbus) changed unevenly"
+    try:
+        wait_until("a rebalance", lambda: line in cluster.server.read_log() or p.poll() is not None, 300)
+        assert line in cluster.server.read_log(), cluster.server.read_log()
+        assert ratio() < 0.8 * before, (before, cluster.pool())
+    finally:
+        hog.stop()
+    assert p.wait(timeout=600) == 0, p.stderr.read()
+    p.stderr.close()
+    assert ": rates deviated" not in cluster.server.read_log()  # batch timings were told to stay out
+    want = tmp_path / "want.png"
+    synth(BUILD / "texsyn", ref_of(data), want, (w, h))
+    assert out.read_bytes() == want.read_bytes()
+
+
+def test_worker_silent_on_both_planes_is_dropped(data, cluster, tmp_path, expected):
+    """Heartbeats off, so only the Modbus reads can notice: a stopped idle
+    worker (neither plane answers) leaves the pool; continued, it is dialled
+    again and serves the next job."""
+    start(cluster, 2, "--heartbeat", "0")
+    victim = cluster.workers[0]
+    victim.proc.send_signal(signal.SIGSTOP)
+    try:
+        wait_until("the silent worker to be dropped",
+                   lambda: "its Modbus and data planes are both silent" in cluster.server.read_log())
+    finally:
+        victim.proc.send_signal(signal.SIGCONT)
+    wait_until("the worker to be back", lambda: [w["state"] for w in cluster.pool()].count("ready") == 2)
+    job = submit(cluster, data, tmp_path / "out.png")
+    assert job.wait(timeout=300) == 0
+    job.stderr.close()
+    assert (tmp_path / "out.png").read_bytes() == expected
