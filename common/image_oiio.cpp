@@ -5,7 +5,7 @@
  * catches everything and answers with a TS_E* code and one line in err.
  *
  * Reads take a file or a file's bytes in memory (through OpenImageIO's
- * IOMemReader); both go through ts_open and ts_read, so a reference the
+ * IOMemReader, bounds-checked); both go through ts_open and ts_read, so a reference the
  * coordinator probes at submit and reads later is checked the same way.
  * The reader is picked from the first bytes among PNG, JPEG, TIFF and
  * OpenEXR only: OpenImageIO would otherwise try every plugin it has
@@ -656,10 +656,29 @@ static bool ts_exr_sizes_ok(FILE *f, std::string &why) {
   }
 }
 
+/* OpenImageIO's reader of bytes in memory, bounds-checked. IOMemReader
+ * 2.4 checks `offset + size` in unsigned arithmetic only, so a negative
+ * offset (OpenEXR follows a line offset table a file can fill with -1)
+ * reads before the buffer. Here every read starts inside the bytes. */
+class ts_memreader final : public OIIO::Filesystem::IOMemReader {
+ public:
+  ts_memreader(const void *buf, size_t size) : IOMemReader(buf, size) {}
+  bool seek(int64_t offset) override { return offset >= 0 && IOMemReader::seek(offset); }
+  size_t pread(void *buf, size_t size, int64_t offset) override {
+    if (offset < 0 || (uint64_t)offset >= (uint64_t)m_buf.size()) return 0;
+    return IOMemReader::pread(buf, size, offset);
+  }
+  size_t read(void *buf, size_t size) override {
+    size_t n = pread(buf, size, tell());
+    IOMemReader::seek(tell() + (int64_t)n);
+    return n;
+  }
+};
+
 /* An open reader and, for bytes in memory, the proxy it reads through
  * (declared first: it must outlive the reader). */
 struct ts_input {
-  std::unique_ptr<OIIO::Filesystem::IOMemReader> mem;
+  std::unique_ptr<ts_memreader> mem;
   std::unique_ptr<ImageInput> in;
 };
 
@@ -696,7 +715,7 @@ static int ts_open(const ts_source &src, const ts_image_limits *limits, ts_input
   ImageSpec config;
   config.attribute("oiio:UnassociatedAlpha", 1); /* pixel values as stored */
   if (src.path == nullptr) {
-    io.mem.reset(new OIIO::Filesystem::IOMemReader(src.data, src.len));
+    io.mem.reset(new ts_memreader(src.data, src.len));
     void *proxy = io.mem.get(); /* how OpenImageIO 2.4's open() takes it */
     config.attribute("oiio:ioproxy", TypeDesc::PTR, &proxy);
   }

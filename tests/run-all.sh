@@ -17,20 +17,22 @@ tally() { # reads a runner's closing "... N passed, N failed" line
 }
 log=$(mktemp)
 status=0
-bash tests/run-unit.sh build | tee "$log"; [ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log"
-bash tests/run-fuzz.sh replay build | tee "$log"; [ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log"
-bash tests/run-integration.sh build | tee "$log"; [ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log"
+stage() { # runs one runner, tallies its closing line, says how long it took
+  local t0=$SECONDS
+  "$@" | tee "$log"; [ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log"
+  echo "(stage took $((SECONDS - t0)) s)"
+}
+stage bash tests/run-unit.sh build
+stage bash tests/run-fuzz.sh replay build
+stage bash tests/run-integration.sh build
 export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:abort_on_error=1:fast_unwind_on_malloc=0}
 export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
 export LSAN_OPTIONS="suppressions=$PWD/tests/lsan.supp"
-TEXSYN_TEST_TIMEOUT_MULTIPLIER=4 bash tests/run-unit.sh build-asan | tee "$log"
-[ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log"
-bash tests/run-fuzz.sh replay build-asan | tee "$log"; [ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log"
-TEXSYN_SANITIZED=1 bash tests/run-integration.sh build-asan -m sanitize | tee "$log"
-[ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log"
+TEXSYN_TEST_TIMEOUT_MULTIPLIER=4 stage bash tests/run-unit.sh build-asan
+stage bash tests/run-fuzz.sh replay build-asan
+TEXSYN_SANITIZED=1 stage bash tests/run-integration.sh build-asan -m sanitize
 # Each libFuzzer target for a bounded time (make fuzz-build; clang).
-bash tests/run-fuzz.sh fuzz "${TEXSYN_FUZZ_SECONDS:-10}" | tee "$log"
-[ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log"
+stage bash tests/run-fuzz.sh fuzz "${TEXSYN_FUZZ_SECONDS:-10}" "${TEXSYN_FUZZ_SEED:-2004}"
 rm -f "$log"
 if [ $status -ne 0 ] && [ $total_fail -eq 0 ]; then total_fail=1; fi
 echo "all tests: $total_pass passed, $total_fail failed"

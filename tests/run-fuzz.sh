@@ -4,9 +4,12 @@
 #   tests/run-fuzz.sh replay BUILD_DIR   feeds every committed seed and crash
 #       regression (tests/fuzz/{seeds,regress}/<target>) once to each target,
 #       built by the normal compiler as BUILD_DIR/tests/replay_<target>
-#   tests/run-fuzz.sh fuzz SECONDS      runs each libFuzzer build (make
+#   tests/run-fuzz.sh fuzz SECONDS [SEED]  runs each libFuzzer build (make
 #       fuzz-build, clang) for SECONDS on build-fuzz/corpus-<target>, one
-#       target at a time, single process; findings go to build-fuzz/artifacts/
+#       target at a time, single process; findings go to build-fuzz/artifacts/.
+#       With a SEED the mutations are the same on every run (the suite
+#       passes one, so a clean clone tries the same inputs each time, up to
+#       how many fit in the time); without, each run explores new ones.
 #
 # One line per target and a closing "N passed, N failed" line.
 set -u
@@ -53,6 +56,7 @@ replay)
   ;;
 fuzz)
   secs=${2:-30}
+  seed=${3:+-seed=$3}
   mkdir -p build-fuzz/artifacts
   for t in $targets; do
     bin=build-fuzz/fuzz_$t
@@ -62,7 +66,7 @@ fuzz)
     fi
     start=$(date +%s)
     # shellcheck disable=SC2046
-    ASAN_OPTIONS=$(asan_for "$t") "$bin" -max_total_time="$secs" -timeout=30 -rss_limit_mb=2560 -print_final_stats=1 \
+    ASAN_OPTIONS=$(asan_for "$t") "$bin" $seed -max_total_time="$secs" -timeout=30 -rss_limit_mb=2560 -print_final_stats=1 \
       -artifact_prefix="build-fuzz/artifacts/$t-" "build-fuzz/corpus-$t" $(inputs "$t") >"$log" 2>&1
     rc=$?
     runs=$(grep -oE 'stat::number_of_executed_units: *[0-9]+' "$log" | grep -oE '[0-9]+$')
@@ -72,7 +76,7 @@ fuzz)
   echo "fuzz (${secs} s per target): $pass passed, $fail failed"
   ;;
 *)
-  echo "usage: $0 replay BUILD_DIR | fuzz SECONDS" >&2; rm -f "$log"; exit 2 ;;
+  echo "usage: $0 replay BUILD_DIR | fuzz SECONDS [SEED]" >&2; rm -f "$log"; exit 2 ;;
 esac
 rm -f "$log"
 [ "$fail" -eq 0 ]

@@ -6,7 +6,7 @@ set -u
 build=${1:-build}; shift || true
 export TEXSYN_BUILD=$(cd "$build" && pwd)
 py=/usr/bin/python3
-$py -m pytest -q -p no:cacheprovider tests/integration "$@"
+$py -m pytest -q -p no:cacheprovider --durations=12 tests/integration "$@"
 rc=$?
 # pytest exits 5 when a marker selects no test; that is not a failure here.
 [ $rc -eq 5 ] && rc=0

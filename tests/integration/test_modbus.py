@@ -218,7 +218,7 @@ def test_load_read_over_modbus_rebalances(data, cluster, tmp_path):
     for worker, cpu in zip(cluster.workers, cpus[:2]):
         for tid in os.listdir(f"/proc/{worker.proc.pid}/task"):
             os.sched_setaffinity(int(tid), {cpu})
-    w, h = 1536, 1152
+    w, h = 1024, 768
     out = tmp_path / "long.png"
     p = subprocess.Popen([str(BUILD / "texsyn"), "synth", "--server", cluster.server.addr, "--ref",
                           str(ref_of(data)), "-o", str(out), "--size", f"{w}x{h}", "--quiet"],
