@@ -130,17 +130,50 @@ int ts_schedule_wavefront(ts_schedule *s, int width, int height, int wb, int wn)
   return rc;
 }
 
+/* Colours the `count` blocks along one axis of a torus of n pixels so that
+ * no block meets the window of another of its colour. Greedy in order:
+ * away from the wrap this is block index modulo m = ceil(halo/W_B) + 1;
+ * where the wrap meets a count not divisible by m, or a clipped last
+ * block, the last blocks get a colour or two more. Returns the number of
+ * colours. Meeting a window is symmetric, so checking each block's own
+ * window against the blocks coloured before it suffices. */
+static int colour_axis(int n, int wb, int halo, int count, int *colour) {
+  int ncolours = 0;
+  for (int i = 0; i < count; i++) colour[i] = -1;
+  for (int i = 0; i < count; i++) {
+    int near[MAX_SPAN], lo = i * wb, hi = lo + wb < n ? lo + wb : n;
+    int k = span_blocks(lo - halo, hi + halo, n, wb, near);
+    uint64_t used = 0;
+    for (int j = 0; j < k; j++)
+      if (near[j] != i && colour[near[j]] >= 0) used |= 1ull << colour[near[j]];
+    int c = 0;
+    while (c < 63 && (used >> c & 1)) c++;
+    colour[i] = c;
+    if (c + 1 > ncolours) ncolours = c + 1;
+  }
+  return ncolours;
+}
+
 int ts_schedule_sweep(ts_schedule *s, int width, int height, int wb, int wn, int band) {
   uint32_t *step;
   int rc = schedule_init(s, width, height, wb, wn, &step);
   if (rc != 0) return rc;
-  uint32_t m = (uint32_t)ceil_div(s->halo, wb) + 1;
-  for (int r = 0; r < s->rows; r++)
-    for (int c = 0; c < s->cols; c++) {
-      int near = r < band || r >= s->rows - band || c < band || c >= s->cols - band;
-      step[r * s->cols + c] = band > 0 && !near ? UINT32_MAX : ((uint32_t)r % m) * m + (uint32_t)c % m;
-    }
-  rc = build_lists(s, step);
+  int *row_colour = malloc(sizeof(int) * (size_t)s->rows), *col_colour = malloc(sizeof(int) * (size_t)s->cols);
+  if (row_colour == NULL || col_colour == NULL) rc = TS_ENOMEM;
+  if (rc == 0) {
+    colour_axis(height, wb, s->halo, s->rows, row_colour);
+    uint32_t ncols = (uint32_t)colour_axis(width, wb, s->halo, s->cols, col_colour);
+    /* Two blocks of one step have rows of one colour (so the rows are the
+     * same or out of each other's reach) and likewise columns. */
+    for (int r = 0; r < s->rows; r++)
+      for (int c = 0; c < s->cols; c++) {
+        int near = r < band || r >= s->rows - band || c < band || c >= s->cols - band;
+        step[r * s->cols + c] = band > 0 && !near ? UINT32_MAX : (uint32_t)row_colour[r] * ncols + (uint32_t)col_colour[c];
+      }
+    rc = build_lists(s, step);
+  }
+  free(row_colour);
+  free(col_colour);
   free(step);
   if (rc != 0) ts_schedule_free(s);
   return rc;

@@ -18,12 +18,14 @@
  * canvas size makes the torus wrap put two blocks of one step into each
  * other's window, s grows until it does not (in the limit: row-major).
  *
- * A refinement sweep visits every block once more, in m x m colours
- * (m = ceil(h/W_B) + 1, by block row and column modulo m), so blocks of one
- * colour lie outside each other's windows; where the torus wraps with a
- * size not divisible by m two neighbours can share a colour, and then they
- * simply see each other's previous state. With band > 0 only the blocks
- * within `band` block rows or columns of the torus seam are visited. */
+ * A refinement sweep visits every block once more, one colour per step:
+ * block rows and columns are coloured so that blocks of one colour lie
+ * outside each other's windows, on the torus too (m x m colours, m =
+ * ceil(h/W_B) + 1, by block row and column modulo m, plus a colour or two
+ * for the last rows and columns where the wrap meets a size not divisible
+ * by m or a clipped block). So the two sides of the torus seam are never
+ * revised at once from each other's previous state. With band > 0 only
+ * the blocks within `band` block rows or columns of the seam are visited. */
 #ifndef TS_SCHEDULE_H
 #define TS_SCHEDULE_H
 

@@ -1,27 +1,41 @@
 #!/usr/bin/env bash
 # Runs every cmocka test of every unit-test binary in its own process, with a
 # timeout (scaled by TEXSYN_TEST_TIMEOUT_MULTIPLIER for slow or sanitized
-# builds). Prints one line per test and a closing "N passed, N failed" line.
+# builds), TEXSYN_TEST_JOBS (default: the CPUs) at a time. Prints one line
+# per test, in a fixed order, and a closing "N passed, N failed" line.
 # Usage: tests/run-unit.sh BUILD_DIR
 set -u
 build=${1:-build}
 mult=${TEXSYN_TEST_TIMEOUT_MULTIPLIER:-1}
-timeout_s=$((120 * mult))
-pass=0; fail=0; failed=()
+export timeout_s=$((120 * mult))
 logdir=$(mktemp -d)
+export logdir
+list="$logdir/list"
 for bin in "$build"/tests/test_*; do
   [ -x "$bin" ] || continue
-  for name in $("$bin" --list); do
-    log="$logdir/$(basename "$bin").$name.log"
-    # TEXSYN_TEST_WRAPPER (e.g. valgrind ...) runs each test under a tool.
-    if timeout "$timeout_s" ${TEXSYN_TEST_WRAPPER:-} "$bin" "$name" >"$log" 2>&1 && grep -q "PASSED" "$log" && ! grep -q "FAILED" "$log"; then
-      pass=$((pass + 1)); echo "ok   $(basename "$bin") $name"
-    else
-      fail=$((fail + 1)); failed+=("$(basename "$bin") $name")
-      echo "FAIL $(basename "$bin") $name"; sed 's/^/     | /' "$log"
-    fi
-  done
-done
+  for name in $("$bin" --list); do echo "$bin $name"; done
+done >"$list"
+# One test: its output to <binary>.<test>.log, its verdict to .ok or .fail.
+# TEXSYN_TEST_WRAPPER (e.g. valgrind ...) runs each test under a tool.
+run_one() {
+  local bin=$1 name=$2 log
+  log="$logdir/$(basename "$bin").$name"
+  if timeout "$timeout_s" ${TEXSYN_TEST_WRAPPER:-} "$bin" "$name" >"$log.log" 2>&1 &&
+    grep -q "PASSED" "$log.log" && ! grep -q "FAILED" "$log.log"; then
+    touch "$log.ok"
+  fi
+}
+export -f run_one
+xargs -P "${TEXSYN_TEST_JOBS:-$(nproc)}" -L 1 bash -c 'run_one "$0" "$1"' <"$list"
+pass=0; fail=0
+while read -r bin name; do
+  log="$logdir/$(basename "$bin").$name"
+  if [ -e "$log.ok" ]; then
+    pass=$((pass + 1)); echo "ok   $(basename "$bin") $name"
+  else
+    fail=$((fail + 1)); echo "FAIL $(basename "$bin") $name"; sed 's/^/     | /' "$log.log"
+  fi
+done <"$list"
 rm -rf "$logdir"
 echo "unit ($build): $pass passed, $fail failed"
 [ "$fail" -eq 0 ]

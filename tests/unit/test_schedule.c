@@ -76,8 +76,9 @@ static void wavefront_keeps_causal_order(void **state) {
   ts_schedule_free(&s);
 }
 
-/* A sweep visits every block once in m*m colours; with sizes divisible by
- * m blocks no two blocks of a colour see each other. */
+/* A sweep visits every block once in m*m colours where the sizes are
+ * divisible by m blocks, a few more where the torus wraps otherwise; no two
+ * blocks of a colour ever see each other. */
 static void sweep_colours_cover_canvas(void **state) {
   (void)state;
   ts_schedule s;
@@ -86,17 +87,31 @@ static void sweep_colours_cover_canvas(void **state) {
   assert_int_equal(ts_schedule_conflicts(&s), 0);
   assert_covers(&s);
   ts_schedule_free(&s);
-  assert_int_equal(ts_schedule_sweep(&s, 100, 31, 3, 11, 0), 0); /* m = 3, wrapping */
-  assert_int_equal(s.nsteps, 9);
-  assert_covers(&s);
-  ts_schedule_free(&s);
   assert_int_equal(ts_schedule_sweep(&s, 90, 60, 3, 7, 3), 0); /* 30 x 20, band 3 */
   assert_int_equal(s.nblocks, 30 * 20 - 24 * 14);
+  assert_int_equal(ts_schedule_conflicts(&s), 0);
   for (uint32_t i = 0; i < s.nblocks; i++) {
     int r = s.blocks[i].y / 3, c = s.blocks[i].x / 3;
     assert_true(r < 3 || r >= 17 || c < 3 || c >= 27);
   }
   ts_schedule_free(&s);
+}
+
+/* Where the torus wraps with a block count not divisible by m or a clipped
+ * last block (256 = 85 * 3 + 1: block 84 reaches block 0 across a 1-pixel
+ * block), the first and last blocks must still differ in colour. */
+static void sweep_is_conflict_free_across_the_wrap(void **state) {
+  (void)state;
+  static const int sizes[][4] = {{256, 256, 3, 7}, {100, 31, 3, 11}, {255, 254, 3, 7}, {97, 61, 5, 9},
+                                 {50, 38, 3, 7},   {64, 7, 3, 7},    {11, 11, 3, 9},   {1024, 1000, 3, 7}};
+  for (size_t i = 0; i < sizeof(sizes) / sizeof(sizes[0]); i++)
+    for (int band = 0; band <= 3; band += 3) {
+      ts_schedule s;
+      assert_int_equal(ts_schedule_sweep(&s, sizes[i][0], sizes[i][1], sizes[i][2], sizes[i][3], band), 0);
+      assert_int_equal(ts_schedule_conflicts(&s), 0);
+      if (band == 0) assert_covers(&s);
+      ts_schedule_free(&s);
+    }
 }
 
 static void schedule_rejects_bad_geometry(void **state) {
@@ -111,6 +126,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(wavefront_1024_is_wide),
     cmocka_unit_test(wavefront_keeps_causal_order),
     cmocka_unit_test(sweep_colours_cover_canvas),
+    cmocka_unit_test(sweep_is_conflict_free_across_the_wrap),
     cmocka_unit_test(schedule_rejects_bad_geometry),
 };
 
