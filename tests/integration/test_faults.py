@@ -156,8 +156,9 @@ def test_coordinator_killed_mid_job_resumes_after_restart(data, cluster, tmp_pat
 
 class Proxy:
     """Forwards one loopback port to a worker, damaging the coordinator's
-    connection on the way: `delay` (2 ms per piece), `onebyte` (every byte
-    its own write), `stall` (forwarding stops for STALL s once, mid-job),
+    connection on the way: `delay` (2 ms per piece), `pieces` (every
+    read forwarded in writes of 1, 2, ..., 7 bytes in turn, so frames and
+    their headers arrive cut at every offset), `stall` (forwarding stops for STALL s once, mid-job),
     `reset` (the connection is reset once after some traffic)."""
 
     def __init__(self, target, mode):
@@ -203,9 +204,12 @@ class Proxy:
                     time.sleep(STALL)
                 if self.mode == "delay":
                     time.sleep(0.002)
-                if self.mode == "onebyte":
-                    for i in range(len(data)):
-                        dst.sendall(data[i:i + 1])
+                if self.mode == "pieces":
+                    i = k = 0
+                    while i < len(data):
+                        n, k = k % 7 + 1, k + 1
+                        dst.sendall(data[i:i + n])
+                        i += n
                 else:
                     dst.sendall(data)
         except OSError:
@@ -221,7 +225,7 @@ class Proxy:
         self.sock.close()
 
 
-@pytest.mark.parametrize("mode", ["delay", "onebyte", "stall", pytest.param("reset", marks=pytest.mark.sanitize)])
+@pytest.mark.parametrize("mode", ["delay", "pieces", "stall", pytest.param("reset", marks=pytest.mark.sanitize)])
 def test_damaging_proxy_keeps_the_bytes(data, cluster, tmp_path, expected, mode):
     workers = [cluster.worker(1) for _ in range(2)]
     proxy = Proxy(workers[0].addr, mode)
