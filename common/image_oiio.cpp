@@ -682,6 +682,18 @@ struct ts_input {
   std::unique_ptr<ImageInput> in;
 };
 
+/* The sizes an OpenEXR header or PNG chunk list claims, checked against
+ * the bytes there are before OpenImageIO opens the file. */
+static int ts_check_sizes(const ts_source &src, const char *format, char *err) {
+  bool exr = strcmp(format, "openexr") == 0;
+  if (!exr && strcmp(format, "png") != 0) return 0;
+  std::string why = exr ? "cannot read the header" : "cannot read the chunks";
+  ts_file f(ts_source_file(src));
+  if (f && (exr ? ts_exr_sizes_ok(f.get(), why) : ts_png_sizes_ok(f.get(), why))) return 0;
+  return ts_error(err, TS_EFORMAT, exr ? "%s: not a readable openexr image: %s" : "%s: unreadable or truncated image: %s",
+                  src.name, why.c_str());
+}
+
 /* Everything up to the pixels: the format from the first bytes, the
  * header, the checks. Shared by every read and probe. */
 static int ts_open(const ts_source &src, const ts_image_limits *limits, ts_input &io, char *err) {
@@ -698,20 +710,8 @@ static int ts_open(const ts_source &src, const ts_image_limits *limits, ts_input
                     "%s: not a PNG, JPEG, TIFF or OpenEXR image (starts with bytes %s)", src.name,
                     hex);
   }
-  if (strcmp(format, "openexr") == 0) {
-    std::string why = "cannot read the header";
-    ts_file f(ts_source_file(src));
-    if (!f || !ts_exr_sizes_ok(f.get(), why))
-      return ts_error(err, TS_EFORMAT, "%s: not a readable openexr image: %s", src.name,
-                      why.c_str());
-  }
-  if (strcmp(format, "png") == 0) {
-    std::string why = "cannot read the chunks";
-    ts_file f(ts_source_file(src));
-    if (!f || !ts_png_sizes_ok(f.get(), why))
-      return ts_error(err, TS_EFORMAT, "%s: unreadable or truncated image: %s", src.name,
-                      why.c_str());
-  }
+  rc = ts_check_sizes(src, format, err);
+  if (rc != 0) return rc;
   ImageSpec config;
   config.attribute("oiio:UnassociatedAlpha", 1); /* pixel values as stored */
   if (src.path == nullptr) {

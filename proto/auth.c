@@ -285,21 +285,25 @@ static int connect_steps(ts_conn *c, const ts_auth *a, const ts_msg_ident *me, t
   return enabled(a) ? connect_exchange(c, a, me->role, peer->role, timeout_ms, err) : 0;
 }
 
+typedef int handshake_steps(ts_conn *c, const ts_auth *a, const ts_msg_ident *me, ts_msg_ident *peer,
+                            int timeout_ms, char *err);
+
 /* Both directions run under the small handshake frame limit. */
-int ts_auth_accept(ts_conn *c, const ts_auth *a, const ts_msg_ident *me, ts_msg_ident *peer, int timeout_ms,
-                   char *err) {
+static int under_handshake_limit(handshake_steps *steps, ts_conn *c, const ts_auth *a, const ts_msg_ident *me,
+                                 ts_msg_ident *peer, int timeout_ms, char *err) {
   uint32_t max = c->rd.max_payload;
   c->rd.max_payload = max < HANDSHAKE_MAX_FRAME ? max : HANDSHAKE_MAX_FRAME;
-  int rc = accept_steps(c, a, me, peer, timeout_ms, err);
+  int rc = steps(c, a, me, peer, timeout_ms, err);
   c->rd.max_payload = max;
   return rc;
 }
 
+int ts_auth_accept(ts_conn *c, const ts_auth *a, const ts_msg_ident *me, ts_msg_ident *peer, int timeout_ms,
+                   char *err) {
+  return under_handshake_limit(accept_steps, c, a, me, peer, timeout_ms, err);
+}
+
 int ts_auth_connect(ts_conn *c, const ts_auth *a, const ts_msg_ident *me, ts_msg_ident *peer, int timeout_ms,
                     char *err) {
-  uint32_t max = c->rd.max_payload;
-  c->rd.max_payload = max < HANDSHAKE_MAX_FRAME ? max : HANDSHAKE_MAX_FRAME;
-  int rc = connect_steps(c, a, me, peer, timeout_ms, err);
-  c->rd.max_payload = max;
-  return rc;
+  return under_handshake_limit(connect_steps, c, a, me, peer, timeout_ms, err);
 }

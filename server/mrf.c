@@ -453,17 +453,19 @@ static int run_steps(engine *e, const ts_schedule *sch, int refine, char *err) {
   return 0;
 }
 
-/* One refinement sweep (ICM-like) over the level, or over the seam band of
- * `band` block rows and columns: every block searched again with its full
- * window, all of it placed now, so joins made early against little context
- * - and the torus seam, where the scan closes - are revisited with both
- * sides known. */
-static int run_sweep(engine *e, int band, char *err) {
+/* A pass of refinement sweeps (ICM-like) over the level, or over the seam
+ * band of `band` block rows and columns: every block searched again with
+ * its full window, all of it placed now, so joins made early against
+ * little context - and the torus seam, where the scan closes - are
+ * revisited with both sides known. */
+static int run_sweeps(engine *e, const sweep_pass *pass, char *err) {
   ts_schedule sweep;
-  int rc = ts_schedule_sweep(&sweep, e->cw[e->level], e->ch[e->level], e->p->wb, e->p->wn, band);
+  int rc = ts_schedule_sweep(&sweep, e->cw[e->level], e->ch[e->level], e->p->wb, e->p->wn, pass->band);
   if (rc != 0) return ts_error(err, rc, "out of memory");
-  rc = run_steps(e, &sweep, 1, err);
-  e->steps += sweep.nsteps;
+  for (int i = 0; rc == 0 && i < pass->count; i++) {
+    rc = run_steps(e, &sweep, 1, err);
+    e->steps += sweep.nsteps;
+  }
   ts_schedule_free(&sweep);
   return rc;
 }
@@ -530,8 +532,7 @@ static int synthesize_level(engine *e, int l, char *err) {
     e->steps = scan.nsteps;
     rc = run_steps(e, &scan, 0, err);
     sweep_pass pass[2];
-    for (int i = 0, k = level_sweeps(p, l, pass); i < k; i++)
-      for (int j = 0; rc == 0 && j < pass[i].count; j++) rc = run_sweep(e, pass[i].band, err);
+    for (int i = 0, k = level_sweeps(p, l, pass); rc == 0 && i < k; i++) rc = run_sweeps(e, &pass[i], err);
   }
   for (int k = 0; k < 2; k++)
     if (e->set_ids[k] >= 0) ts_search_release(e->search, e->set_ids[k]);

@@ -58,7 +58,32 @@ def quality(exe, ref, image, samples=1500, wn=7):
 
 import re
 import signal
+import socket
+import threading
 import time
+
+
+class LoopbackProxy:
+    """Listens on a loopback port chosen by the system and, for every
+    connection to it, dials `target` (HOST:PORT) and calls
+    self.forward(client_socket, target_socket), which subclasses define."""
+
+    def __init__(self, target):
+        self.target = target
+        self.sock = socket.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen(8)
+        self.addr = "127.0.0.1:%d" % self.sock.getsockname()[1]
+        threading.Thread(target=self.accept, daemon=True).start()
+
+    def accept(self):
+        while True:
+            try:
+                a, _ = self.sock.accept()
+            except OSError:
+                return
+            host, port = self.target.rsplit(":", 1)
+            self.forward(a, socket.create_connection((host, int(port))))
 
 
 class Daemon:

@@ -16,7 +16,7 @@ import time
 
 import pytest
 
-from conftest import BUILD, Daemon, SANITIZED, run, synth
+from conftest import BUILD, Daemon, LoopbackProxy, SANITIZED, run, synth
 
 TRIALS = int(os.environ.get("TEXSYN_FAULT_TRIALS", "6"))
 SEED = int(os.environ.get("TEXSYN_FAULT_SEED", "2004"))
@@ -154,7 +154,7 @@ def test_coordinator_killed_mid_job_resumes_after_restart(data, cluster, tmp_pat
 
 # ---- a fault-injecting proxy ----------------------------------------------
 
-class Proxy:
+class Proxy(LoopbackProxy):
     """Forwards one loopback port to a worker, damaging the coordinator's
     connection on the way: `delay` (2 ms per piece), `pieces` (every
     read forwarded in writes of 1, 2, ..., 7 bytes in turn, so frames and
@@ -162,27 +162,15 @@ class Proxy:
     `reset` (the connection is reset once after some traffic)."""
 
     def __init__(self, target, mode):
-        self.target, self.mode = target, mode
-        self.sock = socket.socket()
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.listen(8)
-        self.addr = "127.0.0.1:%d" % self.sock.getsockname()[1]
+        self.mode = mode
         self.damaged = threading.Event()
-        self.stop = False
-        threading.Thread(target=self.accept, daemon=True).start()
+        super().__init__(target)
 
-    def accept(self):
-        while not self.stop:
-            try:
-                a, _ = self.sock.accept()
-            except OSError:
-                return
-            host, port = self.target.rsplit(":", 1)
-            b = socket.create_connection((host, int(port)))
-            for s in (a, b):
-                s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            threading.Thread(target=self.pump, args=(a, b, True), daemon=True).start()
-            threading.Thread(target=self.pump, args=(b, a, False), daemon=True).start()
+    def forward(self, a, b):
+        for s in (a, b):
+            s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        threading.Thread(target=self.pump, args=(a, b, True), daemon=True).start()
+        threading.Thread(target=self.pump, args=(b, a, False), daemon=True).start()
 
     def pump(self, src, dst, to_worker):
         sent = 0
@@ -221,7 +209,6 @@ class Proxy:
                 pass
 
     def close(self):
-        self.stop = True
         self.sock.close()
 
 

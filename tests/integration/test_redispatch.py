@@ -13,7 +13,7 @@ import threading
 
 import pytest
 
-from conftest import BUILD, Daemon, synth
+from conftest import BUILD, Daemon, LoopbackProxy, synth
 
 JOB = ["--size", "96x64", "--levels", "3"]
 
@@ -33,31 +33,20 @@ class Poison:
         self.killed = []
 
 
-class FrameProxy:
+class FrameProxy(LoopbackProxy):
     """Forwards one loopback port to a worker frame by frame. It remembers
     the slices loaded through it ('N': set id, then vector ranges at byte
     46) and resets both connections instead of forwarding a batch ('V') of
     the poisoned set while it holds that set's first vector."""
 
     def __init__(self, index, target, poison):
-        self.index, self.target, self.poison = index, target, poison
+        self.index, self.poison = index, poison
         self.first = {}  # set id -> (i0, i1) of class 0 held through this proxy
-        self.sock = socket.socket()
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.listen(8)
-        self.addr = "127.0.0.1:%d" % self.sock.getsockname()[1]
-        threading.Thread(target=self.accept, daemon=True).start()
+        super().__init__(target)
 
-    def accept(self):
-        while True:
-            try:
-                a, _ = self.sock.accept()
-            except OSError:
-                return
-            host, port = self.target.rsplit(":", 1)
-            b = socket.create_connection((host, int(port)))
-            threading.Thread(target=self.to_worker, args=(a, b), daemon=True).start()
-            threading.Thread(target=self.plain, args=(b, a), daemon=True).start()
+    def forward(self, a, b):
+        threading.Thread(target=self.to_worker, args=(a, b), daemon=True).start()
+        threading.Thread(target=self.plain, args=(b, a), daemon=True).start()
 
     def dies_on(self, frame):
         kind, body = frame[3:4], frame[12:]
