@@ -12,6 +12,11 @@ mkdir -p "$out"
 bash deploy/install-deps.sh --bench
 {
   echo "machine: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2- | sed 's/^ //'), $(nproc) cores"
+  # The model name of a cloud CPU can hide its generation (AMD EPYC: family
+  # 25 is Zen 3/4, which splits 512-bit ops in two; family 26 is Zen 5).
+  echo "cpu: family $(grep -m1 '^cpu family' /proc/cpuinfo | cut -d: -f2 | tr -d ' ')," \
+    "model $(grep -m1 '^model[[:space:]]*:' /proc/cpuinfo | cut -d: -f2 | tr -d ' ')," \
+    "flags: $(grep -m1 '^flags' /proc/cpuinfo | grep -oE 'avx512bw|avx512_vnni|avx2' | sort -u | tr '\n' ' ')"
   echo "date: $(date -u +%Y-%m-%dT%H:%MZ)"
   echo "commit: $(git rev-parse --short HEAD 2>/dev/null || echo unknown)"
 } > "$out/machine.txt"
