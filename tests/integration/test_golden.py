@@ -1,0 +1,68 @@
+"""Golden outputs: the bytes of four jobs recorded before the search service
+was rebuilt for every engine (commit c8cebdc), checked embedded and on 1, 2,
+3 and 16 workers (16 worker processes on loopback, 1 scan thread each).
+
+Any change to the search service, the protocol or the engines must keep these
+bytes: the engine decides what is searched and in which order, and the backend
+returns the exact global minimum with ties to the lowest index, so neither the
+backend nor the pool may show in the output. The output images are PNG
+written by OpenImageIO; the copy maps are raw little-endian (x, y) uint32
+pairs, so a change of PNG encoder would show in the image hashes only.
+"""
+import hashlib
+
+import pytest
+
+from conftest import run
+
+# name: (reference, synth options, sha256 of out.png, sha256 of the raw copy map)
+GOLDEN = {
+    # The seed's Table 3.3 job: brick 512^2 -> 1024^2, L=5, W_N=7, W_B=3, parity.
+    "table33": ("textures/brick.png",
+                ["--size", "1024x1024", "--levels", "5", "--wn", "7", "--wb", "3", "--parity"],
+                "161e520cab1f0329412766d4d60cbfce98406452b570d36e3ae4f1d7d8a567bb",
+                "798f4938134f488eb34f591d3ac0b07ad129df80e7635e24aa0094c209b65e80"),
+    # A wide colour window: 11x11, three planes.
+    "grass-rgb-wn11": ("textures/grass.png", ["--size", "256x192", "--rgb-search", "--wn", "11"],
+                       "872f066e092b966828e358980c8c2a2c73affb0b1166079e536492a132576e85",
+                       "9b086381d809fb8ccd17eed92c7eecb79d8383e92c7f1fbebb968f4ff8917df7"),
+    # A colour photograph searched on its colour channels.
+    "aero-rgb": ("aerial/aero1.jpg", ["--size", "256x192", "--rgb-search"],
+                 "f43178c3d8b620e598f722e870bfc45442338912acd49383fb8c42d0a481a916",
+                 "a3e8298093806a104c150e0d0f87a7d862157aed15a2e526ece7465e0765ce19"),
+    # The usage penalty: replicas of the usage counters on every worker.
+    "usage4": ("textures/brick.png", ["--size", "256x256", "--usage-weight", "4"],
+               "9a61c5099815c9c067c9385103e344225007857e9ec7f1abb108dcf3b127576f",
+               "0f2b26b1d1bc26b19cc9adc9e675ed581df03ade972d95177bf57e0b9a6af8c5"),
+}
+
+
+def sha256(path):
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def run_golden(texsyn, data, tmp_path, name, *where):
+    ref, opts, want_image, want_copy = GOLDEN[name]
+    out, copy = tmp_path / f"{name}.png", tmp_path / f"{name}.cm"
+    run(texsyn, "synth", "--ref", data / ref, "-o", out, "--copy-map-raw", copy, "--quiet", *opts, *where)
+    return sha256(out) == want_image, sha256(copy) == want_copy
+
+
+def assert_golden(texsyn, data, tmp_path, where, label):
+    wrong = []
+    for name in GOLDEN:
+        image_ok, copy_ok = run_golden(texsyn, data, tmp_path, name, *where)
+        if not (image_ok and copy_ok):
+            wrong.append(f"{name} ({'image' if not image_ok else ''}{' ' if not (image_ok or copy_ok) else ''}"
+                         f"{'copy map' if not copy_ok else ''} differs)")
+    assert not wrong, f"{label}: outputs differ from the golden bytes: {', '.join(wrong)}"
+
+
+def test_golden_embedded(texsyn, data, tmp_path):
+    assert_golden(texsyn, data, tmp_path, ["--embedded"], "embedded")
+
+
+@pytest.mark.parametrize("workers", [1, 2, 3, 16])
+def test_golden_on_workers(texsyn, data, cluster, tmp_path, workers):
+    cluster.start(workers, 1)
+    assert_golden(texsyn, data, tmp_path, ["--server", cluster.server.addr], f"{workers} workers")
