@@ -25,14 +25,36 @@ SANFLAGS =
 endif
 
 WARN = -Wall -Wextra -Werror -Wstrict-prototypes -Wno-missing-field-initializers
-CFLAGS_ALL = -std=c11 -D_GNU_SOURCE $(WARN) $(OPT) -g $(SANFLAGS) -Icommon -Iserver -Iproto -Iworker $(CFLAGS)
+# Layers, each seeing only the folders below it (the compiler enforces the
+# direction: a header from a higher layer is simply not found):
+#   common <- common/search <- proto <- worker
+#                     common/search <- server/engines <- server <- server/cli
+# Engines know the search interface, never the daemon, the wire or the CLI.
+INC_common = -Icommon
+INC_common/search = $(INC_common) -Icommon/search
+INC_proto = $(INC_common/search) -Iproto
+INC_worker = $(INC_proto) -Iworker
+INC_server/engines = $(INC_common/search) -Iserver/engines
+INC_server = $(INC_proto) -Iserver/engines -Iserver
+INC_server/cli = $(INC_server) -Iserver/cli
+# Tests, fuzz targets and benchmarks may reach any layer.
+INC_ALL = $(INC_server/cli) -Iworker
+INC_tests/unit = $(INC_ALL)
+INC_tests/fuzz = $(INC_ALL)
+INC_tests/preload = $(INC_common)
+INC_bench = $(INC_ALL)
+# The include paths of a source file: those of its folder.
+inc = $(INC_$(patsubst %/,%,$(dir $(1))))
+
+CFLAGS_ALL = -std=c11 -D_GNU_SOURCE $(WARN) $(OPT) -g $(SANFLAGS) $(CFLAGS)
 CXXFLAGS_ALL = -std=c++17 -Wall -Wextra -Werror $(OPT) -g $(SANFLAGS) -Icommon $(CXXFLAGS)
 LIBS = -lOpenImageIO -lOpenImageIO_Util -lmodbus -lsodium -lpthread -lm $(LDLIBS)
 LDFLAGS_ALL = $(SANFLAGS) $(LDFLAGS)
 
 # Mains: everything else in these folders goes into the library.
-MAINS = server/cli.c server/main.c worker/main.c
-LIB_C = $(filter-out $(MAINS),$(wildcard common/*.c server/*.c proto/*.c worker/*.c))
+MAINS = server/cli/main.c server/main.c worker/main.c
+LIB_DIRS = common common/search proto worker server server/engines server/cli
+LIB_C = $(filter-out $(MAINS),$(foreach d,$(LIB_DIRS),$(wildcard $(d)/*.c)))
 LIB_CXX = $(wildcard common/*.cpp)
 LIB_OBJ = $(LIB_C:%.c=$(BUILD)/%.o) $(LIB_CXX:%.cpp=$(BUILD)/%.o)
 LIB = $(BUILD)/libtexsyn.a
@@ -51,7 +73,7 @@ all: $(BINS) $(UNIT_BINS) $(BENCH_BINS) $(REPLAY_BINS)
 
 $(BUILD)/%.o: %.c
 	@mkdir -p $(dir $@)
-	$(CC) $(CFLAGS_ALL) -MMD -MP -c $< -o $@
+	$(CC) $(CFLAGS_ALL) $(call inc,$<) -MMD -MP -c $< -o $@
 
 $(BUILD)/%.o: %.cpp
 	@mkdir -p $(dir $@)
@@ -62,7 +84,7 @@ $(LIB): $(LIB_OBJ)
 	ar rcs $@ $^
 
 # C++ runtime comes in through the OpenImageIO shim, so link with $(CXX).
-$(BUILD)/texsyn: $(BUILD)/server/cli.o $(LIB)
+$(BUILD)/texsyn: $(BUILD)/server/cli/main.o $(LIB)
 	$(CXX) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
 
 $(BUILD)/texsyn-server: $(BUILD)/server/main.o $(LIB)
@@ -120,17 +142,17 @@ test-valgrind: deps all
 # go to build-fuzz/artifacts/. `make test` runs each for 10 s.
 FUZZ_SECONDS ?= 30
 FUZZ_SAN = -g -O1 -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sanitize-recover=undefined
-FUZZ_CC = clang -std=c11 -D_GNU_SOURCE $(WARN) $(FUZZ_SAN) -fsanitize=fuzzer-no-link -Icommon -Iproto -Iserver
+FUZZ_CC = clang -std=c11 -D_GNU_SOURCE $(WARN) $(FUZZ_SAN) -fsanitize=fuzzer-no-link
 FUZZ_CXX = clang++ -std=c++17 -Wall -Wextra -Werror $(FUZZ_SAN) -fsanitize=fuzzer-no-link -Icommon
-FUZZ_OBJ_frame = proto/frame.o common/error.o
-FUZZ_OBJ_msg = proto/msg.o proto/frame.o server/jobspec.o server/params.o common/error.o
-FUZZ_OBJ_jobspec = server/jobspec.o server/params.o common/error.o
+FUZZ_OBJ_frame = proto/frame.o common/cursor.o common/error.o
+FUZZ_OBJ_msg = proto/msg.o proto/frame.o common/cursor.o server/jobspec.o server/engines/params.o common/error.o
+FUZZ_OBJ_jobspec = server/jobspec.o server/engines/params.o common/error.o
 FUZZ_OBJ_image = common/image.o common/image_oiio.o common/error.o
-FUZZ_OBJ_checkpoint = server/checkpoint.o proto/frame.o common/error.o
+FUZZ_OBJ_checkpoint = server/engines/checkpoint.o common/cursor.o common/error.o
 
 build-fuzz/%.o: %.c
 	@mkdir -p $(dir $@)
-	$(FUZZ_CC) -MMD -MP -c $< -o $@
+	$(FUZZ_CC) $(call inc,$<) -MMD -MP -c $< -o $@
 
 build-fuzz/%.o: %.cpp
 	@mkdir -p $(dir $@)

@@ -1,4 +1,4 @@
-/* bench_kernels.c - throughput of the L1 scan kernels (common/l1.h).
+/* bench_kernels.c - throughput of the L1 scan kernels (common/search/l1.h).
  *
  * For every SIMD variant this CPU supports, measures single-query scans and
  * batched scans (32 and 128 queries), over a reference set that fits in L2

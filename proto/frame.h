@@ -15,14 +15,14 @@
  * which the connection must be closed: nothing in a bad stream can be
  * trusted to find the next frame.
  *
- * Payloads are read with the bounds-checked cursor ts_rd: every read past
- * the end fails, the failure is sticky, so a decoder checks once at the end.
- * ts_wr builds payloads in a growing buffer, with the same sticky error. */
+ * Payloads are read and written with the cursors of common/cursor.h. */
 #ifndef TS_FRAME_H
 #define TS_FRAME_H
 
 #include <stddef.h>
 #include <stdint.h>
+
+#include "cursor.h"
 
 #define TS_PROTO_VERSION 1
 #define TS_FRAME_HEADER 12
@@ -51,40 +51,5 @@ int ts_frame_reader_feed(ts_frame_reader *r, const void *data, size_t len);
 /* 1: *f is the next whole frame; 0: more bytes needed; or TS_EPROTO /
  * TS_ETOOBIG with a message (bad magic, version, oversized payload). */
 int ts_frame_reader_next(ts_frame_reader *r, ts_frame *f, char *err);
-
-/* Bounds-checked little-endian payload cursor. */
-typedef struct {
-  const uint8_t *p;
-  size_t len, off;
-  int failed;
-} ts_rd;
-
-void ts_rd_init(ts_rd *r, const void *p, size_t len);
-uint8_t ts_rd_u8(ts_rd *r);
-uint16_t ts_rd_u16(ts_rd *r);
-uint32_t ts_rd_u32(ts_rd *r);
-uint64_t ts_rd_u64(ts_rd *r);
-/* The next n bytes of the payload, or NULL (and failed) past its end. */
-const uint8_t *ts_rd_bytes(ts_rd *r, size_t n);
-/* 0 if every read was in bounds and, with exact, the payload was used up;
- * else TS_EPROTO. */
-int ts_rd_done(const ts_rd *r, int exact);
-
-/* Growing little-endian payload writer. */
-typedef struct {
-  uint8_t *buf;
-  size_t len, cap;
-  int failed;
-} ts_wr;
-
-void ts_wr_init(ts_wr *w);
-void ts_wr_free(ts_wr *w);
-void ts_wr_u8(ts_wr *w, uint8_t v);
-void ts_wr_u16(ts_wr *w, uint16_t v);
-void ts_wr_u32(ts_wr *w, uint32_t v);
-void ts_wr_u64(ts_wr *w, uint64_t v);
-void ts_wr_bytes(ts_wr *w, const void *p, size_t n);
-/* 0, or TS_ENOMEM if any write could not grow the buffer. */
-int ts_wr_status(const ts_wr *w);
 
 #endif

@@ -133,9 +133,9 @@ int ts_msg_calib_read(const ts_frame *f, ts_msg_calib *m, char *err) {
 
 /* ---- N ------------------------------------------------------------------ */
 
-static int slice_nclass(const ts_msg_slice *m) { return m->parity ? 4 : 1; }
+static int slice_nclass(const ts_slice_desc *m) { return m->parity ? 4 : 1; }
 
-void ts_msg_slice_write(ts_wr *w, const ts_msg_slice *m) {
+void ts_msg_slice_write(ts_wr *w, const ts_slice_desc *m) {
   ts_wr_u32(w, m->set);
   ts_wr_u32(w, m->gen);
   ts_wr_u8(w, m->kind);
@@ -167,7 +167,7 @@ void ts_msg_slice_write(ts_wr *w, const ts_msg_slice *m) {
   if (m->usage == TS_SLICE_USAGE_COUNTS) ts_wr_bytes(w, m->counts, frow * 4);
 }
 
-static int slice_check_geometry(const ts_msg_slice *m, char *err) {
+static int slice_check_geometry(const ts_slice_desc *m, char *err) {
   if (m->kind > 1) return bad(err, 'N', "unknown neighbourhood shape");
   if (m->wb < 1 || m->wn <= m->wb || m->wn > 41 || !(m->wn & 1) || !(m->wb & 1))
     return bad(err, 'N', "window sizes");
@@ -186,7 +186,7 @@ static int slice_check_geometry(const ts_msg_slice *m, char *err) {
   return 0;
 }
 
-int ts_msg_slice_read(const ts_frame *f, ts_msg_slice *m, char *err) {
+int ts_msg_slice_read(const ts_frame *f, ts_slice_desc *m, char *err) {
   ts_rd r;
   ts_rd_init(&r, f->payload, f->len);
   memset(m, 0, sizeof(*m));

@@ -21,6 +21,7 @@
 #include "error.h"
 #include "frame.h"
 #include "search.h"
+#include "slice.h"
 
 enum {
   TS_MSG_IDENT = 'I',
@@ -101,30 +102,8 @@ int ts_msg_calib_read(const ts_frame *f, ts_msg_calib *m, char *err);
 
 /* ---- N: load slice ------------------------------------------------------ */
 
-enum { TS_SLICE_USAGE_NONE = 0, TS_SLICE_USAGE_ZERO = 1, TS_SLICE_USAGE_COUNTS = 2 };
-#define TS_SLICE_MAX_SIDE 65536
-#define TS_SLICE_MAX_PIXELS (1u << 28)
-
-/* A slice of one reference set: per class the vector range [i0, i1) the
- * worker scans, and the rows of the level planes those vectors read. The
- * worker rebuilds shape and grid from the parameters and the vectors from
- * the rows; wfine/wcoarse let it check it derived the same weights. */
-typedef struct {
-  uint32_t set, gen; /* coordinator's set id, slice generation */
-  uint8_t kind, wn, wb, has_coarse, nplanes, parity;
-  double coarse_weight;
-  uint32_t wfine, wcoarse;
-  int32_t w, h, cw, ch; /* level and coarser level sizes (cw, ch 0: none) */
-  uint32_t i0[4], i1[4]; /* per class (1 class, or 4 with parity) */
-  int32_t fy0, fy1;      /* fine rows [fy0, fy1) follow, plane by plane */
-  int32_t cy0, cy1;      /* coarse rows [cy0, cy1) follow */
-  const uint8_t *fine[4], *coarse[4]; /* first row of the region */
-  uint8_t usage;          /* TS_SLICE_USAGE_* */
-  const uint8_t *counts;  /* COUNTS: u32 LE per fine-region pixel */
-} ts_msg_slice;
-
-void ts_msg_slice_write(ts_wr *w, const ts_msg_slice *m);
-int ts_msg_slice_read(const ts_frame *f, ts_msg_slice *m, char *err);
+void ts_msg_slice_write(ts_wr *w, const ts_slice_desc *m);
+int ts_msg_slice_read(const ts_frame *f, ts_slice_desc *m, char *err);
 
 /* Reply to N: the slice is built; the vectors it holds. */
 typedef struct {

@@ -17,12 +17,6 @@
 
 #include "error.h"
 
-double ts_now(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return ts.tv_sec + ts.tv_nsec * 1e-9;
-}
-
 int ts_net_split(const char *addr, char *host, size_t hostcap, int *port, char *err) {
   const char *colon = strrchr(addr, ':');
   if (colon == NULL) return ts_error(err, TS_EINVAL, "address '%s': expected HOST:PORT", addr);

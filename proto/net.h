@@ -12,6 +12,7 @@
 #include <sys/socket.h>
 
 #include "frame.h"
+#include "util.h"
 
 #define TS_NET_ADDR_LEN 128
 
@@ -54,7 +55,5 @@ int ts_conn_pump(ts_conn *c, ts_frame *f, char *err);
 /* A whole frame already buffered: 1 and *f, 0, or an error. */
 int ts_conn_next(ts_conn *c, ts_frame *f, char *err);
 
-/* Monotonic clock. */
-double ts_now(void);
 
 #endif

@@ -753,7 +753,7 @@ static int loaded_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
 
 static int load_local(cl_set *st, char *err) {
   uint32_t i0[4] = {0};
-  ts_msg_slice m;
+  ts_slice_desc m;
   ts_slice_describe(&m, &st->rs, &st->usage, st->gid, st->gen, i0, st->grid->count);
   return ts_slice_load(&st->local, &m, err);
 }
@@ -778,7 +778,7 @@ static int ensure_slices(cluster_search *cs, cl_set *st, char *err) {
     double total = 0;
     for (int i = 0; i < n; i++) total += ws[i]->slice_rate;
     for (int i = 0; i < n; i++) {
-      ts_msg_slice m;
+      ts_slice_desc m;
       ts_slice_describe(&m, &st->rs, &st->usage, st->gid, st->gen, st->slices[i].i0, st->slices[i].i1);
       size_t at = frame_begin(&ws[i]->out, TS_MSG_SLICE, ++c->next_frame);
       ts_msg_slice_write(&ws[i]->out, &m);

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Runs every unit test under valgrind's memcheck, each in its own process
 # (tests/run-unit.sh with a wrapper). Valgrind does not emulate AVX-512, so
-# the kernels dispatch to AVX2 at most there (common/l1.c checks what the
+# the kernels dispatch to AVX2 at most there (common/search/l1.c checks what the
 # CPU, as valgrind presents it, supports).
 # Usage: tests/run-valgrind.sh BUILD_DIR
 set -u

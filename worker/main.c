@@ -141,7 +141,7 @@ static int on_calibrate(session *s, const ts_frame *f, char *err) {
 }
 
 static int on_slice(session *s, const ts_frame *f, char *err) {
-  ts_msg_slice m;
+  ts_slice_desc m;
   int rc = ts_msg_slice_read(f, &m, err);
   if (rc != 0) return rc;
   ts_slice *sl;
@@ -168,6 +168,17 @@ static int on_slice(session *s, const ts_frame *f, char *err) {
 
 static double now_nanos(void) { return ts_now() * 1e9; }
 
+/* Applies the usage commits a 'V' message carries to the slice's replica. */
+static int apply_commits(ts_slice *slice, const ts_msg_query *q, char *err) {
+  for (uint32_t i = 0; i < q->ncommits; i++) {
+    ts_commit c;
+    ts_msg_commit_at(q, i, &c);
+    int rc = ts_slice_commit(slice, &c, 1, err);
+    if (rc != 0) return rc;
+  }
+  return 0;
+}
+
 static int on_query(session *s, const ts_frame *f, char *err) {
   ts_msg_query q;
   int rc = ts_msg_query_read(f, &q, err);
@@ -191,7 +202,7 @@ static int on_query(session *s, const ts_frame *f, char *err) {
   ts_query_batch b = {q.nq, q.queries, q.masks, q.klass, q.usage_k};
   uint64_t pairs = 0;
   double t0 = 0;
-  rc = ts_slice_commit_msg(*slot, &q, err);
+  rc = apply_commits(*slot, &q, err);
   if (rc == 0) {
     pthread_mutex_lock(&g_w.pool_lock);
     t0 = now_nanos();

@@ -1,5 +1,5 @@
 /* fuzz_checkpoint.c - libFuzzer target for the checkpoint decoder
- * (server/checkpoint.c), which reads files a crashed coordinator left in
+ * (server/engines/checkpoint.c), which reads files a crashed coordinator left in
  * its spool. The input is a checkpoint without its trailing checksum: the
  * target appends the right one, so the fuzzer reaches the header and
  * length checks instead of stopping at the checksum. The tag is taken from

@@ -26,7 +26,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   case 0: { ts_msg_ident m; ts_msg_ident_read(&f, &m, err); break; }
   case 1: { ts_msg_calib_req m; ts_msg_calib_req_read(&f, &m, err); ts_msg_calib c; ts_msg_calib_read(&f, &c, err); break; }
   case 2: {
-    ts_msg_slice m;
+    ts_slice_desc m;
     if (ts_msg_slice_read(&f, &m, err) == 0) {
       size_t frow = (size_t)m.w * (size_t)(m.fy1 - m.fy0);
       for (int p = 0; p < m.nplanes; p++) check_inside(m.fine[p], frow, f.payload, f.len);

@@ -66,7 +66,7 @@ static void slice_round_trip(void **state) {
   for (size_t i = 0; i < sizeof(fine[0]); i++) fine[0][i] = (uint8_t)i, fine[1][i] = (uint8_t)(3 * i);
   for (size_t i = 0; i < sizeof(coarse[0]); i++) coarse[0][i] = (uint8_t)(7 * i), coarse[1][i] = (uint8_t)~i;
   for (size_t i = 0; i < sizeof(counts); i++) counts[i] = (uint8_t)(i * 13);
-  ts_msg_slice in = {0}, out;
+  ts_slice_desc in = {0}, out;
   in.set = 5, in.gen = 2, in.kind = 0, in.wn = 7, in.wb = 3, in.has_coarse = 1, in.nplanes = 2, in.parity = 1;
   in.coarse_weight = 0.75, in.wfine = 9, in.wcoarse = 40, in.w = 64, in.h = 64, in.cw = 32, in.ch = 32;
   for (int c = 0; c < 4; c++) in.i0[c] = (uint32_t)c * 10, in.i1[c] = (uint32_t)c * 10 + 40;
@@ -94,13 +94,13 @@ static void slice_round_trip(void **state) {
 static void slice_geometry_is_checked(void **state) {
   (void)state;
   static uint8_t px[64 * 70]; /* the writer trusts its caller: room for every case */
-  ts_msg_slice base = {0}, out;
+  ts_slice_desc base = {0}, out;
   base.wn = 7, base.wb = 3, base.nplanes = 1, base.coarse_weight = 1, base.w = 64, base.h = 64;
   base.i1[0] = 10, base.fy0 = 0, base.fy1 = 64;
   for (int p = 0; p < 4; p++) base.fine[p] = px;
   char err[TS_ERR_LEN];
   for (int k = 0; k < 7; k++) {
-    ts_msg_slice m = base;
+    ts_slice_desc m = base;
     switch (k) {
     case 0: m.wb = 4; break;      /* even block */
     case 1: m.wn = 3; break;      /* window not larger than block */

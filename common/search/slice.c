@@ -35,7 +35,7 @@ struct ts_slice {
   int masked;
 };
 
-void ts_slice_describe(ts_msg_slice *m, const ts_refset *rs, const ts_usage *counts, uint32_t set,
+void ts_slice_describe(ts_slice_desc *m, const ts_refset *rs, const ts_usage *counts, uint32_t set,
                        uint32_t gen, const uint32_t *i0, const uint32_t *i1) {
   const ts_shape *s = rs->shape;
   const ts_refgrid *g = rs->grid;
@@ -121,7 +121,7 @@ static int plane_from_rows(ts_plane *p, int w, int h, int y0, int y1, const uint
 }
 
 /* Every class range must lie in its class and read only the shipped rows. */
-static int check_ranges(const ts_slice *s, const ts_msg_slice *m, char *err) {
+static int check_ranges(const ts_slice *s, const ts_slice_desc *m, char *err) {
   for (int c = 0; c < s->grid.nclass; c++) {
     if (m->i1[c] > s->grid.count[c])
       return ts_error(err, TS_EINVAL, "slice range %u..%u past class %d's %u vectors", m->i0[c], m->i1[c], c,
@@ -158,7 +158,7 @@ static void usage_load_rows(ts_usage *u, int y0, int y1, const uint8_t *le) {
     }
 }
 
-static int build(ts_slice *s, const ts_msg_slice *m, char *err) {
+static int build(ts_slice *s, const ts_slice_desc *m, char *err) {
   int rc = ts_shape_init(&s->shape, (ts_shape_kind)m->kind, m->wn, m->wb, m->has_coarse, m->nplanes,
                          m->coarse_weight, err);
   if (rc != 0) return rc;
@@ -201,7 +201,7 @@ static int build(ts_slice *s, const ts_msg_slice *m, char *err) {
   return 0;
 }
 
-int ts_slice_load(ts_slice **out, const ts_msg_slice *m, char *err) {
+int ts_slice_load(ts_slice **out, const ts_slice_desc *m, char *err) {
   *out = NULL;
   ts_slice *s = calloc(1, sizeof(*s));
   if (s == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
@@ -225,16 +225,6 @@ int ts_slice_commit(ts_slice *s, const ts_commit *c, uint32_t n, char *err) {
     if (c[i].delta != 1 && c[i].delta != -1) return ts_error(err, TS_EINVAL, "usage commit delta %d", (int)c[i].delta);
   }
   for (uint32_t i = 0; i < n; i++) ts_usage_commit(&s->usage, c[i].x, c[i].y, c[i].w, c[i].h, c[i].delta);
-  return 0;
-}
-
-int ts_slice_commit_msg(ts_slice *s, const ts_msg_query *q, char *err) {
-  for (uint32_t i = 0; i < q->ncommits; i++) {
-    ts_commit c;
-    ts_msg_commit_at(q, i, &c);
-    int rc = ts_slice_commit(s, &c, 1, err);
-    if (rc != 0) return rc;
-  }
   return 0;
 }
 

@@ -1,11 +1,12 @@
 /* search_local.c - the local backend of the search interface: each set is
- * one slice holding every vector (worker/slice.c, the code workers scan
+ * one slice holding every vector (common/search/slice.c, the code workers scan
  * with), scanned by a thread pool on this machine. */
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
 
 #include "error.h"
+#include "util.h"
 #include "pool.h"
 #include "search.h"
 #include "slice.h"
@@ -32,11 +33,6 @@ typedef struct {
   uint32_t count[LOCAL_MAX_SETS][4];
 } local_search;
 
-static double now_seconds(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return ts.tv_sec + ts.tv_nsec * 1e-9;
-}
 
 static int local_prepare(ts_search *s, const ts_refset *rs, int *id, char *err) {
   local_search *ls = (local_search *)s;
@@ -44,7 +40,7 @@ static int local_prepare(ts_search *s, const ts_refset *rs, int *id, char *err) 
   while (slot < LOCAL_MAX_SETS && ls->sets[slot] != NULL) slot++;
   if (slot == LOCAL_MAX_SETS) return ts_error(err, TS_ENOMEM, "too many reference sets prepared at once");
   uint32_t i0[4] = {0};
-  ts_msg_slice m;
+  ts_slice_desc m;
   ts_slice_describe(&m, rs, NULL, (uint32_t)slot, 0, i0, rs->grid->count);
   int rc = ts_slice_load(&ls->sets[slot], &m, err);
   if (rc != 0) return rc;
@@ -73,9 +69,9 @@ static int local_query(ts_search *s, int id, const ts_query_batch *b, ts_l1_best
   for (uint32_t i = 0; i < b->nq; i++) expect += ls->count[id][b->klass ? b->klass[i] & 3 : 0];
   uint64_t limit = ls->inline_small ? inline_threshold(s->simd, ts_slice_vbytes(sl)) : 0;
   uint64_t pairs;
-  double t0 = now_seconds();
+  double t0 = ts_now();
   int rc = ts_slice_scan(sl, ls->pool, expect < limit ? 1 : 0, s->simd, b, out, &pairs, err);
-  s->stats.scan_seconds += now_seconds() - t0;
+  s->stats.scan_seconds += ts_now() - t0;
   if (rc != 0) return rc;
   s->stats.pairs += pairs;
   s->stats.batches++;

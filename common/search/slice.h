@@ -12,24 +12,45 @@
 #include <stdint.h>
 
 #include "l1.h"
-#include "msg.h"
 #include "pool.h"
 #include "search.h"
 #include "usage.h"
+
+enum { TS_SLICE_USAGE_NONE = 0, TS_SLICE_USAGE_ZERO = 1, TS_SLICE_USAGE_COUNTS = 2 };
+#define TS_SLICE_MAX_SIDE 65536
+#define TS_SLICE_MAX_PIXELS (1u << 28)
+
+/* A slice of one reference set: per class the vector range [i0, i1) the
+ * worker scans, and the rows of the level planes those vectors read. The
+ * worker rebuilds shape and grid from the parameters and the vectors from
+ * the rows; wfine/wcoarse let it check it derived the same weights. */
+typedef struct {
+  uint32_t set, gen; /* coordinator's set id, slice generation */
+  uint8_t kind, wn, wb, has_coarse, nplanes, parity;
+  double coarse_weight;
+  uint32_t wfine, wcoarse;
+  int32_t w, h, cw, ch; /* level and coarser level sizes (cw, ch 0: none) */
+  uint32_t i0[4], i1[4]; /* per class (1 class, or 4 with parity) */
+  int32_t fy0, fy1;      /* fine rows [fy0, fy1) follow, plane by plane */
+  int32_t cy0, cy1;      /* coarse rows [cy0, cy1) follow */
+  const uint8_t *fine[4], *coarse[4]; /* first row of the region */
+  uint8_t usage;          /* TS_SLICE_USAGE_* */
+  const uint8_t *counts;  /* COUNTS: u32 LE per fine-region pixel */
+} ts_slice_desc;
 
 typedef struct ts_slice ts_slice;
 
 /* Describes vectors [i0[c], i1[c]) of every class of a set as an 'N'
  * message: the rows they read (pointers into rs's planes) and, if counts
  * is not NULL and holds any use, the usage counters of those rows. */
-void ts_slice_describe(ts_msg_slice *m, const ts_refset *rs, const ts_usage *counts, uint32_t set,
+void ts_slice_describe(ts_slice_desc *m, const ts_refset *rs, const ts_usage *counts, uint32_t set,
                        uint32_t gen, const uint32_t *i0, const uint32_t *i1);
 
 /* Builds a slice from a described or decoded 'N' message (the message's
  * bulk data may go away afterwards), with the message's part weights.
  * Geometry the vectors can't be built from - rows missing from the region,
  * ranges past a class - is refused with a message. */
-int ts_slice_load(ts_slice **out, const ts_msg_slice *m, char *err);
+int ts_slice_load(ts_slice **out, const ts_slice_desc *m, char *err);
 void ts_slice_free(ts_slice *s);
 
 uint32_t ts_slice_set(const ts_slice *s);
@@ -39,8 +60,6 @@ uint32_t ts_slice_vbytes(const ts_slice *s);
 
 /* Records copies in the usage replica (a no-op without usage). */
 int ts_slice_commit(ts_slice *s, const ts_commit *c, uint32_t n, char *err);
-/* Applies the commits an 'V' message carries. */
-int ts_slice_commit_msg(ts_slice *s, const ts_msg_query *q, char *err);
 
 /* Scans a batch with `threads` threads of pool (1 = the calling thread
  * alone): out[i] = best match of query i in this slice, as a global index

@@ -18,17 +18,13 @@
 #include <time.h>
 
 #include "error.h"
+#include "util.h"
 #include "plane.h"
 #include "rng.h"
 #include "schedule.h"
 #include "usage.h"
 
 
-static double now_seconds(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return ts.tv_sec + ts.tv_nsec * 1e-9;
-}
 
 /* Appends one problem line to msg. */
 static void problem(char *msg, size_t len, int *count, const char *fmt, ...)
@@ -637,7 +633,7 @@ int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *se
     return ts_error(err, TS_EINVAL, "%s", msg);
   ts_mrf_hooks none = {0};
   const ts_mrf_hooks *h = hooks ? hooks : &none;
-  double t_start = now_seconds();
+  double t_start = ts_now();
   engine e;
   memset(&e, 0, sizeof(e));
   e.p = p;
@@ -658,7 +654,7 @@ int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *se
     first = h->resume->level - 1;
   }
   for (int l = first; l >= p->stop_level && rc == 0; l--) {
-    double t0 = now_seconds();
+    double t0 = ts_now();
     uint64_t pairs0 = search->stats.pairs, rt0 = search->stats.round_trips;
     uint64_t bytes0 = search->stats.bytes_out + search->stats.bytes_in;
     ts_mrf_level_stats *ls = &res->level[l];
@@ -674,7 +670,7 @@ int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *se
     ls->pairs = search->stats.pairs - pairs0;
     ls->round_trips = search->stats.round_trips - rt0;
     ls->wire_bytes = search->stats.bytes_out + search->stats.bytes_in - bytes0;
-    ls->seconds = now_seconds() - t0;
+    ls->seconds = ts_now() - t0;
     /* Level l+2 is no longer needed as anyone's coarse part. */
     for (int k = 0; k < e.nplanes && l + 2 < p->levels; k++) ts_plane_free(&e.canvas[k][l + 2]);
     if (rc == 0 && l > p->stop_level && h->checkpoint) rc = save_checkpoint(&e, h, res, err);
@@ -684,7 +680,7 @@ int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *se
     rc = gather_output(&e, ref, res, err);
   }
   engine_free(&e);
-  res->seconds = now_seconds() - t_start;
+  res->seconds = ts_now() - t_start;
   if (rc != 0) ts_mrf_result_free(res);
   return rc;
 }

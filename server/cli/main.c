@@ -19,6 +19,7 @@
 
 #include "client.h"
 #include "error.h"
+#include "util.h"
 #include "image.h"
 #include "jobspec.h"
 #include "l1.h"
@@ -136,15 +137,10 @@ typedef struct {
   double start, last;
 } progress_bar;
 
-static double now_seconds(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_MONOTONIC, &ts);
-  return ts.tv_sec + ts.tv_nsec * 1e-9;
-}
 
 static void progress_draw(void *ctx, const ts_mrf_progress *p) {
   progress_bar *pb = ctx;
-  double t = now_seconds();
+  double t = ts_now();
   int level_done = p->done == p->total;
   if (!pb->enabled || (t - pb->last < 0.1 && !level_done)) return;
   pb->last = t;
@@ -373,7 +369,7 @@ static void remote_progress(const ts_job_status *s, double start) {
   for (int i = 0; i < 30; i++) bar[i] = i < fill ? '#' : '.';
   bar[30] = '\0';
   if (s->state == TS_JOB_QUEUED) {
-    fprintf(stderr, "\rjob %llu queued (%.0fs) ", (unsigned long long)s->id, now_seconds() - start);
+    fprintf(stderr, "\rjob %llu queued (%.0fs) ", (unsigned long long)s->id, ts_now() - start);
   } else {
     char eta[32] = "  ?";
     if (s->eta_ms != UINT32_MAX) snprintf(eta, sizeof(eta), "%5.1fs", s->eta_ms / 1000.0);
@@ -391,7 +387,7 @@ static int watch_job(ts_conn *c, uint64_t id, int show, ts_job_status *last, cha
   ts_msg_status_req_write(&w, &req);
   int rc = ts_wr_status(&w) ? TS_ENOMEM : ts_net_send(c->fd, TS_MSG_STATUS, 1, w.buf, w.len, err);
   ts_wr_free(&w);
-  double start = now_seconds();
+  double start = ts_now();
   while (rc == 0) {
     ts_frame f;
     uint32_t n;
@@ -493,7 +489,7 @@ static int cmd_synth(int argc, char **argv) {
   ts_search *search = NULL;
   rc = ts_search_local_create(&search, o.threads, NULL, err);
   ts_mrf_result res;
-  progress_bar pb = {!o.quiet && isatty(STDERR_FILENO), now_seconds(), 0};
+  progress_bar pb = {!o.quiet && isatty(STDERR_FILENO), ts_now(), 0};
   ts_mrf_hooks hooks = {.progress = progress_draw, .progress_ctx = &pb};
   if (rc == 0) rc = ts_mrf_synthesize(&o.p, &ref, search, &hooks, &res, err);
   if (pb.enabled) fputc('\n', stderr);

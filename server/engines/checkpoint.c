@@ -16,7 +16,7 @@
 #include <string.h>
 
 #include "error.h"
-#include "frame.h"
+#include "cursor.h"
 
 #define CK_MAGIC 0x4b435354u /* "TSCK" */
 #define CK_VERSION 1u
