@@ -144,11 +144,10 @@ FUZZ_SECONDS ?= 30
 FUZZ_SAN = -g -O1 -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sanitize-recover=undefined
 FUZZ_CC = clang -std=c11 -D_GNU_SOURCE $(WARN) $(FUZZ_SAN) -fsanitize=fuzzer-no-link
 FUZZ_CXX = clang++ -std=c++17 -Wall -Wextra -Werror $(FUZZ_SAN) -fsanitize=fuzzer-no-link -Icommon
-FUZZ_OBJ_frame = proto/frame.o common/cursor.o common/error.o
-FUZZ_OBJ_msg = proto/msg.o proto/frame.o common/cursor.o server/jobspec.o server/engines/params.o common/error.o
-FUZZ_OBJ_jobspec = server/jobspec.o server/engines/params.o common/error.o
-FUZZ_OBJ_image = common/image.o common/image_oiio.o common/error.o
-FUZZ_OBJ_checkpoint = server/engines/checkpoint.o common/cursor.o common/error.o
+# The fuzz targets link the library built with the fuzzer's flags; each
+# pulls in only the objects it reaches.
+FUZZ_LIB = build-fuzz/libtexsyn.a
+FUZZ_LIB_OBJ = $(LIB_C:%.c=build-fuzz/%.o) $(LIB_CXX:%.cpp=build-fuzz/%.o)
 
 build-fuzz/%.o: %.c
 	@mkdir -p $(dir $@)
@@ -160,9 +159,12 @@ build-fuzz/%.o: %.cpp
 
 .PRECIOUS: build-fuzz/%.o
 # Linked by clang++: the shim's UBSan checks need the C++ runtime parts.
-.SECONDEXPANSION:
-build-fuzz/fuzz_%: build-fuzz/tests/fuzz/fuzz_%.o $$(addprefix build-fuzz/,$$(FUZZ_OBJ_$$*))
-	clang++ $(FUZZ_SAN) -fsanitize=fuzzer -o $@ $^ $(if $(filter image,$*),$(LIBS),-lm)
+$(FUZZ_LIB): $(FUZZ_LIB_OBJ)
+	@rm -f $@
+	ar rcs $@ $^
+
+build-fuzz/fuzz_%: build-fuzz/tests/fuzz/fuzz_%.o $(FUZZ_LIB)
+	clang++ $(FUZZ_SAN) -fsanitize=fuzzer -o $@ $^ $(LIBS)
 
 fuzz-build: $(FUZZ_TARGETS:%=build-fuzz/fuzz_%)
 

@@ -18,8 +18,6 @@
 #include "error.h"
 #include "image.h"
 #include "jobspec.h"
-#include "mrf.h"
-#include "outputs.h"
 
 #define JOBS_PATH 4096
 #define JOBS_SPOOL_LEN 1024 /* longer spool paths are refused */
@@ -219,7 +217,7 @@ typedef struct {
   double last;
 } progress_ctx;
 
-static void on_progress(void *arg, const ts_mrf_progress *p) {
+static void on_progress(void *arg, const ts_progress *p) {
   progress_ctx *pc = arg;
   double now = ts_now();
   if (now - pc->last < 0.1 && p->done != p->total) return;
@@ -237,31 +235,16 @@ static void on_progress(void *arg, const ts_mrf_progress *p) {
   pthread_mutex_unlock(&pc->j->lock);
 }
 
-static int write_results(job *jb, const ts_image *ref, const ts_mrf_result *res, const ts_search *search,
-                         char *err) {
+/* Every output the job asked for, into its directory. */
+static int write_results(job *jb, const ts_engine_run *run, char *err) {
   const ts_jobspec *s = &jb->spec;
-  char path[JOBS_PATH + 64], name[64];
-  snprintf(name, sizeof(name), "out.%s", s->output);
-  job_path(jb, name, path, sizeof(path));
-  int rc = ts_image_write(path, &res->image, ref->meta, err);
-  if (rc == 0 && s->copy_map[0]) {
-    snprintf(name, sizeof(name), "copymap.%s", s->copy_map);
+  int rc = 0;
+  for (int k = 0; rc == 0 && k < s->engine->noutputs; k++) {
+    if (s->wants.want[k][0] == '\0') continue;
+    char name[64], path[JOBS_PATH + 64];
+    ts_engine_output_file(s->engine, k, &s->wants, name, sizeof(name));
     job_path(jb, name, path, sizeof(path));
-    rc = ts_write_copy_map_image(path, res->copy_map, res->image.width, res->image.height, res->ref_w,
-                                 res->ref_h, err);
-  }
-  if (rc == 0 && s->copy_map_raw) {
-    job_path(jb, "copymap.raw", path, sizeof(path));
-    rc = ts_write_copy_map_raw(path, res->copy_map, res->image.width, res->image.height, err);
-  }
-  if (rc == 0 && s->usage_map[0]) {
-    snprintf(name, sizeof(name), "usage.%s", s->usage_map);
-    job_path(jb, name, path, sizeof(path));
-    rc = ts_write_usage_map(path, res->usage, res->ref_w, res->ref_h, err);
-  }
-  if (rc == 0 && s->report) {
-    job_path(jb, "report.json", path, sizeof(path));
-    rc = ts_write_report(path, &s->p, 0, search, res, err);
+    rc = s->engine->write_output(run, k, path, 0, err);
   }
   return rc;
 }
@@ -281,22 +264,30 @@ static uint64_t job_tag(const job *jb) {
   return ts_checkpoint_tag(text, n > 0 ? (size_t)n : 0);
 }
 
-/* Writes the state after a level atomically: a kill at any moment leaves
- * either the previous checkpoint or this one. */
-static int on_checkpoint(void *arg, const ts_mrf_checkpoint *ck, char *err) {
+/* Writes a checkpoint atomically: a kill at any moment leaves either the
+ * previous checkpoint or this one. */
+static int on_checkpoint(void *arg, const uint8_t *buf, size_t len, const char *what, char *err) {
   checkpoint_ctx *cc = arg;
-  uint8_t *buf;
-  size_t len;
-  int rc = ts_checkpoint_encode(ck, cc->jb->spec.p.levels, cc->tag, &buf, &len, err);
-  if (rc != 0) return rc;
   char path[JOBS_PATH + 32];
   job_path(cc->jb, JOBS_CHECKPOINT, path, sizeof(path));
-  rc = write_atomic(path, buf, len, err);
-  free(buf);
-  if (rc == 0)
-    jobs_log(cc->j, "job %" PRIu64 ": checkpoint after level %d (%zu bytes)", cc->jb->id,
-            ck->level, len);
+  int rc = write_atomic(path, buf, len, err);
+  if (rc == 0) jobs_log(cc->j, "job %" PRIu64 ": checkpoint %s (%zu bytes)", cc->jb->id, what, len);
   return rc;
+}
+
+/* A damaged or foreign checkpoint: the job starts over, which gives the
+ * same bytes, only later. */
+static void on_checkpoint_refused(void *arg, const char *why) {
+  checkpoint_ctx *cc = arg;
+  char path[JOBS_PATH + 32];
+  job_path(cc->jb, JOBS_CHECKPOINT, path, sizeof(path));
+  jobs_log(cc->j, "job %" PRIu64 ": ignoring its checkpoint (%s); starting over", cc->jb->id, why);
+  unlink(path);
+}
+
+static void on_resumed(void *arg, const char *what) {
+  checkpoint_ctx *cc = arg;
+  jobs_log(cc->j, "job %" PRIu64 ": resuming %s from its checkpoint", cc->jb->id, what);
 }
 
 /* Reads a whole file into a malloc'd buffer; 0 or -1. */
@@ -313,36 +304,20 @@ static int read_whole(const char *path, uint8_t **buf, size_t *len) {
   return ok ? 0 : -1;
 }
 
-/* The job's last checkpoint, if it has a usable one. A damaged or foreign
- * one is logged and removed: the job then starts over, which gives the
- * same bytes, only later. */
-static int load_job_checkpoint(ts_jobs *j, job *jb, uint64_t tag, ts_mrf_checkpoint *ck) {
-  char path[JOBS_PATH + 32], err[TS_ERR_LEN];
-  job_path(jb, JOBS_CHECKPOINT, path, sizeof(path));
-  uint8_t *buf;
-  size_t len;
-  if (read_whole(path, &buf, &len) != 0) return 0;
-  int rc = ts_checkpoint_decode(buf, len, tag, j->o.max_pixels, ck, err);
-  free(buf);
-  if (rc != 0) {
-    jobs_log(j, "job %" PRIu64 ": ignoring its checkpoint (%s); starting over", jb->id, err);
-    unlink(path);
-    return 0;
-  }
-  jobs_log(j, "job %" PRIu64 ": resuming after level %d from its checkpoint", jb->id,
-          ck->level);
-  return 1;
-}
-
-static int synthesize_job(ts_jobs *j, job *jb, const ts_image *ref, ts_search *search, ts_mrf_result *res,
-                          char *err) {
+/* Runs the job's engine, from its last checkpoint if it has one. */
+static int run_engine(ts_jobs *j, job *jb, const ts_image *ref, ts_search *search, ts_engine_run **run,
+                      char *err) {
   progress_ctx pc = {j, jb, 0};
   checkpoint_ctx cc = {j, jb, job_tag(jb)};
-  ts_mrf_checkpoint resume;
-  int resumed = load_job_checkpoint(j, jb, cc.tag, &resume);
-  ts_mrf_hooks hooks = {on_progress, &pc, on_checkpoint, &cc, resumed ? &resume : NULL};
-  int rc = ts_mrf_synthesize(&jb->spec.p, ref, search, &hooks, res, err);
-  if (resumed) ts_checkpoint_free(&resume);
+  char path[JOBS_PATH + 32];
+  job_path(jb, JOBS_CHECKPOINT, path, sizeof(path));
+  uint8_t *resume = NULL;
+  size_t resume_len = 0;
+  if (read_whole(path, &resume, &resume_len) != 0) resume = NULL;
+  ts_engine_hooks hooks = {on_progress,  &pc,        on_checkpoint, &cc, resume, resume_len,
+                           cc.tag,       on_checkpoint_refused,     on_resumed};
+  int rc = jb->spec.engine->run(&jb->spec.params, ref, search, &hooks, run, err);
+  free(resume);
   return rc;
 }
 
@@ -353,20 +328,19 @@ static int run_job(ts_jobs *j, job *jb, char *err) {
   ts_image ref = {0};
   int rc = ts_image_read(path, &ref, &limits, err);
   if (rc != 0) return rc;
+  const ts_engine *e = jb->spec.engine;
   char msg[2048];
-  jb->spec.p.max_pixels = j->o.max_pixels;
-  if (ts_mrf_check(&jb->spec.p, ref.width, ref.height, ref.channels, msg, sizeof(msg)) != 0) {
+  e->set_max_pixels(&jb->spec.params, j->o.max_pixels);
+  if (e->check(&jb->spec.params, &ref, msg, sizeof(msg)) != 0) {
     ts_image_free(&ref);
     return ts_error(err, TS_EINVAL, "invalid parameters for the %dx%d reference: %s", ref.width, ref.height, msg);
   }
   ts_search *search = NULL;
+  ts_engine_run *run = NULL;
   rc = ts_search_cluster_create(&search, j->o.cluster, &jb->cancel, err);
-  ts_mrf_result res;
-  if (rc == 0) rc = synthesize_job(j, jb, &ref, search, &res, err);
-  if (rc == 0) {
-    rc = write_results(jb, &ref, &res, search, err);
-    ts_mrf_result_free(&res);
-  }
+  if (rc == 0) rc = run_engine(j, jb, &ref, search, &run, err);
+  if (rc == 0) rc = write_results(jb, run, err);
+  e->run_free(run);
   ts_search_destroy(search);
   ts_image_free(&ref);
   return rc;
@@ -453,7 +427,7 @@ static void load_job(ts_jobs *j, uint64_t id) {
     return;
   }
   jb->st.id = id;
-  jb->st.levels = (uint8_t)jb->spec.p.levels;
+  jb->st.levels = (uint8_t)jb->spec.engine->levels(&jb->spec.params);
   jb->st.eta_ms = UINT32_MAX;
   job_path(jb, "state", path, sizeof(path));
   if (read_small(path, text, sizeof(text)) > 0) {
@@ -582,9 +556,7 @@ void ts_jobs_destroy(ts_jobs *j) {
  * a checkpoint of a quarter of the pixels at 9 bytes each) until they are
  * written and counted. */
 static uint64_t job_reserve(const ts_jobspec *s, size_t ref_len) {
-  uint64_t px = (uint64_t)s->p.width * (uint64_t)s->p.height;
-  uint64_t per_px = 8 + 3 + (s->copy_map[0] ? 8 : 0) + (s->copy_map_raw ? 8 : 0);
-  return ref_len + px * per_px + 65536;
+  return ref_len + s->engine->result_bytes(&s->params, &s->wants) + 65536;
 }
 
 static double mib(uint64_t bytes) { return (double)bytes / (1024.0 * 1024.0); }
@@ -672,7 +644,7 @@ int ts_jobs_submit(ts_jobs *j, const char *client, const char *spec, size_t spec
   }
   jb->st.id = jb->id;
   jb->st.state = TS_JOB_QUEUED;
-  jb->st.levels = (uint8_t)jb->spec.p.levels;
+  jb->st.levels = (uint8_t)jb->spec.engine->levels(&jb->spec.params);
   jb->st.eta_ms = UINT32_MAX;
   pthread_mutex_lock(&j->lock);
   job_append(j, jb);
@@ -784,16 +756,14 @@ int ts_jobs_files(ts_jobs *j, uint64_t id, char names[][TS_MSG_NAME_MAX], char p
                   jb->st.text[0] ? ": " : "", jb->st.text);
   else {
     const ts_jobspec *s = &jb->spec;
-    char list[5][64];
     uint32_t k = 0;
-    snprintf(list[k++], 64, "out.%s", s->output);
-    if (s->copy_map[0]) snprintf(list[k++], 64, "copymap.%s", s->copy_map);
-    if (s->copy_map_raw) snprintf(list[k++], 64, "copymap.raw");
-    if (s->usage_map[0]) snprintf(list[k++], 64, "usage.%s", s->usage_map);
-    if (s->report) snprintf(list[k++], 64, "report.json");
-    for (uint32_t i = 0; i < k; i++) {
-      snprintf(names[i], TS_MSG_NAME_MAX, "%.63s", list[i]);
-      snprintf(paths[i], 4096, "%s/%.63s", jb->dir, list[i]);
+    for (int i = 0; i < s->engine->noutputs && k < TS_FETCH_MAX_FILES; i++) {
+      if (s->wants.want[i][0] == '\0') continue;
+      char name[64];
+      ts_engine_output_file(s->engine, i, &s->wants, name, sizeof(name));
+      snprintf(names[k], TS_MSG_NAME_MAX, "%s", name);
+      snprintf(paths[k], 4096, "%s/%s", jb->dir, name);
+      k++;
     }
     *n = k;
   }

@@ -2,17 +2,17 @@
 #include "jobspec.h"
 
 #include <errno.h>
-#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "error.h"
 
-void ts_jobspec_default(ts_jobspec *s) {
+void ts_jobspec_default(ts_jobspec *s, const ts_engine *engine) {
   memset(s, 0, sizeof(*s));
-  ts_mrf_params_default(&s->p);
-  snprintf(s->output, sizeof(s->output), "png");
+  s->engine = engine ? engine : ts_engine_default();
+  s->engine->params_default(&s->params);
+  snprintf(s->wants.want[0], TS_EXT_LEN, "png");
 }
 
 const char *ts_path_ext(const char *path) {
@@ -22,16 +22,20 @@ const char *ts_path_ext(const char *path) {
 }
 
 int ts_jobspec_format(const ts_jobspec *s, char *buf, size_t cap) {
-  const ts_mrf_params *p = &s->p;
-  int n = snprintf(buf, cap,
-                   "size=%dx%d\nlevels=%d\nwn=%d\nwb=%d\nparity=%d\nusage_weight=%.17g\n"
-                   "coarse_weight=%.17g\nrefine=%d\nseed=%llu\nrgb_search=%d\nmax_pixels=%llu\n"
-                   "output=%s\ncopy_map=%s\ncopy_map_raw=%d\nusage_map=%s\nreport=%d\n",
-                   p->width, p->height, p->levels, p->wn, p->wb, p->parity, p->usage_weight,
-                   p->coarse_weight, p->refine, (unsigned long long)p->seed, p->rgb_search,
-                   (unsigned long long)p->max_pixels, s->output, s->copy_map, s->copy_map_raw,
-                   s->usage_map, s->report);
-  return n < 0 || (size_t)n >= cap ? TS_ETOOBIG : n;
+  const ts_engine *e = s->engine;
+  int n = snprintf(buf, cap, "engine=%s\n", e->name);
+  if (n < 0 || (size_t)n >= cap) return TS_ETOOBIG;
+  int k = e->spec_format(&s->params, buf + n, cap - (size_t)n);
+  if (k < 0) return k;
+  n += k;
+  for (int i = 0; i < e->noutputs; i++) {
+    const char *v = s->wants.want[i];
+    if (e->outputs[i].kind == TS_OUTPUT_FLAG) v = v[0] ? "1" : "0";
+    k = snprintf(buf + n, cap - (size_t)n, "%s=%s\n", e->outputs[i].key, v);
+    if (k < 0 || (size_t)k >= cap - (size_t)n) return TS_ETOOBIG;
+    n += k;
+  }
+  return n;
 }
 
 static int parse_int(const char *v, long lo, long hi, int *out) {
@@ -40,25 +44,6 @@ static int parse_int(const char *v, long lo, long hi, int *out) {
   long x = strtol(v, &end, 10);
   if (errno != 0 || end == v || *end != '\0' || x < lo || x > hi) return -1;
   *out = (int)x;
-  return 0;
-}
-
-static int parse_u64v(const char *v, uint64_t *out) {
-  char *end;
-  errno = 0;
-  if (v[0] == '-' || v[0] == '\0') return -1;
-  unsigned long long x = strtoull(v, &end, 10);
-  if (errno != 0 || *end != '\0') return -1;
-  *out = x;
-  return 0;
-}
-
-static int parse_dbl(const char *v, double *out) {
-  char *end;
-  errno = 0;
-  double x = strtod(v, &end);
-  if (errno != 0 || end == v || *end != '\0' || !isfinite(x)) return -1;
-  *out = x;
   return 0;
 }
 
@@ -78,38 +63,47 @@ int ts_ext_valid(const char *ext) {
   return ext[0] != '\0' && parse_ext(ext, tmp) == 0;
 }
 
-static int parse_size(const char *v, int *w, int *h) {
-  char a[32];
-  const char *x = strchr(v, 'x');
-  if (x == NULL || (size_t)(x - v) >= sizeof(a)) return -1;
-  memcpy(a, v, (size_t)(x - v));
-  a[x - v] = '\0';
-  return parse_int(a, 1, 1000000, w) != 0 || parse_int(x + 1, 1, 1000000, h) != 0 ? -1 : 0;
+/* An output key of the engine: its wish, or -2 if the key is no output. */
+static int set_output(ts_jobspec *s, const char *k, const char *v) {
+  int i = ts_engine_output_index(s->engine, k);
+  if (i < 0) return -2;
+  if (s->engine->outputs[i].kind == TS_OUTPUT_IMAGE) return parse_ext(v, s->wants.want[i]);
+  int on;
+  if (parse_int(v, 0, 1, &on) != 0) return -1;
+  snprintf(s->wants.want[i], TS_EXT_LEN, "%s", on ? "1" : "");
+  return 0;
 }
 
 static int set_key(ts_jobspec *s, const char *k, const char *v) {
-  ts_mrf_params *p = &s->p;
-  if (strcmp(k, "size") == 0) return parse_size(v, &p->width, &p->height);
-  if (strcmp(k, "levels") == 0) return parse_int(v, -1000, 1000, &p->levels);
-  if (strcmp(k, "wn") == 0) return parse_int(v, -1000, 1000, &p->wn);
-  if (strcmp(k, "wb") == 0) return parse_int(v, -1000, 1000, &p->wb);
-  if (strcmp(k, "parity") == 0) return parse_int(v, 0, 1, &p->parity);
-  if (strcmp(k, "usage_weight") == 0) return parse_dbl(v, &p->usage_weight);
-  if (strcmp(k, "coarse_weight") == 0) return parse_dbl(v, &p->coarse_weight);
-  if (strcmp(k, "refine") == 0) return parse_int(v, -1000, 1000, &p->refine);
-  if (strcmp(k, "seed") == 0) return parse_u64v(v, &p->seed);
-  if (strcmp(k, "rgb_search") == 0) return parse_int(v, 0, 1, &p->rgb_search);
-  if (strcmp(k, "max_pixels") == 0) return parse_u64v(v, &p->max_pixels);
-  if (strcmp(k, "output") == 0) return parse_ext(v, s->output);
-  if (strcmp(k, "copy_map") == 0) return parse_ext(v, s->copy_map);
-  if (strcmp(k, "usage_map") == 0) return parse_ext(v, s->usage_map);
-  if (strcmp(k, "copy_map_raw") == 0) return parse_int(v, 0, 1, &s->copy_map_raw);
-  if (strcmp(k, "report") == 0) return parse_int(v, 0, 1, &s->report);
-  return -2;
+  if (strcmp(k, "engine") == 0) return strcmp(v, s->engine->name) == 0 ? 0 : -1;
+  int rc = set_output(s, k, v);
+  return rc != -2 ? rc : s->engine->spec_set(&s->params, k, v);
+}
+
+/* The engine named by an `engine=` line of the text, else the default. */
+static int find_engine(const char *text, size_t len, const ts_engine **out, char *err) {
+  *out = ts_engine_default();
+  for (size_t off = 0; off < len;) {
+    const char *nl = memchr(text + off, '\n', len - off);
+    size_t n = nl ? (size_t)(nl - (text + off)) : len - off;
+    if (n > 7 && n < 64 && memcmp(text + off, "engine=", 7) == 0) {
+      char name[64];
+      memcpy(name, text + off + 7, n - 7);
+      name[n - 7] = '\0';
+      *out = ts_engine_find(name);
+      if (*out == NULL) return ts_error(err, TS_EINVAL, "job spec: unknown engine '%s'", name);
+      return 0;
+    }
+    off += n + 1;
+  }
+  return 0;
 }
 
 int ts_jobspec_parse(const char *text, size_t len, ts_jobspec *s, char *err) {
-  ts_jobspec_default(s);
+  const ts_engine *engine;
+  int rc = find_engine(text, len, &engine, err);
+  if (rc != 0) return rc;
+  ts_jobspec_default(s, engine);
   size_t off = 0;
   int line = 0;
   while (off < len) {
@@ -126,13 +120,13 @@ int ts_jobspec_parse(const char *text, size_t len, ts_jobspec *s, char *err) {
     char *eq = strchr(buf, '=');
     if (eq == NULL) return ts_error(err, TS_EINVAL, "job spec line %d: expected key=value", line);
     *eq = '\0';
-    int rc = set_key(s, buf, eq + 1);
+    rc = set_key(s, buf, eq + 1);
     if (rc == -2) return ts_error(err, TS_EINVAL, "job spec line %d: unknown key '%s'", line, buf);
     if (rc != 0) return ts_error(err, TS_EINVAL, "job spec line %d: bad value '%s' for %s", line, eq + 1, buf);
   }
-  if (s->output[0] == '\0') return ts_error(err, TS_EINVAL, "job spec: output format is required");
-  /* Without it the spec would format as size=0x0, which no parse takes
-   * back: a spooled job would be lost on a restart. */
-  if (s->p.width == 0) return ts_error(err, TS_EINVAL, "job spec: size=WxH is required");
-  return 0;
+  if (s->wants.want[0][0] == '\0')
+    return ts_error(err, TS_EINVAL, "job spec: %s format is required", s->engine->outputs[0].key);
+  /* A spec must survive format and parse (the spool relies on it): an
+   * engine names what it cannot default, e.g. mrf's size. */
+  return s->engine->spec_complete(&s->params, err);
 }

@@ -24,6 +24,7 @@
 #include "jobspec.h"
 #include "l1.h"
 #include "mbclient.h"
+#include "engine.h"
 #include "mrf.h"
 #include "outputs.h"
 #include "quality.h"
@@ -138,7 +139,7 @@ typedef struct {
 } progress_bar;
 
 
-static void progress_draw(void *ctx, const ts_mrf_progress *p) {
+static void progress_draw(void *ctx, const ts_progress *p) {
   progress_bar *pb = ctx;
   double t = ts_now();
   int level_done = p->done == p->total;
@@ -158,9 +159,16 @@ static void progress_draw(void *ctx, const ts_mrf_progress *p) {
 
 /* ---- synth ------------------------------------------------------------- */
 
+/* Local paths of a job's outputs, by output index of its engine (NULL:
+ * not wanted); [0] is -o, the result image. */
+typedef struct {
+  const char *path[TS_ENGINE_MAX_OUTPUTS];
+} output_paths;
+
 typedef struct {
   ts_mrf_params p;
-  const char *ref, *out, *copy_map, *copy_map_raw, *usage_map, *report, *server, *secret_file;
+  const char *ref, *server, *secret_file;
+  output_paths out; /* -o and the side outputs' paths */
   int threads, quiet, have_size, detach, embedded;
 } synth_opts;
 
@@ -170,6 +178,28 @@ enum {
   OPT_MAXPIX, OPT_STOP, OPT_REFINE, OPT_QUIET, OPT_HELP, OPT_IMAGE, OPT_SAMPLES, OPT_BLOCK,
   OPT_SERVER, OPT_DETACH, OPT_EMBEDDED, OPT_SECRET
 };
+
+/* The options that name an output's path, by the output's spec key. */
+static const struct {
+  int opt;
+  const char *key;
+} output_opts[] = {{'o', "output"},
+                   {OPT_COPY, "copy_map"},
+                   {OPT_COPY_RAW, "copy_map_raw"},
+                   {OPT_USAGE_MAP, "usage_map"},
+                   {OPT_REPORT, "report"}};
+
+/* Records an output option's path; 0 if c is no output option. */
+static int output_option(output_paths *t, int c, const char *path) {
+  for (size_t i = 0; i < sizeof(output_opts) / sizeof(output_opts[0]); i++) {
+    if (output_opts[i].opt != c) continue;
+    int k = ts_engine_output_index(ts_engine_default(), output_opts[i].key);
+    if (k < 0) return 0;
+    t->path[k] = path;
+    return 1;
+  }
+  return 0;
+}
 
 static const struct option synth_longopts[] = {
     {"ref", required_argument, 0, OPT_REF},
@@ -204,7 +234,6 @@ static int synth_option(synth_opts *o, int c, const char *arg, char *err) {
   int rc = 0;
   switch (c) {
   case OPT_REF: o->ref = arg; break;
-  case 'o': o->out = arg; break;
   case OPT_SIZE: rc = parse_size(arg, &o->p.width, &o->p.height, err); o->have_size = 1; break;
   case OPT_LEVELS: rc = parse_long("--levels", arg, -1000, 1000, &v, err); o->p.levels = (int)v; break;
   case OPT_WN: rc = parse_long("--wn", arg, -1000, 1000, &v, err); o->p.wn = (int)v; break;
@@ -215,10 +244,6 @@ static int synth_option(synth_opts *o, int c, const char *arg, char *err) {
   case OPT_SEED: rc = parse_u64("--seed", arg, &o->p.seed, err); break;
   case OPT_RGB: o->p.rgb_search = 1; break;
   case OPT_THREADS: rc = parse_long("--threads", arg, 1, 1024, &v, err); o->threads = (int)v; break;
-  case OPT_COPY: o->copy_map = arg; break;
-  case OPT_COPY_RAW: o->copy_map_raw = arg; break;
-  case OPT_USAGE_MAP: o->usage_map = arg; break;
-  case OPT_REPORT: o->report = arg; break;
   case OPT_MAXPIX: rc = parse_u64("--max-pixels", arg, &o->p.max_pixels, err); break;
   case OPT_STOP: rc = parse_long("--stop-level", arg, -1000, 1000, &v, err); o->p.stop_level = (int)v; break;
   case OPT_REFINE: rc = parse_long("--refine", arg, -1000, 1000, &v, err); o->p.refine = (int)v; break;
@@ -227,7 +252,8 @@ static int synth_option(synth_opts *o, int c, const char *arg, char *err) {
   case OPT_DETACH: o->detach = 1; break;
   case OPT_EMBEDDED: o->embedded = 1; break;
   case OPT_SECRET: o->secret_file = arg; break;
-  default: rc = ts_error(err, TS_EINVAL, "unknown option (see texsyn synth --help)");
+  default:
+    if (!output_option(&o->out, c, arg)) rc = ts_error(err, TS_EINVAL, "unknown option (see texsyn synth --help)");
   }
   return rc;
 }
@@ -261,7 +287,7 @@ static int synth_parse(int argc, char **argv, synth_opts *o, char *err) {
   if (o->server != NULL && o->embedded) return ts_error(err, TS_EINVAL, "--server and --embedded exclude each other");
   if (o->server == NULL && !o->embedded) o->server = env_server();
   if (o->ref == NULL) return ts_error(err, TS_EINVAL, "--ref IMG is required (see texsyn synth --help)");
-  if (o->out == NULL) return ts_error(err, TS_EINVAL, "-o OUT is required (see texsyn synth --help)");
+  if (o->out.path[0] == NULL) return ts_error(err, TS_EINVAL, "-o OUT is required (see texsyn synth --help)");
   if (!o->have_size) return ts_error(err, TS_EINVAL, "--size WxH is required (see texsyn synth --help)");
   if (o->detach && o->server == NULL) return ts_error(err, TS_EINVAL, "--detach needs --server");
   if (o->server != NULL && o->p.stop_level != 0)
@@ -269,17 +295,12 @@ static int synth_parse(int argc, char **argv, synth_opts *o, char *err) {
   return 0;
 }
 
-static int write_outputs(const synth_opts *o, const ts_image *ref, const ts_mrf_result *res,
-                         const ts_search *search, char *err) {
-  int rc = ts_image_write(o->out, &res->image, ref->meta, err);
-  if (rc == 0 && o->copy_map)
-    rc = ts_write_copy_map_image(o->copy_map, res->copy_map, res->image.width, res->image.height,
-                                 res->ref_w, res->ref_h, err);
-  if (rc == 0 && o->copy_map_raw)
-    rc = ts_write_copy_map_raw(o->copy_map_raw, res->copy_map, res->image.width, res->image.height, err);
-  if (rc == 0 && o->usage_map)
-    rc = ts_write_usage_map(o->usage_map, res->usage, res->ref_w, res->ref_h, err);
-  if (rc == 0 && o->report) rc = ts_write_report(o->report, &o->p, o->threads, search, res, err);
+/* Every output given a path, from a finished run. */
+static int write_outputs(const synth_opts *o, const ts_engine_run *run, char *err) {
+  const ts_engine *e = ts_engine_default();
+  int rc = 0;
+  for (int k = 0; rc == 0 && k < e->noutputs; k++)
+    if (o->out.path[k] != NULL) rc = e->write_output(run, k, o->out.path[k], o->threads, err);
   return rc;
 }
 
@@ -333,21 +354,7 @@ static int connect_server(ts_conn *c, const char *addr, const char *path, char *
   return rc;
 }
 
-/* Where fetched files go, by their name on the coordinator. */
-typedef struct {
-  const char *out, *copy_map, *copy_map_raw, *usage_map, *report;
-} fetch_targets;
-
-static const char *fetch_target(const fetch_targets *t, const char *name) {
-  if (strncmp(name, "out.", 4) == 0) return t->out;
-  if (strcmp(name, "copymap.raw") == 0) return t->copy_map_raw;
-  if (strncmp(name, "copymap.", 8) == 0) return t->copy_map;
-  if (strncmp(name, "usage.", 6) == 0) return t->usage_map;
-  if (strcmp(name, "report.json") == 0) return t->report;
-  return NULL;
-}
-
-static int fetch_job(ts_conn *c, uint64_t id, const fetch_targets *t, char *err) {
+static int fetch_job(ts_conn *c, uint64_t id, const output_paths *t, char *err) {
   ts_wr w;
   ts_wr_init(&w);
   ts_msg_jobid_write(&w, id);
@@ -357,7 +364,8 @@ static int fetch_job(ts_conn *c, uint64_t id, const fetch_targets *t, char *err)
   ts_msg_files m;
   if (rc == 0) rc = ts_msg_files_read(&f, &m, err);
   for (uint32_t i = 0; rc == 0 && i < m.n; i++) {
-    const char *path = fetch_target(t, m.name[i]);
+    int k = ts_engine_output_of_file(ts_engine_default(), m.name[i]);
+    const char *path = k >= 0 ? t->path[k] : NULL;
     if (path != NULL) rc = write_bytes(path, m.data[i], m.len[i], err);
   }
   return rc;
@@ -402,16 +410,27 @@ static int watch_job(ts_conn *c, uint64_t id, int show, ts_job_status *last, cha
   return rc;
 }
 
+/* The job spec of a synth command: its parameters and, for every output
+ * given a path, the format its extension names. */
+static int synth_spec(const synth_opts *o, ts_jobspec *js, char *err) {
+  ts_jobspec_default(js, ts_engine_default());
+  memcpy(js->params.bytes, &o->p, sizeof(o->p));
+  const ts_engine *e = js->engine;
+  for (int k = 0; k < e->noutputs; k++) {
+    const char *path = o->out.path[k];
+    if (path == NULL) js->wants.want[k][0] = '\0';
+    else if (e->outputs[k].kind == TS_OUTPUT_FLAG) snprintf(js->wants.want[k], TS_EXT_LEN, "1");
+    else if (!ts_ext_valid(ts_path_ext(path)))
+      return ts_error(err, TS_EINVAL, "%s: needs an extension (.png, .tif, .exr, ...)", path);
+    else snprintf(js->wants.want[k], TS_EXT_LEN, "%s", ts_path_ext(path));
+  }
+  return 0;
+}
+
 static int submit_job(ts_conn *c, const synth_opts *o, uint64_t *id, char *err) {
   ts_jobspec js;
-  ts_jobspec_default(&js);
-  js.p = o->p;
-  snprintf(js.output, sizeof(js.output), "%s", ts_path_ext(o->out));
-  if (o->copy_map) snprintf(js.copy_map, sizeof(js.copy_map), "%s", ts_path_ext(o->copy_map));
-  if (o->usage_map) snprintf(js.usage_map, sizeof(js.usage_map), "%s", ts_path_ext(o->usage_map));
-  js.copy_map_raw = o->copy_map_raw != NULL;
-  js.report = o->report != NULL;
-  if (js.output[0] == '\0') return ts_error(err, TS_EINVAL, "-o %s: needs an extension (.png, .tif, .exr, ...)", o->out);
+  int rc = synth_spec(o, &js, err);
+  if (rc != 0) return rc;
   char spec[TS_SPEC_MAX];
   int n = ts_jobspec_format(&js, spec, sizeof(spec));
   if (n < 0) return ts_error(err, TS_ETOOBIG, "job spec too long");
@@ -426,7 +445,7 @@ static int submit_job(ts_conn *c, const synth_opts *o, uint64_t *id, char *err) 
   ts_msg_submit_write(&w, &m);
   free(ref);
   ts_frame f;
-  int rc = ts_client_call(c, TS_MSG_SUBMIT, &w, 60000, &f, err);
+  rc = ts_client_call(c, TS_MSG_SUBMIT, &w, 60000, &f, err);
   ts_wr_free(&w);
   if (rc == 0) rc = ts_msg_jobid_read(&f, id, err);
   return rc;
@@ -450,9 +469,8 @@ static int remote_synth(const synth_opts *o) {
     if (rc == 0 && st.state != TS_JOB_DONE)
       rc = ts_error(err, TS_EINVAL, "job %llu %s%s%s", (unsigned long long)id, ts_job_state_name(st.state),
                     st.text[0] ? ": " : "", st.text);
-    fetch_targets t = {o->out, o->copy_map, o->copy_map_raw, o->usage_map, o->report};
-    if (rc == 0) rc = fetch_job(&c, id, &t, err);
-    if (rc == 0 && !o->quiet) fprintf(stderr, "texsyn: %s %dx%d (job %llu on %s)\n", o->out, o->p.width, o->p.height,
+    if (rc == 0) rc = fetch_job(&c, id, &o->out, err);
+    if (rc == 0 && !o->quiet) fprintf(stderr, "texsyn: %s %dx%d (job %llu on %s)\n", o->out.path[0], o->p.width, o->p.height,
                                       (unsigned long long)id, o->server);
   }
   if (rc != 0) fprintf(stderr, "texsyn synth: %s\n", err);
@@ -475,8 +493,9 @@ static int cmd_synth(int argc, char **argv) {
     fprintf(stderr, "texsyn synth: %s\n", err);
     return 1;
   }
+  const ts_engine *e = ts_engine_default();
   char msg[2048];
-  if (ts_mrf_check(&o.p, ref.width, ref.height, ref.channels, msg, sizeof(msg)) != 0) {
+  if (e->check(&o.p, &ref, msg, sizeof(msg)) != 0) {
     fprintf(stderr, "texsyn synth: invalid parameters for reference %s (%dx%d):\n%s\n", o.ref,
             ref.width, ref.height, msg);
     ts_image_free(&ref);
@@ -487,21 +506,19 @@ static int cmd_synth(int argc, char **argv) {
     return remote_synth(&o);
   }
   ts_search *search = NULL;
+  ts_engine_run *run = NULL;
   rc = ts_search_local_create(&search, o.threads, NULL, err);
-  ts_mrf_result res;
   progress_bar pb = {!o.quiet && isatty(STDERR_FILENO), ts_now(), 0};
-  ts_mrf_hooks hooks = {.progress = progress_draw, .progress_ctx = &pb};
-  if (rc == 0) rc = ts_mrf_synthesize(&o.p, &ref, search, &hooks, &res, err);
+  ts_engine_hooks hooks = {.progress = progress_draw, .progress_ctx = &pb};
+  double t0 = ts_now();
+  if (rc == 0) rc = e->run(&o.p, &ref, search, &hooks, &run, err);
   if (pb.enabled) fputc('\n', stderr);
-  if (rc == 0) {
-    rc = write_outputs(&o, &ref, &res, search, err);
-    if (rc == 0 && !o.quiet)
-      fprintf(stderr, "texsyn: %s %dx%d in %.2fs (%s, %d threads, %.3g comparisons)\n", o.out,
-              o.p.width, o.p.height, res.seconds, search->simd->name, o.threads,
-              (double)search->stats.pairs);
-    ts_mrf_result_free(&res);
-  }
+  if (rc == 0) rc = write_outputs(&o, run, err);
+  if (rc == 0 && !o.quiet)
+    fprintf(stderr, "texsyn: %s %dx%d in %.2fs (%s, %d threads, %.3g comparisons)\n", o.out.path[0], o.p.width,
+            o.p.height, ts_now() - t0, search->simd->name, o.threads, (double)search->stats.pairs);
   if (rc != 0) fprintf(stderr, "texsyn synth: %s\n", err);
+  e->run_free(run);
   ts_search_destroy(search);
   ts_image_free(&ref);
   return rc == 0 ? 0 : 1;
@@ -659,7 +676,7 @@ typedef struct {
   const char *server, *secret_file;
   uint64_t id;
   int have_id, quiet;
-  fetch_targets t;
+  output_paths t;
 } job_opts;
 
 static int job_parse(int argc, char **argv, job_opts *o, char *err) {
@@ -678,14 +695,11 @@ static int job_parse(int argc, char **argv, job_opts *o, char *err) {
     switch (c) {
     case OPT_SERVER: o->server = optarg; break;
     case OPT_SECRET: o->secret_file = optarg; break;
-    case 'o': o->t.out = optarg; break;
-    case OPT_COPY: o->t.copy_map = optarg; break;
-    case OPT_COPY_RAW: o->t.copy_map_raw = optarg; break;
-    case OPT_USAGE_MAP: o->t.usage_map = optarg; break;
-    case OPT_REPORT: o->t.report = optarg; break;
     case OPT_QUIET: o->quiet = 1; break;
     case OPT_HELP: case 'h': printf("%s", kJobUsage); exit(0);
-    default: return ts_error(err, TS_EINVAL, "%s: unknown option or missing value\n%s", argv[optind - 1], kJobUsage);
+    default:
+      if (!output_option(&o->t, c, optarg))
+        return ts_error(err, TS_EINVAL, "%s: unknown option or missing value\n%s", argv[optind - 1], kJobUsage);
     }
   }
   if (optind < argc) {
@@ -757,7 +771,7 @@ static int cmd_job(const char *cmd, int argc, char **argv) {
   int rc = job_parse(argc, argv, &o, err);
   int needs_id = strcmp(cmd, "status") != 0 && strcmp(cmd, "workers") != 0;
   if (rc == 0 && needs_id && !o.have_id) rc = ts_error(err, TS_EINVAL, "%s needs a job id\n%s", cmd, kJobUsage);
-  if (rc == 0 && strcmp(cmd, "fetch") == 0 && o.t.out == NULL) rc = ts_error(err, TS_EINVAL, "fetch needs -o OUT");
+  if (rc == 0 && strcmp(cmd, "fetch") == 0 && o.t.path[0] == NULL) rc = ts_error(err, TS_EINVAL, "fetch needs -o OUT");
   if (rc != 0) {
     fprintf(stderr, "texsyn %s: %s\n", cmd, err);
     return 2;

@@ -148,9 +148,9 @@ typedef struct {
 typedef struct {
   const ts_mrf_params *p;
   ts_search *search;
-  ts_mrf_progress_fn *progress;
+  ts_progress_fn *progress;
   void *progress_ctx;
-  ts_mrf_progress prog;
+  ts_progress prog;
   int nplanes;
   int levels;
   ts_plane ref[TS_MAX_PLANES][TS_MRF_MAX_LEVELS];

@@ -10,6 +10,7 @@
 
 #include "image.h"
 #include "neigh.h"
+#include "progress.h"
 #include "search.h"
 
 #define TS_MRF_MAX_LEVELS 12
@@ -39,16 +40,6 @@ void ts_mrf_params_default(ts_mrf_params *p);
  * (one per line). */
 int ts_mrf_check(const ts_mrf_params *p, int ref_w, int ref_h, int channels,
                  char *msg, size_t msglen);
-
-typedef struct {
-  int level, levels;     /* level being synthesised (counts down to 0) */
-  uint64_t done, total;  /* blocks of this level */
-  /* Work of all levels in units of a level-0 block's cost (a block at
-   * level l costs about 4^-l of one at level 0), for an ETA. */
-  double work_done, work_total;
-} ts_mrf_progress;
-
-typedef void ts_mrf_progress_fn(void *ctx, const ts_mrf_progress *p);
 
 typedef struct {
   double seconds;
@@ -88,7 +79,7 @@ typedef struct {
 typedef int ts_mrf_checkpoint_fn(void *ctx, const ts_mrf_checkpoint *ck, char *err);
 
 typedef struct {
-  ts_mrf_progress_fn *progress;     /* may be NULL */
+  ts_progress_fn *progress;     /* may be NULL */
   void *progress_ctx;
   ts_mrf_checkpoint_fn *checkpoint; /* may be NULL */
   void *checkpoint_ctx;

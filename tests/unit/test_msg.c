@@ -6,6 +6,7 @@
 
 #include "error.h"
 #include "jobspec.h"
+#include "mrf.h"
 #include "msg.h"
 #include "ts_test.h"
 
@@ -269,25 +270,57 @@ static void strings_refuse_nul_and_overflow(void **state) {
   ts_wr_free(&w);
 }
 
+/* Output k of the spec's engine by its spec key. */
+static int out_of(const ts_jobspec *s, const char *key) {
+  int k = ts_engine_output_index(s->engine, key);
+  assert_true(k >= 0);
+  return k;
+}
+
 static void jobspec_round_trip(void **state) {
   (void)state;
   ts_jobspec a, b;
-  ts_jobspec_default(&a);
-  a.p.width = 300, a.p.height = 200, a.p.levels = 4, a.p.parity = 1, a.p.usage_weight = 0.1;
-  a.p.coarse_weight = 1.0 / 3.0, a.p.seed = UINT64_MAX, a.copy_map_raw = 1, a.report = 1;
-  snprintf(a.output, sizeof(a.output), "tif");
-  snprintf(a.usage_map, sizeof(a.usage_map), "exr");
+  ts_jobspec_default(&a, ts_engine_find("mrf"));
+  ts_mrf_params *p = (ts_mrf_params *)a.params.bytes;
+  p->width = 300, p->height = 200, p->levels = 4, p->parity = 1, p->usage_weight = 0.1;
+  p->coarse_weight = 1.0 / 3.0, p->seed = UINT64_MAX;
+  snprintf(a.wants.want[out_of(&a, "copy_map_raw")], TS_EXT_LEN, "1");
+  snprintf(a.wants.want[out_of(&a, "report")], TS_EXT_LEN, "1");
+  snprintf(a.wants.want[out_of(&a, "output")], TS_EXT_LEN, "tif");
+  snprintf(a.wants.want[out_of(&a, "usage_map")], TS_EXT_LEN, "exr");
   char text[TS_SPEC_MAX], err[TS_ERR_LEN];
   int n = ts_jobspec_format(&a, text, sizeof(text));
   assert_true(n > 0);
+  assert_non_null(strstr(text, "engine=mrf\n"));
   assert_int_equal(ts_jobspec_parse(text, (size_t)n, &b, err), 0);
-  assert_int_equal(b.p.width, 300);
-  assert_true(b.p.usage_weight == 0.1);
-  assert_true(b.p.coarse_weight == 1.0 / 3.0); /* 17 digits round-trip */
-  assert_int_equal(b.p.seed, UINT64_MAX);
-  assert_string_equal(b.output, "tif");
-  assert_string_equal(b.usage_map, "exr");
-  assert_string_equal(b.copy_map, "");
+  const ts_mrf_params *q = (const ts_mrf_params *)b.params.bytes;
+  assert_ptr_equal(b.engine, a.engine);
+  assert_int_equal(q->width, 300);
+  assert_true(q->usage_weight == 0.1);
+  assert_true(q->coarse_weight == 1.0 / 3.0); /* 17 digits round-trip */
+  assert_int_equal(q->seed, UINT64_MAX);
+  assert_string_equal(b.wants.want[out_of(&b, "output")], "tif");
+  assert_string_equal(b.wants.want[out_of(&b, "usage_map")], "exr");
+  assert_string_equal(b.wants.want[out_of(&b, "copy_map")], "");
+  assert_string_equal(b.wants.want[out_of(&b, "copy_map_raw")], "1");
+}
+
+/* A spec spooled before engines had names is an mrf job; an unknown
+ * engine is refused by name. */
+static void jobspec_engine_key(void **state) {
+  (void)state;
+  ts_jobspec s;
+  char err[TS_ERR_LEN];
+  const char *old = "size=8x8\noutput=png\n";
+  assert_int_equal(ts_jobspec_parse(old, strlen(old), &s, err), 0);
+  assert_string_equal(s.engine->name, "mrf");
+  const char *later = "size=8x8\noutput=png\nengine=mrf\n";
+  assert_int_equal(ts_jobspec_parse(later, strlen(later), &s, err), 0);
+  const char *unknown = "engine=paint\nsize=8x8\n";
+  assert_int_equal(ts_jobspec_parse(unknown, strlen(unknown), &s, err), TS_EINVAL);
+  assert_non_null(strstr(err, "unknown engine 'paint'"));
+  const char *twice = "engine=mrf\nengine=paint\nsize=8x8\n";
+  assert_int_equal(ts_jobspec_parse(twice, strlen(twice), &s, err), TS_EINVAL);
 }
 
 static void jobspec_refuses_bad_lines(void **state) {
@@ -354,6 +387,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(job_plane_round_trips),
     cmocka_unit_test(strings_refuse_nul_and_overflow),
     cmocka_unit_test(jobspec_round_trip),
+    cmocka_unit_test(jobspec_engine_key),
     cmocka_unit_test(jobspec_refuses_bad_lines),
 };
 

@@ -1,0 +1,42 @@
+/* engine.c - the engine registry: every engine's operations table, found by
+ * the name a job spec gives. */
+#include "engine.h"
+
+#include <stdio.h>
+#include <string.h>
+
+extern const ts_engine ts_engine_mrf;
+
+static const ts_engine *const registry[] = {&ts_engine_mrf};
+
+const ts_engine *ts_engine_find(const char *name) {
+  for (size_t i = 0; i < sizeof(registry) / sizeof(registry[0]); i++)
+    if (strcmp(registry[i]->name, name) == 0) return registry[i];
+  return NULL;
+}
+
+const ts_engine *ts_engine_default(void) { return &ts_engine_mrf; }
+
+int ts_engine_output_index(const ts_engine *e, const char *key) {
+  for (int k = 0; k < e->noutputs; k++)
+    if (strcmp(e->outputs[k].key, key) == 0) return k;
+  return -1;
+}
+
+void ts_engine_output_file(const ts_engine *e, int k, const ts_engine_wants *w, char *out, size_t cap) {
+  const ts_engine_output *o = &e->outputs[k];
+  if (o->kind == TS_OUTPUT_IMAGE) snprintf(out, cap, "%s.%s", o->file, w->want[k]);
+  else snprintf(out, cap, "%s", o->file);
+}
+
+int ts_engine_output_of_file(const ts_engine *e, const char *name) {
+  /* Exact names first: "copymap.raw" is no copy map image in raw format. */
+  for (int k = 0; k < e->noutputs; k++)
+    if (e->outputs[k].kind == TS_OUTPUT_FLAG && strcmp(e->outputs[k].file, name) == 0) return k;
+  for (int k = 0; k < e->noutputs; k++) {
+    size_t n = strlen(e->outputs[k].file);
+    if (e->outputs[k].kind == TS_OUTPUT_IMAGE && strncmp(e->outputs[k].file, name, n) == 0 && name[n] == '.')
+      return k;
+  }
+  return -1;
+}

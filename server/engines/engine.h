@@ -1,0 +1,118 @@
+/* engine.h - what every engine offers the rest of texsyn: one operations
+ * table per engine, chosen by the job spec's `engine` key.
+ *
+ * The job queue and spool (server/jobs.c), the job spec (server/jobspec.c)
+ * and the CLI's embedded runs call engines only through this table, so a
+ * new engine (stylization, aerial, segmentation) lands by adding a table
+ * to the registry (engine.c), without touching them. An engine sees the
+ * search interface (common/search/search.h) and nothing of the daemon, the
+ * wire or the CLI: the same code runs embedded and on a cluster.
+ *
+ * An engine's parameters are its own struct, stored in a ts_engine_params
+ * buffer; it reads and writes them as `key=value` spec lines. Its results
+ * are named files (ts_engine_output): the spec asks for each by key, the
+ * spool keeps them under their file names, the CLI writes them to paths. */
+#ifndef TS_ENGINE_H
+#define TS_ENGINE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "image.h"
+#include "progress.h"
+#include "search.h"
+
+#define TS_ENGINE_PARAMS_MAX 512 /* bytes of any engine's parameter struct */
+#define TS_ENGINE_MAX_OUTPUTS 8
+#define TS_EXT_LEN 16
+
+/* Storage for an engine's parameter struct, aligned for any member. */
+typedef union {
+  max_align_t align_;
+  unsigned char bytes[TS_ENGINE_PARAMS_MAX];
+} ts_engine_params;
+
+typedef enum {
+  TS_OUTPUT_IMAGE, /* spec value: a file extension (the format); file: stem.EXT */
+  TS_OUTPUT_FLAG   /* spec value: 0 or 1; file: the name as given */
+} ts_output_kind;
+
+typedef struct {
+  const char *key;  /* spec key, e.g. "copy_map" */
+  const char *file; /* spool file: stem ("copymap") or name ("report.json") */
+  ts_output_kind kind;
+} ts_engine_output;
+
+/* Which outputs a job wants: per output of the engine, the extension
+ * (IMAGE) or "1" (FLAG); "" = not wanted. Output 0 is the result image
+ * and always wanted. */
+typedef struct {
+  char want[TS_ENGINE_MAX_OUTPUTS][TS_EXT_LEN];
+} ts_engine_wants;
+
+/* Checkpoints as bytes: the engine encodes its state after a unit of work
+ * (a level, or part of one) and hands it to `save`; `resume` holds the
+ * bytes of the last one saved, or NULL. `tag` ties checkpoints to the job's
+ * spec (a checkpoint with another tag is refused). */
+typedef struct {
+  ts_progress_fn *progress; /* may be NULL */
+  void *progress_ctx;
+  int (*save)(void *ctx, const uint8_t *buf, size_t len, const char *what, char *err); /* may be NULL */
+  void *save_ctx;
+  const uint8_t *resume;
+  size_t resume_len;
+  uint64_t tag;
+  /* Called when `resume` was refused (damaged, foreign): the job starts
+   * over, which gives the same bytes, only later. May be NULL. */
+  void (*resume_refused)(void *ctx, const char *why);
+  /* Called when the engine resumed from `resume`, with what it skips. */
+  void (*resumed)(void *ctx, const char *what);
+} ts_engine_hooks;
+
+typedef struct ts_engine_run ts_engine_run;
+
+typedef struct ts_engine {
+  const char *name;  /* the spec's engine= value */
+  const ts_engine_output *outputs; /* noutputs entries, [0] the result image */
+  int noutputs;
+  void (*params_default)(void *params);
+  /* Sets one spec key: 0, -1 for a bad value, -2 for a key it does not
+   * know (outputs are not its business: the spec parser handles them). */
+  int (*spec_set)(void *params, const char *key, const char *value);
+  /* After parsing: 0, or TS_EINVAL naming a key that has no default and
+   * was not given (a spec must survive format and parse). */
+  int (*spec_complete)(const void *params, char *err);
+  /* Appends its keys as `key=value\n` lines; the length, or TS_ETOOBIG. */
+  int (*spec_format)(const void *params, char *buf, size_t cap);
+  /* Checks parameters against a reference: 0, or TS_EINVAL with every
+   * problem listed in msg, one per line. */
+  int (*check)(const void *params, const ts_image *ref, char *msg, size_t len);
+  /* Applies a daemon's pixel limit to the parameters. */
+  void (*set_max_pixels)(void *params, uint64_t max_pixels);
+  /* Bytes the wanted outputs may take (the spool's disk reserve). */
+  uint64_t (*result_bytes)(const void *params, const ts_engine_wants *w);
+  /* Pyramid levels the job goes through (for its status). */
+  int (*levels)(const void *params);
+  /* Runs the job: *out is the run's state, results included, to write
+   * outputs from and free with run_free (on failure too). */
+  int (*run)(const void *params, const ts_image *ref, ts_search *search, const ts_engine_hooks *hooks,
+             ts_engine_run **out, char *err);
+  /* Writes output k of a finished run to path (threads: for the report). */
+  int (*write_output)(const ts_engine_run *run, int k, const char *path, int threads, char *err);
+  void (*run_free)(ts_engine_run *run);
+} ts_engine;
+
+/* The engine of that name, or NULL. */
+const ts_engine *ts_engine_find(const char *name);
+/* The engine a spec without an `engine` key means (specs spooled before
+ * engines had names are MRF jobs). */
+const ts_engine *ts_engine_default(void);
+/* Index of the output whose spec key is `key`, or -1. */
+int ts_engine_output_index(const ts_engine *e, const char *key);
+/* The output a fetched file name belongs to ("copymap.png": the copy
+ * map), or -1. */
+int ts_engine_output_of_file(const ts_engine *e, const char *name);
+/* The spool file name of output k as wanted ("out.png", "report.json"). */
+void ts_engine_output_file(const ts_engine *e, int k, const ts_engine_wants *w, char *out, size_t cap);
+
+#endif

@@ -1,0 +1,225 @@
+/* mrf_engine.c - MRF block synthesis (mrf.h) as an engine (engine.h): its
+ * spec keys, its per-level checkpoints as bytes (checkpoint.h) and its
+ * result files (outputs.h). */
+#include <errno.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "checkpoint.h"
+#include "engine.h"
+#include "error.h"
+#include "mrf.h"
+#include "outputs.h"
+
+_Static_assert(sizeof(ts_mrf_params) <= TS_ENGINE_PARAMS_MAX, "MRF parameters outgrew ts_engine_params");
+
+enum { OUT_IMAGE, OUT_COPY_MAP, OUT_COPY_MAP_RAW, OUT_USAGE_MAP, OUT_REPORT, OUT_COUNT };
+
+static const ts_engine_output mrf_outputs[OUT_COUNT] = {
+    [OUT_IMAGE] = {"output", "out", TS_OUTPUT_IMAGE},
+    [OUT_COPY_MAP] = {"copy_map", "copymap", TS_OUTPUT_IMAGE},
+    [OUT_COPY_MAP_RAW] = {"copy_map_raw", "copymap.raw", TS_OUTPUT_FLAG},
+    [OUT_USAGE_MAP] = {"usage_map", "usage", TS_OUTPUT_IMAGE},
+    [OUT_REPORT] = {"report", "report.json", TS_OUTPUT_FLAG},
+};
+
+/* ---- spec keys ---------------------------------------------------------- */
+
+static int spec_int(const char *v, long lo, long hi, int *out) {
+  char *end;
+  errno = 0;
+  long x = strtol(v, &end, 10);
+  if (errno != 0 || end == v || *end != '\0' || x < lo || x > hi) return -1;
+  *out = (int)x;
+  return 0;
+}
+
+static int spec_u64(const char *v, uint64_t *out) {
+  char *end;
+  errno = 0;
+  if (v[0] == '-' || v[0] == '\0') return -1;
+  unsigned long long x = strtoull(v, &end, 10);
+  if (errno != 0 || *end != '\0') return -1;
+  *out = x;
+  return 0;
+}
+
+static int spec_double(const char *v, double *out) {
+  char *end;
+  errno = 0;
+  double x = strtod(v, &end);
+  if (errno != 0 || end == v || *end != '\0' || !isfinite(x)) return -1;
+  *out = x;
+  return 0;
+}
+
+static int spec_size(const char *v, int *w, int *h) {
+  const char *x = strchr(v, 'x');
+  if (x == NULL || x == v || (size_t)(x - v) >= 16) return -1;
+  char a[16];
+  memcpy(a, v, (size_t)(x - v));
+  a[x - v] = '\0';
+  return spec_int(a, 1, 1000000, w) != 0 || spec_int(x + 1, 1, 1000000, h) != 0 ? -1 : 0;
+}
+
+/* Ranges here only keep values in their types; ts_mrf_check judges them. */
+static int mrf_spec_set(void *params, const char *k, const char *v) {
+  ts_mrf_params *p = params;
+  if (strcmp(k, "size") == 0) return spec_size(v, &p->width, &p->height);
+  if (strcmp(k, "levels") == 0) return spec_int(v, -1000, 1000, &p->levels);
+  if (strcmp(k, "wn") == 0) return spec_int(v, -1000, 1000, &p->wn);
+  if (strcmp(k, "wb") == 0) return spec_int(v, -1000, 1000, &p->wb);
+  if (strcmp(k, "parity") == 0) return spec_int(v, 0, 1, &p->parity);
+  if (strcmp(k, "usage_weight") == 0) return spec_double(v, &p->usage_weight);
+  if (strcmp(k, "coarse_weight") == 0) return spec_double(v, &p->coarse_weight);
+  if (strcmp(k, "refine") == 0) return spec_int(v, -1000, 1000, &p->refine);
+  if (strcmp(k, "seed") == 0) return spec_u64(v, &p->seed);
+  if (strcmp(k, "rgb_search") == 0) return spec_int(v, 0, 1, &p->rgb_search);
+  if (strcmp(k, "max_pixels") == 0) return spec_u64(v, &p->max_pixels);
+  return -2;
+}
+
+/* Without it the spec would format as size=0x0, which no parse takes
+ * back: a spooled job would be lost on a restart. */
+static int mrf_spec_complete(const void *params, char *err) {
+  const ts_mrf_params *p = params;
+  return p->width == 0 ? ts_error(err, TS_EINVAL, "job spec: size=WxH is required") : 0;
+}
+
+/* Doubles with 17 significant digits, so they round-trip. */
+static int mrf_spec_format(const void *params, char *buf, size_t cap) {
+  const ts_mrf_params *p = params;
+  int n = snprintf(buf, cap,
+                   "size=%dx%d\nlevels=%d\nwn=%d\nwb=%d\nparity=%d\nusage_weight=%.17g\n"
+                   "coarse_weight=%.17g\nrefine=%d\nseed=%llu\nrgb_search=%d\nmax_pixels=%llu\n",
+                   p->width, p->height, p->levels, p->wn, p->wb, p->parity, p->usage_weight, p->coarse_weight,
+                   p->refine, (unsigned long long)p->seed, p->rgb_search, (unsigned long long)p->max_pixels);
+  return n < 0 || (size_t)n >= cap ? TS_ETOOBIG : n;
+}
+
+void ts_mrf_params_default(ts_mrf_params *p) {
+  memset(p, 0, sizeof(*p));
+  p->levels = 5;
+  p->wn = 7;
+  p->wb = 3;
+  p->coarse_weight = 1.0;
+  p->refine = 2;
+  p->seed = 1;
+  p->max_pixels = TS_IMAGE_DEFAULT_MAX_PIXELS;
+}
+
+static void mrf_params_default(void *params) { ts_mrf_params_default(params); }
+
+static int mrf_check(const void *params, const ts_image *ref, char *msg, size_t len) {
+  return ts_mrf_check(params, ref->width, ref->height, ref->channels, msg, len);
+}
+
+static void mrf_set_max_pixels(void *params, uint64_t max_pixels) {
+  ((ts_mrf_params *)params)->max_pixels = max_pixels;
+}
+
+/* Per pixel: the image (up to 8 bytes), the usage map's share, the copy
+ * maps (8 bytes each). */
+static uint64_t mrf_result_bytes(const void *params, const ts_engine_wants *w) {
+  const ts_mrf_params *p = params;
+  uint64_t per_px = 8 + 3 + (w->want[OUT_COPY_MAP][0] ? 8 : 0) + (w->want[OUT_COPY_MAP_RAW][0] ? 8 : 0);
+  return (uint64_t)p->width * (uint64_t)p->height * per_px;
+}
+
+static int mrf_levels(const void *params) { return ((const ts_mrf_params *)params)->levels; }
+
+/* ---- running, with checkpoints as bytes ---------------------------------- */
+
+struct ts_engine_run {
+  const ts_mrf_params *p;
+  const ts_image *ref; /* the caller's, alive until outputs are written */
+  const ts_search *search;
+  ts_mrf_result res;
+};
+
+typedef struct {
+  const ts_engine_hooks *h;
+  int levels;
+} save_ctx;
+
+static int save_level(void *arg, const ts_mrf_checkpoint *ck, char *err) {
+  const save_ctx *sc = arg;
+  uint8_t *buf;
+  size_t len;
+  int rc = ts_checkpoint_encode(ck, sc->levels, sc->h->tag, &buf, &len, err);
+  if (rc != 0) return rc;
+  char what[32];
+  snprintf(what, sizeof(what), "after level %d", ck->level);
+  rc = sc->h->save(sc->h->save_ctx, buf, len, what, err);
+  free(buf);
+  return rc;
+}
+
+/* The state to resume from, if the hooks hold a checkpoint of this job. */
+static int decode_resume(const ts_mrf_params *p, const ts_engine_hooks *h, ts_mrf_checkpoint *ck) {
+  if (h->resume == NULL) return 0;
+  char err[TS_ERR_LEN];
+  if (ts_checkpoint_decode(h->resume, h->resume_len, h->tag, p->max_pixels, ck, err) != 0) {
+    if (h->resume_refused) h->resume_refused(h->save_ctx, err);
+    return 0;
+  }
+  char what[32];
+  snprintf(what, sizeof(what), "after level %d", ck->level);
+  if (h->resumed) h->resumed(h->save_ctx, what);
+  return 1;
+}
+
+static int mrf_run(const void *params, const ts_image *ref, ts_search *search, const ts_engine_hooks *h,
+                   ts_engine_run **out, char *err) {
+  ts_engine_run *r = calloc(1, sizeof(*r));
+  *out = r;
+  if (r == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+  r->p = params;
+  r->ref = ref;
+  r->search = search;
+  save_ctx sc = {h, r->p->levels};
+  ts_mrf_checkpoint resume;
+  int resumed = decode_resume(r->p, h, &resume);
+  ts_mrf_hooks mh = {h->progress, h->progress_ctx, h->save ? save_level : NULL, &sc, resumed ? &resume : NULL};
+  int rc = ts_mrf_synthesize(r->p, ref, search, &mh, &r->res, err);
+  if (resumed) ts_checkpoint_free(&resume);
+  return rc;
+}
+
+static int mrf_write_output(const ts_engine_run *r, int k, const char *path, int threads, char *err) {
+  const ts_mrf_result *res = &r->res;
+  int w = res->image.width, h = res->image.height;
+  switch (k) {
+  case OUT_IMAGE: return ts_image_write(path, &res->image, r->ref->meta, err);
+  case OUT_COPY_MAP: return ts_write_copy_map_image(path, res->copy_map, w, h, res->ref_w, res->ref_h, err);
+  case OUT_COPY_MAP_RAW: return ts_write_copy_map_raw(path, res->copy_map, w, h, err);
+  case OUT_USAGE_MAP: return ts_write_usage_map(path, res->usage, res->ref_w, res->ref_h, err);
+  case OUT_REPORT: return ts_write_report(path, r->p, threads, r->search, res, err);
+  default: return ts_error(err, TS_EINVAL, "the mrf engine has no output %d", k);
+  }
+}
+
+static void mrf_run_free(ts_engine_run *r) {
+  if (r == NULL) return;
+  ts_mrf_result_free(&r->res);
+  free(r);
+}
+
+const ts_engine ts_engine_mrf = {
+    .name = "mrf",
+    .outputs = mrf_outputs,
+    .noutputs = OUT_COUNT,
+    .params_default = mrf_params_default,
+    .spec_set = mrf_spec_set,
+    .spec_complete = mrf_spec_complete,
+    .spec_format = mrf_spec_format,
+    .check = mrf_check,
+    .set_max_pixels = mrf_set_max_pixels,
+    .result_bytes = mrf_result_bytes,
+    .levels = mrf_levels,
+    .run = mrf_run,
+    .write_output = mrf_write_output,
+    .run_free = mrf_run_free,
+};
