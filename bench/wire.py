@@ -1,0 +1,153 @@
+#!/usr/bin/python3
+"""Bytes on the wire between the coordinator and its workers, counted by a
+frame-aware proxy on every worker link (not by the coordinator's own
+accounting), per frame type and direction.
+
+Jobs: the seed's Table 3.3 job (brick 512^2 -> 1024^2, L=5, W_N=7, W_B=3,
+parity) and an 11x11 colour window (aero1.jpg, --rgb-search --wn 11), each
+on 1 and 3 workers. Queries are the blocks searched, summed over the levels
+of the job's report. Reported per job and pool size: coordinator egress per
+query and worker (all frames, and query frames 'V' alone), slice loads 'N',
+and worker ingress per query and worker. Writes wire.json and wire.md into
+--out.
+"""
+import argparse
+import json
+import os
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+from collections import defaultdict
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from cluster import start, stop, wait_ready  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get("TEXSYN_DATA", REPO.parent / "shared" / "data"))
+JOBS = {
+    "table33": ["--ref", DATA / "textures/brick.png", "--size", "1024x1024", "--levels", 5, "--wn", 7, "--wb", 3,
+                "--parity"],
+    "rgb-wn11": ["--ref", DATA / "aerial/aero1.jpg", "--size", "320x240", "--rgb-search", "--wn", 11, "--wb", 3],
+}
+HEADER = 12
+
+
+class CountingProxy:
+    """Forwards one worker link both ways and counts whole frames by type."""
+
+    def __init__(self, target):
+        self.target = target
+        self.count = {"out": defaultdict(int), "in": defaultdict(int)}
+        self.lock = threading.Lock()
+        self.sock = socket.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen(8)
+        self.addr = "127.0.0.1:%d" % self.sock.getsockname()[1]
+        threading.Thread(target=self.accept, daemon=True).start()
+
+    def accept(self):
+        while True:
+            try:
+                a, _ = self.sock.accept()
+            except OSError:
+                return
+            host, port = self.target.rsplit(":", 1)
+            b = socket.create_connection((host, int(port)))
+            for s in (a, b):
+                s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            threading.Thread(target=self.pump, args=(a, b, "out"), daemon=True).start()
+            threading.Thread(target=self.pump, args=(b, a, "in"), daemon=True).start()
+
+    def pump(self, src, dst, way):
+        buf = b""
+        while True:
+            try:
+                data = src.recv(1 << 20)
+            except OSError:
+                data = b""
+            if not data:
+                for s in (src, dst):
+                    try:
+                        s.shutdown(socket.SHUT_RDWR)
+                    except OSError:
+                        pass
+                return
+            buf += data
+            while len(buf) >= HEADER:
+                length = struct.unpack_from("<I", buf, 4)[0]
+                if len(buf) < HEADER + length:
+                    break
+                with self.lock:
+                    self.count[way][chr(buf[3])] += HEADER + length
+                buf = buf[HEADER + length:]
+            try:
+                dst.sendall(data)
+            except OSError:
+                return
+
+
+def run_job(build, tmp, name, nworkers):
+    procs, proxies = [], []
+    for i in range(nworkers):
+        p, a = start([build / "texsyn-worker", "--listen", "127.0.0.1:0", "--threads", 1], tmp / f"w{i}.log")
+        procs.append(p)
+        proxies.append(CountingProxy(a))
+    server, addr = start([build / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", tmp / f"spool-{name}-{nworkers}",
+                          "--heartbeat", 0, "--modbus-poll", 0, "--workers", ",".join(x.addr for x in proxies)],
+                         tmp / "server.log")
+    procs.append(server)
+    try:
+        wait_ready(build, addr, nworkers)
+        base = {id(x): {w: dict(x.count[w]) for w in x.count} for x in proxies}  # calibration and handshakes
+        report = tmp / f"{name}-{nworkers}.json"
+        subprocess.run([str(build / "texsyn"), "synth", *map(str, JOBS[name]), "-o", str(tmp / f"{name}.png"),
+                        "--quiet", "--report", str(report), "--server", addr], check=True)
+        levels = json.loads(report.read_text())["levels"]
+    finally:
+        stop(procs)
+    queries = sum(lv["blocks"] for lv in levels)
+    out, inn = defaultdict(int), defaultdict(int)
+    for x in proxies:
+        for t, v in x.count["out"].items():
+            out[t] += v - base[id(x)]["out"].get(t, 0)
+        for t, v in x.count["in"].items():
+            inn[t] += v - base[id(x)]["in"].get(t, 0)
+    per = queries * nworkers
+    return {"job": name, "workers": nworkers, "queries": queries,
+            "egress_per_query_worker": sum(out.values()) / per, "egress_V_per_query_worker": out["V"] / per,
+            "egress_N_bytes": out["N"], "ingress_per_query_worker": sum(inn.values()) / per,
+            "egress_by_type": dict(out), "ingress_by_type": dict(inn)}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--build", default=str(REPO / "build"))
+    ap.add_argument("--out", default=str(REPO / "bench" / "results"))
+    ap.add_argument("--quick", action="store_true", help="accepted for bench/run.sh; the figures are counts")
+    args = ap.parse_args()
+    build, out = Path(args.build), Path(args.out)
+    rows = []
+    with tempfile.TemporaryDirectory() as t:
+        for name in JOBS:
+            for n in (1, 3):
+                rows.append(run_job(build, Path(t), name, n))
+                r = rows[-1]
+                print(f"{name:9s} {n} worker(s): {r['queries']} queries, egress {r['egress_per_query_worker']:.1f} "
+                      f"B/query/worker (V {r['egress_V_per_query_worker']:.1f}), ingress "
+                      f"{r['ingress_per_query_worker']:.1f}", flush=True)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "wire.json").write_text(json.dumps(rows, indent=1) + "\n")
+    lines = ["| job | workers | queries | egress B/query/worker | of it 'V' | 'N' bytes | ingress B/query/worker |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['job']} | {r['workers']} | {r['queries']} | {r['egress_per_query_worker']:.1f} | "
+                     f"{r['egress_V_per_query_worker']:.1f} | {r['egress_N_bytes']} | {r['ingress_per_query_worker']:.1f} |")
+    (out / "wire.md").write_text("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    main()
