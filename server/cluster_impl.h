@@ -1,0 +1,120 @@
+/* cluster_impl.h - what the three parts of the coordinator's cluster share
+ * (not for anyone else): the pool and its exchanges (cluster.c), the Modbus
+ * supervision of the workers (supervise.c) and the search backend over the
+ * pool (search_cluster.c).
+ *
+ * Locking: one mutex guards the worker list and every exchange with the
+ * workers. A batch holds it from sending to the last answer, so the batches
+ * of concurrent jobs interleave whole (each connection carries one
+ * request/answer stream at a time and never needs demultiplexing). Slow
+ * work that involves a single new worker - connecting, identifying,
+ * calibrating - happens before the worker enters the list, without the lock.
+ */
+#ifndef TS_CLUSTER_IMPL_H
+#define TS_CLUSTER_IMPL_H
+
+#include <pthread.h>
+#include <stdint.h>
+
+#include "cluster.h"
+#include "l1.h"
+#include "pool.h"
+
+#define CL_MAX_WORKERS 64
+#define CL_MAX_ADDRS 64
+#define CL_MAX_SETS 8
+/* Time constant of the measured-rate averages: long enough to smooth the
+ * jitter of single small batches, short against `persist`. */
+#define CL_RATE_TAU 0.5
+/* Batches answered faster than this say nothing reliable about a
+ * worker's rate (the round trip dominates). */
+#define CL_MIN_SAMPLE_SECONDS 0.0002
+/* A batch may take this many times its expected scan time before the
+ * workers still owing answers are dropped (see batch_deadline). */
+#define CL_DEADLINE_SLACK 8.0
+
+typedef struct {
+  int id;
+  ts_conn conn;
+  ts_msg_ident ident;
+  int state; /* TS_WORKER_* */
+  double calib_rate;  /* comparisons/s from calibration */
+  double slice_rate;  /* rate the current slices were sized with */
+  double ewma_rate;   /* measured on batches */
+  double ewma_weight; /* seconds of batches in the average (saturates) */
+  uint64_t batches;
+  uint32_t share; /* per mille of the last set sliced */
+  /* One exchange's state. */
+  ts_wr out;
+  size_t out_off;
+  int expect;
+  uint64_t expected_pairs; /* comparisons the batch asks of it */
+  uint64_t answered_pairs; /* comparisons the batch's answers report */
+  double answered_at;      /* when the last answer arrived */
+  double heard_at;         /* when the worker last sent anything */
+  double mb_heard_at;      /* when its Modbus plane last answered */
+  double cpu_share;        /* share of CPU its threads get (Modbus), < 0 unknown */
+  double share_sized;      /* the share when its slices were last sized, < 0 none */
+} cl_worker;
+
+typedef struct {
+  char addr[TS_NET_ADDR_LEN];
+  int worker_id; /* live worker from this address, or 0 */
+  int failing;   /* dialling it failed since it last joined (logged once) */
+} cl_addr;
+
+struct ts_cluster {
+  pthread_mutex_t lock;
+  ts_cluster_opts o;
+  cl_worker *w[CL_MAX_WORKERS];
+  int nw;
+  cl_addr addrs[CL_MAX_ADDRS];
+  int naddrs;
+  int next_worker_id;
+  uint32_t next_set, next_frame;
+  uint64_t epoch; /* bumped when the slicing must change */
+  double deviating_since; /* start of the current rate deviation, or 0 */
+  double load_deviating_since; /* the same for CPU-share changes */
+  uint64_t rebalances;
+  ts_pool *local_pool; /* in-process scanning with no worker */
+  const ts_l1_impl *simd;
+  void (*log)(const char *msg);
+  pthread_t thread, supervisor;
+  int stop, supervising;
+  pthread_cond_t wake;
+  uint64_t batches, queries; /* answered for jobs */
+};
+
+/* Log lines of the daemon (printf-style). */
+void cl_log(ts_cluster *c, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+
+/* Frames into a worker's output buffer: begin returns where the frame
+ * starts, end fills in its length. */
+size_t cl_frame_begin(ts_wr *w, uint8_t type, uint32_t id);
+void cl_frame_end(ts_wr *w, size_t at);
+
+/* Marks a worker failed (lock held): it leaves every slicing. */
+void cl_worker_fail(ts_cluster *c, cl_worker *w, const char *why);
+/* The ready workers (lock held); returns how many. */
+int cl_ready_workers(ts_cluster *c, cl_worker **ws);
+
+/* Called for every frame a worker sends during an exchange; a negative
+ * return fails that worker. */
+typedef int cl_reply_fn(void *ctx, cl_worker *w, const ts_frame *f, char *err);
+typedef struct {
+  uint64_t bytes_out, bytes_in;
+} cl_traffic;
+/* Sends every worker's queued output and feeds each reply to fn until
+ * every worker has answered its `expect` frames (lock held). See
+ * cluster.c. */
+int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, cl_reply_fn *fn, void *ctx,
+                cl_traffic *tr);
+/* An 'E' reply as an error. */
+int cl_reply_error(const ts_frame *f, char *err);
+/* Counts a 'Q' (unload) answer. */
+int cl_unloaded_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err);
+
+/* The Modbus supervisor's thread (supervise.c). */
+void *cl_supervisor_thread(void *arg);
+
+#endif

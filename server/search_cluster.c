@@ -1,0 +1,519 @@
+/* search_cluster.c - the search backend over the coordinator's pool (see
+ * cluster.h): every reference set cut into one slice per worker in
+ * proportion to its rate, batches sent to every worker holding a slice,
+ * answers merged into the exact global best. */
+#include <math.h>
+#include <pthread.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "cluster_impl.h"
+#include "error.h"
+#include "slice.h"
+#include "usage.h"
+
+#if __BYTE_ORDER__ != __ORDER_LITTLE_ENDIAN__
+#error "usage counters are shipped as in memory: little-endian hosts only"
+#endif
+
+typedef struct {
+  cl_worker *w;
+  uint32_t i0[4], i1[4];
+} cl_slice;
+
+typedef struct {
+  int used;
+  uint32_t gid; /* set id on the wire, unique in the cluster */
+  uint32_t gen; /* slicing generation */
+  ts_refset rs;
+  const ts_refgrid *grid;
+  int with_usage;
+  ts_usage usage; /* the coordinator's replica: the counts new slices get */
+  ts_commit *pending;
+  uint32_t npending, cap_pending;
+  uint64_t epoch; /* cluster epoch of the slicing below */
+  int sliced;
+  cl_slice slices[CL_MAX_WORKERS];
+  int nslices;
+  ts_slice *local; /* in-process slice when no worker is ready */
+} cl_set;
+
+typedef struct {
+  ts_search base;
+  ts_cluster *c;
+  const volatile int *cancel;
+  cl_set sets[CL_MAX_SETS];
+  ts_l1_best *best;
+  uint32_t cap_best;
+} cluster_search;
+
+static cl_set *set_get(cluster_search *cs, int id) {
+  if (id < 0 || id >= CL_MAX_SETS || !cs->sets[id].used) return NULL;
+  return &cs->sets[id];
+}
+
+/* Cuts every class into contiguous ranges in proportion to the workers'
+ * rates, on group (8-vector) boundaries so every slice scans whole groups. */
+static void cut_ranges(const ts_refgrid *g, cl_worker **ws, int n, cl_slice *out) {
+  double total = 0;
+  for (int i = 0; i < n; i++) total += ws[i]->slice_rate;
+  for (int c = 0; c < g->nclass; c++) {
+    uint64_t groups = (g->count[c] + TS_L1_GROUP - 1) / TS_L1_GROUP;
+    double cum = 0;
+    uint32_t start = 0;
+    for (int i = 0; i < n; i++) {
+      cum += ws[i]->slice_rate;
+      uint64_t gend = i == n - 1 ? groups : (uint64_t)llround((double)groups * cum / total);
+      uint64_t end = gend * TS_L1_GROUP;
+      if (end > g->count[c]) end = g->count[c];
+      if (end < start) end = start;
+      out[i].w = ws[i];
+      out[i].i0[c] = start;
+      out[i].i1[c] = (uint32_t)end;
+      start = (uint32_t)end;
+    }
+  }
+}
+
+static int loaded_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
+  const cl_set *st = ctx;
+  ts_msg_loaded m;
+  if (f->type == TS_MSG_ERROR) return cl_reply_error(f, err);
+  if (f->type != TS_MSG_SLICE) return 0; /* a stale answer of an abandoned batch */
+  if (ts_msg_loaded_read(f, &m, err) != 0) return TS_EPROTO;
+  if (m.set == st->gid && m.gen == st->gen) w->expect--;
+  return 0;
+}
+
+static int load_local(cl_set *st, char *err) {
+  uint32_t i0[4] = {0};
+  ts_slice_desc m;
+  ts_slice_describe(&m, &st->rs, &st->usage, st->gid, st->gen, i0, st->grid->count);
+  return ts_slice_load(&st->local, &m, err);
+}
+
+/* Makes the set's slicing match the current pool (lock held): every ready
+ * worker gets a fresh slice (new generation) with the replica's counts; with
+ * none, the coordinator loads the whole set itself. */
+static int ensure_slices(cluster_search *cs, cl_set *st, char *err) {
+  ts_cluster *c = cs->c;
+  while (!st->sliced || st->epoch != c->epoch) {
+    cl_worker *ws[CL_MAX_WORKERS];
+    int n = cl_ready_workers(c, ws);
+    st->epoch = c->epoch;
+    st->gen++;
+    ts_slice_free(st->local);
+    st->local = NULL;
+    st->nslices = 0;
+    st->sliced = 1;
+    if (n == 0) return load_local(st, err);
+    cut_ranges(st->grid, ws, n, st->slices);
+    cl_traffic tr = {0, 0};
+    double total = 0;
+    for (int i = 0; i < n; i++) total += ws[i]->slice_rate;
+    for (int i = 0; i < n; i++) {
+      ts_slice_desc m;
+      ts_slice_describe(&m, &st->rs, &st->usage, st->gid, st->gen, st->slices[i].i0, st->slices[i].i1);
+      size_t at = cl_frame_begin(&ws[i]->out, TS_MSG_SLICE, ++c->next_frame);
+      ts_msg_slice_write(&ws[i]->out, &m);
+      cl_frame_end(&ws[i]->out, at);
+      ws[i]->expect = 1;
+      ws[i]->share = (uint32_t)llround(1000.0 * ws[i]->slice_rate / total);
+    }
+    st->nslices = n;
+    cl_exchange(c, ws, n, c->o.batch_timeout + 30.0, loaded_reply, st, &tr);
+    cs->base.stats.bytes_out += tr.bytes_out;
+    cs->base.stats.bytes_in += tr.bytes_in;
+    /* A failure bumped the epoch: loop and slice again without it. */
+  }
+  return 0;
+}
+
+static int cluster_prepare(ts_search *s, const ts_refset *rs, int *id, char *err) {
+  cluster_search *cs = (cluster_search *)s;
+  int slot = 0;
+  while (slot < CL_MAX_SETS && cs->sets[slot].used) slot++;
+  if (slot == CL_MAX_SETS) return ts_error(err, TS_ENOMEM, "too many reference sets prepared at once");
+  cl_set *st = &cs->sets[slot];
+  memset(st, 0, sizeof(*st));
+  st->rs = *rs;
+  st->grid = rs->grid;
+  st->with_usage = rs->usage;
+  if (rs->usage && ts_usage_init(&st->usage, rs->grid, rs->shape->wb, 0) != 0)
+    return ts_error(err, TS_ENOMEM, "out of memory for the usage replica");
+  pthread_mutex_lock(&cs->c->lock);
+  st->gid = ++cs->c->next_set;
+  st->used = 1;
+  int rc = ensure_slices(cs, st, err);
+  pthread_mutex_unlock(&cs->c->lock);
+  *id = slot;
+  return rc;
+}
+
+static int cluster_commit(ts_search *s, int id, const ts_commit *cm, uint32_t n, char *err) {
+  cl_set *st = set_get((cluster_search *)s, id);
+  if (st == NULL) return ts_error(err, TS_EINVAL, "unknown reference set %d", id);
+  if (!st->with_usage) return 0;
+  for (uint32_t i = 0; i < n; i++) {
+    if (cm[i].x < 0 || cm[i].y < 0 || cm[i].x + cm[i].w > st->grid->w || cm[i].y + cm[i].h > st->grid->h)
+      return ts_error(err, TS_EINVAL, "commit outside the reference");
+    if (cm[i].delta != 1 && cm[i].delta != -1) return ts_error(err, TS_EINVAL, "commit delta %d", (int)cm[i].delta);
+  }
+  if (st->npending + n > st->cap_pending) {
+    uint32_t cap = st->cap_pending ? st->cap_pending : 1024;
+    while (cap < st->npending + n) cap *= 2;
+    ts_commit *p = realloc(st->pending, sizeof(ts_commit) * cap);
+    if (p == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+    st->pending = p;
+    st->cap_pending = cap;
+  }
+  memcpy(st->pending + st->npending, cm, sizeof(ts_commit) * n);
+  st->npending += n;
+  return 0;
+}
+
+/* The pending commits reach the replica once they are on their way to the
+ * workers: slices loaded later start from counts that include them. */
+static void flush_pending(cl_set *st) {
+  for (uint32_t i = 0; i < st->npending; i++) {
+    const ts_commit *k = &st->pending[i];
+    ts_usage_commit(&st->usage, k->x, k->y, k->w, k->h, k->delta);
+  }
+  st->npending = 0;
+}
+
+/* V frame ids: the exchange's sequence number in the top byte (a stale
+ * answer never matches) and the frame's first query below, counted over
+ * the concatenated queries of every request of the exchange. */
+#define CL_ID_QUERY_BITS 24
+#define CL_ID_QUERY_MASK ((1u << CL_ID_QUERY_BITS) - 1)
+#define CL_MAX_REQS 64
+
+typedef struct {
+  cl_set *st[CL_MAX_REQS];
+  uint32_t q0[CL_MAX_REQS + 1]; /* request r holds queries q0[r]..q0[r+1]-1 */
+  uint32_t nreq;
+  ts_l1_best *best;
+  uint32_t seq;
+} batch_ctx;
+
+static void merge_best(ts_l1_best *into, const ts_l1_best *b) {
+  if (b->dist < into->dist || (b->dist == into->dist && b->index < into->index)) *into = *b;
+}
+
+/* A worker's rate as the coordinator sees it: the comparisons of its
+ * answers over the time from sending the batch to its last answer. That
+ * is what balancing must equalise, and it includes whatever slows the
+ * worker - other load, a throttled CPU, its network - not only its scan. */
+static void track_rate(cl_worker *w, double sent_at) {
+  w->batches++;
+  double dt = w->answered_at - sent_at;
+  if (dt < CL_MIN_SAMPLE_SECONDS || w->answered_pairs == 0) return;
+  double rate = (double)w->answered_pairs / dt;
+  double k = 1.0 - exp(-dt / CL_RATE_TAU);
+  w->ewma_rate += k * (rate - w->ewma_rate);
+  w->ewma_weight += dt;
+}
+
+static int answer_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
+  batch_ctx *b = ctx;
+  if (f->type == TS_MSG_ERROR) return cl_reply_error(f, err);
+  if (f->type != TS_MSG_QUERY) return 0; /* stale reply of an abandoned exchange */
+  ts_msg_answer a;
+  if (ts_msg_answer_read(f, &a, err) != 0) return TS_EPROTO;
+  if (f->id >> CL_ID_QUERY_BITS != (b->seq & 0xFF)) return 0;
+  uint32_t q0 = f->id & CL_ID_QUERY_MASK, r = 0;
+  while (r < b->nreq && q0 >= b->q0[r + 1]) r++;
+  if (r == b->nreq) return ts_error(err, TS_EPROTO, "answer for queries outside the batch");
+  const cl_set *st = b->st[r];
+  if (a.set != st->gid || a.gen != st->gen) return 0;
+  if (a.nq > b->q0[r + 1] - q0) return ts_error(err, TS_EPROTO, "answer for queries outside the batch");
+  for (uint32_t i = 0; i < a.nq; i++) {
+    ts_l1_best res;
+    ts_msg_result_at(&a, i, &res);
+    if (res.index != UINT32_MAX && res.index >= st->grid->total)
+      return ts_error(err, TS_EPROTO, "answer index %u outside the set", res.index);
+    merge_best(&b->best[q0 + i], &res);
+  }
+  w->answered_pairs += a.pairs;
+  if (--w->expect == 0) w->answered_at = ts_now();
+  return 0;
+}
+
+/* After each batch: do the measured rates still match the slicing? A
+ * deviation beyond the tolerance that lasts `persist` seconds re-slices
+ * everything with the measured rates (lock held). */
+static void check_balance(ts_cluster *c, cl_worker **ws, int n) {
+  if (n < 2 || !(c->o.rebalance_from & TS_REBALANCE_BATCHES)) return;
+  double mean = 0;
+  for (int i = 0; i < n; i++) {
+    if (ws[i]->ewma_weight < CL_RATE_TAU) return; /* too little measured yet */
+    mean += ws[i]->ewma_rate / ws[i]->slice_rate;
+  }
+  mean /= n;
+  double dev = 0;
+  for (int i = 0; i < n; i++) dev = fmax(dev, fabs(ws[i]->ewma_rate / ws[i]->slice_rate / mean - 1.0));
+  double now = ts_now();
+  if (dev <= c->o.tolerance) {
+    c->deviating_since = 0;
+    return;
+  }
+  if (c->deviating_since == 0) {
+    c->deviating_since = now;
+    return;
+  }
+  if (now - c->deviating_since < c->o.persist) return;
+  for (int i = 0; i < n; i++) {
+    ws[i]->slice_rate = ws[i]->ewma_rate;
+    ws[i]->share_sized = -1; /* the next Modbus read is the new baseline */
+  }
+  c->deviating_since = 0;
+  c->rebalances++;
+  c->epoch++;
+  cl_log(c, "rebalance %llu: rates deviated by %.0f%% for %.1fs", (unsigned long long)c->rebalances, dev * 100,
+       c->o.persist);
+}
+
+static int ensure_best(cluster_search *cs, uint32_t nq) {
+  if (nq <= cs->cap_best) return 0;
+  ts_l1_best *b = realloc(cs->best, sizeof(ts_l1_best) * nq);
+  if (b == NULL) return TS_ENOMEM;
+  cs->best = b;
+  cs->cap_best = nq;
+  return 0;
+}
+
+/* With no worker ready the coordinator scans its own whole-set slice,
+ * with the code a worker runs. */
+static int query_local(ts_cluster *c, cl_set *st, const ts_query_batch *b, ts_l1_best *out, uint64_t *pairs,
+                       char *err) {
+  int rc = ts_slice_commit(st->local, st->pending, st->npending, err);
+  flush_pending(st);
+  if (rc == 0) rc = ts_slice_scan(st->local, c->local_pool, 0, c->simd, b, out, pairs, err);
+  return rc;
+}
+
+/* Slices every request's set over the current pool; all of them must end
+ * up cut for the same epoch (a failed load moves it: start again). */
+static int slice_all(cluster_search *cs, batch_ctx *bc, char *err) {
+  for (;;) {
+    for (uint32_t r = 0; r < bc->nreq; r++) {
+      int rc = ensure_slices(cs, bc->st[r], err);
+      if (rc != 0) return rc;
+    }
+    uint32_t r = 0;
+    while (r < bc->nreq && bc->st[r]->epoch == cs->c->epoch) r++;
+    if (r == bc->nreq) return 0;
+  }
+}
+
+/* Queues every request's V frames to the workers holding its slices; the
+ * workers involved are collected in ws. */
+static int queue_frames(ts_cluster *c, const batch_ctx *bc, const ts_search_req *req, cl_worker **ws, int *nw,
+                        char *err) {
+  *nw = 0;
+  for (uint32_t r = 0; r < bc->nreq; r++) {
+    cl_set *st = bc->st[r];
+    const ts_query_batch *b = &req[r].b;
+    uint32_t vbytes = ts_shape_bytes(st->rs.shape);
+    for (int i = 0; i < st->nslices; i++) {
+      cl_worker *w = st->slices[i].w;
+      int k = 0;
+      while (k < *nw && ws[k] != w) k++;
+      if (k == *nw) {
+        ws[(*nw)++] = w;
+        w->answered_pairs = w->expected_pairs = 0;
+      }
+      for (uint32_t q = 0; q < b->nq; q++) {
+        int cls = b->klass ? b->klass[q] : 0;
+        w->expected_pairs += st->slices[i].i1[cls] - st->slices[i].i0[cls];
+      }
+      for (uint32_t q0 = 0; q0 < b->nq; q0 += c->o.pipeline_queries) {
+        uint32_t q1 = q0 + c->o.pipeline_queries < b->nq ? q0 + c->o.pipeline_queries : b->nq;
+        size_t at = cl_frame_begin(&w->out, TS_MSG_QUERY, (bc->seq & 0xFF) << CL_ID_QUERY_BITS | (bc->q0[r] + q0));
+        /* The set's pending commits ride with its first frame. */
+        if (q0 == 0) ts_msg_query_write(&w->out, st->gid, st->gen, st->pending, st->npending, b, vbytes, q0, q1);
+        else ts_msg_query_write(&w->out, st->gid, st->gen, NULL, 0, b, vbytes, q0, q1);
+        cl_frame_end(&w->out, at);
+        w->expect++;
+      }
+      if (ts_wr_status(&w->out) != 0) return ts_error(err, TS_ENOMEM, "out of memory for a batch");
+    }
+  }
+  return 0;
+}
+
+/* A batch's deadline: CL_DEADLINE_SLACK times what the slowest worker
+ * should need at the lower of its sized and measured rates, never below
+ * the --batch-timeout floor. A worker missing it is taken for stalled. */
+static double batch_deadline(const ts_cluster *c, cl_worker **ws, int n) {
+  double need = 0;
+  for (int i = 0; i < n; i++) {
+    double rate = fmin(ws[i]->slice_rate, ws[i]->ewma_rate);
+    if (rate > 0) need = fmax(need, (double)ws[i]->expected_pairs / rate);
+  }
+  return fmax(c->o.batch_timeout, CL_DEADLINE_SLACK * need);
+}
+
+/* Every request in one exchange with the pool (lock held). Returns 0,
+ * TS_ECONN when a worker failed (re-slice and retry), or an error. */
+static int exchange_batch(cluster_search *cs, batch_ctx *bc, const ts_search_req *req, char *err) {
+  ts_cluster *c = cs->c;
+  cl_worker *ws[CL_MAX_WORKERS];
+  int n;
+  bc->seq = ++c->next_frame;
+  ts_l1_best_reset(bc->best, bc->q0[bc->nreq]);
+  double sent_at = ts_now();
+  int rc = queue_frames(c, bc, req, ws, &n, err);
+  if (rc != 0) {
+    for (int i = 0; i < n; i++) ws[i]->out.len = ws[i]->out_off = 0, ws[i]->expect = 0;
+    return rc;
+  }
+  for (uint32_t r = 0; r < bc->nreq; r++) flush_pending(bc->st[r]);
+  cl_traffic tr = {0, 0};
+  rc = cl_exchange(c, ws, n, batch_deadline(c, ws, n), answer_reply, bc, &tr);
+  cs->base.stats.bytes_out += tr.bytes_out;
+  cs->base.stats.bytes_in += tr.bytes_in;
+  if (rc == 0) {
+    for (int i = 0; i < n; i++) track_rate(ws[i], sent_at);
+    check_balance(c, ws, n);
+  }
+  return rc;
+}
+
+/* Checks a request against its set; *st = the set. */
+static int check_req(cluster_search *cs, const ts_search_req *r, cl_set **st, char *err) {
+  *st = set_get(cs, r->id);
+  if (*st == NULL) return ts_error(err, TS_EINVAL, "unknown reference set %d", r->id);
+  if (r->b.usage_k != 0 && !(*st)->with_usage)
+    return ts_error(err, TS_EINVAL, "a usage penalty on a set prepared without usage");
+  return 0;
+}
+
+static int cluster_query_many(ts_search *s, const ts_search_req *req, uint32_t nreq, char *err) {
+  cluster_search *cs = (cluster_search *)s;
+  ts_cluster *c = cs->c;
+  if (nreq > CL_MAX_REQS) return ts_error(err, TS_ETOOBIG, "%u requests at once (at most %d)", nreq, CL_MAX_REQS);
+  batch_ctx bc = {.nreq = nreq};
+  for (uint32_t r = 0; r < nreq; r++) {
+    int rc = check_req(cs, &req[r], &bc.st[r], err);
+    if (rc != 0) return rc;
+    if (req[r].b.nq > CL_ID_QUERY_MASK - bc.q0[r]) return ts_error(err, TS_ETOOBIG, "too many queries at once");
+    bc.q0[r + 1] = bc.q0[r] + req[r].b.nq;
+  }
+  uint32_t nq = bc.q0[nreq];
+  if (nq == 0) return 0;
+  if (cs->cancel != NULL && *cs->cancel) return ts_error(err, TS_ECANCELED, "job canceled");
+  if (ensure_best(cs, nq) != 0) return ts_error(err, TS_ENOMEM, "out of memory for a batch of %u queries", nq);
+  bc.best = cs->best;
+  double t0 = ts_now();
+  uint64_t local_pairs = 0;
+  int local = 0, rc, lost = 0;
+  pthread_mutex_lock(&c->lock);
+  do {
+    rc = slice_all(cs, &bc, err);
+    if (rc != 0) break;
+    local = bc.st[0]->local != NULL; /* no worker: every set is local */
+    if (local) {
+      for (uint32_t r = 0; r < nreq && rc == 0; r++) {
+        uint64_t pairs = 0;
+        rc = query_local(c, bc.st[r], &req[r].b, req[r].out, &pairs, err);
+        local_pairs += pairs;
+      }
+      break;
+    }
+    /* A failed worker moved the epoch: slice again and re-ask (the
+     * commits are in the replica now, which the new slices carry) -
+     * unless this batch keeps killing workers: then it fails the job
+     * rather than the pool. */
+    rc = exchange_batch(cs, &bc, req, err);
+    if (rc == TS_ECONN && ++lost >= (int)c->o.max_redispatch) {
+      rc = ts_error(err, TS_ECONN, "a batch lost workers %d times in a row; giving up on this job to protect the pool",
+                    lost);
+      break;
+    }
+  } while (rc == TS_ECONN);
+  pthread_mutex_unlock(&c->lock);
+  if (rc != 0) return rc;
+  for (uint32_t r = 0; r < nreq; r++) {
+    const ts_query_batch *b = &req[r].b;
+    if (!local) memcpy(req[r].out, bc.best + bc.q0[r], sizeof(ts_l1_best) * b->nq);
+    for (uint32_t i = 0; i < b->nq && !local; i++) s->stats.pairs += bc.st[r]->grid->count[b->klass ? b->klass[i] : 0];
+    s->stats.batches++;
+    s->stats.queries += b->nq;
+  }
+  s->stats.pairs += local_pairs;
+  s->stats.round_trips++;
+  pthread_mutex_lock(&c->lock);
+  c->batches += nreq;
+  c->queries += nq;
+  pthread_mutex_unlock(&c->lock);
+  s->stats.scan_seconds += ts_now() - t0;
+  return 0;
+}
+
+static int cluster_query(ts_search *s, int id, const ts_query_batch *b, ts_l1_best *out, char *err) {
+  ts_search_req r = {id, *b, out};
+  return cluster_query_many(s, &r, 1, err);
+}
+
+static void set_clear(cluster_search *cs, cl_set *st) {
+  ts_cluster *c = cs->c;
+  pthread_mutex_lock(&c->lock);
+  cl_worker *ws[CL_MAX_WORKERS];
+  int n = 0;
+  if (st->epoch == c->epoch)
+    for (int i = 0; i < st->nslices; i++) ws[n++] = st->slices[i].w;
+  else /* slices may be on any worker that is still with us */
+    n = cl_ready_workers(c, ws);
+  for (int i = 0; i < n; i++) {
+    ts_msg_unload m = {st->gid};
+    size_t at = cl_frame_begin(&ws[i]->out, TS_MSG_UNLOAD, ++c->next_frame);
+    ts_msg_unload_write(&ws[i]->out, &m);
+    cl_frame_end(&ws[i]->out, at);
+    ws[i]->expect = 1;
+  }
+  cl_traffic tr = {0, 0};
+  if (n > 0) cl_exchange(c, ws, n, c->o.batch_timeout, cl_unloaded_reply, NULL, &tr);
+  pthread_mutex_unlock(&c->lock);
+  ts_slice_free(st->local);
+  ts_usage_free(&st->usage);
+  free(st->pending);
+  memset(st, 0, sizeof(*st));
+}
+
+static void cluster_release(ts_search *s, int id) {
+  cluster_search *cs = (cluster_search *)s;
+  cl_set *st = set_get(cs, id);
+  if (st != NULL) set_clear(cs, st);
+}
+
+static void cluster_destroy(ts_search *s) {
+  cluster_search *cs = (cluster_search *)s;
+  for (int i = 0; i < CL_MAX_SETS; i++)
+    if (cs->sets[i].used) set_clear(cs, &cs->sets[i]);
+  free(cs->best);
+  free(cs);
+}
+
+static const ts_search_ops cluster_ops = {
+    .name = "cluster",
+    .prepare = cluster_prepare,
+    .commit = cluster_commit,
+    .query = cluster_query,
+    .query_many = cluster_query_many,
+    .release = cluster_release,
+    .destroy = cluster_destroy,
+};
+
+int ts_search_cluster_create(ts_search **out, ts_cluster *c, const volatile int *cancel, char *err) {
+  cluster_search *cs = calloc(1, sizeof(*cs));
+  if (cs == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+  cs->base.ops = &cluster_ops;
+  cs->base.simd = c->simd;
+  cs->c = c;
+  cs->cancel = cancel;
+  *out = &cs->base;
+  return 0;
+}
