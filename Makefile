@@ -69,7 +69,9 @@ BENCH_SRC = $(wildcard bench/*.c)
 BENCH_BINS = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
 
 .PHONY: all deps test test-unit test-integration test-faults test-valgrind fuzz fuzz-build bench demo clean
-all: $(BINS) $(UNIT_BINS) $(BENCH_BINS) $(REPLAY_BINS)
+# A poll() that fails on demand, preloaded into texsyn-server by a fault test.
+PRELOADS = $(BUILD)/tests/libfail_poll.so
+all: $(BINS) $(UNIT_BINS) $(BENCH_BINS) $(REPLAY_BINS) $(PRELOADS)
 
 $(BUILD)/%.o: %.c
 	@mkdir -p $(dir $@)
@@ -100,6 +102,11 @@ $(BUILD)/tests/%: $(BUILD)/tests/unit/%.o $(LIB)
 $(BUILD)/tests/replay_%: $(BUILD)/tests/fuzz/fuzz_%.o $(BUILD)/tests/fuzz/replay.o $(LIB)
 	@mkdir -p $(dir $@)
 	$(CXX) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
+
+# Without sanitizers: preloaded ahead of an ASan runtime, it would stop it.
+$(BUILD)/tests/lib%.so: tests/preload/%.c
+	@mkdir -p $(dir $@)
+	$(CC) -std=c11 -D_GNU_SOURCE $(WARN) -O2 -fPIC -shared -o $@ $< -ldl
 
 $(BUILD)/bench/%: $(BUILD)/bench/%.o $(LIB)
 	@mkdir -p $(dir $@)

@@ -4,7 +4,6 @@
  * backend over the pool in search_cluster.c; cluster_impl.h says how they
  * share the lock. */
 #include <errno.h>
-#include <math.h>
 #include <poll.h>
 #include <pthread.h>
 #include <stdarg.h>
@@ -68,6 +67,7 @@ void cl_frame_end(ts_wr *w, size_t at) {
 static void worker_free(cl_worker *w) {
   ts_conn_close(&w->conn);
   ts_wr_free(&w->out);
+  free(w->frames);
   free(w);
 }
 
@@ -399,7 +399,16 @@ int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, cl_reply_f
       break;
     }
     int k = poll(pf, (nfds_t)np, (int)(left * 1000) + 1);
-    if (k < 0 && errno != EINTR) break;
+    if (k < 0 && errno != EINTR) {
+      /* Nothing says which worker owes what: every one still owing answers
+       * is dropped, and the batch is asked again. Returning here as if
+       * all had answered would merge a partial answer: a wrong result. */
+      char why[TS_ERR_LEN];
+      snprintf(why, sizeof(why), "poll: %s (the batch is asked again)", strerror(errno));
+      for (int i = 0; i < np; i++) cl_worker_fail(c, pw[i], why);
+      failed = 1;
+      break;
+    }
     for (int i = 0; i < np && k > 0; i++) {
       cl_worker *w = pw[i];
       char err[TS_ERR_LEN];

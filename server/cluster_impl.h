@@ -34,6 +34,11 @@
 #define CL_DEADLINE_SLACK 8.0
 
 typedef struct {
+  uint32_t q0, nq; /* first query (over the whole batch) and count */
+  int answered;
+} cl_frame_sent;
+
+typedef struct {
   int id;
   ts_conn conn;
   ts_msg_ident ident;
@@ -55,6 +60,10 @@ typedef struct {
   double mb_heard_at;      /* when its Modbus plane last answered */
   double cpu_share;        /* share of CPU its threads get (Modbus), < 0 unknown */
   double share_sized;      /* the share when its slices were last sized, < 0 none */
+  /* The query frames of the batch in flight, in the order sent: each is
+   * answered exactly once, with exactly its number of results. */
+  cl_frame_sent *frames;
+  uint32_t nframes, cap_frames;
 } cl_worker;
 
 typedef struct {

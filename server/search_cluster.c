@@ -216,26 +216,51 @@ static void track_rate(cl_worker *w, double sent_at) {
   w->ewma_weight += dt;
 }
 
+/* The frame of w's batch that starts at query q0, or NULL. */
+static cl_frame_sent *frame_sent(cl_worker *w, uint32_t q0) {
+  uint32_t lo = 0, hi = w->nframes; /* sent in increasing q0 */
+  while (lo < hi) {
+    uint32_t mid = lo + (hi - lo) / 2;
+    if (w->frames[mid].q0 < q0) lo = mid + 1;
+    else hi = mid;
+  }
+  return lo < w->nframes && w->frames[lo].q0 == q0 ? &w->frames[lo] : NULL;
+}
+
+/* One answer frame. A short, extra, duplicate or misaddressed answer
+ * fails the worker, so the batch is asked again: merging it would leave
+ * queries with another worker's best only, a wrong result. */
 static int answer_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
   batch_ctx *b = ctx;
   if (f->type == TS_MSG_ERROR) return cl_reply_error(f, err);
   if (f->type != TS_MSG_QUERY) return 0; /* stale reply of an abandoned exchange */
+  if (f->id >> CL_ID_QUERY_BITS != (b->seq & 0xFF)) return 0;
   ts_msg_answer a;
   if (ts_msg_answer_read(f, &a, err) != 0) return TS_EPROTO;
-  if (f->id >> CL_ID_QUERY_BITS != (b->seq & 0xFF)) return 0;
   uint32_t q0 = f->id & CL_ID_QUERY_MASK, r = 0;
+  cl_frame_sent *fs = frame_sent(w, q0);
+  if (fs == NULL) return ts_error(err, TS_EPROTO, "answer to a query frame that was not sent (first query %u)", q0);
+  if (fs->answered) return ts_error(err, TS_EPROTO, "second answer to the query frame of first query %u", q0);
+  if (a.nq != fs->nq)
+    return ts_error(err, TS_EPROTO, "answer with %u results to the query frame of first query %u, which asked %u",
+                    a.nq, q0, fs->nq);
   while (r < b->nreq && q0 >= b->q0[r + 1]) r++;
-  if (r == b->nreq) return ts_error(err, TS_EPROTO, "answer for queries outside the batch");
   const cl_set *st = b->st[r];
-  if (a.set != st->gid || a.gen != st->gen) return 0;
-  if (a.nq > b->q0[r + 1] - q0) return ts_error(err, TS_EPROTO, "answer for queries outside the batch");
+  if (a.set != st->gid || a.gen != st->gen)
+    return ts_error(err, TS_EPROTO, "answer for set %u generation %u to a query of set %u generation %u", a.set,
+                    a.gen, st->gid, st->gen);
   for (uint32_t i = 0; i < a.nq; i++) {
     ts_l1_best res;
     ts_msg_result_at(&a, i, &res);
     if (res.index != UINT32_MAX && res.index >= st->grid->total)
       return ts_error(err, TS_EPROTO, "answer index %u outside the set", res.index);
+  }
+  for (uint32_t i = 0; i < a.nq; i++) {
+    ts_l1_best res;
+    ts_msg_result_at(&a, i, &res);
     merge_best(&b->best[q0 + i], &res);
   }
+  fs->answered = 1;
   w->answered_pairs += a.pairs;
   if (--w->expect == 0) w->answered_at = ts_now();
   return 0;
@@ -308,6 +333,19 @@ static int slice_all(cluster_search *cs, batch_ctx *bc, char *err) {
   }
 }
 
+/* Remembers a query frame sent to w, to match its answer. */
+static int note_frame(cl_worker *w, uint32_t q0, uint32_t nq) {
+  if (w->nframes == w->cap_frames) {
+    uint32_t cap = w->cap_frames ? 2 * w->cap_frames : 64;
+    cl_frame_sent *f = realloc(w->frames, sizeof(*f) * cap);
+    if (f == NULL) return TS_ENOMEM;
+    w->frames = f;
+    w->cap_frames = cap;
+  }
+  w->frames[w->nframes++] = (cl_frame_sent){q0, nq, 0};
+  return 0;
+}
+
 /* Queues every request's V frames to the workers holding its slices; the
  * workers involved are collected in ws. */
 static int queue_frames(ts_cluster *c, const batch_ctx *bc, const ts_search_req *req, cl_worker **ws, int *nw,
@@ -324,6 +362,7 @@ static int queue_frames(ts_cluster *c, const batch_ctx *bc, const ts_search_req 
       if (k == *nw) {
         ws[(*nw)++] = w;
         w->answered_pairs = w->expected_pairs = 0;
+        w->nframes = 0;
       }
       for (uint32_t q = 0; q < b->nq; q++) {
         int cls = b->klass ? b->klass[q] : 0;
@@ -337,6 +376,7 @@ static int queue_frames(ts_cluster *c, const batch_ctx *bc, const ts_search_req 
         else ts_msg_query_write(&w->out, st->gid, st->gen, NULL, 0, b, vbytes, q0, q1);
         cl_frame_end(&w->out, at);
         w->expect++;
+        if (note_frame(w, bc->q0[r] + q0, q1 - q0) != 0) return ts_error(err, TS_ENOMEM, "out of memory for a batch");
       }
       if (ts_wr_status(&w->out) != 0) return ts_error(err, TS_ENOMEM, "out of memory for a batch");
     }
