@@ -25,11 +25,11 @@ enum {
                               ~second; TS_MB_UNKNOWN when they hardly ran */
   TS_MB_IR_UPTIME = 8,     /* u32 seconds since start */
   TS_MB_IR_ERRORS = 10,    /* u32 protocol errors and failed requests */
-  TS_MB_IR_RATE = 12,      /* u64 calibrated scan rate, comparisons/s */
+  TS_MB_IR_RATE = 12,      /* u64 calibrated scan rate, bytes of vectors/s */
   TS_MB_IR_VECTORS = 16,   /* u64 reference vectors held in slices */
   TS_MB_IR_BATCHES = 20,   /* u64 query batches answered */
   TS_MB_IR_QUERIES = 24,   /* u64 queries answered */
-  TS_MB_IR_SCAN_RATE = 28, /* u64 scan rate of the recent batches (1 s average), comparisons/s */
+  TS_MB_IR_SCAN_RATE = 28, /* u64 scan rate of the recent batches (1 s average), bytes/s */
   TS_MB_IR_COMMON_END = 32,
   /* coordinator only */
   TS_MB_IR_WORKERS = 32,   /* workers ready */

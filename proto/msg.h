@@ -249,8 +249,8 @@ typedef struct {
   char addr[TS_MSG_NAME_MAX];
   uint16_t threads;
   uint8_t simd, state; /* state: ts_worker_state */
-  uint64_t calibrated; /* comparisons per second at calibration */
-  uint64_t rate;       /* comparisons per second the slices are sized with
+  uint64_t calibrated; /* bytes of vectors scanned per second at calibration */
+  uint64_t rate;       /* bytes per second the slices are sized with
                           (calibrated, then measured on batches) */
   uint16_t share;      /* slice share, per mille */
   uint64_t batches;

@@ -125,7 +125,7 @@ static int calibrate(ts_cluster *c, cl_worker *w, char *err) {
   if (rc == 0) rc = await_reply(&w->conn, TS_MSG_CALIBRATE, (int)c->o.calib_millis * 10 + 5000, &f, err);
   if (rc == 0) rc = ts_msg_calib_read(&f, &cal, err);
   if (rc != 0) return rc;
-  w->calib_rate = (double)cal.pairs / ((double)cal.nanos * 1e-9);
+  w->calib_rate = (double)cal.pairs * TS_CALIB_CHUNKS * TS_L1_CHUNK / ((double)cal.nanos * 1e-9);
   w->slice_rate = w->ewma_rate = w->calib_rate;
   return 0;
 }
@@ -152,7 +152,7 @@ static int admit(ts_cluster *c, ts_conn *conn, const ts_msg_ident *ident, int ad
     c->w[c->nw++] = w;
     if (addr_slot >= 0) c->addrs[addr_slot].worker_id = w->id;
     c->epoch++;
-    cl_log(c, "worker %d (%s, %u threads, %s) ready: %.3g comparisons/s", w->id, w->conn.peer,
+    cl_log(c, "worker %d (%s, %u threads, %s) ready: scans %.3g bytes/s", w->id, w->conn.peer,
          (unsigned)ident->threads, ident->simd < TS_SIMD_COUNT ? ts_l1_impl_get((ts_simd)ident->simd) ? ts_l1_impl_get((ts_simd)ident->simd)->name : "?" : "?",
          w->calib_rate);
   }

@@ -81,7 +81,7 @@ uint64_t ts_cluster_rebalances(ts_cluster *c);
 
 typedef struct {
   uint32_t ready;           /* workers ready */
-  uint64_t rate;            /* their rates summed, comparisons/s */
+  uint64_t rate;            /* their rates summed, bytes scanned/s */
   uint64_t batches, queries; /* answered for jobs, by workers or locally */
 } ts_cluster_stats;
 void ts_cluster_stats_get(ts_cluster *c, ts_cluster_stats *out);

@@ -43,9 +43,12 @@ typedef struct {
   ts_conn conn;
   ts_msg_ident ident;
   int state; /* TS_WORKER_* */
-  double calib_rate;  /* comparisons/s from calibration */
+  /* Rates in bytes of reference vectors scanned per second, so that sets
+   * of any vector length compare: a comparison of 1 KB vectors costs 18
+   * times one of the 56-byte calibration vectors. */
+  double calib_rate;  /* from calibration */
   double slice_rate;  /* rate the current slices were sized with */
-  double ewma_rate;   /* measured on batches */
+  double ewma_rate;   /* measured on batches: the worker's own scan time */
   double ewma_weight; /* seconds of batches in the average (saturates) */
   uint64_t batches;
   uint32_t share; /* per mille of the last set sliced */
@@ -53,9 +56,9 @@ typedef struct {
   ts_wr out;
   size_t out_off;
   int expect;
-  uint64_t expected_pairs; /* comparisons the batch asks of it */
-  uint64_t answered_pairs; /* comparisons the batch's answers report */
-  double answered_at;      /* when the last answer arrived */
+  uint64_t expected_bytes; /* bytes the batch asks it to scan */
+  uint64_t answered_bytes; /* bytes the batch's answers report scanned */
+  uint64_t answered_nanos; /* scan time the batch's answers report */
   double heard_at;         /* when the worker last sent anything */
   double mb_heard_at;      /* when its Modbus plane last answered */
   double cpu_share;        /* share of CPU its threads get (Modbus), < 0 unknown */

@@ -202,15 +202,16 @@ static void merge_best(ts_l1_best *into, const ts_l1_best *b) {
   if (b->dist < into->dist || (b->dist == into->dist && b->index < into->index)) *into = *b;
 }
 
-/* A worker's rate as the coordinator sees it: the comparisons of its
- * answers over the time from sending the batch to its last answer. That
- * is what balancing must equalise, and it includes whatever slows the
- * worker - other load, a throttled CPU, its network - not only its scan. */
-static void track_rate(cl_worker *w, double sent_at) {
+/* A worker's rate: the bytes its answers report scanned over the scan time
+ * they report. Its own scan time, not the time to its last answer: a
+ * worker behind a slower link scans as fast as the others and must keep
+ * its share (end to end, it would lose some at every rebalance), while
+ * one whose CPU is taken by other work scans slower and loses share. */
+static void track_rate(cl_worker *w) {
   w->batches++;
-  double dt = w->answered_at - sent_at;
-  if (dt < CL_MIN_SAMPLE_SECONDS || w->answered_pairs == 0) return;
-  double rate = (double)w->answered_pairs / dt;
+  double dt = (double)w->answered_nanos * 1e-9;
+  if (dt < CL_MIN_SAMPLE_SECONDS || w->answered_bytes == 0) return;
+  double rate = (double)w->answered_bytes / dt;
   double k = 1.0 - exp(-dt / CL_RATE_TAU);
   w->ewma_rate += k * (rate - w->ewma_rate);
   w->ewma_weight += dt;
@@ -261,8 +262,9 @@ static int answer_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
     merge_best(&b->best[q0 + i], &res);
   }
   fs->answered = 1;
-  w->answered_pairs += a.pairs;
-  if (--w->expect == 0) w->answered_at = ts_now();
+  w->answered_bytes += a.pairs * ts_shape_bytes(st->rs.shape);
+  w->answered_nanos += a.scan_nanos;
+  w->expect--;
   return 0;
 }
 
@@ -361,12 +363,12 @@ static int queue_frames(ts_cluster *c, const batch_ctx *bc, const ts_search_req 
       while (k < *nw && ws[k] != w) k++;
       if (k == *nw) {
         ws[(*nw)++] = w;
-        w->answered_pairs = w->expected_pairs = 0;
+        w->answered_bytes = w->expected_bytes = w->answered_nanos = 0;
         w->nframes = 0;
       }
       for (uint32_t q = 0; q < b->nq; q++) {
         int cls = b->klass ? b->klass[q] : 0;
-        w->expected_pairs += st->slices[i].i1[cls] - st->slices[i].i0[cls];
+        w->expected_bytes += (uint64_t)(st->slices[i].i1[cls] - st->slices[i].i0[cls]) * vbytes;
       }
       for (uint32_t q0 = 0; q0 < b->nq; q0 += c->o.pipeline_queries) {
         uint32_t q1 = q0 + c->o.pipeline_queries < b->nq ? q0 + c->o.pipeline_queries : b->nq;
@@ -391,7 +393,7 @@ static double batch_deadline(const ts_cluster *c, cl_worker **ws, int n) {
   double need = 0;
   for (int i = 0; i < n; i++) {
     double rate = fmin(ws[i]->slice_rate, ws[i]->ewma_rate);
-    if (rate > 0) need = fmax(need, (double)ws[i]->expected_pairs / rate);
+    if (rate > 0) need = fmax(need, (double)ws[i]->expected_bytes / rate);
   }
   return fmax(c->o.batch_timeout, CL_DEADLINE_SLACK * need);
 }
@@ -404,7 +406,6 @@ static int exchange_batch(cluster_search *cs, batch_ctx *bc, const ts_search_req
   int n;
   bc->seq = ++c->next_frame;
   ts_l1_best_reset(bc->best, bc->q0[bc->nreq]);
-  double sent_at = ts_now();
   int rc = queue_frames(c, bc, req, ws, &n, err);
   if (rc != 0) {
     for (int i = 0; i < n; i++) ws[i]->out.len = ws[i]->out_off = 0, ws[i]->expect = 0;
@@ -416,7 +417,7 @@ static int exchange_batch(cluster_search *cs, batch_ctx *bc, const ts_search_req
   cs->base.stats.bytes_out += tr.bytes_out;
   cs->base.stats.bytes_in += tr.bytes_in;
   if (rc == 0) {
-    for (int i = 0; i < n; i++) track_rate(ws[i], sent_at);
+    for (int i = 0; i < n; i++) track_rate(ws[i]);
     check_balance(c, ws, n);
   }
   return rc;

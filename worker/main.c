@@ -132,8 +132,8 @@ static int on_calibrate(session *s, const ts_frame *f, char *err) {
   rc = ts_calib_run(g_w.pool, g_w.simd, req.millis, &cal.pairs, &cal.nanos);
   pthread_mutex_unlock(&g_w.pool_lock);
   if (rc != 0) return send_error(s, f->id, rc, "out of memory for calibration") == 0 ? 1 : rc;
-  wlog("calibrated for %s: %.3g comparisons/s", s->conn.peer, (double)cal.pairs / (cal.nanos * 1e-9));
-  ts_wmon_calibrated(cal.nanos > 0 ? (uint64_t)((double)cal.pairs / (cal.nanos * 1e-9)) : 0);
+  wlog("calibrated for %s: scans %.3g bytes/s", s->conn.peer, (double)cal.pairs * TS_CALIB_CHUNKS * TS_L1_CHUNK / (cal.nanos * 1e-9));
+  ts_wmon_calibrated(cal.nanos > 0 ? (uint64_t)((double)cal.pairs * TS_CALIB_CHUNKS * TS_L1_CHUNK / (cal.nanos * 1e-9)) : 0);
   ts_wr w;
   ts_wr_init(&w);
   ts_msg_calib_write(&w, &cal);
@@ -211,7 +211,7 @@ static int on_query(session *s, const ts_frame *f, char *err) {
     pthread_mutex_unlock(&g_w.pool_lock);
   }
   if (rc != 0) return send_error(s, f->id, rc, err) == 0 ? 1 : TS_ECONN;
-  ts_wmon_batch(q.nq, pairs, (uint64_t)t0);
+  ts_wmon_batch(q.nq, pairs * q.vbytes, (uint64_t)t0);
   ts_wr w;
   ts_wr_init(&w);
   ts_msg_answer_write(&w, q.set, q.gen, (uint64_t)t0, pairs, s->best, q.nq);

@@ -18,7 +18,7 @@ static struct {
   int threads, simd, draining;
   uint32_t loading, errors;
   uint64_t rate, vectors, batches, queries;
-  double scan_rate; /* comparisons/s of recent batches, averaged over ~1 s of scanning */
+  double scan_rate; /* bytes/s scanned in recent batches, averaged over ~1 s of scanning */
   uint64_t ran_ns, waited_ns; /* schedstat totals at the last CPU-share sample */
   double sampled_at;
   uint16_t cpu_share;         /* per mille, or TS_MB_UNKNOWN */
@@ -52,13 +52,13 @@ void ts_wmon_vectors(int64_t delta) {
   pthread_mutex_unlock(&g_mon.lock);
 }
 
-void ts_wmon_batch(uint32_t queries, uint64_t pairs, uint64_t nanos) {
+void ts_wmon_batch(uint32_t queries, uint64_t bytes, uint64_t nanos) {
   pthread_mutex_lock(&g_mon.lock);
   g_mon.batches++;
   g_mon.queries += queries;
-  if (nanos > 0 && pairs > 0) {
+  if (nanos > 0 && bytes > 0) {
     double dt = (double)nanos * 1e-9, k = 1.0 - exp(-dt);
-    g_mon.scan_rate = g_mon.scan_rate == 0 ? (double)pairs / dt : g_mon.scan_rate + k * ((double)pairs / dt - g_mon.scan_rate);
+    g_mon.scan_rate = g_mon.scan_rate == 0 ? (double)bytes / dt : g_mon.scan_rate + k * ((double)bytes / dt - g_mon.scan_rate);
   }
   pthread_mutex_unlock(&g_mon.lock);
 }

@@ -7,11 +7,11 @@
 #include <stdint.h>
 
 void ts_wmon_init(int threads, int simd);
-void ts_wmon_calibrated(uint64_t rate);  /* comparisons/s */
+void ts_wmon_calibrated(uint64_t rate);  /* bytes scanned per second */
 void ts_wmon_loading(int delta);         /* +1 when a slice load starts, -1 when it ends */
 void ts_wmon_vectors(int64_t delta);     /* vectors held */
 /* A batch answered: its queries, comparisons and scan time. */
-void ts_wmon_batch(uint32_t queries, uint64_t pairs, uint64_t nanos);
+void ts_wmon_batch(uint32_t queries, uint64_t bytes, uint64_t nanos); /* bytes scanned */
 void ts_wmon_error(void);                /* a failed request or a protocol error */
 /* 1 while the drain coil is set: the coordinator gives no new slices. */
 int ts_wmon_draining(void);

@@ -664,7 +664,7 @@ static const char *kJobUsage =
     "  delete ID     remove a finished, failed or canceled job and its files from the\n"
     "                coordinator's spool (frees space under its --max-spool limit)\n"
     "  workers       the worker pool: address, threads, kernel, calibrated rate and the\n"
-    "                rate slices are sized with (comparisons/s; measured on batches once\n"
+    "                rate slices are sized with (bytes scanned/s; measured on batches once\n"
     "                a lasting deviation rebalanced them), slice share, state, batches\n"
     "\n"
     "  --server HOST:PORT   the coordinator (default: $TEXSYN_SERVER, else 127.0.0.1:7070)\n"

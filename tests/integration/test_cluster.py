@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from conftest import BUILD, Daemon, run, synth
+from conftest import BUILD, Daemon, LoopbackProxy, run, synth
 
 SIZE = (256, 192)
 
@@ -140,6 +140,48 @@ def test_one_second_spike_does_not_rebalance(data, cluster, tmp_path):
     cluster.start(2, 1, "--rebalance-after", "3")
     run_slowed(cluster, data, tmp_path, 1.0)
     assert rebalances(cluster) == 0, cluster.server.read_log()
+
+
+class DelayProxy(LoopbackProxy):
+    """A slower link: every piece of data waits 5 ms, both ways."""
+
+    def forward(self, a, b):
+        for src, dst in ((a, b), (b, a)):
+            threading.Thread(target=self.pump, args=(src, dst), daemon=True).start()
+
+    @staticmethod
+    def pump(src, dst):
+        while True:
+            try:
+                data = src.recv(65536)
+                if not data:
+                    break
+                time.sleep(0.005)
+                dst.sendall(data)
+            except OSError:
+                break
+        for s in (src, dst):
+            try:
+                s.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+
+
+def test_worker_behind_a_slow_link_keeps_its_share(texsyn, data, cluster, tmp_path):
+    """Rates come from the workers' own scan times: 5 ms more per round trip
+    does not make a worker slower at scanning, so no rebalance may shrink
+    its share (end to end, it lost share at every rebalance)."""
+    near = cluster.worker(1)
+    far = DelayProxy(cluster.worker(1).addr)
+    cluster.server = Daemon([BUILD / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", tmp_path / "spool",
+                             "--rebalance-after", "1", "--rebalance-from", "batches",
+                             "--workers", f"{near.addr},{far.addr}"], tmp_path / "server.log")
+    cluster.wait_ready(2)
+    cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "out.png", "--size", "1024x768", "--quiet")
+    after = {w["addr"]: w for w in cluster.pool()}
+    far_now = after[far.addr]
+    assert far_now["rate"] > 0.7 * far_now["calibrated"], (after, cluster.server.read_log())
+    assert far_now["share"] > 0.35 * 100, (after, cluster.server.read_log())
 
 
 def test_several_clients_at_once(texsyn, data, cluster, tmp_path):
