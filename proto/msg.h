@@ -260,7 +260,7 @@ typedef struct {
 enum { TS_WORKER_CALIBRATING = 0, TS_WORKER_READY, TS_WORKER_FAILED, TS_WORKER_DRAINING, TS_WORKER_STATE_COUNT };
 const char *ts_worker_state_name(int state);
 
-#define TS_POOL_MAX_REPORT 256
+#define TS_POOL_MAX_REPORT 4096 /* the coordinator's largest pool */
 void ts_msg_pool_write(ts_wr *w, const ts_worker_info *wi, uint32_t n);
 int ts_msg_pool_read(const ts_frame *f, ts_worker_info *wi, uint32_t cap,
                      uint32_t *n, char *err);

@@ -42,6 +42,7 @@ void ts_cluster_opts_default(ts_cluster_opts *o) {
   o->pipeline_queries = 256;
   o->heartbeat = 2.0;
   o->auth = NULL;
+  o->max_workers = 256;
 }
 
 /* ---- frames into an output buffer ------------------------------------- */
@@ -113,6 +114,24 @@ static int await_reply(ts_conn *conn, uint8_t type, int timeout_ms, ts_frame *f,
   return 0;
 }
 
+/* Says why to a worker the pool refuses, so its log tells its operator. */
+static void tell_refused(cl_worker *w, const char *why) {
+  ts_wr wr;
+  ts_wr_init(&wr);
+  ts_msg_error_write(&wr, TS_ELIMIT, why);
+  char err[TS_ERR_LEN];
+  send_frame(&w->conn, TS_MSG_ERROR, 0, &wr, err);
+  ts_wr_free(&wr);
+}
+
+/* TS_ELIMIT when every slot of the pool is taken (lock held). */
+static int pool_full(const ts_cluster *c, char *err) {
+  if (c->nw + c->admitting < (int)c->o.max_workers) return 0;
+  return ts_error(err, TS_ELIMIT, "the pool is full (%u workers, texsyn-server --max-workers)", c->o.max_workers);
+}
+
+cl_worker **cl_worker_list(const ts_cluster *c) { return malloc(sizeof(cl_worker *) * c->o.max_workers); }
+
 static int calibrate(ts_cluster *c, cl_worker *w, char *err) {
   ts_wr wr;
   ts_wr_init(&wr);
@@ -142,9 +161,14 @@ static int admit(ts_cluster *c, ts_conn *conn, const ts_msg_ident *ident, int ad
   w->cpu_share = w->share_sized = -1;
   w->state = TS_WORKER_CALIBRATING;
   ts_wr_init(&w->out);
-  int rc = calibrate(c, w, err);
+  /* A slot first: a full pool refuses before spending a calibration. */
   pthread_mutex_lock(&c->lock);
-  if (rc == 0 && c->nw == CL_MAX_WORKERS) rc = ts_error(err, TS_ETOOBIG, "pool full (%d workers)", CL_MAX_WORKERS);
+  int rc = pool_full(c, err);
+  if (rc == 0) c->admitting++;
+  pthread_mutex_unlock(&c->lock);
+  if (rc == 0) rc = calibrate(c, w, err);
+  pthread_mutex_lock(&c->lock);
+  if (rc != TS_ELIMIT) c->admitting--;
   if (rc == 0) {
     w->id = ++c->next_worker_id;
     w->state = TS_WORKER_READY;
@@ -157,6 +181,7 @@ static int admit(ts_cluster *c, ts_conn *conn, const ts_msg_ident *ident, int ad
          w->calib_rate);
   }
   pthread_mutex_unlock(&c->lock);
+  if (rc == TS_ELIMIT) tell_refused(w, err);
   if (rc != 0) worker_free(w);
   return rc;
 }
@@ -199,8 +224,8 @@ static int heartbeat_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err
  * worker that died or hung between jobs leaves the pool (and is dialled
  * again) before the next batch waits on it (lock held). */
 static void heartbeat_idle(ts_cluster *c) {
-  if (c->o.heartbeat <= 0) return;
-  cl_worker *ws[CL_MAX_WORKERS];
+  cl_worker **ws = c->o.heartbeat > 0 ? cl_worker_list(c) : NULL;
+  if (ws == NULL) return;
   int n = 0;
   double now = ts_now();
   for (int i = 0; i < c->nw; i++) {
@@ -213,6 +238,7 @@ static void heartbeat_idle(ts_cluster *c) {
   }
   cl_traffic tr = {0, 0};
   if (n > 0) cl_exchange(c, ws, n, 2 * c->o.heartbeat + 1.0, heartbeat_reply, NULL, &tr);
+  free(ws);
 }
 
 /* The cluster's thread: (re)connects configured addresses, pings idle
@@ -226,6 +252,12 @@ static void *cluster_thread(void *arg) {
     for (int a = 0; a < c->naddrs && !c->stop; a++) {
       if (c->addrs[a].worker_id != 0) continue;
       char addr[TS_NET_ADDR_LEN], err[TS_ERR_LEN];
+      if (pool_full(c, err) != 0) {
+        /* Dial nobody: a worker could only be refused, after its calibration. */
+        if (!c->addrs[a].failing) cl_log(c, "worker %s: %s; not dialled while it is", c->addrs[a].addr, err);
+        c->addrs[a].failing = 1;
+        continue;
+      }
       snprintf(addr, sizeof(addr), "%s", c->addrs[a].addr);
       c->addrs[a].worker_id = -1; /* being dialled */
       pthread_mutex_unlock(&c->lock);
@@ -257,24 +289,34 @@ static void *cluster_thread(void *arg) {
 }
 
 
+static void cluster_free(ts_cluster *c) {
+  ts_pool_destroy(c->local_pool);
+  free(c->w);
+  free(c->addrs);
+  free(c);
+}
+
 int ts_cluster_create(ts_cluster **out, const ts_cluster_opts *o, char *err) {
   *out = NULL;
+  if (o->max_workers < 1 || o->max_workers > TS_CLUSTER_MAX_WORKERS)
+    return ts_error(err, TS_EINVAL, "--max-workers %u: need 1..%d", o->max_workers, TS_CLUSTER_MAX_WORKERS);
   ts_cluster *c = calloc(1, sizeof(*c));
   if (c == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
   c->o = *o;
   c->log = default_log;
-  int rc = ts_l1_select(&c->simd, err);
+  c->w = calloc(o->max_workers, sizeof(*c->w));
+  c->addrs = calloc(TS_CLUSTER_MAX_WORKERS, sizeof(*c->addrs));
+  int rc = c->w && c->addrs ? ts_l1_select(&c->simd, err) : ts_error(err, TS_ENOMEM, "out of memory");
   if (rc == 0 && ts_pool_create(&c->local_pool, o->local_threads) != 0)
     rc = ts_error(err, TS_ENOMEM, "cannot start %d scan threads", o->local_threads);
   if (rc != 0) {
-    free(c);
+    cluster_free(c);
     return rc;
   }
   pthread_mutex_init(&c->lock, NULL);
   pthread_cond_init(&c->wake, NULL);
   if (pthread_create(&c->thread, NULL, cluster_thread, c) != 0) {
-    ts_pool_destroy(c->local_pool);
-    free(c);
+    cluster_free(c);
     return ts_error(err, TS_ENOMEM, "cannot start the cluster thread");
   }
   c->supervising = o->modbus_poll > 0 && pthread_create(&c->supervisor, NULL, cl_supervisor_thread, c) == 0;
@@ -291,10 +333,9 @@ void ts_cluster_destroy(ts_cluster *c) {
   pthread_join(c->thread, NULL);
   if (c->supervising) pthread_join(c->supervisor, NULL);
   for (int i = 0; i < c->nw; i++) worker_free(c->w[i]);
-  ts_pool_destroy(c->local_pool);
   pthread_mutex_destroy(&c->lock);
   pthread_cond_destroy(&c->wake);
-  free(c);
+  cluster_free(c);
 }
 
 void ts_cluster_set_log(ts_cluster *c, void (*log)(const char *msg)) { c->log = log; }
@@ -305,7 +346,8 @@ int ts_cluster_add_address(ts_cluster *c, const char *addr, char *err) {
   int rc = ts_net_split(addr, host, sizeof(host), &port, err);
   if (rc != 0) return rc;
   pthread_mutex_lock(&c->lock);
-  if (c->naddrs == CL_MAX_ADDRS) rc = ts_error(err, TS_ETOOBIG, "more than %d worker addresses", CL_MAX_ADDRS);
+  if (c->naddrs == TS_CLUSTER_MAX_WORKERS)
+    rc = ts_error(err, TS_ETOOBIG, "more than %d worker addresses", TS_CLUSTER_MAX_WORKERS);
   else snprintf(c->addrs[c->naddrs++].addr, TS_NET_ADDR_LEN, "%s", addr);
   pthread_cond_signal(&c->wake);
   pthread_mutex_unlock(&c->lock);
@@ -378,11 +420,17 @@ int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, cl_reply_f
                 cl_traffic *tr) {
   double deadline = ts_now() + timeout;
   int failed = 0;
+  struct pollfd *pf = malloc(sizeof(*pf) * (size_t)n);
+  cl_worker **pw = malloc(sizeof(*pw) * (size_t)n);
+  int polled = n; /* workers the loop below looks at */
+  if (pf == NULL || pw == NULL) {
+    for (int i = 0; i < n; i++) cl_worker_fail(c, ws[i], "the coordinator is out of memory");
+    failed = 1;
+    polled = 0;
+  }
   for (;;) {
-    struct pollfd pf[CL_MAX_WORKERS];
-    cl_worker *pw[CL_MAX_WORKERS];
     int np = 0;
-    for (int i = 0; i < n; i++) {
+    for (int i = 0; i < polled; i++) {
       cl_worker *w = ws[i];
       if (w->state == TS_WORKER_FAILED || (w->expect == 0 && w->out_off == w->out.len)) continue;
       pw[np] = w;
@@ -443,6 +491,8 @@ int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, cl_reply_f
     ws[i]->out_off = 0;
     ws[i]->expect = 0;
   }
+  free(pf);
+  free(pw);
   return failed ? TS_ECONN : 0;
 }
 

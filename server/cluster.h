@@ -57,7 +57,11 @@ typedef struct {
   double modbus_poll;      /* seconds between reads of each worker's Modbus
                               registers (1; 0 off): drain, liveness, load */
   int rebalance_from;      /* TS_REBALANCE_* signals that may resize slices (both) */
+  uint32_t max_workers;    /* pool size, 1..TS_CLUSTER_MAX_WORKERS (256); a worker
+                              past it is refused before it is calibrated */
 } ts_cluster_opts;
+
+#define TS_CLUSTER_MAX_WORKERS 4096
 
 void ts_cluster_opts_default(ts_cluster_opts *o);
 

@@ -20,8 +20,6 @@
 #include "l1.h"
 #include "pool.h"
 
-#define CL_MAX_WORKERS 64
-#define CL_MAX_ADDRS 64
 #define CL_MAX_SETS 8
 /* Time constant of the measured-rate averages: long enough to smooth the
  * jitter of single small batches, short against `persist`. */
@@ -49,6 +47,7 @@ typedef struct {
   double calib_rate;  /* from calibration */
   double slice_rate;  /* rate the current slices were sized with */
   double ewma_rate;   /* measured on batches: the worker's own scan time */
+  double ewma_bytes, ewma_secs; /* decayed sums behind ewma_rate */
   double ewma_weight; /* seconds of batches in the average (saturates) */
   uint64_t batches;
   uint32_t share; /* per mille of the last set sliced */
@@ -78,9 +77,11 @@ typedef struct {
 struct ts_cluster {
   pthread_mutex_t lock;
   ts_cluster_opts o;
-  cl_worker *w[CL_MAX_WORKERS];
+  cl_worker **w; /* o.max_workers slots */
   int nw;
-  cl_addr addrs[CL_MAX_ADDRS];
+  int admitting; /* slots taken by workers being calibrated */
+  cl_addr *addrs; /* --workers addresses (TS_CLUSTER_MAX_WORKERS slots; more
+                     than the pool holds may be listed, as spares) */
   int naddrs;
   int next_worker_id;
   uint32_t next_set, next_frame;
@@ -109,6 +110,9 @@ void cl_frame_end(ts_wr *w, size_t at);
 void cl_worker_fail(ts_cluster *c, cl_worker *w, const char *why);
 /* The ready workers (lock held); returns how many. */
 int cl_ready_workers(ts_cluster *c, cl_worker **ws);
+/* An array for a list of the pool's workers (o.max_workers entries), or
+ * NULL; free() it. */
+cl_worker **cl_worker_list(const ts_cluster *c);
 
 /* Called for every frame a worker sends during an exchange; a negative
  * return fails that worker. */

@@ -348,6 +348,8 @@ static void usage(FILE *f) {
           "                            the deadline is 8x the batch's expected scan time\n"
           "  --max-redispatch N        a batch that loses workers N times in a row fails\n"
           "                            its job instead of the pool, 1..1000 (default 5)\n"
+          "  --max-workers N           pool size, 1..4096 (default 256); a worker past it is\n"
+          "                            refused before it is calibrated\n"
           "  --pipeline-queries N      queries per batch frame, 1..1048576 (default 256)\n"
           "  --heartbeat S             ping a worker silent this long; no answer within\n"
           "                            2S+1 s drops it, 0..3600 (default 2; 0 = off)\n"
@@ -420,7 +422,7 @@ static int rebalance_from(const char *s, int *out) {
 }
 
 static int parse_opts(int argc, char **argv, server_opts *o) {
-  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_SECRET, O_MODBUS, O_MB_CONTROL, O_MB_POLL, O_REBAL_FROM, O_QUIET, O_HELP };
+  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_MAX_WORKERS, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_SECRET, O_MODBUS, O_MB_CONTROL, O_MB_POLL, O_REBAL_FROM, O_QUIET, O_HELP };
   static const struct option longopts[] = {
       {"listen", required_argument, 0, O_LISTEN}, {"workers", required_argument, 0, O_WORKERS},
       {"spool", required_argument, 0, O_SPOOL}, {"jobs", required_argument, 0, O_JOBS},
@@ -429,6 +431,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
       {"batch-timeout", required_argument, 0, O_BT}, {"pipeline-queries", required_argument, 0, O_PIPE},
       {"heartbeat", required_argument, 0, O_HB},
       {"max-redispatch", required_argument, 0, O_REDISPATCH},
+      {"max-workers", required_argument, 0, O_MAX_WORKERS},
       {"max-frame", required_argument, 0, O_FRAME}, {"max-pixels", required_argument, 0, O_PIX},
       {"max-client-jobs", required_argument, 0, O_CLIENT_JOBS}, {"max-spool", required_argument, 0, O_SPOOL_MAX},
       {"secret-file", required_argument, 0, O_SECRET},
@@ -459,6 +462,10 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
     case O_AFTER: rc = num("--rebalance-after", optarg, 0, 3600, &o->co.persist); break;
     case O_BT: rc = num("--batch-timeout", optarg, 0.01, 3600, &o->co.batch_timeout); break;
     case O_REDISPATCH: rc = num("--max-redispatch", optarg, 1, 1000, &v); o->co.max_redispatch = (uint32_t)v; break;
+    case O_MAX_WORKERS:
+      rc = num("--max-workers", optarg, 1, TS_CLUSTER_MAX_WORKERS, &v);
+      o->co.max_workers = (uint32_t)v;
+      break;
     case O_PIPE: rc = num("--pipeline-queries", optarg, 1, 1 << 20, &v); o->co.pipeline_queries = (uint32_t)v; break;
     case O_HB: rc = num("--heartbeat", optarg, 0, 3600, &o->co.heartbeat); break;
     case O_FRAME: rc = num("--max-frame", optarg, 1024, 4294967295.0, &v); o->co.max_frame = (uint32_t)v; break;

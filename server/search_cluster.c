@@ -34,7 +34,7 @@ typedef struct {
   uint32_t npending, cap_pending;
   uint64_t epoch; /* cluster epoch of the slicing below */
   int sliced;
-  cl_slice slices[CL_MAX_WORKERS];
+  cl_slice *slices; /* one per worker holding a part (o.max_workers slots) */
   int nslices;
   ts_slice *local; /* in-process slice when no worker is ready */
 } cl_set;
@@ -44,6 +44,7 @@ typedef struct {
   ts_cluster *c;
   const volatile int *cancel;
   cl_set sets[CL_MAX_SETS];
+  cl_worker **ws; /* the workers of one request (lock held): o.max_workers slots */
   ts_l1_best *best;
   uint32_t cap_best;
 } cluster_search;
@@ -99,7 +100,7 @@ static int load_local(cl_set *st, char *err) {
 static int ensure_slices(cluster_search *cs, cl_set *st, char *err) {
   ts_cluster *c = cs->c;
   while (!st->sliced || st->epoch != c->epoch) {
-    cl_worker *ws[CL_MAX_WORKERS];
+    cl_worker **ws = cs->ws;
     int n = cl_ready_workers(c, ws);
     st->epoch = c->epoch;
     st->gen++;
@@ -140,8 +141,12 @@ static int cluster_prepare(ts_search *s, const ts_refset *rs, int *id, char *err
   st->rs = *rs;
   st->grid = rs->grid;
   st->with_usage = rs->usage;
-  if (rs->usage && ts_usage_init(&st->usage, rs->grid, rs->shape->wb, 0) != 0)
-    return ts_error(err, TS_ENOMEM, "out of memory for the usage replica");
+  st->slices = calloc(cs->c->o.max_workers, sizeof(*st->slices));
+  if (st->slices == NULL || (rs->usage && ts_usage_init(&st->usage, rs->grid, rs->shape->wb, 0) != 0)) {
+    free(st->slices);
+    st->slices = NULL;
+    return ts_error(err, TS_ENOMEM, "out of memory for a reference set");
+  }
   pthread_mutex_lock(&cs->c->lock);
   st->gid = ++cs->c->next_set;
   st->used = 1;
@@ -211,9 +216,14 @@ static void track_rate(cl_worker *w) {
   w->batches++;
   double dt = (double)w->answered_nanos * 1e-9;
   if (dt < CL_MIN_SAMPLE_SECONDS || w->answered_bytes == 0) return;
-  double rate = (double)w->answered_bytes / dt;
-  double k = 1.0 - exp(-dt / CL_RATE_TAU);
-  w->ewma_rate += k * (rate - w->ewma_rate);
+  /* Decayed sums of bytes and of seconds, and their ratio: an average over
+   * time. An average of per-batch rates would let the short batches that
+   * ran uninterrupted outweigh the long ones, and under-report a worker
+   * that gets half of its CPU as getting 0.7 of it. */
+  double keep = exp(-dt / CL_RATE_TAU);
+  w->ewma_bytes = w->ewma_bytes * keep + (double)w->answered_bytes;
+  w->ewma_secs = w->ewma_secs * keep + dt;
+  w->ewma_rate = w->ewma_bytes / w->ewma_secs;
   w->ewma_weight += dt;
 }
 
@@ -402,7 +412,7 @@ static double batch_deadline(const ts_cluster *c, cl_worker **ws, int n) {
  * TS_ECONN when a worker failed (re-slice and retry), or an error. */
 static int exchange_batch(cluster_search *cs, batch_ctx *bc, const ts_search_req *req, char *err) {
   ts_cluster *c = cs->c;
-  cl_worker *ws[CL_MAX_WORKERS];
+  cl_worker **ws = cs->ws;
   int n;
   bc->seq = ++c->next_frame;
   ts_l1_best_reset(bc->best, bc->q0[bc->nreq]);
@@ -502,7 +512,7 @@ static int cluster_query(ts_search *s, int id, const ts_query_batch *b, ts_l1_be
 static void set_clear(cluster_search *cs, cl_set *st) {
   ts_cluster *c = cs->c;
   pthread_mutex_lock(&c->lock);
-  cl_worker *ws[CL_MAX_WORKERS];
+  cl_worker **ws = cs->ws;
   int n = 0;
   if (st->epoch == c->epoch)
     for (int i = 0; i < st->nslices; i++) ws[n++] = st->slices[i].w;
@@ -521,6 +531,7 @@ static void set_clear(cluster_search *cs, cl_set *st) {
   ts_slice_free(st->local);
   ts_usage_free(&st->usage);
   free(st->pending);
+  free(st->slices);
   memset(st, 0, sizeof(*st));
 }
 
@@ -535,6 +546,7 @@ static void cluster_destroy(ts_search *s) {
   for (int i = 0; i < CL_MAX_SETS; i++)
     if (cs->sets[i].used) set_clear(cs, &cs->sets[i]);
   free(cs->best);
+  free(cs->ws);
   free(cs);
 }
 
@@ -551,6 +563,11 @@ static const ts_search_ops cluster_ops = {
 int ts_search_cluster_create(ts_search **out, ts_cluster *c, const volatile int *cancel, char *err) {
   cluster_search *cs = calloc(1, sizeof(*cs));
   if (cs == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+  cs->ws = cl_worker_list(c);
+  if (cs->ws == NULL) {
+    free(cs);
+    return ts_error(err, TS_ENOMEM, "out of memory");
+  }
   cs->base.ops = &cluster_ops;
   cs->base.simd = c->simd;
   cs->c = c;

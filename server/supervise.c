@@ -6,6 +6,7 @@
 #include <modbus/modbus.h>
 #include <pthread.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 #include <time.h>
 
@@ -17,6 +18,8 @@ typedef struct {
   int id;
   char host[TS_NET_ADDR_LEN];
   char port[8];
+  int ok;                               /* its plane answered */
+  uint16_t regs[TS_MB_IR_COMMON_END];  /* what it said */
 } mb_target;
 
 /* Whom to read (lock held): live workers that announced a Modbus port,
@@ -102,20 +105,22 @@ static void mb_apply(ts_cluster *c, int id, int ok, const uint16_t *regs) {
  * for --rebalance-after seconds, each rate is scaled by its change. */
 static void check_load_balance(ts_cluster *c) {
   if (!(c->o.rebalance_from & TS_REBALANCE_MODBUS)) return;
-  cl_worker *ws[CL_MAX_WORKERS];
   int n = 0;
   for (int i = 0; i < c->nw; i++) {
     cl_worker *w = c->w[i];
     if (w->state != TS_WORKER_READY) continue;
     if (w->cpu_share <= 0) return; /* idle or no Modbus plane: nothing to compare */
     if (w->share_sized <= 0) w->share_sized = w->cpu_share; /* the baseline */
-    ws[n++] = w;
+    n++;
   }
   if (n < 2) return;
   double mean = 0, dev = 0;
-  for (int i = 0; i < n; i++) mean += ws[i]->cpu_share / ws[i]->share_sized;
+  for (int i = 0; i < c->nw; i++)
+    if (c->w[i]->state == TS_WORKER_READY) mean += c->w[i]->cpu_share / c->w[i]->share_sized;
   mean /= n;
-  for (int i = 0; i < n; i++) dev = fmax(dev, fabs(ws[i]->cpu_share / ws[i]->share_sized / mean - 1.0));
+  for (int i = 0; i < c->nw; i++)
+    if (c->w[i]->state == TS_WORKER_READY)
+      dev = fmax(dev, fabs(c->w[i]->cpu_share / c->w[i]->share_sized / mean - 1.0));
   double now = ts_now();
   if (dev <= c->o.tolerance) {
     c->load_deviating_since = 0;
@@ -123,9 +128,11 @@ static void check_load_balance(ts_cluster *c) {
   }
   if (c->load_deviating_since == 0) c->load_deviating_since = now;
   if (now - c->load_deviating_since < c->o.persist) return;
-  for (int i = 0; i < n; i++) {
-    ws[i]->slice_rate *= ws[i]->cpu_share / ws[i]->share_sized;
-    ws[i]->share_sized = ws[i]->cpu_share;
+  for (int i = 0; i < c->nw; i++) {
+    cl_worker *w = c->w[i];
+    if (w->state != TS_WORKER_READY) continue;
+    w->slice_rate *= w->cpu_share / w->share_sized;
+    w->share_sized = w->cpu_share;
   }
   c->load_deviating_since = 0;
   c->rebalances++;
@@ -136,16 +143,19 @@ static void check_load_balance(ts_cluster *c) {
 
 void *cl_supervisor_thread(void *arg) {
   ts_cluster *c = arg;
+  /* Whom to read and what they said, one entry a worker. */
+  mb_target *t = calloc(c->o.max_workers, sizeof(*t));
+  if (t == NULL) {
+    cl_log(c, "out of memory: the workers' Modbus planes are not read");
+    return NULL;
+  }
   pthread_mutex_lock(&c->lock);
   while (!c->stop) {
-    mb_target t[CL_MAX_WORKERS];
     int n = mb_targets(c, t);
     pthread_mutex_unlock(&c->lock);
-    uint16_t regs[CL_MAX_WORKERS][TS_MB_IR_COMMON_END];
-    int ok[CL_MAX_WORKERS];
-    for (int i = 0; i < n; i++) ok[i] = mb_read(&t[i], regs[i]) == 0;
+    for (int i = 0; i < n; i++) t[i].ok = mb_read(&t[i], t[i].regs) == 0;
     pthread_mutex_lock(&c->lock);
-    for (int i = 0; i < n && !c->stop; i++) mb_apply(c, t[i].id, ok[i], regs[i]);
+    for (int i = 0; i < n && !c->stop; i++) mb_apply(c, t[i].id, t[i].ok, t[i].regs);
     if (n > 0) check_load_balance(c);
     struct timespec ts;
     clock_gettime(CLOCK_REALTIME, &ts);
@@ -155,5 +165,6 @@ void *cl_supervisor_thread(void *arg) {
     if (!c->stop) pthread_cond_timedwait(&c->wake, &c->lock, &ts);
   }
   pthread_mutex_unlock(&c->lock);
+  free(t);
   return NULL;
 }

@@ -161,3 +161,22 @@ def test_requests_cannot_reach_outside_the_spool(data, cluster, tmp_path):
     after = set(p for p in cluster.tmp.rglob("*") if spool not in p.parents)
     assert after == before, after - before
     run(BUILD / "texsyn", "watch", job, "--quiet", "--server", cluster.server.addr)
+
+
+def test_full_pool_refuses_workers_before_calibrating_them(texsyn, data, cluster, tmp_path):
+    """--max-workers 2 with three addresses: two serve, the third is not even
+    dialled (a refusal after its calibration would cost it a scan every
+    0.5 s), and a job runs on the two."""
+    for _ in range(3):
+        cluster.worker(1)
+    cluster.server = Daemon([BUILD / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", tmp_path / "spool",
+                             "--max-workers", "2", "--workers", ",".join(w.addr for w in cluster.workers)],
+                            tmp_path / "server.log")
+    cluster.wait_ready(2)
+    out = tmp_path / "out.png"
+    cluster.texsyn("synth", "--ref", data / "textures" / "brick.png", "-o", out, "--size", "96x96", "--levels", "2",
+                   "--quiet")
+    log = cluster.server.read_log()
+    assert "the pool is full (2 workers, texsyn-server --max-workers); not dialled while it is" in log, log
+    calibrated = [w for w in cluster.workers if "calibrated for" in w.read_log()]
+    assert len(calibrated) == 2, [w.read_log() for w in cluster.workers]
