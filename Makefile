@@ -145,8 +145,8 @@ FUZZ_SAN = -g -O1 -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sani
 FUZZ_CC = clang -std=c11 -D_GNU_SOURCE $(WARN) $(FUZZ_SAN) -fsanitize=fuzzer-no-link
 FUZZ_CXX = clang++ -std=c++17 -Wall -Wextra -Werror $(FUZZ_SAN) -fsanitize=fuzzer-no-link -Icommon
 FUZZ_OBJ_frame = proto/frame.o common/cursor.o common/error.o
-FUZZ_OBJ_msg = proto/msg.o proto/frame.o common/cursor.o server/jobspec.o server/engines/params.o common/error.o
-FUZZ_OBJ_jobspec = server/jobspec.o server/engines/params.o common/error.o
+FUZZ_OBJ_msg = proto/msg.o proto/frame.o common/cursor.o server/jobspec.o server/engines/params.o common/util.o common/error.o
+FUZZ_OBJ_jobspec = server/jobspec.o server/engines/params.o common/util.o common/error.o
 FUZZ_OBJ_image = common/image.o common/image_oiio.o common/image_check.o common/tiff_tags.o common/error.o
 FUZZ_OBJ_checkpoint = server/engines/checkpoint.o common/cursor.o common/error.o
 

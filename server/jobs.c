@@ -20,6 +20,7 @@
 #include "jobspec.h"
 #include "mrf.h"
 #include "outputs.h"
+#include "util.h"
 
 #define JOBS_PATH 4096
 #define JOBS_SPOOL_LEN 1024 /* longer spool paths are refused */
@@ -104,13 +105,11 @@ static int write_atomic(const char *path, const void *data, size_t len, char *er
 
 /* Reads a whole small file into buf (NUL-terminated); length or -1. */
 static long read_small(const char *path, char *buf, size_t cap) {
-  FILE *f = fopen(path, "rb");
-  if (f == NULL) return -1;
-  size_t n = fread(buf, 1, cap - 1, f);
-  int more = fgetc(f) != EOF;
-  fclose(f);
-  if (more) return -1;
-  buf[n] = '\0';
+  uint8_t *data;
+  size_t n;
+  if (ts_file_read(path, cap - 1, &data, &n, NULL) != 0) return -1;
+  memcpy(buf, data, n + 1);
+  free(data);
   return (long)n;
 }
 
@@ -299,20 +298,6 @@ static int on_checkpoint(void *arg, const ts_mrf_checkpoint *ck, char *err) {
   return rc;
 }
 
-/* Reads a whole file into a malloc'd buffer; 0 or -1. */
-static int read_whole(const char *path, uint8_t **buf, size_t *len) {
-  FILE *f = fopen(path, "rb");
-  if (f == NULL) return -1;
-  struct stat st;
-  int ok = fstat(fileno(f), &st) == 0 && st.st_size > 0;
-  *len = ok ? (size_t)st.st_size : 0;
-  *buf = ok ? malloc(*len) : NULL;
-  ok = *buf != NULL && fread(*buf, 1, *len, f) == *len;
-  fclose(f);
-  if (!ok) free(*buf);
-  return ok ? 0 : -1;
-}
-
 /* The job's last checkpoint, if it has a usable one. A damaged or foreign
  * one is logged and removed: the job then starts over, which gives the
  * same bytes, only later. */
@@ -321,7 +306,7 @@ static int load_job_checkpoint(ts_jobs *j, job *jb, uint64_t tag, ts_mrf_checkpo
   job_path(jb, JOBS_CHECKPOINT, path, sizeof(path));
   uint8_t *buf;
   size_t len;
-  if (read_whole(path, &buf, &len) != 0) return 0;
+  if (ts_file_read(path, SIZE_MAX, &buf, &len, NULL) != 0) return 0;
   int rc = ts_checkpoint_decode(buf, len, tag, j->o.max_pixels, ck, err);
   free(buf);
   if (rc != 0) {

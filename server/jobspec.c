@@ -1,13 +1,11 @@
 /* jobspec.c - see jobspec.h. */
 #include "jobspec.h"
 
-#include <errno.h>
-#include <math.h>
 #include <stdio.h>
-#include <stdlib.h>
 #include <string.h>
 
 #include "error.h"
+#include "util.h"
 
 void ts_jobspec_default(ts_jobspec *s) {
   memset(s, 0, sizeof(*s));
@@ -34,41 +32,13 @@ int ts_jobspec_format(const ts_jobspec *s, char *buf, size_t cap) {
   return n < 0 || (size_t)n >= cap ? TS_ETOOBIG : n;
 }
 
-static int parse_int(const char *v, long lo, long hi, int *out) {
-  char *end;
-  errno = 0;
-  long x = strtol(v, &end, 10);
-  if (errno != 0 || end == v || *end != '\0' || x < lo || x > hi) return -1;
-  *out = (int)x;
-  return 0;
-}
-
-static int parse_u64v(const char *v, uint64_t *out) {
-  char *end;
-  errno = 0;
-  if (v[0] == '-' || v[0] == '\0') return -1;
-  unsigned long long x = strtoull(v, &end, 10);
-  if (errno != 0 || *end != '\0') return -1;
-  *out = x;
-  return 0;
-}
-
-static int parse_dbl(const char *v, double *out) {
-  char *end;
-  errno = 0;
-  double x = strtod(v, &end);
-  if (errno != 0 || end == v || *end != '\0' || !isfinite(x)) return -1;
-  *out = x;
-  return 0;
-}
-
 /* An extension: letters and digits only, so a spec can never steer a file
  * name out of the job's directory. */
 static int parse_ext(const char *v, char *out) {
   size_t n = strlen(v);
-  if (n >= TS_EXT_LEN) return -1;
+  if (n >= TS_EXT_LEN) return TS_EINVAL;
   for (size_t i = 0; i < n; i++)
-    if (!((v[i] >= 'a' && v[i] <= 'z') || (v[i] >= 'A' && v[i] <= 'Z') || (v[i] >= '0' && v[i] <= '9'))) return -1;
+    if (!((v[i] >= 'a' && v[i] <= 'z') || (v[i] >= 'A' && v[i] <= 'Z') || (v[i] >= '0' && v[i] <= '9'))) return TS_EINVAL;
   memcpy(out, v, n + 1);
   return 0;
 }
@@ -78,34 +48,26 @@ int ts_ext_valid(const char *ext) {
   return ext[0] != '\0' && parse_ext(ext, tmp) == 0;
 }
 
-static int parse_size(const char *v, int *w, int *h) {
-  char a[32];
-  const char *x = strchr(v, 'x');
-  if (x == NULL || (size_t)(x - v) >= sizeof(a)) return -1;
-  memcpy(a, v, (size_t)(x - v));
-  a[x - v] = '\0';
-  return parse_int(a, 1, 1000000, w) != 0 || parse_int(x + 1, 1, 1000000, h) != 0 ? -1 : 0;
-}
-
+/* 0, TS_EINVAL for a bad value, TS_ENOENT for an unknown key. */
 static int set_key(ts_jobspec *s, const char *k, const char *v) {
   ts_mrf_params *p = &s->p;
-  if (strcmp(k, "size") == 0) return parse_size(v, &p->width, &p->height);
-  if (strcmp(k, "levels") == 0) return parse_int(v, -1000, 1000, &p->levels);
-  if (strcmp(k, "wn") == 0) return parse_int(v, -1000, 1000, &p->wn);
-  if (strcmp(k, "wb") == 0) return parse_int(v, -1000, 1000, &p->wb);
-  if (strcmp(k, "parity") == 0) return parse_int(v, 0, 1, &p->parity);
-  if (strcmp(k, "usage_weight") == 0) return parse_dbl(v, &p->usage_weight);
-  if (strcmp(k, "coarse_weight") == 0) return parse_dbl(v, &p->coarse_weight);
-  if (strcmp(k, "refine") == 0) return parse_int(v, -1000, 1000, &p->refine);
-  if (strcmp(k, "seed") == 0) return parse_u64v(v, &p->seed);
-  if (strcmp(k, "rgb_search") == 0) return parse_int(v, 0, 1, &p->rgb_search);
-  if (strcmp(k, "max_pixels") == 0) return parse_u64v(v, &p->max_pixels);
+  if (strcmp(k, "size") == 0) return ts_parse_size(v, TS_OUTPUT_SIDE_MAX, &p->width, &p->height) != 0 ? TS_EINVAL : 0;
+  if (strcmp(k, "levels") == 0) return ts_parse_int(v, -1000, 1000, &p->levels);
+  if (strcmp(k, "wn") == 0) return ts_parse_int(v, -1000, 1000, &p->wn);
+  if (strcmp(k, "wb") == 0) return ts_parse_int(v, -1000, 1000, &p->wb);
+  if (strcmp(k, "parity") == 0) return ts_parse_int(v, 0, 1, &p->parity);
+  if (strcmp(k, "usage_weight") == 0) return ts_parse_double(v, &p->usage_weight);
+  if (strcmp(k, "coarse_weight") == 0) return ts_parse_double(v, &p->coarse_weight);
+  if (strcmp(k, "refine") == 0) return ts_parse_int(v, -1000, 1000, &p->refine);
+  if (strcmp(k, "seed") == 0) return ts_parse_u64(v, &p->seed);
+  if (strcmp(k, "rgb_search") == 0) return ts_parse_int(v, 0, 1, &p->rgb_search);
+  if (strcmp(k, "max_pixels") == 0) return ts_parse_u64(v, &p->max_pixels);
   if (strcmp(k, "output") == 0) return parse_ext(v, s->output);
   if (strcmp(k, "copy_map") == 0) return parse_ext(v, s->copy_map);
   if (strcmp(k, "usage_map") == 0) return parse_ext(v, s->usage_map);
-  if (strcmp(k, "copy_map_raw") == 0) return parse_int(v, 0, 1, &s->copy_map_raw);
-  if (strcmp(k, "report") == 0) return parse_int(v, 0, 1, &s->report);
-  return -2;
+  if (strcmp(k, "copy_map_raw") == 0) return ts_parse_int(v, 0, 1, &s->copy_map_raw);
+  if (strcmp(k, "report") == 0) return ts_parse_int(v, 0, 1, &s->report);
+  return TS_ENOENT;
 }
 
 int ts_jobspec_parse(const char *text, size_t len, ts_jobspec *s, char *err) {
@@ -127,7 +89,7 @@ int ts_jobspec_parse(const char *text, size_t len, ts_jobspec *s, char *err) {
     if (eq == NULL) return ts_error(err, TS_EINVAL, "job spec line %d: expected key=value", line);
     *eq = '\0';
     int rc = set_key(s, buf, eq + 1);
-    if (rc == -2) return ts_error(err, TS_EINVAL, "job spec line %d: unknown key '%s'", line, buf);
+    if (rc == TS_ENOENT) return ts_error(err, TS_EINVAL, "job spec line %d: unknown key '%s'", line, buf);
     if (rc != 0) return ts_error(err, TS_EINVAL, "job spec line %d: bad value '%s' for %s", line, eq + 1, buf);
   }
   if (s->output[0] == '\0') return ts_error(err, TS_EINVAL, "job spec: output format is required");

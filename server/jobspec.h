@@ -19,6 +19,8 @@
 #include "mrf.h"
 
 #define TS_EXT_LEN 16
+/* Largest output width or height a spec (and the command line) takes. */
+#define TS_OUTPUT_SIDE_MAX 1000000
 
 typedef struct {
   ts_mrf_params p;

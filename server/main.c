@@ -16,7 +16,6 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
-#include <sys/stat.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -30,6 +29,7 @@
 #include "smon.h"
 #include "msg.h"
 #include "net.h"
+#include "util.h"
 
 #define IDENT_TIMEOUT_MS 10000
 /* How long a refused peer gets to read its 'E' before we close. */
@@ -140,27 +140,6 @@ static int serve_status(ts_conn *c, const ts_frame *f) {
   return rc;
 }
 
-/* Reads a result file whole; NULL with a message on failure. */
-static uint8_t *read_file(const char *path, uint32_t *len, char *err) {
-  FILE *fp = fopen(path, "rb");
-  if (fp == NULL) {
-    ts_error(err, TS_EIO, "cannot read %s: %s", path, strerror(errno));
-    return NULL;
-  }
-  struct stat sb;
-  uint8_t *buf = NULL;
-  if (fstat(fileno(fp), &sb) == 0 && sb.st_size < (off_t)UINT32_MAX && (buf = malloc((size_t)sb.st_size + 1)) != NULL &&
-      fread(buf, 1, (size_t)sb.st_size, fp) == (size_t)sb.st_size) {
-    *len = (uint32_t)sb.st_size;
-  } else {
-    free(buf);
-    buf = NULL;
-    ts_error(err, TS_EIO, "cannot read %s", path);
-  }
-  fclose(fp);
-  return buf;
-}
-
 static int serve_fetch(ts_conn *c, const ts_frame *f) {
   char err[TS_ERR_LEN];
   uint64_t id;
@@ -171,9 +150,12 @@ static int serve_fetch(ts_conn *c, const ts_frame *f) {
   if (p == NULL) return reply_error(c, f->id, TS_ENOMEM, "out of memory");
   int rc = ts_jobs_files(g_server.jobs, id, m.name, p, &m.n, err);
   uint8_t *bufs[TS_FETCH_MAX_FILES] = {0};
-  for (uint32_t i = 0; rc == 0 && i < m.n; i++)
-    if ((bufs[i] = read_file(p[i], &m.len[i], err)) == NULL) rc = TS_EIO;
-    else m.data[i] = bufs[i];
+  for (uint32_t i = 0; rc == 0 && i < m.n; i++) {
+    size_t len;
+    rc = ts_file_read(p[i], UINT32_MAX - 1, &bufs[i], &len, err);
+    m.data[i] = bufs[i];
+    m.len[i] = (uint32_t)len; /* fits when read: the limit is below 4 GiB */
+  }
   if (rc == 0) {
     ts_wr w;
     ts_wr_init(&w);
@@ -381,10 +363,8 @@ typedef struct {
 } server_opts;
 
 static int num(const char *opt, const char *s, double lo, double hi, double *out) {
-  char *end;
-  errno = 0;
-  double v = strtod(s, &end);
-  if (errno != 0 || end == s || *end != '\0' || !(v >= lo && v <= hi)) {
+  double v;
+  if (ts_parse_double(s, &v) != 0 || !(v >= lo && v <= hi)) {
     fprintf(stderr, "texsyn-server: %s %s: need a number in %g..%g\n", opt, s, lo, hi);
     return -1;
   }

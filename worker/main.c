@@ -7,7 +7,6 @@
  * cores. Slices belong to the connection that loaded them and go when it
  * ends: a coordinator that goes away leaves nothing behind. Every
  * connection authenticates first, whichever side opened it (auth.h). */
-#include <errno.h>
 #include <getopt.h>
 #include <pthread.h>
 #include <signal.h>
@@ -29,6 +28,7 @@
 #include "net.h"
 #include "pool.h"
 #include "slice.h"
+#include "util.h"
 
 #define WORKER_MAX_SLICES 64 /* per connection */
 #define HANDSHAKE_MS 10000
@@ -376,14 +376,10 @@ static void usage(FILE *f) {
 }
 
 static int parse_num(const char *opt, const char *s, long lo, long hi, long *out) {
-  char *end;
-  errno = 0;
-  long v = strtol(s, &end, 10);
-  if (errno != 0 || end == s || *end != '\0' || v < lo || v > hi) {
+  if (ts_parse_long(s, lo, hi, out) != 0) {
     fprintf(stderr, "texsyn-worker: %s %s: need a whole number in %ld..%ld\n", opt, s, lo, hi);
     return -1;
   }
-  *out = v;
   return 0;
 }
 
