@@ -14,7 +14,6 @@
 #include <modbus/modbus.h>
 #include <poll.h>
 #include <pthread.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -24,6 +23,7 @@
 
 #include "calib.h"
 #include "error.h"
+#include "log.h"
 #include "mbmap.h"
 #include "pool.h"
 #include "slice.h"
@@ -91,24 +91,14 @@ struct ts_cluster {
   uint64_t rebalances;
   ts_pool *local_pool; /* in-process scanning with no worker */
   const ts_l1_impl *simd;
-  void (*log)(const char *msg);
   pthread_t thread, supervisor;
   int stop, supervising;
   pthread_cond_t wake;
   uint64_t batches, queries; /* answered for jobs */
 };
 
-static void default_log(const char *msg) { fprintf(stderr, "texsyn-server: %s\n", msg); }
-
-static void cl_log(ts_cluster *c, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-static void cl_log(ts_cluster *c, const char *fmt, ...) {
-  char buf[1024];
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(buf, sizeof(buf), fmt, ap);
-  va_end(ap);
-  c->log(buf);
-}
+/* The cluster's lines go to the daemon's log (log.h). */
+#define cl_log(c, ...) ((void)(c), ts_log(__VA_ARGS__))
 
 void ts_cluster_opts_default(ts_cluster_opts *o) {
   o->calib_millis = 200;
@@ -349,7 +339,6 @@ int ts_cluster_create(ts_cluster **out, const ts_cluster_opts *o, char *err) {
   ts_cluster *c = calloc(1, sizeof(*c));
   if (c == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
   c->o = *o;
-  c->log = default_log;
   int rc = ts_l1_select(&c->simd, err);
   if (rc == 0 && ts_pool_create(&c->local_pool, o->local_threads) != 0)
     rc = ts_error(err, TS_ENOMEM, "cannot start %d scan threads", o->local_threads);
@@ -383,8 +372,6 @@ void ts_cluster_destroy(ts_cluster *c) {
   pthread_cond_destroy(&c->wake);
   free(c);
 }
-
-void ts_cluster_set_log(ts_cluster *c, void (*log)(const char *msg)) { c->log = log; }
 
 int ts_cluster_add_address(ts_cluster *c, const char *addr, char *err) {
   char host[TS_NET_ADDR_LEN];

@@ -6,7 +6,6 @@
 #include <fcntl.h>
 #include <inttypes.h>
 #include <pthread.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -18,6 +17,7 @@
 #include "error.h"
 #include "image.h"
 #include "jobspec.h"
+#include "log.h"
 #include "mrf.h"
 #include "outputs.h"
 #include "util.h"
@@ -64,16 +64,8 @@ struct ts_jobs {
   pthread_t runners[64];
 };
 
-static void jobs_log(const ts_jobs *j, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-static void jobs_log(const ts_jobs *j, const char *fmt, ...) {
-  char msg[TS_ERR_LEN + 128];
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(msg, sizeof(msg), fmt, ap);
-  va_end(ap);
-  if (j->o.log) j->o.log(msg);
-  else fprintf(stderr, "texsyn-server: %s\n", msg);
-}
+/* The queue's lines go to the daemon's log (log.h). */
+#define jobs_log(j, ...) ((void)(j), ts_log(__VA_ARGS__))
 
 /* ---- files ------------------------------------------------------------- */
 

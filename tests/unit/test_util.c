@@ -1,10 +1,11 @@
 /* test_util.c - the shared helpers: numeric parsers and the whole-file
- * reader (util.c). */
+ * reader (util.c), the daemons' log (log.c). */
 #include <limits.h>
 #include <stdio.h>
 #include <unistd.h>
 
 #include "error.h"
+#include "log.h"
 #include "ts_test.h"
 #include "util.h"
 
@@ -248,6 +249,47 @@ static void file_read_refuses_a_directory(void **state) {
   assert_non_null(strstr(err, "not a regular file"));
 }
 
+/* --- ts_log ---------------------------------------------------------------------- */
+
+/* What the log wrote to f, from the start. */
+static char *log_text(FILE *f) {
+  static char text[4096];
+  rewind(f);
+  size_t n = fread(text, 1, sizeof(text) - 1, f);
+  text[n] = '\0';
+  return text;
+}
+
+static void log_line_has_the_prefix_and_utc_time(void **state) {
+  (void)state;
+  FILE *f = tmpfile();
+  assert_non_null(f);
+  ts_log_init("texsyn-test", f, 0);
+  ts_log("job %d queued", 5);
+  char *text = log_text(f);
+  int y, mo, d, h, mi, s, n = 0;
+  assert_int_equal(sscanf(text, "texsyn-test: %4d-%2d-%2dT%2d:%2d:%2dZ %n", &y, &mo, &d, &h, &mi, &s, &n), 6);
+  assert_string_equal(text + n, "job 5 queued\n");
+  assert_int_equal(text[n - 2], 'Z');
+  fclose(f);
+}
+
+static void log_quiet_drops_events_not_warnings(void **state) {
+  (void)state;
+  FILE *f = tmpfile();
+  assert_non_null(f);
+  ts_log_init("w", f, 1);
+  ts_log("an event");
+  ts_warn("refused %s", "peer");
+  ts_warn_msg("coil write refused");
+  char *text = log_text(f);
+  assert_null(strstr(text, "an event"));
+  char *first = strstr(text, "Z refused peer\n");
+  assert_non_null(first);
+  assert_non_null(strstr(first, "Z coil write refused\n"));
+  fclose(f);
+}
+
 static const struct CMUnitTest tests[] = {
     cmocka_unit_test(parsers_refuse_garbage_and_empty),
     cmocka_unit_test(parse_long_takes_whole_numbers_in_range),
@@ -269,6 +311,8 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(file_read_refuses_a_file_over_the_limit),
     cmocka_unit_test(file_read_takes_a_file_at_the_limit),
     cmocka_unit_test(file_read_refuses_a_directory),
+    cmocka_unit_test(log_line_has_the_prefix_and_utc_time),
+    cmocka_unit_test(log_quiet_drops_events_not_warnings),
 };
 
 TS_TEST_MAIN(tests)
