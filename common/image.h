@@ -1,5 +1,6 @@
-/* image.h - image files in and out. All file access goes through
- * OpenImageIO in image_oiio.cpp (the only C++ in texsyn); this header is its
+/* image.h - image files in and out. Decoding and encoding go through
+ * OpenImageIO in image_oiio.cpp (the only C++ in texsyn), after the checks
+ * of image_check.c, with GeoTIFF tags by tiff_tags.c; this header is their
  * C API, plus pixel helpers in image.c.
  *
  * An image keeps the pixel type it had on disk where it matters (8-bit,

@@ -1,10 +1,119 @@
 /* util.c - see util.h. */
 #include "util.h"
 
+#include <errno.h>
+#include <fcntl.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
 #include <time.h>
+#include <unistd.h>
+
+#include "error.h"
 
 double ts_now(void) {
   struct timespec ts;
   clock_gettime(CLOCK_MONOTONIC, &ts);
   return ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+/* ---- whole files ---------------------------------------------------------- */
+
+/* Reads exactly n bytes from fd into buf. */
+static int read_exact(int fd, uint8_t *buf, size_t n, const char *path, char *err) {
+  for (size_t got = 0; got < n;) {
+    ssize_t k = read(fd, buf + got, n - got);
+    if (k < 0 && errno == EINTR) continue;
+    if (k <= 0)
+      return ts_error(err, TS_EIO, "cannot read %s: %s", path,
+                      k < 0 ? strerror(errno) : "the file shrank while being read");
+    got += (size_t)k;
+  }
+  return 0;
+}
+
+/* The size of the regular file open as fd, checked against max_bytes. */
+static int file_size(int fd, const char *path, size_t max_bytes, size_t *len, char *err) {
+  struct stat st;
+  if (fstat(fd, &st) != 0) return ts_error(err, TS_EIO, "cannot read %s: %s", path, strerror(errno));
+  if (!S_ISREG(st.st_mode)) return ts_error(err, TS_EIO, "cannot read %s: not a regular file", path);
+  uint64_t size = (uint64_t)st.st_size;
+  if (size >= SIZE_MAX) return ts_error(err, TS_ENOMEM, "%s: %llu bytes do not fit in memory", path,
+                                        (unsigned long long)size);
+  *len = (size_t)size;
+  if (size > max_bytes)
+    return ts_error(err, TS_ETOOBIG, "%s: %llu bytes, over the limit of %zu", path,
+                    (unsigned long long)size, max_bytes);
+  return 0;
+}
+
+int ts_file_read(const char *path, size_t max_bytes, uint8_t **buf, size_t *len, char *err) {
+  *buf = NULL;
+  *len = 0;
+  int fd = open(path, O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return ts_error(err, TS_EIO, "cannot read %s: %s", path, strerror(errno));
+  int rc = file_size(fd, path, max_bytes, len, err);
+  uint8_t *b = NULL;
+  if (rc == 0 && (b = malloc(*len + 1)) == NULL)
+    rc = ts_error(err, TS_ENOMEM, "out of memory reading %s (%zu bytes)", path, *len);
+  if (rc == 0) rc = read_exact(fd, b, *len, path, err);
+  close(fd);
+  if (rc != 0) {
+    free(b);
+    if (rc != TS_ETOOBIG) *len = 0;
+    return rc;
+  }
+  b[*len] = '\0';
+  *buf = b;
+  return 0;
+}
+
+/* ---- numbers -------------------------------------------------------------- */
+
+int ts_parse_long(const char *text, long lo, long hi, long *out) {
+  char *end;
+  errno = 0;
+  long v = strtol(text, &end, 10);
+  if (errno != 0 || end == text || *end != '\0' || v < lo || v > hi) return TS_EINVAL;
+  *out = v;
+  return 0;
+}
+
+int ts_parse_int(const char *text, int lo, int hi, int *out) {
+  long v;
+  if (ts_parse_long(text, lo, hi, &v) != 0) return TS_EINVAL;
+  *out = (int)v;
+  return 0;
+}
+
+int ts_parse_u64(const char *text, uint64_t *out) {
+  char *end;
+  errno = 0;
+  unsigned long long v = strtoull(text, &end, 10);
+  /* strtoull takes "-1" as 2^64-1; a count is never negative. */
+  if (errno != 0 || end == text || *end != '\0' || strchr(text, '-') != NULL) return TS_EINVAL;
+  *out = v;
+  return 0;
+}
+
+int ts_parse_double(const char *text, double *out) {
+  char *end;
+  errno = 0;
+  double v = strtod(text, &end);
+  if (errno != 0 || end == text || *end != '\0' || !isfinite(v)) return TS_EINVAL;
+  *out = v;
+  return 0;
+}
+
+int ts_parse_size(const char *text, int max, int *w, int *h) {
+  char *end;
+  long a = strtol(text, &end, 10);
+  if (end == text || (*end != 'x' && *end != 'X')) return TS_EFORMAT;
+  long b;
+  /* An overflowing W comes back as LONG_MAX or LONG_MIN: out of range. */
+  if (a < 1 || a > max || ts_parse_long(end + 1, 1, max, &b) != 0) return TS_EINVAL;
+  *w = (int)a;
+  *h = (int)b;
+  return 0;
 }

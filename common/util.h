@@ -3,9 +3,37 @@
 #ifndef TS_UTIL_H
 #define TS_UTIL_H
 
+#include <stddef.h>
 #include <stdint.h>
 
 /* Seconds on the monotonic clock (for durations and deadlines only). */
 double ts_now(void);
+
+/* Reads the regular file at path whole into a malloc'd buffer: *buf holds
+ * *len bytes and a NUL after them, so text can be used as a string.
+ * Files over max_bytes are refused (SIZE_MAX: no limit but memory). 0, or
+ * with a message naming the file: TS_EIO (cannot open or read it, or not a
+ * regular file), TS_ETOOBIG (*len is then the file's size, for a caller
+ * that says why the limit is there), TS_ENOMEM. */
+int ts_file_read(const char *path, size_t max_bytes, uint8_t **buf, size_t *len, char *err);
+
+/* Numbers in option values and job specs: the whole text is one decimal
+ * number (leading white space and a '+' are taken, as strtol does), else
+ * TS_EINVAL and *out is left alone. No messages: each caller names its
+ * option. */
+
+/* A whole number in lo..hi. */
+int ts_parse_long(const char *text, long lo, long hi, long *out);
+int ts_parse_int(const char *text, int lo, int hi, int *out);
+/* A whole number in 0..2^64-1; a minus sign is refused, not wrapped. */
+int ts_parse_u64(const char *text, uint64_t *out);
+/* A finite number (strtod syntax: 2, 0.5, 1e-3); values too large or too
+ * small for a double are refused. */
+int ts_parse_double(const char *text, double *out);
+/* A size "WxH" (or "WXH"), each 1..max. TS_EFORMAT if text does not start
+ * with a number and an x at all, TS_EINVAL if the numbers are wrong (H
+ * missing or not a number, either out of range): a caller can tell "not a
+ * size" from "a size out of range". */
+int ts_parse_size(const char *text, int max, int *w, int *h);
 
 #endif

@@ -16,6 +16,7 @@
 #include <unistd.h>
 
 #include "error.h"
+#include "util.h"
 
 int ts_net_split(const char *addr, char *host, size_t hostcap, int *port, char *err) {
   const char *colon = strrchr(addr, ':');
@@ -29,12 +30,8 @@ int ts_net_split(const char *addr, char *host, size_t hostcap, int *port, char *
   if (hl >= hostcap) return ts_error(err, TS_EINVAL, "address '%s': host name too long", addr);
   memcpy(host, h, hl);
   host[hl] = '\0';
-  char *end;
-  errno = 0;
-  long p = strtol(colon + 1, &end, 10);
-  if (errno != 0 || end == colon + 1 || *end != '\0' || p < 0 || p > 65535)
+  if (ts_parse_int(colon + 1, 0, 65535, port) != 0)
     return ts_error(err, TS_EINVAL, "address '%s': port must be 0..65535", addr);
-  *port = (int)p;
   return 0;
 }
 

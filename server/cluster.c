@@ -6,7 +6,6 @@
 #include <errno.h>
 #include <poll.h>
 #include <pthread.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -18,16 +17,6 @@
 #include "cluster_impl.h"
 #include "error.h"
 
-static void default_log(const char *msg) { fprintf(stderr, "texsyn-server: %s\n", msg); }
-
-void cl_log(ts_cluster *c, const char *fmt, ...) {
-  char buf[1024];
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(buf, sizeof(buf), fmt, ap);
-  va_end(ap);
-  c->log(buf);
-}
 
 void ts_cluster_opts_default(ts_cluster_opts *o) {
   o->calib_millis = 200;
@@ -303,7 +292,6 @@ int ts_cluster_create(ts_cluster **out, const ts_cluster_opts *o, char *err) {
   ts_cluster *c = calloc(1, sizeof(*c));
   if (c == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
   c->o = *o;
-  c->log = default_log;
   c->w = calloc(o->max_workers, sizeof(*c->w));
   c->addrs = calloc(TS_CLUSTER_MAX_WORKERS, sizeof(*c->addrs));
   int rc = c->w && c->addrs ? ts_l1_select(&c->simd, err) : ts_error(err, TS_ENOMEM, "out of memory");
@@ -337,8 +325,6 @@ void ts_cluster_destroy(ts_cluster *c) {
   pthread_cond_destroy(&c->wake);
   cluster_free(c);
 }
-
-void ts_cluster_set_log(ts_cluster *c, void (*log)(const char *msg)) { c->log = log; }
 
 int ts_cluster_add_address(ts_cluster *c, const char *addr, char *err) {
   char host[TS_NET_ADDR_LEN];

@@ -89,8 +89,6 @@ typedef struct {
   uint64_t batches, queries; /* answered for jobs, by workers or locally */
 } ts_cluster_stats;
 void ts_cluster_stats_get(ts_cluster *c, ts_cluster_stats *out);
-/* Log sink for daemon messages (default: stderr). */
-void ts_cluster_set_log(ts_cluster *c, void (*log)(const char *msg));
 
 /* A search backend over the pool for one job. cancel (may be NULL) is
  * polled before each batch: non-zero fails the batch with TS_ECANCELED. */

@@ -18,6 +18,7 @@
 
 #include "cluster.h"
 #include "l1.h"
+#include "log.h"
 #include "pool.h"
 
 #define CL_MAX_SETS 8
@@ -91,15 +92,14 @@ struct ts_cluster {
   uint64_t rebalances;
   ts_pool *local_pool; /* in-process scanning with no worker */
   const ts_l1_impl *simd;
-  void (*log)(const char *msg);
   pthread_t thread, supervisor;
   int stop, supervising;
   pthread_cond_t wake;
   uint64_t batches, queries; /* answered for jobs */
 };
 
-/* Log lines of the daemon (printf-style). */
-void cl_log(ts_cluster *c, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+/* The cluster's lines go to the daemon's log (log.h). */
+#define cl_log(c, ...) ((void)(c), ts_log(__VA_ARGS__))
 
 /* Frames into a worker's output buffer: begin returns where the frame
  * starts, end fills in its length. */

@@ -6,7 +6,6 @@
 #include <fcntl.h>
 #include <inttypes.h>
 #include <pthread.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -18,6 +17,8 @@
 #include "error.h"
 #include "image.h"
 #include "jobspec.h"
+#include "log.h"
+#include "util.h"
 
 #define JOBS_PATH 4096
 #define JOBS_SPOOL_LEN 1024 /* longer spool paths are refused */
@@ -61,16 +62,8 @@ struct ts_jobs {
   pthread_t runners[64];
 };
 
-static void jobs_log(const ts_jobs *j, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-static void jobs_log(const ts_jobs *j, const char *fmt, ...) {
-  char msg[TS_ERR_LEN + 128];
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(msg, sizeof(msg), fmt, ap);
-  va_end(ap);
-  if (j->o.log) j->o.log(msg);
-  else fprintf(stderr, "texsyn-server: %s\n", msg);
-}
+/* The queue's lines go to the daemon's log (log.h). */
+#define jobs_log(j, ...) ((void)(j), ts_log(__VA_ARGS__))
 
 /* ---- files ------------------------------------------------------------- */
 
@@ -102,13 +95,11 @@ static int write_atomic(const char *path, const void *data, size_t len, char *er
 
 /* Reads a whole small file into buf (NUL-terminated); length or -1. */
 static long read_small(const char *path, char *buf, size_t cap) {
-  FILE *f = fopen(path, "rb");
-  if (f == NULL) return -1;
-  size_t n = fread(buf, 1, cap - 1, f);
-  int more = fgetc(f) != EOF;
-  fclose(f);
-  if (more) return -1;
-  buf[n] = '\0';
+  uint8_t *data;
+  size_t n;
+  if (ts_file_read(path, cap - 1, &data, &n, NULL) != 0) return -1;
+  memcpy(buf, data, n + 1);
+  free(data);
   return (long)n;
 }
 
@@ -290,20 +281,6 @@ static void on_resumed(void *arg, const char *what) {
   jobs_log(cc->j, "job %" PRIu64 ": resuming %s from its checkpoint", cc->jb->id, what);
 }
 
-/* Reads a whole file into a malloc'd buffer; 0 or -1. */
-static int read_whole(const char *path, uint8_t **buf, size_t *len) {
-  FILE *f = fopen(path, "rb");
-  if (f == NULL) return -1;
-  struct stat st;
-  int ok = fstat(fileno(f), &st) == 0 && st.st_size > 0;
-  *len = ok ? (size_t)st.st_size : 0;
-  *buf = ok ? malloc(*len) : NULL;
-  ok = *buf != NULL && fread(*buf, 1, *len, f) == *len;
-  fclose(f);
-  if (!ok) free(*buf);
-  return ok ? 0 : -1;
-}
-
 /* Runs the job's engine, from its last checkpoint if it has one. */
 static int run_engine(ts_jobs *j, job *jb, const ts_image *ref, ts_search *search, ts_engine_run **run,
                       char *err) {
@@ -313,7 +290,7 @@ static int run_engine(ts_jobs *j, job *jb, const ts_image *ref, ts_search *searc
   job_path(jb, JOBS_CHECKPOINT, path, sizeof(path));
   uint8_t *resume = NULL;
   size_t resume_len = 0;
-  if (read_whole(path, &resume, &resume_len) != 0) resume = NULL;
+  if (ts_file_read(path, SIZE_MAX, &resume, &resume_len, NULL) != 0) resume = NULL;
   ts_engine_hooks hooks = {on_progress,  &pc,        on_checkpoint, &cc, resume, resume_len,
                            cc.tag,       on_checkpoint_refused,     on_resumed};
   int rc = jb->spec.engine->run(&jb->spec.params, ref, search, &hooks, run, err);

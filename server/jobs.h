@@ -31,7 +31,6 @@ typedef struct {
   uint32_t max_client_jobs; /* unfinished jobs per client (0 = no limit) */
   uint64_t max_spool_bytes; /* disk use of all jobs (0 = no limit) */
   ts_cluster *cluster;
-  void (*log)(const char *msg); /* one line per event (NULL: stderr) */
 } ts_jobs_opts;
 
 typedef struct ts_jobs ts_jobs;

@@ -1,12 +1,11 @@
 /* jobspec.c - see jobspec.h. */
 #include "jobspec.h"
 
-#include <errno.h>
 #include <stdio.h>
-#include <stdlib.h>
 #include <string.h>
 
 #include "error.h"
+#include "util.h"
 
 void ts_jobspec_default(ts_jobspec *s, const ts_engine *engine) {
   memset(s, 0, sizeof(*s));
@@ -38,22 +37,13 @@ int ts_jobspec_format(const ts_jobspec *s, char *buf, size_t cap) {
   return n;
 }
 
-static int parse_int(const char *v, long lo, long hi, int *out) {
-  char *end;
-  errno = 0;
-  long x = strtol(v, &end, 10);
-  if (errno != 0 || end == v || *end != '\0' || x < lo || x > hi) return -1;
-  *out = (int)x;
-  return 0;
-}
-
 /* An extension: letters and digits only, so a spec can never steer a file
  * name out of the job's directory. */
 static int parse_ext(const char *v, char *out) {
   size_t n = strlen(v);
-  if (n >= TS_EXT_LEN) return -1;
+  if (n >= TS_EXT_LEN) return TS_EINVAL;
   for (size_t i = 0; i < n; i++)
-    if (!((v[i] >= 'a' && v[i] <= 'z') || (v[i] >= 'A' && v[i] <= 'Z') || (v[i] >= '0' && v[i] <= '9'))) return -1;
+    if (!((v[i] >= 'a' && v[i] <= 'z') || (v[i] >= 'A' && v[i] <= 'Z') || (v[i] >= '0' && v[i] <= '9'))) return TS_EINVAL;
   memcpy(out, v, n + 1);
   return 0;
 }
@@ -63,21 +53,22 @@ int ts_ext_valid(const char *ext) {
   return ext[0] != '\0' && parse_ext(ext, tmp) == 0;
 }
 
-/* An output key of the engine: its wish, or -2 if the key is no output. */
+/* An output key of the engine: its wish; TS_ENOENT if the key is no output. */
 static int set_output(ts_jobspec *s, const char *k, const char *v) {
   int i = ts_engine_output_index(s->engine, k);
-  if (i < 0) return -2;
-  if (s->engine->outputs[i].kind == TS_OUTPUT_IMAGE) return parse_ext(v, s->wants.want[i]);
+  if (i < 0) return TS_ENOENT;
+  if (s->engine->outputs[i].kind == TS_OUTPUT_IMAGE) return parse_ext(v, s->wants.want[i]) != 0 ? TS_EINVAL : 0;
   int on;
-  if (parse_int(v, 0, 1, &on) != 0) return -1;
+  if (ts_parse_int(v, 0, 1, &on) != 0) return TS_EINVAL;
   snprintf(s->wants.want[i], TS_EXT_LEN, "%s", on ? "1" : "");
   return 0;
 }
 
+/* 0, TS_EINVAL for a bad value, TS_ENOENT for an unknown key. */
 static int set_key(ts_jobspec *s, const char *k, const char *v) {
-  if (strcmp(k, "engine") == 0) return strcmp(v, s->engine->name) == 0 ? 0 : -1;
+  if (strcmp(k, "engine") == 0) return strcmp(v, s->engine->name) == 0 ? 0 : TS_EINVAL;
   int rc = set_output(s, k, v);
-  return rc != -2 ? rc : s->engine->spec_set(&s->params, k, v);
+  return rc != TS_ENOENT ? rc : s->engine->spec_set(&s->params, k, v);
 }
 
 /* The engine named by an `engine=` line of the text, else the default. */
@@ -121,7 +112,7 @@ int ts_jobspec_parse(const char *text, size_t len, ts_jobspec *s, char *err) {
     if (eq == NULL) return ts_error(err, TS_EINVAL, "job spec line %d: expected key=value", line);
     *eq = '\0';
     rc = set_key(s, buf, eq + 1);
-    if (rc == -2) return ts_error(err, TS_EINVAL, "job spec line %d: unknown key '%s'", line, buf);
+    if (rc == TS_ENOENT) return ts_error(err, TS_EINVAL, "job spec line %d: unknown key '%s'", line, buf);
     if (rc != 0) return ts_error(err, TS_EINVAL, "job spec line %d: bad value '%s' for %s", line, eq + 1, buf);
   }
   if (s->wants.want[0][0] == '\0')

@@ -11,13 +11,10 @@
 #include <inttypes.h>
 #include <pthread.h>
 #include <signal.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
-#include <sys/stat.h>
-#include <time.h>
 #include <unistd.h>
 
 #include "auth.h"
@@ -26,10 +23,12 @@
 #include "error.h"
 #include "image.h"
 #include "jobs.h"
+#include "log.h"
 #include "mbplane.h"
 #include "smon.h"
 #include "msg.h"
 #include "net.h"
+#include "util.h"
 
 #define IDENT_TIMEOUT_MS 10000
 /* How long a refused peer gets to read its 'E' before we close. */
@@ -49,23 +48,6 @@ static server g_server;
 static volatile sig_atomic_t g_stop;
 
 static ts_connset g_conns;
-
-static void logf_(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
-static void logf_(const char *fmt, ...) {
-  char buf[1200];
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(buf, sizeof(buf), fmt, ap);
-  va_end(ap);
-  time_t t = time(NULL);
-  struct tm tm;
-  gmtime_r(&t, &tm);
-  fprintf(stderr, "texsyn-server: %04d-%02d-%02dT%02d:%02d:%02dZ %s\n", tm.tm_year + 1900, tm.tm_mon + 1,
-          tm.tm_mday, tm.tm_hour, tm.tm_min, tm.tm_sec, buf);
-}
-
-/* The cluster and the job queue log through this: one timestamped line. */
-static void cluster_log(const char *msg) { logf_("%s", msg); }
 
 /* ---- replies ------------------------------------------------------------ */
 
@@ -90,10 +72,10 @@ static int serve_submit(ts_conn *c, const ts_frame *f, const char *client) {
   uint64_t id = 0;
   if (rc == 0) rc = ts_jobs_submit(g_server.jobs, client, m.spec, m.spec_len, m.ref_name, m.ref, m.ref_len, &id, err);
   if (rc != 0) {
-    logf_("refused a job from %s: %s", c->peer, err);
+    ts_log("refused a job from %s: %s", c->peer, err);
     return reply_error(c, f->id, rc, err);
   }
-  logf_("job %" PRIu64 " queued from %s (%s)", id, c->peer, client);
+  ts_log("job %" PRIu64 " queued from %s (%s)", id, c->peer, client);
   ts_wr w;
   ts_wr_init(&w);
   ts_msg_jobid_write(&w, id);
@@ -140,27 +122,6 @@ static int serve_status(ts_conn *c, const ts_frame *f) {
   return rc;
 }
 
-/* Reads a result file whole; NULL with a message on failure. */
-static uint8_t *read_file(const char *path, uint32_t *len, char *err) {
-  FILE *fp = fopen(path, "rb");
-  if (fp == NULL) {
-    ts_error(err, TS_EIO, "cannot read %s: %s", path, strerror(errno));
-    return NULL;
-  }
-  struct stat sb;
-  uint8_t *buf = NULL;
-  if (fstat(fileno(fp), &sb) == 0 && sb.st_size < (off_t)UINT32_MAX && (buf = malloc((size_t)sb.st_size + 1)) != NULL &&
-      fread(buf, 1, (size_t)sb.st_size, fp) == (size_t)sb.st_size) {
-    *len = (uint32_t)sb.st_size;
-  } else {
-    free(buf);
-    buf = NULL;
-    ts_error(err, TS_EIO, "cannot read %s", path);
-  }
-  fclose(fp);
-  return buf;
-}
-
 static int serve_fetch(ts_conn *c, const ts_frame *f) {
   char err[TS_ERR_LEN];
   uint64_t id;
@@ -171,9 +132,12 @@ static int serve_fetch(ts_conn *c, const ts_frame *f) {
   if (p == NULL) return reply_error(c, f->id, TS_ENOMEM, "out of memory");
   int rc = ts_jobs_files(g_server.jobs, id, m.name, p, &m.n, err);
   uint8_t *bufs[TS_FETCH_MAX_FILES] = {0};
-  for (uint32_t i = 0; rc == 0 && i < m.n; i++)
-    if ((bufs[i] = read_file(p[i], &m.len[i], err)) == NULL) rc = TS_EIO;
-    else m.data[i] = bufs[i];
+  for (uint32_t i = 0; rc == 0 && i < m.n; i++) {
+    size_t len;
+    rc = ts_file_read(p[i], UINT32_MAX - 1, &bufs[i], &len, err);
+    m.data[i] = bufs[i];
+    m.len[i] = (uint32_t)len; /* fits when read: the limit is below 4 GiB */
+  }
   if (rc == 0) {
     ts_wr w;
     ts_wr_init(&w);
@@ -193,7 +157,7 @@ static int serve_cancel(ts_conn *c, const ts_frame *f) {
   int rc = ts_msg_jobid_read(f, &id, err);
   if (rc == 0) rc = ts_jobs_cancel(g_server.jobs, id, err);
   if (rc != 0) return reply_error(c, f->id, rc, err);
-  logf_("job %" PRIu64 " canceled by %s", id, c->peer);
+  ts_log("job %" PRIu64 " canceled by %s", id, c->peer);
   ts_wr w;
   ts_wr_init(&w);
   ts_msg_jobid_write(&w, id);
@@ -206,7 +170,7 @@ static int serve_delete(ts_conn *c, const ts_frame *f) {
   int rc = ts_msg_jobid_read(f, &id, err);
   if (rc == 0) rc = ts_jobs_delete(g_server.jobs, id, err);
   if (rc != 0) return reply_error(c, f->id, rc, err);
-  logf_("job %" PRIu64 " deleted by %s", id, c->peer);
+  ts_log("job %" PRIu64 " deleted by %s", id, c->peer);
   ts_wr w;
   ts_wr_init(&w);
   ts_msg_jobid_write(&w, id);
@@ -258,12 +222,12 @@ static void serve_client(ts_conn *c, const ts_msg_ident *ident) {
     if (rc == TS_ETIMEDOUT) continue;
     if (rc == TS_ECONN) return;
     if (rc < 0) {
-      logf_("protocol error from client %s: %s; closing", c->peer, err);
+      ts_log("protocol error from client %s: %s; closing", c->peer, err);
       reply_error(c, 0, rc, err);
       return;
     }
     if (serve_request(c, &f, client) != 0) {
-      logf_("client %s: request '%c' failed; closing", c->peer, f.type >= 32 && f.type < 127 ? f.type : '?');
+      ts_log("client %s: request '%c' failed; closing", c->peer, f.type >= 32 && f.type < 127 ? f.type : '?');
       return;
     }
   }
@@ -288,8 +252,8 @@ static void *connection_thread(void *arg) {
  * mode, wrong or missing secret) or one that broke the protocol is told
  * why in an 'E' and logged. */
 static void end_start(ts_conn *c, int rc, const char *err) {
-  if (rc == TS_EAUTH) logf_("refused %s: %s", c->peer, err);
-  else if (rc != TS_ECONN) logf_("protocol error from %s: %s; closing", c->peer, err);
+  if (rc == TS_EAUTH) ts_log("refused %s: %s", c->peer, err);
+  else if (rc != TS_ECONN) ts_log("protocol error from %s: %s; closing", c->peer, err);
   if (rc != TS_ECONN) reply_error(c, 0, rc, err);
   ts_connset_remove(&g_conns, c->fd);
   if (rc == TS_EAUTH) ts_conn_close_after_error(c, REFUSE_LINGER_MS);
@@ -310,11 +274,11 @@ static void serve_connection(const accepted *ap) {
     return;
   }
   if (ident.role == TS_ROLE_WORKER) {
-    logf_("worker joining from %s (%s)", a.peer, ident.name);
+    ts_log("worker joining from %s (%s)", a.peer, ident.name);
     /* The cluster owns the connection from here; it stays in the set while
      * it is calibrated, so a shutdown meanwhile does not wait for that. */
     int fd = c.fd;
-    if (ts_cluster_adopt(g_server.cluster, &c, &ident, err) != 0) logf_("worker %s refused: %s", a.peer, err);
+    if (ts_cluster_adopt(g_server.cluster, &c, &ident, err) != 0) ts_log("worker %s refused: %s", a.peer, err);
     ts_connset_remove(&g_conns, fd);
     return;
   }
@@ -383,10 +347,8 @@ typedef struct {
 } server_opts;
 
 static int num(const char *opt, const char *s, double lo, double hi, double *out) {
-  char *end;
-  errno = 0;
-  double v = strtod(s, &end);
-  if (errno != 0 || end == s || *end != '\0' || !(v >= lo && v <= hi)) {
+  double v;
+  if (ts_parse_double(s, &v) != 0 || !(v >= lo && v <= hi)) {
     fprintf(stderr, "texsyn-server: %s %s: need a number in %g..%g\n", opt, s, lo, hi);
     return -1;
   }
@@ -510,11 +472,11 @@ static int start_modbus(const server_opts *o, char *at, char *err) {
   int port;
   int rc = ts_mb_listen_addr(o->modbus, addr, sizeof(addr), host, sizeof(host), err);
   if (rc == 0)
-    rc = ts_smon_start(addr, o->modbus_control, g_server.jobs, g_server.cluster, o->co.local_threads, cluster_log,
+    rc = ts_smon_start(addr, o->modbus_control, g_server.jobs, g_server.cluster, o->co.local_threads, ts_warn_msg,
                        &port, err);
   if (rc != 0) return rc;
   snprintf(at, TS_NET_ADDR_LEN, "%s:%d", host, port);
-  logf_("modbus plane on %s%s", at, o->modbus_control ? ", coil writes accepted" : "");
+  ts_log("modbus plane on %s%s", at, o->modbus_control ? ", coil writes accepted" : "");
   return 0;
 }
 
@@ -524,6 +486,7 @@ static void on_signal(int sig) {
 }
 
 int main(int argc, char **argv) {
+  ts_log_init("texsyn-server", stderr, 0); /* --quiet drops the ready line only */
   server_opts o;
   if (parse_opts(argc, argv, &o) != 0) return 2;
   ts_connset_init(&g_conns);
@@ -549,9 +512,8 @@ int main(int argc, char **argv) {
     fprintf(stderr, "texsyn-server: %s\n", err);
     return 1;
   }
-  ts_cluster_set_log(g_server.cluster, cluster_log);
   if (o.workers != NULL && add_workers(g_server.cluster, o.workers) != 0) return 2;
-  ts_jobs_opts jo = {o.spool, o.jobs, o.max_pixels, o.max_client_jobs, o.max_spool, g_server.cluster, cluster_log};
+  ts_jobs_opts jo = {o.spool, o.jobs, o.max_pixels, o.max_client_jobs, o.max_spool, g_server.cluster};
   if (ts_jobs_create(&g_server.jobs, &jo, err) != 0) {
     fprintf(stderr, "texsyn-server: %s\n", err);
     return 1;
@@ -564,9 +526,9 @@ int main(int argc, char **argv) {
   char host[TS_NET_ADDR_LEN];
   int p0;
   ts_net_split(o.listen, host, sizeof(host), &p0, err);
-  logf_("listening on %s:%d, spool %s, %s", host, port, o.spool,
+  ts_log("listening on %s:%d, spool %s, %s", host, port, o.spool,
         g_server.auth.enabled ? "peers must prove the shared secret" : "no secret: loopback peers only");
-  if (ts_auth_listen_warning(&g_server.auth, lfd, err)) logf_("%s", err);
+  if (ts_auth_listen_warning(&g_server.auth, lfd, err)) ts_log("%s", err);
   if (!o.quiet) { /* last: whoever waits for this line finds the log written */
     printf("texsyn-server listening on %s:%d%s%s%s\n", host, port, modbus_at[0] ? " (modbus " : "", modbus_at,
            modbus_at[0] ? ")" : "");
@@ -581,7 +543,7 @@ int main(int argc, char **argv) {
     }
     pthread_t t;
     if (ts_connset_add(&g_conns, a->fd) != 0) {
-      logf_("refused %s: %d connections open", a->peer, TS_CONNSET_MAX);
+      ts_log("refused %s: %d connections open", a->peer, TS_CONNSET_MAX);
       close(a->fd);
       free(a);
       continue;
@@ -594,7 +556,7 @@ int main(int argc, char **argv) {
     }
     pthread_detach(t);
   }
-  logf_("shutting down");
+  ts_log("shutting down");
   close(lfd);
   ts_connset_close_all(&g_conns);
   if (o.modbus != NULL) ts_smon_stop();

@@ -7,15 +7,12 @@
  * cores. Slices belong to the connection that loaded them and go when it
  * ends: a coordinator that goes away leaves nothing behind. Every
  * connection authenticates first, whichever side opened it (auth.h). */
-#include <errno.h>
 #include <getopt.h>
 #include <pthread.h>
 #include <signal.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <time.h>
 #include <unistd.h>
 
 #include "auth.h"
@@ -23,12 +20,14 @@
 #include "connset.h"
 #include "error.h"
 #include "l1.h"
+#include "log.h"
 #include "mbplane.h"
 #include "wmon.h"
 #include "msg.h"
 #include "net.h"
 #include "pool.h"
 #include "slice.h"
+#include "util.h"
 
 #define WORKER_MAX_SLICES 64 /* per connection */
 #define HANDSHAKE_MS 10000
@@ -36,7 +35,7 @@
 #define REFUSE_LINGER_MS 1000
 
 typedef struct {
-  int threads, quiet;
+  int threads;
   uint32_t max_frame;
   const char *name;
   const ts_l1_impl *simd;
@@ -49,35 +48,6 @@ typedef struct {
 
 static worker g_w;
 static volatile sig_atomic_t g_stop;
-
-static void vlog(const char *fmt, va_list ap) __attribute__((format(printf, 1, 0)));
-static void vlog(const char *fmt, va_list ap) {
-  char buf[1200];
-  vsnprintf(buf, sizeof(buf), fmt, ap);
-  time_t t = time(NULL);
-  struct tm tm;
-  gmtime_r(&t, &tm);
-  fprintf(stderr, "texsyn-worker: %04d-%02d-%02dT%02d:%02d:%02dZ %s\n", tm.tm_year + 1900, tm.tm_mon + 1,
-          tm.tm_mday, tm.tm_hour, tm.tm_min, tm.tm_sec, buf);
-}
-
-static void wlog(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
-static void wlog(const char *fmt, ...) {
-  if (g_w.quiet) return;
-  va_list ap;
-  va_start(ap, fmt);
-  vlog(fmt, ap);
-  va_end(ap);
-}
-
-/* Logged even with --quiet: nothing works until it is fixed. */
-static void wwarn(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
-static void wwarn(const char *fmt, ...) {
-  va_list ap;
-  va_start(ap, fmt);
-  vlog(fmt, ap);
-  va_end(ap);
-}
 
 /* ---- one connection ------------------------------------------------------ */
 
@@ -132,7 +102,7 @@ static int on_calibrate(session *s, const ts_frame *f, char *err) {
   rc = ts_calib_run(g_w.pool, g_w.simd, req.millis, &cal.pairs, &cal.nanos);
   pthread_mutex_unlock(&g_w.pool_lock);
   if (rc != 0) return send_error(s, f->id, rc, "out of memory for calibration") == 0 ? 1 : rc;
-  wlog("calibrated for %s: scans %.3g bytes/s", s->conn.peer, (double)cal.pairs * TS_CALIB_CHUNKS * TS_L1_CHUNK / (cal.nanos * 1e-9));
+  ts_log("calibrated for %s: scans %.3g bytes/s", s->conn.peer, (double)cal.pairs * TS_CALIB_CHUNKS * TS_L1_CHUNK / (cal.nanos * 1e-9));
   ts_wmon_calibrated(cal.nanos > 0 ? (uint64_t)((double)cal.pairs * TS_CALIB_CHUNKS * TS_L1_CHUNK / (cal.nanos * 1e-9)) : 0);
   ts_wr w;
   ts_wr_init(&w);
@@ -282,8 +252,8 @@ static int serve(int fd, const char *peer, const struct sockaddr *addr) {
   int rc = handshake(s, addr, err);
   if (rc == TS_EAUTH) {
     /* We refused the peer, or the coordinator we joined refused us. */
-    if (addr != NULL) wwarn("refused %s: %s", peer, err);
-    else wwarn("join %s refused: %s", peer, err);
+    if (addr != NULL) ts_warn("refused %s: %s", peer, err);
+    else ts_warn("join %s refused: %s", peer, err);
     if (addr != NULL) send_error(s, 0, rc, err);
     ts_connset_remove(&g_w.conns, fd);
     ts_conn_close_after_error(&s->conn, REFUSE_LINGER_MS);
@@ -291,7 +261,7 @@ static int serve(int fd, const char *peer, const struct sockaddr *addr) {
     return rc;
   }
   int started = rc;
-  if (rc == 0) wlog("coordinator %s connected", peer);
+  if (rc == 0) ts_log("coordinator %s connected", peer);
   while (rc >= 0 && !g_stop) {
     ts_frame f;
     rc = ts_conn_recv(&s->conn, &f, 1000, err);
@@ -301,10 +271,10 @@ static int serve(int fd, const char *peer, const struct sockaddr *addr) {
     }
     if (rc >= 0) rc = handle(s, &f, err);
   }
-  if (rc == TS_ECONN) wlog("%s", err[0] ? err : "connection closed");
+  if (rc == TS_ECONN) ts_log("%s", err[0] ? err : "connection closed");
   else if (rc < 0) {
     ts_wmon_error();
-    wlog("protocol error from %s: %s; closing", peer, err);
+    ts_log("protocol error from %s: %s; closing", peer, err);
     send_error(s, 0, rc, err);
   }
   ts_connset_remove(&g_w.conns, fd);
@@ -341,7 +311,7 @@ static void *join_thread(void *arg) {
       if (ts_connset_add(&g_w.conns, fd) != 0) close(fd);
       else if (serve(fd, addr, NULL) == 0) backoff = 0.2;
     } else {
-      wlog("join %s: %s; retrying in %.1fs", addr, err, backoff);
+      ts_log("join %s: %s; retrying in %.1fs", addr, err, backoff);
     }
     for (double t = 0; t < backoff && !g_stop; t += 0.05) usleep(50000);
     backoff = backoff * 2 > 5.0 ? 5.0 : backoff * 2;
@@ -376,29 +346,23 @@ static void usage(FILE *f) {
 }
 
 static int parse_num(const char *opt, const char *s, long lo, long hi, long *out) {
-  char *end;
-  errno = 0;
-  long v = strtol(s, &end, 10);
-  if (errno != 0 || end == s || *end != '\0' || v < lo || v > hi) {
+  if (ts_parse_long(s, lo, hi, out) != 0) {
     fprintf(stderr, "texsyn-worker: %s %s: need a whole number in %ld..%ld\n", opt, s, lo, hi);
     return -1;
   }
-  *out = v;
   return 0;
 }
-
-static void modbus_log(const char *msg) { wwarn("%s", msg); }
 
 /* Starts the Modbus plane; at gets HOST:PORT for the ready line. */
 static int start_modbus(const char *arg, int control, char *at, char *err) {
   char addr[TS_NET_ADDR_LEN], host[TS_NET_ADDR_LEN - 8];
   int port;
   int rc = ts_mb_listen_addr(arg, addr, sizeof(addr), host, sizeof(host), err);
-  if (rc == 0) rc = ts_wmon_start_modbus(addr, control, modbus_log, &port, err);
+  if (rc == 0) rc = ts_wmon_start_modbus(addr, control, ts_warn_msg, &port, err);
   if (rc != 0) return rc;
   g_w.modbus_port = port;
   snprintf(at, TS_NET_ADDR_LEN, "%s:%d", host, port);
-  wlog("modbus plane on %s%s", at, control ? ", coil writes accepted" : "");
+  ts_log("modbus plane on %s%s", at, control ? ", coil writes accepted" : "");
   return 0;
 }
 
@@ -417,7 +381,7 @@ int main(int argc, char **argv) {
       {"quiet", no_argument, 0, O_QUIET},
       {"help", no_argument, 0, O_HELP}, {0, 0, 0, 0}};
   const char *listen_addr = NULL, *join_addr = NULL, *secret_file = NULL, *modbus_addr = NULL;
-  int modbus_control = 0;
+  int modbus_control = 0, quiet = 0;
   long v;
   g_w.threads = (int)sysconf(_SC_NPROCESSORS_ONLN);
   if (g_w.threads < 1) g_w.threads = 1;
@@ -435,7 +399,7 @@ int main(int argc, char **argv) {
     case O_SECRET: secret_file = optarg; break;
     case O_MODBUS: modbus_addr = optarg; break;
     case O_MB_CONTROL: modbus_control = 1; break;
-    case O_QUIET: g_w.quiet = 1; break;
+    case O_QUIET: quiet = 1; break;
     case O_HELP: case 'h': usage(stdout); return 0;
     default:
       fprintf(stderr, "texsyn-worker: %s: unknown option or missing value (see --help)\n", argv[optind - 1]);
@@ -446,6 +410,7 @@ int main(int argc, char **argv) {
     fprintf(stderr, "texsyn-worker: give --listen ADDR:PORT and/or --join HOST:PORT (see --help)\n");
     return 2;
   }
+  ts_log_init("texsyn-worker", stderr, quiet);
   char err[TS_ERR_LEN];
   if (ts_auth_init(err) != 0 || (secret_file != NULL && ts_auth_load(&g_w.auth, secret_file, err) != 0)) {
     fprintf(stderr, "texsyn-worker: %s\n", err);
@@ -482,9 +447,9 @@ int main(int argc, char **argv) {
       fprintf(stderr, "texsyn-worker: %s\n", err);
       return 1;
     }
-    wlog("listening on %s:%d, %d threads, %s kernels, %s", host, port, g_w.threads, g_w.simd->name,
+    ts_log("listening on %s:%d, %d threads, %s kernels, %s", host, port, g_w.threads, g_w.simd->name,
          g_w.auth.enabled ? "peers must prove the shared secret" : "no secret: loopback peers only");
-    if (ts_auth_listen_warning(&g_w.auth, lfd, err)) wwarn("%s", err);
+    if (ts_auth_listen_warning(&g_w.auth, lfd, err)) ts_warn("%s", err);
     printf("texsyn-worker listening on %s:%d%s%s%s\n", host, port, modbus_at[0] ? " (modbus " : "", modbus_at,
            modbus_at[0] ? ")" : ""); /* last: the log is written */
     fflush(stdout);
@@ -513,7 +478,7 @@ int main(int argc, char **argv) {
     }
     pthread_detach(t);
   }
-  wlog("shutting down");
+  ts_log("shutting down");
   if (lfd >= 0) close(lfd);
   ts_connset_close_all(&g_w.conns);
   if (joining) pthread_join(joiner, NULL);

@@ -10,7 +10,6 @@
  */
 #include <errno.h>
 #include <getopt.h>
-#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -87,47 +86,27 @@ static void usage_synth(FILE *f) {
 
 /* ---- argument parsing helpers ----------------------------------------- */
 
+/* The shared parsers (util.h), with the option named in the message. */
 static int parse_long(const char *opt, const char *s, long lo, long hi, long *out, char *err) {
-  char *end;
-  errno = 0;
-  long v = strtol(s, &end, 10);
-  if (errno != 0 || end == s || *end != '\0' || v < lo || v > hi)
+  if (ts_parse_long(s, lo, hi, out) != 0)
     return ts_error(err, TS_EINVAL, "%s %s: need a whole number in %ld..%ld", opt, s, lo, hi);
-  *out = v;
   return 0;
 }
 
 static int parse_u64(const char *opt, const char *s, uint64_t *out, char *err) {
-  char *end;
-  errno = 0;
-  unsigned long long v = strtoull(s, &end, 10);
-  if (errno != 0 || end == s || *end != '\0' || s[0] == '-')
-    return ts_error(err, TS_EINVAL, "%s %s: need a whole number >= 0", opt, s);
-  *out = v;
+  if (ts_parse_u64(s, out) != 0) return ts_error(err, TS_EINVAL, "%s %s: need a whole number >= 0", opt, s);
   return 0;
 }
 
 static int parse_double(const char *opt, const char *s, double *out, char *err) {
-  char *end;
-  errno = 0;
-  double v = strtod(s, &end);
-  if (errno != 0 || end == s || *end != '\0' || !isfinite(v))
-    return ts_error(err, TS_EINVAL, "%s %s: need a number", opt, s);
-  *out = v;
+  if (ts_parse_double(s, out) != 0) return ts_error(err, TS_EINVAL, "%s %s: need a number", opt, s);
   return 0;
 }
 
 static int parse_size(const char *s, int *w, int *h, char *err) {
-  char *end;
-  long a = strtol(s, &end, 10);
-  if (end == s || (*end != 'x' && *end != 'X'))
-    return ts_error(err, TS_EINVAL, "--size %s: expected WxH, e.g. 1024x1024", s);
-  const char *rest = end + 1;
-  long b = strtol(rest, &end, 10);
-  if (end == rest || *end != '\0' || a < 1 || b < 1 || a > 1000000 || b > 1000000)
-    return ts_error(err, TS_EINVAL, "--size %s: expected WxH with 1..1000000 each", s);
-  *w = (int)a;
-  *h = (int)b;
+  int rc = ts_parse_size(s, TS_OUTPUT_SIDE_MAX, w, h);
+  if (rc == TS_EFORMAT) return ts_error(err, TS_EINVAL, "--size %s: expected WxH, e.g. 1024x1024", s);
+  if (rc != 0) return ts_error(err, TS_EINVAL, "--size %s: expected WxH with 1..%d each", s, TS_OUTPUT_SIDE_MAX);
   return 0;
 }
 
@@ -320,27 +299,15 @@ static int write_bytes(const char *path, const uint8_t *data, size_t len, char *
   return 0;
 }
 
+/* A reference to submit: at most what one frame carries. */
 static uint8_t *slurp(const char *path, uint32_t *len, char *err) {
-  FILE *f = fopen(path, "rb");
-  if (f == NULL) {
-    ts_error(err, TS_EIO, "cannot read %s: %s", path, strerror(errno));
-    return NULL;
-  }
-  uint8_t *buf = NULL;
-  long size = fseek(f, 0, SEEK_END) == 0 ? ftell(f) : -1;
-  if (size < 0 || size > (long)(TS_FRAME_DEFAULT_MAX - 8192)) {
-    ts_error(err, TS_ETOOBIG, "%s: cannot send a reference of %ld bytes (limit %u)", path, size,
-             TS_FRAME_DEFAULT_MAX - 8192);
-  } else if ((buf = malloc((size_t)size + 1)) == NULL) {
-    ts_error(err, TS_ENOMEM, "out of memory");
-  } else if (fseek(f, 0, SEEK_SET) != 0 || fread(buf, 1, (size_t)size, f) != (size_t)size) {
-    ts_error(err, TS_EIO, "cannot read %s", path);
-    free(buf);
-    buf = NULL;
-  }
-  *len = (uint32_t)size;
-  fclose(f);
-  return buf;
+  uint8_t *buf;
+  size_t n;
+  int rc = ts_file_read(path, TS_FRAME_DEFAULT_MAX - 8192, &buf, &n, err);
+  if (rc == TS_ETOOBIG)
+    ts_error(err, rc, "%s: cannot send a reference of %zu bytes (limit %u)", path, n, TS_FRAME_DEFAULT_MAX - 8192);
+  *len = (uint32_t)n;
+  return rc == 0 ? buf : NULL;
 }
 
 /* Connects to a coordinator with the shared secret from --secret-file

@@ -25,6 +25,8 @@
 #define TS_ENGINE_PARAMS_MAX 512 /* bytes of any engine's parameter struct */
 #define TS_ENGINE_MAX_OUTPUTS 8
 #define TS_EXT_LEN 16
+/* Largest output width or height a spec (and the command line) takes. */
+#define TS_OUTPUT_SIDE_MAX 1000000
 
 /* Storage for an engine's parameter struct, aligned for any member. */
 typedef union {
@@ -76,8 +78,9 @@ typedef struct ts_engine {
   const ts_engine_output *outputs; /* noutputs entries, [0] the result image */
   int noutputs;
   void (*params_default)(void *params);
-  /* Sets one spec key: 0, -1 for a bad value, -2 for a key it does not
-   * know (outputs are not its business: the spec parser handles them). */
+  /* Sets one spec key: 0, TS_EINVAL for a bad value, TS_ENOENT for a key
+   * it does not know (outputs are not its business: the spec parser
+   * handles them). */
   int (*spec_set)(void *params, const char *key, const char *value);
   /* After parsing: 0, or TS_EINVAL naming a key that has no default and
    * was not given (a spec must survive format and parse). */

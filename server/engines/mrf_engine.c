@@ -1,8 +1,6 @@
 /* mrf_engine.c - MRF block synthesis (mrf.h) as an engine (engine.h): its
  * spec keys, its per-level checkpoints as bytes (checkpoint.h) and its
  * result files (outputs.h). */
-#include <errno.h>
-#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -12,6 +10,7 @@
 #include "error.h"
 #include "mrf.h"
 #include "outputs.h"
+#include "util.h"
 
 _Static_assert(sizeof(ts_mrf_params) <= TS_ENGINE_PARAMS_MAX, "MRF parameters outgrew ts_engine_params");
 
@@ -27,58 +26,21 @@ static const ts_engine_output mrf_outputs[OUT_COUNT] = {
 
 /* ---- spec keys ---------------------------------------------------------- */
 
-static int spec_int(const char *v, long lo, long hi, int *out) {
-  char *end;
-  errno = 0;
-  long x = strtol(v, &end, 10);
-  if (errno != 0 || end == v || *end != '\0' || x < lo || x > hi) return -1;
-  *out = (int)x;
-  return 0;
-}
-
-static int spec_u64(const char *v, uint64_t *out) {
-  char *end;
-  errno = 0;
-  if (v[0] == '-' || v[0] == '\0') return -1;
-  unsigned long long x = strtoull(v, &end, 10);
-  if (errno != 0 || *end != '\0') return -1;
-  *out = x;
-  return 0;
-}
-
-static int spec_double(const char *v, double *out) {
-  char *end;
-  errno = 0;
-  double x = strtod(v, &end);
-  if (errno != 0 || end == v || *end != '\0' || !isfinite(x)) return -1;
-  *out = x;
-  return 0;
-}
-
-static int spec_size(const char *v, int *w, int *h) {
-  const char *x = strchr(v, 'x');
-  if (x == NULL || x == v || (size_t)(x - v) >= 16) return -1;
-  char a[16];
-  memcpy(a, v, (size_t)(x - v));
-  a[x - v] = '\0';
-  return spec_int(a, 1, 1000000, w) != 0 || spec_int(x + 1, 1, 1000000, h) != 0 ? -1 : 0;
-}
-
 /* Ranges here only keep values in their types; ts_mrf_check judges them. */
 static int mrf_spec_set(void *params, const char *k, const char *v) {
   ts_mrf_params *p = params;
-  if (strcmp(k, "size") == 0) return spec_size(v, &p->width, &p->height);
-  if (strcmp(k, "levels") == 0) return spec_int(v, -1000, 1000, &p->levels);
-  if (strcmp(k, "wn") == 0) return spec_int(v, -1000, 1000, &p->wn);
-  if (strcmp(k, "wb") == 0) return spec_int(v, -1000, 1000, &p->wb);
-  if (strcmp(k, "parity") == 0) return spec_int(v, 0, 1, &p->parity);
-  if (strcmp(k, "usage_weight") == 0) return spec_double(v, &p->usage_weight);
-  if (strcmp(k, "coarse_weight") == 0) return spec_double(v, &p->coarse_weight);
-  if (strcmp(k, "refine") == 0) return spec_int(v, -1000, 1000, &p->refine);
-  if (strcmp(k, "seed") == 0) return spec_u64(v, &p->seed);
-  if (strcmp(k, "rgb_search") == 0) return spec_int(v, 0, 1, &p->rgb_search);
-  if (strcmp(k, "max_pixels") == 0) return spec_u64(v, &p->max_pixels);
-  return -2;
+  if (strcmp(k, "size") == 0) return ts_parse_size(v, TS_OUTPUT_SIDE_MAX, &p->width, &p->height) != 0 ? TS_EINVAL : 0;
+  if (strcmp(k, "levels") == 0) return ts_parse_int(v, -1000, 1000, &p->levels);
+  if (strcmp(k, "wn") == 0) return ts_parse_int(v, -1000, 1000, &p->wn);
+  if (strcmp(k, "wb") == 0) return ts_parse_int(v, -1000, 1000, &p->wb);
+  if (strcmp(k, "parity") == 0) return ts_parse_int(v, 0, 1, &p->parity);
+  if (strcmp(k, "usage_weight") == 0) return ts_parse_double(v, &p->usage_weight);
+  if (strcmp(k, "coarse_weight") == 0) return ts_parse_double(v, &p->coarse_weight);
+  if (strcmp(k, "refine") == 0) return ts_parse_int(v, -1000, 1000, &p->refine);
+  if (strcmp(k, "seed") == 0) return ts_parse_u64(v, &p->seed);
+  if (strcmp(k, "rgb_search") == 0) return ts_parse_int(v, 0, 1, &p->rgb_search);
+  if (strcmp(k, "max_pixels") == 0) return ts_parse_u64(v, &p->max_pixels);
+  return TS_ENOENT;
 }
 
 /* Without it the spec would format as size=0x0, which no parse takes

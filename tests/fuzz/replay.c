@@ -14,31 +14,17 @@
 #include <string.h>
 #include <sys/stat.h>
 
+#include "error.h"
+#include "util.h"
+
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
 static int replay_file(const char *path) {
-  FILE *f = fopen(path, "rb");
-  if (f == NULL) {
-    fprintf(stderr, "replay: %s: %s\n", path, strerror(errno));
-    return -1;
-  }
-  size_t cap = 4096, len = 0;
-  uint8_t *buf = malloc(cap);
-  size_t n;
-  while (buf != NULL && (n = fread(buf + len, 1, cap - len, f)) > 0) {
-    len += n;
-    if (len == cap) {
-      uint8_t *p = realloc(buf, cap * 2);
-      if (p == NULL) free(buf);
-      buf = p;
-      cap *= 2;
-    }
-  }
-  int bad = ferror(f);
-  fclose(f);
-  if (buf == NULL || bad) {
-    fprintf(stderr, "replay: %s: %s\n", path, buf == NULL ? "out of memory" : "read error");
-    free(buf);
+  uint8_t *buf;
+  size_t len;
+  char err[TS_ERR_LEN];
+  if (ts_file_read(path, SIZE_MAX, &buf, &len, err) != 0) {
+    fprintf(stderr, "replay: %s\n", err);
     return -1;
   }
   /* An exact-size copy, so that reading past the input is caught. */

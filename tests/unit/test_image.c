@@ -16,6 +16,7 @@
 #include "image.h"
 #include "image_meta.h"
 #include "ts_test.h"
+#include "util.h"
 
 #if defined(__SANITIZE_ADDRESS__)
 #define TS_ASAN 1
@@ -86,15 +87,9 @@ static void write_file(const char *path, const void *data, size_t n) {
 }
 
 static uint8_t *read_file(const char *path, size_t *n) {
-  FILE *f = fopen(path, "rb");
-  assert_non_null(f);
-  fseek(f, 0, SEEK_END);
-  *n = (size_t)ftell(f);
-  fseek(f, 0, SEEK_SET);
-  uint8_t *b = malloc(*n + 1);
-  assert_non_null(b);
-  assert_int_equal(fread(b, 1, *n, f), *n);
-  fclose(f);
+  uint8_t *b;
+  char err[TS_ERR_LEN];
+  if (ts_file_read(path, SIZE_MAX, &b, n, err) != 0) fail_msg("%s", err);
   return b;
 }
 

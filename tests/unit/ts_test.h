@@ -14,6 +14,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include <cmocka.h>
 
@@ -22,6 +23,16 @@
 static inline const char *ts_test_data_dir(void) {
   const char *d = getenv("TEXSYN_DATA");
   return d != NULL ? d : "../shared/data";
+}
+
+/* Writes n bytes to a new file under /tmp; its name into path. The test
+ * unlinks it. */
+static inline void ts_test_put_file(char path[32], const void *data, size_t n) {
+  snprintf(path, 32, "/tmp/ts-test-XXXXXX");
+  int fd = mkstemp(path);
+  assert_true(fd >= 0);
+  assert_int_equal(write(fd, data, n), (ssize_t)n);
+  assert_int_equal(close(fd), 0);
 }
 
 #define TS_TEST_MAIN(group)                                                  \
