@@ -27,7 +27,8 @@
   XX(EAUTH, -10, "authentication failed")                             \
   XX(ETIMEDOUT, -11, "timed out")                                     \
   XX(ECONN, -12, "connection failed")                                 \
-  XX(ELIMIT, -13, "limit reached")
+  XX(ELIMIT, -13, "limit reached")                                    \
+  XX(ESTALE, -14, "the state changed meanwhile: try again")
 
 enum {
 #define TS_ERR_ENUM(name, val, text) TS_##name = (val),

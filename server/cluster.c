@@ -74,7 +74,7 @@ void cl_worker_fail(ts_cluster *c, cl_worker *w, const char *why) {
 static void reap_failed(ts_cluster *c) {
   int k = 0;
   for (int i = 0; i < c->nw; i++) {
-    if (c->w[i]->state != TS_WORKER_FAILED) {
+    if (c->w[i]->state != TS_WORKER_FAILED || c->w[i]->refs > 0) {
       c->w[k++] = c->w[i];
       continue;
     }
@@ -219,14 +219,19 @@ static void heartbeat_idle(ts_cluster *c) {
   double now = ts_now();
   for (int i = 0; i < c->nw; i++) {
     cl_worker *w = c->w[i];
-    if ((w->state != TS_WORKER_READY && w->state != TS_WORKER_DRAINING) || now - w->heard_at < c->o.heartbeat)
+    if ((w->state != TS_WORKER_READY && w->state != TS_WORKER_DRAINING) || w->busy ||
+        now - w->heard_at < c->o.heartbeat)
       continue;
-    cl_frame_begin(&w->out, TS_MSG_HEARTBEAT, ++c->next_frame); /* empty payload */
-    w->expect = 1;
     ws[n++] = w;
+  }
+  cl_lease(c, ws, n); /* none is leased: no wait */
+  for (int i = 0; i < n; i++) {
+    cl_frame_begin(&ws[i]->out, TS_MSG_HEARTBEAT, ++c->next_frame); /* empty payload */
+    ws[i]->expect = 1;
   }
   cl_traffic tr = {0, 0};
   if (n > 0) cl_exchange(c, ws, n, 2 * c->o.heartbeat + 1.0, heartbeat_reply, NULL, &tr);
+  cl_release(c, ws, n);
   free(ws);
 }
 
@@ -303,6 +308,7 @@ int ts_cluster_create(ts_cluster **out, const ts_cluster_opts *o, char *err) {
   }
   pthread_mutex_init(&c->lock, NULL);
   pthread_cond_init(&c->wake, NULL);
+  pthread_cond_init(&c->released, NULL);
   if (pthread_create(&c->thread, NULL, cluster_thread, c) != 0) {
     cluster_free(c);
     return ts_error(err, TS_ENOMEM, "cannot start the cluster thread");
@@ -323,6 +329,7 @@ void ts_cluster_destroy(ts_cluster *c) {
   for (int i = 0; i < c->nw; i++) worker_free(c->w[i]);
   pthread_mutex_destroy(&c->lock);
   pthread_cond_destroy(&c->wake);
+  pthread_cond_destroy(&c->released);
   cluster_free(c);
 }
 
@@ -397,29 +404,45 @@ int cl_ready_workers(ts_cluster *c, cl_worker **ws) {
 
 /* ---- exchanges --------------------------------------------------------- */
 
-/* Sends every worker's queued output and feeds each reply to fn until
- * every worker has answered its `expect` frames. A worker that fails
+/* Fails a worker from inside an exchange, where the lock is not held. */
+static void fail_unlocked(ts_cluster *c, cl_worker *w, const char *why) {
+  pthread_mutex_lock(&c->lock);
+  cl_worker_fail(c, w, why);
+  pthread_mutex_unlock(&c->lock);
+}
+
+/* Sends every leased worker's queued output and feeds each reply to fn
+ * until every worker has answered its `expect` frames. A worker that fails
  * (connection, protocol, fn's error, deadline) is marked failed and the
  * others carry on, so their streams stay in step. Returns 0, or TS_ECONN if
- * any worker failed. Lock held. */
+ * any worker failed. Called with the lock held; bytes travel without it.
+ * Whether a worker is gone is tracked here, not read from its state: a
+ * failure seen elsewhere (Modbus, heartbeat) shuts its socket, which this
+ * loop then sees. */
 int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, cl_reply_fn *fn, void *ctx,
                 cl_traffic *tr) {
   double deadline = ts_now() + timeout;
   int failed = 0;
   struct pollfd *pf = malloc(sizeof(*pf) * (size_t)n);
-  cl_worker **pw = malloc(sizeof(*pw) * (size_t)n);
+  int *pi = malloc(sizeof(*pi) * (size_t)n); /* worker of each pollfd */
+  char *gone = calloc((size_t)n, 1);
   int polled = n; /* workers the loop below looks at */
-  if (pf == NULL || pw == NULL) {
+  if (pf == NULL || pi == NULL || gone == NULL) {
     for (int i = 0; i < n; i++) cl_worker_fail(c, ws[i], "the coordinator is out of memory");
     failed = 1;
     polled = 0;
   }
+  for (int i = 0; i < polled; i++) {
+    gone[i] = ws[i]->state == TS_WORKER_FAILED;
+    ws[i]->io_heard_at = ws[i]->heard_at;
+  }
+  pthread_mutex_unlock(&c->lock);
   for (;;) {
     int np = 0;
     for (int i = 0; i < polled; i++) {
       cl_worker *w = ws[i];
-      if (w->state == TS_WORKER_FAILED || (w->expect == 0 && w->out_off == w->out.len)) continue;
-      pw[np] = w;
+      if (gone[i] || (w->expect == 0 && w->out_off == w->out.len)) continue;
+      pi[np] = i;
       pf[np].fd = w->conn.fd;
       pf[np].events = (short)(POLLIN | (w->out_off < w->out.len ? POLLOUT : 0));
       pf[np].revents = 0;
@@ -428,7 +451,7 @@ int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, cl_reply_f
     if (np == 0) break;
     double left = deadline - ts_now();
     if (left <= 0) {
-      for (int i = 0; i < np; i++) cl_worker_fail(c, pw[i], "no answer before the batch deadline");
+      for (int i = 0; i < np; i++) fail_unlocked(c, ws[pi[i]], "no answer before the batch deadline");
       failed = 1;
       break;
     }
@@ -439,47 +462,70 @@ int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, cl_reply_f
        * all had answered would merge a partial answer: a wrong result. */
       char why[TS_ERR_LEN];
       snprintf(why, sizeof(why), "poll: %s (the batch is asked again)", strerror(errno));
-      for (int i = 0; i < np; i++) cl_worker_fail(c, pw[i], why);
+      for (int i = 0; i < np; i++) fail_unlocked(c, ws[pi[i]], why);
       failed = 1;
       break;
     }
-    for (int i = 0; i < np && k > 0; i++) {
-      cl_worker *w = pw[i];
+    for (int p = 0; p < np && k > 0; p++) {
+      int i = pi[p];
+      cl_worker *w = ws[i];
       char err[TS_ERR_LEN];
-      if (pf[i].revents & POLLOUT) {
+      if (pf[p].revents & POLLOUT) {
         ssize_t s = send(w->conn.fd, w->out.buf + w->out_off, w->out.len - w->out_off, MSG_DONTWAIT | MSG_NOSIGNAL);
         if (s > 0) {
           w->out_off += (size_t)s;
           tr->bytes_out += (uint64_t)s;
         } else if (s < 0 && errno != EAGAIN && errno != EINTR) {
           snprintf(err, sizeof(err), "send: %s", strerror(errno));
-          cl_worker_fail(c, w, err);
-          failed = 1;
+          fail_unlocked(c, w, err);
+          gone[i] = failed = 1;
           continue;
         }
       }
-      if (!(pf[i].revents & (POLLIN | POLLERR | POLLHUP))) continue;
+      if (!(pf[p].revents & (POLLIN | POLLERR | POLLHUP))) continue;
       ts_frame f;
       int rc;
-      while (w->state != TS_WORKER_FAILED && (rc = ts_conn_pump(&w->conn, &f, err)) != 0) {
+      while (!gone[i] && (rc = ts_conn_pump(&w->conn, &f, err)) != 0) {
         if (rc < 0 || (rc = fn(ctx, w, &f, err)) < 0) {
-          cl_worker_fail(c, w, err);
-          failed = 1;
+          fail_unlocked(c, w, err);
+          gone[i] = failed = 1;
           break;
         }
         tr->bytes_in += TS_FRAME_HEADER + f.len;
-        w->heard_at = ts_now();
+        w->io_heard_at = ts_now();
       }
     }
   }
+  pthread_mutex_lock(&c->lock);
   for (int i = 0; i < n; i++) {
     ws[i]->out.len = 0;
     ws[i]->out_off = 0;
     ws[i]->expect = 0;
+    if (ws[i]->io_heard_at > ws[i]->heard_at) ws[i]->heard_at = ws[i]->io_heard_at;
   }
   free(pf);
-  free(pw);
+  free(pi);
+  free(gone);
   return failed ? TS_ECONN : 0;
+}
+
+void cl_lease(ts_cluster *c, cl_worker **ws, int n) {
+  for (int i = 0; i < n; i++) ws[i]->refs++;
+  for (;;) {
+    int i = 0;
+    while (i < n && !ws[i]->busy) i++;
+    if (i == n) break;
+    pthread_cond_wait(&c->released, &c->lock);
+  }
+  for (int i = 0; i < n; i++) ws[i]->busy = 1;
+}
+
+void cl_release(ts_cluster *c, cl_worker **ws, int n) {
+  for (int i = 0; i < n; i++) {
+    ws[i]->busy = 0;
+    ws[i]->refs--;
+  }
+  pthread_cond_broadcast(&c->released);
 }
 
 /* An 'E' reply as an error. */

@@ -3,12 +3,17 @@
  * supervision of the workers (supervise.c) and the search backend over the
  * pool (search_cluster.c).
  *
- * Locking: one mutex guards the worker list and every exchange with the
- * workers. A batch holds it from sending to the last answer, so the batches
- * of concurrent jobs interleave whole (each connection carries one
- * request/answer stream at a time and never needs demultiplexing). Slow
- * work that involves a single new worker - connecting, identifying,
- * calibrating - happens before the worker enters the list, without the lock.
+ * Locking: one mutex guards the worker list and the workers' state, and is
+ * never held while bytes travel. An exchange *leases* its workers (under
+ * the lock, waiting until no other exchange holds any of them), then sends
+ * and receives without the lock: a worker's connection, output buffer and
+ * per-exchange counters belong to the lease holder. So the batches of
+ * concurrent jobs still interleave whole on each connection (one
+ * request/answer stream at a time, no demultiplexing), while status and
+ * pool requests, heartbeats of idle workers and Modbus supervision go on.
+ * A failed worker leaves the list only when no lease holds or awaits it
+ * (refs). Slow work that involves a single new worker - connecting,
+ * identifying, calibrating - happens before it enters the list.
  */
 #ifndef TS_CLUSTER_IMPL_H
 #define TS_CLUSTER_IMPL_H
@@ -52,7 +57,9 @@ typedef struct {
   double ewma_weight; /* seconds of batches in the average (saturates) */
   uint64_t batches;
   uint32_t share; /* per mille of the last set sliced */
-  /* One exchange's state. */
+  int busy; /* leased to an exchange */
+  int refs; /* leases holding or awaiting it: not freed while > 0 */
+  /* One exchange's state: the lease holder's. */
   ts_wr out;
   size_t out_off;
   int expect;
@@ -60,6 +67,7 @@ typedef struct {
   uint64_t answered_bytes; /* bytes the batch's answers report scanned */
   uint64_t answered_nanos; /* scan time the batch's answers report */
   double heard_at;         /* when the worker last sent anything */
+  double io_heard_at;      /* the same, as the lease holder saw it */
   double mb_heard_at;      /* when its Modbus plane last answered */
   double cpu_share;        /* share of CPU its threads get (Modbus), < 0 unknown */
   double share_sized;      /* the share when its slices were last sized, < 0 none */
@@ -95,6 +103,7 @@ struct ts_cluster {
   pthread_t thread, supervisor;
   int stop, supervising;
   pthread_cond_t wake;
+  pthread_cond_t released; /* a lease ended */
   uint64_t batches, queries; /* answered for jobs */
 };
 
@@ -114,15 +123,25 @@ int cl_ready_workers(ts_cluster *c, cl_worker **ws);
  * NULL; free() it. */
 cl_worker **cl_worker_list(const ts_cluster *c);
 
+/* Leases ws[0..n) (lock held): waits, with the lock released, until no
+ * other exchange holds any of them, then holds them all. The pool may
+ * have changed meanwhile (a failure moves c->epoch); workers that failed
+ * are skipped by the exchange. */
+void cl_lease(ts_cluster *c, cl_worker **ws, int n);
+/* Ends a lease (lock held). */
+void cl_release(ts_cluster *c, cl_worker **ws, int n);
+
 /* Called for every frame a worker sends during an exchange; a negative
  * return fails that worker. */
 typedef int cl_reply_fn(void *ctx, cl_worker *w, const ts_frame *f, char *err);
 typedef struct {
   uint64_t bytes_out, bytes_in;
 } cl_traffic;
-/* Sends every worker's queued output and feeds each reply to fn until
- * every worker has answered its `expect` frames (lock held). See
- * cluster.c. */
+/* Sends every leased worker's queued output and feeds each reply to fn
+ * until every worker has answered its `expect` frames. Called with the lock
+ * held and returns with it held; the lock is released while bytes travel,
+ * so fn runs without it and may touch only the caller's context and the
+ * leased workers' exchange state. See cluster.c. */
 int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, cl_reply_fn *fn, void *ctx,
                 cl_traffic *tr);
 /* An 'E' reply as an error. */

@@ -109,6 +109,7 @@ static int ensure_slices(cluster_search *cs, cl_set *st, char *err) {
     st->nslices = 0;
     st->sliced = 1;
     if (n == 0) return load_local(st, err);
+    cl_lease(c, ws, n);
     cut_ranges(st->grid, ws, n, st->slices);
     cl_traffic tr = {0, 0};
     double total = 0;
@@ -124,6 +125,7 @@ static int ensure_slices(cluster_search *cs, cl_set *st, char *err) {
     }
     st->nslices = n;
     cl_exchange(c, ws, n, c->o.batch_timeout + 30.0, loaded_reply, st, &tr);
+    cl_release(c, ws, n);
     cs->base.stats.bytes_out += tr.bytes_out;
     cs->base.stats.bytes_in += tr.bytes_in;
     /* A failure bumped the epoch: loop and slice again without it. */
@@ -358,24 +360,33 @@ static int note_frame(cl_worker *w, uint32_t q0, uint32_t nq) {
   return 0;
 }
 
-/* Queues every request's V frames to the workers holding its slices; the
- * workers involved are collected in ws. */
-static int queue_frames(ts_cluster *c, const batch_ctx *bc, const ts_search_req *req, cl_worker **ws, int *nw,
+/* The workers holding slices of the batch's sets, each once. */
+static int batch_workers(const batch_ctx *bc, cl_worker **ws) {
+  int n = 0;
+  for (uint32_t r = 0; r < bc->nreq; r++)
+    for (int i = 0; i < bc->st[r]->nslices; i++) {
+      cl_worker *w = bc->st[r]->slices[i].w;
+      int k = 0;
+      while (k < n && ws[k] != w) k++;
+      if (k == n) ws[n++] = w;
+    }
+  return n;
+}
+
+/* Queues every request's V frames to the leased workers holding its
+ * slices. */
+static int queue_frames(ts_cluster *c, const batch_ctx *bc, const ts_search_req *req, cl_worker **ws, int n,
                         char *err) {
-  *nw = 0;
+  for (int i = 0; i < n; i++) {
+    ws[i]->answered_bytes = ws[i]->expected_bytes = ws[i]->answered_nanos = 0;
+    ws[i]->nframes = 0;
+  }
   for (uint32_t r = 0; r < bc->nreq; r++) {
     cl_set *st = bc->st[r];
     const ts_query_batch *b = &req[r].b;
     uint32_t vbytes = ts_shape_bytes(st->rs.shape);
     for (int i = 0; i < st->nslices; i++) {
       cl_worker *w = st->slices[i].w;
-      int k = 0;
-      while (k < *nw && ws[k] != w) k++;
-      if (k == *nw) {
-        ws[(*nw)++] = w;
-        w->answered_bytes = w->expected_bytes = w->answered_nanos = 0;
-        w->nframes = 0;
-      }
       for (uint32_t q = 0; q < b->nq; q++) {
         int cls = b->klass ? b->klass[q] : 0;
         w->expected_bytes += (uint64_t)(st->slices[i].i1[cls] - st->slices[i].i0[cls]) * vbytes;
@@ -409,21 +420,30 @@ static double batch_deadline(const ts_cluster *c, cl_worker **ws, int n) {
 }
 
 /* Every request in one exchange with the pool (lock held). Returns 0,
- * TS_ECONN when a worker failed (re-slice and retry), or an error. */
+ * TS_ECONN when a worker failed (re-slice and retry), TS_ESTALE when the
+ * pool changed while the workers were awaited (re-slice), or an error. */
 static int exchange_batch(cluster_search *cs, batch_ctx *bc, const ts_search_req *req, char *err) {
   ts_cluster *c = cs->c;
   cl_worker **ws = cs->ws;
-  int n;
+  int n = batch_workers(bc, ws);
+  uint64_t epoch = c->epoch;
+  cl_lease(c, ws, n);
+  if (c->epoch != epoch) { /* the slicing is stale: nothing was sent */
+    cl_release(c, ws, n);
+    return TS_ESTALE;
+  }
   bc->seq = ++c->next_frame;
   ts_l1_best_reset(bc->best, bc->q0[bc->nreq]);
-  int rc = queue_frames(c, bc, req, ws, &n, err);
+  int rc = queue_frames(c, bc, req, ws, n, err);
   if (rc != 0) {
     for (int i = 0; i < n; i++) ws[i]->out.len = ws[i]->out_off = 0, ws[i]->expect = 0;
+    cl_release(c, ws, n);
     return rc;
   }
   for (uint32_t r = 0; r < bc->nreq; r++) flush_pending(bc->st[r]);
   cl_traffic tr = {0, 0};
   rc = cl_exchange(c, ws, n, batch_deadline(c, ws, n), answer_reply, bc, &tr);
+  cl_release(c, ws, n);
   cs->base.stats.bytes_out += tr.bytes_out;
   cs->base.stats.bytes_in += tr.bytes_in;
   if (rc == 0) {
@@ -484,7 +504,7 @@ static int cluster_query_many(ts_search *s, const ts_search_req *req, uint32_t n
                     lost);
       break;
     }
-  } while (rc == TS_ECONN);
+  } while (rc == TS_ECONN || rc == TS_ESTALE);
   pthread_mutex_unlock(&c->lock);
   if (rc != 0) return rc;
   for (uint32_t r = 0; r < nreq; r++) {
@@ -518,6 +538,7 @@ static void set_clear(cluster_search *cs, cl_set *st) {
     for (int i = 0; i < st->nslices; i++) ws[n++] = st->slices[i].w;
   else /* slices may be on any worker that is still with us */
     n = cl_ready_workers(c, ws);
+  cl_lease(c, ws, n);
   for (int i = 0; i < n; i++) {
     ts_msg_unload m = {st->gid};
     size_t at = cl_frame_begin(&ws[i]->out, TS_MSG_UNLOAD, ++c->next_frame);
@@ -527,6 +548,7 @@ static void set_clear(cluster_search *cs, cl_set *st) {
   }
   cl_traffic tr = {0, 0};
   if (n > 0) cl_exchange(c, ws, n, c->o.batch_timeout, cl_unloaded_reply, NULL, &tr);
+  cl_release(c, ws, n);
   pthread_mutex_unlock(&c->lock);
   ts_slice_free(st->local);
   ts_usage_free(&st->usage);

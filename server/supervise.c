@@ -63,6 +63,7 @@ static int mb_read(const mb_target *t, uint16_t *regs) {
 static void begin_drain(ts_cluster *c, cl_worker *w) {
   w->state = TS_WORKER_DRAINING;
   c->epoch++;
+  cl_lease(c, &w, 1); /* after the batch it may be serving */
   ts_msg_unload m = {TS_UNLOAD_ALL};
   size_t at = cl_frame_begin(&w->out, TS_MSG_UNLOAD, ++c->next_frame);
   ts_msg_unload_write(&w->out, &m);
@@ -70,6 +71,7 @@ static void begin_drain(ts_cluster *c, cl_worker *w) {
   w->expect = 1;
   cl_traffic tr = {0, 0};
   cl_exchange(c, &w, 1, c->o.batch_timeout, cl_unloaded_reply, NULL, &tr);
+  cl_release(c, &w, 1);
   cl_log(c, "worker %d (%s) draining: its slices are handed back and it gets no new ones", w->id, w->conn.peer);
 }
 
