@@ -24,7 +24,9 @@ from collections import defaultdict
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "integration"))
 from cluster import start, stop, wait_ready  # noqa: E402
+from conftest import LoopbackProxy, shutdown_all  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("TEXSYN_DATA", REPO.parent / "shared" / "data"))
@@ -36,31 +38,19 @@ JOBS = {
 HEADER = 12
 
 
-class CountingProxy:
+class CountingProxy(LoopbackProxy):
     """Forwards one worker link both ways and counts whole frames by type."""
 
     def __init__(self, target):
-        self.target = target
         self.count = {"out": defaultdict(int), "in": defaultdict(int)}
         self.lock = threading.Lock()
-        self.sock = socket.socket()
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.listen(8)
-        self.addr = "127.0.0.1:%d" % self.sock.getsockname()[1]
-        threading.Thread(target=self.accept, daemon=True).start()
+        super().__init__(target)
 
-    def accept(self):
-        while True:
-            try:
-                a, _ = self.sock.accept()
-            except OSError:
-                return
-            host, port = self.target.rsplit(":", 1)
-            b = socket.create_connection((host, int(port)))
-            for s in (a, b):
-                s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            threading.Thread(target=self.pump, args=(a, b, "out"), daemon=True).start()
-            threading.Thread(target=self.pump, args=(b, a, "in"), daemon=True).start()
+    def forward(self, a, b):
+        for s in (a, b):
+            s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        threading.Thread(target=self.pump, args=(a, b, "out"), daemon=True).start()
+        threading.Thread(target=self.pump, args=(b, a, "in"), daemon=True).start()
 
     def pump(self, src, dst, way):
         buf = b""
@@ -70,11 +60,7 @@ class CountingProxy:
             except OSError:
                 data = b""
             if not data:
-                for s in (src, dst):
-                    try:
-                        s.shutdown(socket.SHUT_RDWR)
-                    except OSError:
-                        pass
+                shutdown_all(src, dst)
                 return
             buf += data
             while len(buf) >= HEADER:

@@ -63,6 +63,15 @@ import threading
 import time
 
 
+def shutdown_all(*socks):
+    """Shuts both directions of every socket, whatever state it is in."""
+    for s in socks:
+        try:
+            s.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+
+
 class LoopbackProxy:
     """Listens on a loopback port chosen by the system and, for every
     connection to it, dials `target` (HOST:PORT) and calls

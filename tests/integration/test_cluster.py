@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from conftest import BUILD, Daemon, LoopbackProxy, run, synth
+from conftest import BUILD, Daemon, LoopbackProxy, run, shutdown_all, synth
 
 SIZE = (256, 192)
 
@@ -160,11 +160,7 @@ class DelayProxy(LoopbackProxy):
                 dst.sendall(data)
             except OSError:
                 break
-        for s in (src, dst):
-            try:
-                s.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
+        shutdown_all(src, dst)
 
 
 def test_worker_behind_a_slow_link_keeps_its_share(texsyn, data, cluster, tmp_path):

@@ -16,7 +16,7 @@ import time
 
 import pytest
 
-from conftest import BUILD, Daemon, LoopbackProxy, SANITIZED, run, synth
+from conftest import BUILD, Daemon, LoopbackProxy, SANITIZED, run, shutdown_all, synth
 
 TRIALS = int(os.environ.get("TEXSYN_FAULT_TRIALS", "6"))
 SEED = int(os.environ.get("TEXSYN_FAULT_SEED", "2004"))
@@ -202,11 +202,7 @@ class Proxy(LoopbackProxy):
                     dst.sendall(data)
         except OSError:
             pass
-        for s in (src, dst):
-            try:
-                s.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
+        shutdown_all(src, dst)
 
     def close(self):
         self.sock.close()

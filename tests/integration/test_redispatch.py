@@ -13,7 +13,7 @@ import threading
 
 import pytest
 
-from conftest import BUILD, Daemon, LoopbackProxy, synth
+from conftest import BUILD, Daemon, LoopbackProxy, shutdown_all, synth
 
 JOB = ["--size", "96x64", "--levels", "3"]
 
@@ -84,7 +84,7 @@ class FrameProxy(LoopbackProxy):
                     dst.sendall(frame)
         except OSError:
             pass
-        close(src, dst)
+        shutdown_all(src, dst)
 
     def plain(self, src, dst):
         try:
@@ -95,9 +95,9 @@ class FrameProxy(LoopbackProxy):
                 dst.sendall(data)
         except OSError:
             pass
-        close(src, dst)
+        shutdown_all(src, dst)
 
-    def close(self):
+    def shutdown_all(self):
         self.sock.close()
 
 
@@ -105,14 +105,6 @@ def reset(*socks):
     for s in socks:
         s.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
         s.close()
-
-
-def close(*socks):
-    for s in socks:
-        try:
-            s.shutdown(socket.SHUT_RDWR)
-        except OSError:
-            pass
 
 
 @pytest.mark.sanitize

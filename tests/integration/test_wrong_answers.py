@@ -8,13 +8,12 @@ A tampering proxy between the coordinator and one of two workers forwards
 everything and rewrites one query answer ('V' reply) once, mid-job. The
 poll() failure comes from a preloaded shim (tests/preload/fail_poll.c).
 """
-import socket
 import struct
 import threading
 
 import pytest
 
-from conftest import BUILD, Daemon, LoopbackProxy, run
+from conftest import BUILD, Daemon, LoopbackProxy, run, shutdown_all
 
 HEADER = 12
 TAMPER_AT = 30  # the 30th query answer of the job: well inside it
@@ -33,14 +32,6 @@ class TamperingProxy(LoopbackProxy):
         threading.Thread(target=self.plain, args=(client, worker), daemon=True).start()
         threading.Thread(target=self.frames, args=(worker, client), daemon=True).start()
 
-    @staticmethod
-    def close(*socks):
-        for s in socks:
-            try:
-                s.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
-
     def plain(self, src, dst):
         while True:
             try:
@@ -50,7 +41,7 @@ class TamperingProxy(LoopbackProxy):
                 dst.sendall(data)
             except OSError:
                 break
-        self.close(src, dst)
+        shutdown_all(src, dst)
 
     def frames(self, src, dst):
         buf = b""
@@ -71,7 +62,7 @@ class TamperingProxy(LoopbackProxy):
                     dst.sendall(self.rewrite(frame))
                 except OSError:
                     break
-        self.close(src, dst)
+        shutdown_all(src, dst)
 
     def rewrite(self, frame):
         if chr(frame[3]) != "V" or self.done.is_set():
