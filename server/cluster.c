@@ -807,6 +807,7 @@ static int cluster_prepare(ts_search *s, const ts_refset *rs, int *id, char *err
   st->with_usage = rs->usage;
   if (rs->usage && ts_usage_init(&st->usage, rs->grid, rs->shape->wb, 0) != 0)
     return ts_error(err, TS_ENOMEM, "out of memory for the usage replica");
+  if (rs->usage && rs->counts != NULL) ts_usage_load(&st->usage, rs->counts->count);
   pthread_mutex_lock(&cs->c->lock);
   st->gid = ++cs->c->next_set;
   st->used = 1;
