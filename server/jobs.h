@@ -32,6 +32,8 @@ typedef struct {
   uint64_t max_spool_bytes; /* disk use of all jobs (0 = no limit) */
   ts_cluster *cluster;
   void (*log)(const char *msg); /* one line per event (NULL: stderr) */
+  double checkpoint_interval; /* seconds of work between checkpoints inside a
+                                 level (0: after whole levels only) */
 } ts_jobs_opts;
 
 typedef struct ts_jobs ts_jobs;
