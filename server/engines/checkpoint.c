@@ -85,8 +85,15 @@ static int read_stats(ts_rd *r, ts_mrf_level_stats *s) {
 
 static int inside_level(const ts_mrf_checkpoint *ck) { return ck->step < ck->steps; }
 
+/* Arrays of u32 go through a chunk: a call per value would cost more than
+ * the rest of a checkpoint of the finest level together. */
 static void write_u32s(ts_wr *w, const uint32_t *v, size_t n) {
-  for (size_t i = 0; i < n; i++) ts_wr_u32(w, v[i]);
+  uint8_t chunk[4096];
+  for (size_t i = 0; i < n;) {
+    size_t k = 0;
+    for (; k < sizeof(chunk) && i < n; k += 4, i++) ts_put_le(chunk + k, v[i], 4);
+    ts_wr_bytes(w, chunk, k);
+  }
 }
 
 int ts_checkpoint_encode(const ts_mrf_checkpoint *ck, int levels, uint64_t tag, uint8_t **buf, size_t *len,
@@ -140,8 +147,8 @@ static int check_size(const char *what, uint32_t w, uint32_t h, uint64_t max_pix
 /* The sizes of what follows a checkpoint inside a level, and nothing
  * of them at a level's end. The coarsest level (one level of statistics)
  * has no level above it. */
-static int check_inside(const ts_mrf_checkpoint *ck, uint32_t cw, uint32_t ch, uint32_t rw, uint32_t rh,
-                        uint32_t nstats, uint64_t max_pixels, char *err) {
+static int check_inside_sizes(const ts_mrf_checkpoint *ck, uint32_t cw, uint32_t ch, uint32_t rw, uint32_t rh,
+                              uint32_t nstats, uint64_t max_pixels, char *err) {
   if (!inside_level(ck))
     return cw == 0 && ch == 0 && rw == 0 && rh == 0
                ? 0
@@ -188,7 +195,7 @@ static int read_header(ts_rd *r, uint64_t tag, uint64_t max_pixels, ts_mrf_check
   ck->width = (int)w;
   ck->height = (int)h;
   ck->nplanes = (int)planes;
-  rc = check_inside(ck, cw, ch, rw, rh, *nstats, max_pixels, err);
+  rc = check_inside_sizes(ck, cw, ch, rw, rh, *nstats, max_pixels, err);
   ck->coarse_width = (int)cw;
   ck->coarse_height = (int)ch;
   ck->ref_width = (int)rw;
@@ -225,7 +232,8 @@ static uint8_t *read_copy(ts_rd *r, size_t n) {
 
 static uint32_t *read_u32s(ts_rd *r, size_t n) {
   uint32_t *v = malloc(n * sizeof(uint32_t));
-  for (size_t i = 0; v != NULL && i < n; i++) v[i] = ts_rd_u32(r);
+  const uint8_t *p = ts_rd_bytes(r, 4 * n);
+  for (size_t i = 0; v != NULL && i < n; i++) v[i] = (uint32_t)ts_get_le(p + 4 * i, 4);
   return v;
 }
 
