@@ -149,6 +149,14 @@ typedef struct {
   int levels;
 } hook_ctx;
 
+/* Where a checkpoint was taken, for the log: "after level 1", or "inside
+ * level 0 at step 412 of 1042". Returns the length. */
+static int describe_place(char *buf, size_t cap, int level, uint64_t step, uint64_t steps) {
+  if (step == steps) return snprintf(buf, cap, "after level %d", level);
+  return snprintf(buf, cap, "inside level %d at step %llu of %llu", level, (unsigned long long)step,
+                  (unsigned long long)steps);
+}
+
 static int save_level(void *arg, const ts_mrf_checkpoint *ck, char *err) {
   const hook_ctx *hc = arg;
   uint8_t *buf;
@@ -156,10 +164,7 @@ static int save_level(void *arg, const ts_mrf_checkpoint *ck, char *err) {
   int rc = ts_checkpoint_encode(ck, hc->levels, hc->h->tag, &buf, &len, err);
   if (rc != 0) return rc;
   char what[96];
-  if (ck->step == ck->steps) snprintf(what, sizeof(what), "after level %d", ck->level);
-  else
-    snprintf(what, sizeof(what), "inside level %d at step %llu of %llu", ck->level, (unsigned long long)ck->step,
-             (unsigned long long)ck->steps);
+  describe_place(what, sizeof(what), ck->level, ck->step, ck->steps);
   rc = hc->h->save(hc->h->save_ctx, buf, len, what, err);
   free(buf);
   return rc;
@@ -169,10 +174,9 @@ static void on_resumed(void *arg, const ts_mrf_resume *r) {
   const hook_ctx *hc = arg;
   if (hc->h->resumed == NULL) return;
   char where[128];
-  if (r->step == r->steps) snprintf(where, sizeof(where), "after level %d", r->level);
-  else
-    snprintf(where, sizeof(where), "inside level %d at step %llu of %llu (%.1f %% of the level done)", r->level,
-             (unsigned long long)r->step, (unsigned long long)r->steps, 100.0 * r->level_done);
+  int n = describe_place(where, sizeof(where), r->level, r->step, r->steps);
+  if (r->step < r->steps)
+    snprintf(where + n, sizeof(where) - (size_t)n, " (%.1f %% of the level done)", 100.0 * r->level_done);
   hc->h->resumed(hc->h->save_ctx, where, r->redone);
 }
 
