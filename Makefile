@@ -4,7 +4,8 @@
 #   make            build binaries into build/
 #   make test       install missing packages, build, run every test
 #   make test-valgrind  the unit tests under valgrind
-#   make test-faults    fault injection (TRIALS random trials, default 20) and the load test
+#   make test-faults    fault injection (TRIALS random trials, default 20), the load test
+#                       and a coordinator killed half-way through level 0 of a 20 s job
 #   make fuzz       run each libFuzzer target for FUZZ_SECONDS (default 30)
 #   make bench      run benchmarks, write bench/results/
 #   make demo       install missing packages, run an embedded synthesis
@@ -132,12 +133,15 @@ test-integration: all
 	bash tests/run-integration.sh $(BUILD)
 
 # The fault-injection suite with TRIALS random worker faults (`make test`
-# runs 6), then 50 jobs from 5 clients with a worker killed. A failing
-# trial names its seed: replay it with TEXSYN_FAULT_SEED=S.
+# runs 6), then 50 jobs from 5 clients with a worker killed, then the
+# coordinator killed half-way through level 0 of a job of 20 s or more
+# (it prints the step resumed at and the work redone). A failing trial
+# names its seed: replay it with TEXSYN_FAULT_SEED=S.
 TRIALS ?= 20
 test-faults: all
-	TEXSYN_BUILD=$(abspath $(BUILD)) TEXSYN_FAULT_TRIALS=$(TRIALS) /usr/bin/python3 -m pytest -q \
-	  -p no:cacheprovider --durations=5 tests/integration/test_faults.py tests/integration/test_load.py
+	TEXSYN_BUILD=$(abspath $(BUILD)) TEXSYN_FAULT_TRIALS=$(TRIALS) TEXSYN_LONG_TESTS=1 /usr/bin/python3 -m pytest -q \
+	  -p no:cacheprovider --durations=5 tests/integration/test_faults.py tests/integration/test_load.py \
+	  tests/integration/test_resume.py
 
 # Every unit test under valgrind memcheck (about 4 minutes; not in `test`).
 test-valgrind: deps all

@@ -132,7 +132,7 @@ static int remove_dir(const char *dir) {
   return rmdir(dir);
 }
 
-/* The state after a job's last finished level (see on_checkpoint). */
+/* The state after a job's last checkpoint (see on_checkpoint). */
 #define JOBS_CHECKPOINT "checkpoint"
 
 static void drop_job_checkpoint(job *jb) {
@@ -276,9 +276,13 @@ static void on_checkpoint_refused(void *arg, const char *why) {
   unlink(path);
 }
 
-static void on_resumed(void *arg, const char *what) {
+/* The work redone is a bound, not a measurement (the process that did it
+ * is gone): the checkpoint's age, or the interval after which the crashed
+ * run would have written its next one. */
+static void on_resumed(void *arg, const char *where, double redone) {
   checkpoint_ctx *cc = arg;
-  jobs_log(cc->j, "job %" PRIu64 ": resuming %s from its checkpoint", cc->jb->id, what);
+  jobs_log(cc->j, "job %" PRIu64 ": resuming %s from its checkpoint; work since the checkpoint (at most %.1f s) "
+           "is redone", cc->jb->id, where, redone);
 }
 
 /* Runs the job's engine, from its last checkpoint if it has one. */
@@ -291,8 +295,16 @@ static int run_engine(ts_jobs *j, job *jb, const ts_image *ref, ts_search *searc
   uint8_t *resume = NULL;
   size_t resume_len = 0;
   if (ts_file_read(path, SIZE_MAX, &resume, &resume_len, NULL) != 0) resume = NULL;
-  ts_engine_hooks hooks = {on_progress,  &pc,        on_checkpoint, &cc, resume, resume_len,
-                           cc.tag,       on_checkpoint_refused,     on_resumed};
+  ts_engine_hooks hooks = {.progress = on_progress,
+                           .progress_ctx = &pc,
+                           .save = on_checkpoint,
+                           .save_ctx = &cc,
+                           .checkpoint_interval = j->o.checkpoint_interval,
+                           .resume = resume,
+                           .resume_len = resume_len,
+                           .tag = cc.tag,
+                           .resume_refused = on_checkpoint_refused,
+                           .resumed = on_resumed};
   int rc = jb->spec.engine->run(&jb->spec.params, ref, search, &hooks, run, err);
   free(resume);
   return rc;
@@ -529,9 +541,8 @@ void ts_jobs_destroy(ts_jobs *j) {
 }
 
 /* Disk a job will use: its reference, and a reserve for its results and
- * checkpoints (an 8-byte-per-pixel image, the copy maps it asked for, and
- * a checkpoint of a quarter of the pixels at 9 bytes each) until they are
- * written and counted. */
+ * checkpoints (the engine's estimate, ts_engine.result_bytes) until they
+ * are written and counted. */
 static uint64_t job_reserve(const ts_jobspec *s, size_t ref_len) {
   return ref_len + s->engine->result_bytes(&s->params, &s->wants) + 65536;
 }

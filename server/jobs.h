@@ -31,6 +31,8 @@ typedef struct {
   uint32_t max_client_jobs; /* unfinished jobs per client (0 = no limit) */
   uint64_t max_spool_bytes; /* disk use of all jobs (0 = no limit) */
   ts_cluster *cluster;
+  double checkpoint_interval; /* seconds of work between checkpoints inside a
+                                 level (0: after whole levels only) */
 } ts_jobs_opts;
 
 typedef struct ts_jobs ts_jobs;

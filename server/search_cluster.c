@@ -149,6 +149,7 @@ static int cluster_prepare(ts_search *s, const ts_refset *rs, int *id, char *err
     st->slices = NULL;
     return ts_error(err, TS_ENOMEM, "out of memory for a reference set");
   }
+  if (rs->usage && rs->counts != NULL) ts_usage_load(&st->usage, rs->counts->count);
   pthread_mutex_lock(&cs->c->lock);
   st->gid = ++cs->c->next_set;
   st->used = 1;

@@ -17,6 +17,7 @@
 
 #include "l1.h"
 #include "neigh.h"
+#include "usage.h"
 
 /* What a backend needs to build a reference vector set. The pointed-to data
  * must stay alive until the set is released. */
@@ -25,6 +26,9 @@ typedef struct {
   const ts_refgrid *grid;
   const ts_levelplanes *ref;
   int usage; /* batches will carry a usage penalty: keep usage replicas */
+  /* Where the replicas start (read during prepare only): the counts a
+   * level resumed mid-way had at its checkpoint. NULL: all zero. */
+  const ts_usage *counts;
 } ts_refset;
 
 /* Source blocks copied since the last batch: feeds the backend's replica of

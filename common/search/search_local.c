@@ -41,7 +41,7 @@ static int local_prepare(ts_search *s, const ts_refset *rs, int *id, char *err) 
   if (slot == LOCAL_MAX_SETS) return ts_error(err, TS_ENOMEM, "too many reference sets prepared at once");
   uint32_t i0[4] = {0};
   ts_slice_desc m;
-  ts_slice_describe(&m, rs, NULL, (uint32_t)slot, 0, i0, rs->grid->count);
+  ts_slice_describe(&m, rs, rs->counts, (uint32_t)slot, 0, i0, rs->grid->count);
   int rc = ts_slice_load(&ls->sets[slot], &m, err);
   if (rc != 0) return rc;
   memcpy(ls->count[slot], rs->grid->count, sizeof(ls->count[slot]));

@@ -147,15 +147,7 @@ static void usage_load_rows(ts_usage *u, int y0, int y1, const uint8_t *le) {
       u->count[(size_t)y * (size_t)g->w + (size_t)x] = v;
       u->total += v;
     }
-  for (int by = y0 > g->y0 ? y0 : g->y0; by + u->wb <= y1 && by < g->y0 + g->ny; by++)
-    for (int bx = g->x0; bx < g->x0 + g->nx; bx++) {
-      int64_t j = ts_refgrid_index(g, bx, by);
-      if (j < 0) continue;
-      uint32_t sum = 0;
-      for (int dy = 0; dy < u->wb; dy++)
-        for (int dx = 0; dx < u->wb; dx++) sum += u->count[(size_t)(by + dy) * (size_t)g->w + (size_t)(bx + dx)];
-      u->u[j] = sum;
-    }
+  ts_usage_sum_blocks(u, y0, y1);
 }
 
 static int build(ts_slice *s, const ts_slice_desc *m, char *err) {

@@ -3,6 +3,7 @@
 
 #include <math.h>
 #include <stdlib.h>
+#include <string.h>
 
 #include "error.h"
 
@@ -43,6 +44,28 @@ static void add_pixel(ts_usage *u, int px, int py, int delta) {
 void ts_usage_commit(ts_usage *u, int x, int y, int w, int h, int delta) {
   for (int dy = 0; dy < h; dy++)
     for (int dx = 0; dx < w; dx++) add_pixel(u, x + dx, y + dy, delta);
+}
+
+void ts_usage_load(ts_usage *u, const uint32_t *count) {
+  size_t n = (size_t)u->grid.w * (size_t)u->grid.h;
+  memcpy(u->count, count, n * sizeof(uint32_t));
+  u->total = 0;
+  for (size_t i = 0; i < n; i++) u->total += count[i];
+  ts_usage_sum_blocks(u, 0, u->grid.h);
+}
+
+void ts_usage_sum_blocks(ts_usage *u, int y0, int y1) {
+  const ts_refgrid *g = &u->grid;
+  if (u->u == NULL) return;
+  for (int by = y0 > g->y0 ? y0 : g->y0; by + u->wb <= y1 && by < g->y0 + g->ny; by++)
+    for (int bx = g->x0; bx < g->x0 + g->nx; bx++) {
+      int64_t j = ts_refgrid_index(g, bx, by);
+      if (j < 0) continue;
+      uint32_t sum = 0;
+      for (int dy = 0; dy < u->wb; dy++)
+        for (int dx = 0; dx < u->wb; dx++) sum += u->count[(size_t)(by + dy) * (size_t)g->w + (size_t)(bx + dx)];
+      u->u[j] = sum;
+    }
 }
 
 uint64_t ts_usage_factor(const ts_usage *u, double alpha, uint64_t d1) {

@@ -39,6 +39,12 @@ void ts_usage_free(ts_usage *u);
 /* Records that the w x h pixels at (x, y) of the reference were copied
  * (delta +1), or that such a copy was replaced (delta -1). */
 void ts_usage_commit(ts_usage *u, int x, int y, int w, int h, int delta);
+/* Sets the counters to count (grid.w * grid.h of them), and the total and
+ * block sums to match: a usage state carried over (a resumed level). */
+void ts_usage_load(ts_usage *u, const uint32_t *count);
+/* Recomputes, from the counters, the block sums of the valid blocks that lie
+ * within rows [y0, y1) (a no-op without block sums). */
+void ts_usage_sum_blocks(ts_usage *u, int y0, int y1);
 /* Penalty factor K (32.32 fixed point) for alpha and D1 (see above). */
 uint64_t ts_usage_factor(const ts_usage *u, double alpha, uint64_t d1);
 

@@ -1,7 +1,8 @@
-/* checkpoint.h - per-level synthesis checkpoints as bytes: what the
- * coordinator writes to a job's spool directory after every level, so a
- * coordinator killed mid-job resumes at the last finished level instead
- * of from noise (and with the same result bytes, see ts_mrf_checkpoint).
+/* checkpoint.h - synthesis checkpoints as bytes: what the coordinator
+ * writes to a job's spool directory after every level and every few
+ * seconds inside one, so a coordinator killed mid-job resumes where its
+ * last checkpoint was taken instead of from noise (and with the same
+ * result bytes, see ts_mrf_checkpoint).
  *
  * The encoding is little-endian and self-checking (layout in
  * checkpoint.c): a torn, truncated, corrupted or foreign file is refused
@@ -17,7 +18,8 @@
 /* A tag for the job a checkpoint belongs to: a hash of its spec text. */
 uint64_t ts_checkpoint_tag(const void *spec, size_t len);
 
-/* Encodes ck of job `tag` into a malloc'd buffer. 0 or TS_ENOMEM. */
+/* Encodes ck of job `tag` (a synthesis of `levels` levels) into a malloc'd
+ * buffer. 0 or TS_ENOMEM. */
 int ts_checkpoint_encode(const ts_mrf_checkpoint *ck, int levels, uint64_t tag, uint8_t **buf, size_t *len,
                          char *err);
 

@@ -53,22 +53,26 @@ typedef struct {
 } ts_engine_wants;
 
 /* Checkpoints as bytes: the engine encodes its state after a unit of work
- * (a level, or part of one) and hands it to `save`; `resume` holds the
- * bytes of the last one saved, or NULL. `tag` ties checkpoints to the job's
- * spec (a checkpoint with another tag is refused). */
+ * (a level), and inside one every checkpoint_interval seconds, and hands
+ * it to `save`; `resume` holds the bytes of the last one saved, or NULL.
+ * `tag` ties checkpoints to the job's spec (a checkpoint with another tag
+ * is refused). */
 typedef struct {
   ts_progress_fn *progress; /* may be NULL */
   void *progress_ctx;
   int (*save)(void *ctx, const uint8_t *buf, size_t len, const char *what, char *err); /* may be NULL */
   void *save_ctx;
+  double checkpoint_interval; /* 0: after whole units only */
   const uint8_t *resume;
   size_t resume_len;
   uint64_t tag;
-  /* Called when `resume` was refused (damaged, foreign): the job starts
-   * over, which gives the same bytes, only later. May be NULL. */
+  /* Called when `resume` was refused (damaged, foreign, an older format):
+   * the job starts over, which gives the same bytes, only later. May be
+   * NULL. */
   void (*resume_refused)(void *ctx, const char *why);
-  /* Called when the engine resumed from `resume`, with what it skips. */
-  void (*resumed)(void *ctx, const char *what);
+  /* Called when the engine resumed from `resume`: where it goes on, and at
+   * most how many seconds of the interrupted run's work it does again. */
+  void (*resumed)(void *ctx, const char *where, double redone);
 } ts_engine_hooks;
 
 typedef struct ts_engine_run ts_engine_run;
@@ -92,7 +96,8 @@ typedef struct ts_engine {
   int (*check)(const void *params, const ts_image *ref, char *msg, size_t len);
   /* Applies a daemon's pixel limit to the parameters. */
   void (*set_max_pixels)(void *params, uint64_t max_pixels);
-  /* Bytes the wanted outputs may take (the spool's disk reserve). */
+  /* Bytes the wanted outputs and the checkpoints may take (the spool's
+   * disk reserve). */
   uint64_t (*result_bytes)(const void *params, const ts_engine_wants *w);
   /* Pyramid levels the job goes through (for its status). */
   int (*levels)(const void *params);

@@ -146,10 +146,24 @@ typedef struct {
 } query_group;
 
 typedef struct {
+  ts_schedule sched;
+  int refine, reps;
+} level_phase;
+
+/* The work of a level as one sequence of steps: the wavefront scan, then
+ * each sweep pass's schedule `reps` times. A checkpoint inside the level
+ * names its place in it by the number of steps done. */
+typedef struct {
+  int n;
+  level_phase phase[3];
+  uint64_t steps;
+} level_plan;
+
+typedef struct {
   const ts_mrf_params *p;
   ts_search *search;
-  ts_progress_fn *progress;
-  void *progress_ctx;
+  const ts_mrf_hooks *hooks;
+  ts_mrf_result *res;
   ts_progress prog;
   int nplanes;
   int levels;
@@ -166,7 +180,14 @@ typedef struct {
   uint8_t *done;  /* 1 where a block was placed at this level */
   ts_shape shape[2]; /* SHAPE_PLAIN: causal L; SHAPE_MASKED: full window */
   int set_ids[2];
-  uint64_t steps;
+  level_plan plan;
+  uint64_t step; /* steps of the plan done */
+  /* The level's statistics: carried over from a checkpoint inside it, and
+   * the search counters when this run started it. */
+  ts_mrf_level_stats carried;
+  ts_search_stats base;
+  double t0;
+  double last_checkpoint; /* ts_now() then, or at the start */
   /* per-step scratch: one query group per shape */
   uint32_t cap;
   query_group group[2];
@@ -249,6 +270,41 @@ static uint64_t level_blocks(const ts_mrf_params *p, int l, int w, int h) {
   for (int i = 0, k = level_sweeps(p, l, pass); i < k; i++)
     n += band_blocks(rows, cols, (uint64_t)pass[i].band) * (uint64_t)pass[i].count;
   return n;
+}
+
+static void plan_free(level_plan *pl) {
+  for (int i = 0; i < pl->n; i++) ts_schedule_free(&pl->phase[i].sched);
+  memset(pl, 0, sizeof(*pl));
+}
+
+static int plan_level(level_plan *pl, const ts_mrf_params *p, int l, int w, int h) {
+  sweep_pass pass[2];
+  int npass = level_sweeps(p, l, pass);
+  memset(pl, 0, sizeof(*pl));
+  pl->n = 1 + npass;
+  pl->phase[0].reps = 1;
+  int rc = ts_schedule_wavefront(&pl->phase[0].sched, w, h, p->wb, p->wn);
+  for (int i = 0; rc == 0 && i < npass; i++) {
+    level_phase *ph = &pl->phase[1 + i];
+    ph->refine = 1;
+    ph->reps = pass[i].count;
+    rc = ts_schedule_sweep(&ph->sched, w, h, p->wb, p->wn, pass[i].band);
+  }
+  for (int i = 0; i < pl->n; i++) pl->steps += (uint64_t)pl->phase[i].sched.nsteps * (uint64_t)pl->phase[i].reps;
+  if (rc != 0) plan_free(pl);
+  return rc;
+}
+
+/* Calls fn on every block of the plan's first `steps` steps, in order. */
+static void plan_walk(const level_plan *pl, uint64_t steps, void (*fn)(void *ctx, const ts_block *b), void *ctx) {
+  for (int i = 0; i < pl->n && steps > 0; i++) {
+    const ts_schedule *s = &pl->phase[i].sched;
+    for (int r = 0; r < pl->phase[i].reps && steps > 0; r++) {
+      uint32_t t = steps < s->nsteps ? (uint32_t)steps : s->nsteps;
+      for (uint32_t b = 0; b < s->step_start[t]; b++) fn(ctx, &s->blocks[b]);
+      steps -= t;
+    }
+  }
 }
 
 /* Fills the coarsest level's canvas with reference pixels from uniformly
@@ -430,11 +486,75 @@ static int place_step(engine *e, const ts_block *blocks, int refine, char *err) 
   return 0;
 }
 
-/* Runs a schedule step by step, every block of a step searched against the
- * canvas as the previous step left it (schedule.h). */
-static int run_steps(engine *e, const ts_schedule *sch, int refine, char *err) {
+/* Seconds since the epoch: a checkpoint's moment has to mean something to
+ * the process that resumes from it, which the monotonic clock does not. */
+static double wall_now(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_REALTIME, &ts);
+  return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+/* The current level's statistics: those carried over from a checkpoint
+ * inside it, plus what this run has done since it started the level. */
+static void level_stats(const engine *e, ts_mrf_level_stats *ls) {
+  const ts_search_stats *s = &e->search->stats, *b = &e->base;
+  int l = e->level;
+  *ls = e->carried;
+  ls->ref_w = e->ref[0][l].w;
+  ls->ref_h = e->ref[0][l].h;
+  ls->out_w = e->cw[l];
+  ls->out_h = e->ch[l];
+  ls->vectors = e->grid.total;
+  ls->blocks = e->prog.done;
+  ls->steps = e->step;
+  ls->pairs += s->pairs - b->pairs;
+  ls->round_trips += s->round_trips - b->round_trips;
+  ls->wire_bytes += s->bytes_out + s->bytes_in - (b->bytes_out + b->bytes_in);
+  ls->seconds += ts_now() - e->t0;
+}
+
+/* Hands the state after the level's step e->step to the checkpoint hook:
+ * the level's end, or (fewer steps done) a place inside it, which also
+ * needs what the steps left read. */
+static int save_checkpoint(engine *e, char *err) {
+  const ts_mrf_hooks *h = e->hooks;
+  int l = e->level;
+  ts_mrf_checkpoint ck = {.level = l, .step = e->step, .steps = e->plan.steps, .saved_at = wall_now(),
+                          .interval = h->checkpoint_interval, .width = e->cw[l], .height = e->ch[l],
+                          .nplanes = e->nplanes, .copy = e->copy};
+  for (int k = 0; k < e->nplanes; k++) ck.planes[k] = e->canvas[k][l].px;
+  memcpy(ck.stats, e->res->level, sizeof(ck.stats));
+  if (e->step < e->plan.steps) {
+    ck.done = e->done;
+    ck.ref_width = e->grid.w;
+    ck.ref_height = e->grid.h;
+    ck.usage = e->usage.count;
+    if (l + 1 < e->levels) {
+      ck.coarse_width = e->cw[l + 1];
+      ck.coarse_height = e->ch[l + 1];
+      for (int k = 0; k < e->nplanes; k++) ck.coarse[k] = e->canvas[k][l + 1].px;
+    }
+    level_stats(e, &ck.stats[l]);
+  }
+  int rc = h->checkpoint(h->checkpoint_ctx, &ck, err);
+  e->last_checkpoint = ts_now(); /* the interval counts work, not writing */
+  return rc;
+}
+
+/* A checkpoint inside the level is due: the interval has passed since the
+ * last one, and steps are left (the level's end has its own). */
+static int checkpoint_due(const engine *e) {
+  const ts_mrf_hooks *h = e->hooks;
+  return h->checkpoint != NULL && h->checkpoint_interval > 0 && e->step < e->plan.steps &&
+         ts_now() - e->last_checkpoint >= h->checkpoint_interval;
+}
+
+/* Runs steps t0.. of a schedule, every block of a step searched against
+ * the canvas as the previous step left it (schedule.h); a checkpoint, when
+ * due, goes between two steps. */
+static int run_steps(engine *e, const ts_schedule *sch, int refine, uint32_t t0, char *err) {
   uint64_t d1[2] = {unit_distance(&e->shape[0]), unit_distance(&e->shape[1])};
-  for (uint32_t t = 0; t < sch->nsteps; t++) {
+  for (uint32_t t = t0; t < sch->nsteps; t++) {
     const ts_block *blocks = sch->blocks + sch->step_start[t];
     uint32_t n = sch->step_start[t + 1] - sch->step_start[t];
     if (ensure_step_scratch(e, n) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
@@ -442,28 +562,31 @@ static int run_steps(engine *e, const ts_schedule *sch, int refine, char *err) {
     int rc = search_step(e, d1, err);
     if (rc == 0) rc = place_step(e, blocks, refine, err);
     if (rc != 0) return rc;
+    e->step++;
     e->prog.done += n;
     e->prog.work_done += n * level_cost(e->level);
-    if (e->progress) e->progress(e->progress_ctx, &e->prog);
+    if (e->hooks->progress) e->hooks->progress(e->hooks->progress_ctx, &e->prog);
+    if (checkpoint_due(e) && (rc = save_checkpoint(e, err)) != 0) return rc;
   }
   return 0;
 }
 
-/* A pass of refinement sweeps (ICM-like) over the level, or over the seam
- * band of `band` block rows and columns: every block searched again with
- * its full window, all of it placed now, so joins made early against
+/* Runs the level's plan from step e->step on: 0, or where a checkpoint
+ * inside the level left it. The sweeps (ICM-like) search every block again
+ * with its full window, all of it placed now, so joins made early against
  * little context - and the torus seam, where the scan closes - are
  * revisited with both sides known. */
-static int run_sweeps(engine *e, const sweep_pass *pass, char *err) {
-  ts_schedule sweep;
-  int rc = ts_schedule_sweep(&sweep, e->cw[e->level], e->ch[e->level], e->p->wb, e->p->wn, pass->band);
-  if (rc != 0) return ts_error(err, rc, "out of memory");
-  for (int i = 0; rc == 0 && i < pass->count; i++) {
-    rc = run_steps(e, &sweep, 1, err);
-    e->steps += sweep.nsteps;
+static int run_level(engine *e, char *err) {
+  uint64_t first = 0; /* plan step of the schedule's first step */
+  for (int i = 0; i < e->plan.n; i++) {
+    const level_phase *ph = &e->plan.phase[i];
+    for (int r = 0; r < ph->reps; r++, first += ph->sched.nsteps) {
+      if (e->step >= first + ph->sched.nsteps) continue; /* done before the checkpoint */
+      int rc = run_steps(e, &ph->sched, ph->refine, (uint32_t)(e->step - first), err);
+      if (rc != 0) return rc;
+    }
   }
-  ts_schedule_free(&sweep);
-  return rc;
+  return 0;
 }
 
 static int build_reference(engine *e, const ts_image *ref) {
@@ -481,10 +604,38 @@ static int build_reference(engine *e, const ts_image *ref) {
   return rc;
 }
 
-static int synthesize_level(engine *e, int l, char *err) {
+/* Takes over a checkpoint inside level l (check_resume passed it): the
+ * canvas, copy map, placed blocks and usage counters as its step left
+ * them, and the level above's canvas, the coarse part of the queries. */
+static int restore_inside(engine *e, const ts_mrf_checkpoint *ck, char *err) {
+  int l = e->level;
+  size_t npx = (size_t)ck->width * ck->height;
+  for (int k = 0; k < e->nplanes; k++) {
+    memcpy(e->canvas[k][l].px, ck->planes[k], npx);
+    if (l + 1 == e->levels) continue;
+    if (ts_plane_alloc(&e->canvas[k][l + 1], ck->coarse_width, ck->coarse_height) != 0)
+      return ts_error(err, TS_ENOMEM, "out of memory");
+    memcpy(e->canvas[k][l + 1].px, ck->coarse[k], (size_t)ck->coarse_width * ck->coarse_height);
+  }
+  memcpy(e->copy, ck->copy, sizeof(uint32_t) * 2 * npx);
+  memcpy(e->done, ck->done, npx);
+  ts_usage_load(&e->usage, ck->usage);
+  e->step = ck->step;
+  e->carried = ck->stats[l];
+  e->prog.done = ck->stats[l].blocks;
+  e->prog.work_done += (double)e->prog.done * level_cost(l);
+  return 0;
+}
+
+/* Synthesises level l from its start, or from `inside`, a checkpoint
+ * taken inside it. */
+static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, char *err) {
   const ts_mrf_params *p = e->p;
   int coarse = l < e->levels - 1;
   e->level = l;
+  e->t0 = ts_now();
+  e->base = e->search->stats;
+  memset(&e->carried, 0, sizeof(e->carried));
   e->ref_lp.nplanes = e->canvas_lp.nplanes = e->nplanes;
   for (int k = 0; k < e->nplanes; k++) {
     e->ref_lp.fine[k] = &e->ref[k][l];
@@ -503,7 +654,6 @@ static int synthesize_level(engine *e, int l, char *err) {
     e->shape[SHAPE_MASKED].wcoarse = e->shape[SHAPE_PLAIN].wcoarse;
   }
   const ts_plane *r0 = e->ref_lp.fine[0];
-  ts_schedule scan = {0};
   e->set_ids[0] = e->set_ids[1] = -1;
   e->cap = 0; /* the shapes' sizes changed */
   if (rc == 0)
@@ -514,25 +664,23 @@ static int synthesize_level(engine *e, int l, char *err) {
   e->copy = rc == 0 ? malloc(sizeof(uint32_t) * 2 * npx) : NULL;
   e->done = rc == 0 ? calloc(npx, 1) : NULL;
   if (rc == 0 && (e->copy == NULL || e->done == NULL)) rc = ts_error(err, TS_ENOMEM, "out of memory");
-  if (rc == 0) rc = ts_schedule_wavefront(&scan, e->cw[l], e->ch[l], p->wb, p->wn);
+  if (rc == 0 && (rc = plan_level(&e->plan, p, l, e->cw[l], e->ch[l])) != 0) ts_error(err, rc, "out of memory");
+  e->step = 0;
+  e->prog.level = l;
+  e->prog.done = 0;
+  e->prog.total = level_blocks(p, l, e->cw[l], e->ch[l]);
+  if (rc == 0 && inside) rc = restore_inside(e, inside, err);
+  else if (rc == 0 && coarse) init_prediction(e);
+  else if (rc == 0) init_noise(e);
+  /* The backend's usage replicas start from the counters as they are now:
+   * zero, or a resumed level's. */
   for (int k = 0; rc == 0 && k < 2; k++) {
-    ts_refset rs = {&e->shape[k], &e->grid, &e->ref_lp, p->usage_weight > 0};
+    ts_refset rs = {&e->shape[k], &e->grid, &e->ref_lp, p->usage_weight > 0, &e->usage};
     rc = ts_search_prepare(e->search, &rs, &e->set_ids[k], err);
   }
-  if (rc == 0) {
-    if (coarse) init_prediction(e);
-    else init_noise(e);
-    e->prog.level = l;
-    e->prog.done = 0;
-    e->prog.total = level_blocks(p, l, e->cw[l], e->ch[l]);
-    e->steps = scan.nsteps;
-    rc = run_steps(e, &scan, 0, err);
-    sweep_pass pass[2];
-    for (int i = 0, k = level_sweeps(p, l, pass); rc == 0 && i < k; i++) rc = run_sweeps(e, &pass[i], err);
-  }
+  if (rc == 0) rc = run_level(e, err);
   for (int k = 0; k < 2; k++)
     if (e->set_ids[k] >= 0) ts_search_release(e->search, e->set_ids[k]);
-  ts_schedule_free(&scan);
   return rc;
 }
 
@@ -550,6 +698,7 @@ static void engine_free(engine *e) {
     ts_shape_free(&e->shape[k]);
   }
   free(e->commits);
+  plan_free(&e->plan);
 }
 
 
@@ -575,22 +724,62 @@ static int gather_output(engine *e, const ts_image *ref, ts_mrf_result *res, cha
   return 0;
 }
 
-/* Hands the level just finished to the checkpoint hook. */
-static int save_checkpoint(engine *e, const ts_mrf_hooks *h, const ts_mrf_result *res, char *err) {
-  int l = e->level;
-  ts_mrf_checkpoint ck = {.level = l, .width = e->cw[l], .height = e->ch[l], .nplanes = e->nplanes, .copy = e->copy};
-  for (int k = 0; k < e->nplanes; k++) ck.planes[k] = e->canvas[k][l].px;
-  memcpy(ck.stats, res->level, sizeof(ck.stats));
-  return h->checkpoint(h->checkpoint_ctx, &ck, err);
+/* ---- resuming ----------------------------------------------------------- */
+
+/* What the first steps of a plan leave: the blocks placed, and how many
+ * were searched. */
+typedef struct {
+  int w;
+  uint8_t *done;
+  uint64_t blocks;
+} walk_state;
+
+static void mark_block(void *ctx, const ts_block *b) {
+  walk_state *ws = ctx;
+  ws->blocks++;
+  for (int dy = 0; dy < b->h; dy++) memset(ws->done + (size_t)(b->y + dy) * ws->w + b->x, 1, b->w);
 }
 
-/* Takes over a finished level's state: its canvas becomes the coarse part
- * of the next level and its copy map the prediction. Returns the level to
- * go on with, or an error when the state does not belong to this job. */
-static int load_checkpoint(engine *e, const ts_mrf_checkpoint *ck, ts_mrf_result *res, char *err) {
+/* A checkpoint inside a level must hold what its first `step` steps of the
+ * plan leave: exactly those blocks placed, as many blocks searched, and
+ * usage counters that count the placed pixels' copies (every copy adds
+ * its pixels, every sweep's replacement takes the old ones away). */
+static int check_inside(const engine *e, const ts_mrf_checkpoint *ck, const level_plan *pl, char *err) {
+  int l = ck->level, top = l + 1 == e->levels;
+  int rw = e->ref[0][l].w, rh = e->ref[0][l].h;
+  if (ck->coarse_width != (top ? 0 : e->cw[l + 1]) || ck->coarse_height != (top ? 0 : e->ch[l + 1]) ||
+      ck->ref_width != rw || ck->ref_height != rh)
+    return ts_error(err, TS_EINVAL,
+                    "the checkpoint inside level %d (coarse canvas %dx%d, reference %dx%d) does not belong to "
+                    "this job", l, ck->coarse_width, ck->coarse_height, ck->ref_width, ck->ref_height);
+  size_t npx = (size_t)ck->width * ck->height;
+  walk_state ws = {ck->width, calloc(npx, 1), 0};
+  uint32_t *count = calloc((size_t)rw * rh, sizeof(uint32_t));
+  int rc = ws.done && count ? 0 : ts_error(err, TS_ENOMEM, "out of memory");
+  if (rc == 0) plan_walk(pl, ck->step, mark_block, &ws);
+  if (rc == 0 && memcmp(ws.done, ck->done, npx) != 0)
+    rc = ts_error(err, TS_EINVAL, "the checkpoint's placed blocks are not those of its %llu steps",
+                  (unsigned long long)ck->step);
+  if (rc == 0 && ws.blocks != ck->stats[l].blocks)
+    rc = ts_error(err, TS_EINVAL, "the checkpoint counts %llu blocks searched, its %llu steps search %llu",
+                  (unsigned long long)ck->stats[l].blocks, (unsigned long long)ck->step,
+                  (unsigned long long)ws.blocks);
+  for (size_t i = 0; rc == 0 && i < npx; i++)
+    if (ck->done[i]) count[(size_t)ck->copy[2 * i + 1] * rw + ck->copy[2 * i]]++;
+  if (rc == 0 && memcmp(count, ck->usage, (size_t)rw * rh * sizeof(uint32_t)) != 0)
+    rc = ts_error(err, TS_EINVAL, "the checkpoint's usage counters do not count its placed copies");
+  free(ws.done);
+  free(count);
+  return rc;
+}
+
+/* Checks that a checkpoint is a state this job's synthesis passes through.
+ * It came through a checksum, but from a file: one left by another build,
+ * or a lie, must be refused rather than trusted. */
+static int check_resume(const engine *e, const ts_mrf_checkpoint *ck, char *err) {
   const ts_mrf_params *p = e->p;
-  int l = ck->level;
-  if (l <= p->stop_level || l >= p->levels || ck->nplanes != e->nplanes || ck->width != e->cw[l] ||
+  int l = ck->level, inside = ck->step < ck->steps;
+  if (l < p->stop_level + !inside || l >= p->levels || ck->nplanes != e->nplanes || ck->width != e->cw[l] ||
       ck->height != e->ch[l])
     return ts_error(err, TS_EINVAL, "the checkpoint (level %d, %dx%d, %d planes) does not belong to this job", l,
                     ck->width, ck->height, ck->nplanes);
@@ -599,6 +788,23 @@ static int load_checkpoint(engine *e, const ts_mrf_checkpoint *ck, ts_mrf_result
   for (size_t i = 0; i < npx; i++)
     if (ck->copy[2 * i] >= (uint32_t)r->w || ck->copy[2 * i + 1] >= (uint32_t)r->h)
       return ts_error(err, TS_EINVAL, "the checkpoint's copy map points outside the level-%d reference", l);
+  level_plan pl;
+  if (plan_level(&pl, p, l, ck->width, ck->height) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
+  int rc = 0;
+  if (ck->steps != pl.steps || ck->stats[l].steps != ck->step || ck->step > ck->steps)
+    rc = ts_error(err, TS_EINVAL, "the checkpoint is at step %llu of %llu of level %d, which has %llu steps here",
+                  (unsigned long long)ck->step, (unsigned long long)ck->steps, l, (unsigned long long)pl.steps);
+  else if (inside)
+    rc = check_inside(e, ck, &pl, err);
+  plan_free(&pl);
+  return rc;
+}
+
+/* Takes over a finished level's state: its canvas becomes the coarse part
+ * of the next level and its copy map the prediction. */
+static int restore_level_end(engine *e, const ts_mrf_checkpoint *ck, char *err) {
+  int l = ck->level;
+  size_t npx = (size_t)ck->width * ck->height;
   for (int k = 0; k < e->nplanes; k++) {
     if (ts_plane_alloc(&e->canvas[k][l], ck->width, ck->height) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
     memcpy(e->canvas[k][l].px, ck->planes[k], npx);
@@ -607,11 +813,47 @@ static int load_checkpoint(engine *e, const ts_mrf_checkpoint *ck, ts_mrf_result
   if (e->copy == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
   memcpy(e->copy, ck->copy, sizeof(uint32_t) * 2 * npx);
   e->level = l;
-  for (int k = l; k < p->levels; k++) {
-    res->level[k] = ck->stats[k];
-    e->prog.work_done += (double)level_blocks(p, k, e->cw[k], e->ch[k]) * level_cost(k);
-  }
   return 0;
+}
+
+static void describe_resume(const engine *e, const ts_mrf_checkpoint *ck, ts_mrf_resume *r) {
+  int l = ck->level;
+  r->level = l;
+  r->step = ck->step;
+  r->steps = ck->steps;
+  r->level_done = (double)ck->stats[l].blocks / (double)level_blocks(e->p, l, e->cw[l], e->ch[l]);
+  r->saved_at = ck->saved_at;
+  r->age = wall_now() - ck->saved_at;
+  if (!(r->age > 0)) r->age = 0; /* a clock set back */
+  r->redone = ck->interval > 0 && ck->interval < r->age ? ck->interval : r->age;
+}
+
+/* Goes on from hooks->resume when it fits the job: *first is the level to
+ * run first, and *inside the checkpoint to start it from when it was taken
+ * inside that level. One that does not fit fails the synthesis, or, with a
+ * `refused` hook, is reported and synthesis starts from noise. */
+static int take_resume(engine *e, int *first, const ts_mrf_checkpoint **inside, char *err) {
+  const ts_mrf_hooks *h = e->hooks;
+  const ts_mrf_checkpoint *ck = h->resume;
+  char why[TS_ERR_LEN];
+  int rc = check_resume(e, ck, why);
+  if (rc == TS_EINVAL && h->refused != NULL) {
+    h->refused(h->resume_ctx, why);
+    return 0;
+  }
+  if (rc != 0) return ts_error(err, rc, "%s", why);
+  int l = ck->level, finished = ck->step == ck->steps;
+  if (finished) rc = restore_level_end(e, ck, err);
+  *first = finished ? l - 1 : l;
+  *inside = finished ? NULL : ck;
+  for (int k = finished ? l : l + 1; k < e->levels; k++) { /* the levels done */
+    e->res->level[k] = ck->stats[k];
+    e->prog.work_done += (double)level_blocks(e->p, k, e->cw[k], e->ch[k]) * level_cost(k);
+  }
+  e->res->resumed = 1;
+  describe_resume(e, ck, &e->res->resume);
+  if (h->resumed) h->resumed(h->resume_ctx, &e->res->resume);
+  return rc;
 }
 
 /* Frees the state of the level above before level l starts. */
@@ -623,6 +865,7 @@ static void drop_previous_level(engine *e) {
   e->copy = NULL;
   e->done = NULL;
   for (int k = 0; k < 2; k++) ts_shape_free(&e->shape[k]);
+  plan_free(&e->plan);
 }
 
 int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *search,
@@ -631,15 +874,15 @@ int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *se
   char msg[2048];
   if (ts_mrf_check(p, ref->width, ref->height, ref->channels, msg, sizeof(msg)) != 0)
     return ts_error(err, TS_EINVAL, "%s", msg);
-  ts_mrf_hooks none = {0};
-  const ts_mrf_hooks *h = hooks ? hooks : &none;
+  static const ts_mrf_hooks none = {0};
   double t_start = ts_now();
   engine e;
   memset(&e, 0, sizeof(e));
   e.p = p;
   e.search = search;
-  e.progress = h->progress;
-  e.progress_ctx = h->progress_ctx;
+  e.hooks = hooks ? hooks : &none;
+  e.res = res;
+  e.last_checkpoint = t_start;
   e.levels = p->levels;
   e.nplanes = nplanes_for(p, ref->channels);
   e.prog.levels = p->levels;
@@ -649,31 +892,15 @@ int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *se
   int rc = build_reference(&e, ref);
   if (rc != 0) rc = ts_error(err, rc, "cannot build the reference pyramid: %s", ts_strerror(rc));
   int first = p->levels - 1;
-  if (rc == 0 && h->resume) {
-    rc = load_checkpoint(&e, h->resume, res, err);
-    first = h->resume->level - 1;
-  }
+  const ts_mrf_checkpoint *inside = NULL;
+  if (rc == 0 && e.hooks->resume) rc = take_resume(&e, &first, &inside, err);
   for (int l = first; l >= p->stop_level && rc == 0; l--) {
-    double t0 = ts_now();
-    uint64_t pairs0 = search->stats.pairs, rt0 = search->stats.round_trips;
-    uint64_t bytes0 = search->stats.bytes_out + search->stats.bytes_in;
-    ts_mrf_level_stats *ls = &res->level[l];
-    ls->ref_w = e.ref[0][l].w;
-    ls->ref_h = e.ref[0][l].h;
-    ls->out_w = e.cw[l];
-    ls->out_h = e.ch[l];
     if (l < p->levels - 1) drop_previous_level(&e);
-    rc = synthesize_level(&e, l, err);
-    ls->vectors = e.grid.total;
-    ls->blocks = e.prog.total;
-    ls->steps = e.steps;
-    ls->pairs = search->stats.pairs - pairs0;
-    ls->round_trips = search->stats.round_trips - rt0;
-    ls->wire_bytes = search->stats.bytes_out + search->stats.bytes_in - bytes0;
-    ls->seconds = ts_now() - t0;
+    rc = synthesize_level(&e, l, l == first ? inside : NULL, err);
+    level_stats(&e, &res->level[l]);
     /* Level l+2 is no longer needed as anyone's coarse part. */
     for (int k = 0; k < e.nplanes && l + 2 < p->levels; k++) ts_plane_free(&e.canvas[k][l + 2]);
-    if (rc == 0 && l > p->stop_level && h->checkpoint) rc = save_checkpoint(&e, h, res, err);
+    if (rc == 0 && l > p->stop_level && e.hooks->checkpoint) rc = save_checkpoint(&e, err);
   }
   if (rc == 0) {
     ts_usage_stats(&e.usage, &res->usage_mean, &res->usage_variance);

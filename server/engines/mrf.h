@@ -49,6 +49,20 @@ typedef struct {
   uint32_t vectors; /* reference vectors at this level */
 } ts_mrf_level_stats;
 
+/* Where a resumed synthesis went on, for its log and report. */
+typedef struct {
+  int level;            /* the checkpoint's level */
+  uint64_t step, steps; /* its steps done then, of all the level's steps */
+  double level_done;    /* share of the level's blocks searched then */
+  double saved_at;      /* its wall-clock moment, seconds since the epoch */
+  double age;           /* wall-clock seconds from the checkpoint to the resume
+                           (the downtime included) */
+  /* At most this many seconds of the interrupted run's work are done
+   * again: the age, or less when the run had a checkpoint interval (its
+   * next checkpoint would have come that long after this one). */
+  double redone;
+} ts_mrf_resume;
+
 typedef struct {
   ts_image image;      /* output, same type and channels as the reference */
   uint32_t *copy_map;  /* width*height (x, y) pairs into the reference */
@@ -57,25 +71,45 @@ typedef struct {
   double usage_mean, usage_variance; /* over the usable reference pixels */
   double seconds;
   ts_mrf_level_stats level[TS_MRF_MAX_LEVELS];
+  int resumed;         /* went on from a checkpoint: where in `resume` */
+  ts_mrf_resume resume;
 } ts_mrf_result;
 
-/* What a finished level hands to the next finer one, and all a restarted
- * coordinator needs to resume there (per-level checkpoints): the level's
- * canvas planes and copy map, and the statistics of the levels done. The
- * rest (reference pyramid, schedules, usage maps) is rebuilt from the job
- * spec, and synthesis from here on is a function of this state alone, so
- * a resumed job gives the same bytes as an uninterrupted one. */
+/* A checkpoint: the state after `step` of the `steps` steps of a level
+ * (the wavefront scan's steps, then every sweep pass's, in order), all a
+ * restarted coordinator needs to go on from there. The rest (reference
+ * pyramid, schedules) is rebuilt from the job spec, and synthesis from
+ * here on is a function of this state alone, so a resumed job gives the
+ * same bytes as an uninterrupted one, whichever step it was taken after.
+ *
+ * step == steps: the level is finished, and the finer levels read only
+ * its canvas and copy map. Inside a level (step < steps), the steps left
+ * also read the blocks placed so far (done), the usage counters (the
+ * penalty, and the usage map at level 0) and the level above's canvas
+ * (the coarse part of every query). */
 typedef struct {
-  int level;                        /* the finished level */
-  int width, height;                /* its canvas */
+  int level;
+  uint64_t step, steps;
+  double saved_at;                  /* wall clock, seconds since the epoch */
+  double interval;                  /* the run's checkpoint interval (ts_mrf_hooks) */
+  int width, height;                /* the level's canvas */
   int nplanes;
   uint8_t *planes[TS_MAX_PLANES];   /* width*height each */
   uint32_t *copy;                   /* (x, y) per pixel into that level's reference */
-  ts_mrf_level_stats stats[TS_MRF_MAX_LEVELS]; /* of level .. levels-1 */
+  /* Inside a level only (NULL and 0 at a level's end): */
+  uint8_t *done;                    /* width*height: 1 where a block was placed */
+  int coarse_width, coarse_height;  /* the level above's canvas; 0x0 at the coarsest */
+  uint8_t *coarse[TS_MAX_PLANES];
+  int ref_width, ref_height;        /* the level's reference */
+  uint32_t *usage;                  /* its usage counters */
+  /* Of level .. levels-1; of `level` so far when inside it. */
+  ts_mrf_level_stats stats[TS_MRF_MAX_LEVELS];
 } ts_mrf_checkpoint;
 
-/* Called after every level but the last; the state is the engine's (valid
- * during the call only). A non-zero return fails the synthesis. */
+/* Called after every level but the last, and between two steps once
+ * checkpoint_interval seconds have passed since the last checkpoint; the
+ * state is the engine's (valid during the call only). A non-zero return
+ * fails the synthesis. */
 typedef int ts_mrf_checkpoint_fn(void *ctx, const ts_mrf_checkpoint *ck, char *err);
 
 typedef struct {
@@ -83,13 +117,22 @@ typedef struct {
   void *progress_ctx;
   ts_mrf_checkpoint_fn *checkpoint; /* may be NULL */
   void *checkpoint_ctx;
-  const ts_mrf_checkpoint *resume;  /* start after this level (NULL: from noise) */
+  /* Seconds of work between checkpoints inside a level (0: at level ends
+   * only). Only the step a checkpoint follows is in it, never the time. */
+  double checkpoint_interval;
+  const ts_mrf_checkpoint *resume;  /* go on from here (NULL: from noise) */
+  /* Called once resume is found to fit the job (may be NULL). */
+  void (*resumed)(void *ctx, const ts_mrf_resume *r);
+  /* Called when resume does not fit the job; synthesis then starts from
+   * noise. NULL: synthesis fails with TS_EINVAL instead. */
+  void (*refused)(void *ctx, const char *why);
+  void *resume_ctx;
 } ts_mrf_hooks;
 
 /* Synthesises p->width x p->height (or, with stop_level > 0, the
  * 8-bit luminance of that level at its size) from ref using `search`.
  * hooks may be NULL. A resume state that does not fit p and ref is
- * refused (TS_EINVAL). On success res owns its buffers
+ * refused (see ts_mrf_hooks.refused). On success res owns its buffers
  * (ts_mrf_result_free). */
 int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref,
                       ts_search *search, const ts_mrf_hooks *hooks,

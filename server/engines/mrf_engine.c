@@ -1,6 +1,6 @@
 /* mrf_engine.c - MRF block synthesis (mrf.h) as an engine (engine.h): its
- * spec keys, its per-level checkpoints as bytes (checkpoint.h) and its
- * result files (outputs.h). */
+ * spec keys, its checkpoints as bytes (checkpoint.h) and its result files
+ * (outputs.h). */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -83,10 +83,14 @@ static void mrf_set_max_pixels(void *params, uint64_t max_pixels) {
 }
 
 /* Per pixel: the image (up to 8 bytes), the usage map's share, the copy
- * maps (8 bytes each). */
+ * maps (8 bytes each), and a checkpoint inside the finest level (its copy
+ * map, placed blocks, canvas planes and a quarter of them for the level
+ * above: 10.25 or 12.75 bytes) twice, while the next one replaces it. */
 static uint64_t mrf_result_bytes(const void *params, const ts_engine_wants *w) {
   const ts_mrf_params *p = params;
-  uint64_t per_px = 8 + 3 + (w->want[OUT_COPY_MAP][0] ? 8 : 0) + (w->want[OUT_COPY_MAP_RAW][0] ? 8 : 0);
+  uint64_t checkpoint = p->rgb_search ? 13 : 11;
+  uint64_t per_px = 8 + 3 + (w->want[OUT_COPY_MAP][0] ? 8 : 0) + (w->want[OUT_COPY_MAP_RAW][0] ? 8 : 0) +
+                    2 * checkpoint;
   return (uint64_t)p->width * (uint64_t)p->height * per_px;
 }
 
@@ -101,25 +105,50 @@ struct ts_engine_run {
   ts_mrf_result res;
 };
 
+/* The engine hooks behind the MRF hooks. */
 typedef struct {
   const ts_engine_hooks *h;
   int levels;
-} save_ctx;
+} hook_ctx;
+
+/* Where a checkpoint was taken, for the log: "after level 1", or "inside
+ * level 0 at step 412 of 1042". Returns the length. */
+static int describe_place(char *buf, size_t cap, int level, uint64_t step, uint64_t steps) {
+  if (step == steps) return snprintf(buf, cap, "after level %d", level);
+  return snprintf(buf, cap, "inside level %d at step %llu of %llu", level, (unsigned long long)step,
+                  (unsigned long long)steps);
+}
 
 static int save_level(void *arg, const ts_mrf_checkpoint *ck, char *err) {
-  const save_ctx *sc = arg;
+  const hook_ctx *hc = arg;
   uint8_t *buf;
   size_t len;
-  int rc = ts_checkpoint_encode(ck, sc->levels, sc->h->tag, &buf, &len, err);
+  int rc = ts_checkpoint_encode(ck, hc->levels, hc->h->tag, &buf, &len, err);
   if (rc != 0) return rc;
-  char what[32];
-  snprintf(what, sizeof(what), "after level %d", ck->level);
-  rc = sc->h->save(sc->h->save_ctx, buf, len, what, err);
+  char what[96];
+  describe_place(what, sizeof(what), ck->level, ck->step, ck->steps);
+  rc = hc->h->save(hc->h->save_ctx, buf, len, what, err);
   free(buf);
   return rc;
 }
 
-/* The state to resume from, if the hooks hold a checkpoint of this job. */
+static void on_resumed(void *arg, const ts_mrf_resume *r) {
+  const hook_ctx *hc = arg;
+  if (hc->h->resumed == NULL) return;
+  char where[128];
+  int n = describe_place(where, sizeof(where), r->level, r->step, r->steps);
+  if (r->step < r->steps)
+    snprintf(where + n, sizeof(where) - (size_t)n, " (%.1f %% of the level done)", 100.0 * r->level_done);
+  hc->h->resumed(hc->h->save_ctx, where, r->redone);
+}
+
+static void on_refused(void *arg, const char *why) {
+  const hook_ctx *hc = arg;
+  if (hc->h->resume_refused) hc->h->resume_refused(hc->h->save_ctx, why);
+}
+
+/* The state to resume from, if the hooks hold an intact checkpoint of
+ * this job (whether it fits the job's synthesis, the engine checks). */
 static int decode_resume(const ts_mrf_params *p, const ts_engine_hooks *h, ts_mrf_checkpoint *ck) {
   if (h->resume == NULL) return 0;
   char err[TS_ERR_LEN];
@@ -127,9 +156,6 @@ static int decode_resume(const ts_mrf_params *p, const ts_engine_hooks *h, ts_mr
     if (h->resume_refused) h->resume_refused(h->save_ctx, err);
     return 0;
   }
-  char what[32];
-  snprintf(what, sizeof(what), "after level %d", ck->level);
-  if (h->resumed) h->resumed(h->save_ctx, what);
   return 1;
 }
 
@@ -141,10 +167,19 @@ static int mrf_run(const void *params, const ts_image *ref, ts_search *search, c
   r->p = params;
   r->ref = ref;
   r->search = search;
-  save_ctx sc = {h, r->p->levels};
+  hook_ctx hc = {h, r->p->levels};
   ts_mrf_checkpoint resume;
   int resumed = decode_resume(r->p, h, &resume);
-  ts_mrf_hooks mh = {h->progress, h->progress_ctx, h->save ? save_level : NULL, &sc, resumed ? &resume : NULL};
+  /* A checkpoint that does not fit is refused, and the job starts over. */
+  ts_mrf_hooks mh = {.progress = h->progress,
+                     .progress_ctx = h->progress_ctx,
+                     .checkpoint = h->save ? save_level : NULL,
+                     .checkpoint_ctx = &hc,
+                     .checkpoint_interval = h->checkpoint_interval,
+                     .resume = resumed ? &resume : NULL,
+                     .resumed = on_resumed,
+                     .refused = on_refused,
+                     .resume_ctx = &hc};
   int rc = ts_mrf_synthesize(r->p, ref, search, &mh, &r->res, err);
   if (resumed) ts_checkpoint_free(&resume);
   return rc;

@@ -82,8 +82,15 @@ int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const
           p->width, p->height, p->levels, p->wn, p->wb, p->parity ? "true" : "false", p->usage_weight,
           p->coarse_weight, (unsigned long long)p->seed, p->rgb_search ? "true" : "false",
           p->stop_level, p->refine);
-  fprintf(f, "  \"seconds\": %.4f,\n  \"usage\": {\"mean\": %.6f, \"variance\": %.6f},\n  \"levels\": [\n",
+  fprintf(f, "  \"seconds\": %.4f,\n  \"usage\": {\"mean\": %.6f, \"variance\": %.6f},\n",
           res->seconds, res->usage_mean, res->usage_variance);
+  const ts_mrf_resume *rs = &res->resume;
+  if (res->resumed)
+    fprintf(f, "  \"resumed\": {\"level\": %d, \"step\": %llu, \"steps\": %llu, \"level_done\": %.4f, "
+               "\"checkpoint_time\": %.3f, \"checkpoint_age\": %.3f, \"redone_at_most\": %.3f},\n",
+            rs->level, (unsigned long long)rs->step, (unsigned long long)rs->steps, rs->level_done, rs->saved_at,
+            rs->age, rs->redone);
+  fprintf(f, "  \"levels\": [\n");
   for (int l = p->levels - 1; l >= p->stop_level; l--) {
     const ts_mrf_level_stats *s = &res->level[l];
     fprintf(f, "    {\"level\": %d, \"ref\": [%d, %d], \"out\": [%d, %d], \"vectors\": %u, "

@@ -1,6 +1,7 @@
 /* outputs.h - the side outputs of a synthesis: copy map (as an image and
- * raw), usage map and the JSON report with the job's parameters, timings
- * and the search mode (exact, or which lossy shortcut was used). */
+ * raw), usage map and the JSON report with the job's parameters, timings,
+ * the search mode (exact, or which lossy shortcut was used) and, for a run
+ * resumed from a checkpoint, where it resumed. */
 #ifndef TS_OUTPUTS_H
 #define TS_OUTPUTS_H
 

@@ -1,6 +1,6 @@
 /* fuzz_checkpoint.c - libFuzzer target for the checkpoint decoder
  * (server/engines/checkpoint.c), which reads files a crashed coordinator left in
- * its spool. The input is a checkpoint without its trailing checksum: the
+ * its spool: checkpoints after a level and inside one. The input is a checkpoint without its trailing checksum: the
  * target appends the right one, so the fuzzer reaches the header and
  * length checks instead of stopping at the checksum. The tag is taken from
  * the input's own tag field, so foreign-job refusals do not hide the rest.
@@ -38,7 +38,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   ts_mrf_checkpoint ck;
   char err[TS_ERR_LEN];
   if (ts_checkpoint_decode(buf, size + 8, tag, 1u << 20, &ck, err) == 0) {
-    uint32_t nstats = size >= 36 ? (uint32_t)(data[32] | data[33] << 8 | data[34] << 16 | (uint32_t)data[35] << 24) : 0;
+    /* Decoded, so the 84-byte header is there: its stats count. */
+    uint32_t nstats = (uint32_t)(data[64] | data[65] << 8 | data[66] << 16 | (uint32_t)data[67] << 24);
     uint8_t *again;
     size_t len;
     if (ts_checkpoint_encode(&ck, ck.level + (int)nstats, tag, &again, &len, err) != 0) abort();

@@ -1,6 +1,7 @@
 /* test_mrf.c - the synthesis engine: exactness against an independent
  * brute-force backend, independence from batching and threads, colour
- * gathering, resuming from checkpoints, parameter errors. */
+ * gathering, resuming from checkpoints after and inside levels, parameter
+ * errors. */
 #include <stdlib.h>
 
 #include "checkpoint.h"
@@ -41,6 +42,7 @@ static int brute_prepare(ts_search *s, const ts_refset *rs, int *id, char *err) 
   st->grid = *rs->grid;
   st->ref = *rs->ref;
   assert_int_equal(ts_usage_init(&st->usage, rs->grid, rs->shape->wb, 1), 0);
+  if (rs->counts != NULL) ts_usage_load(&st->usage, rs->counts->count);
   *id = k;
   return 0;
 }
@@ -152,6 +154,8 @@ static void assert_same_result(const ts_mrf_result *a, const ts_mrf_result *b) {
   size_t n = (size_t)a->image.width * a->image.height;
   assert_memory_equal(a->copy_map, b->copy_map, n * 2 * sizeof(uint32_t));
   assert_memory_equal(a->image.pixels, b->image.pixels, n * 3 * ts_pixtype_size(a->image.type));
+  assert_int_equal(a->ref_w, b->ref_w);
+  assert_memory_equal(a->usage, b->usage, (size_t)a->ref_w * a->ref_h * sizeof(uint32_t));
 }
 
 /* The engine with the SIMD local backend on whole steps equals the
@@ -346,6 +350,186 @@ static void foreign_checkpoint_is_refused(void **state) {
   ts_image_free(&ref);
 }
 
+/* Checkpoints inside levels, as encoded bytes, kept at a few chosen steps
+ * of every level: the first, a quarter, half, three quarters and the last
+ * but one (scan and sweeps alike), taken with an interval so short that
+ * one falls between every two steps. */
+#define MAX_INSIDE 64
+typedef struct {
+  int levels, n;
+  uint8_t *bytes[MAX_INSIDE];
+  size_t len[MAX_INSIDE];
+} inside_checkpoints;
+
+static int keep_inside(void *ctx, const ts_mrf_checkpoint *ck, char *err) {
+  inside_checkpoints *ic = ctx;
+  uint64_t s = ck->step, n = ck->steps;
+  if (s == n || !(s == 1 || s == n / 4 || s == n / 2 || s == 3 * n / 4 || s == n - 1)) return 0;
+  assert_true(ic->n < MAX_INSIDE);
+  assert_non_null(ck->done);
+  int k = ic->n++;
+  return ts_checkpoint_encode(ck, ic->levels, 42, &ic->bytes[k], &ic->len[k], err);
+}
+
+static void inside_free(inside_checkpoints *ic) {
+  for (int k = 0; k < ic->n; k++) free(ic->bytes[k]);
+  ic->n = 0;
+}
+
+static ts_mrf_params inside_params(int variant) {
+  ts_mrf_params p = small_params();
+  p.levels = 4;
+  p.width = 72;
+  p.height = 56;
+  p.parity = variant & 1;
+  p.usage_weight = variant & 2 ? 1.0 : 0.0;
+  p.rgb_search = variant == 3;
+  return p;
+}
+
+/* The uninterrupted run, and every kept checkpoint inside a level of a run
+ * that checkpointed between every two steps. */
+static void run_with_inside_checkpoints(const ts_mrf_params *p, const ts_image *ref, ts_search *s,
+                                        ts_mrf_result *base, inside_checkpoints *ic) {
+  char err[TS_ERR_LEN];
+  run(p, ref, s, base);
+  ic->levels = p->levels;
+  ts_mrf_hooks save = {.checkpoint = keep_inside, .checkpoint_ctx = ic, .checkpoint_interval = 1e-12};
+  ts_mrf_result r;
+  if (ts_mrf_synthesize(p, ref, s, &save, &r, err) != 0) fail_msg("%s", err);
+  assert_same_result(base, &r); /* checkpoints never change the result */
+  ts_mrf_result_free(&r);
+  assert_true(ic->n >= 4 * p->levels);
+}
+
+static void note_resumed(void *ctx, const ts_mrf_resume *r) { *(ts_mrf_resume *)ctx = *r; }
+
+/* Resumed from a checkpoint taken inside any level, at any step, synthesis
+ * goes on at that step and gives the uninterrupted run's bytes (image,
+ * copy map and usage map), its steps and its blocks: with and without
+ * parity and the usage penalty (whose counters the backend's replicas
+ * must start from), on luminance and on colour. */
+static void resuming_inside_a_level_gives_same_bytes(void **state) {
+  (void)state;
+  ts_image ref;
+  make_reference(&ref, 96, 80, TS_PIX_U8);
+  char err[TS_ERR_LEN];
+  for (int variant = 0; variant < 4; variant++) {
+    ts_mrf_params p = inside_params(variant);
+    ts_search *s;
+    assert_int_equal(ts_search_local_create(&s, 2, NULL, err), 0);
+    ts_mrf_result base;
+    inside_checkpoints ic = {0};
+    run_with_inside_checkpoints(&p, &ref, s, &base, &ic);
+    for (int k = 0; k < ic.n; k++) {
+      ts_mrf_checkpoint ck;
+      assert_int_equal(ts_checkpoint_decode(ic.bytes[k], ic.len[k], 42, 1u << 20, &ck, err), 0);
+      ts_mrf_resume where = {.level = -1};
+      ts_mrf_hooks resume = {.resume = &ck, .resumed = note_resumed, .resume_ctx = &where};
+      ts_mrf_result r;
+      if (ts_mrf_synthesize(&p, &ref, s, &resume, &r, err) != 0) fail_msg("variant %d: %s", variant, err);
+      assert_true(r.resumed);
+      assert_int_equal(where.level, ck.level);
+      assert_int_equal(where.step, ck.step);
+      assert_true(where.level_done > 0 && where.level_done < 1);
+      assert_same_result(&base, &r);
+      for (int l = 0; l < p.levels; l++) {
+        assert_int_equal(r.level[l].steps, base.level[l].steps);
+        assert_int_equal(r.level[l].blocks, base.level[l].blocks);
+      }
+      ts_mrf_result_free(&r);
+      ts_checkpoint_free(&ck);
+    }
+    inside_free(&ic);
+    ts_mrf_result_free(&base);
+    ts_search_destroy(s);
+  }
+  ts_image_free(&ref);
+}
+
+/* The same through the brute-force backend, which builds its usage
+ * replica from the counts it is given: the interface carries them. */
+static void resumed_usage_reaches_the_backend(void **state) {
+  (void)state;
+  ts_image ref;
+  make_reference(&ref, 96, 80, TS_PIX_U8);
+  ts_mrf_params p = inside_params(2);
+  p.max_batch = 7;
+  ts_search *s = brute_create();
+  char err[TS_ERR_LEN];
+  ts_mrf_result base;
+  inside_checkpoints ic = {0};
+  run_with_inside_checkpoints(&p, &ref, s, &base, &ic);
+  ts_mrf_checkpoint ck;
+  assert_int_equal(ts_checkpoint_decode(ic.bytes[ic.n - 3], ic.len[ic.n - 3], 42, 1u << 20, &ck, err), 0);
+  assert_int_equal(ck.level, 0);
+  ts_mrf_hooks resume = {.resume = &ck};
+  ts_mrf_result r;
+  assert_int_equal(ts_mrf_synthesize(&p, &ref, s, &resume, &r, err), 0);
+  assert_same_result(&base, &r);
+  ts_mrf_result_free(&r);
+  ts_checkpoint_free(&ck);
+  inside_free(&ic);
+  ts_mrf_result_free(&base);
+  ts_search_destroy(s);
+  ts_image_free(&ref);
+}
+
+static void note_refused(void *ctx, const char *why) { snprintf(ctx, TS_ERR_LEN, "%s", why); }
+
+/* An intact checkpoint (right checksum and tag) whose state is not one
+ * this job passes through is refused with the reason: a step that is not
+ * its statistics', placed blocks or usage counters that are not those of
+ * its steps, sizes of another job. With a `refused` hook the synthesis
+ * starts over instead, with the uninterrupted run's bytes. */
+static void inconsistent_inside_checkpoint_is_refused(void **state) {
+  (void)state;
+  ts_image ref;
+  make_reference(&ref, 96, 80, TS_PIX_U8);
+  ts_mrf_params p = inside_params(2);
+  ts_search *s;
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_search_local_create(&s, 1, NULL, err), 0);
+  ts_mrf_result base, r;
+  inside_checkpoints ic = {0};
+  run_with_inside_checkpoints(&p, &ref, s, &base, &ic);
+  const int pick = ic.n - 4; /* inside level 0 */
+  struct {
+    const char *reason;
+  } lies[] = {{"at step"}, {"which has"}, {"placed blocks"}, {"usage counters"}, {"blocks searched"},
+              {"does not belong"}, {"outside"}};
+  for (size_t i = 0; i < sizeof(lies) / sizeof(lies[0]); i++) {
+    ts_mrf_checkpoint ck;
+    assert_int_equal(ts_checkpoint_decode(ic.bytes[pick], ic.len[pick], 42, 1u << 20, &ck, err), 0);
+    size_t npx = (size_t)ck.width * ck.height;
+    switch (i) {
+    case 0: ck.step--; break;
+    case 1: ck.steps++; break;
+    case 2: ck.done[npx - 1] ^= 1; break;
+    case 3: ck.usage[ck.copy[1] * (uint32_t)ck.ref_width + ck.copy[0]]++; break;
+    case 4: ck.stats[ck.level].blocks++; break;
+    case 5: ck.coarse_width++; break;
+    case 6: ck.copy[2 * npx - 1] = 1000; break;
+    }
+    ts_mrf_hooks resume = {.resume = &ck};
+    err[0] = '\0';
+    assert_int_equal(ts_mrf_synthesize(&p, &ref, s, &resume, &r, err), TS_EINVAL);
+    if (strstr(err, lies[i].reason) == NULL) fail_msg("lie %zu: expected '%s' in '%s'", i, lies[i].reason, err);
+    char why[TS_ERR_LEN] = "";
+    ts_mrf_hooks start_over = {.resume = &ck, .refused = note_refused, .resume_ctx = why};
+    assert_int_equal(ts_mrf_synthesize(&p, &ref, s, &start_over, &r, err), 0);
+    assert_string_equal(why, err);
+    assert_false(r.resumed);
+    assert_same_result(&base, &r);
+    ts_mrf_result_free(&r);
+    ts_checkpoint_free(&ck);
+  }
+  inside_free(&ic);
+  ts_mrf_result_free(&base);
+  ts_search_destroy(s);
+  ts_image_free(&ref);
+}
+
 static void bad_parameters_are_all_listed(void **state) {
   (void)state;
   ts_mrf_params p = small_params();
@@ -380,6 +564,9 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(colour_is_gathered_through_copy_map),
     cmocka_unit_test(resuming_after_any_level_gives_same_bytes),
     cmocka_unit_test(foreign_checkpoint_is_refused),
+    cmocka_unit_test(resuming_inside_a_level_gives_same_bytes),
+    cmocka_unit_test(resumed_usage_reaches_the_backend),
+    cmocka_unit_test(inconsistent_inside_checkpoint_is_refused),
     cmocka_unit_test(bad_parameters_are_all_listed),
 };
 
