@@ -10,10 +10,24 @@ REPO = Path(__file__).resolve().parents[2]
 BUILD = Path(os.environ.get("TEXSYN_BUILD", REPO / "build"))
 DATA = Path(os.environ.get("TEXSYN_DATA", REPO.parent / "shared" / "data"))
 SANITIZED = os.environ.get("TEXSYN_SANITIZED") == "1"
+LONG = os.environ.get("TEXSYN_LONG_TESTS") == "1"
 
 
 def pytest_configure(config):
     config.addinivalue_line("markers", "sanitize: small enough to run under ASan+UBSan too")
+    config.addinivalue_line("markers", "long: a measurement of minutes, run by make test-faults only")
+
+
+def pytest_collection_modifyitems(config, items):
+    """Long measurements are left out of `make test` (deselected, so they are
+    neither run nor reported as skipped); `make test-faults` sets
+    TEXSYN_LONG_TESTS=1 and runs them."""
+    if LONG:
+        return
+    long = [i for i in items if i.get_closest_marker("long")]
+    if long:
+        config.hook.pytest_deselected(items=long)
+        items[:] = [i for i in items if not i.get_closest_marker("long")]
 
 
 @pytest.fixture(scope="session")
@@ -93,6 +107,9 @@ class LoopbackProxy:
                 return
             host, port = self.target.rsplit(":", 1)
             self.forward(a, socket.create_connection((host, int(port))))
+
+    def close(self):
+        self.sock.close()
 
 
 class Daemon:

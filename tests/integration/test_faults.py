@@ -204,9 +204,6 @@ class Proxy(LoopbackProxy):
             pass
         shutdown_all(src, dst)
 
-    def close(self):
-        self.sock.close()
-
 
 @pytest.mark.parametrize("mode", ["delay", "pieces", "stall", pytest.param("reset", marks=pytest.mark.sanitize)])
 def test_damaging_proxy_keeps_the_bytes(data, cluster, tmp_path, expected, mode):

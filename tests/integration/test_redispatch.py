@@ -97,8 +97,6 @@ class FrameProxy(LoopbackProxy):
             pass
         shutdown_all(src, dst)
 
-    def shutdown_all(self):
-        self.sock.close()
 
 
 def reset(*socks):

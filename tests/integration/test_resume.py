@@ -11,7 +11,6 @@ coordinator half-way through level 0 and prints the job's length, the
 moment of the kill, the step resumed at and the work redone."""
 import json
 import math
-import os
 import re
 import signal
 import time
@@ -20,7 +19,6 @@ import pytest
 
 from conftest import BUILD, Daemon, SANITIZED, synth
 
-LONG = os.environ.get("TEXSYN_LONG_TESTS") == "1"
 SIZE = (192, 144) if SANITIZED else (384, 288)
 JOB = ["--size", "%dx%d" % SIZE, "--usage-weight", "1"]  # usage counters cross the restart too
 SERVER_ARGS = ["--calibrate-ms", "50"]
@@ -119,7 +117,7 @@ def long_job(texsyn, data, tmp_path, min_seconds=20):
         side = int(math.ceil(side * math.sqrt(1.3 * min_seconds / took) / 64) * 64)
 
 
-@pytest.mark.skipif(not LONG, reason="a measurement of minutes: make test-faults runs it (TEXSYN_LONG_TESTS=1)")
+@pytest.mark.long
 def test_kill_in_the_middle_of_level_0_of_a_long_job(texsyn, data, cluster, tmp_path, capsys):
     side, expected, emb, emb_seconds = long_job(texsyn, data, tmp_path)
     job = ["--size", f"{side}x{side}", *TABLE33]
