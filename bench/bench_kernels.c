@@ -294,9 +294,12 @@ static int make_set(ts_l1_set *set, size_t bytes, uint32_t nchunks, uint32_t nfi
   uint32_t nvec = (uint32_t)(bytes / ((size_t)nchunks * TS_L1_CHUNK));
   int rc = ts_l1_set_init(set, nvec, nchunks);
   if (rc != 0) return rc;
-  set->nfine = nfine;
-  set->wfine = 5; /* distinct weights: the general path, both multiplies */
-  set->wcoarse = 3;
+  /* Distinct weights: the general path, both multiplies. */
+  rc = ts_l1_set_weigh_fine_coarse(set, nfine, 5, 3, NULL);
+  if (rc != 0) {
+    ts_l1_set_free(set);
+    return rc;
+  }
   /* The kernels do the same work whatever the bytes are; fill the whole
    * data array, padding included, straight from the generator. */
   ts_rng rng;

@@ -4,17 +4,29 @@
 
 #include "l1_impl.h"
 
-/* Folds one group's fine/coarse sums into the query's best match, vector by
- * vector in index order, so strict improvement alone gives the tie rule. */
-static void fold_group(const ts_l1_set *set, uint32_t g, const uint32_t sad[2][TS_L1_GROUP],
+/* Weighted distances (penalty aside) of one query to the 8 vectors of
+ * group g: one fn call per part, multiplied by the part's weight once. */
+static void group_distances(const ts_l1_set *set, uint32_t g, const uint8_t *query,
+                            const uint8_t *mask, ts__l1_part_fn *fn, uint64_t d[TS_L1_GROUP]) {
+  const uint8_t *grp = set->data + (size_t)g * set->nchunks * TS_L1_GROUP * TS_L1_CHUNK;
+  memset(d, 0, sizeof(uint64_t) * TS_L1_GROUP);
+  for (uint32_t p = 0, k = 0; p < set->nparts; k = set->part_end[p++]) {
+    uint32_t sad[TS_L1_GROUP];
+    fn(grp, query, mask, k, set->part_end[p], sad);
+    for (uint32_t j = 0; j < TS_L1_GROUP; j++) d[j] += sad[j] * set->part_weight[p];
+  }
+}
+
+/* Folds one group's distances into the query's best match, vector by vector
+ * in index order, so strict improvement alone gives the tie rule. */
+static void fold_group(const ts_l1_set *set, uint32_t g, const uint64_t d[TS_L1_GROUP],
                        const uint32_t *penalty, ts_l1_best *best) {
   for (uint32_t j = 0; j < TS_L1_GROUP; j++) {
     uint32_t v = g * TS_L1_GROUP + j;
     if (v >= set->nvec) break;
-    uint64_t d = (uint64_t)sad[0][j] * set->wfine + (uint64_t)sad[1][j] * set->wcoarse;
-    if (penalty != NULL) d += penalty[v];
-    if (ts__l1_better(d, v, best)) {
-      best->dist = d;
+    uint64_t dv = penalty != NULL ? d[j] + penalty[v] : d[j];
+    if (ts__l1_better(dv, v, best)) {
+      best->dist = dv;
       best->index = v;
     }
   }
@@ -22,7 +34,7 @@ static void fold_group(const ts_l1_set *set, uint32_t g, const uint32_t sad[2][T
 
 void ts__l1_scan_groups(const ts_l1_set *set, uint32_t g0, uint32_t g1, const uint8_t *queries,
                         const uint8_t *masks, const uint32_t *penalty, uint32_t nq,
-                        ts_l1_best *best, int batch, ts__l1_group_fn *fn) {
+                        ts_l1_best *best, int batch, ts__l1_part_fn *fn) {
   size_t vbytes = (size_t)set->nchunks * TS_L1_CHUNK;
   size_t gbytes = vbytes * TS_L1_GROUP;
   if (g1 > set->ngroups) g1 = set->ngroups;
@@ -38,32 +50,31 @@ void ts__l1_scan_groups(const ts_l1_set *set, uint32_t g0, uint32_t g1, const ui
       const uint8_t *query = queries + q * vbytes;
       const uint8_t *mask = masks != NULL ? masks + q * vbytes : NULL;
       for (uint32_t g = b0; g < b1; g++) {
-        uint32_t sad[2][TS_L1_GROUP];
-        fn(set->data + g * gbytes, query, mask, set->nchunks, set->nfine, sad);
-        fold_group(set, g, sad, penalty, best + q);
+        uint64_t d[TS_L1_GROUP];
+        group_distances(set, g, query, mask, fn, d);
+        fold_group(set, g, d, penalty, best + q);
       }
     }
   }
 }
 
-static void scalar_group(const uint8_t *grp, const uint8_t *query, const uint8_t *mask,
-                         uint32_t nchunks, uint32_t nfine, uint32_t sad[2][TS_L1_GROUP]) {
-  memset(sad, 0, sizeof(uint32_t) * 2 * TS_L1_GROUP);
-  for (uint32_t k = 0; k < nchunks; k++) {
+static void scalar_part(const uint8_t *grp, const uint8_t *query, const uint8_t *mask,
+                        uint32_t k0, uint32_t k1, uint32_t sad[TS_L1_GROUP]) {
+  memset(sad, 0, sizeof(uint32_t) * TS_L1_GROUP);
+  for (uint32_t k = k0; k < k1; k++) {
     uint8_t q[TS_L1_CHUNK], m[TS_L1_CHUNK];
     for (int j = 0; j < TS_L1_CHUNK; j++) {
       m[j] = mask != NULL ? mask[k * TS_L1_CHUNK + j] : 0xFF;
       q[j] = query[k * TS_L1_CHUNK + j] & m[j];
     }
     const uint8_t *chunk = grp + (size_t)k * TS_L1_GROUP * TS_L1_CHUNK;
-    uint32_t *out = sad[k < nfine ? 0 : 1];
     for (int lane = 0; lane < TS_L1_GROUP; lane++) {
       uint32_t s = 0;
       for (int j = 0; j < TS_L1_CHUNK; j++) {
         int r = chunk[lane * TS_L1_CHUNK + j] & m[j];
         s += (uint32_t)(r > q[j] ? r - q[j] : q[j] - r);
       }
-      out[lane] += s;
+      sad[lane] += s;
     }
   }
 }
@@ -71,11 +82,11 @@ static void scalar_group(const uint8_t *grp, const uint8_t *query, const uint8_t
 void ts__l1_scalar_single(const ts_l1_set *set, uint32_t g0, uint32_t g1, const uint8_t *queries,
                           const uint8_t *masks, const uint32_t *penalty, uint32_t nq,
                           ts_l1_best *best) {
-  ts__l1_scan_groups(set, g0, g1, queries, masks, penalty, nq, best, 0, scalar_group);
+  ts__l1_scan_groups(set, g0, g1, queries, masks, penalty, nq, best, 0, scalar_part);
 }
 
 void ts__l1_scalar_batch(const ts_l1_set *set, uint32_t g0, uint32_t g1, const uint8_t *queries,
                          const uint8_t *masks, const uint32_t *penalty, uint32_t nq,
                          ts_l1_best *best) {
-  ts__l1_scan_groups(set, g0, g1, queries, masks, penalty, nq, best, 1, scalar_group);
+  ts__l1_scan_groups(set, g0, g1, queries, masks, penalty, nq, best, 1, scalar_part);
 }

@@ -50,9 +50,7 @@ static void fixture_make(fixture *f, ts_rng *rng, uint32_t nvec, uint32_t nchunk
                          uint32_t mask_density, int with_penalty) {
   memset(f, 0, sizeof(*f));
   assert_int_equal(ts_l1_set_init(&f->set, nvec, nchunks), 0);
-  f->set.nfine = nfine;
-  f->set.wfine = wfine;
-  f->set.wcoarse = wcoarse;
+  assert_int_equal(ts_l1_set_weigh_fine_coarse(&f->set, nfine, wfine, wcoarse, NULL), 0);
   f->vbytes = nchunks * TS_L1_CHUNK;
   f->nq = nq;
   uint8_t *vec = malloc(f->vbytes);
@@ -185,9 +183,9 @@ static void test_l1_set_layout(void **state) {
   assert_int_equal(ts_l1_set_init(&set, 13, 3), 0);
   assert_int_equal(set.nvec, 13);
   assert_int_equal(set.ngroups, 2);
-  assert_int_equal(set.nfine, 3);
-  assert_int_equal(set.wfine, 1);
-  assert_int_equal(set.wcoarse, 1);
+  assert_int_equal(set.nparts, 1); /* one part of weight 1 */
+  assert_int_equal(set.part_end[0], 3);
+  assert_true(set.part_weight[0] == 1);
   assert_int_equal((uintptr_t)set.data % TS_L1_ALIGN, 0);
   uint8_t vec[24], back[24];
   for (uint32_t v = 0; v < 13; v++) {
@@ -243,9 +241,7 @@ static void test_l1_distance_reference(void **state) {
   const uint32_t nvec = 21, nchunks = 5, vbytes = 40;
   ts_l1_set set;
   assert_int_equal(ts_l1_set_init(&set, nvec, nchunks), 0);
-  set.nfine = 2;
-  set.wfine = 65536;
-  set.wcoarse = 37;
+  assert_int_equal(ts_l1_set_weigh_fine_coarse(&set, 2, 65536, 37, NULL), 0);
   uint8_t vecs[21][40], q[40], m[40];
   uint32_t pen[24];
   for (uint32_t v = 0; v < nvec; v++) {
