@@ -39,11 +39,25 @@ void ts__l1_lanes_reduce(const ts__l1_lanes *lanes, size_t n, ts_l1_best *best);
  * `mask` (NULL: none) at the whole vector. */
 typedef void ts__l1_part_fn(const uint8_t *grp, const uint8_t *query, const uint8_t *mask,
                             uint32_t k0, uint32_t k1, uint32_t sad[TS_L1_GROUP]);
+
+/* SADs of one query to the 8 vectors of the group at `grp`, part by part
+ * (sad[p] for part p): `part` once per part. Inline, so that each kernel's
+ * group function (below) calls its part function directly. */
+static inline void ts__l1_group_parts(const ts_l1_set *set, const uint8_t *grp,
+                                      const uint8_t *query, const uint8_t *mask,
+                                      ts__l1_part_fn *part, uint32_t sad[][TS_L1_GROUP]) {
+  for (uint32_t p = 0, k = 0; p < set->nparts; k = set->part_end[p++])
+    part(grp, query, mask, k, set->part_end[p], sad[p]);
+}
+
+/* ts__l1_group_parts with the kernel's part function filled in. */
+typedef void ts__l1_group_fn(const ts_l1_set *set, const uint8_t *grp, const uint8_t *query,
+                             const uint8_t *mask, uint32_t sad[][TS_L1_GROUP]);
 /* Scan driver for the kernels that work one group at a time (scalar, MMX);
  * `batch` picks the cache-blocked loop order. */
 void ts__l1_scan_groups(const ts_l1_set *set, uint32_t g0, uint32_t g1, const uint8_t *queries,
                         const uint8_t *masks, const uint32_t *penalty, uint32_t nq,
-                        ts_l1_best *best, int batch, ts__l1_part_fn *fn);
+                        ts_l1_best *best, int batch, ts__l1_group_fn *fn);
 
 /* Reference sets are walked in blocks of about this many bytes, small enough
  * to stay in L1 while every query of a batch passes over them, next to the

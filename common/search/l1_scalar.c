@@ -4,29 +4,25 @@
 
 #include "l1_impl.h"
 
-/* Weighted distances (penalty aside) of one query to the 8 vectors of
- * group g: one fn call per part, multiplied by the part's weight once. */
-static void group_distances(const ts_l1_set *set, uint32_t g, const uint8_t *query,
-                            const uint8_t *mask, ts__l1_part_fn *fn, uint64_t d[TS_L1_GROUP]) {
-  const uint8_t *grp = set->data + (size_t)g * set->nchunks * TS_L1_GROUP * TS_L1_CHUNK;
-  memset(d, 0, sizeof(uint64_t) * TS_L1_GROUP);
-  for (uint32_t p = 0, k = 0; p < set->nparts; k = set->part_end[p++]) {
-    uint32_t sad[TS_L1_GROUP];
-    fn(grp, query, mask, k, set->part_end[p], sad);
-    for (uint32_t j = 0; j < TS_L1_GROUP; j++) d[j] += sad[j] * set->part_weight[p];
-  }
-}
-
-/* Folds one group's distances into the query's best match, vector by vector
- * in index order, so strict improvement alone gives the tie rule. */
-static void fold_group(const ts_l1_set *set, uint32_t g, const uint64_t d[TS_L1_GROUP],
+/* Weighs one group's SADs and folds them into the query's best match,
+ * vector by vector in index order, so strict improvement alone gives the
+ * tie rule. Lane by lane, as the SADs were stored: reading 16 bytes over
+ * the MMX kernel's fresh 4-byte stores (a vectorised weighting) stalled on
+ * store forwarding and cost that scan 25%. The first two parts, all the
+ * MRF has, are unrolled like in l1_tmpl.h: looping over them cost the MMX
+ * scan another 7%. */
+static void fold_group(const ts_l1_set *set, uint32_t g, const uint32_t sad[][TS_L1_GROUP],
                        const uint32_t *penalty, ts_l1_best *best) {
+  const uint32_t np = set->nparts;
+  const uint64_t w0 = set->part_weight[0], w1 = np > 1 ? set->part_weight[1] : 0;
   for (uint32_t j = 0; j < TS_L1_GROUP; j++) {
     uint32_t v = g * TS_L1_GROUP + j;
     if (v >= set->nvec) break;
-    uint64_t dv = penalty != NULL ? d[j] + penalty[v] : d[j];
-    if (ts__l1_better(dv, v, best)) {
-      best->dist = dv;
+    uint64_t d = penalty != NULL ? penalty[v] : 0;
+    d += sad[0][j] * w0 + (np > 1 ? sad[1][j] * w1 : 0);
+    for (uint32_t p = 2; p < np; p++) d += (uint64_t)sad[p][j] * set->part_weight[p];
+    if (ts__l1_better(d, v, best)) {
+      best->dist = d;
       best->index = v;
     }
   }
@@ -34,7 +30,7 @@ static void fold_group(const ts_l1_set *set, uint32_t g, const uint64_t d[TS_L1_
 
 void ts__l1_scan_groups(const ts_l1_set *set, uint32_t g0, uint32_t g1, const uint8_t *queries,
                         const uint8_t *masks, const uint32_t *penalty, uint32_t nq,
-                        ts_l1_best *best, int batch, ts__l1_part_fn *fn) {
+                        ts_l1_best *best, int batch, ts__l1_group_fn *fn) {
   size_t vbytes = (size_t)set->nchunks * TS_L1_CHUNK;
   size_t gbytes = vbytes * TS_L1_GROUP;
   if (g1 > set->ngroups) g1 = set->ngroups;
@@ -50,9 +46,9 @@ void ts__l1_scan_groups(const ts_l1_set *set, uint32_t g0, uint32_t g1, const ui
       const uint8_t *query = queries + q * vbytes;
       const uint8_t *mask = masks != NULL ? masks + q * vbytes : NULL;
       for (uint32_t g = b0; g < b1; g++) {
-        uint64_t d[TS_L1_GROUP];
-        group_distances(set, g, query, mask, fn, d);
-        fold_group(set, g, d, penalty, best + q);
+        uint32_t sad[TS_L1_MAX_PARTS][TS_L1_GROUP];
+        fn(set, set->data + g * gbytes, query, mask, sad);
+        fold_group(set, g, sad, penalty, best + q);
       }
     }
   }
@@ -79,14 +75,19 @@ static void scalar_part(const uint8_t *grp, const uint8_t *query, const uint8_t 
   }
 }
 
+static void scalar_group(const ts_l1_set *set, const uint8_t *grp, const uint8_t *query,
+                         const uint8_t *mask, uint32_t sad[][TS_L1_GROUP]) {
+  ts__l1_group_parts(set, grp, query, mask, scalar_part, sad);
+}
+
 void ts__l1_scalar_single(const ts_l1_set *set, uint32_t g0, uint32_t g1, const uint8_t *queries,
                           const uint8_t *masks, const uint32_t *penalty, uint32_t nq,
                           ts_l1_best *best) {
-  ts__l1_scan_groups(set, g0, g1, queries, masks, penalty, nq, best, 0, scalar_part);
+  ts__l1_scan_groups(set, g0, g1, queries, masks, penalty, nq, best, 0, scalar_group);
 }
 
 void ts__l1_scalar_batch(const ts_l1_set *set, uint32_t g0, uint32_t g1, const uint8_t *queries,
                          const uint8_t *masks, const uint32_t *penalty, uint32_t nq,
                          ts_l1_best *best) {
-  ts__l1_scan_groups(set, g0, g1, queries, masks, penalty, nq, best, 1, scalar_part);
+  ts__l1_scan_groups(set, g0, g1, queries, masks, penalty, nq, best, 1, scalar_group);
 }

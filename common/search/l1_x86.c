@@ -290,18 +290,23 @@ static void mmx_part(const uint8_t *grp, const uint8_t *query, const uint8_t *ma
   }
 }
 
+static void mmx_group(const ts_l1_set *set, const uint8_t *grp, const uint8_t *query,
+                      const uint8_t *mask, uint32_t sad[][TS_L1_GROUP]) {
+  ts__l1_group_parts(set, grp, query, mask, mmx_part, sad);
+}
+
 /* The driver between two groups is integer C code, so one emms when the
  * scan is over is enough to hand the x87 state back. */
 void ts__l1_mmx_single(const ts_l1_set *set, uint32_t g0, uint32_t g1, const uint8_t *queries,
                        const uint8_t *masks, const uint32_t *penalty, uint32_t nq,
                        ts_l1_best *best) {
-  ts__l1_scan_groups(set, g0, g1, queries, masks, penalty, nq, best, 0, mmx_part);
+  ts__l1_scan_groups(set, g0, g1, queries, masks, penalty, nq, best, 0, mmx_group);
   __asm__ volatile("emms");
 }
 
 void ts__l1_mmx_batch(const ts_l1_set *set, uint32_t g0, uint32_t g1, const uint8_t *queries,
                       const uint8_t *masks, const uint32_t *penalty, uint32_t nq,
                       ts_l1_best *best) {
-  ts__l1_scan_groups(set, g0, g1, queries, masks, penalty, nq, best, 1, mmx_part);
+  ts__l1_scan_groups(set, g0, g1, queries, masks, penalty, nq, best, 1, mmx_group);
   __asm__ volatile("emms");
 }
