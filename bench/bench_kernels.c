@@ -3,8 +3,10 @@
  * For every SIMD variant this CPU supports, measures single-query scans and
  * batched scans (32 and 128 queries), over a reference set that fits in L2
  * (256 KB, "cache") and one that does not fit in any cache (256 MB, "mem"),
- * for two vector shapes: 7 chunks with 3 fine (W_N = 7: fine L 20 B + coarse
- * 25 B, padded) and 12 chunks with 5 fine. It also measures the machine's
+ * for three vector shapes: 7 chunks with 3 fine (W_N = 7: fine L 20 B +
+ * coarse 25 B, padded), 12 chunks with 5 fine, and 20 chunks in 5 weighted
+ * parts (StyLit-like: style and four guides), which takes the kernels' loop
+ * over parts beyond the second. It also measures the machine's
  * memory read bandwidth (streaming sum over 512 MB, 1 and 2 threads), so the
  * "mem" rows can be read against it.
  *
@@ -290,13 +292,30 @@ static void bench_scan(bench *b, const scan_cfg *c, const char *kind, int mem) {
   emit(b, c->impl->name, kind, mem ? "mem" : "cache", (int)nq, (int)set->nchunks, &r);
 }
 
-static int make_set(ts_l1_set *set, size_t bytes, uint32_t nchunks, uint32_t nfine) {
+/* A vector shape and its weighted parts (l1.h). */
+typedef struct {
+  uint32_t nchunks, nparts;
+  uint32_t end[5];
+  uint64_t weight[5];
+} shape;
+
+/* Distinct weights: the general path, every multiply. */
+static const shape shapes[] = {
+    {7, 2, {3, 7}, {5, 3}},
+    {12, 2, {5, 12}, {5, 3}},
+    {20, 5, {4, 8, 12, 16, 20}, {5, 3, 2, 4, 1}},
+};
+#define MAX_CHUNKS 20
+
+static int make_set(ts_l1_set *set, size_t bytes, const shape *sh) {
+  uint32_t nchunks = sh->nchunks;
   uint32_t nvec = (uint32_t)(bytes / ((size_t)nchunks * TS_L1_CHUNK));
   int rc = ts_l1_set_init(set, nvec, nchunks);
-  if (rc != 0) return rc;
-  set->nfine = nfine;
-  set->wfine = 5; /* distinct weights: the general path, both multiplies */
-  set->wcoarse = 3;
+  if (rc == 0) rc = ts_l1_set_weigh(set, sh->nparts, sh->end, sh->weight, NULL);
+  if (rc != 0) {
+    ts_l1_set_free(set);
+    return rc;
+  }
   /* The kernels do the same work whatever the bytes are; fill the whole
    * data array, padding included, straight from the generator. */
   ts_rng rng;
@@ -309,12 +328,11 @@ static int make_set(ts_l1_set *set, size_t bytes, uint32_t nchunks, uint32_t nfi
   return 0;
 }
 
-static void bench_shape(bench *b, uint32_t nchunks, uint32_t nfine, uint8_t *queries,
-                        ts_l1_best *best) {
+static void bench_shape(bench *b, const shape *sh, uint8_t *queries, ts_l1_best *best) {
   for (int mem = 0; mem <= 1; mem++) {
     ts_l1_set set;
     size_t bytes = mem ? (b->quick ? MEM_BYTES / 2 : MEM_BYTES) : CACHE_BYTES;
-    int rc = make_set(&set, bytes, nchunks, nfine);
+    int rc = make_set(&set, bytes, sh);
     if (rc != 0) {
       fprintf(stderr, "bench_kernels: reference set of %zu bytes: %s\n", bytes, ts_strerror(rc));
       continue;
@@ -377,16 +395,16 @@ int main(int argc, char **argv) {
          "nchunks", "GB/s", "Mpairs/s", "B/cycle", "pairs/cyc");
   bench_memory(&b);
 
-  const uint32_t max_nq = 128, max_chunks = 12;
-  uint8_t *queries = malloc((size_t)max_nq * max_chunks * TS_L1_CHUNK);
+  const uint32_t max_nq = 128;
+  uint8_t *queries = malloc((size_t)max_nq * MAX_CHUNKS * TS_L1_CHUNK);
   ts_l1_best *best = malloc(max_nq * sizeof(*best));
   if (queries == NULL || best == NULL) return 1;
   ts_rng rng;
   ts_rng_seed(&rng, 7, 0);
-  for (size_t i = 0; i < (size_t)max_nq * max_chunks * TS_L1_CHUNK; i++)
+  for (size_t i = 0; i < (size_t)max_nq * MAX_CHUNKS * TS_L1_CHUNK; i++)
     queries[i] = (uint8_t)ts_rng_next(&rng);
-  bench_shape(&b, 7, 3, queries, best);
-  bench_shape(&b, 12, 5, queries, best);
+  for (size_t i = 0; i < sizeof(shapes) / sizeof(shapes[0]); i++)
+    bench_shape(&b, &shapes[i], queries, best);
   free(queries);
   free(best);
   if (b.out != NULL) fclose(b.out);

@@ -31,10 +31,50 @@ int ts_l1_set_init(ts_l1_set *set, uint32_t nvec, uint32_t nchunks) {
   set->nvec = nvec;
   set->ngroups = ngroups;
   set->nchunks = nchunks;
-  set->nfine = nchunks;
-  set->wfine = 1;
-  set->wcoarse = 1;
+  set->nparts = 1;
+  set->part_end[0] = nchunks;
+  set->part_weight[0] = 1;
   return 0;
+}
+
+int ts_l1_set_weigh(ts_l1_set *set, uint32_t nparts, const uint32_t *part_end,
+                    const uint64_t *weight, char *err) {
+  if (nparts == 0 || nparts > TS_L1_MAX_PARTS)
+    return ts_error(err, TS_EINVAL, "%u weighted parts: need 1..%d", nparts, TS_L1_MAX_PARTS);
+  for (uint32_t p = 0, begin = 0; p < nparts; begin = part_end[p++]) {
+    if (part_end[p] <= begin || part_end[p] > set->nchunks)
+      return ts_error(err, TS_EINVAL,
+                      "weighted part %u ends at chunk %u: parts must be non-empty, in order "
+                      "and within the vector's %u chunks (previous part ends at %u)",
+                      p, part_end[p], set->nchunks, begin);
+    if (weight[p] > TS_L1_MAX_WEIGHT)
+      return ts_error(err, TS_EINVAL,
+                      "weighted part %u: weight %llu is above the largest, %llu (2^32 - 1); "
+                      "scale the weights down",
+                      p, (unsigned long long)weight[p], (unsigned long long)TS_L1_MAX_WEIGHT);
+  }
+  if (part_end[nparts - 1] != set->nchunks)
+    return ts_error(err, TS_EINVAL,
+                    "weighted parts end at chunk %u, but the vectors have %u chunks: the last "
+                    "part must end at the last chunk",
+                    part_end[nparts - 1], set->nchunks);
+  set->nparts = nparts;
+  memcpy(set->part_end, part_end, nparts * sizeof(*part_end));
+  memcpy(set->part_weight, weight, nparts * sizeof(*weight));
+  return 0;
+}
+
+int ts_l1_set_weigh_fine_coarse(ts_l1_set *set, uint32_t nfine, uint64_t wfine,
+                                uint64_t wcoarse, char *err) {
+  uint32_t end[2] = {nfine, set->nchunks};
+  uint64_t weight[2] = {wfine, wcoarse};
+  if (nfine > set->nchunks)
+    return ts_error(err, TS_EINVAL, "%u fine chunks, but the vectors have only %u", nfine,
+                    set->nchunks);
+  /* An empty part is left out, weight and all: all fine is one part, all
+   * coarse too. */
+  if (nfine == 0) return ts_l1_set_weigh(set, 1, end + 1, weight + 1, err);
+  return ts_l1_set_weigh(set, nfine == set->nchunks ? 1 : 2, end, weight, err);
 }
 
 void ts_l1_set_free(ts_l1_set *set) {
@@ -92,18 +132,21 @@ void ts__l1_lanes_reduce(const ts__l1_lanes *lanes, size_t n, ts_l1_best *best) 
 
 uint64_t ts_l1_distance(const ts_l1_set *set, uint32_t v, const uint8_t *query,
                         const uint8_t *mask, const uint32_t *penalty) {
-  uint64_t sad[2] = {0, 0};
-  for (uint32_t k = 0; k < set->nchunks; k++) {
-    const uint8_t *ref = set->data + set_offset(set, v, k);
-    for (uint32_t j = 0; j < TS_L1_CHUNK; j++) {
-      size_t at = (size_t)k * TS_L1_CHUNK + j;
-      int m = mask != NULL ? mask[at] : 0xFF;
-      int a = ref[j] & m, b = query[at] & m;
-      sad[k < set->nfine ? 0 : 1] += (uint64_t)(a > b ? a - b : b - a);
+  uint64_t d = penalty != NULL ? penalty[v] : 0;
+  for (uint32_t p = 0, k = 0; p < set->nparts; p++) {
+    uint64_t sad = 0;
+    for (; k < set->part_end[p]; k++) {
+      const uint8_t *ref = set->data + set_offset(set, v, k);
+      for (uint32_t j = 0; j < TS_L1_CHUNK; j++) {
+        size_t at = (size_t)k * TS_L1_CHUNK + j;
+        int m = mask != NULL ? mask[at] : 0xFF;
+        int a = ref[j] & m, b = query[at] & m;
+        sad += (uint64_t)(a > b ? a - b : b - a);
+      }
     }
+    d += sad * set->part_weight[p];
   }
-  uint64_t d = sad[0] * set->wfine + sad[1] * set->wcoarse;
-  return penalty != NULL ? d + penalty[v] : d;
+  return d;
 }
 
 /* ---- variant table and CPU detection ---- */

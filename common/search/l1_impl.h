@@ -9,8 +9,8 @@
 
 #include "l1.h"
 
-/* Any real distance is below 2^53 (SAD < 2^20 times a 32-bit weight, plus a
- * 32-bit penalty). Padding lanes of the last group get TS_L1_INVALID added,
+/* Any real distance is below 2^53 (see l1.h: the weighted SADs sum to less
+ * than 2^52, plus a 32-bit penalty). Padding lanes of the last group get TS_L1_INVALID added,
  * so they never beat a real vector and are recognised when lanes are
  * reduced. TS_L1_NONE marks a lane that has seen nothing; both stay below
  * 2^63, which lets the AVX2 and SSE2 kernels compare with signed 64-bit ops. */
@@ -34,10 +34,25 @@ void ts__l1_lanes_reset(ts__l1_lanes *lanes, size_t n);
 /* Reduces each query's lanes to one candidate and merges it into best. */
 void ts__l1_lanes_reduce(const ts__l1_lanes *lanes, size_t n, ts_l1_best *best);
 
-/* Distances of one query to the 8 vectors of one group, fine and coarse
- * parts apart (sad[0] fine, sad[1] coarse). `grp` points at the group. */
-typedef void ts__l1_group_fn(const uint8_t *grp, const uint8_t *query, const uint8_t *mask,
-                             uint32_t nchunks, uint32_t nfine, uint32_t sad[2][TS_L1_GROUP]);
+/* SADs of one query to the 8 vectors of one group over chunks [k0, k1)
+ * (one weighted part), k0 < k1. `grp` points at the group; `query` and
+ * `mask` (NULL: none) at the whole vector. */
+typedef void ts__l1_part_fn(const uint8_t *grp, const uint8_t *query, const uint8_t *mask,
+                            uint32_t k0, uint32_t k1, uint32_t sad[TS_L1_GROUP]);
+
+/* SADs of one query to the 8 vectors of the group at `grp`, part by part
+ * (sad[p] for part p): `part` once per part. Inline, so that each kernel's
+ * group function (below) calls its part function directly. */
+static inline void ts__l1_group_parts(const ts_l1_set *set, const uint8_t *grp,
+                                      const uint8_t *query, const uint8_t *mask,
+                                      ts__l1_part_fn *part, uint32_t sad[][TS_L1_GROUP]) {
+  for (uint32_t p = 0, k = 0; p < set->nparts; k = set->part_end[p++])
+    part(grp, query, mask, k, set->part_end[p], sad[p]);
+}
+
+/* ts__l1_group_parts with the kernel's part function filled in. */
+typedef void ts__l1_group_fn(const ts_l1_set *set, const uint8_t *grp, const uint8_t *query,
+                             const uint8_t *mask, uint32_t sad[][TS_L1_GROUP]);
 /* Scan driver for the kernels that work one group at a time (scalar, MMX);
  * `batch` picks the cache-blocked loop order. */
 void ts__l1_scan_groups(const ts_l1_set *set, uint32_t g0, uint32_t g1, const uint8_t *queries,

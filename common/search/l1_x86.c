@@ -24,8 +24,9 @@ typedef struct {
   const uint8_t *ref;         /* group ga, chunk 0, current sub-vector */
   size_t gstride, vbytes;     /* bytes per group, per vector */
   uint32_t ga, ngr;           /* first group, number of groups */
-  uint32_t nchunks, nfine;
-  uint32_t wf, wc;            /* weights: the multiplies are 32x32 bits */
+  uint32_t nchunks, nparts;
+  const uint32_t *part_end;   /* the set's parts (l1.h) */
+  const uint64_t *weight;     /* their weights, < 2^32: 32x32-bit multiplies */
   const uint8_t *q[6], *m[6]; /* the pass's queries (masked: pre-ANDed) */
   uint64_t *dist[6], *grp[6]; /* their lane states, current sub-vector */
   const uint64_t *pen;        /* widened penalties of group ga, or NULL */
@@ -84,9 +85,9 @@ static void pass_init(ts__l1_pass *p, const ts__l1_scan *sc, uint32_t ga, uint32
   p->ga = ga;
   p->ngr = gb - ga;
   p->nchunks = set->nchunks;
-  p->nfine = set->nfine < set->nchunks ? set->nfine : set->nchunks;
-  p->wf = set->wfine;
-  p->wc = set->wcoarse;
+  p->nparts = set->nparts;
+  p->part_end = set->part_end;
+  p->weight = set->part_weight;
   p->pfn = 0;
 }
 
@@ -276,26 +277,22 @@ static void mmx_sad4_masked(const uint8_t *ref, const uint8_t *query, const uint
       : "mm0", "mm1", "mm2", "mm3", "mm4", "mm5", "mm6", "mm7", "memory", "cc");
 }
 
-/* Chunks [k0, k0 + n) of lanes 4h..4h+3 into out[4h..]. */
+/* Chunks [k0, k1) of one group, as two runs of 4 lanes (ts__l1_part_fn). */
 static void mmx_part(const uint8_t *grp, const uint8_t *query, const uint8_t *mask, uint32_t k0,
-                     uint32_t n, uint32_t out[TS_L1_GROUP]) {
+                     uint32_t k1, uint32_t sad[TS_L1_GROUP]) {
+  const uint8_t *q = query + (size_t)k0 * TS_L1_CHUNK;
   for (uint32_t h = 0; h < 2; h++) {
-    uint32_t *o = out + 4 * h;
     const uint8_t *r = grp + (size_t)k0 * 64 + 32 * h;
-    if (n == 0)
-      o[0] = o[1] = o[2] = o[3] = 0;
-    else if (mask == NULL)
-      mmx_sad4(r, query + (size_t)k0 * TS_L1_CHUNK, n, o);
+    if (mask == NULL)
+      mmx_sad4(r, q, k1 - k0, sad + 4 * h);
     else
-      mmx_sad4_masked(r, query + (size_t)k0 * TS_L1_CHUNK, mask + (size_t)k0 * TS_L1_CHUNK, n, o);
+      mmx_sad4_masked(r, q, mask + (size_t)k0 * TS_L1_CHUNK, k1 - k0, sad + 4 * h);
   }
 }
 
-static void mmx_group(const uint8_t *grp, const uint8_t *query, const uint8_t *mask,
-                      uint32_t nchunks, uint32_t nfine, uint32_t sad[2][TS_L1_GROUP]) {
-  uint32_t nf = nfine < nchunks ? nfine : nchunks;
-  mmx_part(grp, query, mask, 0, nf, sad[0]);
-  mmx_part(grp, query, mask, nf, nchunks - nf, sad[1]);
+static void mmx_group(const ts_l1_set *set, const uint8_t *grp, const uint8_t *query,
+                      const uint8_t *mask, uint32_t sad[][TS_L1_GROUP]) {
+  ts__l1_group_parts(set, grp, query, mask, mmx_part, sad);
 }
 
 /* The driver between two groups is integer C code, so one emms when the

@@ -260,9 +260,11 @@ int ts_vecset_build(const ts_shape *s, const ts_refgrid *g,
   if (i1 < i0 || i1 > g->count[c]) return TS_EINVAL;
   int rc = ts_l1_set_init(out, i1 - i0, s->nchunks);
   if (rc != 0) return rc;
-  out->nfine = s->nfine_chunks;
-  out->wfine = s->wfine;
-  out->wcoarse = s->wcoarse;
+  rc = ts_l1_set_weigh_fine_coarse(out, s->nfine_chunks, s->wfine, s->wcoarse, NULL);
+  if (rc != 0) {
+    ts_l1_set_free(out);
+    return rc;
+  }
   uint8_t vec[TS_L1_MAX_CHUNKS * TS_L1_CHUNK];
   for (uint32_t i = i0; i < i1; i++) {
     int x, y;

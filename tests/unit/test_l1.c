@@ -1,7 +1,8 @@
 /* test_l1.c - L1 nearest-neighbour kernels: every variant this CPU supports
  * must return exactly what a brute-force scan over ts_l1_distance returns
  * (distance and index, ties to the lowest index), for single and batched
- * scans, over odd shapes, weights, masks, penalties and sub-ranges.
+ * scans, over odd shapes, weighted parts, masks, penalties and sub-ranges;
+ * and ts_l1_distance must equal a direct computation on the vectors.
  *
  * Setting TEXSYN_SIMD limits the variants under test to that one and the
  * ones below it, e.g. TEXSYN_SIMD=avx2 under valgrind, which cannot run
@@ -50,9 +51,7 @@ static void fixture_make(fixture *f, ts_rng *rng, uint32_t nvec, uint32_t nchunk
                          uint32_t mask_density, int with_penalty) {
   memset(f, 0, sizeof(*f));
   assert_int_equal(ts_l1_set_init(&f->set, nvec, nchunks), 0);
-  f->set.nfine = nfine;
-  f->set.wfine = wfine;
-  f->set.wcoarse = wcoarse;
+  assert_int_equal(ts_l1_set_weigh_fine_coarse(&f->set, nfine, wfine, wcoarse, NULL), 0);
   f->vbytes = nchunks * TS_L1_CHUNK;
   f->nq = nq;
   uint8_t *vec = malloc(f->vbytes);
@@ -84,6 +83,61 @@ static void fixture_free(fixture *f) {
   free(f->queries);
   free(f->masks);
   free(f->penalty);
+}
+
+/* A part's weight: 0, the largest, small, or any 32-bit value. */
+static uint64_t rand_weight(ts_rng *rng) {
+  switch (ts_rng_below(rng, 4)) {
+  case 0:
+    return 0;
+  case 1:
+    return TS_L1_MAX_WEIGHT;
+  case 2:
+    return 1 + ts_rng_below(rng, 16);
+  default:
+    return (uint32_t)ts_rng_next(rng);
+  }
+}
+
+/* Cuts nchunks chunks into nparts non-empty parts at random places, with
+ * random weights, and sets them on f's set. */
+static void fixture_parts(fixture *f, ts_rng *rng, uint32_t nparts) {
+  uint32_t nchunks = f->set.nchunks, end[TS_L1_MAX_PARTS];
+  uint64_t weight[TS_L1_MAX_PARTS];
+  assert_true(nparts >= 1 && nparts <= nchunks);
+  /* Choose nparts - 1 of the nchunks - 1 cut points, in order. */
+  for (uint32_t c = 1, p = 0; c < nchunks; c++)
+    if (ts_rng_below(rng, nchunks - c) < nparts - 1 - p) end[p++] = c;
+  end[nparts - 1] = nchunks;
+  for (uint32_t p = 0; p < nparts; p++) weight[p] = rand_weight(rng);
+  char err[TS_ERR_LEN] = "";
+  assert_int_equal(ts_l1_set_weigh(&f->set, nparts, end, weight, err), 0);
+}
+
+/* D(q, v) straight from the definition in l1.h, on the vector as stored
+ * (ts_l1_set_get) and with the part of each byte looked up on its own. */
+static uint64_t direct_distance(const fixture *f, uint32_t v, const uint8_t *query,
+                                const uint8_t *mask, const uint32_t *penalty) {
+  uint8_t vec[TS_L1_MAX_CHUNKS * TS_L1_CHUNK];
+  ts_l1_set_get(&f->set, v, vec);
+  uint64_t d = penalty != NULL ? penalty[v] : 0;
+  for (uint32_t i = 0; i < f->vbytes; i++) {
+    uint32_t p = 0;
+    while (i / TS_L1_CHUNK >= f->set.part_end[p]) p++;
+    if (mask == NULL || mask[i] != 0)
+      d += (uint64_t)abs((int)vec[i] - (int)query[i]) * f->set.part_weight[p];
+  }
+  return d;
+}
+
+static void expect_direct_distances(const fixture *f) {
+  for (uint32_t q = 0; q < f->nq; q++) {
+    const uint8_t *query = f->queries + (size_t)q * f->vbytes;
+    const uint8_t *mask = f->masks != NULL ? f->masks + (size_t)q * f->vbytes : NULL;
+    for (uint32_t v = 0; v < f->set.nvec; v += 1 + v % 5)
+      assert_true(ts_l1_distance(&f->set, v, query, mask, f->penalty) ==
+                  direct_distance(f, v, query, mask, f->penalty));
+  }
 }
 
 static int better(uint64_t dist, uint32_t index, const ts_l1_best *b) {
@@ -185,9 +239,9 @@ static void test_l1_set_layout(void **state) {
   assert_int_equal(ts_l1_set_init(&set, 13, 3), 0);
   assert_int_equal(set.nvec, 13);
   assert_int_equal(set.ngroups, 2);
-  assert_int_equal(set.nfine, 3);
-  assert_int_equal(set.wfine, 1);
-  assert_int_equal(set.wcoarse, 1);
+  assert_int_equal(set.nparts, 1); /* one part of weight 1 */
+  assert_int_equal(set.part_end[0], 3);
+  assert_true(set.part_weight[0] == 1);
   assert_int_equal((uintptr_t)set.data % TS_L1_ALIGN, 0);
   uint8_t vec[24], back[24];
   for (uint32_t v = 0; v < 13; v++) {
@@ -243,9 +297,7 @@ static void test_l1_distance_reference(void **state) {
   const uint32_t nvec = 21, nchunks = 5, vbytes = 40;
   ts_l1_set set;
   assert_int_equal(ts_l1_set_init(&set, nvec, nchunks), 0);
-  set.nfine = 2;
-  set.wfine = 65536;
-  set.wcoarse = 37;
+  assert_int_equal(ts_l1_set_weigh_fine_coarse(&set, 2, 65536, 37, NULL), 0);
   uint8_t vecs[21][40], q[40], m[40];
   uint32_t pen[24];
   for (uint32_t v = 0; v < nvec; v++) {
@@ -507,6 +559,188 @@ static void test_l1_overflow_bounds(void **state) {
   fixture_free(&f);
 }
 
+/* ---- weighted parts ---- */
+
+/* 1, 2, 3, 7, 20 and 32 parts at random cuts with random weights (0 and the
+ * largest among them), plain, masked and with penalties, over vector counts
+ * that leave the last group partial, against brute force and the direct
+ * distance. 3 and more parts take the kernels' MANY instances. */
+static void test_l1_parts(void **state) {
+  (void)state;
+  static const uint32_t nparts[] = {1, 2, 3, 7, 20, 32};
+  ts_rng rng;
+  ts_rng_seed(&rng, 9, 0);
+  for (size_t a = 0; a < sizeof(nparts) / sizeof(nparts[0]); a++) {
+    uint32_t np = nparts[a];
+    const uint32_t nchunks[] = {np, np + 1 + ts_rng_below(&rng, 8), 40};
+    for (size_t b = 0; b < sizeof(nchunks) / sizeof(nchunks[0]); b++) {
+      for (int variant = 0; variant < 4; variant++) {
+        uint32_t density = variant & 1 ? 60 : 0, nvec = 77 + 126 * (uint32_t)b;
+        uint32_t nq = variant == 3 ? 13 : 1 + 2 * (uint32_t)variant;
+        fixture f;
+        fixture_make(&f, &rng, nvec, nchunks[b], 0, 1, 1, nq, variant == 2 ? 3 : 256, density,
+                     variant >= 2);
+        fixture_parts(&f, &rng, np);
+        expect_direct_distances(&f);
+        check_all(&f);
+        fixture_free(&f);
+      }
+    }
+  }
+  /* Long masked vectors in 32 parts, in a batch larger than what is
+   * pre-ANDed at once. */
+  fixture big;
+  fixture_make(&big, &rng, 100, 300, 0, 1, 1, 20, 256, 50, 1);
+  fixture_parts(&big, &rng, 32);
+  check_all(&big);
+  fixture_free(&big);
+}
+
+/* Every weight 0: only the penalties count (or nothing, and the first
+ * vector wins); a part of weight 0 next to others is ignored. */
+static void test_l1_parts_zero_weights(void **state) {
+  (void)state;
+  ts_rng rng;
+  ts_rng_seed(&rng, 10, 0);
+  static const uint32_t end[3] = {2, 5, 9};
+  static const uint64_t zeros[3] = {0, 0, 0}, middle_off[3] = {3, 0, 7};
+  for (int with_penalty = 0; with_penalty < 2; with_penalty++) {
+    fixture f;
+    fixture_make(&f, &rng, 203, 9, 0, 1, 1, 7, 256, 0, with_penalty);
+    assert_int_equal(ts_l1_set_weigh(&f.set, 3, end, zeros, NULL), 0);
+    for (uint32_t v = 0; v < f.set.nvec; v++)
+      assert_true(ts_l1_distance(&f.set, v, f.queries, NULL, f.penalty) ==
+                  (with_penalty ? f.penalty[v] : 0));
+    check_all(&f);
+    /* Changing the bytes of the weight-0 part changes nothing. */
+    assert_int_equal(ts_l1_set_weigh(&f.set, 3, end, middle_off, NULL), 0);
+    ts_l1_best before[7], after[7];
+    ts_l1_best_reset(before, 7);
+    brute(&f, 0, f.set.ngroups, before);
+    for (size_t i = 2 * TS_L1_CHUNK; i < 5 * TS_L1_CHUNK; i++) f.queries[i] ^= 0x5A;
+    ts_l1_best_reset(after, 7);
+    brute(&f, 0, f.set.ngroups, after);
+    assert_true(before[0].dist == after[0].dist);
+    assert_int_equal(before[0].index, after[0].index);
+    check_all(&f);
+    fixture_free(&f);
+  }
+}
+
+/* The largest distance with 32 parts: 255 against 0 in every byte of 512
+ * chunks, every weight and penalty at its largest, exact in 64 bits. */
+static void test_l1_parts_overflow_bounds(void **state) {
+  (void)state;
+  const uint32_t nvec = 19, nchunks = TS_L1_MAX_CHUNKS;
+  fixture f;
+  ts_rng rng;
+  ts_rng_seed(&rng, 12, 0);
+  fixture_make(&f, &rng, nvec, nchunks, 0, 1, 1, 2, 256, 0, 1);
+  uint32_t end[TS_L1_MAX_PARTS];
+  uint64_t weight[TS_L1_MAX_PARTS];
+  for (uint32_t p = 0; p < TS_L1_MAX_PARTS; p++) {
+    end[p] = (p + 1) * (nchunks / TS_L1_MAX_PARTS) - (p < TS_L1_MAX_PARTS - 1 ? p % 3 : 0);
+    weight[p] = TS_L1_MAX_WEIGHT;
+  }
+  assert_int_equal(ts_l1_set_weigh(&f.set, TS_L1_MAX_PARTS, end, weight, NULL), 0);
+  uint8_t *vec = malloc(f.vbytes);
+  assert_non_null(vec);
+  memset(vec, 255, f.vbytes);
+  for (uint32_t v = 0; v < nvec; v++) {
+    vec[(v * 211) % f.vbytes] = v == 11 ? 0 : 255; /* vector 11 is one byte closer */
+    ts_l1_set_put(&f.set, v, vec);
+    vec[(v * 211) % f.vbytes] = 255;
+    f.penalty[v] = UINT32_MAX;
+  }
+  free(vec);
+  memset(f.queries, 0, (size_t)f.nq * f.vbytes);
+  memset(f.queries + f.vbytes, 255, f.vbytes);
+  uint64_t top = 255ull * f.vbytes * TS_L1_MAX_WEIGHT + UINT32_MAX;
+  assert_true(top < (uint64_t)1 << 53); /* the bound l1.h proves */
+  assert_true(ts_l1_distance(&f.set, 0, f.queries, NULL, f.penalty) == top);
+  check_all(&f);
+  ts_l1_best best[2];
+  ts_l1_best_reset(best, 2);
+  ts_l1_impl_get(TS_SIMD_SCALAR)->batch(&f.set, 0, f.set.ngroups, f.queries, NULL, f.penalty, 2,
+                                        best);
+  assert_int_equal(best[0].index, 11);
+  assert_true(best[0].dist == top - 255ull * TS_L1_MAX_WEIGHT);
+  assert_int_equal(best[1].index, 0);
+  assert_true(best[1].dist == UINT32_MAX);
+  fixture_free(&f);
+}
+
+/* One refused setting: TS_EINVAL, a message naming `needle`, and the set's
+ * parts as they were. */
+static void expect_refused(ts_l1_set *set, uint32_t nparts, const uint32_t *end,
+                           const uint64_t *weight, const char *needle) {
+  ts_l1_set before = *set;
+  char err[TS_ERR_LEN] = "";
+  assert_int_equal(ts_l1_set_weigh(set, nparts, end, weight, err), TS_EINVAL);
+  print_message("message: %s\n", err);
+  assert_non_null(strstr(err, needle));
+  assert_memory_equal(set, &before, sizeof(before));
+  assert_int_equal(ts_l1_set_weigh(set, nparts, end, weight, NULL), TS_EINVAL);
+}
+
+static void test_l1_weigh_refuses(void **state) {
+  (void)state;
+  ts_l1_set set;
+  assert_int_equal(ts_l1_set_init(&set, 10, 40), 0);
+  uint32_t end[TS_L1_MAX_PARTS + 1];
+  uint64_t weight[TS_L1_MAX_PARTS + 1];
+  for (uint32_t p = 0; p <= TS_L1_MAX_PARTS; p++) {
+    end[p] = p + 1;
+    weight[p] = p;
+  }
+  expect_refused(&set, 0, end, weight, "0 weighted parts: need 1..32");
+  end[TS_L1_MAX_PARTS] = 40;
+  expect_refused(&set, TS_L1_MAX_PARTS + 1, end, weight, "33 weighted parts: need 1..32");
+  end[TS_L1_MAX_PARTS - 1] = 40; /* 32 parts: fine */
+  char err[TS_ERR_LEN] = "";
+  assert_int_equal(ts_l1_set_weigh(&set, TS_L1_MAX_PARTS, end, weight, err), 0);
+  assert_int_equal(set.nparts, TS_L1_MAX_PARTS);
+
+  ts_l1_set_free(&set);
+  assert_int_equal(ts_l1_set_init(&set, 10, 7), 0);
+  const uint32_t empty[3] = {3, 3, 7}, backwards[3] = {4, 2, 7}, past[2] = {3, 9},
+                 short_[2] = {3, 6}, first_empty[2] = {0, 7};
+  const uint64_t w3[3] = {1, 2, 3};
+  expect_refused(&set, 3, empty, w3, "weighted part 1 ends at chunk 3");
+  expect_refused(&set, 3, backwards, w3, "weighted part 1 ends at chunk 2");
+  expect_refused(&set, 2, past, w3, "part 1 ends at chunk 9: parts must be non-empty, in order "
+                                    "and within the vector's 7 chunks");
+  expect_refused(&set, 2, short_, w3, "end at chunk 6, but the vectors have 7 chunks");
+  expect_refused(&set, 2, first_empty, w3, "weighted part 0 ends at chunk 0");
+  const uint32_t two[2] = {3, 7};
+  const uint64_t too_heavy[2] = {1, TS_L1_MAX_WEIGHT + 1};
+  expect_refused(&set, 2, two, too_heavy, "part 1: weight 4294967296 is above the largest");
+  const uint64_t heaviest[2] = {TS_L1_MAX_WEIGHT, 0};
+  assert_int_equal(ts_l1_set_weigh(&set, 2, two, heaviest, err), 0);
+  assert_true(set.part_weight[0] == TS_L1_MAX_WEIGHT);
+
+  /* The fine/coarse helper: empty parts left out, the same checks. */
+  assert_int_equal(ts_l1_set_weigh_fine_coarse(&set, 3, 5, 9, err), 0);
+  assert_int_equal(set.nparts, 2);
+  assert_int_equal(set.part_end[0], 3);
+  assert_int_equal(set.part_end[1], 7);
+  assert_true(set.part_weight[0] == 5 && set.part_weight[1] == 9);
+  assert_int_equal(ts_l1_set_weigh_fine_coarse(&set, 7, 5, 0, err), 0);
+  assert_int_equal(set.nparts, 1);
+  assert_true(set.part_end[0] == 7 && set.part_weight[0] == 5);
+  assert_int_equal(ts_l1_set_weigh_fine_coarse(&set, 0, 5, 9, err), 0);
+  assert_int_equal(set.nparts, 1);
+  assert_true(set.part_end[0] == 7 && set.part_weight[0] == 9);
+  assert_int_equal(ts_l1_set_weigh_fine_coarse(&set, 8, 5, 9, err), TS_EINVAL);
+  print_message("message: %s\n", err);
+  assert_non_null(strstr(err, "8 fine chunks, but the vectors have only 7"));
+  assert_int_equal(ts_l1_set_weigh_fine_coarse(&set, 3, (uint64_t)1 << 40, 9, err), TS_EINVAL);
+  print_message("message: %s\n", err);
+  assert_non_null(strstr(err, "weight 1099511627776 is above the largest"));
+  assert_true(set.part_end[0] == 7 && set.part_weight[0] == 9); /* unchanged */
+  ts_l1_set_free(&set);
+}
+
 /* ---- selection ---- */
 
 static void test_l1_simd_from_name(void **state) {
@@ -605,6 +839,10 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(test_l1_subranges),
     cmocka_unit_test(test_l1_batch_sizes),
     cmocka_unit_test(test_l1_overflow_bounds),
+    cmocka_unit_test(test_l1_parts),
+    cmocka_unit_test(test_l1_parts_zero_weights),
+    cmocka_unit_test(test_l1_parts_overflow_bounds),
+    cmocka_unit_test(test_l1_weigh_refuses),
     cmocka_unit_test(test_l1_simd_from_name),
     cmocka_unit_test(test_l1_impl_get),
     cmocka_unit_test(test_l1_select_default),
