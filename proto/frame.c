@@ -59,7 +59,7 @@ int ts_frame_reader_next(ts_frame_reader *r, ts_frame *f, char *err) {
   if (h[0] != 'T' || h[1] != 'S')
     return ts_error(err, TS_EPROTO, "not a texsyn frame (bad magic 0x%02x%02x)", h[0], h[1]);
   if (h[2] != TS_PROTO_VERSION)
-    return ts_error(err, TS_EPROTO, "protocol version %u, this build speaks %u", h[2], TS_PROTO_VERSION);
+    return ts_error(err, TS_EPROTO, "the peer speaks texsyn protocol version %u, this build %u: run the same release on both sides", h[2], TS_PROTO_VERSION);
   uint32_t len = (uint32_t)ts_get_le(h + 4, 4);
   if (len > r->max_payload)
     return ts_error(err, TS_ETOOBIG, "frame '%c' of %u bytes exceeds the limit of %u", h[3] >= 32 && h[3] < 127 ? h[3] : '?',

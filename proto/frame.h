@@ -24,7 +24,7 @@
 
 #include "cursor.h"
 
-#define TS_PROTO_VERSION 1
+#define TS_PROTO_VERSION 2
 #define TS_FRAME_HEADER 12
 #define TS_FRAME_DEFAULT_MAX (64u << 20) /* payload limit unless configured */
 

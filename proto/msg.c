@@ -2,6 +2,7 @@
  * that is short, or longer than its message, is a protocol error. */
 #include "msg.h"
 
+#include <stddef.h>
 #include <stdio.h>
 #include <string.h>
 
@@ -33,19 +34,6 @@ void ts_rd_str(ts_rd *r, char *buf, size_t cap) {
   }
   memcpy(buf, p, n);
   buf[n] = '\0';
-}
-
-static void wr_f64(ts_wr *w, double v) {
-  uint64_t bits;
-  memcpy(&bits, &v, sizeof(bits));
-  ts_wr_u64(w, bits);
-}
-
-static double rd_f64(ts_rd *r) {
-  uint64_t bits = ts_rd_u64(r);
-  double v;
-  memcpy(&v, &bits, sizeof(v));
-  return v;
 }
 
 static uint32_t le32(const uint8_t *p) {
@@ -133,93 +121,168 @@ int ts_msg_calib_read(const ts_frame *f, ts_msg_calib *m, char *err) {
 
 /* ---- N ------------------------------------------------------------------ */
 
-static int slice_nclass(const ts_slice_desc *m) { return m->parity ? 4 : 1; }
+static void wr_box(ts_wr *w, const ts_box *b) {
+  ts_wr_u16(w, (uint16_t)b->dx0);
+  ts_wr_u16(w, (uint16_t)b->dy0);
+  ts_wr_u16(w, (uint16_t)b->dx1);
+  ts_wr_u16(w, (uint16_t)b->dy1);
+}
+
+static void rd_box(ts_rd *r, ts_box *b) {
+  b->dx0 = (int16_t)ts_rd_u16(r);
+  b->dy0 = (int16_t)ts_rd_u16(r);
+  b->dx1 = (int16_t)ts_rd_u16(r);
+  b->dy1 = (int16_t)ts_rd_u16(r);
+}
+
+static void wr_window(ts_wr *w, const ts_window_spec *s) {
+  for (int src = 0; src < TS_NSRC; src++) ts_wr_u8(w, (uint8_t)s->nplanes[src]);
+  ts_wr_u16(w, (uint16_t)s->centre);
+  ts_wr_u16(w, (uint16_t)s->block);
+  for (int src = 0; src < TS_NSRC; src++) {
+    if (s->nplanes[src] == 0) continue;
+    wr_box(w, &s->extent[src]);
+    ts_wr_u16(w, (uint16_t)s->noff[src]);
+    for (int k = 0; k < s->noff[src]; k++) {
+      ts_wr_u16(w, (uint16_t)s->dx[src][k]);
+      ts_wr_u16(w, (uint16_t)s->dy[src][k]);
+    }
+  }
+  ts_wr_u8(w, (uint8_t)s->nparts);
+  for (int p = 0; p < s->nparts; p++) {
+    ts_wr_u8(w, s->part[p].source);
+    ts_wr_u8(w, s->part[p].plane0);
+    ts_wr_u8(w, s->part[p].nplanes);
+    ts_wr_u32(w, s->part[p].weight);
+  }
+}
+
+/* Reads a window into m->win, its offsets into m->offbuf. Counts are
+ * bounded here so the reads stay in offbuf; the rest is ts_window_init's
+ * to check. */
+static int rd_window(ts_rd *r, ts_slice_desc *m, char *err) {
+  ts_window_spec *s = &m->win;
+  int16_t *o = m->offbuf;
+  for (int src = 0; src < TS_NSRC; src++) s->nplanes[src] = ts_rd_u8(r);
+  s->centre = ts_rd_u16(r);
+  s->block = ts_rd_u16(r);
+  for (int src = 0; src < TS_NSRC; src++) {
+    if (s->nplanes[src] == 0) continue;
+    rd_box(r, &s->extent[src]);
+    s->noff[src] = ts_rd_u16(r);
+    if (s->noff[src] > TS_WIN_MAX_OFFSETS) return bad(err, 'N', "too many window offsets");
+    s->dx[src] = o;
+    s->dy[src] = o + s->noff[src];
+    for (int k = 0; k < s->noff[src]; k++) {
+      o[k] = (int16_t)ts_rd_u16(r);
+      o[s->noff[src] + k] = (int16_t)ts_rd_u16(r);
+    }
+    o += 2 * s->noff[src];
+  }
+  s->nparts = ts_rd_u8(r);
+  if (s->nparts > TS_L1_MAX_PARTS) return bad(err, 'N', "too many weighted parts");
+  for (int p = 0; p < s->nparts; p++) {
+    s->part[p].source = ts_rd_u8(r);
+    s->part[p].plane0 = ts_rd_u8(r);
+    s->part[p].nplanes = ts_rd_u8(r);
+    s->part[p].weight = ts_rd_u32(r);
+  }
+  return 0;
+}
+
+static int slice_has_planes(const ts_slice_desc *m) { return m->labelled || m->masked; }
 
 void ts_msg_slice_write(ts_wr *w, const ts_slice_desc *m) {
   ts_wr_u32(w, m->set);
   ts_wr_u32(w, m->gen);
-  ts_wr_u8(w, m->kind);
-  ts_wr_u8(w, m->wn);
-  ts_wr_u8(w, m->wb);
-  ts_wr_u8(w, m->has_coarse);
-  ts_wr_u8(w, m->nplanes);
-  ts_wr_u8(w, m->parity);
-  wr_f64(w, m->coarse_weight);
-  ts_wr_u32(w, m->wfine);
-  ts_wr_u32(w, m->wcoarse);
+  wr_window(w, &m->win);
   ts_wr_u32(w, (uint32_t)m->w);
   ts_wr_u32(w, (uint32_t)m->h);
   ts_wr_u32(w, (uint32_t)m->cw);
   ts_wr_u32(w, (uint32_t)m->ch);
-  for (int c = 0; c < slice_nclass(m); c++) {
+  ts_wr_u16(w, m->nclass);
+  ts_wr_u8(w, m->labelled);
+  ts_wr_u8(w, m->masked);
+  for (int c = 0; c < m->nclass; c++) {
+    ts_wr_u32(w, m->count[c]);
     ts_wr_u32(w, m->i0[c]);
     ts_wr_u32(w, m->i1[c]);
   }
+  ts_wr_u32(w, (uint32_t)m->ay0);
+  ts_wr_u32(w, (uint32_t)m->ay1);
+  for (int c = 0; c < m->nclass && slice_has_planes(m); c++) ts_wr_u32(w, m->above[c]);
   ts_wr_u32(w, (uint32_t)m->fy0);
   ts_wr_u32(w, (uint32_t)m->fy1);
   ts_wr_u32(w, (uint32_t)m->cy0);
   ts_wr_u32(w, (uint32_t)m->cy1);
   size_t frow = (size_t)m->w * (size_t)(m->fy1 - m->fy0);
-  size_t crow = m->has_coarse ? (size_t)m->cw * (size_t)(m->cy1 - m->cy0) : 0;
-  for (int p = 0; p < m->nplanes; p++) ts_wr_bytes(w, m->fine[p], frow);
-  for (int p = 0; p < m->nplanes && crow > 0; p++) ts_wr_bytes(w, m->coarse[p], crow);
+  size_t crow = (size_t)m->cw * (size_t)(m->cy1 - m->cy0);
+  size_t arow = (size_t)m->w * (size_t)(m->ay1 - m->ay0);
+  for (int p = 0; p < m->win.nplanes[TS_SRC_FINE]; p++) ts_wr_bytes(w, m->fine[p], frow);
+  for (int p = 0; p < m->win.nplanes[TS_SRC_COARSE]; p++) ts_wr_bytes(w, m->coarse[p], crow);
+  if (m->labelled) ts_wr_bytes(w, m->labels, arow);
+  if (m->masked) ts_wr_bytes(w, m->valid, arow);
   ts_wr_u8(w, m->usage);
   if (m->usage == TS_SLICE_USAGE_COUNTS) ts_wr_bytes(w, m->counts, frow * 4);
 }
 
+/* What the row reads below need: sizes and row ranges within the levels
+ * (window, anchors and vector ranges are ts_slice_load's to check). */
 static int slice_check_geometry(const ts_slice_desc *m, char *err) {
-  if (m->kind > 1) return bad(err, 'N', "unknown neighbourhood shape");
-  if (m->wb < 1 || m->wn <= m->wb || m->wn > 41 || !(m->wn & 1) || !(m->wb & 1))
-    return bad(err, 'N', "window sizes");
-  if (m->nplanes < 1 || m->nplanes > 4 || m->has_coarse > 1 || m->parity > 1)
-    return bad(err, 'N', "planes, coarse or parity flag");
-  if (!(m->coarse_weight >= 0.0 && m->coarse_weight <= 1000.0)) return bad(err, 'N', "coarse weight");
-  if (m->w < m->wn || m->h < m->wn || m->w > TS_SLICE_MAX_SIDE || m->h > TS_SLICE_MAX_SIDE ||
+  int coarse = m->win.nplanes[TS_SRC_COARSE] > 0;
+  if (m->w < 1 || m->h < 1 || m->w > TS_SLICE_MAX_SIDE || m->h > TS_SLICE_MAX_SIDE ||
       (uint64_t)m->w * (uint64_t)m->h > TS_SLICE_MAX_PIXELS)
     return bad(err, 'N', "level size");
-  if (m->has_coarse && (m->cw < 1 || m->ch < 1 || m->cw > m->w || m->ch > m->h))
+  if (coarse ? (m->cw < 1 || m->ch < 1 || m->cw > m->w || m->ch > m->h) : (m->cw != 0 || m->ch != 0))
     return bad(err, 'N', "coarse level size");
+  if (m->nclass < 1 || m->nclass > TS_MAX_CLASSES || m->labelled > 1 || m->masked > 1)
+    return bad(err, 'N', "classes, label or validity flag");
+  if (m->ay0 < 0 || m->ay0 >= m->ay1 || m->ay1 > m->h) return bad(err, 'N', "anchor row range");
   if (m->fy0 < 0 || m->fy0 >= m->fy1 || m->fy1 > m->h) return bad(err, 'N', "fine row range");
-  if (m->has_coarse && (m->cy0 < 0 || m->cy0 >= m->cy1 || m->cy1 > m->ch)) return bad(err, 'N', "coarse row range");
-  for (int c = 0; c < slice_nclass(m); c++)
-    if (m->i0[c] > m->i1[c]) return bad(err, 'N', "vector range");
+  if (coarse ? (m->cy0 < 0 || m->cy0 >= m->cy1 || m->cy1 > m->ch) : (m->cy0 != 0 || m->cy1 != 0))
+    return bad(err, 'N', "coarse row range");
   return 0;
 }
 
 int ts_msg_slice_read(const ts_frame *f, ts_slice_desc *m, char *err) {
   ts_rd r;
   ts_rd_init(&r, f->payload, f->len);
-  memset(m, 0, sizeof(*m));
+  memset(m, 0, offsetof(ts_slice_desc, offbuf));
   m->set = ts_rd_u32(&r);
   m->gen = ts_rd_u32(&r);
-  m->kind = ts_rd_u8(&r);
-  m->wn = ts_rd_u8(&r);
-  m->wb = ts_rd_u8(&r);
-  m->has_coarse = ts_rd_u8(&r);
-  m->nplanes = ts_rd_u8(&r);
-  m->parity = ts_rd_u8(&r);
-  m->coarse_weight = rd_f64(&r);
-  m->wfine = ts_rd_u32(&r);
-  m->wcoarse = ts_rd_u32(&r);
+  int rc = rd_window(&r, m, err);
+  if (rc != 0) return rc;
   m->w = (int32_t)ts_rd_u32(&r);
   m->h = (int32_t)ts_rd_u32(&r);
   m->cw = (int32_t)ts_rd_u32(&r);
   m->ch = (int32_t)ts_rd_u32(&r);
-  for (int c = 0; c < (m->parity ? 4 : 1) && c < 4; c++) {
+  m->nclass = ts_rd_u16(&r);
+  m->labelled = ts_rd_u8(&r);
+  m->masked = ts_rd_u8(&r);
+  if (m->nclass > TS_MAX_CLASSES) return bad(err, 'N', "classes");
+  for (int c = 0; c < m->nclass; c++) {
+    m->count[c] = ts_rd_u32(&r);
     m->i0[c] = ts_rd_u32(&r);
     m->i1[c] = ts_rd_u32(&r);
   }
+  m->ay0 = (int32_t)ts_rd_u32(&r);
+  m->ay1 = (int32_t)ts_rd_u32(&r);
+  for (int c = 0; c < m->nclass && slice_has_planes(m); c++) m->above[c] = ts_rd_u32(&r);
   m->fy0 = (int32_t)ts_rd_u32(&r);
   m->fy1 = (int32_t)ts_rd_u32(&r);
   m->cy0 = (int32_t)ts_rd_u32(&r);
   m->cy1 = (int32_t)ts_rd_u32(&r);
   if (r.failed) return bad(err, 'N', "truncated header");
-  int rc = slice_check_geometry(m, err);
+  rc = slice_check_geometry(m, err);
   if (rc != 0) return rc;
   size_t frow = (size_t)m->w * (size_t)(m->fy1 - m->fy0);
-  size_t crow = m->has_coarse ? (size_t)m->cw * (size_t)(m->cy1 - m->cy0) : 0;
-  for (int p = 0; p < m->nplanes; p++) m->fine[p] = ts_rd_bytes(&r, frow);
-  for (int p = 0; p < m->nplanes && crow > 0; p++) m->coarse[p] = ts_rd_bytes(&r, crow);
+  size_t crow = (size_t)m->cw * (size_t)(m->cy1 - m->cy0);
+  size_t arow = (size_t)m->w * (size_t)(m->ay1 - m->ay0);
+  for (int p = 0; p < m->win.nplanes[TS_SRC_FINE] && p < TS_WIN_MAX_PLANES; p++) m->fine[p] = ts_rd_bytes(&r, frow);
+  for (int p = 0; p < m->win.nplanes[TS_SRC_COARSE] && p < TS_WIN_MAX_PLANES; p++)
+    m->coarse[p] = ts_rd_bytes(&r, crow);
+  if (m->labelled) m->labels = ts_rd_bytes(&r, arow);
+  if (m->masked) m->valid = ts_rd_bytes(&r, arow);
   m->usage = ts_rd_u8(&r);
   if (m->usage == TS_SLICE_USAGE_COUNTS) m->counts = ts_rd_bytes(&r, frow * 4);
   if (finish(&r, err, 'N') != 0) return TS_EPROTO;

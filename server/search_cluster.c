@@ -19,7 +19,7 @@
 
 typedef struct {
   cl_worker *w;
-  uint32_t i0[4], i1[4];
+  uint32_t *i0, *i1; /* per class: into the set's ranges */
 } cl_slice;
 
 typedef struct {
@@ -27,7 +27,7 @@ typedef struct {
   uint32_t gid; /* set id on the wire, unique in the cluster */
   uint32_t gen; /* slicing generation */
   ts_refset rs;
-  const ts_refgrid *grid;
+  const ts_anchors *grid;
   int with_usage;
   ts_usage usage; /* the coordinator's replica: the counts new slices get */
   ts_commit *pending;
@@ -35,6 +35,7 @@ typedef struct {
   uint64_t epoch; /* cluster epoch of the slicing below */
   int sliced;
   cl_slice *slices; /* one per worker holding a part (o.max_workers slots) */
+  uint32_t *ranges; /* their class ranges: 2 * nclass per slot */
   int nslices;
   ts_slice *local; /* in-process slice when no worker is ready */
 } cl_set;
@@ -56,7 +57,7 @@ static cl_set *set_get(cluster_search *cs, int id) {
 
 /* Cuts every class into contiguous ranges in proportion to the workers'
  * rates, on group (8-vector) boundaries so every slice scans whole groups. */
-static void cut_ranges(const ts_refgrid *g, cl_worker **ws, int n, cl_slice *out) {
+static void cut_ranges(const ts_anchors *g, cl_worker **ws, int n, cl_slice *out) {
   double total = 0;
   for (int i = 0; i < n; i++) total += ws[i]->slice_rate;
   for (int c = 0; c < g->nclass; c++) {
@@ -88,7 +89,7 @@ static int loaded_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
 }
 
 static int load_local(cl_set *st, char *err) {
-  uint32_t i0[4] = {0};
+  static const uint32_t i0[TS_MAX_CLASSES] = {0};
   ts_slice_desc m;
   ts_slice_describe(&m, &st->rs, &st->usage, st->gid, st->gen, i0, st->grid->count);
   return ts_slice_load(&st->local, &m, err);
@@ -141,13 +142,22 @@ static int cluster_prepare(ts_search *s, const ts_refset *rs, int *id, char *err
   cl_set *st = &cs->sets[slot];
   memset(st, 0, sizeof(*st));
   st->rs = *rs;
-  st->grid = rs->grid;
+  st->grid = rs->anchors;
   st->with_usage = rs->usage;
-  st->slices = calloc(cs->c->o.max_workers, sizeof(*st->slices));
-  if (st->slices == NULL || (rs->usage && ts_usage_init(&st->usage, rs->grid, rs->shape->wb, 0) != 0)) {
+  size_t slots = (size_t)cs->c->o.max_workers, nclass = (size_t)rs->anchors->nclass;
+  st->slices = calloc(slots, sizeof(*st->slices));
+  st->ranges = calloc(slots * 2 * nclass, sizeof(uint32_t));
+  if (st->slices == NULL || st->ranges == NULL ||
+      (rs->usage && ts_usage_init(&st->usage, rs->anchors, rs->window->spec.block, 0) != 0)) {
     free(st->slices);
+    free(st->ranges);
     st->slices = NULL;
+    st->ranges = NULL;
     return ts_error(err, TS_ENOMEM, "out of memory for a reference set");
+  }
+  for (size_t i = 0; i < slots; i++) {
+    st->slices[i].i0 = st->ranges + 2 * nclass * i;
+    st->slices[i].i1 = st->slices[i].i0 + nclass;
   }
   if (rs->usage && rs->counts != NULL) ts_usage_load(&st->usage, rs->counts->count);
   pthread_mutex_lock(&cs->c->lock);
@@ -275,7 +285,7 @@ static int answer_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
     merge_best(&b->best[q0 + i], &res);
   }
   fs->answered = 1;
-  w->answered_bytes += a.pairs * ts_shape_bytes(st->rs.shape);
+  w->answered_bytes += a.pairs * ts_window_bytes(st->rs.window);
   w->answered_nanos += a.scan_nanos;
   w->expect--;
   return 0;
@@ -385,7 +395,7 @@ static int queue_frames(ts_cluster *c, const batch_ctx *bc, const ts_search_req 
   for (uint32_t r = 0; r < bc->nreq; r++) {
     cl_set *st = bc->st[r];
     const ts_query_batch *b = &req[r].b;
-    uint32_t vbytes = ts_shape_bytes(st->rs.shape);
+    uint32_t vbytes = ts_window_bytes(st->rs.window);
     for (int i = 0; i < st->nslices; i++) {
       cl_worker *w = st->slices[i].w;
       for (uint32_t q = 0; q < b->nq; q++) {
@@ -555,6 +565,7 @@ static void set_clear(cluster_search *cs, cl_set *st) {
   ts_usage_free(&st->usage);
   free(st->pending);
   free(st->slices);
+  free(st->ranges);
   memset(st, 0, sizeof(*st));
 }
 

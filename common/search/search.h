@@ -15,16 +15,20 @@
 
 #include <stdint.h>
 
+#include "anchors.h"
 #include "l1.h"
-#include "neigh.h"
 #include "usage.h"
+#include "window.h"
 
-/* What a backend needs to build a reference vector set. The pointed-to data
- * must stay alive until the set is released. */
+/* What a backend needs to build a reference vector set: the feature set
+ * (window, anchors, planes; the label and validity planes the anchors were
+ * made from). The pointed-to data must stay alive until the set is
+ * released. */
 typedef struct {
-  const ts_shape *shape;
-  const ts_refgrid *grid;
+  const ts_window *window;
+  const ts_anchors *anchors;
   const ts_levelplanes *ref;
+  const ts_plane *labels, *valid; /* NULL: none */
   int usage; /* batches will carry a usage penalty: keep usage replicas */
   /* Where the replicas start (read during prepare only): the counts a
    * level resumed mid-way had at its checkpoint. NULL: all zero. */
@@ -41,9 +45,9 @@ typedef struct {
 
 typedef struct {
   uint32_t nq;
-  const uint8_t *queries; /* nq vectors of ts_shape_bytes(shape) bytes */
+  const uint8_t *queries; /* nq vectors of ts_window_bytes(window) bytes */
   const uint8_t *masks;   /* NULL, or nq masks laid out like queries */
-  const uint8_t *klass;   /* class (parity) of each query; NULL = all 0 */
+  const uint8_t *klass;   /* class of each query (anchors.h); NULL = all 0 */
   uint64_t usage_k;       /* penalty factor (usage.h); 0 = no penalty */
 } ts_query_batch;
 

@@ -30,7 +30,7 @@ typedef struct {
   ts_pool *pool;
   int inline_small; /* 0: every batch goes through the pool (tests) */
   ts_slice *sets[LOCAL_MAX_SETS];
-  uint32_t count[LOCAL_MAX_SETS][4];
+  uint32_t count[LOCAL_MAX_SETS][TS_MAX_CLASSES];
 } local_search;
 
 
@@ -39,12 +39,12 @@ static int local_prepare(ts_search *s, const ts_refset *rs, int *id, char *err) 
   int slot = 0;
   while (slot < LOCAL_MAX_SETS && ls->sets[slot] != NULL) slot++;
   if (slot == LOCAL_MAX_SETS) return ts_error(err, TS_ENOMEM, "too many reference sets prepared at once");
-  uint32_t i0[4] = {0};
+  static const uint32_t i0[TS_MAX_CLASSES] = {0};
   ts_slice_desc m;
-  ts_slice_describe(&m, rs, rs->counts, (uint32_t)slot, 0, i0, rs->grid->count);
+  ts_slice_describe(&m, rs, rs->counts, (uint32_t)slot, 0, i0, rs->anchors->count);
   int rc = ts_slice_load(&ls->sets[slot], &m, err);
   if (rc != 0) return rc;
-  memcpy(ls->count[slot], rs->grid->count, sizeof(ls->count[slot]));
+  memcpy(ls->count[slot], rs->anchors->count, sizeof(ls->count[slot]));
   *id = slot;
   return 0;
 }
@@ -66,7 +66,7 @@ static int local_query(ts_search *s, int id, const ts_query_batch *b, ts_l1_best
   if (b->nq == 0) return 0;
   /* A small batch costs less than waking the pool: scan it on this thread. */
   uint64_t expect = 0;
-  for (uint32_t i = 0; i < b->nq; i++) expect += ls->count[id][b->klass ? b->klass[i] & 3 : 0];
+  for (uint32_t i = 0; i < b->nq; i++) expect += ls->count[id][b->klass ? b->klass[i] : 0];
   uint64_t limit = ls->inline_small ? inline_threshold(s->simd, ts_slice_vbytes(sl)) : 0;
   uint64_t pairs;
   double t0 = ts_now();

@@ -5,20 +5,21 @@
  * rule. */
 #include "slice.h"
 
+#include <stddef.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "error.h"
-#include "neigh.h"
 
 struct ts_slice {
   uint32_t set, gen;
-  ts_shape shape;
-  ts_refgrid grid;
-  uint32_t i0[4], i1[4];
-  ts_plane fine[TS_MAX_PLANES], coarse[TS_MAX_PLANES];
-  ts_l1_set cls[4];
-  uint32_t *penalty[4]; /* per class, indexed like the class set */
+  ts_window window;
+  ts_anchors anchors;
+  int nclass;
+  uint32_t i0[TS_MAX_CLASSES], i1[TS_MAX_CLASSES];
+  ts_plane fine[TS_WIN_MAX_PLANES], coarse[TS_WIN_MAX_PLANES];
+  ts_l1_set *cls;      /* nclass vector sets */
+  uint32_t **penalty;  /* per class, indexed like the class set */
   int with_usage;
   ts_usage usage;
   /* Per-batch scratch, grown on demand. */
@@ -30,71 +31,77 @@ struct ts_slice {
   int cap_threads;
   /* The batch being scanned (read by the pool threads). */
   const ts_l1_impl *simd;
-  uint32_t nq, qstart[5], vbytes;
+  uint32_t nq, qstart[TS_MAX_CLASSES + 1], vbytes;
   uint64_t usage_k;
   int masked;
 };
 
+/* Anchor rows holding vectors [i0[c], i1[c]) of every class; one row of
+ * the box when the slice is empty. */
+static void anchor_rows(const ts_anchors *a, const uint32_t *i0, const uint32_t *i1, int *ay0, int *ay1) {
+  *ay0 = INT32_MAX;
+  *ay1 = INT32_MIN;
+  for (int c = 0; c < a->nclass; c++) {
+    if (i1[c] <= i0[c]) continue;
+    int y0, y1;
+    ts_anchors_rows(a, c, i0[c], i1[c], &y0, &y1);
+    if (y0 < *ay0) *ay0 = y0;
+    if (y1 > *ay1) *ay1 = y1;
+  }
+  if (*ay0 > *ay1) *ay0 = a->y0, *ay1 = a->y0 + 1;
+}
+
 void ts_slice_describe(ts_slice_desc *m, const ts_refset *rs, const ts_usage *counts, uint32_t set,
                        uint32_t gen, const uint32_t *i0, const uint32_t *i1) {
-  const ts_shape *s = rs->shape;
-  const ts_refgrid *g = rs->grid;
-  memset(m, 0, sizeof(*m));
+  const ts_window *win = rs->window;
+  const ts_anchors *a = rs->anchors;
+  memset(m, 0, offsetof(ts_slice_desc, offbuf));
   m->set = set;
   m->gen = gen;
-  m->kind = (uint8_t)s->kind;
-  m->wn = (uint8_t)s->wn;
-  m->wb = (uint8_t)s->wb;
-  m->has_coarse = s->wc > 0;
-  m->nplanes = (uint8_t)s->nplanes;
-  m->parity = (uint8_t)g->parity;
-  m->coarse_weight = s->coarse_weight;
-  m->wfine = s->wfine;
-  m->wcoarse = s->wcoarse;
-  m->w = g->w;
-  m->h = g->h;
-  if (m->has_coarse) {
+  m->win = win->spec;
+  m->w = a->w;
+  m->h = a->h;
+  if (ts_window_has_coarse(win)) {
     m->cw = rs->ref->coarse[0]->w;
     m->ch = rs->ref->coarse[0]->h;
   }
-  m->fy0 = m->cy0 = INT32_MAX;
-  m->fy1 = m->cy1 = INT32_MIN;
-  for (int c = 0; c < g->nclass; c++) {
-    m->i0[c] = i0[c];
-    m->i1[c] = i1[c];
-    if (i1[c] <= i0[c]) continue;
-    int fy0, fy1, cy0, cy1;
-    ts_refgrid_rows(s, g, c, i0[c], i1[c], &fy0, &fy1, &cy0, &cy1);
-    if (fy0 < m->fy0) m->fy0 = fy0;
-    if (fy1 > m->fy1) m->fy1 = fy1;
-    if (cy0 < m->cy0) m->cy0 = cy0;
-    if (cy1 > m->cy1) m->cy1 = cy1;
-  }
-  if (m->fy0 > m->fy1) m->fy0 = 0, m->fy1 = 1; /* an empty slice still ships one row */
-  if (!m->has_coarse) m->cy0 = m->cy1 = 0;
-  else if (m->cy0 > m->cy1) m->cy0 = 0, m->cy1 = 1;
-  for (int p = 0; p < s->nplanes; p++) {
-    m->fine[p] = rs->ref->fine[p]->px + (size_t)m->fy0 * (size_t)g->w;
-    if (m->has_coarse) m->coarse[p] = rs->ref->coarse[p]->px + (size_t)m->cy0 * (size_t)m->cw;
-  }
+  m->nclass = (uint16_t)a->nclass;
+  m->labelled = rs->labels != NULL;
+  m->masked = rs->valid != NULL;
+  memcpy(m->count, a->count, sizeof(uint32_t) * (size_t)a->nclass);
+  memcpy(m->i0, i0, sizeof(uint32_t) * (size_t)a->nclass);
+  memcpy(m->i1, i1, sizeof(uint32_t) * (size_t)a->nclass);
+  anchor_rows(a, i0, i1, &m->ay0, &m->ay1);
+  for (int c = 0; c < a->nclass; c++) m->above[c] = ts_anchors_above(a, c, m->ay0);
+  ts_window_rows(win, m->ay0, m->ay1, &m->fy0, &m->fy1, &m->cy0, &m->cy1);
+  for (int p = 0; p < win->spec.nplanes[TS_SRC_FINE]; p++)
+    m->fine[p] = rs->ref->fine[p]->px + (size_t)m->fy0 * (size_t)a->w;
+  for (int p = 0; p < win->spec.nplanes[TS_SRC_COARSE]; p++)
+    m->coarse[p] = rs->ref->coarse[p]->px + (size_t)m->cy0 * (size_t)m->cw;
+  size_t arow = (size_t)m->ay0 * (size_t)a->w;
+  if (m->labelled) m->labels = rs->labels->px + arow;
+  if (m->masked) m->valid = rs->valid->px + arow;
   m->usage = !rs->usage                           ? TS_SLICE_USAGE_NONE
              : counts == NULL || counts->total == 0 ? TS_SLICE_USAGE_ZERO
                                                   : TS_SLICE_USAGE_COUNTS;
-  if (m->usage == TS_SLICE_USAGE_COUNTS) m->counts = (const uint8_t *)(counts->count + (size_t)m->fy0 * (size_t)g->w);
+  if (m->usage == TS_SLICE_USAGE_COUNTS) m->counts = (const uint8_t *)(counts->count + (size_t)m->fy0 * (size_t)a->w);
 }
 
 void ts_slice_free(ts_slice *s) {
   if (s == NULL) return;
-  for (int c = 0; c < 4; c++) {
-    if (s->cls[c].data != NULL) ts_l1_set_free(&s->cls[c]);
-    free(s->penalty[c]);
+  for (int c = 0; c < s->nclass; c++) {
+    if (s->cls != NULL && s->cls[c].data != NULL) ts_l1_set_free(&s->cls[c]);
+    if (s->penalty != NULL) free(s->penalty[c]);
   }
-  for (int p = 0; p < TS_MAX_PLANES; p++) {
+  free(s->cls);
+  free(s->penalty);
+  for (int p = 0; p < TS_WIN_MAX_PLANES; p++) {
     ts_plane_free(&s->fine[p]);
     ts_plane_free(&s->coarse[p]);
   }
   ts_usage_free(&s->usage);
-  ts_shape_free(&s->shape);
+  ts_anchors_free(&s->anchors);
+  ts_window_free(&s->window);
   free(s->qbuf);
   free(s->mbuf);
   free(s->order);
@@ -104,11 +111,11 @@ void ts_slice_free(ts_slice *s) {
 
 uint32_t ts_slice_set(const ts_slice *s) { return s->set; }
 uint32_t ts_slice_gen(const ts_slice *s) { return s->gen; }
-uint32_t ts_slice_vbytes(const ts_slice *s) { return ts_shape_bytes(&s->shape); }
+uint32_t ts_slice_vbytes(const ts_slice *s) { return ts_window_bytes(&s->window); }
 
 uint64_t ts_slice_vectors(const ts_slice *s) {
   uint64_t n = 0;
-  for (int c = 0; c < s->grid.nclass; c++) n += s->i1[c] - s->i0[c];
+  for (int c = 0; c < s->nclass; c++) n += s->i1[c] - s->i0[c];
   return n;
 }
 
@@ -120,26 +127,39 @@ static int plane_from_rows(ts_plane *p, int w, int h, int y0, int y1, const uint
   return 0;
 }
 
-/* Every class range must lie in its class and read only the shipped rows. */
+/* Every class range must lie in its class and in the anchor rows held, and
+ * those anchors read only the shipped rows. */
 static int check_ranges(const ts_slice *s, const ts_slice_desc *m, char *err) {
-  for (int c = 0; c < s->grid.nclass; c++) {
-    if (m->i1[c] > s->grid.count[c])
+  const ts_anchors *a = &s->anchors;
+  for (int c = 0; c < s->nclass; c++) {
+    if (m->i0[c] > m->i1[c] || m->i1[c] > a->count[c])
       return ts_error(err, TS_EINVAL, "slice range %u..%u past class %d's %u vectors", m->i0[c], m->i1[c], c,
-                      s->grid.count[c]);
+                      a->count[c]);
     if (m->i1[c] == m->i0[c]) continue;
-    int fy0, fy1, cy0, cy1;
-    ts_refgrid_rows(&s->shape, &s->grid, c, m->i0[c], m->i1[c], &fy0, &fy1, &cy0, &cy1);
-    if (fy0 < m->fy0 || fy1 > m->fy1 || (m->has_coarse && (cy0 < m->cy0 || cy1 > m->cy1)))
-      return ts_error(err, TS_EINVAL, "slice of class %d reads rows %d..%d (coarse %d..%d) outside the %d..%d "
-                      "(coarse %d..%d) sent", c, fy0, fy1 - 1, cy0, cy1 - 1, m->fy0, m->fy1 - 1, m->cy0, m->cy1 - 1);
+    int held, y0, y1;
+    if (a->indexed) {
+      held = ts_anchors_above(a, c, m->ay0) <= m->i0[c] && m->i1[c] <= ts_anchors_above(a, c, m->ay1);
+    } else {
+      ts_anchors_rows(a, c, m->i0[c], m->i1[c], &y0, &y1);
+      held = y0 >= m->ay0 && y1 <= m->ay1;
+    }
+    if (!held)
+      return ts_error(err, TS_EINVAL, "vectors %u..%u of class %d lie outside the anchor rows %d..%d sent", m->i0[c],
+                      m->i1[c] - 1, c, m->ay0, m->ay1 - 1);
   }
+  int fy0, fy1, cy0, cy1;
+  ts_window_rows(&s->window, m->ay0, m->ay1, &fy0, &fy1, &cy0, &cy1);
+  if (fy0 < m->fy0 || fy1 > m->fy1 || (ts_window_has_coarse(&s->window) && (cy0 < m->cy0 || cy1 > m->cy1)))
+    return ts_error(err, TS_EINVAL, "anchor rows %d..%d read rows %d..%d (coarse %d..%d), outside the %d..%d "
+                    "(coarse %d..%d) sent", m->ay0, m->ay1 - 1, fy0, fy1 - 1, cy0, cy1 - 1, m->fy0, m->fy1 - 1,
+                    m->cy0, m->cy1 - 1);
   return 0;
 }
 
 /* Loads the counters of the shipped rows and the block sums of every
  * block inside them (all the slice's blocks are). */
 static void usage_load_rows(ts_usage *u, int y0, int y1, const uint8_t *le) {
-  const ts_refgrid *g = &u->grid;
+  const ts_anchors *g = &u->grid;
   for (int y = y0; y < y1; y++)
     for (int x = 0; x < g->w; x++) {
       const uint8_t *p = le + 4 * ((size_t)(y - y0) * (size_t)g->w + (size_t)x);
@@ -150,43 +170,78 @@ static void usage_load_rows(ts_usage *u, int y0, int y1, const uint8_t *le) {
   ts_usage_sum_blocks(u, y0, y1);
 }
 
-static int build(ts_slice *s, const ts_slice_desc *m, char *err) {
-  int rc = ts_shape_init(&s->shape, (ts_shape_kind)m->kind, m->wn, m->wb, m->has_coarse, m->nplanes,
-                         m->coarse_weight, err);
-  if (rc != 0) return rc;
-  /* The engine may weight a shape differently from its lambda (masked
-   * queries use the plain shape's weights): the message's weights rule. */
-  if (m->wfine == 0 || (m->has_coarse == 0) != (m->wcoarse == 0))
-    return ts_error(err, TS_EINVAL, "weights %u/%u do not fit the shape", m->wfine, m->wcoarse);
-  s->shape.wfine = m->wfine;
-  s->shape.wcoarse = m->wcoarse;
-  rc = ts_refgrid_init(&s->grid, &s->shape, m->w, m->h, m->cw, m->ch, m->parity, err);
-  if (rc == 0) rc = check_ranges(s, m, err);
-  if (rc != 0) return rc;
-  ts_levelplanes planes = {m->nplanes, {0}, {0}};
-  for (int p = 0; p < m->nplanes; p++) {
-    if (plane_from_rows(&s->fine[p], m->w, m->h, m->fy0, m->fy1, m->fine[p]) != 0 ||
-        (m->has_coarse && plane_from_rows(&s->coarse[p], m->cw, m->ch, m->cy0, m->cy1, m->coarse[p]) != 0))
+/* The level planes of the shipped rows, full size. */
+static int load_planes(ts_slice *s, const ts_slice_desc *m, ts_levelplanes *planes, char *err) {
+  for (int p = 0; p < m->win.nplanes[TS_SRC_FINE]; p++) {
+    if (plane_from_rows(&s->fine[p], m->w, m->h, m->fy0, m->fy1, m->fine[p]) != 0)
       return ts_error(err, TS_ENOMEM, "out of memory for the slice's planes");
-    planes.fine[p] = &s->fine[p];
-    planes.coarse[p] = &s->coarse[p];
+    planes->fine[p] = &s->fine[p];
   }
+  for (int p = 0; p < m->win.nplanes[TS_SRC_COARSE]; p++) {
+    if (plane_from_rows(&s->coarse[p], m->cw, m->ch, m->cy0, m->cy1, m->coarse[p]) != 0)
+      return ts_error(err, TS_ENOMEM, "out of memory for the slice's planes");
+    planes->coarse[p] = &s->coarse[p];
+  }
+  return 0;
+}
+
+/* Allocates each class's vector set (and penalties), weighted by the
+ * window's parts. */
+static int alloc_sets(ts_slice *s, char *err) {
+  s->cls = calloc((size_t)s->nclass, sizeof(*s->cls));
+  s->penalty = calloc((size_t)s->nclass, sizeof(*s->penalty));
+  if (s->cls == NULL || s->penalty == NULL) return ts_error(err, TS_ENOMEM, "out of memory for the slice");
+  for (int c = 0; c < s->nclass; c++) {
+    int rc = ts_l1_set_init(&s->cls[c], s->i1[c] - s->i0[c], s->window.nchunks);
+    if (rc == 0) rc = ts_window_weigh(&s->window, &s->cls[c], err);
+    else return ts_error(err, rc, "cannot hold the slice's vectors of class %d: %s", c, ts_strerror(rc));
+    if (rc != 0) return rc;
+    if (s->with_usage) {
+      s->penalty[c] = calloc((size_t)s->cls[c].ngroups * TS_L1_GROUP + 1, sizeof(uint32_t));
+      if (s->penalty[c] == NULL) return ts_error(err, TS_ENOMEM, "out of memory for the slice's penalties");
+    }
+  }
+  return 0;
+}
+
+/* One pass over the anchor rows held: every anchor in its class's range
+ * gets its vector. */
+static void fill_sets(ts_slice *s, const ts_levelplanes *planes, int ay0, int ay1) {
+  const ts_anchors *a = &s->anchors;
+  uint8_t vec[TS_L1_MAX_CHUNKS * TS_L1_CHUNK];
+  for (int y = ay0; y < ay1; y++)
+    for (int x = a->x0; x < a->x0 + a->nx; x++) {
+      int64_t j = ts_anchors_index(a, x, y);
+      if (j < 0) continue;
+      int c = a->nclass == 1 ? 0 : ts_anchors_class(a, (uint32_t)j);
+      uint32_t rank = (uint32_t)j - a->base[c];
+      if (rank < s->i0[c] || rank >= s->i1[c]) continue;
+      ts_vec_ref(&s->window, planes, x, y, vec);
+      ts_l1_set_put(&s->cls[c], rank - s->i0[c], vec);
+    }
+}
+
+static int build(ts_slice *s, const ts_slice_desc *m, char *err) {
+  int rc = ts_window_init(&s->window, &m->win, err);
+  if (rc != 0) return rc;
+  rc = ts_anchors_init_rows(&s->anchors, &s->window, m->w, m->h, m->cw, m->ch, m->nclass, m->count, m->ay0, m->ay1,
+                            m->labelled ? m->labels : NULL, m->masked ? m->valid : NULL, m->above, err);
+  if (rc != 0) return rc;
+  s->nclass = m->nclass;
+  if ((rc = check_ranges(s, m, err)) != 0) return rc;
+  memcpy(s->i0, m->i0, sizeof(uint32_t) * (size_t)s->nclass);
+  memcpy(s->i1, m->i1, sizeof(uint32_t) * (size_t)s->nclass);
+  ts_levelplanes planes;
+  memset(&planes, 0, sizeof(planes));
+  if ((rc = load_planes(s, m, &planes, err)) != 0) return rc;
   s->with_usage = m->usage != TS_SLICE_USAGE_NONE;
-  if (s->with_usage && ts_usage_init(&s->usage, &s->grid, m->wb, 1) != 0)
+  if (s->with_usage && ts_usage_init(&s->usage, &s->anchors, m->win.block, 1) != 0)
     return ts_error(err, TS_ENOMEM, "out of memory for the usage replica");
   if (m->usage == TS_SLICE_USAGE_COUNTS) usage_load_rows(&s->usage, m->fy0, m->fy1, m->counts);
-  for (int c = 0; c < s->grid.nclass; c++) {
-    s->i0[c] = m->i0[c];
-    s->i1[c] = m->i1[c];
-    rc = ts_vecset_build(&s->shape, &s->grid, &planes, c, m->i0[c], m->i1[c], &s->cls[c]);
-    if (rc == 0 && s->with_usage) {
-      s->penalty[c] = calloc((size_t)s->cls[c].ngroups * TS_L1_GROUP + 1, sizeof(uint32_t));
-      if (s->penalty[c] == NULL) rc = TS_ENOMEM;
-    }
-    if (rc != 0) return ts_error(err, rc, "cannot build the slice's vectors: %s", ts_strerror(rc));
-  }
+  if ((rc = alloc_sets(s, err)) != 0) return rc;
+  fill_sets(s, &planes, m->ay0, m->ay1);
   /* The vectors hold what the scans need; the planes can go. */
-  for (int p = 0; p < TS_MAX_PLANES; p++) {
+  for (int p = 0; p < TS_WIN_MAX_PLANES; p++) {
     ts_plane_free(&s->fine[p]);
     ts_plane_free(&s->coarse[p]);
   }
@@ -211,9 +266,9 @@ int ts_slice_load(ts_slice **out, const ts_slice_desc *m, char *err) {
 int ts_slice_commit(ts_slice *s, const ts_commit *c, uint32_t n, char *err) {
   if (!s->with_usage) return 0;
   for (uint32_t i = 0; i < n; i++) {
-    if (c[i].x < 0 || c[i].y < 0 || c[i].x + c[i].w > s->grid.w || c[i].y + c[i].h > s->grid.h)
+    if (c[i].x < 0 || c[i].y < 0 || c[i].x + c[i].w > s->anchors.w || c[i].y + c[i].h > s->anchors.h)
       return ts_error(err, TS_EINVAL, "usage commit %ux%u at (%d, %d) outside the %dx%d reference", c[i].w, c[i].h,
-                      c[i].x, c[i].y, s->grid.w, s->grid.h);
+                      c[i].x, c[i].y, s->anchors.w, s->anchors.h);
     if (c[i].delta != 1 && c[i].delta != -1) return ts_error(err, TS_EINVAL, "usage commit delta %d", (int)c[i].delta);
   }
   for (uint32_t i = 0; i < n; i++) ts_usage_commit(&s->usage, c[i].x, c[i].y, c[i].w, c[i].h, c[i].delta);
@@ -249,7 +304,7 @@ static void scan_runs(void *arg, int w, int nw) {
   ts_slice *s = arg;
   ts_l1_best *best = s->tbest + (size_t)w * s->cap_q;
   ts_l1_best_reset(best, s->nq);
-  for (int c = 0; c < s->grid.nclass; c++) {
+  for (int c = 0; c < s->nclass; c++) {
     uint32_t q0 = s->qstart[c], nq = s->qstart[c + 1] - q0;
     const ts_l1_set *set = &s->cls[c];
     if (nq == 0 || set->ngroups == 0) continue;
@@ -260,7 +315,7 @@ static void scan_runs(void *arg, int w, int nw) {
     if (s->usage_k != 0) {
       uint32_t *p = s->penalty[c];
       uint32_t v1 = g1 * TS_L1_GROUP < set->nvec ? g1 * TS_L1_GROUP : set->nvec;
-      const uint32_t *uj = s->usage.u + s->grid.base[c] + s->i0[c];
+      const uint32_t *uj = s->usage.u + s->anchors.base[c] + s->i0[c];
       for (uint32_t v = g0 * TS_L1_GROUP; v < v1; v++) p[v] = ts_usage_penalty(uj[v], s->usage_k);
       pen = p;
     }
@@ -273,14 +328,14 @@ static void scan_runs(void *arg, int w, int nw) {
 
 /* Groups the queries by class, keeping their order within a class. */
 static int gather_queries(ts_slice *s, const ts_query_batch *b, char *err) {
-  uint32_t fill[5] = {0};
+  uint32_t fill[TS_MAX_CLASSES + 1] = {0};
   for (uint32_t i = 0; i < b->nq; i++) {
     int c = b->klass ? b->klass[i] : 0;
-    if (c >= s->grid.nclass) return ts_error(err, TS_EINVAL, "query %u has class %d of %d", i, c, s->grid.nclass);
+    if (c >= s->nclass) return ts_error(err, TS_EINVAL, "query %u has class %d of %d", i, c, s->nclass);
     fill[c + 1]++;
   }
-  for (int c = 0; c < 4; c++) fill[c + 1] += fill[c];
-  memcpy(s->qstart, fill, sizeof(fill));
+  for (int c = 0; c < s->nclass; c++) fill[c + 1] += fill[c];
+  memcpy(s->qstart, fill, sizeof(uint32_t) * (size_t)(s->nclass + 1));
   for (uint32_t i = 0; i < b->nq; i++) {
     int c = b->klass ? b->klass[i] : 0;
     uint32_t r = fill[c]++;
@@ -296,7 +351,7 @@ int ts_slice_scan(ts_slice *s, ts_pool *pool, int threads, const ts_l1_impl *sim
   *pairs = 0;
   if (b->nq == 0) return 0;
   if (b->usage_k != 0 && !s->with_usage) return ts_error(err, TS_EINVAL, "a usage penalty on a slice without usage");
-  s->vbytes = ts_shape_bytes(&s->shape);
+  s->vbytes = ts_window_bytes(&s->window);
   threads = threads == 1 ? 1 : ts_pool_size(pool); /* the pool runs all or one */
   if (ensure_scratch(s, b->nq, s->vbytes, threads) != 0)
     return ts_error(err, TS_ENOMEM, "out of memory for a batch of %u queries", b->nq);
@@ -308,8 +363,8 @@ int ts_slice_scan(ts_slice *s, ts_pool *pool, int threads, const ts_l1_impl *sim
   s->masked = b->masks != NULL;
   if (threads == 1) scan_runs(s, 0, 1);
   else ts_pool_run(pool, scan_runs, s);
-  for (int c = 0; c < s->grid.nclass; c++) {
-    uint32_t base = s->grid.base[c] + s->i0[c];
+  for (int c = 0; c < s->nclass; c++) {
+    uint32_t base = s->anchors.base[c] + s->i0[c];
     for (uint32_t r = s->qstart[c]; r < s->qstart[c + 1]; r++) {
       ts_l1_best best = s->tbest[r];
       for (int w = 1; w < threads; w++) ts_l1_best_merge(&best, &s->tbest[(size_t)w * s->cap_q + r], 1);

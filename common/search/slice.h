@@ -11,6 +11,7 @@
 
 #include <stdint.h>
 
+#include "anchors.h"
 #include "l1.h"
 #include "pool.h"
 #include "search.h"
@@ -20,22 +21,28 @@ enum { TS_SLICE_USAGE_NONE = 0, TS_SLICE_USAGE_ZERO = 1, TS_SLICE_USAGE_COUNTS =
 #define TS_SLICE_MAX_SIDE 65536
 #define TS_SLICE_MAX_PIXELS (1u << 28)
 
-/* A slice of one reference set: per class the vector range [i0, i1) the
- * worker scans, and the rows of the level planes those vectors read. The
- * worker rebuilds shape and grid from the parameters and the vectors from
- * the rows; wfine/wcoarse let it check it derived the same weights. */
+/* A slice of one reference set: its window, the level's anchors (counts
+ * per class; the label and validity rows of the anchor rows it holds), per
+ * class the vector range [i0, i1) the worker scans, and the rows of the
+ * level planes those vectors read. The worker rebuilds window, anchors and
+ * vectors from these alone: it knows no engine. */
 typedef struct {
   uint32_t set, gen; /* coordinator's set id, slice generation */
-  uint8_t kind, wn, wb, has_coarse, nplanes, parity;
-  double coarse_weight;
-  uint32_t wfine, wcoarse;
+  ts_window_spec win; /* offsets: the coordinator's window, or offbuf */
   int32_t w, h, cw, ch; /* level and coarser level sizes (cw, ch 0: none) */
-  uint32_t i0[4], i1[4]; /* per class (1 class, or 4 with parity) */
+  uint16_t nclass;
+  uint8_t labelled, masked; /* label / validity rows follow */
+  uint32_t count[TS_MAX_CLASSES];        /* the set's anchors per class */
+  uint32_t i0[TS_MAX_CLASSES], i1[TS_MAX_CLASSES]; /* this slice's ranges */
+  int32_t ay0, ay1;                      /* anchor rows held */
+  uint32_t above[TS_MAX_CLASSES];        /* labelled or masked: per class, anchors above ay0 */
   int32_t fy0, fy1;      /* fine rows [fy0, fy1) follow, plane by plane */
   int32_t cy0, cy1;      /* coarse rows [cy0, cy1) follow */
-  const uint8_t *fine[4], *coarse[4]; /* first row of the region */
+  const uint8_t *fine[TS_WIN_MAX_PLANES], *coarse[TS_WIN_MAX_PLANES]; /* first row of the region */
+  const uint8_t *labels, *valid; /* anchor rows [ay0, ay1), w wide */
   uint8_t usage;          /* TS_SLICE_USAGE_* */
   const uint8_t *counts;  /* COUNTS: u32 LE per fine-region pixel */
+  int16_t offbuf[2 * TS_NSRC * TS_WIN_MAX_OFFSETS]; /* decoded offsets */
 } ts_slice_desc;
 
 typedef struct ts_slice ts_slice;

@@ -7,18 +7,36 @@
 
 #include "error.h"
 
-int ts_usage_init(ts_usage *u, const ts_refgrid *g, int wb, int with_blocks) {
+/* Pixels covered by at least one valid block: the rectangle the box of
+ * anchors covers, unless a validity plane left holes in it (then counted,
+ * from the anchors' index, which holds the whole box there). */
+static int usable_pixels(const ts_anchors *g, int wb, uint64_t *usable) {
+  *usable = (uint64_t)(g->nx + wb - 1) * (uint64_t)(g->ny + wb - 1);
+  if (!g->indexed || g->total == (uint64_t)g->nx * (uint64_t)g->ny) return 0;
+  int cw = g->nx + wb - 1, ch = g->ny + wb - 1;
+  uint8_t *covered = calloc((size_t)cw * (size_t)ch, 1);
+  if (covered == NULL) return TS_ENOMEM;
+  for (int y = 0; y < g->ny; y++)
+    for (int x = 0; x < g->nx; x++)
+      if (ts_anchors_index(g, g->x0 + x, g->y0 + y) >= 0)
+        for (int dy = 0; dy < wb; dy++) memset(covered + (size_t)(y + dy) * (size_t)cw + (size_t)x, 1, (size_t)wb);
+  uint64_t n = 0;
+  for (size_t i = 0; i < (size_t)cw * (size_t)ch; i++) n += covered[i];
+  free(covered);
+  *usable = n;
+  return 0;
+}
+
+int ts_usage_init(ts_usage *u, const ts_anchors *g, int wb, int with_blocks) {
   u->grid = *g;
   u->wb = wb;
   u->total = 0;
   u->count = calloc((size_t)g->w * (size_t)g->h, sizeof(uint32_t));
   u->u = with_blocks ? calloc(g->total ? g->total : 1, sizeof(uint32_t)) : NULL;
-  if (u->count == NULL || (with_blocks && u->u == NULL)) {
+  if (u->count == NULL || (with_blocks && u->u == NULL) || usable_pixels(g, wb, &u->usable) != 0) {
     ts_usage_free(u);
     return TS_ENOMEM;
   }
-  /* Valid blocks form a rectangle of corners; they cover this region. */
-  u->usable = (uint64_t)(g->nx + wb - 1) * (uint64_t)(g->ny + wb - 1);
   return 0;
 }
 
@@ -36,7 +54,7 @@ static void add_pixel(ts_usage *u, int px, int py, int delta) {
   if (u->u == NULL) return;
   for (int by = py - u->wb + 1; by <= py; by++)
     for (int bx = px - u->wb + 1; bx <= px; bx++) {
-      int64_t j = ts_refgrid_index(&u->grid, bx, by);
+      int64_t j = ts_anchors_index(&u->grid, bx, by);
       if (j >= 0) u->u[j] += (uint32_t)delta;
     }
 }
@@ -55,11 +73,11 @@ void ts_usage_load(ts_usage *u, const uint32_t *count) {
 }
 
 void ts_usage_sum_blocks(ts_usage *u, int y0, int y1) {
-  const ts_refgrid *g = &u->grid;
+  const ts_anchors *g = &u->grid;
   if (u->u == NULL) return;
   for (int by = y0 > g->y0 ? y0 : g->y0; by + u->wb <= y1 && by < g->y0 + g->ny; by++)
     for (int bx = g->x0; bx < g->x0 + g->nx; bx++) {
-      int64_t j = ts_refgrid_index(g, bx, by);
+      int64_t j = ts_anchors_index(g, bx, by);
       if (j < 0) continue;
       uint32_t sum = 0;
       for (int dy = 0; dy < u->wb; dy++)
@@ -78,7 +96,7 @@ uint64_t ts_usage_factor(const ts_usage *u, double alpha, uint64_t d1) {
 }
 
 void ts_usage_stats(const ts_usage *u, double *mean, double *variance) {
-  const ts_refgrid *g = &u->grid;
+  const ts_anchors *g = &u->grid;
   double sum = 0.0, sum2 = 0.0;
   for (int y = g->y0; y < g->y0 + g->ny + u->wb - 1; y++)
     for (int x = g->x0; x < g->x0 + g->nx + u->wb - 1; x++) {

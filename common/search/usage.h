@@ -20,10 +20,10 @@
 
 #include <stdint.h>
 
-#include "neigh.h"
+#include "anchors.h"
 
 typedef struct {
-  ts_refgrid grid;
+  ts_anchors grid; /* shares the anchors' index: they outlive the usage */
   int wb;
   uint32_t *count; /* grid.w * grid.h counters */
   uint32_t *u;     /* grid.total block sums, by global vector index; NULL
@@ -34,7 +34,7 @@ typedef struct {
 
 /* with_blocks: also keep the block sums U_j the penalty needs (81 updates
  * per copied 3x3 block instead of 9). */
-int ts_usage_init(ts_usage *u, const ts_refgrid *g, int wb, int with_blocks);
+int ts_usage_init(ts_usage *u, const ts_anchors *g, int wb, int with_blocks);
 void ts_usage_free(ts_usage *u);
 /* Records that the w x h pixels at (x, y) of the reference were copied
  * (delta +1), or that such a copy was replaced (delta -1). */

@@ -4,6 +4,7 @@
 #include <stdlib.h>
 
 #include "error.h"
+#include "neigh.h"
 #include "rng.h"
 
 typedef struct {
@@ -46,11 +47,11 @@ static uint32_t inner_points(const ts_plane *img, int half, uint32_t n, uint64_t
   return n;
 }
 
-static int mean_error(ts_search *search, int set, const ts_shape *shape, const ts_plane *img,
+static int mean_error(ts_search *search, int set, const ts_window *shape, const ts_plane *img,
                       const point *pts, uint32_t n, double *mean, char *err) {
   *mean = 0.0;
   if (n == 0) return 0;
-  uint32_t vb = ts_shape_bytes(shape);
+  uint32_t vb = ts_window_bytes(shape);
   uint8_t *q = malloc((size_t)n * vb);
   ts_l1_best *best = malloc(sizeof(ts_l1_best) * n);
   if (q == NULL || best == NULL) {
@@ -58,13 +59,13 @@ static int mean_error(ts_search *search, int set, const ts_shape *shape, const t
     free(best);
     return ts_error(err, TS_ENOMEM, "out of memory");
   }
-  ts_levelplanes lp = {1, {img}, {NULL}};
+  ts_levelplanes lp = {{img}, {NULL}};
   for (uint32_t i = 0; i < n; i++) ts_vec_query(shape, &lp, pts[i].x, pts[i].y, q + (size_t)i * vb);
   ts_query_batch b = {n, q, NULL, NULL, 0};
   int rc = ts_search_query(search, set, &b, best, err);
   double sum = 0.0;
   for (uint32_t i = 0; rc == 0 && i < n; i++) sum += (double)best[i].dist;
-  *mean = sum / n / shape->nfine_px;
+  *mean = sum / n / shape->spec.noff[TS_SRC_FINE];
   free(q);
   free(best);
   return rc;
@@ -72,16 +73,16 @@ static int mean_error(ts_search *search, int set, const ts_shape *shape, const t
 
 int ts_quality_measure(ts_search *search, const ts_plane *ref, const ts_plane *img, int wn,
                        uint32_t samples, uint64_t seed, ts_quality *q, char *err) {
-  ts_shape shape;
-  ts_refgrid grid;
-  int rc = ts_shape_init(&shape, TS_SHAPE_SQUARE, wn, 1, 0, 1, 1.0, err);
+  ts_window shape;
+  ts_anchors grid;
+  int rc = ts_neigh_window(&shape, TS_SHAPE_SQUARE, wn, 1, 0, 1, 1.0, err);
   if (rc != 0) return rc;
-  rc = ts_refgrid_init(&grid, &shape, ref->w, ref->h, 0, 0, 0, err);
+  rc = ts_anchors_init(&grid, &shape, ref->w, ref->h, 0, 0, NULL, 1, NULL, err);
   int half = wn / 2, set = -1;
   point *pts = malloc(sizeof(point) * (samples ? samples : 1));
   if (rc == 0 && pts == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
-  ts_levelplanes lp = {1, {ref}, {NULL}};
-  ts_refset rs = {&shape, &grid, &lp, 0};
+  ts_levelplanes lp = {{ref}, {NULL}};
+  ts_refset rs = {&shape, &grid, &lp, NULL, NULL, 0, NULL};
   if (rc == 0) rc = ts_search_prepare(search, &rs, &set, err);
   if (rc == 0) {
     /* Windows are centred on the point: a W_B = 1 "block" at (x, y). */
@@ -94,7 +95,8 @@ int ts_quality_measure(ts_search *search, const ts_plane *ref, const ts_plane *i
   }
   if (set >= 0) ts_search_release(search, set);
   free(pts);
-  ts_shape_free(&shape);
+  ts_anchors_free(&grid);
+  ts_window_free(&shape);
   return rc;
 }
 

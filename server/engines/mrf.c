@@ -61,15 +61,17 @@ static void check_reference_levels(const ts_mrf_params *p, int ref_w, int ref_h,
   int rw[TS_MRF_MAX_LEVELS], rh[TS_MRF_MAX_LEVELS];
   level_sizes(ref_w, ref_h, p->levels, rw, rh, 0);
   for (int l = p->levels - 1; l >= 0; l--) {
-    ts_shape s;
-    ts_refgrid g;
+    ts_window s;
+    ts_anchors g;
     char err[TS_ERR_LEN];
     int coarse = l < p->levels - 1;
-    if (ts_shape_init(&s, TS_SHAPE_SQUARE, p->wn, p->wb, coarse, 1, p->coarse_weight, err) != 0) return;
+    if (ts_neigh_window(&s, TS_SHAPE_SQUARE, p->wn, p->wb, coarse, 1, p->coarse_weight, err) != 0) return;
+    /* With parity, every class needs an anchor: two columns and rows. */
     int bad = rw[l] < 1 || rh[l] < 1 ||
-              ts_refgrid_init(&g, &s, rw[l], rh[l], coarse ? rw[l + 1] : 0, coarse ? rh[l + 1] : 0,
-                              p->parity, err) != 0;
-    ts_shape_free(&s);
+              ts_anchors_init(&g, &s, rw[l], rh[l], coarse ? rw[l + 1] : 0, coarse ? rh[l + 1] : 0, NULL, 1, NULL,
+                              err) != 0 ||
+              (p->parity && (g.nx < 2 || g.ny < 2));
+    ts_window_free(&s);
     if (bad) {
       problem(msg, len, count,
               "--levels %d: the reference (%dx%d) is %dx%d at level %d, too small for a %dx%d "
@@ -173,12 +175,13 @@ typedef struct {
   /* current level */
   int level;
   ts_levelplanes ref_lp, canvas_lp;
-  ts_refgrid grid;
+  ts_anchors grid;
+  ts_plane parity; /* the class (label) of every reference pixel, with parity */
   ts_usage usage;
   uint32_t *copy; /* (x, y) per canvas pixel at this level */
   uint32_t *prev_copy; /* the same of the level above */
   uint8_t *done;  /* 1 where a block was placed at this level */
-  ts_shape shape[2]; /* SHAPE_PLAIN: causal L; SHAPE_MASKED: full window */
+  ts_window shape[2]; /* SHAPE_PLAIN: causal L; SHAPE_MASKED: full window */
   int set_ids[2];
   level_plan plan;
   uint64_t step; /* steps of the plan done */
@@ -210,7 +213,7 @@ static int ensure_step_scratch(engine *e, uint32_t n) {
   int ok = e->commits != NULL;
   for (int k = 0; k < 2; k++) {
     query_group *g = &e->group[k];
-    size_t vb = ts_shape_bytes(&e->shape[k]);
+    size_t vb = ts_window_bytes(&e->shape[k]);
     group_free(g);
     g->queries = malloc(n * vb);
     g->masks = malloc(n * vb);
@@ -347,10 +350,6 @@ static void init_prediction(engine *e) {
 
 static double level_cost(int l) { return 1.0 / (double)(1ull << (2 * l)); }
 
-static uint64_t unit_distance(const ts_shape *s) {
-  return (uint64_t)s->wfine * s->nfine_px * s->nplanes + (uint64_t)s->wcoarse * s->ncoarse_px * s->nplanes;
-}
-
 /* Copies reference block (sx, sy) onto canvas block b; records the copy. */
 static void place_block(engine *e, const ts_block *b, int sx, int sy) {
   int w = e->cw[e->level];
@@ -377,18 +376,18 @@ static void place_block(engine *e, const ts_block *b, int sx, int sy) {
  * refinement sweep (refine = 1) every block is searched this way, seeing
  * all of its window but itself. */
 static int masked_query(engine *e, const ts_block *b, int refine, uint8_t *query, uint8_t *mask) {
-  const ts_shape *sq = &e->shape[SHAPE_MASKED];
+  const ts_window *sq = &e->shape[SHAPE_MASKED];
   int w = e->cw[e->level], h = e->ch[e->level], differs = refine;
-  int hn = (sq->wn - sq->wb) / 2;
+  int wb = e->p->wb, hn = (e->p->wn - wb) / 2;
+  int nfine = sq->spec.noff[TS_SRC_FINE];
   /* During the scan, a whole block whose window does not wrap sees exactly
    * its L placed (schedule.h): the plain query, without looking. */
-  if (!refine && b->w == sq->wb && b->h == sq->wb && b->x >= hn && b->y >= hn &&
-      b->x + sq->wb + hn <= w && b->y + sq->wb + hn <= h)
+  if (!refine && b->w == wb && b->h == wb && b->x >= hn && b->y >= hn && b->x + wb + hn <= w && b->y + wb + hn <= h)
     return 0;
   uint32_t n = 0;
-  for (int k = 0; k < sq->nfine_px; k++) {
-    int dx = sq->fine_dx[k], dy = sq->fine_dy[k];
-    int in_l = dy < 0 || (dy < sq->wb && dx < 0);
+  for (int k = 0; k < nfine; k++) {
+    int dx = sq->spec.dx[TS_SRC_FINE][k], dy = sq->spec.dy[TS_SRC_FINE][k];
+    int in_l = dy < 0 || (dy < wb && dx < 0);
     int written = dx >= 0 && dx < b->w && dy >= 0 && dy < b->h;
     int x = ((b->x + dx) % w + w) % w, y = ((b->y + dy) % h + h) % h;
     int placed = !written && e->done[(long)y * w + x];
@@ -397,18 +396,30 @@ static int masked_query(engine *e, const ts_block *b, int refine, uint8_t *query
     mask[n++] = known ? 0xFF : 0x00;
   }
   if (!differs) return 0;
-  for (int p = 1; p < sq->nplanes; p++, n += (uint32_t)sq->nfine_px) memcpy(mask + n, mask, (size_t)sq->nfine_px);
-  memset(mask + n, 0xFF, ts_shape_bytes(sq) - n); /* coarse part and padding: always used */
+  for (int p = 1; p < e->nplanes; p++, n += (uint32_t)nfine) memcpy(mask + n, mask, (size_t)nfine);
+  memset(mask + n, 0xFF, ts_window_bytes(sq) - n); /* coarse part and padding: always used */
   ts_vec_query(sq, &e->canvas_lp, b->x, b->y, query);
   return 1;
 }
 
+/* Parity control (seed 002 §3.3.3): a block at (x, y) copies only from
+ * reference blocks of the same (x & 1, y & 1): its class. */
+static int parity_class(int x, int y) { return (x & 1) | (y & 1) << 1; }
+
+/* The reference level's parity classes as the anchors' label plane. */
+static int parity_plane(ts_plane *p, int w, int h) {
+  if (ts_plane_alloc(p, w, h) != 0) return TS_ENOMEM;
+  for (int y = 0; y < h; y++)
+    for (int x = 0; x < w; x++) p->px[(size_t)y * (size_t)w + (size_t)x] = (uint8_t)parity_class(x, y);
+  return 0;
+}
+
 static void build_queries(engine *e, const ts_block *blocks, uint32_t n, int refine) {
   query_group *plain = &e->group[SHAPE_PLAIN], *masked = &e->group[SHAPE_MASKED];
-  size_t vb_plain = ts_shape_bytes(&e->shape[SHAPE_PLAIN]), vb_full = ts_shape_bytes(&e->shape[SHAPE_MASKED]);
+  size_t vb_plain = ts_window_bytes(&e->shape[SHAPE_PLAIN]), vb_full = ts_window_bytes(&e->shape[SHAPE_MASKED]);
   plain->n = masked->n = 0;
   for (uint32_t i = 0; i < n; i++) {
-    uint8_t klass = (uint8_t)ts_refgrid_class(&e->grid, blocks[i].x, blocks[i].y);
+    uint8_t klass = e->p->parity ? (uint8_t)parity_class(blocks[i].x, blocks[i].y) : 0;
     query_group *g = masked;
     if (!masked_query(e, &blocks[i], refine, masked->queries + masked->n * vb_full, masked->masks + masked->n * vb_full)) {
       g = plain;
@@ -429,7 +440,7 @@ static int search_step(engine *e, const uint64_t d1[2], char *err) {
   uint32_t nr = 0;
   for (int k = 0; k < 2; k++) {
     query_group *g = &e->group[k];
-    size_t vb = ts_shape_bytes(&e->shape[k]);
+    size_t vb = ts_window_bytes(&e->shape[k]);
     uint64_t usage_k = e->p->usage_weight > 0 ? ts_usage_factor(&e->usage, e->p->usage_weight, d1[k]) : 0;
     uint32_t chunk = e->p->max_batch ? e->p->max_batch : (g->n ? g->n : 1);
     for (uint32_t i0 = 0; i0 < g->n; i0 += chunk) {
@@ -467,10 +478,8 @@ static int place_step(engine *e, const ts_block *blocks, int refine, char *err) 
       const ts_block *b = &blocks[g->block[i]];
       if (g->best[i].index >= e->grid.total)
         return ts_error(err, TS_EPROTO, "search returned no match for a block");
-      int c, sx, sy;
-      uint32_t rank;
-      ts_refgrid_split(&e->grid, g->best[i].index, &c, &rank);
-      ts_refgrid_pos(&e->grid, c, rank, &sx, &sy);
+      int sx, sy;
+      ts_anchors_pos(&e->grid, g->best[i].index, &sx, &sy);
       if (refine) {
         long o = (long)b->y * w + b->x;
         note_copy(e, &nc, (int)e->copy[2 * o], (int)e->copy[2 * o + 1], b, -1);
@@ -553,7 +562,7 @@ static int checkpoint_due(const engine *e) {
  * the canvas as the previous step left it (schedule.h); a checkpoint, when
  * due, goes between two steps. */
 static int run_steps(engine *e, const ts_schedule *sch, int refine, uint32_t t0, char *err) {
-  uint64_t d1[2] = {unit_distance(&e->shape[0]), unit_distance(&e->shape[1])};
+  uint64_t d1[2] = {ts_window_unit_distance(&e->shape[0]), ts_window_unit_distance(&e->shape[1])};
   for (uint32_t t = t0; t < sch->nsteps; t++) {
     const ts_block *blocks = sch->blocks + sch->step_start[t];
     uint32_t n = sch->step_start[t + 1] - sch->step_start[t];
@@ -636,7 +645,6 @@ static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, c
   e->t0 = ts_now();
   e->base = e->search->stats;
   memset(&e->carried, 0, sizeof(e->carried));
-  e->ref_lp.nplanes = e->canvas_lp.nplanes = e->nplanes;
   for (int k = 0; k < e->nplanes; k++) {
     e->ref_lp.fine[k] = &e->ref[k][l];
     e->ref_lp.coarse[k] = coarse ? &e->ref[k][l + 1] : NULL;
@@ -644,21 +652,22 @@ static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, c
     e->canvas_lp.coarse[k] = coarse ? &e->canvas[k][l + 1] : NULL;
     if (ts_plane_alloc(&e->canvas[k][l], e->cw[l], e->ch[l]) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
   }
-  int rc = ts_shape_init(&e->shape[SHAPE_PLAIN], TS_SHAPE_CAUSAL, p->wn, p->wb, coarse, e->nplanes,
-                         p->coarse_weight, err);
+  int rc = ts_neigh_window(&e->shape[SHAPE_PLAIN], TS_SHAPE_CAUSAL, p->wn, p->wb, coarse, e->nplanes,
+                           p->coarse_weight, err);
   if (rc == 0)
-    rc = ts_shape_init(&e->shape[SHAPE_MASKED], TS_SHAPE_SQUARE, p->wn, p->wb, coarse, e->nplanes,
-                       p->coarse_weight, err);
-  if (rc == 0) { /* masked queries weigh each pixel as plain ones do */
-    e->shape[SHAPE_MASKED].wfine = e->shape[SHAPE_PLAIN].wfine;
-    e->shape[SHAPE_MASKED].wcoarse = e->shape[SHAPE_PLAIN].wcoarse;
-  }
+    rc = ts_neigh_window(&e->shape[SHAPE_MASKED], TS_SHAPE_SQUARE, p->wn, p->wb, coarse, e->nplanes,
+                         p->coarse_weight, err);
+  if (rc == 0) /* masked queries weigh each pixel as plain ones do */
+    for (int k = 0; k < e->shape[SHAPE_MASKED].spec.nparts; k++)
+      e->shape[SHAPE_MASKED].spec.part[k].weight = e->shape[SHAPE_PLAIN].spec.part[k].weight;
   const ts_plane *r0 = e->ref_lp.fine[0];
   e->set_ids[0] = e->set_ids[1] = -1;
   e->cap = 0; /* the shapes' sizes changed */
+  if (rc == 0 && p->parity && (rc = parity_plane(&e->parity, r0->w, r0->h)) != 0) ts_error(err, rc, "out of memory");
   if (rc == 0)
-    rc = ts_refgrid_init(&e->grid, &e->shape[SHAPE_PLAIN], r0->w, r0->h, coarse ? e->ref[0][l + 1].w : 0,
-                         coarse ? e->ref[0][l + 1].h : 0, p->parity, err);
+    rc = ts_anchors_init(&e->grid, &e->shape[SHAPE_PLAIN], r0->w, r0->h, coarse ? e->ref[0][l + 1].w : 0,
+                         coarse ? e->ref[0][l + 1].h : 0, p->parity ? &e->parity : NULL, p->parity ? 4 : 1, NULL,
+                         err);
   if (rc == 0 && (rc = ts_usage_init(&e->usage, &e->grid, p->wb, p->usage_weight > 0)) != 0) ts_error(err, rc, "out of memory");
   size_t npx = (size_t)e->cw[l] * e->ch[l];
   e->copy = rc == 0 ? malloc(sizeof(uint32_t) * 2 * npx) : NULL;
@@ -675,7 +684,8 @@ static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, c
   /* The backend's usage replicas start from the counters as they are now:
    * zero, or a resumed level's. */
   for (int k = 0; rc == 0 && k < 2; k++) {
-    ts_refset rs = {&e->shape[k], &e->grid, &e->ref_lp, p->usage_weight > 0, &e->usage};
+    ts_refset rs = {&e->shape[k], &e->grid, &e->ref_lp, p->parity ? &e->parity : NULL, NULL, p->usage_weight > 0,
+                    &e->usage};
     rc = ts_search_prepare(e->search, &rs, &e->set_ids[k], err);
   }
   if (rc == 0) rc = run_level(e, err);
@@ -690,12 +700,14 @@ static void engine_free(engine *e) {
     ts_pyramid_free(e->canvas[p], e->levels);
   }
   ts_usage_free(&e->usage);
+  ts_anchors_free(&e->grid);
+  ts_plane_free(&e->parity);
   free(e->copy);
   free(e->prev_copy);
   free(e->done);
   for (int k = 0; k < 2; k++) {
     group_free(&e->group[k]);
-    ts_shape_free(&e->shape[k]);
+    ts_window_free(&e->shape[k]);
   }
   free(e->commits);
   plan_free(&e->plan);
@@ -859,12 +871,14 @@ static int take_resume(engine *e, int *first, const ts_mrf_checkpoint **inside, 
 /* Frees the state of the level above before level l starts. */
 static void drop_previous_level(engine *e) {
   ts_usage_free(&e->usage);
+  ts_anchors_free(&e->grid);
+  ts_plane_free(&e->parity);
   free(e->prev_copy);
   e->prev_copy = e->copy;
   free(e->done);
   e->copy = NULL;
   e->done = NULL;
-  for (int k = 0; k < 2; k++) ts_shape_free(&e->shape[k]);
+  for (int k = 0; k < 2; k++) ts_window_free(&e->shape[k]);
   plan_free(&e->plan);
 }
 

@@ -28,8 +28,12 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   case 2: {
     ts_slice_desc m;
     if (ts_msg_slice_read(&f, &m, err) == 0) {
-      size_t frow = (size_t)m.w * (size_t)(m.fy1 - m.fy0);
-      for (int p = 0; p < m.nplanes; p++) check_inside(m.fine[p], frow, f.payload, f.len);
+      size_t frow = (size_t)m.w * (size_t)(m.fy1 - m.fy0), crow = (size_t)m.cw * (size_t)(m.cy1 - m.cy0);
+      size_t arow = (size_t)m.w * (size_t)(m.ay1 - m.ay0);
+      for (int p = 0; p < m.win.nplanes[TS_SRC_FINE]; p++) check_inside(m.fine[p], frow, f.payload, f.len);
+      for (int p = 0; p < m.win.nplanes[TS_SRC_COARSE]; p++) check_inside(m.coarse[p], crow, f.payload, f.len);
+      check_inside(m.labels, arow, f.payload, f.len);
+      check_inside(m.valid, arow, f.payload, f.len);
       check_inside(m.counts, frow * 4, f.payload, f.len);
     }
     break;

@@ -11,6 +11,8 @@ BUILD = Path(os.environ.get("TEXSYN_BUILD", REPO / "build"))
 DATA = Path(os.environ.get("TEXSYN_DATA", REPO.parent / "shared" / "data"))
 SANITIZED = os.environ.get("TEXSYN_SANITIZED") == "1"
 LONG = os.environ.get("TEXSYN_LONG_TESTS") == "1"
+# Frame header start: magic and the protocol version (proto/frame.h).
+FRAME_START = b"TS\x02"
 
 
 def pytest_configure(config):
@@ -218,3 +220,21 @@ def cluster(tmp_path):
     c = Cluster(tmp_path)
     yield c
     c.stop()
+
+
+def slice_ranges(body):
+    """The per-class vector ranges [(i0, i1), ...] of an 'N' (load slice)
+    payload (proto/PROTOCOL.md): past set, gen and the window, to the
+    classes."""
+    import struct
+    nfine, ncoarse = body[8], body[9]
+    off = 14
+    for n in (nfine, ncoarse):
+        if n:
+            noff = struct.unpack_from("<H", body, off + 8)[0]
+            off += 10 + 4 * noff
+    nparts = body[off]
+    off += 1 + 7 * nparts + 16
+    nclass = struct.unpack_from("<H", body, off)[0]
+    off += 4
+    return [struct.unpack_from("<III", body, off + 12 * c)[1:] for c in range(nclass)]

@@ -11,7 +11,7 @@ import zlib
 
 import pytest
 
-from conftest import synth
+from conftest import synth, FRAME_START
 
 SIZE = (256, 192)
 SERVER_LIMIT = "over the limit of 268435456 pixels; raise it with texsyn-server --max-pixels"
@@ -57,7 +57,7 @@ def bad_references(data):
 # ---- a raw client: the protocol by hand (proto/PROTOCOL.md) ------------------
 
 def frame(kind, payload, ident):
-    return b"TS\x01" + kind + struct.pack("<II", len(payload), ident) + payload
+    return FRAME_START + kind + struct.pack("<II", len(payload), ident) + payload
 
 
 def string(b):
@@ -73,7 +73,7 @@ class RawClient:
 
     def recv(self):
         head = self.read(12)
-        assert head[:3] == b"TS\x01", head
+        assert head[:3] == FRAME_START, head
         n, ident = struct.unpack("<II", head[4:12])
         return head[3:4], ident, self.read(n)
 

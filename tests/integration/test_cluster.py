@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from conftest import BUILD, Daemon, LoopbackProxy, run, shutdown_all, synth
+from conftest import BUILD, Daemon, FRAME_START, LoopbackProxy, run, shutdown_all, synth
 
 SIZE = (256, 192)
 
@@ -294,7 +294,7 @@ def test_bad_job_gets_a_clear_error_and_the_server_goes_on(data, cluster, tmp_pa
 
 # ---- protocol robustness ----------------------------------------------------
 
-def frame(t, payload=b"", ident=1, magic=b"TS", version=1, length=None):
+def frame(t, payload=b"", ident=1, magic=b"TS", version=FRAME_START[2], length=None):
     n = len(payload) if length is None else length
     return magic + bytes([version]) + t.encode() + struct.pack("<II", n, ident) + payload
 
@@ -307,6 +307,7 @@ def ident_payload(role):
 BAD_STREAMS = {
     "garbage": b"GET / HTTP/1.1\r\nHost: x\r\n\r\n" * 4,
     "bad_version": frame("I", ident_payload(3), version=9),
+    "version_1_peer": frame("I", ident_payload(3), version=1),
     "oversized_length": frame("I", b"", length=0xFFFFFFF0),
     "truncated_then_close": frame("I", ident_payload(3))[:15],
     "bad_first_message": frame("V", b"\x00" * 40),
@@ -343,6 +344,8 @@ def test_server_survives_bad_peers(data, cluster, tmp_path, one_byte):
         assert cluster.pool(), f"server stopped answering after {name}"
     log = cluster.server.read_log()
     assert "protocol error" in log and "bad magic" in log and "exceeds the limit" in log
+    # A peer of the first protocol is told what is wrong and what to do.
+    assert "speaks texsyn protocol version 1, this build 2: run the same release on both sides" in log
     remote(cluster, data, tmp_path)
 
 

@@ -8,7 +8,7 @@ import struct
 
 import pytest
 
-from conftest import BUILD, Daemon, run, synth
+from conftest import BUILD, Daemon, run, synth, FRAME_START
 
 SMALL = ["--size", "96x64", "--levels", "3"]
 LONG = ["--size", "768x768"]  # seconds on a lone coordinator: stays unfinished
@@ -106,7 +106,7 @@ def raw_call(addr, kind, payload):
     ident = struct.pack("<BIHB", 3, 7, 0, 0) + struct.pack("<H", len(name)) + name
 
     def frame(t, body, fid):
-        return b"TS\x01" + t + struct.pack("<II", len(body), fid) + body
+        return FRAME_START + t + struct.pack("<II", len(body), fid) + body
 
     def read_frame(s):
         head = recv_exact(s, 12)

@@ -9,7 +9,7 @@ import struct
 import threading
 import time
 
-from conftest import BUILD, run
+from conftest import BUILD, run, FRAME_START
 
 CLIENTS = 5
 JOBS_PER_CLIENT = 10
@@ -56,7 +56,7 @@ class StatusConn:
         self.call(b"I", struct.pack("<BIHB", 3, 7, 0, 0) + struct.pack("<H", len(name)) + name)
 
     def call(self, t, payload):
-        self.sock.sendall(b"TS\x01" + t + struct.pack("<II", len(payload), 1) + payload)
+        self.sock.sendall(FRAME_START + t + struct.pack("<II", len(payload), 1) + payload)
         head = recv_exact(self.sock, 12)
         assert head[:2] == b"TS" and head[3:4] == t, f"unexpected reply {head!r}"
         return recv_exact(self.sock, struct.unpack("<I", head[4:8])[0])

@@ -13,7 +13,7 @@ import threading
 
 import pytest
 
-from conftest import BUILD, Daemon, LoopbackProxy, shutdown_all, synth
+from conftest import BUILD, Daemon, LoopbackProxy, shutdown_all, synth, slice_ranges
 
 JOB = ["--size", "96x64", "--levels", "3"]
 
@@ -35,8 +35,8 @@ class Poison:
 
 class FrameProxy(LoopbackProxy):
     """Forwards one loopback port to a worker frame by frame. It remembers
-    the slices loaded through it ('N': set id, then vector ranges at byte
-    46) and resets both connections instead of forwarding a batch ('V') of
+    the slices loaded through it ('N': set id, then per-class vector
+    ranges) and resets both connections instead of forwarding a batch ('V') of
     the poisoned set while it holds that set's first vector."""
 
     def __init__(self, index, target, poison):
@@ -56,7 +56,7 @@ class FrameProxy(LoopbackProxy):
                 set_id = struct.unpack_from("<I", body, 0)[0]
                 if p.set is None:
                     p.set = set_id
-                self.first[set_id] = struct.unpack_from("<II", body, 46)
+                self.first[set_id] = slice_ranges(body)[0]
             if kind != b"V" or struct.unpack_from("<I", body, 0)[0] != p.set or len(p.killed) >= p.kills:
                 return False
             i0, i1 = self.first.get(p.set, (1, 1))

@@ -17,8 +17,8 @@
 
 typedef struct {
   int used;
-  ts_shape shape;
-  ts_refgrid grid;
+  ts_window shape;
+  ts_anchors grid;
   ts_levelplanes ref;
   ts_usage usage;
 } brute_set;
@@ -34,14 +34,12 @@ static int brute_prepare(ts_search *s, const ts_refset *rs, int *id, char *err) 
   while (b->sets[k].used) k++;
   brute_set *st = &b->sets[k];
   st->used = 1;
-  /* copy the shape: the engine frees its own at the end of the level */
-  assert_int_equal(ts_shape_init(&st->shape, rs->shape->kind, rs->shape->wn, rs->shape->wb,
-                                 rs->shape->wc > 0, rs->shape->nplanes, 1.0, err), 0);
-  st->shape.wfine = rs->shape->wfine;
-  st->shape.wcoarse = rs->shape->wcoarse;
-  st->grid = *rs->grid;
+  /* copy the window: the engine frees its own at the end of the level
+   * (the anchors live until the set is released) */
+  assert_int_equal(ts_window_init(&st->shape, &rs->window->spec, err), 0);
+  st->grid = *rs->anchors;
   st->ref = *rs->ref;
-  assert_int_equal(ts_usage_init(&st->usage, rs->grid, rs->shape->wb, 1), 0);
+  assert_int_equal(ts_usage_init(&st->usage, rs->anchors, rs->window->spec.block, 1), 0);
   if (rs->counts != NULL) ts_usage_load(&st->usage, rs->counts->count);
   *id = k;
   return 0;
@@ -57,7 +55,7 @@ static int brute_commit(ts_search *s, int id, const ts_commit *c, uint32_t n, ch
 static int brute_query(ts_search *s, int id, const ts_query_batch *qb, ts_l1_best *out, char *err) {
   (void)err;
   brute_set *st = &((brute_search *)s)->sets[id];
-  uint32_t vb = ts_shape_bytes(&st->shape), fine = st->shape.nfine_chunks * 8;
+  uint32_t vb = ts_window_bytes(&st->shape);
   uint8_t vec[TS_L1_MAX_CHUNKS * 8];
   for (uint32_t q = 0; q < qb->nq; q++) {
     const uint8_t *qv = qb->queries + (size_t)q * vb;
@@ -65,21 +63,17 @@ static int brute_query(ts_search *s, int id, const ts_query_batch *qb, ts_l1_bes
     out[q].dist = UINT64_MAX;
     out[q].index = UINT32_MAX;
     for (uint32_t j = 0; j < st->grid.total; j++) {
-      int c, x, y;
-      uint32_t i;
-      ts_refgrid_split(&st->grid, j, &c, &i);
-      if (c != (qb->klass ? qb->klass[q] : 0)) continue;
-      ts_refgrid_pos(&st->grid, c, i, &x, &y);
+      int x, y;
+      if (ts_anchors_class(&st->grid, j) != (qb->klass ? qb->klass[q] : 0)) continue;
+      ts_anchors_pos(&st->grid, j, &x, &y);
       ts_vec_ref(&st->shape, &st->ref, x, y, vec);
-      uint64_t df = 0, dc = 0;
+      uint64_t d = ts_usage_penalty(st->usage.u[j], qb->usage_k);
+      int part = 0;
       for (uint32_t k = 0; k < vb; k++) {
-        int d = qv[k] > vec[k] ? qv[k] - vec[k] : vec[k] - qv[k];
-        if (mv != NULL && mv[k] == 0) d = 0;
-        if (k < fine) df += (uint64_t)d;
-        else dc += (uint64_t)d;
+        while (k >= st->shape.part_end[part] * 8) part++;
+        uint64_t a = qv[k] > vec[k] ? qv[k] - vec[k] : vec[k] - qv[k];
+        if (mv == NULL || mv[k] != 0) d += a * st->shape.spec.part[part].weight;
       }
-      uint64_t d = df * st->shape.wfine + dc * st->shape.wcoarse +
-                   ts_usage_penalty(st->usage.u[j], qb->usage_k);
       if (d < out[q].dist) {
         out[q].dist = d;
         out[q].index = j;
@@ -92,7 +86,7 @@ static int brute_query(ts_search *s, int id, const ts_query_batch *qb, ts_l1_bes
 
 static void brute_release(ts_search *s, int id) {
   brute_set *st = &((brute_search *)s)->sets[id];
-  ts_shape_free(&st->shape);
+  ts_window_free(&st->shape);
   ts_usage_free(&st->usage);
   st->used = 0;
 }

@@ -61,19 +61,43 @@ static void ident_round_trip(void **state) {
   ts_wr_free(&w);
 }
 
+/* A slice of a labelled, masked set with a coarse source: 2 fine planes,
+ * 1 coarse, three weighted parts, 3 classes. */
+static ts_slice_desc slice_example(uint8_t (*fine)[64 * 10], uint8_t *coarse, uint8_t *labels, uint8_t *valid,
+                                   uint8_t *counts) {
+  static const int16_t fdx[] = {-1, 0, 1, 0}, fdy[] = {0, -1, 0, 1}, cdx[] = {0, 1}, cdy[] = {0, 0};
+  ts_slice_desc m;
+  memset(&m, 0, sizeof(m));
+  m.set = 5, m.gen = 2;
+  m.win.nplanes[TS_SRC_FINE] = 2, m.win.nplanes[TS_SRC_COARSE] = 1;
+  m.win.noff[TS_SRC_FINE] = 4, m.win.noff[TS_SRC_COARSE] = 2;
+  m.win.dx[TS_SRC_FINE] = fdx, m.win.dy[TS_SRC_FINE] = fdy, m.win.dx[TS_SRC_COARSE] = cdx, m.win.dy[TS_SRC_COARSE] = cdy;
+  m.win.extent[TS_SRC_FINE] = (ts_box){-1, -1, 2, 2};
+  m.win.extent[TS_SRC_COARSE] = (ts_box){0, 0, 2, 1};
+  m.win.centre = 1, m.win.block = 3, m.win.nparts = 3;
+  m.win.part[0] = (ts_part){TS_SRC_FINE, 0, 1, 7};
+  m.win.part[1] = (ts_part){TS_SRC_FINE, 1, 1, 0xFFFFFFFFu};
+  m.win.part[2] = (ts_part){TS_SRC_COARSE, 0, 1, 2};
+  m.w = 64, m.h = 64, m.cw = 32, m.ch = 32;
+  m.nclass = 3, m.labelled = 1, m.masked = 1;
+  for (int c = 0; c < 3; c++) m.count[c] = 900, m.i0[c] = (uint32_t)c * 10, m.i1[c] = (uint32_t)c * 10 + 40;
+  m.ay0 = 21, m.ay1 = 29;
+  m.above[0] = 100, m.above[1] = 200, m.above[2] = 300;
+  m.fy0 = 20, m.fy1 = 30, m.cy0 = 9, m.cy1 = 15;
+  m.fine[0] = fine[0], m.fine[1] = fine[1], m.coarse[0] = coarse, m.labels = labels, m.valid = valid;
+  m.usage = TS_SLICE_USAGE_COUNTS, m.counts = counts;
+  return m;
+}
+
 static void slice_round_trip(void **state) {
   (void)state;
-  uint8_t fine[2][64 * 10], coarse[2][32 * 6], counts[4 * 64 * 10];
+  static uint8_t fine[2][64 * 10], coarse[32 * 6], labels[64 * 8], valid[64 * 8], counts[4 * 64 * 10];
   for (size_t i = 0; i < sizeof(fine[0]); i++) fine[0][i] = (uint8_t)i, fine[1][i] = (uint8_t)(3 * i);
-  for (size_t i = 0; i < sizeof(coarse[0]); i++) coarse[0][i] = (uint8_t)(7 * i), coarse[1][i] = (uint8_t)~i;
+  for (size_t i = 0; i < sizeof(coarse); i++) coarse[i] = (uint8_t)(7 * i);
+  for (size_t i = 0; i < sizeof(labels); i++) labels[i] = (uint8_t)(i % 3), valid[i] = (uint8_t)(i % 5 != 0);
   for (size_t i = 0; i < sizeof(counts); i++) counts[i] = (uint8_t)(i * 13);
-  ts_slice_desc in = {0}, out;
-  in.set = 5, in.gen = 2, in.kind = 0, in.wn = 7, in.wb = 3, in.has_coarse = 1, in.nplanes = 2, in.parity = 1;
-  in.coarse_weight = 0.75, in.wfine = 9, in.wcoarse = 40, in.w = 64, in.h = 64, in.cw = 32, in.ch = 32;
-  for (int c = 0; c < 4; c++) in.i0[c] = (uint32_t)c * 10, in.i1[c] = (uint32_t)c * 10 + 40;
-  in.fy0 = 20, in.fy1 = 30, in.cy0 = 9, in.cy1 = 15;
-  in.fine[0] = fine[0], in.fine[1] = fine[1], in.coarse[0] = coarse[0], in.coarse[1] = coarse[1];
-  in.usage = TS_SLICE_USAGE_COUNTS, in.counts = counts;
+  ts_slice_desc in = slice_example(fine, coarse, labels, valid, counts);
+  static ts_slice_desc out;
   ts_wr w;
   ts_wr_init(&w);
   ts_msg_slice_write(&w, &in);
@@ -82,38 +106,47 @@ static void slice_round_trip(void **state) {
   assert_int_equal(ts_msg_slice_read(&f, &out, err), 0);
   assert_int_equal(out.set, 5);
   assert_int_equal(out.gen, 2);
-  assert_true(out.coarse_weight == 0.75);
-  assert_int_equal(out.i1[3], 70);
+  assert_int_equal(out.win.nparts, 3);
+  assert_int_equal(out.win.part[1].weight, 0xFFFFFFFFu);
+  assert_int_equal(out.win.dy[TS_SRC_FINE][1], -1);
+  assert_int_equal(out.win.dx[TS_SRC_COARSE][1], 1);
+  assert_int_equal(out.win.extent[TS_SRC_FINE].dx0, -1);
+  assert_int_equal(out.nclass, 3);
+  assert_int_equal(out.i1[2], 60);
+  assert_int_equal(out.above[2], 300);
   assert_memory_equal(out.fine[1], fine[1], sizeof(fine[1]));
-  assert_memory_equal(out.coarse[1], coarse[1], sizeof(coarse[1]));
+  assert_memory_equal(out.coarse[0], coarse, sizeof(coarse));
+  assert_memory_equal(out.labels, labels, sizeof(labels));
+  assert_memory_equal(out.valid, valid, sizeof(valid));
   assert_memory_equal(out.counts, counts, sizeof(counts));
   assert_exact(&w, 'N', rd_slice, &out);
   ts_wr_free(&w);
 }
 
-/* Geometry that would make a worker read outside its planes is refused. */
+/* Geometry that would make a worker read outside the message or its
+ * offsets buffer is refused. */
 static void slice_geometry_is_checked(void **state) {
   (void)state;
-  static uint8_t px[64 * 70]; /* the writer trusts its caller: room for every case */
-  ts_slice_desc base = {0}, out;
-  base.wn = 7, base.wb = 3, base.nplanes = 1, base.coarse_weight = 1, base.w = 64, base.h = 64;
-  base.i1[0] = 10, base.fy0 = 0, base.fy1 = 64;
-  for (int p = 0; p < 4; p++) base.fine[p] = px;
+  static uint8_t fine[2][64 * 10], coarse[32 * 6], labels[64 * 8], valid[64 * 8], counts[4 * 64 * 10];
+  static uint8_t big[64 * 70 * 4]; /* the writer trusts its caller: room for every case */
+  static ts_slice_desc out;
   char err[TS_ERR_LEN];
-  for (int k = 0; k < 7; k++) {
-    ts_slice_desc m = base;
+  for (int k = 0; k < 8; k++) {
+    ts_slice_desc m = slice_example(fine, coarse, labels, valid, counts);
+    m.fine[0] = m.fine[1] = m.coarse[0] = m.labels = m.valid = m.counts = big;
     switch (k) {
-    case 0: m.wb = 4; break;      /* even block */
-    case 1: m.wn = 3; break;      /* window not larger than block */
-    case 2: m.fy1 = 65; break;    /* rows past the level */
-    case 3: m.fy0 = 10, m.fy1 = 10; break;
-    case 4: m.i0[0] = 11; break;  /* empty reversed range */
-    case 5: m.w = 5; break;       /* level smaller than the window */
+    case 0: m.fy1 = 65; break;    /* rows past the level */
+    case 1: m.fy0 = 10, m.fy1 = 10; break;
+    case 2: m.ay0 = 30, m.ay1 = 30; break;
+    case 3: m.cy1 = 33; break;
+    case 4: m.cw = 0; break;      /* a coarse source without a coarse level */
+    case 5: m.w = 0; break;
+    case 6: m.nclass = 0; break;
+    case 7: m.labelled = 2; break;
     }
     ts_wr w;
     ts_wr_init(&w);
     ts_msg_slice_write(&w, &m);
-    if (k == 6) w.buf[12] = 5; /* nplanes, patched: the writer takes at most 4 */
     ts_frame f = frame_of(&w, 'N');
     assert_int_equal(ts_msg_slice_read(&f, &out, err), TS_EPROTO);
     ts_wr_free(&w);
