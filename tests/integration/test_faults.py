@@ -76,7 +76,7 @@ def inject(cluster, fault, victim, rng):
         restart_worker(cluster, w, f"restarted{victim}")
 
 
-@pytest.mark.parametrize("trial", [pytest.param(t, marks=pytest.mark.sanitize) if t < 2 else t
+@pytest.mark.parametrize("trial", [pytest.param(t, marks=pytest.mark.sanitize) if t < 1 else t
                                    for t in range(TRIALS)])
 def test_random_worker_fault_keeps_the_bytes(data, cluster, tmp_path, expected, trial):
     rng = random.Random(SEED * 1000 + trial)
