@@ -56,7 +56,7 @@ void ts_image_free(ts_image *img);
 /* Loads libtexsyn-image.so now rather than at the first image call; any
  * later call then costs no loading. Idempotent and thread-safe: the
  * library is loaded once per process and never unloaded. 0, or TS_ENOTSUP
- * with a message naming every path tried and why each failed (set
+ * with a message naming the paths tried and why they failed (set
  * TEXSYN_IMAGE_LIB to the library's path to override the search). */
 int ts_image_lib_load(char *err);
 

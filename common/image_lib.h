@@ -12,9 +12,9 @@
  *
  * Of texsyn's own symbols the library exports one, TS_IMAGE_LIB_TABLE, a
  * table of the shim's entry points; everything else of ours in it, its
- * own copies of image.c, error.c and the checks included, is hidden. Inside the library
- * the names of image.h are the shim's implementations; in the programs
- * they are image_load.c's forwarders. */
+ * own copies of image.c, error.c and the checks included, is hidden.
+ * Inside the library the names of image.h are the shim's implementations;
+ * in the programs they are image_load.c's forwarders. */
 #ifndef TS_IMAGE_LIB_H
 #define TS_IMAGE_LIB_H
 
