@@ -1,7 +1,10 @@
 # texsyn - plain Makefile (Redis style): one library of everything shared,
-# thin mains on top, one test binary per concern.
+# thin mains on top, one test binary per concern; image I/O in a shared
+# library of its own, loaded only by what reads or writes images.
 #
 #   make            build binaries into build/
+#   make install    the binaries into PREFIX/bin (default /usr/local), the
+#                   image library into PREFIX/lib/texsyn
 #   make test       install missing packages, build, run every test
 #   make test-valgrind  the unit tests under valgrind
 #   make test-faults    fault injection (TRIALS random trials, default 20), the load test
@@ -49,16 +52,29 @@ inc = $(INC_$(patsubst %/,%,$(dir $(1))))
 
 CFLAGS_ALL = -std=c11 -D_GNU_SOURCE $(WARN) $(OPT) -g $(SANFLAGS) $(CFLAGS)
 CXXFLAGS_ALL = -std=c++17 -Wall -Wextra -Werror $(OPT) -g $(SANFLAGS) -Icommon $(CXXFLAGS)
-LIBS = -lOpenImageIO -lOpenImageIO_Util -lmodbus -lsodium -lpthread -lm $(LDLIBS)
+# The programs link neither OpenImageIO nor the C++ runtime: loading those
+# cost every process 0.2 s at start, `texsyn status` included. They dlopen
+# the image library (below) on their first image call.
+LIBS = -lmodbus -lsodium -lpthread -lm -ldl $(LDLIBS)
 LDFLAGS_ALL = $(SANFLAGS) $(LDFLAGS)
 
 # Mains: everything else in these folders goes into the library.
 MAINS = server/cli/main.c server/main.c worker/main.c
 LIB_DIRS = common common/search proto worker server server/engines server/cli
 LIB_C = $(filter-out $(MAINS),$(foreach d,$(LIB_DIRS),$(wildcard $(d)/*.c)))
-LIB_CXX = $(wildcard common/*.cpp)
-LIB_OBJ = $(LIB_C:%.c=$(BUILD)/%.o) $(LIB_CXX:%.cpp=$(BUILD)/%.o)
+LIB_OBJ = $(LIB_C:%.c=$(BUILD)/%.o)
 LIB = $(BUILD)/libtexsyn.a
+
+# Image I/O as a shared library (common/image_lib.h): the OpenImageIO shim
+# and the C it calls, compiled once more as position-independent code into
+# BUILD/pic/ with the programs' own flags (sanitizers too), every symbol
+# hidden but the shim's table. The programs find it next to themselves.
+IMAGE_SRC = common/image_oiio.cpp common/image_check.c common/tiff_tags.c common/image.c \
+            common/error.c
+IMAGE_OBJ = $(patsubst %.c,%.o,$(IMAGE_SRC:%.cpp=%.o))
+IMAGE_LIB = $(BUILD)/libtexsyn-image.so
+IMAGE_LIBS = -lOpenImageIO -lOpenImageIO_Util
+PIC = -fPIC -fvisibility=hidden
 
 BINS = $(BUILD)/texsyn $(BUILD)/texsyn-server $(BUILD)/texsyn-worker
 UNIT_SRC = $(wildcard tests/unit/test_*.c)
@@ -69,40 +85,49 @@ REPLAY_BINS = $(FUZZ_TARGETS:%=$(BUILD)/tests/replay_%)
 BENCH_SRC = $(wildcard bench/*.c)
 BENCH_BINS = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
 
-.PHONY: all deps test test-unit test-integration test-faults test-valgrind fuzz fuzz-build bench demo clean
+.PHONY: all install deps test test-unit test-integration test-faults test-valgrind fuzz fuzz-build bench demo clean
 # A poll() that fails on demand, preloaded into texsyn-server by a fault test.
 PRELOADS = $(BUILD)/tests/libfail_poll.so
-all: $(BINS) $(UNIT_BINS) $(BENCH_BINS) $(REPLAY_BINS) $(PRELOADS)
+all: $(BINS) $(IMAGE_LIB) $(UNIT_BINS) $(BENCH_BINS) $(REPLAY_BINS) $(PRELOADS)
 
 $(BUILD)/%.o: %.c
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS_ALL) $(call inc,$<) -MMD -MP -c $< -o $@
 
-$(BUILD)/%.o: %.cpp
+$(BUILD)/pic/%.o: %.c
 	@mkdir -p $(dir $@)
-	$(CXX) $(CXXFLAGS_ALL) -MMD -MP -c $< -o $@
+	$(CC) $(CFLAGS_ALL) $(PIC) $(call inc,$<) -MMD -MP -c $< -o $@
+
+$(BUILD)/pic/%.o: %.cpp
+	@mkdir -p $(dir $@)
+	$(CXX) $(CXXFLAGS_ALL) $(PIC) -MMD -MP -c $< -o $@
 
 $(LIB): $(LIB_OBJ)
 	@rm -f $@
 	ar rcs $@ $^
 
-# C++ runtime comes in through the OpenImageIO shim, so link with $(CXX).
+# -z defs: a symbol the library lacks fails this link, not a dlopen later.
+$(IMAGE_LIB): $(IMAGE_OBJ:%=$(BUILD)/pic/%)
+	$(CXX) -shared $(LDFLAGS_ALL) -Wl,-z,defs -o $@ $^ $(IMAGE_LIBS)
+
 $(BUILD)/texsyn: $(BUILD)/server/cli/main.o $(LIB)
-	$(CXX) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
+	$(CC) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
 
 $(BUILD)/texsyn-server: $(BUILD)/server/main.o $(LIB)
-	$(CXX) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
+	$(CC) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
 
 $(BUILD)/texsyn-worker: $(BUILD)/worker/main.o $(LIB)
-	$(CXX) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
+	$(CC) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
 
+# Test binaries live in BUILD/tests/, not next to the image library: the
+# runners point TEXSYN_IMAGE_LIB at it.
 $(BUILD)/tests/%: $(BUILD)/tests/unit/%.o $(LIB)
 	@mkdir -p $(dir $@)
-	$(CXX) $(LDFLAGS_ALL) -o $@ $^ $(LIBS) -lcmocka
+	$(CC) $(LDFLAGS_ALL) -o $@ $^ $(LIBS) -lcmocka
 
 $(BUILD)/tests/replay_%: $(BUILD)/tests/fuzz/fuzz_%.o $(BUILD)/tests/fuzz/replay.o $(LIB)
 	@mkdir -p $(dir $@)
-	$(CXX) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
+	$(CC) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
 
 # Without sanitizers: preloaded ahead of an ASan runtime, it would stop it.
 $(BUILD)/tests/lib%.so: tests/preload/%.c
@@ -111,7 +136,15 @@ $(BUILD)/tests/lib%.so: tests/preload/%.c
 
 $(BUILD)/bench/%: $(BUILD)/bench/%.o $(LIB)
 	@mkdir -p $(dir $@)
-	$(CXX) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
+	$(CC) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
+
+# The library goes to ../lib/texsyn from the programs' directory, where
+# they look for it (common/image_load.c); DESTDIR for staged installs.
+PREFIX ?= /usr/local
+install: $(BINS) $(IMAGE_LIB)
+	install -d $(DESTDIR)$(PREFIX)/bin $(DESTDIR)$(PREFIX)/lib/texsyn
+	install -m 755 $(BINS) $(DESTDIR)$(PREFIX)/bin/
+	install -m 644 $(IMAGE_LIB) $(DESTDIR)$(PREFIX)/lib/texsyn/
 
 deps:
 	@bash deploy/install-deps.sh
@@ -156,28 +189,41 @@ FUZZ_SAN = -g -O1 -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sani
 FUZZ_CC = clang -std=c11 -D_GNU_SOURCE $(WARN) $(FUZZ_SAN) -fsanitize=fuzzer-no-link
 FUZZ_CXX = clang++ -std=c++17 -Wall -Wextra -Werror $(FUZZ_SAN) -fsanitize=fuzzer-no-link -Icommon
 # The fuzz targets link the library built with the fuzzer's flags; each
-# pulls in only the objects it reaches.
+# pulls in only the objects it reaches. The image library is built with
+# them too and loaded by fuzz_image from next to it, as the programs load
+# theirs: coverage guides the fuzzer through the shim, and what is fuzzed
+# is the dlopen path that ships.
 FUZZ_LIB = build-fuzz/libtexsyn.a
-FUZZ_LIB_OBJ = $(LIB_C:%.c=build-fuzz/%.o) $(LIB_CXX:%.cpp=build-fuzz/%.o)
+FUZZ_LIB_OBJ = $(LIB_C:%.c=build-fuzz/%.o)
+FUZZ_IMAGE_LIB = build-fuzz/libtexsyn-image.so
 
 build-fuzz/%.o: %.c
 	@mkdir -p $(dir $@)
 	$(FUZZ_CC) $(call inc,$<) -MMD -MP -c $< -o $@
 
-build-fuzz/%.o: %.cpp
+build-fuzz/pic/%.o: %.c
 	@mkdir -p $(dir $@)
-	$(FUZZ_CXX) -MMD -MP -c $< -o $@
+	$(FUZZ_CC) $(PIC) $(call inc,$<) -MMD -MP -c $< -o $@
+
+build-fuzz/pic/%.o: %.cpp
+	@mkdir -p $(dir $@)
+	$(FUZZ_CXX) $(PIC) -MMD -MP -c $< -o $@
 
 .PRECIOUS: build-fuzz/%.o
-# Linked by clang++: the shim's UBSan checks need the C++ runtime parts.
 $(FUZZ_LIB): $(FUZZ_LIB_OBJ)
 	@rm -f $@
 	ar rcs $@ $^
 
+# No -z defs here: clang leaves the sanitizer runtimes to the executable.
+$(FUZZ_IMAGE_LIB): $(IMAGE_OBJ:%=build-fuzz/pic/%)
+	clang++ $(FUZZ_SAN) -shared -o $@ $^ $(IMAGE_LIBS)
+
+# Linked by clang++: the image library's UBSan checks need the runtime's
+# C++ parts, which only clang++ puts into the executable.
 build-fuzz/fuzz_%: build-fuzz/tests/fuzz/fuzz_%.o $(FUZZ_LIB)
 	clang++ $(FUZZ_SAN) -fsanitize=fuzzer -o $@ $^ $(LIBS)
 
-fuzz-build: $(FUZZ_TARGETS:%=build-fuzz/fuzz_%)
+fuzz-build: $(FUZZ_TARGETS:%=build-fuzz/fuzz_%) $(FUZZ_IMAGE_LIB)
 
 fuzz: deps fuzz-build
 	bash tests/run-fuzz.sh fuzz $(FUZZ_SECONDS)

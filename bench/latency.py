@@ -3,14 +3,15 @@
 request ('W', every job) and a pool request ('P', what `texsyn workers`
 shows), 20 each on a fresh connection (identify included), sent by a minimal
 client speaking the protocol, while a job runs on 3 workers and on the idle
-coordinator. The same through the `texsyn` command adds its process start
-(about 0.2 s: the dynamic loader binds OpenImageIO's libraries), measured
-too. and `texsyn workers`, 20 calls each, while a job runs on 3
-workers, next to the same calls on the idle coordinator (which is the cost of
-Medians and maxima. Writes latency.json and latency.md into --out.
+coordinator. Then the whole `texsyn status` process, 20 runs, which adds the
+program's start to the answer. With --before BUILD, the `texsyn` of another
+build (e.g. the code before a change) is timed too, its runs alternating
+with this build's so both see the same load. Medians and maxima, and the
+CPU they ran on. Writes latency.json and latency.md into --out.
 """
 import argparse
 import json
+import os
 import socket
 import statistics
 import struct
@@ -67,10 +68,24 @@ def timed(build, *args):
     return time.perf_counter() - t
 
 
-def series(build, addr):
-    return {"status request": [request(addr, "W", struct.pack("<QB", 0, 0)) for _ in range(CALLS)],
-            "pool request": [request(addr, "P", b"") for _ in range(CALLS)],
-            "texsyn status (process)": [timed(build, "status", "--server", addr) for _ in range(CALLS)]}
+def series(build, before, addr):
+    s = {"status request": [request(addr, "W", struct.pack("<QB", 0, 0)) for _ in range(CALLS)],
+         "pool request": [request(addr, "P", b"") for _ in range(CALLS)],
+         "texsyn status (process)": []}
+    if before:
+        s["texsyn status (process, before)"] = []
+    for _ in range(CALLS):
+        s["texsyn status (process)"].append(timed(build, "status", "--server", addr))
+        if before:
+            s["texsyn status (process, before)"].append(timed(before, "status", "--server", addr))
+    return s
+
+
+def cpu_model():
+    for line in Path("/proc/cpuinfo").read_text().splitlines():
+        if line.startswith("model name"):
+            return line.split(":", 1)[1].strip()
+    return "unknown"
 
 
 def job_state(build, addr, job_id):
@@ -82,10 +97,13 @@ def job_state(build, addr, job_id):
 def main():
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--build", default=str(REPO / "build"))
+    ap.add_argument("--before", help="another build whose `texsyn status` is timed alongside")
+    ap.add_argument("--before-label", default="another build", help="what --before is, for latency.md")
     ap.add_argument("--out", default=str(REPO / "bench" / "results"))
     ap.add_argument("--quick", action="store_true", help="accepted for bench/run.sh")
     args = ap.parse_args()
     build, out = Path(args.build), Path(args.out)
+    before = Path(args.before) if args.before else None
     with tempfile.TemporaryDirectory() as t:
         tmp = Path(t)
         procs, addrs = [], []
@@ -98,13 +116,13 @@ def main():
         procs.append(server)
         try:
             wait_ready(build, addr, 3)
-            idle = series(build, addr)
+            idle = series(build, before, addr)
             sub = subprocess.run([str(build / "texsyn"), "synth", *map(str, JOB), "-o", str(tmp / "o.png"),
                                   "--quiet", "--detach", "--server", addr], check=True, capture_output=True, text=True)
             job_id = int(sub.stdout.strip())
             while "running" not in job_state(build, addr, job_id):
                 time.sleep(0.05)
-            busy = series(build, addr)
+            busy = series(build, before, addr)
             still = "running" in job_state(build, addr, job_id)
         finally:
             stop(procs)
@@ -114,6 +132,7 @@ def main():
             rows[f"{call}, {label}"] = {"median_ms": 1000 * statistics.median(v), "max_ms": 1000 * max(v),
                                         "all_ms": [round(1000 * x, 2) for x in v]}
     rows["job still running after the calls"] = still
+    rows["cpu"] = f"{cpu_model()}, {os.cpu_count()} cores"
     out.mkdir(parents=True, exist_ok=True)
     (out / "latency.json").write_text(json.dumps(rows, indent=1) + "\n")
     lines = ["| call | median | max |", "|---|---|---|"]
@@ -121,6 +140,9 @@ def main():
         if isinstance(v, dict):
             lines.append(f"| {k} | {v['median_ms']:.1f} ms | {v['max_ms']:.1f} ms |")
     lines.append(f"\nThe job was still running after the last call: {'yes' if still else 'no'}.")
+    lines.append(f"CPU: {rows['cpu']}.")
+    if before:
+        lines.append(f"`before`: the `texsyn` of {args.before_label}, its runs alternating with this build's.")
     (out / "latency.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

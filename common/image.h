@@ -1,7 +1,10 @@
 /* image.h - image files in and out. Decoding and encoding go through
  * OpenImageIO in image_oiio.cpp (the only C++ in texsyn), after the checks
  * of image_check.c, with GeoTIFF tags by tiff_tags.c; this header is their
- * C API, plus pixel helpers in image.c.
+ * C API, plus pixel helpers in image.c. The file functions live in a
+ * shared library of their own, libtexsyn-image.so, loaded on the first
+ * call (image_lib.h says why and how); if it cannot be loaded they return
+ * TS_ENOTSUP, naming the path tried and the loader's reason.
  *
  * An image keeps the pixel type it had on disk where it matters (8-bit,
  * 16-bit, half and float), so a 16-bit TIFF in gives a 16-bit TIFF out, and
@@ -49,6 +52,13 @@ const char *ts_pixtype_name(ts_pixtype t);
 int ts_image_alloc(ts_image *img, int width, int height, int channels,
                    ts_pixtype type, char *err);
 void ts_image_free(ts_image *img);
+
+/* Loads libtexsyn-image.so now rather than at the first image call; any
+ * later call then costs no loading. Idempotent and thread-safe: the
+ * library is loaded once per process and never unloaded. 0, or TS_ENOTSUP
+ * with a message naming the paths tried and why they failed (set
+ * TEXSYN_IMAGE_LIB to the library's path to override the search). */
+int ts_image_lib_load(char *err);
 
 /* Reads PNG, JPEG, TIFF (incl. tiled and BigTIFF) and OpenEXR files. The
  * format is told by the file's first bytes, never by its name, and only

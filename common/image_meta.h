@@ -2,7 +2,8 @@
  *
  * ts_meta is a C++ object (an OpenImageIO attribute list) that C code only
  * ever holds by pointer; these are the few C-visible functions that create
- * and destroy it outside of ts_image_read. */
+ * and destroy it outside of ts_image_read. In the programs they forward to
+ * libtexsyn-image.so (image_load.c), like image.h's file functions. */
 #ifndef TS_IMAGE_META_H
 #define TS_IMAGE_META_H
 
@@ -21,7 +22,8 @@ void ts_meta_free(ts_meta *meta);
 
 /* Sets the string attribute `name` (e.g. "ImageDescription", "Software"),
  * replacing any attribute of that name; creates *meta if it is NULL.
- * 0, TS_EINVAL or TS_ENOMEM. */
+ * 0, TS_EINVAL, TS_ENOMEM, or TS_ENOTSUP if the image library cannot be
+ * loaded (ts_image_lib_load tells why). */
 int ts_meta_set(ts_meta **meta, const char *name, const char *value);
 
 #ifdef __cplusplus

@@ -3,6 +3,8 @@
  * The only C++ in texsyn: a thin shim that keeps OpenImageIO's types and
  * exceptions on this side of an extern "C" boundary. Every entry point
  * catches everything and answers with a TS_E* code and one line in err.
+ * It is built into libtexsyn-image.so, whose one exported symbol is the
+ * table of these entry points at the end of this file (image_lib.h).
  *
  * Reads take a file or a file's bytes in memory (through OpenImageIO's
  * IOMemReader, bounds-checked); both go through ts_open and ts_read, so a reference the
@@ -46,6 +48,7 @@ extern "C" {
 #include "image.h"
 }
 #include "image_check.h"
+#include "image_lib.h"
 #include "image_meta.h"
 #include "tiff_tags.h"
 
@@ -576,3 +579,9 @@ extern "C" int ts_meta_set(ts_meta **meta, const char *name, const char *value) 
 }
 
 extern "C" void ts_meta_free(ts_meta *meta) { delete meta; }
+
+/* --- the library's one export -------------------------------------------- */
+
+extern "C" __attribute__((visibility("default"))) const ts_image_lib TS_IMAGE_LIB_TABLE = {
+    ts_image_read, ts_image_read_mem, ts_image_probe_mem, ts_image_write,
+    ts_meta_get,   ts_meta_set,       ts_meta_free};

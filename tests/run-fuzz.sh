@@ -44,6 +44,9 @@ log=$(mktemp)
 case "$mode" in
 replay)
   build=${2:-build}
+  # The replay binaries sit in BUILD/tests/, not next to the image library
+  # (the libFuzzer builds find theirs next to them).
+  export TEXSYN_IMAGE_LIB=$(cd "$build" && pwd)/libtexsyn-image.so
   for t in $targets; do
     bin=$build/tests/replay_$t
     if [ ! -x "$bin" ]; then

@@ -6,6 +6,8 @@
 # Usage: tests/run-unit.sh BUILD_DIR
 set -u
 build=${1:-build}
+# The test binaries sit in BUILD/tests/, not next to the image library.
+export TEXSYN_IMAGE_LIB=$(cd "$build" && pwd)/libtexsyn-image.so
 mult=${TEXSYN_TEST_TIMEOUT_MULTIPLIER:-1}
 export timeout_s=$((120 * mult))
 logdir=$(mktemp -d)

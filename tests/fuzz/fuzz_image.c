@@ -13,16 +13,35 @@
  * 4 Mpixels still slows the run to a few inputs a second. The limit check
  * itself is the same code at any value.
  * OpenImageIO and the codec libraries are not instrumented, so coverage
- * guides the fuzzer through our code only. Build and run: make fuzz. */
+ * guides the fuzzer through our code only: the shim, in an image library
+ * built with the fuzzer's flags (build-fuzz/libtexsyn-image.so), and the
+ * checks before it. Build and run: make fuzz. */
 #include <stddef.h>
 #include <stdint.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "error.h"
 #include "image.h"
 
+int LLVMFuzzerInitialize(int *argc, char ***argv);
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
+
+/* The image library is loaded before the first input: its coverage
+ * counters are then registered with the fuzzer's other modules at start,
+ * and a library that does not load stops the run with its reason instead
+ * of failing every input's message check. */
+int LLVMFuzzerInitialize(int *argc, char ***argv) {
+  (void)argc;
+  (void)argv;
+  char err[TS_ERR_LEN];
+  if (ts_image_lib_load(err) != 0) {
+    fprintf(stderr, "fuzz_image: %s\n", err);
+    exit(1);
+  }
+  return 0;
+}
 
 #define FUZZ_MAX_PIXELS (256u << 10)
 static const char kName[] = "fuzz-input.img";

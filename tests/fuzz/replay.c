@@ -18,6 +18,8 @@
 #include "util.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
+/* Optional, as for libFuzzer: called once before any input if defined. */
+int LLVMFuzzerInitialize(int *argc, char ***argv) __attribute__((weak));
 
 static int replay_file(const char *path) {
   uint8_t *buf;
@@ -90,6 +92,7 @@ static int replay_dir(const char *dir, int *count) {
 
 int main(int argc, char **argv) {
   int count = 0, rc = 0;
+  if (LLVMFuzzerInitialize != NULL) LLVMFuzzerInitialize(&argc, &argv);
   for (int i = 1; i < argc; i++) {
     struct stat st;
     if (stat(argv[i], &st) != 0) {
