@@ -40,25 +40,70 @@ int cl_worker_takes(const cl_worker *w, uint64_t bytes) {
   return bytes <= w->max_payload || (w->pieces && bytes <= w->max_message);
 }
 
-int cl_queue(cl_worker *w, uint8_t type, uint32_t id, ts_payload_fn *fn, const void *arg, size_t argsize,
-             char *err) {
+/* The next free entry of w's queue (not queued yet), or NULL. */
+static cl_msg *queue_slot(cl_worker *w) {
   if (w->nqueue == w->cap_queue) {
     uint32_t cap = w->cap_queue ? 2 * w->cap_queue : 16;
     cl_msg *q = realloc(w->queue, sizeof(*q) * cap);
-    if (q == NULL) return ts_error(err, TS_ENOMEM, "out of memory for a message to a worker");
+    if (q == NULL) return NULL;
     w->queue = q;
     w->cap_queue = cap;
   }
-  cl_msg *e = &w->queue[w->nqueue];
+  return &w->queue[w->nqueue];
+}
+
+/* Queues the message whose arguments fill slot e, if w can take it. */
+static int queue_push(cl_worker *w, cl_msg *e, uint8_t type, uint32_t id, ts_payload_fn *fn, char *err) {
   e->write = fn;
-  if (argsize > 0) memcpy(&e->arg, arg, argsize < sizeof(e->arg) ? argsize : sizeof(e->arg));
   int rc = ts_outmsg_init(&e->m, type, id, fn, &e->arg, w->max_payload, w->pieces, err);
   if (rc == 0 && !cl_worker_takes(w, e->m.total))
     rc = ts_error(err, TS_ETOOBIG, "a '%c' message of %llu bytes is over what the worker takes (%llu bytes%s)",
-                  type, (unsigned long long)e->m.total, (unsigned long long)(w->pieces ? w->max_message : w->max_payload),
+                  type, (unsigned long long)e->m.total,
+                  (unsigned long long)(w->pieces ? w->max_message : w->max_payload),
                   w->pieces ? ", texsyn-worker --max-message" : " in one frame; it is too old to take pieces");
   if (rc == 0) w->nqueue++;
   return rc;
+}
+
+#define NO_SLOT(err) ts_error(err, TS_ENOMEM, "out of memory for a message to a worker")
+
+static void write_slice(ts_wr *w, const void *arg) { ts_msg_slice_write(w, arg); }
+
+int cl_queue_slice(cl_worker *w, uint32_t id, const ts_slice_desc *m, char *err) {
+  cl_msg *e = queue_slot(w);
+  if (e == NULL) return NO_SLOT(err);
+  e->arg.slice = *m;
+  return queue_push(w, e, TS_MSG_SLICE, id, write_slice, err);
+}
+
+uint64_t cl_slice_bytes(const ts_slice_desc *m) { return ts_payload_size(write_slice, m); }
+
+static void write_query(ts_wr *w, const void *arg) {
+  const cl_query_frame *q = arg;
+  ts_msg_query_write(w, q->set, q->gen, q->commits, q->ncommits, q->b, q->vbytes, q->q0, q->q1);
+}
+
+int cl_queue_query(cl_worker *w, uint32_t id, const cl_query_frame *q, char *err) {
+  cl_msg *e = queue_slot(w);
+  if (e == NULL) return NO_SLOT(err);
+  e->arg.query = *q;
+  return queue_push(w, e, TS_MSG_QUERY, id, write_query, err);
+}
+
+static void write_unload(ts_wr *w, const void *arg) { ts_msg_unload_write(w, arg); }
+
+void cl_queue_unload(ts_cluster *c, cl_worker *w, uint32_t set) {
+  char err[TS_ERR_LEN];
+  cl_msg *e = queue_slot(w);
+  if (e != NULL) e->arg.unload.set = set;
+  w->expect = e != NULL && queue_push(w, e, TS_MSG_UNLOAD, ++c->next_frame, write_unload, err) == 0;
+}
+
+/* A heartbeat: an empty payload. */
+static void queue_heartbeat(ts_cluster *c, cl_worker *w) {
+  char err[TS_ERR_LEN];
+  cl_msg *e = queue_slot(w);
+  w->expect = e != NULL && queue_push(w, e, TS_MSG_HEARTBEAT, ++c->next_frame, NULL, err) == 0;
 }
 
 void cl_out_reset(cl_worker *w) {
@@ -264,9 +309,7 @@ static void heartbeat_idle(ts_cluster *c) {
     ws[n++] = w;
   }
   cl_lease(c, ws, n); /* none is leased: no wait */
-  char err[TS_ERR_LEN];
-  for (int i = 0; i < n; i++) /* an empty payload */
-    ws[i]->expect = cl_queue(ws[i], TS_MSG_HEARTBEAT, ++c->next_frame, NULL, NULL, 0, err) == 0;
+  for (int i = 0; i < n; i++) queue_heartbeat(c, ws[i]);
   cl_traffic tr = {0, 0};
   if (n > 0) cl_exchange(c, ws, n, 2 * c->o.heartbeat + 1.0, heartbeat_reply, NULL, &tr);
   cl_release(c, ws, n);
@@ -575,14 +618,6 @@ int cl_reply_error(const ts_frame *f, char *err) {
   ts_msg_error e;
   if (ts_msg_error_read(f, &e, err) != 0) return TS_EPROTO;
   return ts_error(err, e.code, "worker error: %s", e.text);
-}
-
-static void write_unload(ts_wr *w, const void *arg) { ts_msg_unload_write(w, arg); }
-
-void cl_queue_unload(ts_cluster *c, cl_worker *w, uint32_t set) {
-  ts_msg_unload m = {set};
-  char err[TS_ERR_LEN];
-  w->expect = cl_queue(w, TS_MSG_UNLOAD, ++c->next_frame, write_unload, &m, sizeof(m), err) == 0;
 }
 
 int cl_unloaded_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {

@@ -61,9 +61,9 @@ typedef struct {
   uint32_t vbytes, q0, q1;
 } cl_query_frame;
 
-/* A message queued for a worker. Its writer is run once per chunk on
- * what arg describes (level planes, the batch's queries and commits), which
- * stays unchanged until the exchange ends. */
+/* A message queued for a worker. Its writer is run once per chunk on its
+ * arguments and what they point at (level planes, the batch's queries and
+ * commits), which stay unchanged until the exchange ends. */
 typedef struct {
   ts_outmsg m;
   ts_payload_fn *write; /* NULL: empty payload */
@@ -147,12 +147,14 @@ struct ts_cluster {
 /* The cluster's lines go to the daemon's log (log.h). */
 #define cl_log(c, ...) ((void)(c), ts_log(__VA_ARGS__))
 
-/* Queues a message to w (leased) for the next cl_exchange, which sends it
- * whole, or in pieces when it exceeds w's frame limit. arg (argsize bytes:
- * one of cl_msg's argument kinds; NULL with fn NULL) is copied. 0, or
- * TS_ENOMEM / TS_ETOOBIG (w cannot take it) with a message. */
-int cl_queue(cl_worker *w, uint8_t type, uint32_t id, ts_payload_fn *fn, const void *arg, size_t argsize,
-             char *err);
+/* Queue a message to w (leased) for the next cl_exchange, which sends it
+ * whole, or in pieces when it exceeds w's frame limit: an 'N' (slice) or a
+ * 'V' (query frame). 0, or TS_ENOMEM / TS_ETOOBIG (w cannot take it) with
+ * a message. The caller counts the answers it expects. */
+int cl_queue_slice(cl_worker *w, uint32_t id, const ts_slice_desc *m, char *err);
+int cl_queue_query(cl_worker *w, uint32_t id, const cl_query_frame *q, char *err);
+/* Payload bytes of a slice's 'N' message. */
+uint64_t cl_slice_bytes(const ts_slice_desc *m);
 /* Whether w takes a message of that many payload bytes: under its frame
  * limit whole, or under its message limit in pieces. */
 int cl_worker_takes(const cl_worker *w, uint64_t bytes);
@@ -191,7 +193,7 @@ int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, cl_reply_f
 /* An 'E' reply as an error. */
 int cl_reply_error(const ts_frame *f, char *err);
 /* Queues a 'Q' to w (leased; lock held) to free one set's slice, or all
- * (TS_UNLOAD_ALL), and expects its answer. */
+ * (TS_UNLOAD_ALL), and expects its answer (none if it could not be queued). */
 void cl_queue_unload(ts_cluster *c, cl_worker *w, uint32_t set);
 /* Counts a 'Q' (unload) answer. */
 int cl_unloaded_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err);

@@ -87,13 +87,6 @@ static int loaded_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
   return 0;
 }
 
-static void write_slice(ts_wr *w, const void *arg) { ts_msg_slice_write(w, arg); }
-
-static void write_query(ts_wr *w, const void *arg) {
-  const cl_query_frame *q = arg;
-  ts_msg_query_write(w, q->set, q->gen, q->commits, q->ncommits, q->b, q->vbytes, q->q0, q->q1);
-}
-
 /* Worker i's slice of st as an 'N' message. */
 static void describe_slice(const cl_set *st, int i, ts_slice_desc *m) {
   ts_slice_describe(m, &st->rs, &st->usage, st->gid, st->gen, st->slices[i].i0, st->slices[i].i1);
@@ -112,7 +105,7 @@ static int cut_fitting(ts_cluster *c, cl_set *st, cl_worker **ws, int n) {
     for (; i < n; i++) {
       ts_slice_desc m;
       describe_slice(st, i, &m);
-      bytes = ts_payload_size(write_slice, &m);
+      bytes = cl_slice_bytes(&m);
       if (!cl_worker_takes(ws[i], bytes)) break;
     }
     if (i == n) return n;
@@ -159,7 +152,7 @@ static int ensure_slices(cluster_search *cs, cl_set *st, char *err) {
       describe_slice(st, i, &m);
       /* The rows stay in the level planes: each chunk of the message is
        * copied from there as the worker's socket drains. */
-      if (cl_queue(ws[i], TS_MSG_SLICE, ++c->next_frame, write_slice, &m, sizeof(m), why) != 0)
+      if (cl_queue_slice(ws[i], ++c->next_frame, &m, why) != 0)
         cl_worker_fail(c, ws[i], why); /* moves the epoch: sliced again without it */
       ws[i]->expect = 1;
       ws[i]->share = (uint32_t)llround(1000.0 * ws[i]->slice_rate / total);
@@ -438,8 +431,7 @@ static int queue_frames(ts_cluster *c, const batch_ctx *bc, const ts_search_req 
         /* The set's pending commits ride with its first frame. */
         cl_query_frame qf = {st->gid, st->gen, q0 == 0 ? st->pending : NULL, q0 == 0 ? st->npending : 0,
                              b, vbytes, q0, q1};
-        int rc = cl_queue(w, TS_MSG_QUERY, (bc->seq & 0xFF) << CL_ID_QUERY_BITS | (bc->q0[r] + q0), write_query,
-                          &qf, sizeof(qf), err);
+        int rc = cl_queue_query(w, (bc->seq & 0xFF) << CL_ID_QUERY_BITS | (bc->q0[r] + q0), &qf, err);
         if (rc != 0) return rc;
         w->expect++;
         if (note_frame(w, bc->q0[r] + q0, q1 - q0) != 0) return ts_error(err, TS_ENOMEM, "out of memory for a batch");
