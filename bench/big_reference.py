@@ -12,7 +12,9 @@ a frame and travels in pieces, as a bigger reference or its usage counters
 would under the default 64 MiB. The coordinator produces every message a
 chunk at a time as the worker's socket drains, so its peak RSS stays near
 the embedded client's. With --baseline BUILD (the build of an older commit)
-the cluster runs are repeated with that build and the default frame limit.
+the cluster runs are repeated with that build, the default frame limit and
+--batch-timeout 300 (its slice loads had a fixed deadline of --batch-timeout
++ 30 s, shorter than building a level-0 slice here).
 
 Exact search keeps every vector: about 950 bytes per reference pixel at
 level 0 for this job (both sets, causal and square), 16 GB for 4096x4096,
@@ -113,7 +115,7 @@ def run_embedded(args, ref, work, results):
                             "rss": {"texsyn": rss}, "pieces": []})
 
 
-def run_cluster(args, build, ref, work, nworkers, results, label, frame_limit):
+def run_cluster(args, build, ref, work, nworkers, results, label, frame_limit, server_args=()):
     name = re.sub(r"\W+", "_", label)
     procs, addrs, threads = [], [], 2 if nworkers == 1 else 1
     for i in range(nworkers):
@@ -123,7 +125,7 @@ def run_cluster(args, build, ref, work, nworkers, results, label, frame_limit):
         procs.append(p)
         addrs.append(a)
     server, saddr = start([build / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", work / f"spool-{name}",
-                           "--workers", ",".join(addrs)], work / f"{name}-server.log")
+                           "--workers", ",".join(addrs), *server_args], work / f"{name}-server.log")
     try:
         wait_ready(build, saddr, nworkers)
         out, report = work / f"{name}.png", work / f"{name}.json"
@@ -210,7 +212,10 @@ def main():
         run_cluster(args, args.build, ref, args.work, n, results, label, args.frame_limit)
         if args.baseline:
             need_memory(label + " (baseline)", need, results)
-            run_cluster(args, args.baseline.resolve(), ref, args.work, n, results, label + " (baseline build)", 0)
+            # Its loads have a fixed deadline (--batch-timeout + 30 s), shorter
+            # than a level-0 build here: raised, so its worker is not dropped.
+            run_cluster(args, args.baseline.resolve(), ref, args.work, n, results, label + " (baseline build)", 0,
+                        ["--batch-timeout", 300])
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "big_reference.json").write_text(json.dumps(results, indent=1) + "\n")
     write_md(args, results, args.out / "big_reference.md")
