@@ -215,17 +215,17 @@ void ts_conn_close_after_error(ts_conn *c, int timeout_ms) {
 }
 
 int ts_conn_next(ts_conn *c, ts_frame *f, char *err) {
-  int rc;
-  ts_frame raw;
-  /* Pieces are taken in until one completes its message. */
-  while ((rc = ts_frame_reader_next(&c->rd, &raw, err)) == 1 && (rc = ts_pieces_next(&c->pieces, &raw, f, err)) == 0)
-    ;
-  if (rc < 0) {
-    char why[TS_ERR_LEN];
-    snprintf(why, sizeof(why), "%s", err);
-    return ts_error(err, rc, "%s: %s", c->peer, why);
+  for (;;) {
+    ts_frame raw;
+    int rc = ts_frame_reader_next(&c->rd, &raw, err);
+    if (rc == 1 && (rc = ts_pieces_next(&c->pieces, &raw, f, err)) == 0) continue; /* a piece taken in */
+    if (rc < 0) {
+      char why[TS_ERR_LEN];
+      snprintf(why, sizeof(why), "%s", err);
+      return ts_error(err, rc, "%s: %s", c->peer, why);
+    }
+    return rc;
   }
-  return rc;
 }
 
 /* One recv into the reader: 1 got bytes, 0 would block, or an error. */

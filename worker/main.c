@@ -245,7 +245,7 @@ static int handshake(session *s, const struct sockaddr *addr, char *err) {
     if (rc == 0) rc = ts_auth_accept(&s->conn, &g_w.auth, &me, &peer, HANDSHAKE_MS, err);
   }
   if (rc == 0 && peer.role != TS_ROLE_COORD) rc = ts_error(err, TS_EPROTO, "peer is not a coordinator");
-  s->peer_caps = peer.caps;
+  if (rc == 0) s->peer_caps = peer.caps;
   return rc;
 }
 
