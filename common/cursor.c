@@ -46,7 +46,7 @@ void ts_wr_free(ts_wr *w) {
   memset(w, 0, sizeof(*w));
 }
 
-void ts_wr_bytes(ts_wr *w, const void *p, size_t n) {
+static void wr_append(ts_wr *w, const void *p, size_t n) {
   if (w->failed) return;
   if (n > SIZE_MAX / 2 - w->len) {
     w->failed = 1;
@@ -65,6 +65,30 @@ void ts_wr_bytes(ts_wr *w, const void *p, size_t n) {
   }
   if (n > 0) memcpy(w->buf + w->len, p, n);
   w->len += n;
+}
+
+void ts_wr_bytes(ts_wr *w, const void *p, size_t n) {
+  if (!w->windowed) {
+    wr_append(w, p, n);
+    return;
+  }
+  uint64_t at = w->pos;
+  w->pos += n;
+  uint64_t lo = at > w->from ? at : w->from;
+  uint64_t hi = w->pos < w->to ? w->pos : w->to;
+  if (lo < hi) wr_append(w, (const uint8_t *)p + (lo - at), (size_t)(hi - lo));
+}
+
+void ts_wr_window(ts_wr *w, uint64_t from, uint64_t to) {
+  w->windowed = 1;
+  w->pos = 0;
+  w->from = from;
+  w->to = to;
+}
+
+uint64_t ts_wr_window_end(ts_wr *w) {
+  w->windowed = 0;
+  return w->pos;
 }
 
 static void wr_le(ts_wr *w, uint64_t v, int n) {

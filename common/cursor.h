@@ -43,6 +43,10 @@ typedef struct {
   uint8_t *buf;
   size_t len, cap;
   int failed;
+  /* Window mode (ts_wr_window): pos counts every byte written, and only
+   * those at offsets [from, to) reach buf. */
+  int windowed;
+  uint64_t pos, from, to;
 } ts_wr;
 
 void ts_wr_init(ts_wr *w);
@@ -54,5 +58,14 @@ void ts_wr_u64(ts_wr *w, uint64_t v);
 void ts_wr_bytes(ts_wr *w, const void *p, size_t n);
 /* 0, or TS_ENOMEM if any write could not grow the buffer. */
 int ts_wr_status(const ts_wr *w);
+
+/* Window mode, so that a message too large to hold whole can be produced a
+ * piece at a time by its ordinary writer (proto/pieces.h): from this call
+ * on, writes are counted from offset 0, and only the bytes at offsets
+ * [from, to) of that stream are appended to the buffer. A writer run with
+ * from == to only measures its message. ts_wr_window_end leaves the mode
+ * and returns how many bytes were written in it. */
+void ts_wr_window(ts_wr *w, uint64_t from, uint64_t to);
+uint64_t ts_wr_window_end(ts_wr *w);
 
 #endif

@@ -288,13 +288,17 @@ static int connect_steps(ts_conn *c, const ts_auth *a, const ts_msg_ident *me, t
 typedef int handshake_steps(ts_conn *c, const ts_auth *a, const ts_msg_ident *me, ts_msg_ident *peer,
                             int timeout_ms, char *err);
 
-/* Both directions run under the small handshake frame limit. */
+/* Both directions run under the small handshake frame limit, and take no
+ * message in pieces (which could be larger). */
 static int under_handshake_limit(handshake_steps *steps, ts_conn *c, const ts_auth *a, const ts_msg_ident *me,
                                  ts_msg_ident *peer, int timeout_ms, char *err) {
   uint32_t max = c->rd.max_payload;
+  uint64_t max_message = c->pieces.max_message;
   c->rd.max_payload = max < HANDSHAKE_MAX_FRAME ? max : HANDSHAKE_MAX_FRAME;
+  ts_conn_accept_pieces(c, 0);
   int rc = steps(c, a, me, peer, timeout_ms, err);
   c->rd.max_payload = max;
+  ts_conn_accept_pieces(c, max_message);
   return rc;
 }
 

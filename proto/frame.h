@@ -27,6 +27,8 @@
 #define TS_PROTO_VERSION 2
 #define TS_FRAME_HEADER 12
 #define TS_FRAME_DEFAULT_MAX (64u << 20) /* payload limit unless configured */
+#define TS_FRAME_LIMIT_MIN 1024u /* the smallest payload limit a daemon takes (--max-frame) */
+#define TS_FRAME_PIECE 'M' /* a piece of a message larger than a frame (pieces.h) */
 
 typedef struct {
   uint8_t type;

@@ -107,13 +107,26 @@ int ts_msg_calib_req_read(const ts_frame *f, ts_msg_calib_req *m, char *err) {
 void ts_msg_calib_write(ts_wr *w, const ts_msg_calib *m) {
   ts_wr_u64(w, m->pairs);
   ts_wr_u64(w, m->nanos);
+  if (m->max_payload == 0) return;
+  ts_wr_u32(w, m->max_payload);
+  ts_wr_u64(w, m->max_message);
 }
+
+#define CALIB_LIMITS_BYTES 12 /* the optional trailing limits */
 
 int ts_msg_calib_read(const ts_frame *f, ts_msg_calib *m, char *err) {
   ts_rd r;
   ts_rd_init(&r, f->payload, f->len);
   m->pairs = ts_rd_u64(&r);
   m->nanos = ts_rd_u64(&r);
+  m->max_payload = 0;
+  m->max_message = 0;
+  if (r.len - r.off == CALIB_LIMITS_BYTES) { /* optional: only to a coordinator with TS_CAP_PIECES */
+    m->max_payload = ts_rd_u32(&r);
+    m->max_message = ts_rd_u64(&r);
+    if (m->max_payload < TS_FRAME_LIMIT_MIN || m->max_message < TS_FRAME_LIMIT_MIN)
+      return bad(err, 'C', "frame or message limit under 1024 bytes");
+  }
   if (finish(&r, err, 'C') != 0) return TS_EPROTO;
   if (m->pairs == 0 || m->nanos == 0) return bad(err, 'C', "empty calibration");
   return 0;

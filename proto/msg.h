@@ -38,6 +38,7 @@ enum {
   TS_MSG_CANCEL = 'X',
   TS_MSG_POOL = 'P',
   TS_MSG_DELETE = 'D',
+  TS_MSG_PIECE = TS_FRAME_PIECE, /* transport: a piece of a larger message (pieces.h) */
 };
 
 /* ---- I: identify -------------------------------------------------------- */
@@ -50,6 +51,11 @@ enum { TS_ROLE_COORD = 1, TS_ROLE_WORKER = 2, TS_ROLE_CLIENT = 3 };
 /* The sender has a shared secret and runs the 'A' exchange (auth.h). Not in
  * TS_CAP_ALL: it says how this process is configured, not what it can do. */
 #define TS_CAP_AUTH 0x8u
+/* Messages in pieces (pieces.h). Not in TS_CAP_ALL: a client takes none. A
+ * worker with it reassembles 'M' pieces; when the coordinator has it too,
+ * the worker's 'C' reply carries its frame and message limits, and the
+ * coordinator splits what is larger than the frame limit. */
+#define TS_CAP_PIECES 0x10u
 #define TS_MSG_NAME_MAX 128
 
 typedef struct {
@@ -90,9 +96,13 @@ int ts_msg_auth_read(const ts_frame *f, ts_msg_auth *m, char *err);
 typedef struct {
   uint32_t millis;
 } ts_msg_calib_req;
-/* Reply: comparisons done and the time they took: a rate, not seconds. */
+/* Reply: comparisons done and the time they took: a rate, not seconds.
+ * A worker answering a coordinator that speaks pieces (TS_CAP_PIECES) adds
+ * its limits, so the coordinator knows what it may send it. */
 typedef struct {
   uint64_t pairs, nanos;
+  uint32_t max_payload; /* the worker's frame payload limit; 0: not sent */
+  uint64_t max_message; /* the largest message it reassembles from pieces */
 } ts_msg_calib;
 
 void ts_msg_calib_req_write(ts_wr *w, const ts_msg_calib_req *m);

@@ -187,13 +187,17 @@ fail:
 void ts_conn_init(ts_conn *c, int fd, uint32_t max_payload, const char *peer) {
   c->fd = fd;
   ts_frame_reader_init(&c->rd, max_payload);
+  ts_pieces_init(&c->pieces, 0);
   snprintf(c->peer, sizeof(c->peer), "%s", peer ? peer : "?");
 }
+
+void ts_conn_accept_pieces(ts_conn *c, uint64_t max_message) { c->pieces.max_message = max_message; }
 
 void ts_conn_close(ts_conn *c) {
   if (c->fd >= 0) close(c->fd);
   c->fd = -1;
   ts_frame_reader_free(&c->rd);
+  ts_pieces_free(&c->pieces);
 }
 
 void ts_conn_close_after_error(ts_conn *c, int timeout_ms) {
@@ -211,13 +215,17 @@ void ts_conn_close_after_error(ts_conn *c, int timeout_ms) {
 }
 
 int ts_conn_next(ts_conn *c, ts_frame *f, char *err) {
-  int rc = ts_frame_reader_next(&c->rd, f, err);
-  if (rc < 0) {
-    char why[TS_ERR_LEN];
-    snprintf(why, sizeof(why), "%s", err);
-    return ts_error(err, rc, "%s: %s", c->peer, why);
+  for (;;) {
+    ts_frame raw;
+    int rc = ts_frame_reader_next(&c->rd, &raw, err);
+    if (rc == 1 && (rc = ts_pieces_next(&c->pieces, &raw, f, err)) == 0) continue; /* a piece taken in */
+    if (rc < 0) {
+      char why[TS_ERR_LEN];
+      snprintf(why, sizeof(why), "%s", err);
+      return ts_error(err, rc, "%s: %s", c->peer, why);
+    }
+    return rc;
   }
-  return rc;
 }
 
 /* One recv into the reader: 1 got bytes, 0 would block, or an error. */

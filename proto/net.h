@@ -12,6 +12,7 @@
 #include <sys/socket.h>
 
 #include "frame.h"
+#include "pieces.h"
 #include "util.h"
 
 #define TS_NET_ADDR_LEN 128
@@ -34,10 +35,15 @@ int ts_net_send(int fd, uint8_t type, uint32_t id, const void *payload, size_t l
 typedef struct {
   int fd;
   ts_frame_reader rd;
+  ts_pieces pieces; /* reassembles messages in pieces: refused unless enabled */
   char peer[TS_NET_ADDR_LEN];
 } ts_conn;
 
+/* A connection that takes frames of at most max_payload and no pieces. */
 void ts_conn_init(ts_conn *c, int fd, uint32_t max_payload, const char *peer);
+/* Takes messages in pieces of up to max_message bytes from now on (0:
+ * none); the frames receive hands out are then whole messages. */
+void ts_conn_accept_pieces(ts_conn *c, uint64_t max_message);
 /* Closes the socket and frees the reader. */
 void ts_conn_close(ts_conn *c);
 /* Closes after a final 'E' to a refused peer: half-closes, then discards
@@ -52,7 +58,8 @@ int ts_conn_recv(ts_conn *c, ts_frame *f, int timeout_ms, char *err);
 /* Reads what the socket holds without blocking: 1 and a frame, 0 (nothing
  * whole yet), or an error as above. For poll()-driven loops. */
 int ts_conn_pump(ts_conn *c, ts_frame *f, char *err);
-/* A whole frame already buffered: 1 and *f, 0, or an error. */
+/* A whole frame (or message reassembled from pieces) already buffered: 1
+ * and *f, 0, or an error. */
 int ts_conn_next(ts_conn *c, ts_frame *f, char *err);
 
 

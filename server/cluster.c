@@ -34,22 +34,100 @@ void ts_cluster_opts_default(ts_cluster_opts *o) {
   o->max_workers = 256;
 }
 
-/* ---- frames into an output buffer ------------------------------------- */
+/* ---- a worker's outgoing messages -------------------------------------- */
 
-size_t cl_frame_begin(ts_wr *w, uint8_t type, uint32_t id) {
-  size_t at = w->len;
-  uint8_t h[TS_FRAME_HEADER];
-  ts_frame_header(h, type, id, 0);
-  ts_wr_bytes(w, h, sizeof(h));
-  return at;
+int cl_worker_takes(const cl_worker *w, uint64_t bytes) {
+  return bytes <= w->max_payload || (w->pieces && bytes <= w->max_message);
 }
 
-void cl_frame_end(ts_wr *w, size_t at) {
-  if (w->failed) return;
-  uint32_t len = (uint32_t)(w->len - at - TS_FRAME_HEADER);
-  ts_frame_header(w->buf + at, w->buf[at + 3], w->buf[at + 8] | w->buf[at + 9] << 8 |
-                                                   w->buf[at + 10] << 16 | (uint32_t)w->buf[at + 11] << 24,
-                  len);
+/* The next free entry of w's queue (not queued yet), or NULL. */
+static cl_msg *queue_slot(cl_worker *w) {
+  if (w->nqueue == w->cap_queue) {
+    uint32_t cap = w->cap_queue ? 2 * w->cap_queue : 16;
+    cl_msg *q = realloc(w->queue, sizeof(*q) * cap);
+    if (q == NULL) return NULL;
+    w->queue = q;
+    w->cap_queue = cap;
+  }
+  return &w->queue[w->nqueue];
+}
+
+/* Queues the message whose arguments fill slot e, if w can take it. */
+static int queue_push(cl_worker *w, cl_msg *e, uint8_t type, uint32_t id, ts_payload_fn *fn, char *err) {
+  e->write = fn;
+  int rc = ts_outmsg_init(&e->m, type, id, fn, &e->arg, w->max_payload, w->pieces, err);
+  if (rc == 0 && !cl_worker_takes(w, e->m.total))
+    rc = ts_error(err, TS_ETOOBIG, "a '%c' message of %llu bytes is over what the worker takes (%llu bytes%s)",
+                  type, (unsigned long long)e->m.total,
+                  (unsigned long long)(w->pieces ? w->max_message : w->max_payload),
+                  w->pieces ? ", texsyn-worker --max-message" : " in one frame; it is too old to take pieces");
+  if (rc == 0) w->nqueue++;
+  return rc;
+}
+
+#define NO_SLOT(err) ts_error(err, TS_ENOMEM, "out of memory for a message to a worker")
+
+static void write_slice(ts_wr *w, const void *arg) { ts_msg_slice_write(w, arg); }
+
+int cl_queue_slice(cl_worker *w, uint32_t id, const ts_slice_desc *m, char *err) {
+  cl_msg *e = queue_slot(w);
+  if (e == NULL) return NO_SLOT(err);
+  e->arg.slice = *m;
+  return queue_push(w, e, TS_MSG_SLICE, id, write_slice, err);
+}
+
+uint64_t cl_slice_bytes(const ts_slice_desc *m) { return ts_payload_size(write_slice, m); }
+
+static void write_query(ts_wr *w, const void *arg) {
+  const cl_query_frame *q = arg;
+  ts_msg_query_write(w, q->set, q->gen, q->commits, q->ncommits, q->b, q->vbytes, q->q0, q->q1);
+}
+
+int cl_queue_query(cl_worker *w, uint32_t id, const cl_query_frame *q, char *err) {
+  cl_msg *e = queue_slot(w);
+  if (e == NULL) return NO_SLOT(err);
+  e->arg.query = *q;
+  return queue_push(w, e, TS_MSG_QUERY, id, write_query, err);
+}
+
+static void write_unload(ts_wr *w, const void *arg) { ts_msg_unload_write(w, arg); }
+
+void cl_queue_unload(ts_cluster *c, cl_worker *w, uint32_t set) {
+  char err[TS_ERR_LEN];
+  cl_msg *e = queue_slot(w);
+  if (e != NULL) e->arg.unload.set = set;
+  w->expect = e != NULL && queue_push(w, e, TS_MSG_UNLOAD, ++c->next_frame, write_unload, err) == 0;
+}
+
+/* A heartbeat: an empty payload. */
+static void queue_heartbeat(ts_cluster *c, cl_worker *w) {
+  char err[TS_ERR_LEN];
+  cl_msg *e = queue_slot(w);
+  w->expect = e != NULL && queue_push(w, e, TS_MSG_HEARTBEAT, ++c->next_frame, NULL, err) == 0;
+}
+
+void cl_out_reset(cl_worker *w) {
+  w->nqueue = w->qhead = 0;
+  w->out.len = w->out_off = 0;
+  w->expect = 0;
+}
+
+/* Produces w's queued messages into its output buffer until CL_OUT_HIGH
+ * bytes wait unsent there or nothing is left to produce. */
+static int fill_out(cl_worker *w, char *err) {
+  if (w->qhead == w->nqueue || w->out.len - w->out_off >= CL_OUT_HIGH) return 0;
+  if (w->out_off > 0) { /* what was sent makes room: the unsent rest (< CL_OUT_HIGH) moves to the front */
+    memmove(w->out.buf, w->out.buf + w->out_off, w->out.len - w->out_off);
+    w->out.len -= w->out_off;
+    w->out_off = 0;
+  }
+  while (w->qhead < w->nqueue && w->out.len < CL_OUT_HIGH) {
+    cl_msg *e = &w->queue[w->qhead];
+    int rc = ts_outmsg_produce(&e->m, e->write, &e->arg, &w->out, CL_OUT_CHUNK, err);
+    if (rc < 0) return rc;
+    if (rc == 1) w->qhead++;
+  }
+  return 0;
 }
 
 /* ---- workers ----------------------------------------------------------- */
@@ -57,6 +135,7 @@ void cl_frame_end(ts_wr *w, size_t at) {
 static void worker_free(cl_worker *w) {
   ts_conn_close(&w->conn);
   ts_wr_free(&w->out);
+  free(w->queue);
   free(w->frames);
   free(w);
 }
@@ -133,6 +212,11 @@ static int calibrate(ts_cluster *c, cl_worker *w, char *err) {
   if (rc == 0) rc = await_reply(&w->conn, TS_MSG_CALIBRATE, (int)c->o.calib_millis * 10 + 5000, &f, err);
   if (rc == 0) rc = ts_msg_calib_read(&f, &cal, err);
   if (rc != 0) return rc;
+  /* A worker that says nothing of its limits is an older one: the default
+   * frame limit, and no pieces. */
+  w->pieces = (w->ident.caps & TS_CAP_PIECES) && cal.max_payload != 0;
+  w->max_payload = cal.max_payload != 0 ? cal.max_payload : TS_FRAME_DEFAULT_MAX;
+  w->max_message = w->pieces ? cal.max_message : w->max_payload;
   w->calib_rate = (double)cal.pairs * TS_CALIB_CHUNKS * TS_L1_CHUNK / ((double)cal.nanos * 1e-9);
   w->slice_rate = w->ewma_rate = w->calib_rate;
   return 0;
@@ -178,7 +262,7 @@ static int admit(ts_cluster *c, ts_conn *conn, const ts_msg_ident *ident, int ad
 static void ident_self(ts_msg_ident *m) {
   memset(m, 0, sizeof(*m));
   m->role = TS_ROLE_COORD;
-  m->caps = TS_CAP_ALL;
+  m->caps = TS_CAP_ALL | TS_CAP_PIECES;
   snprintf(m->name, sizeof(m->name), "texsyn-server 0.3");
 }
 
@@ -225,10 +309,7 @@ static void heartbeat_idle(ts_cluster *c) {
     ws[n++] = w;
   }
   cl_lease(c, ws, n); /* none is leased: no wait */
-  for (int i = 0; i < n; i++) {
-    cl_frame_begin(&ws[i]->out, TS_MSG_HEARTBEAT, ++c->next_frame); /* empty payload */
-    ws[i]->expect = 1;
-  }
+  for (int i = 0; i < n; i++) queue_heartbeat(c, ws[i]);
   cl_traffic tr = {0, 0};
   if (n > 0) cl_exchange(c, ws, n, 2 * c->o.heartbeat + 1.0, heartbeat_reply, NULL, &tr);
   cl_release(c, ws, n);
@@ -411,8 +492,9 @@ static void fail_unlocked(ts_cluster *c, cl_worker *w, const char *why) {
   pthread_mutex_unlock(&c->lock);
 }
 
-/* Sends every leased worker's queued output and feeds each reply to fn
- * until every worker has answered its `expect` frames. A worker that fails
+/* Sends every leased worker's queued messages, produced as its socket
+ * drains, and feeds each reply to fn until every worker has answered its
+ * `expect` frames. A worker that fails
  * (connection, protocol, fn's error, deadline) is marked failed and the
  * others carry on, so their streams stay in step. Returns 0, or TS_ECONN if
  * any worker failed. Called with the lock held; bytes travel without it.
@@ -441,7 +523,12 @@ int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, cl_reply_f
     int np = 0;
     for (int i = 0; i < polled; i++) {
       cl_worker *w = ws[i];
-      if (gone[i] || (w->expect == 0 && w->out_off == w->out.len)) continue;
+      char err[TS_ERR_LEN];
+      if (!gone[i] && fill_out(w, err) != 0) {
+        fail_unlocked(c, w, err);
+        gone[i] = failed = 1;
+      }
+      if (gone[i] || (w->expect == 0 && w->out_off == w->out.len && w->qhead == w->nqueue)) continue;
       pi[np] = i;
       pf[np].fd = w->conn.fd;
       pf[np].events = (short)(POLLIN | (w->out_off < w->out.len ? POLLOUT : 0));
@@ -498,9 +585,7 @@ int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, cl_reply_f
   }
   pthread_mutex_lock(&c->lock);
   for (int i = 0; i < n; i++) {
-    ws[i]->out.len = 0;
-    ws[i]->out_off = 0;
-    ws[i]->expect = 0;
+    cl_out_reset(ws[i]);
     if (ws[i]->io_heard_at > ws[i]->heard_at) ws[i]->heard_at = ws[i]->io_heard_at;
   }
   free(pf);

@@ -24,7 +24,9 @@
 #include "cluster.h"
 #include "l1.h"
 #include "log.h"
+#include "pieces.h"
 #include "pool.h"
+#include "slice.h"
 
 #define CL_MAX_SETS 8
 /* Time constant of the measured-rate averages: long enough to smooth the
@@ -37,10 +39,40 @@
  * workers still owing answers are dropped (see batch_deadline). */
 #define CL_DEADLINE_SLACK 8.0
 
+/* A worker's output is produced as its socket drains (cl_exchange): when
+ * fewer than CL_OUT_HIGH bytes wait unsent, the next CL_OUT_CHUNK bytes of
+ * its queued messages are encoded. So the coordinator holds about
+ * CL_OUT_HIGH + CL_OUT_CHUNK bytes per worker, never a whole slice (a big
+ * reference's is hundreds of MB) nor all the frames of a batch. */
+#define CL_OUT_HIGH (512u << 10)
+#define CL_OUT_CHUNK (256u << 10)
+
 typedef struct {
   uint32_t q0, nq; /* first query (over the whole batch) and count */
   int answered;
 } cl_frame_sent;
+
+/* The arguments of one V frame's writer (ts_msg_query_write). */
+typedef struct {
+  uint32_t set, gen;
+  const ts_commit *commits;
+  uint32_t ncommits;
+  const ts_query_batch *b;
+  uint32_t vbytes, q0, q1;
+} cl_query_frame;
+
+/* A message queued for a worker. Its writer is run once per chunk on its
+ * arguments and what they point at (level planes, the batch's queries and
+ * commits), which stay unchanged until the exchange ends. */
+typedef struct {
+  ts_outmsg m;
+  ts_payload_fn *write; /* NULL: empty payload */
+  union {
+    ts_slice_desc slice;
+    cl_query_frame query;
+    ts_msg_unload unload;
+  } arg;
+} cl_msg;
 
 typedef struct {
   int id;
@@ -57,9 +89,14 @@ typedef struct {
   double ewma_weight; /* seconds of batches in the average (saturates) */
   uint64_t batches;
   uint32_t share; /* per mille of the last set sliced */
+  uint32_t max_payload; /* its frame limit: larger messages go in pieces */
+  uint64_t max_message; /* the largest message it takes, in pieces or whole */
+  int pieces;           /* it reassembles messages in pieces */
   int busy; /* leased to an exchange */
   int refs; /* leases holding or awaiting it: not freed while > 0 */
   /* One exchange's state: the lease holder's. */
+  cl_msg *queue; /* messages to send, produced into out as it drains */
+  uint32_t nqueue, qhead, cap_queue;
   ts_wr out;
   size_t out_off;
   int expect;
@@ -110,10 +147,19 @@ struct ts_cluster {
 /* The cluster's lines go to the daemon's log (log.h). */
 #define cl_log(c, ...) ((void)(c), ts_log(__VA_ARGS__))
 
-/* Frames into a worker's output buffer: begin returns where the frame
- * starts, end fills in its length. */
-size_t cl_frame_begin(ts_wr *w, uint8_t type, uint32_t id);
-void cl_frame_end(ts_wr *w, size_t at);
+/* Queue a message to w (leased) for the next cl_exchange, which sends it
+ * whole, or in pieces when it exceeds w's frame limit: an 'N' (slice) or a
+ * 'V' (query frame). 0, or TS_ENOMEM / TS_ETOOBIG (w cannot take it) with
+ * a message. The caller counts the answers it expects. */
+int cl_queue_slice(cl_worker *w, uint32_t id, const ts_slice_desc *m, char *err);
+int cl_queue_query(cl_worker *w, uint32_t id, const cl_query_frame *q, char *err);
+/* Payload bytes of a slice's 'N' message. */
+uint64_t cl_slice_bytes(const ts_slice_desc *m);
+/* Whether w takes a message of that many payload bytes: under its frame
+ * limit whole, or under its message limit in pieces. */
+int cl_worker_takes(const cl_worker *w, uint64_t bytes);
+/* Drops what the exchange of w left unsent (queue and output). */
+void cl_out_reset(cl_worker *w);
 
 /* Marks a worker failed (lock held): it leaves every slicing. */
 void cl_worker_fail(ts_cluster *c, cl_worker *w, const char *why);
@@ -137,7 +183,7 @@ typedef int cl_reply_fn(void *ctx, cl_worker *w, const ts_frame *f, char *err);
 typedef struct {
   uint64_t bytes_out, bytes_in;
 } cl_traffic;
-/* Sends every leased worker's queued output and feeds each reply to fn
+/* Sends every leased worker's queued messages and feeds each reply to fn
  * until every worker has answered its `expect` frames. Called with the lock
  * held and returns with it held; the lock is released while bytes travel,
  * so fn runs without it and may touch only the caller's context and the
@@ -146,6 +192,9 @@ int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, cl_reply_f
                 cl_traffic *tr);
 /* An 'E' reply as an error. */
 int cl_reply_error(const ts_frame *f, char *err);
+/* Queues a 'Q' to w (leased; lock held) to free one set's slice, or all
+ * (TS_UNLOAD_ALL), and expects its answer (none if it could not be queued). */
+void cl_queue_unload(ts_cluster *c, cl_worker *w, uint32_t set);
 /* Counts a 'Q' (unload) answer. */
 int cl_unloaded_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err);
 

@@ -42,7 +42,8 @@ typedef struct {
   ts_auth auth;
 } server;
 
-static const ts_msg_ident kSelf = {TS_ROLE_COORD, TS_CAP_ALL, 0, 0, "texsyn-server 0.3"};
+/* TS_CAP_PIECES: joining workers announce their limits in their 'C' replies. */
+static const ts_msg_ident kSelf = {TS_ROLE_COORD, TS_CAP_ALL | TS_CAP_PIECES, 0, 0, "texsyn-server 0.3"};
 
 static server g_server;
 static volatile sig_atomic_t g_stop;

@@ -88,6 +88,57 @@ static int loaded_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
   return 0;
 }
 
+/* Worker i's slice of st as an 'N' message. */
+static void describe_slice(const cl_set *st, int i, ts_slice_desc *m) {
+  ts_slice_describe(m, &st->rs, &st->usage, st->gid, st->gen, st->slices[i].i0, st->slices[i].i1);
+}
+
+/* Cuts st over ws[0..n) so that every worker can take its slice's 'N'
+ * message; one that cannot (its --max-message, or its frame limit if it
+ * takes no pieces) gets no slice of this set and the others share it, so
+ * the set never goes to a worker that must refuse it (it would be dropped,
+ * rejoin and be refused again). Returns how many workers hold slices. */
+static int cut_fitting(ts_cluster *c, cl_set *st, cl_worker **ws, int n) {
+  for (;;) {
+    cut_ranges(st->grid, ws, n, st->slices);
+    int i = 0;
+    uint64_t bytes = 0;
+    for (; i < n; i++) {
+      ts_slice_desc m;
+      describe_slice(st, i, &m);
+      bytes = cl_slice_bytes(&m);
+      if (!cl_worker_takes(ws[i], bytes)) break;
+    }
+    if (i == n) return n;
+    cl_log(c, "worker %d (%s) gets no slice of set %u: it would be a message of %llu bytes, over its limit of "
+           "%llu (%s)", ws[i]->id, ws[i]->conn.peer, st->gid, (unsigned long long)bytes,
+           (unsigned long long)(ws[i]->pieces ? ws[i]->max_message : ws[i]->max_payload),
+           ws[i]->pieces ? "texsyn-worker --max-message" : "an older worker: its frame limit, no pieces");
+    ws[i]->share = 0;
+    memmove(ws + i, ws + i + 1, sizeof(*ws) * (size_t)(n - i - 1));
+    n--;
+  }
+}
+
+/* A worker builds a slice's vectors on one thread after the rows arrive:
+ * the square set of a 4096x4096 colour reference, 8.7 GB of vectors, took
+ * 49 s (180 MB/s) on one worker of the loaded 2-core VM. A load's deadline
+ * allows this rate, 4.5 times slower, on top of its fixed floor; a fixed
+ * deadline dropped the worker of a big reference mid-build, and it would
+ * rejoin and be given the same slice again. */
+#define CL_BUILD_RATE 40e6
+
+static double load_deadline(const ts_cluster *c, const cl_set *st, int n) {
+  double most = 0;
+  for (int i = 0; i < n; i++) {
+    double bytes = 0;
+    for (int k = 0; k < st->grid->nclass; k++)
+      bytes += (double)(st->slices[i].i1[k] - st->slices[i].i0[k]) * ts_shape_bytes(st->rs.shape);
+    most = fmax(most, bytes);
+  }
+  return c->o.batch_timeout + 30.0 + most / CL_BUILD_RATE;
+}
+
 static int load_local(cl_set *st, char *err) {
   static const uint32_t i0[TS_MAX_CLASSES] = {0};
   ts_slice_desc m;
@@ -109,23 +160,25 @@ static int ensure_slices(cluster_search *cs, cl_set *st, char *err) {
     st->local = NULL;
     st->nslices = 0;
     st->sliced = 1;
+    if (n > 0) n = cut_fitting(c, st, ws, n);
     if (n == 0) return load_local(st, err);
     cl_lease(c, ws, n);
-    cut_ranges(st->grid, ws, n, st->slices);
     cl_traffic tr = {0, 0};
     double total = 0;
     for (int i = 0; i < n; i++) total += ws[i]->slice_rate;
     for (int i = 0; i < n; i++) {
       ts_slice_desc m;
-      ts_slice_describe(&m, &st->rs, &st->usage, st->gid, st->gen, st->slices[i].i0, st->slices[i].i1);
-      size_t at = cl_frame_begin(&ws[i]->out, TS_MSG_SLICE, ++c->next_frame);
-      ts_msg_slice_write(&ws[i]->out, &m);
-      cl_frame_end(&ws[i]->out, at);
+      char why[TS_ERR_LEN];
+      describe_slice(st, i, &m);
+      /* The rows stay in the level planes: each chunk of the message is
+       * copied from there as the worker's socket drains. */
+      if (cl_queue_slice(ws[i], ++c->next_frame, &m, why) != 0)
+        cl_worker_fail(c, ws[i], why); /* moves the epoch: sliced again without it */
       ws[i]->expect = 1;
       ws[i]->share = (uint32_t)llround(1000.0 * ws[i]->slice_rate / total);
     }
     st->nslices = n;
-    cl_exchange(c, ws, n, c->o.batch_timeout + 30.0, loaded_reply, st, &tr);
+    cl_exchange(c, ws, n, load_deadline(c, st, n), loaded_reply, st, &tr);
     cl_release(c, ws, n);
     cs->base.stats.bytes_out += tr.bytes_out;
     cs->base.stats.bytes_in += tr.bytes_in;
@@ -385,7 +438,7 @@ static int batch_workers(const batch_ctx *bc, cl_worker **ws) {
 }
 
 /* Queues every request's V frames to the leased workers holding its
- * slices. */
+ * slices; cl_exchange encodes them as the sockets drain. */
 static int queue_frames(ts_cluster *c, const batch_ctx *bc, const ts_search_req *req, cl_worker **ws, int n,
                         char *err) {
   for (int i = 0; i < n; i++) {
@@ -404,15 +457,14 @@ static int queue_frames(ts_cluster *c, const batch_ctx *bc, const ts_search_req 
       }
       for (uint32_t q0 = 0; q0 < b->nq; q0 += c->o.pipeline_queries) {
         uint32_t q1 = q0 + c->o.pipeline_queries < b->nq ? q0 + c->o.pipeline_queries : b->nq;
-        size_t at = cl_frame_begin(&w->out, TS_MSG_QUERY, (bc->seq & 0xFF) << CL_ID_QUERY_BITS | (bc->q0[r] + q0));
         /* The set's pending commits ride with its first frame. */
-        if (q0 == 0) ts_msg_query_write(&w->out, st->gid, st->gen, st->pending, st->npending, b, vbytes, q0, q1);
-        else ts_msg_query_write(&w->out, st->gid, st->gen, NULL, 0, b, vbytes, q0, q1);
-        cl_frame_end(&w->out, at);
+        cl_query_frame qf = {st->gid, st->gen, q0 == 0 ? st->pending : NULL, q0 == 0 ? st->npending : 0,
+                             b, vbytes, q0, q1};
+        int rc = cl_queue_query(w, (bc->seq & 0xFF) << CL_ID_QUERY_BITS | (bc->q0[r] + q0), &qf, err);
+        if (rc != 0) return rc;
         w->expect++;
         if (note_frame(w, bc->q0[r] + q0, q1 - q0) != 0) return ts_error(err, TS_ENOMEM, "out of memory for a batch");
       }
-      if (ts_wr_status(&w->out) != 0) return ts_error(err, TS_ENOMEM, "out of memory for a batch");
     }
   }
   return 0;
@@ -447,7 +499,7 @@ static int exchange_batch(cluster_search *cs, batch_ctx *bc, const ts_search_req
   ts_l1_best_reset(bc->best, bc->q0[bc->nreq]);
   int rc = queue_frames(c, bc, req, ws, n, err);
   if (rc != 0) {
-    for (int i = 0; i < n; i++) ws[i]->out.len = ws[i]->out_off = 0, ws[i]->expect = 0;
+    for (int i = 0; i < n; i++) cl_out_reset(ws[i]);
     cl_release(c, ws, n);
     return rc;
   }
@@ -550,13 +602,7 @@ static void set_clear(cluster_search *cs, cl_set *st) {
   else /* slices may be on any worker that is still with us */
     n = cl_ready_workers(c, ws);
   cl_lease(c, ws, n);
-  for (int i = 0; i < n; i++) {
-    ts_msg_unload m = {st->gid};
-    size_t at = cl_frame_begin(&ws[i]->out, TS_MSG_UNLOAD, ++c->next_frame);
-    ts_msg_unload_write(&ws[i]->out, &m);
-    cl_frame_end(&ws[i]->out, at);
-    ws[i]->expect = 1;
-  }
+  for (int i = 0; i < n; i++) cl_queue_unload(c, ws[i], st->gid);
   cl_traffic tr = {0, 0};
   if (n > 0) cl_exchange(c, ws, n, c->o.batch_timeout, cl_unloaded_reply, NULL, &tr);
   cl_release(c, ws, n);

@@ -64,11 +64,7 @@ static void begin_drain(ts_cluster *c, cl_worker *w) {
   w->state = TS_WORKER_DRAINING;
   c->epoch++;
   cl_lease(c, &w, 1); /* after the batch it may be serving */
-  ts_msg_unload m = {TS_UNLOAD_ALL};
-  size_t at = cl_frame_begin(&w->out, TS_MSG_UNLOAD, ++c->next_frame);
-  ts_msg_unload_write(&w->out, &m);
-  cl_frame_end(&w->out, at);
-  w->expect = 1;
+  cl_queue_unload(c, w, TS_UNLOAD_ALL);
   cl_traffic tr = {0, 0};
   cl_exchange(c, &w, 1, c->o.batch_timeout, cl_unloaded_reply, NULL, &tr);
   cl_release(c, &w, 1);

@@ -37,6 +37,7 @@
 typedef struct {
   int threads;
   uint32_t max_frame;
+  uint64_t max_message; /* largest message reassembled from pieces */
   const char *name;
   const ts_l1_impl *simd;
   ts_pool *pool;
@@ -53,6 +54,7 @@ static volatile sig_atomic_t g_stop;
 
 typedef struct {
   ts_conn conn;
+  uint32_t peer_caps; /* the coordinator's capabilities (its 'I') */
   ts_slice *slices[WORKER_MAX_SLICES];
   ts_l1_best *best;
   uint32_t cap_best;
@@ -97,13 +99,17 @@ static int on_calibrate(session *s, const ts_frame *f, char *err) {
   ts_msg_calib_req req;
   int rc = ts_msg_calib_req_read(f, &req, err);
   if (rc != 0) return rc;
-  ts_msg_calib cal;
+  ts_msg_calib cal = {0};
   pthread_mutex_lock(&g_w.pool_lock);
   rc = ts_calib_run(g_w.pool, g_w.simd, req.millis, &cal.pairs, &cal.nanos);
   pthread_mutex_unlock(&g_w.pool_lock);
   if (rc != 0) return send_error(s, f->id, rc, "out of memory for calibration") == 0 ? 1 : rc;
   ts_log("calibrated for %s: scans %.3g bytes/s", s->conn.peer, (double)cal.pairs * TS_CALIB_CHUNKS * TS_L1_CHUNK / (cal.nanos * 1e-9));
   ts_wmon_calibrated(cal.nanos > 0 ? (uint64_t)((double)cal.pairs * TS_CALIB_CHUNKS * TS_L1_CHUNK / (cal.nanos * 1e-9)) : 0);
+  if (s->peer_caps & TS_CAP_PIECES) { /* it splits what exceeds these */
+    cal.max_payload = g_w.max_frame;
+    cal.max_message = g_w.max_message;
+  }
   ts_wr w;
   ts_wr_init(&w);
   ts_msg_calib_write(&w, &cal);
@@ -129,6 +135,9 @@ static int on_slice(session *s, const ts_frame *f, char *err) {
   drop_slice(slot);
   *slot = sl;
   ts_wmon_vectors((int64_t)ts_slice_vectors(sl));
+  if (s->conn.pieces.count > 0)
+    ts_log("set %u generation %u: %llu vectors from a message of %u bytes in %u pieces", m.set, m.gen,
+           (unsigned long long)ts_slice_vectors(sl), f->len, s->conn.pieces.count);
   ts_msg_loaded ack = {m.set, m.gen, ts_slice_vectors(sl)};
   ts_wr w;
   ts_wr_init(&w);
@@ -224,7 +233,7 @@ static int handle(session *s, const ts_frame *f, char *err) {
  * first, after protected mode let it in (addr: its address); when we
  * joined a coordinator (addr NULL), we do. */
 static int handshake(session *s, const struct sockaddr *addr, char *err) {
-  ts_msg_ident me = {TS_ROLE_WORKER, TS_CAP_ALL, (uint16_t)g_w.threads, (uint8_t)g_w.simd->id, "",
+  ts_msg_ident me = {TS_ROLE_WORKER, TS_CAP_ALL | TS_CAP_PIECES, (uint16_t)g_w.threads, (uint8_t)g_w.simd->id, "",
                      (uint16_t)g_w.modbus_port},
                peer;
   snprintf(me.name, sizeof(me.name), "texsyn-worker 0.3 %s", g_w.name);
@@ -236,6 +245,7 @@ static int handshake(session *s, const struct sockaddr *addr, char *err) {
     if (rc == 0) rc = ts_auth_accept(&s->conn, &g_w.auth, &me, &peer, HANDSHAKE_MS, err);
   }
   if (rc == 0 && peer.role != TS_ROLE_COORD) rc = ts_error(err, TS_EPROTO, "peer is not a coordinator");
+  if (rc == 0) s->peer_caps = peer.caps;
   return rc;
 }
 
@@ -248,6 +258,7 @@ static int serve(int fd, const char *peer, const struct sockaddr *addr) {
     return TS_ENOMEM;
   }
   ts_conn_init(&s->conn, fd, g_w.max_frame, peer);
+  ts_conn_accept_pieces(&s->conn, g_w.max_message); /* once the connection has started */
   char err[TS_ERR_LEN] = "";
   int rc = handshake(s, addr, err);
   if (rc == TS_EAUTH) {
@@ -331,7 +342,9 @@ static void usage(FILE *f) {
           "  --join HOST:PORT     connect to the coordinator and announce this worker;\n"
           "                       reconnects with backoff (0.2 s doubling to 5 s) when lost\n"
           "  --threads N          scan threads, 1..1024 (default: online CPUs, %ld here)\n"
-          "  --max-frame BYTES    largest accepted frame payload (default %u)\n"
+          "  --max-frame BYTES    largest frame payload taken, >= %u (default %u);\n"
+          "                       larger messages come in pieces\n"
+          "  --max-message BYTES  largest message taken in pieces (default %llu)\n"
           "  --name NAME          name shown in logs and to the coordinator\n"
           "  --secret-file PATH   shared secret the coordinator must prove and this worker\n"
           "                       proves to it (owner-only file); without one a --listen\n"
@@ -342,7 +355,8 @@ static void usage(FILE *f) {
           "  --quiet              no log lines\n"
           "\n"
           "TEXSYN_SIMD=scalar|mmx|sse2|avx2|avx512 forces a kernel variant.\n",
-          sysconf(_SC_NPROCESSORS_ONLN), TS_FRAME_DEFAULT_MAX);
+          sysconf(_SC_NPROCESSORS_ONLN), TS_FRAME_LIMIT_MIN, TS_FRAME_DEFAULT_MAX,
+          (unsigned long long)TS_PIECES_DEFAULT_MAX);
 }
 
 static int parse_num(const char *opt, const char *s, long lo, long hi, long *out) {
@@ -372,10 +386,11 @@ static void on_signal(int sig) {
 }
 
 int main(int argc, char **argv) {
-  enum { O_LISTEN = 256, O_JOIN, O_THREADS, O_FRAME, O_NAME, O_SECRET, O_MODBUS, O_MB_CONTROL, O_QUIET, O_HELP };
+  enum { O_LISTEN = 256, O_JOIN, O_THREADS, O_FRAME, O_MESSAGE, O_NAME, O_SECRET, O_MODBUS, O_MB_CONTROL, O_QUIET, O_HELP };
   static const struct option longopts[] = {
       {"listen", required_argument, 0, O_LISTEN}, {"join", required_argument, 0, O_JOIN},
       {"threads", required_argument, 0, O_THREADS}, {"max-frame", required_argument, 0, O_FRAME},
+      {"max-message", required_argument, 0, O_MESSAGE},
       {"name", required_argument, 0, O_NAME}, {"secret-file", required_argument, 0, O_SECRET},
       {"modbus", required_argument, 0, O_MODBUS}, {"modbus-control", no_argument, 0, O_MB_CONTROL},
       {"quiet", no_argument, 0, O_QUIET},
@@ -386,6 +401,7 @@ int main(int argc, char **argv) {
   g_w.threads = (int)sysconf(_SC_NPROCESSORS_ONLN);
   if (g_w.threads < 1) g_w.threads = 1;
   g_w.max_frame = TS_FRAME_DEFAULT_MAX;
+  g_w.max_message = TS_PIECES_DEFAULT_MAX;
   g_w.name = "";
   opterr = 0;
   int c;
@@ -394,7 +410,8 @@ int main(int argc, char **argv) {
     case O_LISTEN: listen_addr = optarg; break;
     case O_JOIN: join_addr = optarg; break;
     case O_THREADS: if (parse_num("--threads", optarg, 1, 1024, &v) != 0) return 2; g_w.threads = (int)v; break;
-    case O_FRAME: if (parse_num("--max-frame", optarg, 1024, 0xFFFFFFFFL, &v) != 0) return 2; g_w.max_frame = (uint32_t)v; break;
+    case O_FRAME: if (parse_num("--max-frame", optarg, TS_FRAME_LIMIT_MIN, 0xFFFFFFFFL, &v) != 0) return 2; g_w.max_frame = (uint32_t)v; break;
+    case O_MESSAGE: if (parse_num("--max-message", optarg, TS_FRAME_LIMIT_MIN, 0xFFFFFFFFL, &v) != 0) return 2; g_w.max_message = (uint64_t)v; break;
     case O_NAME: g_w.name = optarg; break;
     case O_SECRET: secret_file = optarg; break;
     case O_MODBUS: modbus_addr = optarg; break;

@@ -409,6 +409,40 @@ static void auth_steps_round_trip_and_are_exact(void **state) {
   }
 }
 
+/* The worker's limits ride at the end of its 'C' reply, only when the
+ * coordinator speaks pieces: 16 bytes without them, 28 with, nothing else. */
+static void calib_reply_limits_are_optional_and_checked(void **state) {
+  (void)state;
+  char err[TS_ERR_LEN];
+  ts_msg_calib in = {123, 456, 0, 0}, out;
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_calib_write(&w, &in);
+  assert_int_equal(w.len, 16);
+  ts_frame f = frame_of(&w, 'C');
+  assert_int_equal(ts_msg_calib_read(&f, &out, err), 0);
+  assert_true(out.pairs == 123 && out.nanos == 456 && out.max_payload == 0 && out.max_message == 0);
+  ts_wr_free(&w);
+  in.max_payload = 1024;
+  in.max_message = 5ull << 30;
+  ts_wr_init(&w);
+  ts_msg_calib_write(&w, &in);
+  assert_int_equal(w.len, 28);
+  f = frame_of(&w, 'C');
+  assert_int_equal(ts_msg_calib_read(&f, &out, err), 0);
+  assert_true(out.max_payload == 1024 && out.max_message == 5ull << 30);
+  for (uint32_t n = 17; n < 28; n++) { /* any other trailing length */
+    f.len = n;
+    assert_int_equal(ts_msg_calib_read(&f, &out, err), TS_EPROTO);
+  }
+  f.len = 28;
+  w.buf[16] = 0xFF; /* a frame limit of 1023 */
+  w.buf[17] = 0x03;
+  assert_int_equal(ts_msg_calib_read(&f, &out, err), TS_EPROTO);
+  assert_non_null(strstr(err, "under 1024"));
+  ts_wr_free(&w);
+}
+
 static const struct CMUnitTest tests[] = {
     cmocka_unit_test(ident_round_trip),
     cmocka_unit_test(auth_steps_round_trip_and_are_exact),
@@ -417,6 +451,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(query_round_trip_with_commits),
     cmocka_unit_test(query_counts_are_bounded),
     cmocka_unit_test(answer_round_trip),
+    cmocka_unit_test(calib_reply_limits_are_optional_and_checked),
     cmocka_unit_test(job_plane_round_trips),
     cmocka_unit_test(strings_refuse_nul_and_overflow),
     cmocka_unit_test(jobspec_round_trip),
