@@ -133,7 +133,7 @@ static double load_deadline(const ts_cluster *c, const cl_set *st, int n) {
   for (int i = 0; i < n; i++) {
     double bytes = 0;
     for (int k = 0; k < st->grid->nclass; k++)
-      bytes += (double)(st->slices[i].i1[k] - st->slices[i].i0[k]) * ts_shape_bytes(st->rs.shape);
+      bytes += (double)(st->slices[i].i1[k] - st->slices[i].i0[k]) * ts_window_bytes(st->rs.window);
     most = fmax(most, bytes);
   }
   return c->o.batch_timeout + 30.0 + most / CL_BUILD_RATE;
