@@ -9,7 +9,7 @@ import struct
 
 import pytest
 
-from conftest import synth
+from conftest import synth, FRAME_START
 
 SIZE = (256, 192)
 
@@ -76,7 +76,7 @@ def test_a_slice_over_a_workers_message_limit_goes_to_the_others(texsyn, data, c
 # ---- malformed sequences from a raw peer -------------------------------------
 
 def frame(t, payload=b"", ident=1):
-    return b"TS\x01" + t.encode() + struct.pack("<II", len(payload), ident) + payload
+    return FRAME_START + t.encode() + struct.pack("<II", len(payload), ident) + payload
 
 
 def piece(t, total, offset, data, ident=7):
