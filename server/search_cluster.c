@@ -139,11 +139,11 @@ static double load_deadline(const ts_cluster *c, const cl_set *st, int n) {
   return c->o.batch_timeout + 30.0 + most / CL_BUILD_RATE;
 }
 
-static int load_local(cl_set *st, char *err) {
+static int load_local(ts_cluster *c, cl_set *st, char *err) {
   static const uint32_t i0[TS_MAX_CLASSES] = {0};
   ts_slice_desc m;
   ts_slice_describe(&m, &st->rs, &st->usage, st->gid, st->gen, i0, st->grid->count);
-  return ts_slice_load(&st->local, &m, err);
+  return ts_slice_load(&st->local, &m, c->local_pool, err);
 }
 
 /* Makes the set's slicing match the current pool (lock held): every ready
@@ -161,7 +161,7 @@ static int ensure_slices(cluster_search *cs, cl_set *st, char *err) {
     st->nslices = 0;
     st->sliced = 1;
     if (n > 0) n = cut_fitting(c, st, ws, n);
-    if (n == 0) return load_local(st, err);
+    if (n == 0) return load_local(c, st, err);
     cl_lease(c, ws, n);
     cl_traffic tr = {0, 0};
     double total = 0;

@@ -122,7 +122,9 @@ static int on_slice(session *s, const ts_frame *f, char *err) {
   if (rc != 0) return rc;
   ts_slice *sl;
   ts_wmon_loading(1);
-  rc = ts_slice_load(&sl, &m, err);
+  pthread_mutex_lock(&g_w.pool_lock); /* the build runs on the scan threads */
+  rc = ts_slice_load(&sl, &m, g_w.pool, err);
+  pthread_mutex_unlock(&g_w.pool_lock);
   ts_wmon_loading(-1);
   if (rc != 0) return send_error(s, f->id, TS_EINVAL, err) == 0 ? 1 : TS_ECONN;
   ts_slice **slot = slot_of(s, m.set);

@@ -54,10 +54,11 @@ void ts_slice_describe(ts_slice_desc *m, const ts_refset *rs, const ts_usage *co
                        uint32_t gen, const uint32_t *i0, const uint32_t *i1);
 
 /* Builds a slice from a described or decoded 'N' message (the message's
- * bulk data may go away afterwards), with the message's part weights.
- * Geometry the vectors can't be built from - rows missing from the region,
- * ranges past a class - is refused with a message. */
-int ts_slice_load(ts_slice **out, const ts_slice_desc *m, char *err);
+ * bulk data may go away afterwards), its vectors on the threads of pool
+ * (NULL: the calling thread; the pool must be idle). Geometry the vectors
+ * can't be built from - rows missing from the region, ranges past a class
+ * or its anchor rows - is refused with a message. */
+int ts_slice_load(ts_slice **out, const ts_slice_desc *m, ts_pool *pool, char *err);
 void ts_slice_free(ts_slice *s);
 
 uint32_t ts_slice_set(const ts_slice *s);

@@ -7,6 +7,7 @@
 #include "anchors.h"
 #include "error.h"
 #include "msg.h"
+#include "pool.h"
 #include "rng.h"
 #include "slice.h"
 #include "ts_test.h"
@@ -280,6 +281,8 @@ static void sliced_labelled_set_matches_brute_force(void **state) {
   const ts_l1_impl *simd;
   char err[TS_ERR_LEN];
   assert_int_equal(ts_l1_select(&simd, err), 0);
+  ts_pool *pool; /* three threads build each slice's vectors, by bands of rows */
+  assert_int_equal(ts_pool_create(&pool, 3), 0);
   for (int k = 0; k < 3; k++) {
     uint32_t i0[TS_MAX_CLASSES], i1[TS_MAX_CLASSES];
     for (int c = 0; c < NCLASS; c++) {
@@ -296,7 +299,7 @@ static void sliced_labelled_set_matches_brute_force(void **state) {
     ts_frame fr = {'N', 1, (uint32_t)wr.len, wr.buf};
     assert_int_equal(ts_msg_slice_read(&fr, &back, err), 0);
     ts_slice *sl;
-    if (ts_slice_load(&sl, &back, err) != 0) fail_msg("slice %d: %s", k, err);
+    if (ts_slice_load(&sl, &back, pool, err) != 0) fail_msg("slice %d: %s", k, err);
     ts_query_batch b = {NQ, q, NULL, klass, 0};
     uint64_t pairs;
     assert_int_equal(ts_slice_scan(sl, NULL, 1, simd, &b, part, &pairs, err), 0);
@@ -305,6 +308,7 @@ static void sliced_labelled_set_matches_brute_force(void **state) {
     ts_slice_free(sl);
     ts_wr_free(&wr);
   }
+  ts_pool_destroy(pool);
   for (int i = 0; i < NQ; i++) {
     ts_l1_best want = brute_best(&f, q + (size_t)i * vb, klass[i]);
     assert_int_equal(merged[i].index, want.index);
