@@ -156,6 +156,7 @@ static void anchors_order_with_256_classes(void **state) {
     }
   assert_int_equal(seen, a.total);
   assert_int_equal(a.total, (uint32_t)(a.nx * a.ny));
+  ts_anchors_free(&a);
   /* a label past the classes is an error naming it */
   assert_int_equal(ts_anchors_init(&a, &w, W, H, CW, CH, &labels, 100, NULL, err), TS_EINVAL);
   assert_non_null(strstr(err, "classes"));
@@ -338,6 +339,7 @@ static void anchors_from_rows_agree_with_the_whole(void **state) {
       int64_t want = y >= ay0 && y < ay1 ? ts_anchors_index(&f.a, x, y) : -1;
       assert_int_equal(ts_anchors_index(&part, x, y), want);
     }
+  ts_anchors_free(&part);
   /* counts above that leave no room for the rows' anchors are refused */
   above[3] = f.a.count[3];
   assert_int_equal(ts_anchors_init_rows(&part, &f.w, W, H, CW, CH, NCLASS, f.a.count, ay0, ay1,
