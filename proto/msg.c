@@ -168,6 +168,8 @@ static void wr_window(ts_wr *w, const ts_window_spec *s) {
     ts_wr_u8(w, s->part[p].nplanes);
     ts_wr_u32(w, s->part[p].weight);
   }
+  ts_wr_u8(w, s->known != NULL);
+  if (s->known != NULL) ts_wr_bytes(w, s->known, (size_t)s->noff[TS_SRC_FINE]);
 }
 
 /* Reads a window into m->win, its offsets into m->offbuf. Counts are
@@ -200,6 +202,13 @@ static int rd_window(ts_rd *r, ts_slice_desc *m, char *err) {
     s->part[p].nplanes = ts_rd_u8(r);
     s->part[p].weight = ts_rd_u32(r);
   }
+  uint8_t known = ts_rd_u8(r);
+  if (known > 1) return bad(err, 'N', "known-offsets flag");
+  if (known) {
+    const uint8_t *k = ts_rd_bytes(r, (size_t)s->noff[TS_SRC_FINE]);
+    if (k != NULL) memcpy(m->knownbuf, k, (size_t)s->noff[TS_SRC_FINE]);
+    s->known = m->knownbuf;
+  }
   return 0;
 }
 
@@ -208,6 +217,7 @@ static int slice_has_planes(const ts_slice_desc *m) { return m->labelled || m->m
 void ts_msg_slice_write(ts_wr *w, const ts_slice_desc *m) {
   ts_wr_u32(w, m->set);
   ts_wr_u32(w, m->gen);
+  ts_wr_u32(w, m->image);
   wr_window(w, &m->win);
   ts_wr_u32(w, (uint32_t)m->w);
   ts_wr_u32(w, (uint32_t)m->h);
@@ -263,6 +273,7 @@ int ts_msg_slice_read(const ts_frame *f, ts_slice_desc *m, char *err) {
   memset(m, 0, offsetof(ts_slice_desc, offbuf));
   m->set = ts_rd_u32(&r);
   m->gen = ts_rd_u32(&r);
+  m->image = ts_rd_u32(&r);
   int rc = rd_window(&r, m, err);
   if (rc != 0) return rc;
   m->w = (int32_t)ts_rd_u32(&r);
@@ -318,28 +329,150 @@ int ts_msg_loaded_read(const ts_frame *f, ts_msg_loaded *m, char *err) {
   return finish(&r, err, 'N');
 }
 
+/* ---- R ------------------------------------------------------------------ */
+
+static void wr_places(ts_wr *w, const ts_place *p, uint32_t n) {
+  ts_wr_u32(w, n);
+  for (uint32_t i = 0; i < n; i++) {
+    ts_wr_u32(w, p[i].dst);
+    ts_wr_u32(w, p[i].src);
+  }
+}
+
+static const uint8_t *rd_places(ts_rd *r, uint32_t *n, uint32_t len) {
+  *n = ts_rd_u32(r);
+  if (*n > len / TS_PLACE_BYTES) {
+    r->failed = 1;
+    return NULL;
+  }
+  return ts_rd_bytes(r, (size_t)*n * TS_PLACE_BYTES);
+}
+
+void ts_msg_place_at(const uint8_t *places, uint32_t i, ts_place *p) {
+  p->dst = le32(places + (size_t)i * TS_PLACE_BYTES);
+  p->src = le32(places + (size_t)i * TS_PLACE_BYTES + 4);
+}
+
+static void wr_planes(ts_wr *w, const uint8_t *const *planes, int n, int pw, int ph) {
+  for (int k = 0; k < n; k++) ts_wr_bytes(w, planes[k], (size_t)pw * (size_t)ph);
+}
+
+/* n planes of pw x ph, bounded by what is left of the payload first. */
+static int rd_planes(ts_rd *r, const uint8_t **planes, int n, int pw, int ph) {
+  uint64_t bytes = (uint64_t)pw * (uint64_t)ph;
+  if (pw < 0 || ph < 0 || bytes * (uint64_t)n > r->len - r->off) return TS_EPROTO;
+  for (int k = 0; k < n; k++) planes[k] = ts_rd_bytes(r, (size_t)bytes);
+  return 0;
+}
+
+static void wr_load(ts_wr *w, const ts_replica_desc *d) {
+  ts_wr_u32(w, (uint32_t)d->w);
+  ts_wr_u32(w, (uint32_t)d->h);
+  ts_wr_u8(w, (uint8_t)d->nplanes);
+  ts_wr_u32(w, (uint32_t)d->cw);
+  ts_wr_u32(w, (uint32_t)d->ch);
+  ts_wr_u8(w, d->done != NULL);
+  ts_wr_u16(w, (uint16_t)d->block);
+  wr_planes(w, d->fine, d->nplanes, d->w, d->h);
+  wr_planes(w, d->coarse, d->cw ? d->nplanes : 0, d->cw, d->ch);
+  if (d->done != NULL) ts_wr_bytes(w, d->done, (size_t)d->w * (size_t)d->h);
+  if (d->block == 0) return;
+  ts_wr_u32(w, (uint32_t)d->rw);
+  ts_wr_u32(w, (uint32_t)d->rh);
+  wr_planes(w, d->ref, d->nplanes, d->rw, d->rh);
+  size_t npx = (size_t)d->w * (size_t)d->h;
+  for (size_t i = 0; i < 2 * npx; i++) ts_wr_u32(w, d->copy[i]);
+}
+
+static int rd_load(ts_rd *r, ts_msg_image *m, char *err) {
+  ts_replica_desc *d = &m->d;
+  d->w = (int)ts_rd_u32(r);
+  d->h = (int)ts_rd_u32(r);
+  d->nplanes = ts_rd_u8(r);
+  d->cw = (int)ts_rd_u32(r);
+  d->ch = (int)ts_rd_u32(r);
+  uint8_t has_done = ts_rd_u8(r);
+  d->block = ts_rd_u16(r);
+  if (r->failed) return bad(err, 'R', "truncated header");
+  if (d->nplanes < 1 || d->nplanes > TS_WIN_MAX_PLANES || has_done > 1) return bad(err, 'R', "planes or done flag");
+  if (rd_planes(r, d->fine, d->nplanes, d->w, d->h) != 0 ||
+      rd_planes(r, d->coarse, d->cw ? d->nplanes : 0, d->cw, d->ch) != 0)
+    return bad(err, 'R', "image size");
+  if (has_done && rd_planes(r, &d->done, 1, d->w, d->h) != 0) return bad(err, 'R', "image size");
+  if (d->block == 0) return 0;
+  d->rw = (int)ts_rd_u32(r);
+  d->rh = (int)ts_rd_u32(r);
+  const uint8_t *copy[8];
+  if (rd_planes(r, d->ref, d->nplanes, d->rw, d->rh) != 0 || rd_planes(r, copy, 8, d->w, d->h) != 0)
+    return bad(err, 'R', "reference or copy map size");
+  m->copy_le = copy[0]; /* 8 bytes per pixel, contiguous */
+  return 0;
+}
+
+void ts_msg_image_write(ts_wr *w, const ts_msg_image *m) {
+  ts_wr_u32(w, m->image);
+  ts_wr_u8(w, m->op);
+  ts_wr_u64(w, m->seq);
+  if (m->op == TS_IMAGE_LOAD) wr_load(w, &m->d);
+  if (m->op != TS_IMAGE_NEXT) return;
+  wr_places(w, m->place, m->nplace);
+  ts_wr_u32(w, (uint32_t)m->w);
+  ts_wr_u32(w, (uint32_t)m->h);
+  ts_wr_u32(w, (uint32_t)m->rw);
+  ts_wr_u32(w, (uint32_t)m->rh);
+  ts_wr_u8(w, (uint8_t)m->nplanes);
+  wr_planes(w, m->d.ref, m->nplanes, m->rw, m->rh);
+}
+int ts_msg_image_read(const ts_frame *f, ts_msg_image *m, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  memset(m, 0, sizeof(*m));
+  m->image = ts_rd_u32(&r);
+  m->op = ts_rd_u8(&r);
+  m->seq = ts_rd_u64(&r);
+  if (m->op == TS_IMAGE_LOAD) {
+    int rc = rd_load(&r, m, err);
+    if (rc != 0) return rc;
+  } else if (m->op == TS_IMAGE_NEXT) {
+    m->places = rd_places(&r, &m->nplace, f->len);
+    m->w = (int)ts_rd_u32(&r);
+    m->h = (int)ts_rd_u32(&r);
+    m->rw = (int)ts_rd_u32(&r);
+    m->rh = (int)ts_rd_u32(&r);
+    m->nplanes = ts_rd_u8(&r);
+    if (r.failed) return bad(err, 'R', "truncated header");
+    if (m->nplanes < 1 || m->nplanes > TS_WIN_MAX_PLANES || rd_planes(&r, m->d.ref, m->nplanes, m->rw, m->rh) != 0)
+      return bad(err, 'R', "reference size");
+  } else if (m->op != TS_IMAGE_CLOSE) {
+    return bad(err, 'R', "operation");
+  }
+  return finish(&r, err, 'R');
+}
+
+void ts_msg_image_ack_write(ts_wr *w, uint32_t image) { ts_wr_u32(w, image); }
+
+int ts_msg_image_ack_read(const ts_frame *f, uint32_t *image, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  *image = ts_rd_u32(&r);
+  return finish(&r, err, 'R');
+}
+
 /* ---- V ------------------------------------------------------------------ */
 
-void ts_msg_query_write(ts_wr *w, uint32_t set, uint32_t gen, const ts_commit *c, uint32_t nc,
-                        const ts_query_batch *b, uint32_t vbytes, uint32_t q0, uint32_t q1) {
+void ts_msg_query_write(ts_wr *w, uint32_t set, uint32_t gen, uint32_t image, uint64_t seq, const ts_place *p,
+                        uint32_t np, const ts_query_batch *b, uint32_t q0, uint32_t q1) {
   ts_wr_u32(w, set);
   ts_wr_u32(w, gen);
-  ts_wr_u32(w, nc);
-  for (uint32_t i = 0; i < nc; i++) {
-    ts_wr_u32(w, (uint32_t)c[i].x);
-    ts_wr_u32(w, (uint32_t)c[i].y);
-    ts_wr_u16(w, c[i].w);
-    ts_wr_u16(w, c[i].h);
-    ts_wr_u8(w, (uint8_t)(int8_t)c[i].delta);
-  }
+  ts_wr_u32(w, image);
+  ts_wr_u64(w, seq);
+  wr_places(w, p, np);
   uint32_t nq = q1 - q0;
-  uint8_t flags = (b->masks ? TS_QUERY_MASKS : 0) | (b->klass ? TS_QUERY_CLASSES : 0);
+  uint8_t flags = (b->masked ? TS_QUERY_MASKS : 0) | (b->klass ? TS_QUERY_CLASSES : 0);
   ts_wr_u32(w, nq);
-  ts_wr_u32(w, vbytes);
   ts_wr_u8(w, flags);
   ts_wr_u64(w, b->usage_k);
-  ts_wr_bytes(w, b->queries + (size_t)q0 * vbytes, (size_t)nq * vbytes);
-  if (b->masks) ts_wr_bytes(w, b->masks + (size_t)q0 * vbytes, (size_t)nq * vbytes);
+  for (uint32_t i = q0; i < q1; i++) ts_wr_u32(w, b->pos[i]);
   if (b->klass) ts_wr_bytes(w, b->klass + q0, nq);
 }
 
@@ -349,40 +482,21 @@ int ts_msg_query_read(const ts_frame *f, ts_msg_query *m, char *err) {
   memset(m, 0, sizeof(*m));
   m->set = ts_rd_u32(&r);
   m->gen = ts_rd_u32(&r);
-  m->ncommits = ts_rd_u32(&r);
-  if (m->ncommits > f->len / TS_COMMIT_BYTES) return bad(err, 'V', "commit count");
-  m->commits = ts_rd_bytes(&r, (size_t)m->ncommits * TS_COMMIT_BYTES);
+  m->image = ts_rd_u32(&r);
+  m->seq = ts_rd_u64(&r);
+  m->places = rd_places(&r, &m->nplace, f->len);
   m->nq = ts_rd_u32(&r);
-  m->vbytes = ts_rd_u32(&r);
   m->flags = ts_rd_u8(&r);
   m->usage_k = ts_rd_u64(&r);
   if (r.failed) return bad(err, 'V', "truncated header");
-  if (m->vbytes == 0 || m->vbytes % TS_L1_CHUNK != 0 || m->vbytes > TS_L1_MAX_CHUNKS * TS_L1_CHUNK)
-    return bad(err, 'V', "vector length");
   if (m->flags & ~(TS_QUERY_MASKS | TS_QUERY_CLASSES)) return bad(err, 'V', "unknown flags");
-  if (m->nq > f->len / m->vbytes) return bad(err, 'V', "query count");
-  size_t qbytes = (size_t)m->nq * m->vbytes;
-  m->queries = ts_rd_bytes(&r, qbytes);
-  if (m->flags & TS_QUERY_MASKS) m->masks = ts_rd_bytes(&r, qbytes);
+  if (m->nq > f->len / 4) return bad(err, 'V', "query count");
+  m->pos = ts_rd_bytes(&r, (size_t)m->nq * 4);
   if (m->flags & TS_QUERY_CLASSES) m->klass = ts_rd_bytes(&r, m->nq);
-  if (finish(&r, err, 'V') != 0) return TS_EPROTO;
-  for (uint32_t i = 0; m->klass != NULL && i < m->nq; i++)
-    if (m->klass[i] > 3) return bad(err, 'V', "query class");
-  for (uint32_t i = 0; i < m->ncommits; i++) {
-    const uint8_t *p = m->commits + (size_t)i * TS_COMMIT_BYTES;
-    if (p[12] != 1 && p[12] != 0xFF) return bad(err, 'V', "commit delta");
-  }
-  return 0;
+  return finish(&r, err, 'V');
 }
 
-void ts_msg_commit_at(const ts_msg_query *m, uint32_t i, ts_commit *c) {
-  const uint8_t *p = m->commits + (size_t)i * TS_COMMIT_BYTES;
-  c->x = (int32_t)le32(p);
-  c->y = (int32_t)le32(p + 4);
-  c->w = (uint16_t)(p[8] | p[9] << 8);
-  c->h = (uint16_t)(p[10] | p[11] << 8);
-  c->delta = (int8_t)p[12];
-}
+uint32_t ts_msg_pos_at(const ts_msg_query *m, uint32_t i) { return le32(m->pos + (size_t)i * 4); }
 
 void ts_msg_answer_write(ts_wr *w, uint32_t set, uint32_t gen, uint64_t scan_nanos, uint64_t pairs,
                          const ts_l1_best *best, uint32_t nq) {

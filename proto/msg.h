@@ -9,8 +9,8 @@
  * the frame is.
  *
  * Connection start (every connection): I identify, A authenticate.
- * Data plane (coordinator <-> worker): C calibrate, N load slice, V query
- * batch, Q unload, H heartbeat, E error.
+ * Data plane (coordinator <-> worker): C calibrate, N load slice, R query
+ * image, V query batch, Q unload, H heartbeat, E error.
  * Job plane (client <-> coordinator): I identify, S submit, W status/watch,
  * F fetch, X cancel, D delete, P pool. */
 #ifndef TS_MSG_H
@@ -20,6 +20,7 @@
 
 #include "error.h"
 #include "frame.h"
+#include "replica.h"
 #include "search.h"
 #include "slice.h"
 
@@ -29,6 +30,7 @@ enum {
   TS_MSG_CALIBRATE = 'C',
   TS_MSG_SLICE = 'N',
   TS_MSG_QUERY = 'V',
+  TS_MSG_IMAGE = 'R',
   TS_MSG_UNLOAD = 'Q',
   TS_MSG_HEARTBEAT = 'H',
   TS_MSG_ERROR = 'E',
@@ -124,31 +126,60 @@ typedef struct {
 void ts_msg_loaded_write(ts_wr *w, const ts_msg_loaded *m);
 int ts_msg_loaded_read(const ts_frame *f, ts_msg_loaded *m, char *err);
 
-/* ---- V: query batch ----------------------------------------------------- */
+/* ---- R: query image ---------------------------------------------------- */
+/* The worker's replica of a job's query image (replica.h). LOAD replaces
+ * it with a whole state, numbered seq; NEXT applies the placements of the
+ * level's last step to state seq and predicts the next level (its
+ * reference planes follow), state 0; CLOSE frees it. Reply: R with the
+ * image id. */
+enum { TS_IMAGE_LOAD = 1, TS_IMAGE_NEXT = 2, TS_IMAGE_CLOSE = 3 };
+#define TS_PLACE_BYTES 8
+typedef struct {
+  uint32_t image;
+  uint8_t op;
+  /* LOAD: the state. Written from d.copy; read, d.copy is NULL and the
+   * copy map is copy_le (x then y, u32 LE per pixel) */
+  ts_replica_desc d;
+  const uint8_t *copy_le;
+  uint64_t seq; /* LOAD: the state's number; NEXT: the placements' state */
+  /* NEXT: the placements of the last step, then the level w x h, its
+   * reference rw x rh (nplanes planes: d.ref) */
+  const ts_place *place;  /* writing */
+  const uint8_t *places;  /* reading: nplace x TS_PLACE_BYTES, ts_msg_place_at */
+  uint32_t nplace;
+  int w, h, rw, rh, nplanes;
+} ts_msg_image;
+void ts_msg_image_write(ts_wr *w, const ts_msg_image *m);
+int ts_msg_image_read(const ts_frame *f, ts_msg_image *m, char *err);
+void ts_msg_place_at(const uint8_t *places, uint32_t i, ts_place *p);
+void ts_msg_image_ack_write(ts_wr *w, uint32_t image);
+int ts_msg_image_ack_read(const ts_frame *f, uint32_t *image, char *err);
 
+/* ---- V: query batch ----------------------------------------------------- */
+/* Queries are positions in the set's query image, which is at state `seq`
+ * once the frame's placements (if any: the step's, in its first frame)
+ * are applied to the state before them, seq - 1. */
 #define TS_QUERY_MASKS 0x1u
 #define TS_QUERY_CLASSES 0x2u
-#define TS_COMMIT_BYTES 13
 #define TS_RESULT_BYTES 12
-
 typedef struct {
-  uint32_t set, gen;
-  uint32_t ncommits;
-  const uint8_t *commits; /* ncommits x TS_COMMIT_BYTES, ts_msg_commit_at */
-  uint32_t nq, vbytes;
+  uint32_t set, gen, image;
+  uint64_t seq;
+  uint32_t nplace;
+  const uint8_t *places; /* nplace x TS_PLACE_BYTES, ts_msg_place_at */
+  uint32_t nq;
   uint8_t flags;
   uint64_t usage_k;
-  const uint8_t *queries, *masks, *klass; /* masks/klass NULL if absent */
+  const uint8_t *pos;   /* nq x u32 LE pixel indices */
+  const uint8_t *klass; /* NULL if absent */
 } ts_msg_query;
-
-/* Writes queries [q0, q1) of b (vectors of vbytes) with the commits. */
-void ts_msg_query_write(ts_wr *w, uint32_t set, uint32_t gen,
-                        const ts_commit *c, uint32_t nc,
-                        const ts_query_batch *b, uint32_t vbytes,
+/* Writes queries [q0, q1) of b with the placements. */
+void ts_msg_query_write(ts_wr *w, uint32_t set, uint32_t gen, uint32_t image, uint64_t seq,
+                        const ts_place *p, uint32_t np, const ts_query_batch *b,
                         uint32_t q0, uint32_t q1);
 int ts_msg_query_read(const ts_frame *f, ts_msg_query *m, char *err);
-void ts_msg_commit_at(const ts_msg_query *m, uint32_t i, ts_commit *c);
-
+/* Query i's position. */
+uint32_t ts_msg_pos_at(const ts_msg_query *m, uint32_t i);
 /* Reply: per query the best (global index, distance) in the worker's slice
  * (index UINT32_MAX when its slice of that class is empty), and what the
  * scan cost, for the coordinator's rate tracking. */

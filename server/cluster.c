@@ -80,7 +80,7 @@ uint64_t cl_slice_bytes(const ts_slice_desc *m) { return ts_payload_size(write_s
 
 static void write_query(ts_wr *w, const void *arg) {
   const cl_query_frame *q = arg;
-  ts_msg_query_write(w, q->set, q->gen, q->commits, q->ncommits, q->b, q->vbytes, q->q0, q->q1);
+  ts_msg_query_write(w, q->set, q->gen, q->image, q->seq, q->place, q->nplace, q->b, q->q0, q->q1);
 }
 
 int cl_queue_query(cl_worker *w, uint32_t id, const cl_query_frame *q, char *err) {
@@ -88,6 +88,15 @@ int cl_queue_query(cl_worker *w, uint32_t id, const cl_query_frame *q, char *err
   if (e == NULL) return NO_SLOT(err);
   e->arg.query = *q;
   return queue_push(w, e, TS_MSG_QUERY, id, write_query, err);
+}
+
+static void write_image(ts_wr *w, const void *arg) { ts_msg_image_write(w, arg); }
+
+int cl_queue_image(cl_worker *w, uint32_t id, const ts_msg_image *m, char *err) {
+  cl_msg *e = queue_slot(w);
+  if (e == NULL) return NO_SLOT(err);
+  e->arg.image = *m;
+  return queue_push(w, e, TS_MSG_IMAGE, id, write_image, err);
 }
 
 static void write_unload(ts_wr *w, const void *arg) { ts_msg_unload_write(w, arg); }

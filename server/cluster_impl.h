@@ -54,11 +54,12 @@ typedef struct {
 
 /* The arguments of one V frame's writer (ts_msg_query_write). */
 typedef struct {
-  uint32_t set, gen;
-  const ts_commit *commits;
-  uint32_t ncommits;
+  uint32_t set, gen, image;
+  uint64_t seq;
+  const ts_place *place;
+  uint32_t nplace;
   const ts_query_batch *b;
-  uint32_t vbytes, q0, q1;
+  uint32_t q0, q1;
 } cl_query_frame;
 
 /* A message queued for a worker. Its writer is run once per chunk on its
@@ -70,6 +71,7 @@ typedef struct {
   union {
     ts_slice_desc slice;
     cl_query_frame query;
+    ts_msg_image image;
     ts_msg_unload unload;
   } arg;
 } cl_msg;
@@ -100,6 +102,7 @@ typedef struct {
   ts_wr out;
   size_t out_off;
   int expect;
+  uint32_t images_sent;    /* query images (bits) whose frames it was sent */
   uint64_t expected_bytes; /* bytes the batch asks it to scan */
   uint64_t answered_bytes; /* bytes the batch's answers report scanned */
   uint64_t answered_nanos; /* scan time the batch's answers report */
@@ -153,6 +156,8 @@ struct ts_cluster {
  * a message. The caller counts the answers it expects. */
 int cl_queue_slice(cl_worker *w, uint32_t id, const ts_slice_desc *m, char *err);
 int cl_queue_query(cl_worker *w, uint32_t id, const cl_query_frame *q, char *err);
+/* An 'R' (query image). */
+int cl_queue_image(cl_worker *w, uint32_t id, const ts_msg_image *m, char *err);
 /* Payload bytes of a slice's 'N' message. */
 uint64_t cl_slice_bytes(const ts_slice_desc *m);
 /* Whether w takes a message of that many payload bytes: under its frame

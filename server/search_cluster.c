@@ -10,6 +10,7 @@
 
 #include "cluster_impl.h"
 #include "error.h"
+#include "replica.h"
 #include "slice.h"
 #include "usage.h"
 
@@ -26,12 +27,11 @@ typedef struct {
   int used;
   uint32_t gid; /* set id on the wire, unique in the cluster */
   uint32_t gen; /* slicing generation */
+  uint32_t image; /* its query image's id on the wire */
   ts_refset rs;
   const ts_anchors *grid;
   int with_usage;
   ts_usage usage; /* the coordinator's replica: the counts new slices get */
-  ts_commit *pending;
-  uint32_t npending, cap_pending;
   uint64_t epoch; /* cluster epoch of the slicing below */
   int sliced;
   cl_slice *slices; /* one per worker holding a part (o.max_workers slots) */
@@ -40,15 +40,47 @@ typedef struct {
   ts_slice *local; /* in-process slice when no worker is ready */
 } cl_set;
 
+/* A query image (replica.h): the coordinator's replica, which new workers
+ * are loaded from, and the placements made since the last exchange, which
+ * the exchange's first frame to each worker carries. A worker holds the
+ * replica's state while the cluster epoch stays and it got every batch of
+ * placements; any failure moves the epoch, and the workers are loaded
+ * again. */
+#define CL_MAX_IMAGES 4
+
+typedef struct {
+  int worker; /* worker id */
+  uint64_t seq;
+} cl_synced;
+
+typedef struct {
+  int used;
+  uint32_t gid; /* image id on the wire */
+  ts_replica rep; /* the state before `pending` */
+  ts_place *pending;
+  uint32_t npending, cap_pending;
+  ts_commit *commits; /* scratch: the commits of applying pending */
+  uint64_t epoch; /* cluster epoch of synced[] */
+  cl_synced *synced; /* workers holding rep's state (o.max_workers slots) */
+  int nsynced;
+} cl_image;
+
 typedef struct {
   ts_search base;
   ts_cluster *c;
   const volatile int *cancel;
   cl_set sets[CL_MAX_SETS];
+  cl_image images[CL_MAX_IMAGES];
+  ts_query_scratch scratch; /* query vectors when no worker is ready */
   cl_worker **ws; /* the workers of one request (lock held): o.max_workers slots */
   ts_l1_best *best;
   uint32_t cap_best;
 } cluster_search;
+
+static cl_image *image_get(cluster_search *cs, int id) {
+  if (id < 0 || id >= CL_MAX_IMAGES || !cs->images[id].used) return NULL;
+  return &cs->images[id];
+}
 
 static cl_set *set_get(cluster_search *cs, int id) {
   if (id < 0 || id >= CL_MAX_SETS || !cs->sets[id].used) return NULL;
@@ -90,7 +122,7 @@ static int loaded_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
 
 /* Worker i's slice of st as an 'N' message. */
 static void describe_slice(const cl_set *st, int i, ts_slice_desc *m) {
-  ts_slice_describe(m, &st->rs, &st->usage, st->gid, st->gen, st->slices[i].i0, st->slices[i].i1);
+  ts_slice_describe(m, &st->rs, &st->usage, st->gid, st->gen, st->image, st->slices[i].i0, st->slices[i].i1);
 }
 
 /* Cuts st over ws[0..n) so that every worker can take its slice's 'N'
@@ -142,7 +174,7 @@ static double load_deadline(const ts_cluster *c, const cl_set *st, int n) {
 static int load_local(ts_cluster *c, cl_set *st, char *err) {
   static const uint32_t i0[TS_MAX_CLASSES] = {0};
   ts_slice_desc m;
-  ts_slice_describe(&m, &st->rs, &st->usage, st->gid, st->gen, i0, st->grid->count);
+  ts_slice_describe(&m, &st->rs, &st->usage, st->gid, st->gen, st->image, i0, st->grid->count);
   return ts_slice_load(&st->local, &m, c->local_pool, err);
 }
 
@@ -192,9 +224,11 @@ static int cluster_prepare(ts_search *s, const ts_refset *rs, int *id, char *err
   int slot = 0;
   while (slot < CL_MAX_SETS && cs->sets[slot].used) slot++;
   if (slot == CL_MAX_SETS) return ts_error(err, TS_ENOMEM, "too many reference sets prepared at once");
+  if (image_get(cs, rs->image) == NULL) return ts_error(err, TS_EINVAL, "unknown query image %d", rs->image);
   cl_set *st = &cs->sets[slot];
   memset(st, 0, sizeof(*st));
   st->rs = *rs;
+  st->image = cs->images[rs->image].gid;
   st->grid = rs->anchors;
   st->with_usage = rs->usage;
   size_t slots = (size_t)cs->c->o.max_workers, nclass = (size_t)rs->anchors->nclass;
@@ -222,36 +256,199 @@ static int cluster_prepare(ts_search *s, const ts_refset *rs, int *id, char *err
   return rc;
 }
 
-static int cluster_commit(ts_search *s, int id, const ts_commit *cm, uint32_t n, char *err) {
-  cl_set *st = set_get((cluster_search *)s, id);
-  if (st == NULL) return ts_error(err, TS_EINVAL, "unknown reference set %d", id);
-  if (!st->with_usage) return 0;
-  for (uint32_t i = 0; i < n; i++) {
-    if (cm[i].x < 0 || cm[i].y < 0 || cm[i].x + cm[i].w > st->grid->w || cm[i].y + cm[i].h > st->grid->h)
-      return ts_error(err, TS_EINVAL, "commit outside the reference");
-    if (cm[i].delta != 1 && cm[i].delta != -1) return ts_error(err, TS_EINVAL, "commit delta %d", (int)cm[i].delta);
+static int cluster_image_open(ts_search *s, const ts_replica_desc *d, int *id, char *err) {
+  cluster_search *cs = (cluster_search *)s;
+  int slot = 0;
+  while (slot < CL_MAX_IMAGES && cs->images[slot].used) slot++;
+  if (slot == CL_MAX_IMAGES) return ts_error(err, TS_ENOMEM, "too many query images open at once");
+  cl_image *im = &cs->images[slot];
+  memset(im, 0, sizeof(*im));
+  im->synced = calloc((size_t)cs->c->o.max_workers, sizeof(cl_synced));
+  if (im->synced == NULL) return ts_error(err, TS_ENOMEM, "out of memory for a query image");
+  int rc = ts_replica_init(&im->rep, d, err);
+  if (rc != 0) {
+    free(im->synced);
+    return rc;
   }
-  if (st->npending + n > st->cap_pending) {
-    uint32_t cap = st->cap_pending ? st->cap_pending : 1024;
-    while (cap < st->npending + n) cap *= 2;
-    ts_commit *p = realloc(st->pending, sizeof(ts_commit) * cap);
-    if (p == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
-    st->pending = p;
-    st->cap_pending = cap;
-  }
-  memcpy(st->pending + st->npending, cm, sizeof(ts_commit) * n);
-  st->npending += n;
+  pthread_mutex_lock(&cs->c->lock);
+  im->gid = ++cs->c->next_set;
+  pthread_mutex_unlock(&cs->c->lock);
+  im->used = 1;
+  *id = slot;
   return 0;
 }
 
-/* The pending commits reach the replica once they are on their way to the
- * workers: slices loaded later start from counts that include them. */
-static void flush_pending(cl_set *st) {
-  for (uint32_t i = 0; i < st->npending; i++) {
-    const ts_commit *k = &st->pending[i];
-    ts_usage_commit(&st->usage, k->x, k->y, k->w, k->h, k->delta);
+static int cluster_place(ts_search *s, int id, const ts_place *p, uint32_t n, char *err) {
+  cl_image *im = image_get((cluster_search *)s, id);
+  if (im == NULL) return ts_error(err, TS_EINVAL, "unknown query image %d", id);
+  if (im->npending + n > im->cap_pending) {
+    uint32_t cap = im->cap_pending ? im->cap_pending : 1024;
+    while (cap < im->npending + n) cap *= 2;
+    ts_place *q = realloc(im->pending, sizeof(ts_place) * cap);
+    ts_commit *k = realloc(im->commits, sizeof(ts_commit) * 2 * cap);
+    if (q != NULL) im->pending = q;
+    if (k != NULL) im->commits = k;
+    if (q == NULL || k == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+    im->cap_pending = cap;
   }
-  st->npending = 0;
+  memcpy(im->pending + im->npending, p, sizeof(ts_place) * n);
+  im->npending += n;
+  return 0;
+}
+
+/* The pending placements reach the coordinator's replica, and their
+ * commits the usage replicas of the image's sets, once they are on their
+ * way to the workers: what is loaded later starts from them. */
+static int flush_image(cluster_search *cs, int id, char *err) {
+  cl_image *im = &cs->images[id];
+  if (im->npending == 0) return 0;
+  uint32_t nc;
+  int rc = ts_replica_place(&im->rep, im->pending, im->npending, im->commits, &nc, err);
+  im->npending = 0;
+  im->rep.seq++;
+  for (int k = 0; rc == 0 && k < CL_MAX_SETS; k++) {
+    cl_set *st = &cs->sets[k];
+    if (!st->used || st->rs.image != id || !st->with_usage) continue;
+    for (uint32_t i = 0; i < nc; i++)
+      ts_usage_commit(&st->usage, im->commits[i].x, im->commits[i].y, im->commits[i].w, im->commits[i].h,
+                      im->commits[i].delta);
+    if (st->local != NULL) rc = ts_slice_commit(st->local, im->commits, nc, err);
+  }
+  return rc;
+}
+
+/* Whether worker w holds the replica's state (lock held). */
+static cl_synced *synced_of(ts_cluster *c, cl_image *im, const cl_worker *w) {
+  if (im->epoch != c->epoch) { /* a failure or a new slicing: everyone loads again */
+    im->epoch = c->epoch;
+    im->nsynced = 0;
+  }
+  for (int i = 0; i < im->nsynced; i++)
+    if (im->synced[i].worker == w->id) return &im->synced[i];
+  return NULL;
+}
+
+static void mark_synced(ts_cluster *c, cl_image *im, const cl_worker *w, uint64_t seq) {
+  cl_synced *y = synced_of(c, im, w);
+  if (y == NULL && im->nsynced < (int)c->o.max_workers) y = &im->synced[im->nsynced++];
+  if (y != NULL) *y = (cl_synced){w->id, seq};
+}
+
+/* The replica as a LOAD message (its pointers stay valid until the
+ * replica changes, after the exchange). */
+static void load_message(const cl_image *im, ts_msg_image *m) {
+  const ts_replica *r = &im->rep;
+  memset(m, 0, sizeof(*m));
+  m->image = im->gid;
+  m->op = TS_IMAGE_LOAD;
+  m->seq = r->seq;
+  ts_replica_desc *d = &m->d;
+  d->w = r->w;
+  d->h = r->h;
+  d->nplanes = r->nplanes;
+  d->done = r->done;
+  d->block = r->block;
+  d->copy = r->copy;
+  for (int k = 0; k < r->nplanes; k++) {
+    d->fine[k] = r->fine[k].px;
+    d->coarse[k] = r->coarse[k].px;
+    d->ref[k] = r->ref[k].px;
+  }
+  if (r->coarse[0].px != NULL) {
+    d->cw = r->coarse[0].w;
+    d->ch = r->coarse[0].h;
+  }
+  if (r->copy != NULL) {
+    d->rw = r->ref[0].w;
+    d->rh = r->ref[0].h;
+  }
+}
+
+typedef struct {
+  cl_image *im;
+  int *acked; /* ids of the workers that answered */
+  int nacked;
+} image_ctx;
+
+static int image_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
+  image_ctx *x = ctx;
+  if (f->type == TS_MSG_ERROR) return cl_reply_error(f, err);
+  if (f->type != TS_MSG_IMAGE) return 0; /* a stale answer of an abandoned batch */
+  uint32_t image;
+  if (ts_msg_image_ack_read(f, &image, err) != 0) return TS_EPROTO;
+  if (image != x->im->gid) return 0;
+  w->expect--;
+  if (x->acked != NULL) x->acked[x->nacked++] = w->id;
+  return 0;
+}
+
+/* The next level: the workers holding the replica get the last step's
+ * placements and the new reference level, and predict the level
+ * themselves; the others are loaded when they are next asked. */
+static int cluster_image_next(ts_search *s, int id, int w, int h, int rw, int rh, const uint8_t *const *ref,
+                              char *err) {
+  cluster_search *cs = (cluster_search *)s;
+  ts_cluster *c = cs->c;
+  cl_image *im = image_get(cs, id);
+  if (im == NULL) return ts_error(err, TS_EINVAL, "unknown query image %d", id);
+  ts_msg_image m = {.image = im->gid, .op = TS_IMAGE_NEXT, .seq = im->rep.seq, .place = im->pending,
+                    .nplace = im->npending, .w = w, .h = h, .rw = rw, .rh = rh, .nplanes = im->rep.nplanes};
+  memcpy(m.d.ref, ref, sizeof(const uint8_t *) * (size_t)im->rep.nplanes);
+  int *acked = calloc((size_t)c->o.max_workers, sizeof(int));
+  if (acked == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+  image_ctx x = {im, acked, 0};
+  pthread_mutex_lock(&c->lock);
+  cl_worker **ws = cs->ws;
+  int n = 0, all = cl_ready_workers(c, ws);
+  for (int i = 0; i < all; i++) {
+    cl_synced *y = synced_of(c, im, ws[i]);
+    if (y != NULL && y->seq == im->rep.seq) ws[n++] = ws[i];
+  }
+  cl_lease(c, ws, n);
+  for (int i = 0; i < n; i++) {
+    char why[TS_ERR_LEN];
+    ws[i]->expect = 1;
+    if (cl_queue_image(ws[i], ++c->next_frame, &m, why) != 0) cl_worker_fail(c, ws[i], why);
+  }
+  cl_traffic tr = {0, 0};
+  if (n > 0) cl_exchange(c, ws, n, c->o.batch_timeout + 30.0, image_reply, &x, &tr);
+  cl_release(c, ws, n);
+  cs->base.stats.bytes_out += tr.bytes_out;
+  cs->base.stats.bytes_in += tr.bytes_in;
+  int rc = flush_image(cs, id, err);
+  if (rc == 0) rc = ts_replica_next_level(&im->rep, w, h, rw, rh, ref, err);
+  im->nsynced = 0;
+  for (int i = 0; rc == 0 && i < x.nacked; i++) im->synced[im->nsynced++] = (cl_synced){x.acked[i], 0};
+  pthread_mutex_unlock(&c->lock);
+  free(acked);
+  return rc;
+}
+
+/* Tells every ready worker to free the image (lock taken). */
+static void cluster_image_close(ts_search *s, int id) {
+  cluster_search *cs = (cluster_search *)s;
+  ts_cluster *c = cs->c;
+  cl_image *im = image_get(cs, id);
+  if (im == NULL) return;
+  ts_msg_image m = {.image = im->gid, .op = TS_IMAGE_CLOSE};
+  image_ctx x = {im, NULL, 0};
+  pthread_mutex_lock(&c->lock);
+  cl_worker **ws = cs->ws;
+  int n = cl_ready_workers(c, ws);
+  cl_lease(c, ws, n);
+  for (int i = 0; i < n; i++) {
+    char why[TS_ERR_LEN];
+    ws[i]->expect = cl_queue_image(ws[i], ++c->next_frame, &m, why) == 0;
+  }
+  cl_traffic tr = {0, 0};
+  if (n > 0) cl_exchange(c, ws, n, c->o.batch_timeout, image_reply, &x, &tr);
+  cl_release(c, ws, n);
+  pthread_mutex_unlock(&c->lock);
+  ts_replica_free(&im->rep);
+  free(im->pending);
+  free(im->commits);
+  free(im->synced);
+  memset(im, 0, sizeof(*im));
 }
 
 /* V frame ids: the exchange's sequence number in the top byte (a stale
@@ -310,8 +507,14 @@ static cl_frame_sent *frame_sent(cl_worker *w, uint32_t q0) {
 static int answer_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
   batch_ctx *b = ctx;
   if (f->type == TS_MSG_ERROR) return cl_reply_error(f, err);
-  if (f->type != TS_MSG_QUERY) return 0; /* stale reply of an abandoned exchange */
+  if (f->type != TS_MSG_QUERY && f->type != TS_MSG_IMAGE) return 0; /* stale reply of an abandoned exchange */
   if (f->id >> CL_ID_QUERY_BITS != (b->seq & 0xFF)) return 0;
+  if (f->type == TS_MSG_IMAGE) { /* a query image loaded ahead of the queries */
+    uint32_t image;
+    if (ts_msg_image_ack_read(f, &image, err) != 0) return TS_EPROTO;
+    w->expect--;
+    return 0;
+  }
   ts_msg_answer a;
   if (ts_msg_answer_read(f, &a, err) != 0) return TS_EPROTO;
   uint32_t q0 = f->id & CL_ID_QUERY_MASK, r = 0;
@@ -389,11 +592,13 @@ static int ensure_best(cluster_search *cs, uint32_t nq) {
 
 /* With no worker ready the coordinator scans its own whole-set slice,
  * with the code a worker runs. */
-static int query_local(ts_cluster *c, cl_set *st, const ts_query_batch *b, ts_l1_best *out, uint64_t *pairs,
+static int query_local(cluster_search *cs, cl_set *st, const ts_query_batch *b, ts_l1_best *out, uint64_t *pairs,
                        char *err) {
-  int rc = ts_slice_commit(st->local, st->pending, st->npending, err);
-  flush_pending(st);
-  if (rc == 0) rc = ts_slice_scan(st->local, c->local_pool, 0, c->simd, b, out, pairs, err);
+  ts_cluster *c = cs->c;
+  ts_vec_batch vb;
+  int rc = flush_image(cs, st->rs.image, err);
+  if (rc == 0) rc = ts_query_vectors(&cs->scratch, &cs->images[st->rs.image].rep, st->rs.window, b, &vb, err);
+  if (rc == 0) rc = ts_slice_scan(st->local, c->local_pool, 0, c->simd, &vb, out, pairs, err);
   return rc;
 }
 
@@ -437,18 +642,40 @@ static int batch_workers(const batch_ctx *bc, cl_worker **ws) {
   return n;
 }
 
+/* Before w's first frame of image im in this exchange: a load of the
+ * replica if w does not hold its state; that frame carries the pending
+ * placements. Returns the placements the frame carries. */
+static int image_frame(cluster_search *cs, const batch_ctx *bc, cl_worker *w, int id, uint32_t *nplace, char *err) {
+  cl_image *im = &cs->images[id];
+  *nplace = 0;
+  if (w->images_sent & 1u << id) return 0;
+  w->images_sent |= 1u << id;
+  *nplace = im->npending;
+  cl_synced *y = synced_of(cs->c, im, w);
+  if (y != NULL && y->seq == im->rep.seq) return 0;
+  ts_msg_image m;
+  load_message(im, &m);
+  int rc = cl_queue_image(w, (bc->seq & 0xFF) << CL_ID_QUERY_BITS | CL_ID_QUERY_MASK, &m, err);
+  if (rc == 0) w->expect++;
+  return rc;
+}
+
 /* Queues every request's V frames to the leased workers holding its
  * slices; cl_exchange encodes them as the sockets drain. */
-static int queue_frames(ts_cluster *c, const batch_ctx *bc, const ts_search_req *req, cl_worker **ws, int n,
+static int queue_frames(cluster_search *cs, const batch_ctx *bc, const ts_search_req *req, cl_worker **ws, int n,
                         char *err) {
+  ts_cluster *c = cs->c;
   for (int i = 0; i < n; i++) {
     ws[i]->answered_bytes = ws[i]->expected_bytes = ws[i]->answered_nanos = 0;
     ws[i]->nframes = 0;
+    ws[i]->images_sent = 0;
   }
   for (uint32_t r = 0; r < bc->nreq; r++) {
     cl_set *st = bc->st[r];
+    const cl_image *im = &cs->images[st->rs.image];
     const ts_query_batch *b = &req[r].b;
     uint32_t vbytes = ts_window_bytes(st->rs.window);
+    uint64_t seq = im->rep.seq + (im->npending > 0); /* the state the queries need */
     for (int i = 0; i < st->nslices; i++) {
       cl_worker *w = st->slices[i].w;
       for (uint32_t q = 0; q < b->nq; q++) {
@@ -456,11 +683,11 @@ static int queue_frames(ts_cluster *c, const batch_ctx *bc, const ts_search_req 
         w->expected_bytes += (uint64_t)(st->slices[i].i1[cls] - st->slices[i].i0[cls]) * vbytes;
       }
       for (uint32_t q0 = 0; q0 < b->nq; q0 += c->o.pipeline_queries) {
-        uint32_t q1 = q0 + c->o.pipeline_queries < b->nq ? q0 + c->o.pipeline_queries : b->nq;
-        /* The set's pending commits ride with its first frame. */
-        cl_query_frame qf = {st->gid, st->gen, q0 == 0 ? st->pending : NULL, q0 == 0 ? st->npending : 0,
-                             b, vbytes, q0, q1};
-        int rc = cl_queue_query(w, (bc->seq & 0xFF) << CL_ID_QUERY_BITS | (bc->q0[r] + q0), &qf, err);
+        uint32_t q1 = q0 + c->o.pipeline_queries < b->nq ? q0 + c->o.pipeline_queries : b->nq, np;
+        int rc = image_frame(cs, bc, w, st->rs.image, &np, err);
+        if (rc != 0) return rc;
+        cl_query_frame qf = {st->gid, st->gen, im->gid, seq, im->pending, np, b, q0, q1};
+        rc = cl_queue_query(w, (bc->seq & 0xFF) << CL_ID_QUERY_BITS | (bc->q0[r] + q0), &qf, err);
         if (rc != 0) return rc;
         w->expect++;
         if (note_frame(w, bc->q0[r] + q0, q1 - q0) != 0) return ts_error(err, TS_ENOMEM, "out of memory for a batch");
@@ -468,6 +695,21 @@ static int queue_frames(ts_cluster *c, const batch_ctx *bc, const ts_search_req 
     }
   }
   return 0;
+}
+
+/* After an exchange: the placements it carried reach the coordinator's
+ * replicas; when it succeeded, every worker it sent an image's frames
+ * holds that image's state. */
+static int settle_images(cluster_search *cs, const batch_ctx *bc, cl_worker **ws, int n, int ok, char *err) {
+  int rc = 0;
+  for (uint32_t r = 0; r < bc->nreq; r++) {
+    int id = bc->st[r]->rs.image;
+    int fr = flush_image(cs, id, err);
+    if (rc == 0) rc = fr;
+    for (int i = 0; ok && i < n; i++)
+      if (ws[i]->images_sent & 1u << id) mark_synced(cs->c, &cs->images[id], ws[i], cs->images[id].rep.seq);
+  }
+  return rc;
 }
 
 /* A batch's deadline: CL_DEADLINE_SLACK times what the slowest worker
@@ -497,16 +739,17 @@ static int exchange_batch(cluster_search *cs, batch_ctx *bc, const ts_search_req
   }
   bc->seq = ++c->next_frame;
   ts_l1_best_reset(bc->best, bc->q0[bc->nreq]);
-  int rc = queue_frames(c, bc, req, ws, n, err);
+  int rc = queue_frames(cs, bc, req, ws, n, err);
   if (rc != 0) {
     for (int i = 0; i < n; i++) cl_out_reset(ws[i]);
     cl_release(c, ws, n);
     return rc;
   }
-  for (uint32_t r = 0; r < bc->nreq; r++) flush_pending(bc->st[r]);
   cl_traffic tr = {0, 0};
   rc = cl_exchange(c, ws, n, batch_deadline(c, ws, n), answer_reply, bc, &tr);
   cl_release(c, ws, n);
+  char why[TS_ERR_LEN];
+  if (settle_images(cs, bc, ws, n, rc == 0, why) != 0) return ts_error(err, TS_EINVAL, "%s", why);
   cs->base.stats.bytes_out += tr.bytes_out;
   cs->base.stats.bytes_in += tr.bytes_in;
   if (rc == 0) {
@@ -552,7 +795,7 @@ static int cluster_query_many(ts_search *s, const ts_search_req *req, uint32_t n
     if (local) {
       for (uint32_t r = 0; r < nreq && rc == 0; r++) {
         uint64_t pairs = 0;
-        rc = query_local(c, bc.st[r], &req[r].b, req[r].out, &pairs, err);
+        rc = query_local(cs, bc.st[r], &req[r].b, req[r].out, &pairs, err);
         local_pairs += pairs;
       }
       break;
@@ -609,7 +852,6 @@ static void set_clear(cluster_search *cs, cl_set *st) {
   pthread_mutex_unlock(&c->lock);
   ts_slice_free(st->local);
   ts_usage_free(&st->usage);
-  free(st->pending);
   free(st->slices);
   free(st->ranges);
   memset(st, 0, sizeof(*st));
@@ -625,6 +867,8 @@ static void cluster_destroy(ts_search *s) {
   cluster_search *cs = (cluster_search *)s;
   for (int i = 0; i < CL_MAX_SETS; i++)
     if (cs->sets[i].used) set_clear(cs, &cs->sets[i]);
+  for (int i = 0; i < CL_MAX_IMAGES; i++) cluster_image_close(s, i);
+  ts_query_scratch_free(&cs->scratch);
   free(cs->best);
   free(cs->ws);
   free(cs);
@@ -633,7 +877,10 @@ static void cluster_destroy(ts_search *s) {
 static const ts_search_ops cluster_ops = {
     .name = "cluster",
     .prepare = cluster_prepare,
-    .commit = cluster_commit,
+    .image_open = cluster_image_open,
+    .image_next = cluster_image_next,
+    .place = cluster_place,
+    .image_close = cluster_image_close,
     .query = cluster_query,
     .query_many = cluster_query_many,
     .release = cluster_release,

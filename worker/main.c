@@ -26,10 +26,12 @@
 #include "msg.h"
 #include "net.h"
 #include "pool.h"
+#include "replica.h"
 #include "slice.h"
 #include "util.h"
 
 #define WORKER_MAX_SLICES 64 /* per connection */
+#define WORKER_MAX_IMAGES 16 /* per connection */
 #define HANDSHAKE_MS 10000
 /* How long a refused peer gets to read its 'E' before we close. */
 #define REFUSE_LINGER_MS 1000
@@ -56,6 +58,14 @@ typedef struct {
   ts_conn conn;
   uint32_t peer_caps; /* the coordinator's capabilities (its 'I') */
   ts_slice *slices[WORKER_MAX_SLICES];
+  /* Query images: the coordinator's id of each, and the replica. */
+  uint32_t image_id[WORKER_MAX_IMAGES];
+  ts_replica images[WORKER_MAX_IMAGES];
+  int image_used[WORKER_MAX_IMAGES];
+  ts_query_scratch scratch;
+  ts_place *places;
+  ts_commit *commits;
+  uint32_t cap_places;
   ts_l1_best *best;
   uint32_t cap_best;
 } session;
@@ -91,6 +101,96 @@ static void drop_slice(ts_slice **slot) {
 
 static void unload_all(session *s) {
   for (int i = 0; i < WORKER_MAX_SLICES; i++) drop_slice(&s->slices[i]);
+}
+
+static ts_replica *image_of(session *s, uint32_t id) {
+  for (int i = 0; i < WORKER_MAX_IMAGES; i++)
+    if (s->image_used[i] && s->image_id[i] == id) return &s->images[i];
+  return NULL;
+}
+
+static void close_images(session *s) {
+  for (int i = 0; i < WORKER_MAX_IMAGES; i++) ts_replica_free(&s->images[i]);
+  memset(s->image_used, 0, sizeof(s->image_used));
+  ts_query_scratch_free(&s->scratch);
+  free(s->places);
+  free(s->commits);
+  s->places = NULL;
+  s->commits = NULL;
+  s->cap_places = 0;
+}
+
+/* Applies decoded placements to an image and their usage commits to every
+ * slice that queries it. */
+static int place_on(session *s, uint32_t id, ts_replica *r, const uint8_t *places, uint32_t n, char *err) {
+  if (n > s->cap_places) {
+    free(s->places);
+    free(s->commits);
+    s->places = malloc(sizeof(ts_place) * n);
+    s->commits = malloc(sizeof(ts_commit) * 2 * n);
+    s->cap_places = s->places && s->commits ? n : 0;
+    if (s->cap_places == 0) return ts_error(err, TS_ENOMEM, "out of memory for %u placements", n);
+  }
+  for (uint32_t i = 0; i < n; i++) ts_msg_place_at(places, i, &s->places[i]);
+  uint32_t nc;
+  int rc = ts_replica_place(r, s->places, n, s->commits, &nc, err);
+  for (int i = 0; rc == 0 && i < WORKER_MAX_SLICES; i++)
+    if (s->slices[i] != NULL && ts_slice_image(s->slices[i]) == id) rc = ts_slice_commit(s->slices[i], s->commits, nc, err);
+  return rc;
+}
+
+/* An 'R' LOAD: the copy map arrives as little-endian bytes. */
+static int load_image(ts_replica *r, ts_msg_image *m, char *err) {
+  uint32_t *copy = NULL;
+  size_t n = 2 * (size_t)m->d.w * (size_t)m->d.h;
+  if (m->d.block != 0) {
+    copy = malloc(sizeof(uint32_t) * n);
+    if (copy == NULL) return ts_error(err, TS_ENOMEM, "out of memory for a %dx%d copy map", m->d.w, m->d.h);
+    for (size_t i = 0; i < n; i++) {
+      const uint8_t *p = m->copy_le + 4 * i;
+      copy[i] = (uint32_t)p[0] | (uint32_t)p[1] << 8 | (uint32_t)p[2] << 16 | (uint32_t)p[3] << 24;
+    }
+    m->d.copy = copy;
+  }
+  int rc = ts_replica_init(r, &m->d, err);
+  free(copy);
+  r->seq = m->seq;
+  return rc;
+}
+
+/* 'R': loads, advances or frees a query image. */
+static int on_image(session *s, const ts_frame *f, char *err) {
+  ts_msg_image m;
+  int rc = ts_msg_image_read(f, &m, err);
+  if (rc != 0) return rc;
+  ts_replica *r = image_of(s, m.image);
+  if (m.op == TS_IMAGE_LOAD) {
+    int i = 0;
+    while (r == NULL && i < WORKER_MAX_IMAGES && s->image_used[i]) i++;
+    if (r == NULL && i == WORKER_MAX_IMAGES)
+      return send_error(s, f->id, TS_ETOOBIG, "too many query images on one connection") == 0 ? 1 : TS_ECONN;
+    if (r == NULL) r = &s->images[i];
+    ts_replica_free(r);
+    s->image_used[r - s->images] = 0;
+    if ((rc = load_image(r, &m, err)) != 0) return send_error(s, f->id, rc, err) == 0 ? 1 : TS_ECONN;
+    s->image_used[r - s->images] = 1;
+    s->image_id[r - s->images] = m.image;
+  } else if (m.op == TS_IMAGE_NEXT) {
+    if (r == NULL || r->seq != m.seq) {
+      snprintf(err, TS_ERR_LEN, "query image %u is not at state %llu", m.image, (unsigned long long)m.seq);
+      return send_error(s, f->id, TS_EINVAL, err) == 0 ? 1 : TS_ECONN;
+    }
+    rc = place_on(s, m.image, r, m.places, m.nplace, err);
+    if (rc == 0) rc = ts_replica_next_level(r, m.w, m.h, m.rw, m.rh, m.d.ref, err);
+    if (rc != 0) return send_error(s, f->id, rc, err) == 0 ? 1 : TS_ECONN;
+  } else if (r != NULL) { /* CLOSE */
+    ts_replica_free(r);
+    s->image_used[r - s->images] = 0;
+  }
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_image_ack_write(&w, m.image);
+  return send_reply(s, TS_MSG_IMAGE, f->id, &w);
 }
 
 /* Semantic failures return 1 after an 'E' reply (the connection stays);
@@ -149,15 +249,23 @@ static int on_slice(session *s, const ts_frame *f, char *err) {
 
 static double now_nanos(void) { return ts_now() * 1e9; }
 
-/* Applies the usage commits a 'V' message carries to the slice's replica. */
-static int apply_commits(ts_slice *slice, const ts_msg_query *q, char *err) {
-  for (uint32_t i = 0; i < q->ncommits; i++) {
-    ts_commit c;
-    ts_msg_commit_at(q, i, &c);
-    int rc = ts_slice_commit(slice, &c, 1, err);
+/* The frame's placements, then its queries' vectors out of the image. */
+static int query_vectors(session *s, ts_slice *slice, const ts_msg_query *q, uint32_t *pos, ts_vec_batch *vb,
+                         char *err) {
+  ts_replica *r = image_of(s, q->image);
+  if (r == NULL || ts_slice_image(slice) != q->image)
+    return ts_error(err, TS_EINVAL, "query image %u is not loaded for set %u", q->image, q->set);
+  if (r->seq + (q->nplace > 0) != q->seq)
+    return ts_error(err, TS_EINVAL, "query image %u is at state %llu, the queries need %llu", q->image,
+                    (unsigned long long)r->seq, (unsigned long long)q->seq);
+  if (q->nplace > 0) {
+    int rc = place_on(s, q->image, r, q->places, q->nplace, err);
     if (rc != 0) return rc;
+    r->seq++;
   }
-  return 0;
+  for (uint32_t i = 0; i < q->nq; i++) pos[i] = ts_msg_pos_at(q, i);
+  ts_query_batch b = {q->nq, pos, (q->flags & TS_QUERY_MASKS) != 0, q->klass, q->usage_k};
+  return ts_query_vectors(&s->scratch, r, ts_slice_window(slice), &b, vb, err);
 }
 
 static int on_query(session *s, const ts_frame *f, char *err) {
@@ -170,20 +278,17 @@ static int on_query(session *s, const ts_frame *f, char *err) {
              slot ? (int)ts_slice_gen(*slot) : -1);
     return send_error(s, f->id, TS_EINVAL, err) == 0 ? 1 : TS_ECONN;
   }
-  if (q.vbytes != ts_slice_vbytes(*slot)) {
-    snprintf(err, TS_ERR_LEN, "queries of %u bytes for vectors of %u", q.vbytes, ts_slice_vbytes(*slot));
-    return send_error(s, f->id, TS_EINVAL, err) == 0 ? 1 : TS_ECONN;
-  }
   if (q.nq > s->cap_best) {
     ts_l1_best *b = realloc(s->best, sizeof(ts_l1_best) * q.nq);
     if (b == NULL) return send_error(s, f->id, TS_ENOMEM, "out of memory for the answers") == 0 ? 1 : TS_ECONN;
     s->best = b;
     s->cap_best = q.nq;
   }
-  ts_query_batch b = {q.nq, q.queries, q.masks, q.klass, q.usage_k};
   uint64_t pairs = 0;
   double t0 = 0;
-  rc = apply_commits(*slot, &q, err);
+  ts_vec_batch b;
+  uint32_t *pos = malloc(sizeof(uint32_t) * (q.nq ? q.nq : 1));
+  rc = pos != NULL ? query_vectors(s, *slot, &q, pos, &b, err) : ts_error(err, TS_ENOMEM, "out of memory");
   if (rc == 0) {
     pthread_mutex_lock(&g_w.pool_lock);
     t0 = now_nanos();
@@ -191,8 +296,9 @@ static int on_query(session *s, const ts_frame *f, char *err) {
     t0 = now_nanos() - t0;
     pthread_mutex_unlock(&g_w.pool_lock);
   }
+  free(pos);
   if (rc != 0) return send_error(s, f->id, rc, err) == 0 ? 1 : TS_ECONN;
-  ts_wmon_batch(q.nq, pairs * q.vbytes, (uint64_t)t0);
+  ts_wmon_batch(q.nq, pairs * ts_slice_vbytes(*slot), (uint64_t)t0);
   ts_wr w;
   ts_wr_init(&w);
   ts_msg_answer_write(&w, q.set, q.gen, (uint64_t)t0, pairs, s->best, q.nq);
@@ -220,6 +326,7 @@ static int handle(session *s, const ts_frame *f, char *err) {
   case TS_MSG_SLICE: return on_slice(s, f, err);
   case TS_MSG_QUERY: return on_query(s, f, err);
   case TS_MSG_UNLOAD: return on_unload(s, f, err);
+  case TS_MSG_IMAGE: return on_image(s, f, err);
   case TS_MSG_HEARTBEAT: {
     if (f->len != 0) return ts_error(err, TS_EPROTO, "malformed 'H' message: payload must be empty");
     ts_wr w;
@@ -292,6 +399,7 @@ static int serve(int fd, const char *peer, const struct sockaddr *addr) {
   }
   ts_connset_remove(&g_w.conns, fd);
   unload_all(s);
+  close_images(s);
   ts_conn_close(&s->conn);
   free(s->best);
   free(s);

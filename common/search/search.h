@@ -1,9 +1,11 @@
 /* search.h - the one interface the engines use to find best matches.
  *
- * An engine prepares a reference set (the planes, shape and grid of one
+ * An engine opens a query image (replica.h: the canvas it synthesises,
+ * kept by the backend and changed by placements) and prepares a reference
+ * set (the planes, shape and grid of one
  * pyramid level: everything needed to build the vectors, never the vectors
  * themselves, so a remote backend ships images, not hundreds of MB), then
- * asks batches of queries against it. Batch composition and order belong to
+ * asks batches of queries - positions in the image - against it. Batch composition and order belong to
  * the engine; a backend returns, for every query, the exact global minimum
  * with ties to the lowest global index, so results never depend on the
  * backend, its thread count or how it slices the set.
@@ -22,9 +24,11 @@
 
 /* What a backend needs to build a reference vector set: the feature set
  * (window, anchors, planes; the label and validity planes the anchors were
- * made from). The pointed-to data must stay alive until the set is
- * released. */
+ * made from), and the query image its queries read (an id from
+ * ts_search_image_open). The pointed-to data must stay alive until the set
+ * is released. */
 typedef struct {
+  int image;
   const ts_window *window;
   const ts_anchors *anchors;
   const ts_levelplanes *ref;
@@ -35,20 +39,42 @@ typedef struct {
   const ts_usage *counts;
 } ts_refset;
 
-/* Source blocks copied since the last batch: feeds the backend's replica of
- * the usage counters (usage.h). */
+/* A usage change: the w x h reference pixels at (x, y) were copied (+1),
+ * or such a copy was replaced (-1). Placements on a query image make them
+ * (replica.h); they feed the usage replicas of the sets the image queries. */
 typedef struct {
-  int32_t x, y;  /* reference level coordinates of the copied pixels */
-  uint16_t w, h; /* copied size (blocks at the canvas edge are clipped) */
-  int32_t delta; /* +1 copied, -1 replaced by a refinement sweep */
+  int32_t x, y;
+  uint16_t w, h;
+  int32_t delta;
 } ts_commit;
+
+/* A placed block: its top-left canvas pixel (y * w + x) and the reference
+ * pixel it copies from (y * ref_w + x). */
+typedef struct {
+  uint32_t dst, src;
+} ts_place;
+
+/* The state a replica starts from, as pointers the caller keeps alive
+ * during ts_replica_init. */
+typedef struct {
+  int w, h, nplanes; /* the level's image */
+  const uint8_t *fine[TS_WIN_MAX_PLANES];
+  int cw, ch; /* coarse planes (nplanes of them), 0 x 0: none */
+  const uint8_t *coarse[TS_WIN_MAX_PLANES];
+  const uint8_t *done; /* NULL: nothing placed */
+  /* Placements: the block side, the reference planes blocks copy from and
+   * the copy map, x then y per pixel. block 0: the image takes none. */
+  int block, rw, rh;
+  const uint8_t *ref[TS_WIN_MAX_PLANES];
+  const uint32_t *copy;
+} ts_replica_desc;
 
 typedef struct {
   uint32_t nq;
-  const uint8_t *queries; /* nq vectors of ts_window_bytes(window) bytes */
-  const uint8_t *masks;   /* NULL, or nq masks laid out like queries */
-  const uint8_t *klass;   /* class of each query (anchors.h); NULL = all 0 */
-  uint64_t usage_k;       /* penalty factor (usage.h); 0 = no penalty */
+  const uint32_t *pos;  /* pixel (y * w + x) of each query in the set's image */
+  int masked;           /* masks from the image's placed pixels (ts_vec_mask) */
+  const uint8_t *klass; /* class of each query (anchors.h); NULL = all 0 */
+  uint64_t usage_k;     /* penalty factor (usage.h); 0 = no penalty */
 } ts_query_batch;
 
 typedef struct {
@@ -73,10 +99,14 @@ typedef struct {
   const char *name;
   /* Builds a set; *id identifies it in later calls. */
   int (*prepare)(ts_search *s, const ts_refset *set, int *id, char *err);
-  /* Records copied blocks in the set's usage replica (a no-op for a set
-   * prepared without usage). */
-  int (*commit)(ts_search *s, int id, const ts_commit *c, uint32_t n,
-                char *err);
+  /* A query image: its initial state, then each level's (predicted from
+   * the one before: replica.h), then the blocks placed on it, which also
+   * reach the usage replicas of the sets that query it. */
+  int (*image_open)(ts_search *s, const ts_replica_desc *d, int *id, char *err);
+  int (*image_next)(ts_search *s, int id, int w, int h, int rw, int rh,
+                    const uint8_t *const *ref, char *err);
+  int (*place)(ts_search *s, int id, const ts_place *p, uint32_t n, char *err);
+  void (*image_close)(ts_search *s, int id);
   /* Answers a batch: out[i] = best match of query i, global index. */
   int (*query)(ts_search *s, int id, const ts_query_batch *b, ts_l1_best *out,
                char *err);
@@ -97,9 +127,21 @@ static inline int ts_search_prepare(ts_search *s, const ts_refset *set,
                                     int *id, char *err) {
   return s->ops->prepare(s, set, id, err);
 }
-static inline int ts_search_commit(ts_search *s, int id, const ts_commit *c,
-                                   uint32_t n, char *err) {
-  return s->ops->commit(s, id, c, n, err);
+static inline int ts_search_image_open(ts_search *s, const ts_replica_desc *d,
+                                       int *id, char *err) {
+  return s->ops->image_open(s, d, id, err);
+}
+static inline int ts_search_image_next(ts_search *s, int id, int w, int h,
+                                       int rw, int rh,
+                                       const uint8_t *const *ref, char *err) {
+  return s->ops->image_next(s, id, w, h, rw, rh, ref, err);
+}
+static inline int ts_search_place(ts_search *s, int id, const ts_place *p,
+                                  uint32_t n, char *err) {
+  return s->ops->place(s, id, p, n, err);
+}
+static inline void ts_search_image_close(ts_search *s, int id) {
+  s->ops->image_close(s, id);
 }
 static inline int ts_search_query(ts_search *s, int id,
                                   const ts_query_batch *b, ts_l1_best *out,

@@ -1,6 +1,7 @@
 /* search_local.c - the local backend of the search interface: each set is
  * one slice holding every vector (common/search/slice.c, the code workers scan
- * with), scanned by a thread pool on this machine. */
+ * with), scanned by a thread pool on this machine; each query image is a
+ * replica (replica.c) the query vectors are read from, as on a worker. */
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
@@ -8,10 +9,12 @@
 #include "error.h"
 #include "util.h"
 #include "pool.h"
+#include "replica.h"
 #include "search.h"
 #include "slice.h"
 
 #define LOCAL_MAX_SETS 8
+#define LOCAL_MAX_IMAGES 4
 /* Below this many comparisons of 56-byte vectors with the AVX-512 kernel
  * (about 0.2 ms of one core) a batch is scanned on the calling thread
  * alone; the threshold shrinks with slower kernels and longer vectors. */
@@ -31,7 +34,57 @@ typedef struct {
   int inline_small; /* 0: every batch goes through the pool (tests) */
   ts_slice *sets[LOCAL_MAX_SETS];
   uint32_t count[LOCAL_MAX_SETS][TS_MAX_CLASSES];
+  ts_replica images[LOCAL_MAX_IMAGES];
+  int image_used[LOCAL_MAX_IMAGES];
+  ts_query_scratch scratch;
 } local_search;
+
+static ts_replica *image_get(local_search *ls, int id) {
+  return id >= 0 && id < LOCAL_MAX_IMAGES && ls->image_used[id] ? &ls->images[id] : NULL;
+}
+
+static int local_image_open(ts_search *s, const ts_replica_desc *d, int *id, char *err) {
+  local_search *ls = (local_search *)s;
+  int slot = 0;
+  while (slot < LOCAL_MAX_IMAGES && ls->image_used[slot]) slot++;
+  if (slot == LOCAL_MAX_IMAGES) return ts_error(err, TS_ENOMEM, "too many query images open at once");
+  int rc = ts_replica_init(&ls->images[slot], d, err);
+  if (rc != 0) return rc;
+  ls->image_used[slot] = 1;
+  *id = slot;
+  return 0;
+}
+
+static int local_image_next(ts_search *s, int id, int w, int h, int rw, int rh, const uint8_t *const *ref,
+                            char *err) {
+  ts_replica *r = image_get((local_search *)s, id);
+  if (r == NULL) return ts_error(err, TS_EINVAL, "unknown query image %d", id);
+  return ts_replica_next_level(r, w, h, rw, rh, ref, err);
+}
+
+static void local_image_close(ts_search *s, int id) {
+  local_search *ls = (local_search *)s;
+  ts_replica *r = image_get(ls, id);
+  if (r == NULL) return;
+  ts_replica_free(r);
+  ls->image_used[id] = 0;
+}
+
+/* Placements change the image and, through their commits, the usage
+ * replicas of every set that queries it. */
+static int local_place(ts_search *s, int id, const ts_place *p, uint32_t n, char *err) {
+  local_search *ls = (local_search *)s;
+  ts_replica *r = image_get(ls, id);
+  if (r == NULL) return ts_error(err, TS_EINVAL, "unknown query image %d", id);
+  ts_commit *c = malloc(sizeof(ts_commit) * 2 * (n ? n : 1));
+  if (c == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+  uint32_t nc;
+  int rc = ts_replica_place(r, p, n, c, &nc, err);
+  for (int k = 0; rc == 0 && k < LOCAL_MAX_SETS; k++)
+    if (ls->sets[k] != NULL && ts_slice_image(ls->sets[k]) == (uint32_t)id) rc = ts_slice_commit(ls->sets[k], c, nc, err);
+  free(c);
+  return rc;
+}
 
 
 static int local_prepare(ts_search *s, const ts_refset *rs, int *id, char *err) {
@@ -40,8 +93,9 @@ static int local_prepare(ts_search *s, const ts_refset *rs, int *id, char *err) 
   while (slot < LOCAL_MAX_SETS && ls->sets[slot] != NULL) slot++;
   if (slot == LOCAL_MAX_SETS) return ts_error(err, TS_ENOMEM, "too many reference sets prepared at once");
   static const uint32_t i0[TS_MAX_CLASSES] = {0};
+  if (image_get(ls, rs->image) == NULL) return ts_error(err, TS_EINVAL, "unknown query image %d", rs->image);
   ts_slice_desc m;
-  ts_slice_describe(&m, rs, rs->counts, (uint32_t)slot, 0, i0, rs->anchors->count);
+  ts_slice_describe(&m, rs, rs->counts, (uint32_t)slot, 0, (uint32_t)rs->image, i0, rs->anchors->count);
   int rc = ts_slice_load(&ls->sets[slot], &m, ls->pool, err);
   if (rc != 0) return rc;
   memcpy(ls->count[slot], rs->anchors->count, sizeof(ls->count[slot]));
@@ -51,12 +105,6 @@ static int local_prepare(ts_search *s, const ts_refset *rs, int *id, char *err) 
 
 static ts_slice *set_get(local_search *ls, int id) {
   return id >= 0 && id < LOCAL_MAX_SETS ? ls->sets[id] : NULL;
-}
-
-static int local_commit(ts_search *s, int id, const ts_commit *c, uint32_t n, char *err) {
-  ts_slice *sl = set_get((local_search *)s, id);
-  if (sl == NULL) return ts_error(err, TS_EINVAL, "unknown reference set %d", id);
-  return ts_slice_commit(sl, c, n, err);
 }
 
 static int local_query(ts_search *s, int id, const ts_query_batch *b, ts_l1_best *out, char *err) {
@@ -70,7 +118,11 @@ static int local_query(ts_search *s, int id, const ts_query_batch *b, ts_l1_best
   uint64_t limit = ls->inline_small ? inline_threshold(s->simd, ts_slice_vbytes(sl)) : 0;
   uint64_t pairs;
   double t0 = ts_now();
-  int rc = ts_slice_scan(sl, ls->pool, expect < limit ? 1 : 0, s->simd, b, out, &pairs, err);
+  ts_vec_batch vb;
+  const ts_replica *r = image_get(ls, (int)ts_slice_image(sl));
+  if (r == NULL) return ts_error(err, TS_EINVAL, "the query image of set %d is closed", id);
+  int rc = ts_query_vectors(&ls->scratch, r, ts_slice_window(sl), b, &vb, err);
+  if (rc == 0) rc = ts_slice_scan(sl, ls->pool, expect < limit ? 1 : 0, s->simd, &vb, out, &pairs, err);
   s->stats.scan_seconds += ts_now() - t0;
   if (rc != 0) return rc;
   s->stats.pairs += pairs;
@@ -89,6 +141,8 @@ static void local_release(ts_search *s, int id) {
 static void local_destroy(ts_search *s) {
   local_search *ls = (local_search *)s;
   for (int i = 0; i < LOCAL_MAX_SETS; i++) ts_slice_free(ls->sets[i]);
+  for (int i = 0; i < LOCAL_MAX_IMAGES; i++) ts_replica_free(&ls->images[i]);
+  ts_query_scratch_free(&ls->scratch);
   ts_pool_destroy(ls->pool);
   free(ls);
 }
@@ -96,7 +150,10 @@ static void local_destroy(ts_search *s) {
 static const ts_search_ops local_ops = {
     .name = "local",
     .prepare = local_prepare,
-    .commit = local_commit,
+    .image_open = local_image_open,
+    .image_next = local_image_next,
+    .place = local_place,
+    .image_close = local_image_close,
     .query = local_query,
     .release = local_release,
     .destroy = local_destroy,

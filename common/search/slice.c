@@ -12,7 +12,7 @@
 #include "error.h"
 
 struct ts_slice {
-  uint32_t set, gen;
+  uint32_t set, gen, image;
   ts_window window;
   ts_anchors anchors;
   int nclass;
@@ -52,12 +52,13 @@ static void anchor_rows(const ts_anchors *a, const uint32_t *i0, const uint32_t 
 }
 
 void ts_slice_describe(ts_slice_desc *m, const ts_refset *rs, const ts_usage *counts, uint32_t set,
-                       uint32_t gen, const uint32_t *i0, const uint32_t *i1) {
+                       uint32_t gen, uint32_t image, const uint32_t *i0, const uint32_t *i1) {
   const ts_window *win = rs->window;
   const ts_anchors *a = rs->anchors;
   memset(m, 0, offsetof(ts_slice_desc, offbuf));
   m->set = set;
   m->gen = gen;
+  m->image = image;
   m->win = win->spec;
   m->w = a->w;
   m->h = a->h;
@@ -111,7 +112,9 @@ void ts_slice_free(ts_slice *s) {
 
 uint32_t ts_slice_set(const ts_slice *s) { return s->set; }
 uint32_t ts_slice_gen(const ts_slice *s) { return s->gen; }
+uint32_t ts_slice_image(const ts_slice *s) { return s->image; }
 uint32_t ts_slice_vbytes(const ts_slice *s) { return ts_window_bytes(&s->window); }
+const ts_window *ts_slice_window(const ts_slice *s) { return &s->window; }
 
 uint64_t ts_slice_vectors(const ts_slice *s) {
   uint64_t n = 0;
@@ -271,6 +274,7 @@ int ts_slice_load(ts_slice **out, const ts_slice_desc *m, ts_pool *pool, char *e
   if (s == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
   s->set = m->set;
   s->gen = m->gen;
+  s->image = m->image;
   int rc = build(s, m, pool, err);
   if (rc != 0) {
     ts_slice_free(s);
@@ -344,7 +348,7 @@ static void scan_runs(void *arg, int w, int nw) {
 }
 
 /* Groups the queries by class, keeping their order within a class. */
-static int gather_queries(ts_slice *s, const ts_query_batch *b, char *err) {
+static int gather_queries(ts_slice *s, const ts_vec_batch *b, char *err) {
   uint32_t fill[TS_MAX_CLASSES + 1] = {0};
   for (uint32_t i = 0; i < b->nq; i++) {
     int c = b->klass ? b->klass[i] : 0;
@@ -363,7 +367,7 @@ static int gather_queries(ts_slice *s, const ts_query_batch *b, char *err) {
   return 0;
 }
 
-int ts_slice_scan(ts_slice *s, ts_pool *pool, int threads, const ts_l1_impl *simd, const ts_query_batch *b,
+int ts_slice_scan(ts_slice *s, ts_pool *pool, int threads, const ts_l1_impl *simd, const ts_vec_batch *b,
                   ts_l1_best *out, uint64_t *pairs, char *err) {
   *pairs = 0;
   if (b->nq == 0) return 0;

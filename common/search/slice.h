@@ -28,6 +28,7 @@ enum { TS_SLICE_USAGE_NONE = 0, TS_SLICE_USAGE_ZERO = 1, TS_SLICE_USAGE_COUNTS =
  * vectors from these alone: it knows no engine. */
 typedef struct {
   uint32_t set, gen; /* coordinator's set id, slice generation */
+  uint32_t image;    /* the query image its queries read */
   ts_window_spec win; /* offsets: the coordinator's window, or offbuf */
   int32_t w, h, cw, ch; /* level and coarser level sizes (cw, ch 0: none) */
   uint16_t nclass;
@@ -43,15 +44,26 @@ typedef struct {
   uint8_t usage;          /* TS_SLICE_USAGE_* */
   const uint8_t *counts;  /* COUNTS: u32 LE per fine-region pixel */
   int16_t offbuf[2 * TS_NSRC * TS_WIN_MAX_OFFSETS]; /* decoded offsets */
+  uint8_t knownbuf[TS_WIN_MAX_OFFSETS];              /* decoded known flags */
 } ts_slice_desc;
 
 typedef struct ts_slice ts_slice;
+
+/* Query vectors as the scans take them: read out of a query image
+ * (replica.h) by whoever holds it. */
+typedef struct {
+  uint32_t nq;
+  const uint8_t *queries; /* nq vectors of the window's bytes */
+  const uint8_t *masks;   /* NULL, or nq masks laid out like queries */
+  const uint8_t *klass;   /* NULL = all class 0 */
+  uint64_t usage_k;
+} ts_vec_batch;
 
 /* Describes vectors [i0[c], i1[c]) of every class of a set as an 'N'
  * message: the rows they read (pointers into rs's planes) and, if counts
  * is not NULL and holds any use, the usage counters of those rows. */
 void ts_slice_describe(ts_slice_desc *m, const ts_refset *rs, const ts_usage *counts, uint32_t set,
-                       uint32_t gen, const uint32_t *i0, const uint32_t *i1);
+                       uint32_t gen, uint32_t image, const uint32_t *i0, const uint32_t *i1);
 
 /* Builds a slice from a described or decoded 'N' message (the message's
  * bulk data may go away afterwards), its vectors on the threads of pool
@@ -64,7 +76,9 @@ void ts_slice_free(ts_slice *s);
 uint32_t ts_slice_set(const ts_slice *s);
 uint32_t ts_slice_gen(const ts_slice *s);
 uint64_t ts_slice_vectors(const ts_slice *s);
+uint32_t ts_slice_image(const ts_slice *s);
 uint32_t ts_slice_vbytes(const ts_slice *s);
+const ts_window *ts_slice_window(const ts_slice *s);
 
 /* Records copies in the usage replica (a no-op without usage). */
 int ts_slice_commit(ts_slice *s, const ts_commit *c, uint32_t n, char *err);
@@ -74,6 +88,6 @@ int ts_slice_commit(ts_slice *s, const ts_commit *c, uint32_t n, char *err);
  * (UINT32_MAX if the slice holds no vector of its class). *pairs =
  * comparisons made. */
 int ts_slice_scan(ts_slice *s, ts_pool *pool, int threads, const ts_l1_impl *simd,
-                  const ts_query_batch *b, ts_l1_best *out, uint64_t *pairs, char *err);
+                  const ts_vec_batch *b, ts_l1_best *out, uint64_t *pairs, char *err);
 
 #endif

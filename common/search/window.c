@@ -79,7 +79,8 @@ int ts_window_init(ts_window *w, const ts_window_spec *spec, char *err) {
   size_t total = 0;
   for (int src = 0; src < TS_NSRC; src++)
     if (spec->nplanes[src] > 0) total += 2 * (size_t)spec->noff[src];
-  w->off = malloc(sizeof(int16_t) * (total ? total : 1));
+  size_t nknown = spec->known ? (size_t)spec->noff[TS_SRC_FINE] : 0;
+  w->off = malloc(sizeof(int16_t) * total + nknown + 1);
   if (w->off == NULL) return ts_error(err, TS_ENOMEM, "out of memory for a window");
   int16_t *o = w->off;
   for (int src = 0; src < TS_NSRC; src++) {
@@ -94,6 +95,11 @@ int ts_window_init(ts_window *w, const ts_window_spec *spec, char *err) {
     w->spec.dx[src] = o;
     w->spec.dy[src] = o + n;
     o += 2 * n;
+  }
+  if (nknown > 0) {
+    uint8_t *known = (uint8_t *)o;
+    for (size_t k = 0; k < nknown; k++) known[k] = spec->known[k] != 0;
+    w->spec.known = known;
   }
   rc = lay_out(w, err);
   if (rc != 0) ts_window_free(w);
@@ -160,6 +166,29 @@ void ts_vec_query(const ts_window *w, const ts_levelplanes *canvas, int x, int y
     else if (inside) put_part(w, p, canvas->fine, x, y, 0, out, &n);
     else put_part(w, p, canvas->fine, x, y, 1, out, &n);
   }
+}
+
+int ts_vec_mask(const ts_window *w, const uint8_t *done, int cw, int ch, int x, int y, uint8_t *mask) {
+  const ts_window_spec *s = &w->spec;
+  int nf = s->noff[TS_SRC_FINE], bw = s->block < cw - x ? s->block : cw - x, bh = s->block < ch - y ? s->block : ch - y;
+  uint8_t fine[TS_WIN_MAX_OFFSETS];
+  int differs = 0;
+  for (int k = 0; k < nf; k++) {
+    int dx = s->dx[TS_SRC_FINE][k], dy = s->dy[TS_SRC_FINE][k];
+    int written = dx >= 0 && dx < bw && dy >= 0 && dy < bh;
+    int px = ((x + dx) % cw + cw) % cw, py = ((y + dy) % ch + ch) % ch;
+    int known = s->known[k] || (!written && done[(size_t)py * (size_t)cw + (size_t)px]);
+    differs |= known != s->known[k];
+    fine[k] = known ? 0xFF : 0x00;
+  }
+  uint32_t n = 0;
+  for (int p = 0; p < s->nparts; p++) {
+    const ts_part *pt = &s->part[p];
+    for (int q = 0; pt->source == TS_SRC_FINE && q < pt->nplanes; q++, n += (uint32_t)nf) memcpy(mask + n, fine, (size_t)nf);
+    memset(mask + n, 0xFF, w->part_end[p] * TS_L1_CHUNK - n); /* coarse parts and padding: always used */
+    n = w->part_end[p] * TS_L1_CHUNK;
+  }
+  return differs;
 }
 
 uint64_t ts_window_unit_distance(const ts_window *w) {

@@ -62,11 +62,15 @@ typedef struct {
                            (usage counters, usage.h); 1 = the anchor pixel */
   int nparts;
   ts_part part[TS_L1_MAX_PARTS];
+  /* NULL, or one flag per fine offset: 1 = the offset always counts in a
+   * masked query, placed or not (ts_vec_mask). */
+  const uint8_t *known;
 } ts_window_spec;
 
 typedef struct {
   ts_window_spec spec; /* offsets point at the window's own copies */
-  int16_t *off;        /* the copies: dx then dy of each source */
+  int16_t *off;        /* the copies: dx then dy of each source, then the
+                          known flags */
   uint32_t part_end[TS_L1_MAX_PARTS]; /* chunk where each part ends */
   uint32_t nchunks;
 } ts_window;
@@ -84,6 +88,14 @@ static inline int ts_window_has_coarse(const ts_window *w) {
 }
 /* The window's parts on a set of vectors (ts_l1_set_weigh). */
 int ts_window_weigh(const ts_window *w, ts_l1_set *set, char *err);
+
+/* The mask of a masked query at (x, y) of a w x h canvas (a torus) whose
+ * placed pixels are non-zero in `done`: a fine offset counts (0xFF) when
+ * the window calls it known, or when it lies on a placed pixel outside the
+ * block the query will fill (block x block at (x, y), clipped at the
+ * canvas edge); coarse parts always count. Returns whether the mask
+ * differs from the known flags alone. The window must have known flags. */
+int ts_vec_mask(const ts_window *w, const uint8_t *done, int cw, int ch, int x, int y, uint8_t *mask);
 
 /* The distance of an error of one grey level in every component: the
  * weighted count of components (the usage penalty's unit, usage.h). */

@@ -51,17 +51,15 @@ static int mean_error(ts_search *search, int set, const ts_window *shape, const 
                       const point *pts, uint32_t n, double *mean, char *err) {
   *mean = 0.0;
   if (n == 0) return 0;
-  uint32_t vb = ts_window_bytes(shape);
-  uint8_t *q = malloc((size_t)n * vb);
+  uint32_t *q = malloc(sizeof(uint32_t) * n);
   ts_l1_best *best = malloc(sizeof(ts_l1_best) * n);
   if (q == NULL || best == NULL) {
     free(q);
     free(best);
     return ts_error(err, TS_ENOMEM, "out of memory");
   }
-  ts_levelplanes lp = {{img}, {NULL}};
-  for (uint32_t i = 0; i < n; i++) ts_vec_query(shape, &lp, pts[i].x, pts[i].y, q + (size_t)i * vb);
-  ts_query_batch b = {n, q, NULL, NULL, 0};
+  for (uint32_t i = 0; i < n; i++) q[i] = (uint32_t)pts[i].y * (uint32_t)img->w + (uint32_t)pts[i].x;
+  ts_query_batch b = {n, q, 0, NULL, 0};
   int rc = ts_search_query(search, set, &b, best, err);
   double sum = 0.0;
   for (uint32_t i = 0; rc == 0 && i < n; i++) sum += (double)best[i].dist;
@@ -82,7 +80,11 @@ int ts_quality_measure(ts_search *search, const ts_plane *ref, const ts_plane *i
   point *pts = malloc(sizeof(point) * (samples ? samples : 1));
   if (rc == 0 && pts == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
   ts_levelplanes lp = {{ref}, {NULL}};
-  ts_refset rs = {&shape, &grid, &lp, NULL, NULL, 0, NULL};
+  /* The measured image is the query image: windows at points of it. */
+  ts_replica_desc d = {.w = img->w, .h = img->h, .nplanes = 1, .fine = {img->px}};
+  int image = -1;
+  if (rc == 0) rc = ts_search_image_open(search, &d, &image, err);
+  ts_refset rs = {image, &shape, &grid, &lp, NULL, NULL, 0, NULL};
   if (rc == 0) rc = ts_search_prepare(search, &rs, &set, err);
   if (rc == 0) {
     /* Windows are centred on the point: a W_B = 1 "block" at (x, y). */
@@ -94,6 +96,7 @@ int ts_quality_measure(ts_search *search, const ts_plane *ref, const ts_plane *i
     rc = mean_error(search, set, &shape, img, pts, q->n_inner, &q->mean_inner, err);
   }
   if (set >= 0) ts_search_release(search, set);
+  if (image >= 0) ts_search_image_close(search, image);
   free(pts);
   ts_anchors_free(&grid);
   ts_window_free(&shape);

@@ -20,6 +20,7 @@
 #include "error.h"
 #include "util.h"
 #include "plane.h"
+#include "replica.h"
 #include "rng.h"
 #include "schedule.h"
 #include "usage.h"
@@ -142,7 +143,8 @@ enum { SHAPE_PLAIN = 0, SHAPE_MASKED = 1 };
 
 typedef struct {
   uint32_t n;
-  uint8_t *queries, *masks, *klass;
+  uint32_t *pos; /* each query's canvas pixel */
+  uint8_t *klass;
   uint32_t *block; /* index of each query's block within the step */
   ts_l1_best *best;
 } query_group;
@@ -182,6 +184,7 @@ typedef struct {
   uint32_t *prev_copy; /* the same of the level above */
   uint8_t *done;  /* 1 where a block was placed at this level */
   ts_window shape[2]; /* SHAPE_PLAIN: causal L; SHAPE_MASKED: full window */
+  int image; /* the backend's replica of the canvas (replica.h), or -1 */
   int set_ids[2];
   level_plan plan;
   uint64_t step; /* steps of the plan done */
@@ -194,12 +197,12 @@ typedef struct {
   /* per-step scratch: one query group per shape */
   uint32_t cap;
   query_group group[2];
-  ts_commit *commits;
+  ts_place *places;
+  uint8_t mask[TS_L1_MAX_CHUNKS * TS_L1_CHUNK];
 } engine;
 
 static void group_free(query_group *g) {
-  free(g->queries);
-  free(g->masks);
+  free(g->pos);
   free(g->klass);
   free(g->block);
   free(g->best);
@@ -208,19 +211,17 @@ static void group_free(query_group *g) {
 
 static int ensure_step_scratch(engine *e, uint32_t n) {
   if (n <= e->cap) return 0;
-  free(e->commits);
-  e->commits = malloc(sizeof(ts_commit) * 2 * n);
-  int ok = e->commits != NULL;
+  free(e->places);
+  e->places = malloc(sizeof(ts_place) * n);
+  int ok = e->places != NULL;
   for (int k = 0; k < 2; k++) {
     query_group *g = &e->group[k];
-    size_t vb = ts_window_bytes(&e->shape[k]);
     group_free(g);
-    g->queries = malloc(n * vb);
-    g->masks = malloc(n * vb);
+    g->pos = malloc(sizeof(uint32_t) * n);
     g->klass = malloc(n);
     g->block = malloc(sizeof(uint32_t) * n);
     g->best = malloc(sizeof(ts_l1_best) * n);
-    ok = ok && g->queries && g->masks && g->klass && g->block && g->best;
+    ok = ok && g->pos && g->klass && g->block && g->best;
   }
   e->cap = ok ? n : 0;
   return ok ? 0 : TS_ENOMEM;
@@ -333,16 +334,14 @@ static void init_noise(engine *e) {
  * row and column see around the torus what the last ones will likely
  * become (a better start for closing the torus than noise). */
 static void init_prediction(engine *e) {
-  int l = e->level, w = e->cw[l], h = e->ch[l], cw = e->cw[l + 1], chh = e->ch[l + 1];
+  int l = e->level, w = e->cw[l], h = e->ch[l];
   const ts_plane *r0 = e->ref_lp.fine[0];
   for (int y = 0; y < h; y++)
     for (int x = 0; x < w; x++) {
-      long cx = (long)x * cw / w, cy = (long)y * chh / h, co = cy * cw + cx;
-      long sx = 2 * (long)e->prev_copy[2 * co] + (x - 2 * cx), sy = 2 * (long)e->prev_copy[2 * co + 1] + (y - 2 * cy);
-      sx = sx < 0 ? 0 : sx >= r0->w ? r0->w - 1 : sx;
-      sy = sy < 0 ? 0 : sy >= r0->h ? r0->h - 1 : sy;
+      int sx, sy;
+      ts_copy_predict(e->prev_copy, e->cw[l + 1], e->ch[l + 1], w, h, r0->w, r0->h, x, y, &sx, &sy);
       long o = (long)y * w + x;
-      for (int p = 0; p < e->nplanes; p++) e->canvas[p][l].px[o] = ts_plane_at(e->ref_lp.fine[p], (int)sx, (int)sy);
+      for (int p = 0; p < e->nplanes; p++) e->canvas[p][l].px[o] = ts_plane_at(e->ref_lp.fine[p], sx, sy);
       e->copy[2 * o] = (uint32_t)sx;
       e->copy[2 * o + 1] = (uint32_t)sy;
     }
@@ -364,42 +363,25 @@ static void place_block(engine *e, const ts_block *b, int sx, int sy) {
     }
 }
 
-/* Builds the masked square-window query of block b when its window holds
- * pixels placed at this level outside the causal L, which happens only
- * where the window wraps around the torus onto placed blocks (the last rows
- * and columns) or meets a clipped block; returns 0 (use the plain query)
- * otherwise. The mask keeps the L (placed pixels, or still the initial
- * noise or prediction) and every placed pixel, never the pixels b writes.
- * So the last row and column also match the first ones across the seam.
- * A block clipped at the last row or column writes only part of its W_B
- * square; the rest of the square is ordinary neighbourhood. In a
- * refinement sweep (refine = 1) every block is searched this way, seeing
- * all of its window but itself. */
-static int masked_query(engine *e, const ts_block *b, int refine, uint8_t *query, uint8_t *mask) {
-  const ts_window *sq = &e->shape[SHAPE_MASKED];
-  int w = e->cw[e->level], h = e->ch[e->level], differs = refine;
+/* Whether block b is searched with the masked square window: when its
+ * window holds pixels placed at this level outside the causal L, which
+ * happens only where the window wraps around the torus onto placed blocks
+ * (the last rows and columns) or meets a clipped block. The mask
+ * (ts_vec_mask, read by the backend out of its replica of the canvas)
+ * keeps the L (placed pixels, or still the initial noise or prediction)
+ * and every placed pixel, never the pixels b writes. So the last row and
+ * column also match the first ones across the seam. A block clipped at the
+ * last row or column writes only part of its W_B square; the rest of the
+ * square is ordinary neighbourhood. In a refinement sweep (refine = 1)
+ * every block is searched this way, seeing all of its window but itself. */
+static int masked_query(engine *e, const ts_block *b, int refine) {
+  int w = e->cw[e->level], h = e->ch[e->level];
   int wb = e->p->wb, hn = (e->p->wn - wb) / 2;
-  int nfine = sq->spec.noff[TS_SRC_FINE];
+  if (refine) return 1;
   /* During the scan, a whole block whose window does not wrap sees exactly
    * its L placed (schedule.h): the plain query, without looking. */
-  if (!refine && b->w == wb && b->h == wb && b->x >= hn && b->y >= hn && b->x + wb + hn <= w && b->y + wb + hn <= h)
-    return 0;
-  uint32_t n = 0;
-  for (int k = 0; k < nfine; k++) {
-    int dx = sq->spec.dx[TS_SRC_FINE][k], dy = sq->spec.dy[TS_SRC_FINE][k];
-    int in_l = dy < 0 || (dy < wb && dx < 0);
-    int written = dx >= 0 && dx < b->w && dy >= 0 && dy < b->h;
-    int x = ((b->x + dx) % w + w) % w, y = ((b->y + dy) % h + h) % h;
-    int placed = !written && e->done[(long)y * w + x];
-    int known = placed || in_l;
-    differs |= in_l != known;
-    mask[n++] = known ? 0xFF : 0x00;
-  }
-  if (!differs) return 0;
-  for (int p = 1; p < e->nplanes; p++, n += (uint32_t)nfine) memcpy(mask + n, mask, (size_t)nfine);
-  memset(mask + n, 0xFF, ts_window_bytes(sq) - n); /* coarse part and padding: always used */
-  ts_vec_query(sq, &e->canvas_lp, b->x, b->y, query);
-  return 1;
+  if (b->w == wb && b->h == wb && b->x >= hn && b->y >= hn && b->x + wb + hn <= w && b->y + wb + hn <= h) return 0;
+  return ts_vec_mask(&e->shape[SHAPE_MASKED], e->done, w, h, b->x, b->y, e->mask);
 }
 
 /* Parity control (seed 002 §3.3.3): a block at (x, y) copies only from
@@ -415,18 +397,12 @@ static int parity_plane(ts_plane *p, int w, int h) {
 }
 
 static void build_queries(engine *e, const ts_block *blocks, uint32_t n, int refine) {
-  query_group *plain = &e->group[SHAPE_PLAIN], *masked = &e->group[SHAPE_MASKED];
-  size_t vb_plain = ts_window_bytes(&e->shape[SHAPE_PLAIN]), vb_full = ts_window_bytes(&e->shape[SHAPE_MASKED]);
-  plain->n = masked->n = 0;
+  e->group[SHAPE_PLAIN].n = e->group[SHAPE_MASKED].n = 0;
   for (uint32_t i = 0; i < n; i++) {
-    uint8_t klass = e->p->parity ? (uint8_t)parity_class(blocks[i].x, blocks[i].y) : 0;
-    query_group *g = masked;
-    if (!masked_query(e, &blocks[i], refine, masked->queries + masked->n * vb_full, masked->masks + masked->n * vb_full)) {
-      g = plain;
-      ts_vec_query(&e->shape[SHAPE_PLAIN], &e->canvas_lp, blocks[i].x, blocks[i].y,
-                   plain->queries + plain->n * vb_plain);
-    }
-    g->klass[g->n] = klass;
+    const ts_block *b = &blocks[i];
+    query_group *g = &e->group[masked_query(e, b, refine) ? SHAPE_MASKED : SHAPE_PLAIN];
+    g->pos[g->n] = (uint32_t)b->y * (uint32_t)e->cw[e->level] + (uint32_t)b->x;
+    g->klass[g->n] = e->p->parity ? (uint8_t)parity_class(b->x, b->y) : 0;
     g->block[g->n++] = i;
   }
 }
@@ -440,14 +416,11 @@ static int search_step(engine *e, const uint64_t d1[2], char *err) {
   uint32_t nr = 0;
   for (int k = 0; k < 2; k++) {
     query_group *g = &e->group[k];
-    size_t vb = ts_window_bytes(&e->shape[k]);
     uint64_t usage_k = e->p->usage_weight > 0 ? ts_usage_factor(&e->usage, e->p->usage_weight, d1[k]) : 0;
     uint32_t chunk = e->p->max_batch ? e->p->max_batch : (g->n ? g->n : 1);
     for (uint32_t i0 = 0; i0 < g->n; i0 += chunk) {
       uint32_t m = g->n - i0 < chunk ? g->n - i0 : chunk;
-      ts_search_req r = {e->set_ids[k],
-                         {m, g->queries + i0 * vb, k == SHAPE_MASKED ? g->masks + i0 * vb : NULL, g->klass + i0, usage_k},
-                         g->best + i0};
+      ts_search_req r = {e->set_ids[k], {m, g->pos + i0, k == SHAPE_MASKED, g->klass + i0, usage_k}, g->best + i0};
       req[nr++] = r;
       if (nr == STEP_MAX_REQS) {
         int rc = ts_search_query_many(e->search, req, nr, err);
@@ -459,18 +432,12 @@ static int search_step(engine *e, const uint64_t d1[2], char *err) {
   return nr ? ts_search_query_many(e->search, req, nr, err) : 0;
 }
 
-/* Records a copy (delta +1) or its removal (-1) in the usage counters, here
- * and (at the end of the step) in the backend's replicas. */
-static void note_copy(engine *e, uint32_t *nc, int x, int y, const ts_block *b, int delta) {
-  ts_commit c = {x, y, b->w, b->h, delta};
-  e->commits[(*nc)++] = c;
-  ts_usage_commit(&e->usage, x, y, b->w, b->h, delta);
-}
-
-/* Places every block of the step; in a refinement sweep the copies they
- * replace leave the usage counts. */
+/* Places every block of the step, here and on the backend's replica of
+ * the canvas, which counts the copies in its sets' usage replicas as this
+ * does: in a refinement sweep the copy a block replaces leaves the usage
+ * counts. */
 static int place_step(engine *e, const ts_block *blocks, int refine, char *err) {
-  uint32_t nc = 0;
+  uint32_t np = 0;
   int w = e->cw[e->level];
   for (int k = 0; k < 2; k++) {
     const query_group *g = &e->group[k];
@@ -480,19 +447,14 @@ static int place_step(engine *e, const ts_block *blocks, int refine, char *err) 
         return ts_error(err, TS_EPROTO, "search returned no match for a block");
       int sx, sy;
       ts_anchors_pos(&e->grid, g->best[i].index, &sx, &sy);
-      if (refine) {
-        long o = (long)b->y * w + b->x;
-        note_copy(e, &nc, (int)e->copy[2 * o], (int)e->copy[2 * o + 1], b, -1);
-      }
+      long o = (long)b->y * w + b->x;
+      if (refine) ts_usage_commit(&e->usage, (int)e->copy[2 * o], (int)e->copy[2 * o + 1], b->w, b->h, -1);
       place_block(e, b, sx, sy);
-      note_copy(e, &nc, sx, sy, b, 1);
+      ts_usage_commit(&e->usage, sx, sy, b->w, b->h, 1);
+      e->places[np++] = (ts_place){(uint32_t)o, (uint32_t)sy * (uint32_t)e->grid.w + (uint32_t)sx};
     }
   }
-  for (int k = 0; k < 2; k++) {
-    int rc = ts_search_commit(e->search, e->set_ids[k], e->commits, nc, err);
-    if (rc != 0) return rc;
-  }
-  return 0;
+  return ts_search_place(e->search, e->image, e->places, np, err);
 }
 
 /* Seconds since the epoch: a checkpoint's moment has to mean something to
@@ -636,6 +598,30 @@ static int restore_inside(engine *e, const ts_mrf_checkpoint *ck, char *err) {
   return 0;
 }
 
+/* The backend's replica of the canvas as this level starts: predicted by
+ * the backend itself from the level above when it holds that one (nothing
+ * but the new reference level travels), else the canvas as it is here
+ * (the first level of a run: the coarsest, or a resumed one). */
+static int open_image(engine *e, char *err) {
+  int l = e->level;
+  const uint8_t *ref[TS_WIN_MAX_PLANES];
+  for (int k = 0; k < e->nplanes; k++) ref[k] = e->ref_lp.fine[k]->px;
+  const ts_plane *r0 = e->ref_lp.fine[0];
+  if (e->image >= 0) return ts_search_image_next(e->search, e->image, e->cw[l], e->ch[l], r0->w, r0->h, ref, err);
+  ts_replica_desc d = {.w = e->cw[l], .h = e->ch[l], .nplanes = e->nplanes, .done = e->done, .block = e->p->wb,
+                       .rw = r0->w, .rh = r0->h, .copy = e->copy};
+  memcpy(d.ref, ref, sizeof(ref));
+  for (int k = 0; k < e->nplanes; k++) {
+    d.fine[k] = e->canvas[k][l].px;
+    d.coarse[k] = l + 1 < e->levels ? e->canvas[k][l + 1].px : NULL;
+  }
+  if (l + 1 < e->levels) {
+    d.cw = e->cw[l + 1];
+    d.ch = e->ch[l + 1];
+  }
+  return ts_search_image_open(e->search, &d, &e->image, err);
+}
+
 /* Synthesises level l from its start, or from `inside`, a checkpoint
  * taken inside it. */
 static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, char *err) {
@@ -681,11 +667,12 @@ static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, c
   if (rc == 0 && inside) rc = restore_inside(e, inside, err);
   else if (rc == 0 && coarse) init_prediction(e);
   else if (rc == 0) init_noise(e);
+  if (rc == 0) rc = open_image(e, err);
   /* The backend's usage replicas start from the counters as they are now:
    * zero, or a resumed level's. */
   for (int k = 0; rc == 0 && k < 2; k++) {
-    ts_refset rs = {&e->shape[k], &e->grid, &e->ref_lp, p->parity ? &e->parity : NULL, NULL, p->usage_weight > 0,
-                    &e->usage};
+    ts_refset rs = {e->image, &e->shape[k], &e->grid, &e->ref_lp, p->parity ? &e->parity : NULL, NULL,
+                    p->usage_weight > 0, &e->usage};
     rc = ts_search_prepare(e->search, &rs, &e->set_ids[k], err);
   }
   if (rc == 0) rc = run_level(e, err);
@@ -709,7 +696,8 @@ static void engine_free(engine *e) {
     group_free(&e->group[k]);
     ts_window_free(&e->shape[k]);
   }
-  free(e->commits);
+  free(e->places);
+  if (e->image >= 0) ts_search_image_close(e->search, e->image);
   plan_free(&e->plan);
 }
 
@@ -897,6 +885,7 @@ int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *se
   e.hooks = hooks ? hooks : &none;
   e.res = res;
   e.last_checkpoint = t_start;
+  e.image = -1;
   e.levels = p->levels;
   e.nplanes = nplanes_for(p, ref->channels);
   e.prog.levels = p->levels;

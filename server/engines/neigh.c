@@ -56,14 +56,17 @@ int ts_neigh_window(ts_window *w, ts_shape_kind kind, int wn, int wb, int has_co
     return ts_error(err, TS_EINVAL, "coarse weight %g: need 0..1000", coarse_weight);
   int h = (wn - wb) / 2, wc = has_coarse ? ts_coarse_width(wn) : 0, hc = (wc - 1) / 2;
   int16_t dx[2][TS_MAX_WN * TS_MAX_WN], dy[2][TS_MAX_WN * TS_MAX_WN];
+  uint8_t known[TS_MAX_WN * TS_MAX_WN];
   ts_window_spec s;
   memset(&s, 0, sizeof(s));
   for (int y = -h; y < wb + h; y++)
     for (int x = -h; x < wb + h; x++)
       if (fine_in_shape(kind, x, y, wb)) {
+        known[s.noff[0]] = (uint8_t)fine_in_shape(TS_SHAPE_CAUSAL, x, y, wb);
         dx[0][s.noff[0]] = (int16_t)x;
         dy[0][s.noff[0]++] = (int16_t)y;
       }
+  if (kind == TS_SHAPE_SQUARE) s.known = known; /* the L counts in masked queries */
   for (int y = -hc; y <= hc && wc > 0; y++)
     for (int x = -hc; x <= hc; x++) {
       dx[1][s.noff[1]] = (int16_t)x;

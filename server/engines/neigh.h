@@ -10,7 +10,8 @@
  * (W_N-W_B)/2 columns left of it in the block rows (the seed leaves the
  * shape open for W_B > 1; this is the digest's reading). The square shape
  * is the whole W_N x W_N window, block included, for masked queries (the
- * variable mask of §3.2.6 picks the pixels that count).
+ * variable mask of §3.2.6 picks the pixels that count: its known offsets,
+ * window.h, are the L, which always counts).
  *
  * As a window: two parts, the fine offsets of every plane and the coarse
  * square of every plane, weighted so that the coarse distance counts

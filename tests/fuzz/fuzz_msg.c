@@ -6,6 +6,7 @@
 #include <stddef.h>
 #include <stdint.h>
 #include <stdlib.h>
+#include <string.h>
 
 #include "error.h"
 #include "jobspec.h"
@@ -22,7 +23,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   if (size == 0) return 0;
   ts_frame f = {data[0], 1, (uint32_t)(size - 1), data + 1};
   char err[TS_ERR_LEN];
-  switch (data[0] % 13) {
+  switch (data[0] % 14) {
   case 0: { ts_msg_ident m; ts_msg_ident_read(&f, &m, err); break; }
   case 1: { ts_msg_calib_req m; ts_msg_calib_req_read(&f, &m, err); ts_msg_calib c; ts_msg_calib_read(&f, &c, err); break; }
   case 2: {
@@ -41,13 +42,10 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   case 3: {
     ts_msg_query m;
     if (ts_msg_query_read(&f, &m, err) == 0) {
-      check_inside(m.queries, (size_t)m.nq * m.vbytes, f.payload, f.len);
-      check_inside(m.masks, (size_t)m.nq * m.vbytes, f.payload, f.len);
+      check_inside(m.pos, (size_t)m.nq * 4, f.payload, f.len);
       check_inside(m.klass, m.nq, f.payload, f.len);
-      for (uint32_t i = 0; i < m.ncommits; i++) {
-        ts_commit c;
-        ts_msg_commit_at(&m, i, &c);
-      }
+      check_inside(m.places, (size_t)m.nplace * TS_PLACE_BYTES, f.payload, f.len);
+      for (uint32_t i = 0; i < m.nq; i++) (void)ts_msg_pos_at(&m, i);
     }
     break;
   }
@@ -81,6 +79,23 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   case 10: { ts_worker_info w[4]; uint32_t n; ts_msg_pool_read(&f, w, 4, &n, err); break; }
   case 11: { ts_jobspec s; ts_jobspec_parse((const char *)f.payload, f.len, &s, err); break; }
   case 12: { ts_msg_auth m; ts_msg_auth_read(&f, &m, err); break; }
+  case 13: {
+    /* 'R' as the worker takes it: decoded, then loaded into a replica */
+    ts_msg_image m;
+    if (ts_msg_image_read(&f, &m, err) == 0 && m.op == TS_IMAGE_LOAD) {
+      size_t npx = (size_t)m.d.w * (size_t)m.d.h;
+      for (int p = 0; p < m.d.nplanes; p++) check_inside(m.d.fine[p], npx, f.payload, f.len);
+      check_inside(m.d.done, npx, f.payload, f.len);
+      check_inside(m.copy_le, m.d.block ? 8 * npx : 0, f.payload, f.len);
+      uint32_t *copy = m.d.block ? malloc(8 * npx) : NULL;
+      if (copy != NULL) memcpy(copy, m.copy_le, 8 * npx);
+      m.d.copy = copy;
+      ts_replica r;
+      if (ts_replica_init(&r, &m.d, err) == 0) ts_replica_free(&r);
+      free(copy);
+    }
+    break;
+  }
   }
   return 0;
 }

@@ -278,7 +278,7 @@ static void sliced_labelled_set_matches_brute_force(void **state) {
   }
   ts_l1_best merged[NQ], part[NQ];
   ts_l1_best_reset(merged, NQ);
-  ts_refset rs = {&f.w, &f.a, &f.lp, &f.labels, &f.valid, 0, NULL};
+  ts_refset rs = {0, &f.w, &f.a, &f.lp, &f.labels, &f.valid, 0, NULL};
   const ts_l1_impl *simd;
   char err[TS_ERR_LEN];
   assert_int_equal(ts_l1_select(&simd, err), 0);
@@ -291,7 +291,7 @@ static void sliced_labelled_set_matches_brute_force(void **state) {
       i1[c] = f.a.count[c] * (uint32_t)(k + 1) / 3;
     }
     static ts_slice_desc m, back;
-    ts_slice_describe(&m, &rs, NULL, 1, 1, i0, i1);
+    ts_slice_describe(&m, &rs, NULL, 1, 1, 0, i0, i1);
     assert_true(m.ay1 - m.ay0 < f.a.ny); /* a slice holds only its rows */
     ts_wr wr;
     ts_wr_init(&wr);
@@ -301,7 +301,7 @@ static void sliced_labelled_set_matches_brute_force(void **state) {
     assert_int_equal(ts_msg_slice_read(&fr, &back, err), 0);
     ts_slice *sl;
     if (ts_slice_load(&sl, &back, pool, err) != 0) fail_msg("slice %d: %s", k, err);
-    ts_query_batch b = {NQ, q, NULL, klass, 0};
+    ts_vec_batch b = {NQ, q, NULL, klass, 0};
     uint64_t pairs;
     assert_int_equal(ts_slice_scan(sl, NULL, 1, simd, &b, part, &pairs, err), 0);
     for (int i = 0; i < NQ; i++)

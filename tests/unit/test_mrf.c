@@ -8,6 +8,7 @@
 #include "error.h"
 #include "image.h"
 #include "mrf.h"
+#include "replica.h"
 #include "rng.h"
 #include "search.h"
 #include "ts_test.h"
@@ -16,17 +17,58 @@
 /* ---- a brute-force search backend: one query at a time, plain loops ---- */
 
 typedef struct {
-  int used;
+  int used, image;
   ts_window shape;
   ts_anchors grid;
   ts_levelplanes ref;
   ts_usage usage;
 } brute_set;
 
+/* Query vectors come out of the query image's replica (replica.h), as
+ * on every backend; the distances and minima are plain loops. */
 typedef struct {
   ts_search base;
   brute_set sets[4];
+  ts_replica image;
+  int image_used;
+  ts_query_scratch scratch;
 } brute_search;
+
+static int brute_image_open(ts_search *s, const ts_replica_desc *d, int *id, char *err) {
+  brute_search *b = (brute_search *)s;
+  assert_false(b->image_used);
+  assert_int_equal(ts_replica_init(&b->image, d, err), 0);
+  b->image_used = 1;
+  *id = 0;
+  return 0;
+}
+
+static int brute_image_next(ts_search *s, int id, int w, int h, int rw, int rh, const uint8_t *const *ref,
+                            char *err) {
+  assert_int_equal(id, 0);
+  return ts_replica_next_level(&((brute_search *)s)->image, w, h, rw, rh, ref, err);
+}
+
+static int brute_place(ts_search *s, int id, const ts_place *p, uint32_t n, char *err) {
+  brute_search *b = (brute_search *)s;
+  assert_int_equal(id, 0);
+  ts_commit *c = malloc(sizeof(ts_commit) * 2 * (n + 1));
+  uint32_t nc;
+  assert_int_equal(ts_replica_place(&b->image, p, n, c, &nc, err), 0);
+  for (int k = 0; k < 4; k++)
+    for (uint32_t i = 0; b->sets[k].used && i < nc; i++)
+      ts_usage_commit(&b->sets[k].usage, c[i].x, c[i].y, c[i].w, c[i].h, c[i].delta);
+  free(c);
+  return 0;
+}
+
+static void brute_image_close(ts_search *s, int id) {
+  brute_search *b = (brute_search *)s;
+  assert_int_equal(id, 0);
+  ts_replica_free(&b->image);
+  ts_query_scratch_free(&b->scratch);
+  b->image_used = 0;
+}
 
 static int brute_prepare(ts_search *s, const ts_refset *rs, int *id, char *err) {
   brute_search *b = (brute_search *)s;
@@ -45,16 +87,11 @@ static int brute_prepare(ts_search *s, const ts_refset *rs, int *id, char *err) 
   return 0;
 }
 
-static int brute_commit(ts_search *s, int id, const ts_commit *c, uint32_t n, char *err) {
-  (void)err;
-  brute_set *st = &((brute_search *)s)->sets[id];
-  for (uint32_t i = 0; i < n; i++) ts_usage_commit(&st->usage, c[i].x, c[i].y, c[i].w, c[i].h, c[i].delta);
-  return 0;
-}
-
-static int brute_query(ts_search *s, int id, const ts_query_batch *qb, ts_l1_best *out, char *err) {
-  (void)err;
-  brute_set *st = &((brute_search *)s)->sets[id];
+static int brute_query(ts_search *s, int id, const ts_query_batch *pb, ts_l1_best *out, char *err) {
+  brute_search *bs = (brute_search *)s;
+  brute_set *st = &bs->sets[id];
+  ts_vec_batch vecs, *qb = &vecs;
+  assert_int_equal(ts_query_vectors(&bs->scratch, &bs->image, &st->shape, pb, qb, err), 0);
   uint32_t vb = ts_window_bytes(&st->shape);
   uint8_t vec[TS_L1_MAX_CHUNKS * 8];
   for (uint32_t q = 0; q < qb->nq; q++) {
@@ -95,7 +132,10 @@ static void brute_destroy(ts_search *s) { free(s); }
 
 static const ts_search_ops brute_ops = {.name = "brute",
                                         .prepare = brute_prepare,
-                                        .commit = brute_commit,
+                                        .image_open = brute_image_open,
+                                        .image_next = brute_image_next,
+                                        .place = brute_place,
+                                        .image_close = brute_image_close,
                                         .query = brute_query,
                                         .release = brute_release,
                                         .destroy = brute_destroy};

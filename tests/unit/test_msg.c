@@ -153,33 +153,35 @@ static void slice_geometry_is_checked(void **state) {
   }
 }
 
-static void query_round_trip_with_commits(void **state) {
+static void query_round_trip_with_placements(void **state) {
   (void)state;
-  enum { NQ = 5, VB = 16 };
-  uint8_t q[NQ * VB], m[NQ * VB], k[NQ] = {0, 1, 2, 3, 1};
-  for (int i = 0; i < NQ * VB; i++) q[i] = (uint8_t)i, m[i] = (uint8_t)(i & 1 ? 0xFF : 0);
-  ts_commit c[2] = {{3, 4, 3, 3, 1}, {-1, 70000, 1, 2, -1}};
-  ts_query_batch b = {NQ, q, m, k, 0x123456789ull};
+  enum { NQ = 5 };
+  uint32_t pos[NQ] = {0, 7, 70000, 0xFFFFFFFEu, 9};
+  uint8_t k[NQ] = {0, 1, 200, 255, 1};
+  ts_place p[2] = {{3, 4}, {0xFFFFFFFFu, 70000}};
+  ts_query_batch b = {NQ, pos, 1, k, 0x123456789ull};
   ts_wr w;
   ts_wr_init(&w);
-  ts_msg_query_write(&w, 9, 3, c, 2, &b, VB, 1, 4); /* queries 1..3 */
+  ts_msg_query_write(&w, 9, 3, 12, 1ull << 40, p, 2, &b, 1, 4); /* queries 1..3 */
   ts_frame f = frame_of(&w, 'V');
   ts_msg_query out;
   char err[TS_ERR_LEN];
   assert_int_equal(ts_msg_query_read(&f, &out, err), 0);
   assert_int_equal(out.nq, 3);
-  assert_int_equal(out.ncommits, 2);
+  assert_int_equal(out.image, 12);
+  assert_int_equal(out.seq, 1ull << 40);
+  assert_int_equal(out.nplace, 2);
   assert_int_equal(out.usage_k, 0x123456789ull);
-  assert_memory_equal(out.queries, q + VB, 3 * VB);
-  assert_memory_equal(out.masks, m + VB, 3 * VB);
+  assert_int_equal(out.flags, TS_QUERY_MASKS | TS_QUERY_CLASSES);
+  for (uint32_t i = 0; i < 3; i++) assert_int_equal(ts_msg_pos_at(&out, i), pos[1 + i]);
   assert_memory_equal(out.klass, k + 1, 3);
-  ts_commit got;
-  ts_msg_commit_at(&out, 1, &got);
-  assert_int_equal(got.x, -1);
-  assert_int_equal(got.y, 70000);
-  assert_int_equal(got.h, 2);
-  assert_int_equal(got.delta, -1);
+  ts_place got;
+  ts_msg_place_at(out.places, 1, &got);
+  assert_int_equal(got.dst, 0xFFFFFFFFu);
+  assert_int_equal(got.src, 70000);
   assert_exact(&w, 'V', rd_query, &out);
+  /* 4 bytes of position and 1 of class per query, whatever the window */
+  assert_int_equal(w.len, 4 + 4 + 4 + 8 + 4 + 2 * TS_PLACE_BYTES + 4 + 1 + 8 + 3 * 5);
   ts_wr_free(&w);
 }
 
@@ -188,25 +190,87 @@ static void query_counts_are_bounded(void **state) {
   (void)state;
   ts_wr w;
   ts_wr_init(&w);
-  ts_wr_u32(&w, 1), ts_wr_u32(&w, 1), ts_wr_u32(&w, 0xFFFFFFFF); /* ncommits */
+  ts_wr_u32(&w, 1), ts_wr_u32(&w, 1), ts_wr_u32(&w, 1), ts_wr_u64(&w, 0), ts_wr_u32(&w, 0xFFFFFFFF); /* nplace */
   ts_frame f = frame_of(&w, 'V');
   ts_msg_query out;
   char err[TS_ERR_LEN];
   assert_int_equal(ts_msg_query_read(&f, &out, err), TS_EPROTO);
   ts_wr_free(&w);
   ts_wr_init(&w);
-  ts_wr_u32(&w, 1), ts_wr_u32(&w, 1), ts_wr_u32(&w, 0);
-  ts_wr_u32(&w, 0x7FFFFFFF), ts_wr_u32(&w, 8), ts_wr_u8(&w, 0), ts_wr_u64(&w, 0); /* nq */
+  ts_wr_u32(&w, 1), ts_wr_u32(&w, 1), ts_wr_u32(&w, 1), ts_wr_u64(&w, 0), ts_wr_u32(&w, 0);
+  ts_wr_u32(&w, 0x7FFFFFFF), ts_wr_u8(&w, 0), ts_wr_u64(&w, 0); /* nq */
   f = frame_of(&w, 'V');
   assert_int_equal(ts_msg_query_read(&f, &out, err), TS_EPROTO);
   ts_wr_free(&w);
   ts_wr_init(&w);
-  ts_wr_u32(&w, 1), ts_wr_u32(&w, 1), ts_wr_u32(&w, 0);
-  ts_wr_u32(&w, 1), ts_wr_u32(&w, 7), ts_wr_u8(&w, 0), ts_wr_u64(&w, 0); /* vbytes % 8 */
-  ts_wr_bytes(&w, "1234567", 7);
+  ts_wr_u32(&w, 1), ts_wr_u32(&w, 1), ts_wr_u32(&w, 1), ts_wr_u64(&w, 0), ts_wr_u32(&w, 0);
+  ts_wr_u32(&w, 1), ts_wr_u8(&w, 4), ts_wr_u64(&w, 0); /* unknown flag */
+  ts_wr_u32(&w, 0);
   f = frame_of(&w, 'V');
   assert_int_equal(ts_msg_query_read(&f, &out, err), TS_EPROTO);
   ts_wr_free(&w);
+}
+
+static int rd_image(const ts_frame *f, void *o, char *e) { return ts_msg_image_read(f, o, e); }
+
+/* A whole query image, and a level change with its placements. */
+static void image_round_trip(void **state) {
+  (void)state;
+  static uint8_t fine[2][6 * 4], coarse[2][3 * 2], done[6 * 4], ref[2][5 * 5];
+  static uint32_t copy[2 * 6 * 4];
+  for (int i = 0; i < 24; i++) fine[1][i] = (uint8_t)i, done[i] = (uint8_t)(i & 1), copy[2 * i] = (uint32_t)i % 5;
+  ts_msg_image m = {.image = 4, .op = TS_IMAGE_LOAD, .seq = 77};
+  m.d = (ts_replica_desc){.w = 6, .h = 4, .nplanes = 2, .fine = {fine[0], fine[1]}, .cw = 3, .ch = 2,
+                          .coarse = {coarse[0], coarse[1]}, .done = done, .block = 3, .rw = 5, .rh = 5,
+                          .ref = {ref[0], ref[1]}, .copy = copy};
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_image_write(&w, &m);
+  ts_frame f = frame_of(&w, 'R');
+  ts_msg_image out;
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_msg_image_read(&f, &out, err), 0);
+  assert_int_equal(out.seq, 77);
+  assert_int_equal(out.d.block, 3);
+  assert_int_equal(out.d.cw, 3);
+  assert_memory_equal(out.d.fine[1], fine[1], sizeof(fine[1]));
+  assert_memory_equal(out.d.done, done, sizeof(done));
+  assert_int_equal(out.copy_le[8], 1); /* pixel 1's x, little-endian */
+  assert_exact(&w, 'R', rd_image, &out);
+  ts_wr_free(&w);
+  ts_place p[1] = {{5, 6}};
+  ts_msg_image n = {.image = 4, .op = TS_IMAGE_NEXT, .seq = 3, .place = p, .nplace = 1, .w = 12, .h = 8, .rw = 5,
+                    .rh = 5, .nplanes = 2};
+  n.d.ref[0] = ref[0];
+  n.d.ref[1] = ref[1];
+  ts_wr_init(&w);
+  ts_msg_image_write(&w, &n);
+  f = frame_of(&w, 'R');
+  assert_int_equal(ts_msg_image_read(&f, &out, err), 0);
+  assert_int_equal(out.nplace, 1);
+  assert_int_equal(out.w, 12);
+  ts_msg_place_at(out.places, 0, &p[0]);
+  assert_int_equal(p[0].src, 6);
+  assert_exact(&w, 'R', rd_image, &out);
+  ts_wr_free(&w);
+}
+
+/* Sizes that would read past the payload are refused before reading. */
+static void image_sizes_are_checked(void **state) {
+  (void)state;
+  char err[TS_ERR_LEN];
+  ts_msg_image out;
+  for (int k = 0; k < 4; k++) {
+    ts_wr w;
+    ts_wr_init(&w);
+    ts_wr_u32(&w, 1), ts_wr_u8(&w, k == 3 ? 9 : TS_IMAGE_LOAD), ts_wr_u64(&w, 0);
+    ts_wr_u32(&w, k == 0 ? 0x10000 : 4), ts_wr_u32(&w, k == 0 ? 0x10000 : 4); /* w, h */
+    ts_wr_u8(&w, k == 1 ? 0 : 1), ts_wr_u32(&w, 0), ts_wr_u32(&w, 0), ts_wr_u8(&w, k == 2 ? 2 : 0), ts_wr_u16(&w, 0);
+    ts_wr_bytes(&w, "0123456789abcdef", 16);
+    ts_frame f = frame_of(&w, 'R');
+    assert_int_equal(ts_msg_image_read(&f, &out, err), TS_EPROTO);
+    ts_wr_free(&w);
+  }
 }
 
 static void answer_round_trip(void **state) {
@@ -448,7 +512,9 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(auth_steps_round_trip_and_are_exact),
     cmocka_unit_test(slice_round_trip),
     cmocka_unit_test(slice_geometry_is_checked),
-    cmocka_unit_test(query_round_trip_with_commits),
+    cmocka_unit_test(query_round_trip_with_placements),
+    cmocka_unit_test(image_round_trip),
+    cmocka_unit_test(image_sizes_are_checked),
     cmocka_unit_test(query_counts_are_bounded),
     cmocka_unit_test(answer_round_trip),
     cmocka_unit_test(calib_reply_limits_are_optional_and_checked),
