@@ -7,8 +7,10 @@ Jobs: the seed's Table 3.3 job (brick 512^2 -> 1024^2, L=5, W_N=7, W_B=3,
 parity) and an 11x11 colour window (aero1.jpg, --rgb-search --wn 11), each
 on 1 and 3 workers. Queries are the blocks searched, summed over the levels
 of the job's report. Reported per job and pool size: coordinator egress per
-query and worker (all frames, and query frames 'V' alone), slice loads 'N',
-and worker ingress per query and worker. Writes wire.json and wire.md into
+query and worker (all frames, and query frames 'V' alone), query-image
+loads and level changes 'R', slice loads 'N', and worker ingress per query
+and worker; next to the egress measured before queries became positions
+(bench/results/before-search-rebuild/wire.json), when present. Writes wire.json and wire.md into
 --out.
 """
 import argparse
@@ -127,11 +129,19 @@ def main():
                       f"{r['ingress_per_query_worker']:.1f}", flush=True)
     out.mkdir(parents=True, exist_ok=True)
     (out / "wire.json").write_text(json.dumps(rows, indent=1) + "\n")
-    lines = ["| job | workers | queries | egress B/query/worker | of it 'V' | 'N' bytes | ingress B/query/worker |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| job | workers | queries | egress B/query/worker | of it 'V' | 'R' bytes | 'N' bytes | ingress B/query/worker | "
+             "egress before (vectors) | ratio |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    before = {}
+    old = out / "before-search-rebuild" / "wire.json"
+    if old.exists():
+        before = {(r["job"], r["workers"]): r["egress_per_query_worker"] for r in json.loads(old.read_text())}
     for r in rows:
+        b = before.get((r["job"], r["workers"]))
         lines.append(f"| {r['job']} | {r['workers']} | {r['queries']} | {r['egress_per_query_worker']:.1f} | "
-                     f"{r['egress_V_per_query_worker']:.1f} | {r['egress_N_bytes']} | {r['ingress_per_query_worker']:.1f} |")
+                     f"{r['egress_V_per_query_worker']:.1f} | {r['egress_by_type'].get('R', 0)} | {r['egress_N_bytes']} | "
+                     f"{r['ingress_per_query_worker']:.1f} | {f'{b:.1f}' if b else '-'} | "
+                     f"{f'{b / r['egress_per_query_worker']:.1f}x' if b else '-'} |")
     (out / "wire.md").write_text("\n".join(lines) + "\n")
 
 

@@ -99,6 +99,8 @@ int cl_queue_image(cl_worker *w, uint32_t id, const ts_msg_image *m, char *err) 
   return queue_push(w, e, TS_MSG_IMAGE, id, write_image, err);
 }
 
+uint64_t cl_image_bytes(const ts_msg_image *m) { return ts_payload_size(write_image, m); }
+
 static void write_unload(ts_wr *w, const void *arg) { ts_msg_unload_write(w, arg); }
 
 void cl_queue_unload(ts_cluster *c, cl_worker *w, uint32_t set) {

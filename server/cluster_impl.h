@@ -158,6 +158,8 @@ int cl_queue_slice(cl_worker *w, uint32_t id, const ts_slice_desc *m, char *err)
 int cl_queue_query(cl_worker *w, uint32_t id, const cl_query_frame *q, char *err);
 /* An 'R' (query image). */
 int cl_queue_image(cl_worker *w, uint32_t id, const ts_msg_image *m, char *err);
+/* Payload bytes of an 'R' message. */
+uint64_t cl_image_bytes(const ts_msg_image *m);
 /* Payload bytes of a slice's 'N' message. */
 uint64_t cl_slice_bytes(const ts_slice_desc *m);
 /* Whether w takes a message of that many payload bytes: under its frame

@@ -130,7 +130,13 @@ static void describe_slice(const cl_set *st, int i, ts_slice_desc *m) {
  * takes no pieces) gets no slice of this set and the others share it, so
  * the set never goes to a worker that must refuse it (it would be dropped,
  * rejoin and be refused again). Returns how many workers hold slices. */
-static int cut_fitting(ts_cluster *c, cl_set *st, cl_worker **ws, int n) {
+static void load_message(const cl_image *im, ts_msg_image *m);
+
+static int cut_fitting(cluster_search *cs, cl_set *st, cl_worker **ws, int n) {
+  ts_cluster *c = cs->c;
+  ts_msg_image load; /* a worker holding a slice may need the image whole */
+  load_message(&cs->images[st->rs.image], &load);
+  uint64_t image_bytes = cl_image_bytes(&load);
   for (;;) {
     cut_ranges(st->grid, ws, n, st->slices);
     int i = 0;
@@ -140,9 +146,11 @@ static int cut_fitting(ts_cluster *c, cl_set *st, cl_worker **ws, int n) {
       describe_slice(st, i, &m);
       bytes = cl_slice_bytes(&m);
       if (!cl_worker_takes(ws[i], bytes)) break;
+      bytes = image_bytes;
+      if (!cl_worker_takes(ws[i], bytes)) break;
     }
     if (i == n) return n;
-    cl_log(c, "worker %d (%s) gets no slice of set %u: it would be a message of %llu bytes, over its limit of "
+    cl_log(c, "worker %d (%s) gets no slice of set %u: it would need a message of %llu bytes, over its limit of "
            "%llu (%s)", ws[i]->id, ws[i]->conn.peer, st->gid, (unsigned long long)bytes,
            (unsigned long long)(ws[i]->pieces ? ws[i]->max_message : ws[i]->max_payload),
            ws[i]->pieces ? "texsyn-worker --max-message" : "an older worker: its frame limit, no pieces");
@@ -192,7 +200,7 @@ static int ensure_slices(cluster_search *cs, cl_set *st, char *err) {
     st->local = NULL;
     st->nslices = 0;
     st->sliced = 1;
-    if (n > 0) n = cut_fitting(c, st, ws, n);
+    if (n > 0) n = cut_fitting(cs, st, ws, n);
     if (n == 0) return load_local(c, st, err);
     cl_lease(c, ws, n);
     cl_traffic tr = {0, 0};

@@ -224,17 +224,21 @@ def cluster(tmp_path):
 
 def slice_ranges(body):
     """The per-class vector ranges [(i0, i1), ...] of an 'N' (load slice)
-    payload (proto/PROTOCOL.md): past set, gen and the window, to the
+    payload (proto/PROTOCOL.md): past set, gen, image and the window, to the
     classes."""
     import struct
-    nfine, ncoarse = body[8], body[9]
-    off = 14
+    nfine, ncoarse = body[12], body[13]
+    off = 18
+    first_noff = None
     for n in (nfine, ncoarse):
         if n:
             noff = struct.unpack_from("<H", body, off + 8)[0]
+            first_noff = noff if first_noff is None else first_noff
             off += 10 + 4 * noff
     nparts = body[off]
-    off += 1 + 7 * nparts + 16
+    off += 1 + 7 * nparts
+    off += 1 + (first_noff if body[off] else 0)  # the known flags
+    off += 16
     nclass = struct.unpack_from("<H", body, off)[0]
     off += 4
     return [struct.unpack_from("<III", body, off + 12 * c)[1:] for c in range(nclass)]

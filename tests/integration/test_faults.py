@@ -159,7 +159,8 @@ class Proxy(LoopbackProxy):
     connection on the way: `delay` (2 ms per piece), `pieces` (every
     read forwarded in writes of 1, 2, ..., 7 bytes in turn, so frames and
     their headers arrive cut at every offset), `stall` (forwarding stops for STALL s once, mid-job),
-    `reset` (the connection is reset once after some traffic)."""
+    `reset` (the connection is reset once after some traffic: 30 kB to the
+    worker, mid-job now that queries travel as positions)."""
 
     def __init__(self, target, mode):
         self.mode = mode
@@ -180,7 +181,7 @@ class Proxy(LoopbackProxy):
                 if not data:
                     break
                 sent += len(data)
-                armed = to_worker and not self.damaged.is_set() and sent > 200_000
+                armed = to_worker and not self.damaged.is_set() and sent > 30_000
                 if self.mode == "reset" and armed:
                     self.damaged.set()
                     for s in (src, dst):

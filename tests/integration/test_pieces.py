@@ -65,7 +65,7 @@ def test_a_slice_over_a_workers_message_limit_goes_to_the_others(texsyn, data, c
     cluster.start()
     assert remote(cluster, data, tmp_path) == want
     log = cluster.server.read_log()
-    assert re.search(r"worker \d+ \(\S+\) gets no slice of set \d+: it would be a message of \d+ bytes, over its "
+    assert re.search(r"worker \d+ \(\S+\) gets no slice of set \d+: it would need a message of \d+ bytes, over its "
                      r"limit of 1024 \(texsyn-worker --max-message\)", log), log
     assert "dropped" not in log
     pool = {w["addr"]: w for w in cluster.pool()}
