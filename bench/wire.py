@@ -138,10 +138,11 @@ def main():
         before = {(r["job"], r["workers"]): r["egress_per_query_worker"] for r in json.loads(old.read_text())}
     for r in rows:
         b = before.get((r["job"], r["workers"]))
+        was = f"{b:.1f}" if b else "-"
+        ratio = f"{b / r['egress_per_query_worker']:.1f}x" if b else "-"
         lines.append(f"| {r['job']} | {r['workers']} | {r['queries']} | {r['egress_per_query_worker']:.1f} | "
                      f"{r['egress_V_per_query_worker']:.1f} | {r['egress_by_type'].get('R', 0)} | {r['egress_N_bytes']} | "
-                     f"{r['ingress_per_query_worker']:.1f} | {f'{b:.1f}' if b else '-'} | "
-                     f"{f'{b / r['egress_per_query_worker']:.1f}x' if b else '-'} |")
+                     f"{r['ingress_per_query_worker']:.1f} | {was} | {ratio} |")
     (out / "wire.md").write_text("\n".join(lines) + "\n")
 
 

@@ -43,9 +43,10 @@ typedef struct {
 /* A query image (replica.h): the coordinator's replica, which new workers
  * are loaded from, and the placements made since the last exchange, which
  * the exchange's first frame to each worker carries. A worker holds the
- * replica's state while the cluster epoch stays and it got every batch of
- * placements; any failure moves the epoch, and the workers are loaded
- * again. */
+ * replica's state when it came through every exchange that carried
+ * placements since it was loaded: a worker that fails one is dropped, and
+ * comes back under a new id, to be loaded again. (A rebalance reloads
+ * nobody: the image does not depend on the slicing.) */
 #define CL_MAX_IMAGES 4
 
 typedef struct {
@@ -60,7 +61,6 @@ typedef struct {
   ts_place *pending;
   uint32_t npending, cap_pending;
   ts_commit *commits; /* scratch: the commits of applying pending */
-  uint64_t epoch; /* cluster epoch of synced[] */
   cl_synced *synced; /* workers holding rep's state (o.max_workers slots) */
   int nsynced;
 } cl_image;
@@ -325,19 +325,15 @@ static int flush_image(cluster_search *cs, int id, char *err) {
   return rc;
 }
 
-/* Whether worker w holds the replica's state (lock held). */
-static cl_synced *synced_of(ts_cluster *c, cl_image *im, const cl_worker *w) {
-  if (im->epoch != c->epoch) { /* a failure or a new slicing: everyone loads again */
-    im->epoch = c->epoch;
-    im->nsynced = 0;
-  }
+/* What worker w holds of the image: its record, or NULL (lock held). */
+static cl_synced *synced_of(cl_image *im, const cl_worker *w) {
   for (int i = 0; i < im->nsynced; i++)
     if (im->synced[i].worker == w->id) return &im->synced[i];
   return NULL;
 }
 
 static void mark_synced(ts_cluster *c, cl_image *im, const cl_worker *w, uint64_t seq) {
-  cl_synced *y = synced_of(c, im, w);
+  cl_synced *y = synced_of(im, w);
   if (y == NULL && im->nsynced < (int)c->o.max_workers) y = &im->synced[im->nsynced++];
   if (y != NULL) *y = (cl_synced){w->id, seq};
 }
@@ -409,7 +405,7 @@ static int cluster_image_next(ts_search *s, int id, int w, int h, int rw, int rh
   cl_worker **ws = cs->ws;
   int n = 0, all = cl_ready_workers(c, ws);
   for (int i = 0; i < all; i++) {
-    cl_synced *y = synced_of(c, im, ws[i]);
+    cl_synced *y = synced_of(im, ws[i]);
     if (y != NULL && y->seq == im->rep.seq) ws[n++] = ws[i];
   }
   cl_lease(c, ws, n);
@@ -425,7 +421,7 @@ static int cluster_image_next(ts_search *s, int id, int w, int h, int rw, int rh
   cs->base.stats.bytes_in += tr.bytes_in;
   int rc = flush_image(cs, id, err);
   if (rc == 0) rc = ts_replica_next_level(&im->rep, w, h, rw, rh, ref, err);
-  im->nsynced = 0;
+  im->nsynced = 0; /* the others hold the level above, or nothing */
   for (int i = 0; rc == 0 && i < x.nacked; i++) im->synced[im->nsynced++] = (cl_synced){x.acked[i], 0};
   pthread_mutex_unlock(&c->lock);
   free(acked);
@@ -659,7 +655,7 @@ static int image_frame(cluster_search *cs, const batch_ctx *bc, cl_worker *w, in
   if (w->images_sent & 1u << id) return 0;
   w->images_sent |= 1u << id;
   *nplace = im->npending;
-  cl_synced *y = synced_of(cs->c, im, w);
+  cl_synced *y = synced_of(im, w);
   if (y != NULL && y->seq == im->rep.seq) return 0;
   ts_msg_image m;
   load_message(im, &m);
@@ -706,16 +702,17 @@ static int queue_frames(cluster_search *cs, const batch_ctx *bc, const ts_search
 }
 
 /* After an exchange: the placements it carried reach the coordinator's
- * replicas; when it succeeded, every worker it sent an image's frames
- * holds that image's state. */
-static int settle_images(cluster_search *cs, const batch_ctx *bc, cl_worker **ws, int n, int ok, char *err) {
+ * replicas, and every worker that was sent an image's frames and is not
+ * failed answered them all: it holds that image's state. */
+static int settle_images(cluster_search *cs, const batch_ctx *bc, cl_worker **ws, int n, char *err) {
   int rc = 0;
   for (uint32_t r = 0; r < bc->nreq; r++) {
     int id = bc->st[r]->rs.image;
     int fr = flush_image(cs, id, err);
     if (rc == 0) rc = fr;
-    for (int i = 0; ok && i < n; i++)
-      if (ws[i]->images_sent & 1u << id) mark_synced(cs->c, &cs->images[id], ws[i], cs->images[id].rep.seq);
+    for (int i = 0; i < n; i++)
+      if (ws[i]->images_sent & 1u << id && ws[i]->state != TS_WORKER_FAILED)
+        mark_synced(cs->c, &cs->images[id], ws[i], cs->images[id].rep.seq);
   }
   return rc;
 }
@@ -757,7 +754,7 @@ static int exchange_batch(cluster_search *cs, batch_ctx *bc, const ts_search_req
   rc = cl_exchange(c, ws, n, batch_deadline(c, ws, n), answer_reply, bc, &tr);
   cl_release(c, ws, n);
   char why[TS_ERR_LEN];
-  if (settle_images(cs, bc, ws, n, rc == 0, why) != 0) return ts_error(err, TS_EINVAL, "%s", why);
+  if (settle_images(cs, bc, ws, n, why) != 0) return ts_error(err, TS_EINVAL, "%s", why);
   cs->base.stats.bytes_out += tr.bytes_out;
   cs->base.stats.bytes_in += tr.bytes_in;
   if (rc == 0) {
