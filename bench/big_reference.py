@@ -29,11 +29,13 @@ import hashlib
 import json
 import os
 import re
-import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from cluster import start, stop, wait_ready  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("TEXSYN_DATA", REPO.parent / "shared" / "data"))
@@ -67,33 +69,6 @@ def timed(args, log):
     if p.returncode != 0:
         sys.exit(f"bench: {args[1]} failed ({p.returncode}), see {log}:\n{text[-2000:]}")
     return secs, int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", text).group(1)) * 1024
-
-
-def start(args, log):
-    p = subprocess.Popen([str(a) for a in args], stdout=subprocess.PIPE, stderr=open(log, "w"), text=True)
-    m = re.search(r"listening on (\S+)", p.stdout.readline())
-    if not m:
-        sys.exit(f"bench: {args[0]} did not start, see {log}")
-    return p, m.group(1)
-
-
-def stop(procs):
-    for p in procs:
-        p.send_signal(signal.SIGTERM)
-    for p in procs:
-        try:
-            p.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            p.kill()
-
-
-def wait_ready(build, addr, n):
-    for _ in range(1200):
-        out = subprocess.run([build / "texsyn", "workers", "--server", addr], capture_output=True, text=True).stdout
-        if out.count(" ready ") >= n:
-            return
-        time.sleep(0.05)
-    sys.exit(f"bench: {n} workers not ready at {addr}")
 
 
 def sha(path):

@@ -46,13 +46,13 @@ def stop(procs):
         p.send_signal(signal.SIGTERM)
     for p in procs:
         try:
-            p.wait(timeout=20)
+            p.wait(timeout=30)  # a worker holding a big slice takes a while to free it
         except subprocess.TimeoutExpired:
             p.kill()
 
 
 def wait_ready(build, addr, n):
-    for _ in range(400):
+    for _ in range(1200):  # calibration of several workers on a loaded machine
         out = subprocess.run([build / "texsyn", "workers", "--server", addr], capture_output=True, text=True).stdout
         if out.count(" ready ") >= n:
             return
