@@ -214,6 +214,20 @@ static int rd_window(ts_rd *r, ts_slice_desc *m, char *err) {
 
 static int slice_has_planes(const ts_slice_desc *m) { return m->labelled || m->masked; }
 
+/* Rows [y0, k0) and [k1, y1), `row` bytes each: what travels of rows
+ * [y0, y1) when [k0, k1) are kept. */
+static void wr_rows(ts_wr *w, ts_slice_rows r, size_t row, int y0, int y1, int k0, int k1) {
+  ts_wr_bytes(w, r.lo, row * (size_t)(k0 - y0));
+  ts_wr_bytes(w, r.hi, row * (size_t)(y1 - k1));
+}
+
+static ts_slice_rows rd_rows(ts_rd *r, size_t row, int y0, int y1, int k0, int k1) {
+  ts_slice_rows out;
+  out.lo = ts_rd_bytes(r, row * (size_t)(k0 - y0));
+  out.hi = ts_rd_bytes(r, row * (size_t)(y1 - k1));
+  return out;
+}
+
 void ts_msg_slice_write(ts_wr *w, const ts_slice_desc *m) {
   ts_wr_u32(w, m->set);
   ts_wr_u32(w, m->gen);
@@ -238,15 +252,17 @@ void ts_msg_slice_write(ts_wr *w, const ts_slice_desc *m) {
   ts_wr_u32(w, (uint32_t)m->fy1);
   ts_wr_u32(w, (uint32_t)m->cy0);
   ts_wr_u32(w, (uint32_t)m->cy1);
-  size_t frow = (size_t)m->w * (size_t)(m->fy1 - m->fy0);
-  size_t crow = (size_t)m->cw * (size_t)(m->cy1 - m->cy0);
-  size_t arow = (size_t)m->w * (size_t)(m->ay1 - m->ay0);
-  for (int p = 0; p < m->win.nplanes[TS_SRC_FINE]; p++) ts_wr_bytes(w, m->fine[p], frow);
-  for (int p = 0; p < m->win.nplanes[TS_SRC_COARSE]; p++) ts_wr_bytes(w, m->coarse[p], crow);
-  if (m->labelled) ts_wr_bytes(w, m->labels, arow);
-  if (m->masked) ts_wr_bytes(w, m->valid, arow);
+  ts_wr_u32(w, m->base_gen);
+  const int32_t kept[6] = {m->kfy0, m->kfy1, m->kcy0, m->kcy1, m->kay0, m->kay1};
+  for (int k = 0; k < 6; k++) ts_wr_u32(w, (uint32_t)kept[k]);
+  size_t w1 = (size_t)m->w, cw = (size_t)m->cw;
+  for (int p = 0; p < m->win.nplanes[TS_SRC_FINE]; p++) wr_rows(w, m->fine[p], w1, m->fy0, m->fy1, m->kfy0, m->kfy1);
+  for (int p = 0; p < m->win.nplanes[TS_SRC_COARSE]; p++)
+    wr_rows(w, m->coarse[p], cw, m->cy0, m->cy1, m->kcy0, m->kcy1);
+  if (m->labelled) wr_rows(w, m->labels, w1, m->ay0, m->ay1, m->kay0, m->kay1);
+  if (m->masked) wr_rows(w, m->valid, w1, m->ay0, m->ay1, m->kay0, m->kay1);
   ts_wr_u8(w, m->usage);
-  if (m->usage == TS_SLICE_USAGE_COUNTS) ts_wr_bytes(w, m->counts, frow * 4);
+  if (m->usage == TS_SLICE_USAGE_COUNTS) wr_rows(w, m->counts, 4 * w1, m->fy0, m->fy1, m->kfy0, m->kfy1);
 }
 
 /* What the row reads below need: sizes and row ranges within the levels
@@ -264,6 +280,9 @@ static int slice_check_geometry(const ts_slice_desc *m, char *err) {
   if (m->fy0 < 0 || m->fy0 >= m->fy1 || m->fy1 > m->h) return bad(err, 'N', "fine row range");
   if (coarse ? (m->cy0 < 0 || m->cy0 >= m->cy1 || m->cy1 > m->ch) : (m->cy0 != 0 || m->cy1 != 0))
     return bad(err, 'N', "coarse row range");
+  if (m->kfy0 < m->fy0 || m->kfy0 > m->kfy1 || m->kfy1 > m->fy1 || m->kcy0 < m->cy0 || m->kcy0 > m->kcy1 ||
+      m->kcy1 > m->cy1 || m->kay0 < m->ay0 || m->kay0 > m->kay1 || m->kay1 > m->ay1)
+    return bad(err, 'N', "kept rows outside the rows read");
   return 0;
 }
 
@@ -296,19 +315,21 @@ int ts_msg_slice_read(const ts_frame *f, ts_slice_desc *m, char *err) {
   m->fy1 = (int32_t)ts_rd_u32(&r);
   m->cy0 = (int32_t)ts_rd_u32(&r);
   m->cy1 = (int32_t)ts_rd_u32(&r);
+  m->base_gen = ts_rd_u32(&r);
+  int32_t *kept[6] = {&m->kfy0, &m->kfy1, &m->kcy0, &m->kcy1, &m->kay0, &m->kay1};
+  for (int k = 0; k < 6; k++) *kept[k] = (int32_t)ts_rd_u32(&r);
   if (r.failed) return bad(err, 'N', "truncated header");
   rc = slice_check_geometry(m, err);
   if (rc != 0) return rc;
-  size_t frow = (size_t)m->w * (size_t)(m->fy1 - m->fy0);
-  size_t crow = (size_t)m->cw * (size_t)(m->cy1 - m->cy0);
-  size_t arow = (size_t)m->w * (size_t)(m->ay1 - m->ay0);
-  for (int p = 0; p < m->win.nplanes[TS_SRC_FINE] && p < TS_WIN_MAX_PLANES; p++) m->fine[p] = ts_rd_bytes(&r, frow);
+  size_t w = (size_t)m->w, cw = (size_t)m->cw;
+  for (int p = 0; p < m->win.nplanes[TS_SRC_FINE] && p < TS_WIN_MAX_PLANES; p++)
+    m->fine[p] = rd_rows(&r, w, m->fy0, m->fy1, m->kfy0, m->kfy1);
   for (int p = 0; p < m->win.nplanes[TS_SRC_COARSE] && p < TS_WIN_MAX_PLANES; p++)
-    m->coarse[p] = ts_rd_bytes(&r, crow);
-  if (m->labelled) m->labels = ts_rd_bytes(&r, arow);
-  if (m->masked) m->valid = ts_rd_bytes(&r, arow);
+    m->coarse[p] = rd_rows(&r, cw, m->cy0, m->cy1, m->kcy0, m->kcy1);
+  if (m->labelled) m->labels = rd_rows(&r, w, m->ay0, m->ay1, m->kay0, m->kay1);
+  if (m->masked) m->valid = rd_rows(&r, w, m->ay0, m->ay1, m->kay0, m->kay1);
   m->usage = ts_rd_u8(&r);
-  if (m->usage == TS_SLICE_USAGE_COUNTS) m->counts = ts_rd_bytes(&r, frow * 4);
+  if (m->usage == TS_SLICE_USAGE_COUNTS) m->counts = rd_rows(&r, 4 * w, m->fy0, m->fy1, m->kfy0, m->kfy1);
   if (finish(&r, err, 'N') != 0) return TS_EPROTO;
   if (m->usage > TS_SLICE_USAGE_COUNTS) return bad(err, 'N', "usage mode");
   return 0;

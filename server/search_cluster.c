@@ -21,7 +21,14 @@
 typedef struct {
   cl_worker *w;
   uint32_t *i0, *i1; /* per class: into the set's ranges */
+  ts_slice_held rows; /* what it holds once loaded */
 } cl_slice;
+
+/* A worker's loaded slice of a set: a re-slice keeps its rows. */
+typedef struct {
+  int worker; /* worker id */
+  ts_slice_held rows;
+} cl_held;
 
 typedef struct {
   int used;
@@ -37,6 +44,8 @@ typedef struct {
   cl_slice *slices; /* one per worker holding a part (o.max_workers slots) */
   uint32_t *ranges; /* their class ranges: 2 * nclass per slot */
   int nslices;
+  cl_held *held; /* the workers that loaded the last slicing (o.max_workers slots) */
+  int nheld;
   ts_slice *local; /* in-process slice when no worker is ready */
 } cl_set;
 
@@ -120,9 +129,35 @@ static int loaded_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
   return 0;
 }
 
-/* Worker i's slice of st as an 'N' message. */
-static void describe_slice(const cl_set *st, int i, ts_slice_desc *m) {
-  ts_slice_describe(m, &st->rs, &st->usage, st->gid, st->gen, st->image, st->slices[i].i0, st->slices[i].i1);
+static cl_synced *synced_of(cl_image *im, const cl_worker *w);
+
+/* The rows w holds of st that its next slice may keep, or NULL. Its
+ * usage counters are those of the coordinator's replica only if it holds
+ * the image's current state: it has counted the same placements. */
+static const ts_slice_held *held_rows(cluster_search *cs, const cl_set *st, const cl_worker *w) {
+  cl_image *im = &cs->images[st->rs.image];
+  const cl_synced *y = synced_of(im, w);
+  if (y == NULL || y->seq != im->rep.seq) return NULL;
+  for (int i = 0; i < st->nheld; i++)
+    if (st->held[i].worker == w->id) return &st->held[i].rows;
+  return NULL;
+}
+
+/* Worker i's slice of st as an 'N' message: what changed since the slice
+ * it holds. */
+static void describe_slice(cluster_search *cs, cl_set *st, int i, ts_slice_desc *m) {
+  cl_slice *sl = &st->slices[i];
+  ts_slice_describe(m, &st->rs, &st->usage, st->gid, st->gen, st->image, sl->i0, sl->i1, held_rows(cs, st, sl->w));
+  sl->rows = ts_slice_held_by(m);
+}
+
+/* After a slicing's exchange: the workers that loaded their slice. */
+static void record_held(cl_set *st, int n) {
+  st->nheld = 0;
+  for (int i = 0; i < n; i++) {
+    const cl_worker *w = st->slices[i].w;
+    if (w->state != TS_WORKER_FAILED && w->expect == 0) st->held[st->nheld++] = (cl_held){w->id, st->slices[i].rows};
+  }
 }
 
 /* Cuts st over ws[0..n) so that every worker can take its slice's 'N'
@@ -143,7 +178,7 @@ static int cut_fitting(cluster_search *cs, cl_set *st, cl_worker **ws, int n) {
     uint64_t bytes = 0;
     for (; i < n; i++) {
       ts_slice_desc m;
-      describe_slice(st, i, &m);
+      describe_slice(cs, st, i, &m);
       bytes = cl_slice_bytes(&m);
       if (!cl_worker_takes(ws[i], bytes)) break;
       bytes = image_bytes;
@@ -182,8 +217,9 @@ static double load_deadline(const ts_cluster *c, const cl_set *st, int n) {
 static int load_local(ts_cluster *c, cl_set *st, char *err) {
   static const uint32_t i0[TS_MAX_CLASSES] = {0};
   ts_slice_desc m;
-  ts_slice_describe(&m, &st->rs, &st->usage, st->gid, st->gen, st->image, i0, st->grid->count);
-  return ts_slice_load(&st->local, &m, c->local_pool, err);
+  ts_slice_describe(&m, &st->rs, &st->usage, st->gid, st->gen, st->image, i0, st->grid->count, NULL);
+  st->nheld = 0;
+  return ts_slice_load(&st->local, &m, NULL, c->local_pool, err);
 }
 
 /* Makes the set's slicing match the current pool (lock held): every ready
@@ -205,11 +241,14 @@ static int ensure_slices(cluster_search *cs, cl_set *st, char *err) {
     cl_lease(c, ws, n);
     cl_traffic tr = {0, 0};
     double total = 0;
+    uint64_t sent = 0, kept = 0;
     for (int i = 0; i < n; i++) total += ws[i]->slice_rate;
     for (int i = 0; i < n; i++) {
       ts_slice_desc m;
       char why[TS_ERR_LEN];
-      describe_slice(st, i, &m);
+      describe_slice(cs, st, i, &m);
+      sent += ts_slice_row_bytes(&m, 0);
+      kept += ts_slice_row_bytes(&m, 1);
       /* The rows stay in the level planes: each chunk of the message is
        * copied from there as the worker's socket drains. */
       if (cl_queue_slice(ws[i], ++c->next_frame, &m, why) != 0)
@@ -218,7 +257,11 @@ static int ensure_slices(cluster_search *cs, cl_set *st, char *err) {
       ws[i]->share = (uint32_t)llround(1000.0 * ws[i]->slice_rate / total);
     }
     st->nslices = n;
+    if (kept > 0)
+      cl_log(c, "set %u generation %u over %d workers: %llu bytes of rows sent, %llu kept from their slices", st->gid,
+             st->gen, n, (unsigned long long)sent, (unsigned long long)kept);
     cl_exchange(c, ws, n, load_deadline(c, st, n), loaded_reply, st, &tr);
+    record_held(st, n);
     cl_release(c, ws, n);
     cs->base.stats.bytes_out += tr.bytes_out;
     cs->base.stats.bytes_in += tr.bytes_in;
@@ -242,12 +285,15 @@ static int cluster_prepare(ts_search *s, const ts_refset *rs, int *id, char *err
   size_t slots = (size_t)cs->c->o.max_workers, nclass = (size_t)rs->anchors->nclass;
   st->slices = calloc(slots, sizeof(*st->slices));
   st->ranges = calloc(slots * 2 * nclass, sizeof(uint32_t));
-  if (st->slices == NULL || st->ranges == NULL ||
+  st->held = calloc(slots, sizeof(*st->held));
+  if (st->slices == NULL || st->ranges == NULL || st->held == NULL ||
       (rs->usage && ts_usage_init(&st->usage, rs->anchors, rs->window->spec.block, 0) != 0)) {
     free(st->slices);
     free(st->ranges);
+    free(st->held);
     st->slices = NULL;
     st->ranges = NULL;
+    st->held = NULL;
     return ts_error(err, TS_ENOMEM, "out of memory for a reference set");
   }
   for (size_t i = 0; i < slots; i++) {
@@ -859,6 +905,7 @@ static void set_clear(cluster_search *cs, cl_set *st) {
   ts_usage_free(&st->usage);
   free(st->slices);
   free(st->ranges);
+  free(st->held);
   memset(st, 0, sizeof(*st));
 }
 

@@ -221,13 +221,13 @@ static int on_slice(session *s, const ts_frame *f, char *err) {
   int rc = ts_msg_slice_read(f, &m, err);
   if (rc != 0) return rc;
   ts_slice *sl;
+  ts_slice **slot = slot_of(s, m.set); /* the slice it replaces, which it may keep rows of */
   ts_wmon_loading(1);
   pthread_mutex_lock(&g_w.pool_lock); /* the build runs on the scan threads */
-  rc = ts_slice_load(&sl, &m, g_w.pool, err);
+  rc = ts_slice_load(&sl, &m, slot != NULL ? *slot : NULL, g_w.pool, err);
   pthread_mutex_unlock(&g_w.pool_lock);
   ts_wmon_loading(-1);
   if (rc != 0) return send_error(s, f->id, TS_EINVAL, err) == 0 ? 1 : TS_ECONN;
-  ts_slice **slot = slot_of(s, m.set);
   for (int i = 0; slot == NULL && i < WORKER_MAX_SLICES; i++)
     if (s->slices[i] == NULL) slot = &s->slices[i];
   if (slot == NULL) {
@@ -240,6 +240,9 @@ static int on_slice(session *s, const ts_frame *f, char *err) {
   if (s->conn.pieces.count > 0)
     ts_log("set %u generation %u: %llu vectors from a message of %u bytes in %u pieces", m.set, m.gen,
            (unsigned long long)ts_slice_vectors(sl), f->len, s->conn.pieces.count);
+  if (m.base_gen != 0)
+    ts_log("set %u generation %u: %llu vectors from a message of %u bytes, fine rows %d..%d kept from generation %u",
+           m.set, m.gen, (unsigned long long)ts_slice_vectors(sl), f->len, m.kfy0, m.kfy1 - 1, m.base_gen);
   ts_msg_loaded ack = {m.set, m.gen, ts_slice_vectors(sl)};
   ts_wr w;
   ts_wr_init(&w);

@@ -95,8 +95,8 @@ static int local_prepare(ts_search *s, const ts_refset *rs, int *id, char *err) 
   static const uint32_t i0[TS_MAX_CLASSES] = {0};
   if (image_get(ls, rs->image) == NULL) return ts_error(err, TS_EINVAL, "unknown query image %d", rs->image);
   ts_slice_desc m;
-  ts_slice_describe(&m, rs, rs->counts, (uint32_t)slot, 0, (uint32_t)rs->image, i0, rs->anchors->count);
-  int rc = ts_slice_load(&ls->sets[slot], &m, ls->pool, err);
+  ts_slice_describe(&m, rs, rs->counts, (uint32_t)slot, 0, (uint32_t)rs->image, i0, rs->anchors->count, NULL);
+  int rc = ts_slice_load(&ls->sets[slot], &m, NULL, ls->pool, err);
   if (rc != 0) return rc;
   memcpy(ls->count[slot], rs->anchors->count, sizeof(ls->count[slot]));
   *id = slot;

@@ -17,7 +17,14 @@ struct ts_slice {
   ts_anchors anchors;
   int nclass;
   uint32_t i0[TS_MAX_CLASSES], i1[TS_MAX_CLASSES];
-  ts_plane fine[TS_WIN_MAX_PLANES], coarse[TS_WIN_MAX_PLANES];
+  ts_plane fine[TS_WIN_MAX_PLANES], coarse[TS_WIN_MAX_PLANES]; /* while building */
+  /* The rows it read, kept for the next slice of the set (a re-slice
+   * sends only the rows it lacks): fine rows [fy0, fy1) and coarse rows
+   * [cy0, cy1) of every plane, label and validity rows [ay0, ay1). */
+  ts_slice_held held;
+  int cw;
+  uint8_t *rows_fine[TS_WIN_MAX_PLANES], *rows_coarse[TS_WIN_MAX_PLANES];
+  uint8_t *rows_labels, *rows_valid;
   ts_l1_set *cls;      /* nclass vector sets */
   uint32_t **penalty;  /* per class, indexed like the class set */
   int with_usage;
@@ -51,8 +58,22 @@ static void anchor_rows(const ts_anchors *a, const uint32_t *i0, const uint32_t 
   if (*ay0 > *ay1) *ay0 = a->y0, *ay1 = a->y0 + 1;
 }
 
+/* The rows of [y0, y1) also in [b0, b1), as [*k0, *k1); none: both y1. */
+static void keep_rows(int y0, int y1, int b0, int b1, int32_t *k0, int32_t *k1) {
+  int lo = y0 > b0 ? y0 : b0, hi = y1 < b1 ? y1 : b1;
+  if (lo >= hi) lo = hi = y1;
+  *k0 = lo;
+  *k1 = hi;
+}
+
+/* Rows [y0, k0) and [k1, y1) of an image `row` bytes wide at px. */
+static ts_slice_rows rows_of(const uint8_t *px, size_t row, int y0, int k1) {
+  return (ts_slice_rows){px + (size_t)y0 * row, px + (size_t)k1 * row};
+}
+
 void ts_slice_describe(ts_slice_desc *m, const ts_refset *rs, const ts_usage *counts, uint32_t set,
-                       uint32_t gen, uint32_t image, const uint32_t *i0, const uint32_t *i1) {
+                       uint32_t gen, uint32_t image, const uint32_t *i0, const uint32_t *i1,
+                       const ts_slice_held *held) {
   const ts_window *win = rs->window;
   const ts_anchors *a = rs->anchors;
   memset(m, 0, offsetof(ts_slice_desc, offbuf));
@@ -75,17 +96,41 @@ void ts_slice_describe(ts_slice_desc *m, const ts_refset *rs, const ts_usage *co
   anchor_rows(a, i0, i1, &m->ay0, &m->ay1);
   for (int c = 0; c < a->nclass; c++) m->above[c] = ts_anchors_above(a, c, m->ay0);
   ts_window_rows(win, m->ay0, m->ay1, &m->fy0, &m->fy1, &m->cy0, &m->cy1);
+  ts_slice_held none = {0, 0, 0, 0, 0, 0, 0};
+  if (held == NULL) held = &none;
+  m->base_gen = held->gen;
+  keep_rows(m->fy0, m->fy1, held->fy0, held->fy1, &m->kfy0, &m->kfy1);
+  keep_rows(m->cy0, m->cy1, held->cy0, held->cy1, &m->kcy0, &m->kcy1);
+  keep_rows(m->ay0, m->ay1, held->ay0, held->ay1, &m->kay0, &m->kay1);
   for (int p = 0; p < win->spec.nplanes[TS_SRC_FINE]; p++)
-    m->fine[p] = rs->ref->fine[p]->px + (size_t)m->fy0 * (size_t)a->w;
+    m->fine[p] = rows_of(rs->ref->fine[p]->px, (size_t)a->w, m->fy0, m->kfy1);
   for (int p = 0; p < win->spec.nplanes[TS_SRC_COARSE]; p++)
-    m->coarse[p] = rs->ref->coarse[p]->px + (size_t)m->cy0 * (size_t)m->cw;
-  size_t arow = (size_t)m->ay0 * (size_t)a->w;
-  if (m->labelled) m->labels = rs->labels->px + arow;
-  if (m->masked) m->valid = rs->valid->px + arow;
+    m->coarse[p] = rows_of(rs->ref->coarse[p]->px, (size_t)m->cw, m->cy0, m->kcy1);
+  if (m->labelled) m->labels = rows_of(rs->labels->px, (size_t)a->w, m->ay0, m->kay1);
+  if (m->masked) m->valid = rows_of(rs->valid->px, (size_t)a->w, m->ay0, m->kay1);
   m->usage = !rs->usage                           ? TS_SLICE_USAGE_NONE
              : counts == NULL || counts->total == 0 ? TS_SLICE_USAGE_ZERO
                                                   : TS_SLICE_USAGE_COUNTS;
-  if (m->usage == TS_SLICE_USAGE_COUNTS) m->counts = (const uint8_t *)(counts->count + (size_t)m->fy0 * (size_t)a->w);
+  if (m->usage == TS_SLICE_USAGE_COUNTS)
+    m->counts = rows_of((const uint8_t *)counts->count, 4 * (size_t)a->w, m->fy0, m->kfy1);
+}
+
+uint64_t ts_slice_row_bytes(const ts_slice_desc *m, int kept) {
+  uint64_t f = (uint64_t)(m->kfy1 - m->kfy0), c = (uint64_t)(m->kcy1 - m->kcy0), a = (uint64_t)(m->kay1 - m->kay0);
+  if (!kept) {
+    f = (uint64_t)(m->fy1 - m->fy0) - f;
+    c = (uint64_t)(m->cy1 - m->cy0) - c;
+    a = (uint64_t)(m->ay1 - m->ay0) - a;
+  }
+  uint64_t w = (uint64_t)m->w;
+  uint64_t bytes = f * w * m->win.nplanes[TS_SRC_FINE] + c * (uint64_t)m->cw * m->win.nplanes[TS_SRC_COARSE];
+  bytes += a * w * (uint64_t)(m->labelled + m->masked);
+  if (m->usage == TS_SLICE_USAGE_COUNTS) bytes += 4 * f * w;
+  return bytes;
+}
+
+ts_slice_held ts_slice_held_by(const ts_slice_desc *m) {
+  return (ts_slice_held){m->gen, m->fy0, m->fy1, m->cy0, m->cy1, m->ay0, m->ay1};
 }
 
 void ts_slice_free(ts_slice *s) {
@@ -99,7 +144,11 @@ void ts_slice_free(ts_slice *s) {
   for (int p = 0; p < TS_WIN_MAX_PLANES; p++) {
     ts_plane_free(&s->fine[p]);
     ts_plane_free(&s->coarse[p]);
+    free(s->rows_fine[p]);
+    free(s->rows_coarse[p]);
   }
+  free(s->rows_labels);
+  free(s->rows_valid);
   ts_usage_free(&s->usage);
   ts_anchors_free(&s->anchors);
   ts_window_free(&s->window);
@@ -122,6 +171,29 @@ uint64_t ts_slice_vectors(const ts_slice *s) {
   return n;
 }
 
+/* Rows [y0, y1) of one image, `row` bytes each, joined into dst: the
+ * message's rows around the kept ones [k0, k1), which start at kept. */
+static void join_rows(uint8_t *dst, size_t row, int y0, int y1, int k0, int k1, ts_slice_rows r,
+                      const uint8_t *kept) {
+  size_t lo = row * (size_t)(k0 - y0), mid = row * (size_t)(k1 - k0), hi = row * (size_t)(y1 - k1);
+  if (lo > 0) memcpy(dst, r.lo, lo);
+  if (mid > 0) memcpy(dst + lo, kept, mid);
+  if (hi > 0) memcpy(dst + lo + mid, r.hi, hi);
+}
+
+/* A joined copy of rows [y0, y1) (see join_rows), or NULL. */
+static uint8_t *rows_copy(size_t row, int y0, int y1, int k0, int k1, ts_slice_rows r, const uint8_t *kept) {
+  uint8_t *dst = malloc(row * (size_t)(y1 - y0));
+  if (dst != NULL) join_rows(dst, row, y0, y1, k0, k1, r, kept);
+  return dst;
+}
+
+/* Kept rows [k0, k1) of rows held from y0 on, `row` bytes each (NULL:
+ * none kept). */
+static const uint8_t *held_rows(const uint8_t *rows, size_t row, int y0, int k0, int k1) {
+  return rows == NULL || k1 <= k0 ? NULL : rows + row * (size_t)(k0 - y0);
+}
+
 /* Full-size plane, zero outside rows [y0, y1), which come from rows. */
 static int plane_from_rows(ts_plane *p, int w, int h, int y0, int y1, const uint8_t *rows) {
   if (ts_plane_alloc(p, w, h) != 0) return TS_ENOMEM;
@@ -130,6 +202,27 @@ static int plane_from_rows(ts_plane *p, int w, int h, int y0, int y1, const uint
   return 0;
 }
 
+/* The base a message keeps rows from must be the slice it names, of the
+ * same level, holding every kept row. */
+static int check_base(const ts_slice *b, const ts_slice_desc *m, char *err) {
+  int keeps = m->kfy1 > m->kfy0 || m->kcy1 > m->kcy0 || m->kay1 > m->kay0;
+  if (m->base_gen == 0)
+    return keeps ? ts_error(err, TS_EINVAL, "slice keeps rows but names no generation to keep them from") : 0;
+  if (b == NULL || b->gen != m->base_gen)
+    return ts_error(err, TS_EINVAL, "slice %u generation %u keeps rows of generation %u, which this worker does not "
+                    "hold", m->set, m->gen, m->base_gen);
+  const ts_anchors *a = &b->anchors;
+  int same = a->w == m->w && a->h == m->h && b->cw == m->cw && b->nclass == m->nclass &&
+             memcmp(a->count, m->count, sizeof(uint32_t) * (size_t)m->nclass) == 0 &&
+             b->with_usage == (m->usage != TS_SLICE_USAGE_NONE);
+  if (!same) return ts_error(err, TS_EINVAL, "slice %u generation %u is of another level than its base", m->set, m->gen);
+  const ts_slice_held *h = &b->held;
+  if ((m->kfy1 > m->kfy0 && (m->kfy0 < h->fy0 || m->kfy1 > h->fy1)) ||
+      (m->kcy1 > m->kcy0 && (m->kcy0 < h->cy0 || m->kcy1 > h->cy1)) ||
+      (m->kay1 > m->kay0 && (m->kay0 < h->ay0 || m->kay1 > h->ay1)))
+    return ts_error(err, TS_EINVAL, "slice %u keeps rows its generation %u does not hold", m->set, m->base_gen);
+  return 0;
+}
 /* Every class range must lie in its class and in the anchor rows held, and
  * those anchors read only the shipped rows. */
 static int check_ranges(const ts_slice *s, const ts_slice_desc *m, char *err) {
@@ -159,8 +252,7 @@ static int check_ranges(const ts_slice *s, const ts_slice_desc *m, char *err) {
   return 0;
 }
 
-/* Loads the counters of the shipped rows and the block sums of every
- * block inside them (all the slice's blocks are). */
+/* Adds the counters of rows [y0, y1) (u32 little-endian) to u. */
 static void usage_load_rows(ts_usage *u, int y0, int y1, const uint8_t *le) {
   const ts_anchors *g = &u->grid;
   for (int y = y0; y < y1; y++)
@@ -170,21 +262,52 @@ static void usage_load_rows(ts_usage *u, int y0, int y1, const uint8_t *le) {
       u->count[(size_t)y * (size_t)g->w + (size_t)x] = v;
       u->total += v;
     }
-  ts_usage_sum_blocks(u, y0, y1);
 }
 
-/* The level planes of the shipped rows, full size. */
-static int load_planes(ts_slice *s, const ts_slice_desc *m, ts_levelplanes *planes, char *err) {
+/* The counters of the fine rows: the message's, and the kept rows' from
+ * the base (which has counted every placement since, as this slice
+ * would have); then the block sums of every block inside them. */
+static void load_usage(ts_slice *s, const ts_slice_desc *m, const ts_slice *base) {
+  ts_usage *u = &s->usage;
+  size_t w = (size_t)m->w;
+  if (m->usage == TS_SLICE_USAGE_COUNTS) {
+    usage_load_rows(u, m->fy0, m->kfy0, m->counts.lo);
+    usage_load_rows(u, m->kfy1, m->fy1, m->counts.hi);
+  }
+  if (m->kfy1 > m->kfy0)
+    usage_load_rows(u, m->kfy0, m->kfy1, (const uint8_t *)(base->usage.count + (size_t)m->kfy0 * w));
+  ts_usage_sum_blocks(u, m->fy0, m->fy1);
+}
+
+/* The rows the slice reads, joined from the message and the base, kept
+ * for the next slice; full-size level planes of them for the build. */
+static int load_rows(ts_slice *s, const ts_slice_desc *m, const ts_slice *base, ts_levelplanes *planes, char *err) {
+  const ts_slice_held *h = base != NULL ? &base->held : NULL;
+  size_t w = (size_t)m->w, cw = (size_t)m->cw;
   for (int p = 0; p < m->win.nplanes[TS_SRC_FINE]; p++) {
-    if (plane_from_rows(&s->fine[p], m->w, m->h, m->fy0, m->fy1, m->fine[p]) != 0)
+    const uint8_t *kept = h ? held_rows(base->rows_fine[p], w, h->fy0, m->kfy0, m->kfy1) : NULL;
+    s->rows_fine[p] = rows_copy(w, m->fy0, m->fy1, m->kfy0, m->kfy1, m->fine[p], kept);
+    if (s->rows_fine[p] == NULL || plane_from_rows(&s->fine[p], m->w, m->h, m->fy0, m->fy1, s->rows_fine[p]) != 0)
       return ts_error(err, TS_ENOMEM, "out of memory for the slice's planes");
     planes->fine[p] = &s->fine[p];
   }
   for (int p = 0; p < m->win.nplanes[TS_SRC_COARSE]; p++) {
-    if (plane_from_rows(&s->coarse[p], m->cw, m->ch, m->cy0, m->cy1, m->coarse[p]) != 0)
+    const uint8_t *kept = h ? held_rows(base->rows_coarse[p], cw, h->cy0, m->kcy0, m->kcy1) : NULL;
+    s->rows_coarse[p] = rows_copy(cw, m->cy0, m->cy1, m->kcy0, m->kcy1, m->coarse[p], kept);
+    if (s->rows_coarse[p] == NULL ||
+        plane_from_rows(&s->coarse[p], m->cw, m->ch, m->cy0, m->cy1, s->rows_coarse[p]) != 0)
       return ts_error(err, TS_ENOMEM, "out of memory for the slice's planes");
     planes->coarse[p] = &s->coarse[p];
   }
+  if (m->labelled &&
+      (s->rows_labels = rows_copy(w, m->ay0, m->ay1, m->kay0, m->kay1, m->labels,
+                                  h ? held_rows(base->rows_labels, w, h->ay0, m->kay0, m->kay1) : NULL)) == NULL)
+    return ts_error(err, TS_ENOMEM, "out of memory for the slice's label rows");
+  if (m->masked && (s->rows_valid = rows_copy(w, m->ay0, m->ay1, m->kay0, m->kay1, m->valid,
+                                              h ? held_rows(base->rows_valid, w, h->ay0, m->kay0, m->kay1) : NULL)) == NULL)
+    return ts_error(err, TS_ENOMEM, "out of memory for the slice's validity rows");
+  s->held = ts_slice_held_by(m);
+  s->cw = m->cw;
   return 0;
 }
 
@@ -208,8 +331,9 @@ static int alloc_sets(ts_slice *s, char *err) {
 }
 
 /* One pass over anchor rows [ay0, ay1): every anchor in its class's range
- * gets its vector. */
-static void fill_rows(ts_slice *s, const ts_levelplanes *planes, int ay0, int ay1) {
+ * gets its vector, copied from the base slice when that holds it (same
+ * set and level: the same bytes) and built from the planes otherwise. */
+static void fill_rows(ts_slice *s, const ts_slice *base, const ts_levelplanes *planes, int ay0, int ay1) {
   const ts_anchors *a = &s->anchors;
   uint8_t vec[TS_L1_MAX_CHUNKS * TS_L1_CHUNK];
   for (int y = ay0; y < ay1; y++)
@@ -219,7 +343,10 @@ static void fill_rows(ts_slice *s, const ts_levelplanes *planes, int ay0, int ay
       int c = a->nclass == 1 ? 0 : ts_anchors_class(a, (uint32_t)j);
       uint32_t rank = (uint32_t)j - a->base[c];
       if (rank < s->i0[c] || rank >= s->i1[c]) continue;
-      ts_vec_ref(&s->window, planes, x, y, vec);
+      if (base != NULL && rank >= base->i0[c] && rank < base->i1[c])
+        ts_l1_set_get(&base->cls[c], rank - base->i0[c], vec);
+      else
+        ts_vec_ref(&s->window, planes, x, y, vec);
       ts_l1_set_put(&s->cls[c], rank - s->i0[c], vec);
     }
 }
@@ -229,6 +356,7 @@ static void fill_rows(ts_slice *s, const ts_levelplanes *planes, int ay0, int ay
  * threads each take a band of anchor rows; every vector has its own slot. */
 typedef struct {
   ts_slice *s;
+  const ts_slice *base;
   const ts_levelplanes *planes;
   int ay0, ay1;
 } fill_job;
@@ -236,31 +364,36 @@ typedef struct {
 static void fill_band(void *arg, int w, int nw) {
   const fill_job *j = arg;
   int64_t rows = j->ay1 - j->ay0;
-  fill_rows(j->s, j->planes, j->ay0 + (int)(rows * w / nw), j->ay0 + (int)(rows * (w + 1) / nw));
+  fill_rows(j->s, j->base, j->planes, j->ay0 + (int)(rows * w / nw), j->ay0 + (int)(rows * (w + 1) / nw));
 }
 
-static int build(ts_slice *s, const ts_slice_desc *m, ts_pool *pool, char *err) {
-  int rc = ts_window_init(&s->window, &m->win, err);
+static int build(ts_slice *s, const ts_slice_desc *m, const ts_slice *base, ts_pool *pool, char *err) {
+  int rc = check_base(base, m, err);
   if (rc != 0) return rc;
+  if (m->base_gen == 0) base = NULL;
+  if ((rc = ts_window_init(&s->window, &m->win, err)) != 0) return rc;
+  if (base != NULL && ts_window_bytes(&s->window) != ts_window_bytes(&base->window))
+    return ts_error(err, TS_EINVAL, "slice %u generation %u has another window than its base", m->set, m->gen);
+  ts_levelplanes planes;
+  memset(&planes, 0, sizeof(planes));
+  if ((rc = load_rows(s, m, base, &planes, err)) != 0) return rc;
   rc = ts_anchors_init_rows(&s->anchors, &s->window, m->w, m->h, m->cw, m->ch, m->nclass, m->count, m->ay0, m->ay1,
-                            m->labelled ? m->labels : NULL, m->masked ? m->valid : NULL, m->above, err);
+                            s->rows_labels, s->rows_valid, m->above, err);
   if (rc != 0) return rc;
   s->nclass = m->nclass;
   if ((rc = check_ranges(s, m, err)) != 0) return rc;
   memcpy(s->i0, m->i0, sizeof(uint32_t) * (size_t)s->nclass);
   memcpy(s->i1, m->i1, sizeof(uint32_t) * (size_t)s->nclass);
-  ts_levelplanes planes;
-  memset(&planes, 0, sizeof(planes));
-  if ((rc = load_planes(s, m, &planes, err)) != 0) return rc;
   s->with_usage = m->usage != TS_SLICE_USAGE_NONE;
   if (s->with_usage && ts_usage_init(&s->usage, &s->anchors, m->win.block, 1) != 0)
     return ts_error(err, TS_ENOMEM, "out of memory for the usage replica");
-  if (m->usage == TS_SLICE_USAGE_COUNTS) usage_load_rows(&s->usage, m->fy0, m->fy1, m->counts);
+  if (s->with_usage) load_usage(s, m, base);
   if ((rc = alloc_sets(s, err)) != 0) return rc;
-  fill_job job = {s, &planes, m->ay0, m->ay1};
+  fill_job job = {s, base, &planes, m->ay0, m->ay1};
   if (pool != NULL) ts_pool_run(pool, fill_band, &job);
   else fill_band(&job, 0, 1);
-  /* The vectors hold what the scans need; the planes can go. */
+  /* The vectors hold what the scans need, the rows what a re-slice keeps:
+   * the full-size planes can go. */
   for (int p = 0; p < TS_WIN_MAX_PLANES; p++) {
     ts_plane_free(&s->fine[p]);
     ts_plane_free(&s->coarse[p]);
@@ -268,14 +401,14 @@ static int build(ts_slice *s, const ts_slice_desc *m, ts_pool *pool, char *err) 
   return 0;
 }
 
-int ts_slice_load(ts_slice **out, const ts_slice_desc *m, ts_pool *pool, char *err) {
+int ts_slice_load(ts_slice **out, const ts_slice_desc *m, const ts_slice *base, ts_pool *pool, char *err) {
   *out = NULL;
   ts_slice *s = calloc(1, sizeof(*s));
   if (s == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
   s->set = m->set;
   s->gen = m->gen;
   s->image = m->image;
-  int rc = build(s, m, pool, err);
+  int rc = build(s, m, base, pool, err);
   if (rc != 0) {
     ts_slice_free(s);
     return rc;

@@ -21,13 +21,34 @@ enum { TS_SLICE_USAGE_NONE = 0, TS_SLICE_USAGE_ZERO = 1, TS_SLICE_USAGE_COUNTS =
 #define TS_SLICE_MAX_SIDE 65536
 #define TS_SLICE_MAX_PIXELS (1u << 28)
 
+/* Rows [y0, y1) of a plane as an 'N' message carries them: rows [y0, k0)
+ * at lo and [k1, y1) at hi (`row` bytes each, consecutive); the rows
+ * [k0, k1) between are kept from the worker's previous slice of the set
+ * and not sent (none of them for a whole slice: k0 == k1). */
+typedef struct {
+  const uint8_t *lo, *hi;
+} ts_slice_rows;
+
+/* The rows a worker's slice holds: what its next slice of the same set
+ * may keep instead of receiving them again. */
+typedef struct {
+  uint32_t gen;
+  int32_t fy0, fy1, cy0, cy1, ay0, ay1;
+} ts_slice_held;
+
 /* A slice of one reference set: its window, the level's anchors (counts
  * per class; the label and validity rows of the anchor rows it holds), per
  * class the vector range [i0, i1) the worker scans, and the rows of the
  * level planes those vectors read. The worker rebuilds window, anchors and
- * vectors from these alone: it knows no engine. */
+ * vectors from these alone: it knows no engine.
+ *
+ * A re-slice moves only what changed: when base_gen names the slice of the
+ * set the worker holds, the rows both slices read are kept (kfy0..kay1)
+ * and only the others travel; vectors of both ranges are copied, not
+ * rebuilt. Generations start at 1; base_gen 0 is a whole slice. */
 typedef struct {
   uint32_t set, gen; /* coordinator's set id, slice generation */
+  uint32_t base_gen; /* 0, or the generation of the slice rows are kept from */
   uint32_t image;    /* the query image its queries read */
   ts_window_spec win; /* offsets: the coordinator's window, or offbuf */
   int32_t w, h, cw, ch; /* level and coarser level sizes (cw, ch 0: none) */
@@ -37,12 +58,13 @@ typedef struct {
   uint32_t i0[TS_MAX_CLASSES], i1[TS_MAX_CLASSES]; /* this slice's ranges */
   int32_t ay0, ay1;                      /* anchor rows held */
   uint32_t above[TS_MAX_CLASSES];        /* labelled or masked: per class, anchors above ay0 */
-  int32_t fy0, fy1;      /* fine rows [fy0, fy1) follow, plane by plane */
-  int32_t cy0, cy1;      /* coarse rows [cy0, cy1) follow */
-  const uint8_t *fine[TS_WIN_MAX_PLANES], *coarse[TS_WIN_MAX_PLANES]; /* first row of the region */
-  const uint8_t *labels, *valid; /* anchor rows [ay0, ay1), w wide */
+  int32_t fy0, fy1;      /* fine rows [fy0, fy1) read, plane by plane */
+  int32_t cy0, cy1;      /* coarse rows [cy0, cy1) read */
+  int32_t kfy0, kfy1, kcy0, kcy1, kay0, kay1; /* of those, and of the anchor rows, the kept ones */
+  ts_slice_rows fine[TS_WIN_MAX_PLANES], coarse[TS_WIN_MAX_PLANES]; /* w, cw bytes a row */
+  ts_slice_rows labels, valid; /* anchor rows [ay0, ay1), w bytes a row */
   uint8_t usage;          /* TS_SLICE_USAGE_* */
-  const uint8_t *counts;  /* COUNTS: u32 LE per fine-region pixel */
+  ts_slice_rows counts;   /* COUNTS: u32 LE per pixel of the fine rows, 4 w bytes a row */
   int16_t offbuf[2 * TS_NSRC * TS_WIN_MAX_OFFSETS]; /* decoded offsets */
   uint8_t knownbuf[TS_WIN_MAX_OFFSETS];              /* decoded known flags */
 } ts_slice_desc;
@@ -61,16 +83,26 @@ typedef struct {
 
 /* Describes vectors [i0[c], i1[c]) of every class of a set as an 'N'
  * message: the rows they read (pointers into rs's planes) and, if counts
- * is not NULL and holds any use, the usage counters of those rows. */
+ * is not NULL and holds any use, the usage counters of those rows. With
+ * held (what the worker's slice of the set holds; NULL: nothing), the
+ * rows it holds already are kept, not sent. */
 void ts_slice_describe(ts_slice_desc *m, const ts_refset *rs, const ts_usage *counts, uint32_t set,
-                       uint32_t gen, uint32_t image, const uint32_t *i0, const uint32_t *i1);
+                       uint32_t gen, uint32_t image, const uint32_t *i0, const uint32_t *i1,
+                       const ts_slice_held *held);
+/* What a worker holds once it has loaded m. */
+ts_slice_held ts_slice_held_by(const ts_slice_desc *m);
+/* Bytes of rows m sends, and of rows it keeps. */
+uint64_t ts_slice_row_bytes(const ts_slice_desc *m, int kept);
 
 /* Builds a slice from a described or decoded 'N' message (the message's
  * bulk data may go away afterwards), its vectors on the threads of pool
- * (NULL: the calling thread; the pool must be idle). Geometry the vectors
+ * (NULL: the calling thread; the pool must be idle). base is the slice of
+ * the same set the worker holds (or NULL): kept rows, and vectors both
+ * ranges hold, come from it; it is left as it was. Geometry the vectors
  * can't be built from - rows missing from the region, ranges past a class
- * or its anchor rows - is refused with a message. */
-int ts_slice_load(ts_slice **out, const ts_slice_desc *m, ts_pool *pool, char *err);
+ * or its anchor rows, a base that is not the one named - is refused with a
+ * message. */
+int ts_slice_load(ts_slice **out, const ts_slice_desc *m, const ts_slice *base, ts_pool *pool, char *err);
 void ts_slice_free(ts_slice *s);
 
 uint32_t ts_slice_set(const ts_slice *s);

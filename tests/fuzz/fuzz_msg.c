@@ -19,6 +19,12 @@ static void check_inside(const void *p, size_t n, const uint8_t *base, size_t le
   if (p != NULL && (q < base || q + n > base + len)) abort();
 }
 
+/* Rows [y0, k0) at r.lo and [k1, y1) at r.hi lie in the frame. */
+static void check_rows(const ts_frame *f, ts_slice_rows r, size_t row, int y0, int y1, int k0, int k1) {
+  check_inside(r.lo, row * (size_t)(k0 - y0), f->payload, f->len);
+  check_inside(r.hi, row * (size_t)(y1 - k1), f->payload, f->len);
+}
+
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   if (size == 0) return 0;
   ts_frame f = {data[0], 1, (uint32_t)(size - 1), data + 1};
@@ -29,13 +35,13 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   case 2: {
     ts_slice_desc m;
     if (ts_msg_slice_read(&f, &m, err) == 0) {
-      size_t frow = (size_t)m.w * (size_t)(m.fy1 - m.fy0), crow = (size_t)m.cw * (size_t)(m.cy1 - m.cy0);
-      size_t arow = (size_t)m.w * (size_t)(m.ay1 - m.ay0);
-      for (int p = 0; p < m.win.nplanes[TS_SRC_FINE]; p++) check_inside(m.fine[p], frow, f.payload, f.len);
-      for (int p = 0; p < m.win.nplanes[TS_SRC_COARSE]; p++) check_inside(m.coarse[p], crow, f.payload, f.len);
-      check_inside(m.labels, arow, f.payload, f.len);
-      check_inside(m.valid, arow, f.payload, f.len);
-      check_inside(m.counts, frow * 4, f.payload, f.len);
+      size_t w = (size_t)m.w, cw = (size_t)m.cw;
+      for (int p = 0; p < m.win.nplanes[TS_SRC_FINE]; p++) check_rows(&f, m.fine[p], w, m.fy0, m.fy1, m.kfy0, m.kfy1);
+      for (int p = 0; p < m.win.nplanes[TS_SRC_COARSE]; p++)
+        check_rows(&f, m.coarse[p], cw, m.cy0, m.cy1, m.kcy0, m.kcy1);
+      if (m.labelled) check_rows(&f, m.labels, w, m.ay0, m.ay1, m.kay0, m.kay1);
+      if (m.masked) check_rows(&f, m.valid, w, m.ay0, m.ay1, m.kay0, m.kay1);
+      if (m.usage == TS_SLICE_USAGE_COUNTS) check_rows(&f, m.counts, 4 * w, m.fy0, m.fy1, m.kfy0, m.kfy1);
     }
     break;
   }

@@ -390,6 +390,36 @@ def test_joining_workers_match_embedded(texsyn, data, cluster, tmp_path):
     assert [w["batches"] > 0 for w in cluster.pool()] == [True, True]
 
 
+def test_worker_joining_mid_job_moves_only_the_rows_that_changed(texsyn, data, cluster, tmp_path):
+    """A worker that joins while a job runs makes the others' slices
+    shrink: they keep the rows (and usage counters) they hold and receive
+    none again; the bytes stay the embedded run's."""
+    extra = ("--usage-weight", "1")
+    size = ("--size", "512x384")
+    out, raw = tmp_path / "embedded.png", tmp_path / "embedded.raw"
+    run(texsyn, "synth", "--embedded", "--ref", ref_of(data), "-o", out, *size, "--quiet", "--copy-map-raw", raw,
+        *extra)
+    cluster.start(2, 1)
+    job = subprocess.Popen([str(BUILD / "texsyn"), "synth", "--server", cluster.server.addr, "--ref",
+                            str(ref_of(data)), "-o", str(tmp_path / "remote.png"), *size, "--quiet",
+                            "--copy-map-raw", str(tmp_path / "remote.raw"), *extra],
+                           stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 60
+    while time.time() < deadline and not all(w["batches"] > 0 for w in cluster.pool()):
+        time.sleep(0.05)
+    cluster.worker(1, "--join", cluster.server.addr)
+    _, err = job.communicate(timeout=600)
+    assert job.returncode == 0, err
+    assert (tmp_path / "remote.png").read_bytes() == out.read_bytes()
+    assert (tmp_path / "remote.raw").read_bytes() == raw.read_bytes()
+    pool = cluster.pool()
+    assert len(pool) == 3 and pool[2]["batches"] > 0, "the job ended before the third worker joined"
+    resliced = [line for line in cluster.server.read_log().splitlines() if "kept from their slices" in line]
+    assert resliced, cluster.server.read_log()
+    for w in cluster.workers[:2]:
+        assert "kept from generation" in w.read_log(), w.read_log()
+
+
 def test_idle_worker_that_dies_leaves_the_pool_and_comes_back(texsyn, data, cluster, tmp_path):
     """Heartbeats find a worker killed between jobs; the coordinator dials
     its address again and uses it once it is back."""

@@ -291,7 +291,7 @@ static void sliced_labelled_set_matches_brute_force(void **state) {
       i1[c] = f.a.count[c] * (uint32_t)(k + 1) / 3;
     }
     static ts_slice_desc m, back;
-    ts_slice_describe(&m, &rs, NULL, 1, 1, 0, i0, i1);
+    ts_slice_describe(&m, &rs, NULL, 1, 1, 0, i0, i1, NULL);
     assert_true(m.ay1 - m.ay0 < f.a.ny); /* a slice holds only its rows */
     ts_wr wr;
     ts_wr_init(&wr);
@@ -300,7 +300,7 @@ static void sliced_labelled_set_matches_brute_force(void **state) {
     ts_frame fr = {'N', 1, (uint32_t)wr.len, wr.buf};
     assert_int_equal(ts_msg_slice_read(&fr, &back, err), 0);
     ts_slice *sl;
-    if (ts_slice_load(&sl, &back, pool, err) != 0) fail_msg("slice %d: %s", k, err);
+    if (ts_slice_load(&sl, &back, NULL, pool, err) != 0) fail_msg("slice %d: %s", k, err);
     ts_vec_batch b = {NQ, q, NULL, klass, 0};
     uint64_t pairs;
     assert_int_equal(ts_slice_scan(sl, NULL, 1, simd, &b, part, &pairs, err), 0);
@@ -350,6 +350,105 @@ static void anchors_from_rows_agree_with_the_whole(void **state) {
   tear_down(&f);
 }
 
+/* m through the wire and loaded on base: the slice, or NULL with *rc
+ * and err saying why; *bytes = the message's size. */
+static ts_slice *send_slice(const ts_slice_desc *m, const ts_slice *base, size_t *bytes, int *rc, char *err) {
+  ts_wr wr;
+  ts_wr_init(&wr);
+  ts_msg_slice_write(&wr, m);
+  assert_int_equal(ts_wr_status(&wr), 0);
+  *bytes = wr.len;
+  static ts_slice_desc back;
+  ts_frame fr = {'N', 1, (uint32_t)wr.len, wr.buf};
+  assert_int_equal(ts_msg_slice_read(&fr, &back, err), 0);
+  ts_slice *sl = NULL;
+  *rc = ts_slice_load(&sl, &back, base, NULL, err);
+  ts_wr_free(&wr);
+  return sl;
+}
+
+/* n random 3x3 copies, counted in u and (if not NULL) in a slice. */
+static void count_copies(ts_usage *u, ts_slice *sl, ts_rng *rng, int n) {
+  char err[TS_ERR_LEN];
+  for (int i = 0; i < n; i++) {
+    ts_commit c = {(int32_t)ts_rng_below(rng, W - 3), (int32_t)ts_rng_below(rng, H - 3), 3, 3, 1};
+    ts_usage_commit(u, c.x, c.y, c.w, c.h, c.delta);
+    if (sl != NULL) assert_int_equal(ts_slice_commit(sl, &c, 1, err), 0);
+  }
+}
+
+/* A re-slice that keeps the rows (and vectors, and usage counters) the
+ * worker's previous slice holds sends only the rest, and scans exactly as
+ * a slice sent whole; a base that is not the one named is refused. */
+static void reslice_moves_only_what_changed(void **state) {
+  (void)state;
+  feature_set f;
+  set_up(&f, 23);
+  ts_usage u;
+  assert_int_equal(ts_usage_init(&u, &f.a, 3, 0), 0);
+  ts_rng rng;
+  ts_rng_seed(&rng, 23, 4);
+  count_copies(&u, NULL, &rng, 150);
+  ts_refset rs = {0, &f.w, &f.a, &f.lp, &f.labels, &f.valid, 1, &u};
+  uint32_t i0[TS_MAX_CLASSES], i1[TS_MAX_CLASSES], j0[TS_MAX_CLASSES], j1[TS_MAX_CLASSES];
+  for (int c = 0; c < NCLASS; c++) {
+    i0[c] = 0, i1[c] = f.a.count[c] / 2;             /* generation 1: the first half */
+    j0[c] = f.a.count[c] / 4, j1[c] = f.a.count[c] * 3 / 4; /* generation 2: the middle */
+  }
+  char err[TS_ERR_LEN];
+  int rc;
+  size_t whole, delta, first;
+  static ts_slice_desc m1, m2, mw;
+  ts_slice_describe(&m1, &rs, &u, 1, 1, 0, i0, i1, NULL);
+  ts_slice *s1 = send_slice(&m1, NULL, &first, &rc, err);
+  assert_non_null(s1);
+  count_copies(&u, s1, &rng, 150); /* placements the worker counted since */
+  ts_slice_held held = ts_slice_held_by(&m1);
+  ts_slice_describe(&m2, &rs, &u, 1, 2, 0, j0, j1, &held);
+  ts_slice_describe(&mw, &rs, &u, 1, 2, 0, j0, j1, NULL);
+  assert_int_equal(m2.base_gen, 1);
+  assert_true(m2.kfy1 > m2.kfy0 && m2.kay1 > m2.kay0 && m2.kcy1 > m2.kcy0);
+  ts_slice *s2 = send_slice(&m2, s1, &delta, &rc, err);
+  if (s2 == NULL) fail_msg("delta slice: %s", err);
+  ts_slice *sw = send_slice(&mw, NULL, &whole, &rc, err);
+  assert_non_null(sw);
+  /* the rows both read stayed on the worker: 5 fine planes + 4 bytes of
+   * counters + label and validity bytes per fine row kept, and more */
+  assert_true(whole - delta >= (size_t)(m2.kfy1 - m2.kfy0) * W * (NFINE + 4));
+  assert_int_equal(ts_slice_vectors(s2), ts_slice_vectors(sw));
+  enum { NQ = 64 };
+  uint32_t vb = ts_window_bytes(&f.w);
+  uint8_t *q = malloc((size_t)NQ * vb), klass[NQ];
+  for (int i = 0; i < NQ; i++) {
+    klass[i] = (uint8_t)(i % NCLASS);
+    ts_vec_query(&f.w, &f.lp, (int)ts_rng_below(&rng, W), (int)ts_rng_below(&rng, H), q + (size_t)i * vb);
+  }
+  const ts_l1_impl *simd;
+  assert_int_equal(ts_l1_select(&simd, err), 0);
+  ts_l1_best a[NQ], b[NQ];
+  uint64_t pairs;
+  ts_vec_batch batch = {NQ, q, NULL, klass, ts_usage_factor(&u, 4.0, ts_window_unit_distance(&f.w))};
+  assert_int_equal(ts_slice_scan(s2, NULL, 1, simd, &batch, a, &pairs, err), 0);
+  assert_int_equal(ts_slice_scan(sw, NULL, 1, simd, &batch, b, &pairs, err), 0);
+  for (int i = 0; i < NQ; i++) {
+    assert_int_equal(a[i].index, b[i].index);
+    assert_int_equal(a[i].dist, b[i].dist);
+  }
+  /* a delta needs the very slice it names */
+  ts_slice *none = send_slice(&m2, NULL, &delta, &rc, err);
+  assert_null(none);
+  assert_int_equal(rc, TS_EINVAL);
+  assert_non_null(strstr(err, "does not hold"));
+  assert_null(send_slice(&m2, sw, &delta, &rc, err)); /* generation 2, not 1 */
+  assert_int_equal(rc, TS_EINVAL);
+  free(q);
+  ts_slice_free(s1);
+  ts_slice_free(s2);
+  ts_slice_free(sw);
+  ts_usage_free(&u);
+  tear_down(&f);
+}
+
 static const struct CMUnitTest tests[] = {
     cmocka_unit_test(window_lays_out_parts),
     cmocka_unit_test(window_refuses_bad_specs),
@@ -357,6 +456,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(validity_from_mask_avoids_holes),
     cmocka_unit_test(sliced_labelled_set_matches_brute_force),
     cmocka_unit_test(anchors_from_rows_agree_with_the_whole),
+    cmocka_unit_test(reslice_moves_only_what_changed),
 };
 
 TS_TEST_MAIN(tests)

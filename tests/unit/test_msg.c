@@ -61,6 +61,9 @@ static void ident_round_trip(void **state) {
   ts_wr_free(&w);
 }
 
+/* Rows of a whole slice: all of them at lo. */
+static ts_slice_rows whole_rows(const uint8_t *rows) { return (ts_slice_rows){rows, NULL}; }
+
 /* A slice of a labelled, masked set with a coarse source: 2 fine planes,
  * 1 coarse, three weighted parts, 3 classes. */
 static ts_slice_desc slice_example(uint8_t (*fine)[64 * 10], uint8_t *coarse, uint8_t *labels, uint8_t *valid,
@@ -84,8 +87,10 @@ static ts_slice_desc slice_example(uint8_t (*fine)[64 * 10], uint8_t *coarse, ui
   m.ay0 = 21, m.ay1 = 29;
   m.above[0] = 100, m.above[1] = 200, m.above[2] = 300;
   m.fy0 = 20, m.fy1 = 30, m.cy0 = 9, m.cy1 = 15;
-  m.fine[0] = fine[0], m.fine[1] = fine[1], m.coarse[0] = coarse, m.labels = labels, m.valid = valid;
-  m.usage = TS_SLICE_USAGE_COUNTS, m.counts = counts;
+  m.kfy0 = m.kfy1 = m.fy1, m.kcy0 = m.kcy1 = m.cy1, m.kay0 = m.kay1 = m.ay1; /* a whole slice */
+  m.fine[0] = whole_rows(fine[0]), m.fine[1] = whole_rows(fine[1]), m.coarse[0] = whole_rows(coarse);
+  m.labels = whole_rows(labels), m.valid = whole_rows(valid);
+  m.usage = TS_SLICE_USAGE_COUNTS, m.counts = whole_rows(counts);
   return m;
 }
 
@@ -114,11 +119,35 @@ static void slice_round_trip(void **state) {
   assert_int_equal(out.nclass, 3);
   assert_int_equal(out.i1[2], 60);
   assert_int_equal(out.above[2], 300);
-  assert_memory_equal(out.fine[1], fine[1], sizeof(fine[1]));
-  assert_memory_equal(out.coarse[0], coarse, sizeof(coarse));
-  assert_memory_equal(out.labels, labels, sizeof(labels));
-  assert_memory_equal(out.valid, valid, sizeof(valid));
-  assert_memory_equal(out.counts, counts, sizeof(counts));
+  assert_memory_equal(out.fine[1].lo, fine[1], sizeof(fine[1]));
+  assert_memory_equal(out.coarse[0].lo, coarse, sizeof(coarse));
+  assert_memory_equal(out.labels.lo, labels, sizeof(labels));
+  assert_memory_equal(out.valid.lo, valid, sizeof(valid));
+  assert_memory_equal(out.counts.lo, counts, sizeof(counts));
+  assert_exact(&w, 'N', rd_slice, &out);
+  size_t whole = w.len;
+  ts_wr_free(&w);
+  /* a re-slice keeping fine rows 22..26 (coarse 10..13, anchor rows 23..27)
+   * of generation 1 sends the rows around them only */
+  in.base_gen = 1;
+  in.kfy0 = 22, in.kfy1 = 27, in.kcy0 = 10, in.kcy1 = 14, in.kay0 = 23, in.kay1 = 28;
+  in.fine[1].hi = fine[1] + 7 * 64, in.counts.hi = counts + 7 * 4 * 64, in.coarse[0].hi = coarse + 5 * 32;
+  in.labels.hi = labels + 7 * 64, in.valid.hi = valid + 7 * 64;
+  in.fine[0].hi = fine[0] + 7 * 64;
+  ts_wr_init(&w);
+  ts_msg_slice_write(&w, &in);
+  f = frame_of(&w, 'N');
+  assert_int_equal(ts_msg_slice_read(&f, &out, err), 0);
+  assert_int_equal(out.base_gen, 1);
+  assert_int_equal(out.kcy1, 14);
+  assert_int_equal(out.kay0, 23);
+  assert_int_equal(whole - w.len, 5 * 64 * (2 + 4) + 4 * 32 + 5 * 64 * 2);
+  assert_memory_equal(out.fine[1].lo, fine[1], 2 * 64);
+  assert_memory_equal(out.fine[1].hi, fine[1] + 7 * 64, 3 * 64);
+  assert_memory_equal(out.counts.hi, counts + 7 * 4 * 64, 3 * 4 * 64);
+  assert_memory_equal(out.coarse[0].hi, coarse + 5 * 32, 32);
+  assert_memory_equal(out.valid.lo, valid, 2 * 64);
+  assert_memory_equal(out.valid.hi, valid + 7 * 64, 64);
   assert_exact(&w, 'N', rd_slice, &out);
   ts_wr_free(&w);
 }
@@ -131,9 +160,9 @@ static void slice_geometry_is_checked(void **state) {
   static uint8_t big[64 * 70 * 4]; /* the writer trusts its caller: room for every case */
   static ts_slice_desc out;
   char err[TS_ERR_LEN];
-  for (int k = 0; k < 8; k++) {
+  for (int k = 0; k < 10; k++) {
     ts_slice_desc m = slice_example(fine, coarse, labels, valid, counts);
-    m.fine[0] = m.fine[1] = m.coarse[0] = m.labels = m.valid = m.counts = big;
+    m.fine[0] = m.fine[1] = m.coarse[0] = m.labels = m.valid = m.counts = (ts_slice_rows){big, big};
     switch (k) {
     case 0: m.fy1 = 65; break;    /* rows past the level */
     case 1: m.fy0 = 10, m.fy1 = 10; break;
@@ -143,7 +172,10 @@ static void slice_geometry_is_checked(void **state) {
     case 5: m.w = 0; break;
     case 6: m.nclass = 0; break;
     case 7: m.labelled = 2; break;
+    case 8: m.kfy0 = 21, m.kfy1 = 20; break; /* kept rows that are no range */
+    case 9: m.kay0 = 28, m.kay1 = 27; break;
     }
+    if (k < 8) m.kfy0 = m.kfy1 = m.fy1, m.kcy0 = m.kcy1 = m.cy1, m.kay0 = m.kay1 = m.ay1; /* whole */
     ts_wr w;
     ts_wr_init(&w);
     ts_msg_slice_write(&w, &m);
