@@ -10,12 +10,15 @@ of the job's report. Reported per job and pool size: coordinator egress per
 query and worker (all frames, and query frames 'V' alone), query-image
 loads and level changes 'R', slice loads 'N', and worker ingress per query
 and worker; next to the egress measured before queries became positions
-(bench/results/before-search-rebuild/wire.json), when present. Writes wire.json and wire.md into
---out.
+(bench/results/before-search-rebuild/wire.json), when present. Then a
+re-slice: a fourth worker joins the Table 3.3 job in its finest level, and
+the 'N' bytes the three first workers receive for it are counted. Writes
+wire.json, wire-reslice.json and wire.md into --out.
 """
 import argparse
 import json
 import os
+import re
 import socket
 import struct
 import subprocess
@@ -111,6 +114,47 @@ def run_job(build, tmp, name, nworkers):
             "egress_by_type": dict(out), "ingress_by_type": dict(inn)}
 
 
+def run_reslice(build, tmp):
+    """The Table 3.3 job on 3 workers; in its finest level a fourth joins
+    and every set is cut again. What the three first workers receive in
+    'N' frames for that re-slice, against what it would cost whole (the
+    rows the coordinator logs as kept)."""
+    procs, proxies = [], []
+    for i in range(3):
+        p, a = start([build / "texsyn-worker", "--listen", "127.0.0.1:0", "--threads", 1], tmp / f"r{i}.log")
+        procs.append(p)
+        proxies.append(CountingProxy(a))
+    log = tmp / "reslice-server.log"
+    server, addr = start([build / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", tmp / "spool-reslice",
+                          "--heartbeat", 0, "--modbus-poll", 0, "--workers", ",".join(x.addr for x in proxies)], log)
+    procs.append(server)
+    try:
+        wait_ready(build, addr, 3)
+        job = subprocess.Popen([str(build / "texsyn"), "synth", *map(str, JOBS["table33"]), "-o",
+                                str(tmp / "reslice.png"), "--quiet", "--server", addr])
+        levels = JOBS["table33"][JOBS["table33"].index("--levels") + 1]
+        while job.poll() is None:
+            status = subprocess.run([str(build / "texsyn"), "status", "--server", addr], capture_output=True,
+                                    text=True).stdout
+            if f"level {levels} of {levels}" in status:
+                break
+        before = [x.count["out"].get("N", 0) for x in proxies]
+        p, _ = start([build / "texsyn-worker", "--listen", "127.0.0.1:0", "--threads", 1, "--join", addr],
+                     tmp / "r3.log")
+        procs.append(p)
+        if job.wait() != 0:
+            raise SystemExit("the re-slice job failed")
+    finally:
+        stop(procs)
+    sent_n = sum(x.count["out"].get("N", 0) - b for x, b in zip(proxies, before))
+    lines = [ln for ln in log.read_text().splitlines() if "kept from their slices" in ln]
+    if not lines:
+        raise SystemExit("the fourth worker joined after the job's last batch: nothing was re-sliced")
+    sent, kept = (int(v) for v in re.search(r"(\d+) bytes of rows sent, (\d+) kept", lines[-1]).groups())
+    return {"job": "table33", "workers": "3 + 1 joining in level 0", "N_bytes_to_the_three": sent_n,
+            "rows_sent_all_four": sent, "rows_kept": kept, "log": lines[-1]}
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--build", default=str(REPO / "build"))
@@ -143,6 +187,15 @@ def main():
         lines.append(f"| {r['job']} | {r['workers']} | {r['queries']} | {r['egress_per_query_worker']:.1f} | "
                      f"{r['egress_V_per_query_worker']:.1f} | {r['egress_by_type'].get('R', 0)} | {r['egress_N_bytes']} | "
                      f"{r['ingress_per_query_worker']:.1f} | {was} | {ratio} |")
+    with tempfile.TemporaryDirectory() as t:
+        rs = run_reslice(build, Path(t))
+    print(f"re-slice: {rs['N_bytes_to_the_three']} bytes of N to the three workers; rows sent {rs['rows_sent_all_four']}, "
+          f"kept {rs['rows_kept']}", flush=True)
+    (out / "wire-reslice.json").write_text(json.dumps(rs, indent=1) + "\n")
+    whole = rs["rows_sent_all_four"] + rs["rows_kept"]
+    lines += ["", "Re-slice in level 0 (Table 3.3 job, 3 workers, a fourth joins): 'N' bytes to the three: "
+              f"{rs['N_bytes_to_the_three']}; rows sent to all four: {rs['rows_sent_all_four']} of {whole} "
+              f"({100 * rs['rows_sent_all_four'] / whole:.0f} %), the rest kept by the workers."]
     (out / "wire.md").write_text("\n".join(lines) + "\n")
 
 

@@ -18,6 +18,19 @@ double ts_now(void) {
   return ts.tv_sec + ts.tv_nsec * 1e-9;
 }
 
+struct timespec ts_wait_until(double seconds) {
+  struct timespec ts;
+  clock_gettime(CLOCK_REALTIME, &ts);
+  double whole = floor(seconds);
+  ts.tv_sec += (time_t)whole;
+  ts.tv_nsec += (long)((seconds - whole) * 1e9);
+  if (ts.tv_nsec >= 1000000000L) {
+    ts.tv_sec++;
+    ts.tv_nsec -= 1000000000L;
+  }
+  return ts;
+}
+
 /* ---- whole files ---------------------------------------------------------- */
 
 /* Reads exactly n bytes from fd into buf. */

@@ -5,9 +5,14 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <time.h>
 
 /* Seconds on the monotonic clock (for durations and deadlines only). */
 double ts_now(void);
+
+/* The moment `seconds` from now on the realtime clock, as
+ * pthread_cond_timedwait takes it. */
+struct timespec ts_wait_until(double seconds);
 
 /* Reads the regular file at path whole into a malloc'd buffer: *buf holds
  * *len bytes and a NUL after them, so text can be used as a string.

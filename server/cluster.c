@@ -361,13 +361,7 @@ static void *cluster_thread(void *arg) {
         c->addrs[a].failing = 0;
       }
     }
-    struct timespec ts;
-    clock_gettime(CLOCK_REALTIME, &ts);
-    ts.tv_nsec += 500000000;
-    if (ts.tv_nsec >= 1000000000) {
-      ts.tv_sec++;
-      ts.tv_nsec -= 1000000000;
-    }
+    struct timespec ts = ts_wait_until(0.5);
     pthread_cond_timedwait(&c->wake, &c->lock, &ts);
   }
   pthread_mutex_unlock(&c->lock);

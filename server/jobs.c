@@ -654,14 +654,7 @@ int ts_jobs_status(ts_jobs *j, uint64_t id, ts_job_status *out, uint64_t *versio
 }
 
 int ts_jobs_wait(ts_jobs *j, uint64_t id, uint64_t *version, int timeout_ms, ts_job_status *out) {
-  struct timespec ts;
-  clock_gettime(CLOCK_REALTIME, &ts);
-  ts.tv_sec += timeout_ms / 1000;
-  ts.tv_nsec += (long)(timeout_ms % 1000) * 1000000L;
-  if (ts.tv_nsec >= 1000000000L) {
-    ts.tv_sec++;
-    ts.tv_nsec -= 1000000000L;
-  }
+  struct timespec ts = ts_wait_until(timeout_ms * 1e-3);
   pthread_mutex_lock(&j->lock);
   job *jb = job_find(j, id);
   /* Found again after every wait: the job may have been deleted meanwhile. */

@@ -155,11 +155,7 @@ void *cl_supervisor_thread(void *arg) {
     pthread_mutex_lock(&c->lock);
     for (int i = 0; i < n && !c->stop; i++) mb_apply(c, t[i].id, t[i].ok, t[i].regs);
     if (n > 0) check_load_balance(c);
-    struct timespec ts;
-    clock_gettime(CLOCK_REALTIME, &ts);
-    double at = (double)ts.tv_sec + ts.tv_nsec * 1e-9 + c->o.modbus_poll;
-    ts.tv_sec = (time_t)at;
-    ts.tv_nsec = (long)((at - (double)ts.tv_sec) * 1e9);
+    struct timespec ts = ts_wait_until(c->o.modbus_poll);
     if (!c->stop) pthread_cond_timedwait(&c->wake, &c->lock, &ts);
   }
   pthread_mutex_unlock(&c->lock);

@@ -290,7 +290,23 @@ static void log_quiet_drops_events_not_warnings(void **state) {
   fclose(f);
 }
 
+/* A wait's deadline lies the given time ahead on the realtime clock,
+ * with a normalised nanosecond field. */
+static void wait_until_is_that_far_ahead(void **state) {
+  (void)state;
+  double ahead[] = {0.0, 0.5, 0.999999999, 2.25};
+  for (int k = 0; k < 4; k++) {
+    struct timespec at = ts_wait_until(ahead[k]), later;
+    clock_gettime(CLOCK_REALTIME, &later);
+    double t = (double)at.tv_sec + at.tv_nsec * 1e-9, now = (double)later.tv_sec + later.tv_nsec * 1e-9;
+    assert_true(at.tv_nsec >= 0 && at.tv_nsec < 1000000000L);
+    assert_true(t <= now + ahead[k] + 1e-6);
+    assert_true(t > now + ahead[k] - 1.0); /* the call took well under a second */
+  }
+}
+
 static const struct CMUnitTest tests[] = {
+    cmocka_unit_test(wait_until_is_that_far_ahead),
     cmocka_unit_test(parsers_refuse_garbage_and_empty),
     cmocka_unit_test(parse_long_takes_whole_numbers_in_range),
     cmocka_unit_test(parse_long_takes_decimal_only),
