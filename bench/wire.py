@@ -133,10 +133,12 @@ def run_reslice(build, tmp):
         job = subprocess.Popen([str(build / "texsyn"), "synth", *map(str, JOBS["table33"]), "-o",
                                 str(tmp / "reslice.png"), "--quiet", "--server", addr])
         levels = JOBS["table33"][JOBS["table33"].index("--levels") + 1]
+        coarser = False  # a job that has not started its first level reads as the finest one
         while job.poll() is None:
             status = subprocess.run([str(build / "texsyn"), "status", "--server", addr], capture_output=True,
                                     text=True).stdout
-            if f"level {levels} of {levels}" in status:
+            coarser = coarser or re.search(rf"level [1-{levels - 1}] of {levels}", status) is not None
+            if coarser and f"level {levels} of {levels}" in status:
                 break
         before = [x.count["out"].get("N", 0) for x in proxies]
         p, _ = start([build / "texsyn-worker", "--listen", "127.0.0.1:0", "--threads", 1, "--join", addr],
