@@ -107,6 +107,7 @@ void cl_queue_unload(ts_cluster *c, cl_worker *w, uint32_t set) {
   char err[TS_ERR_LEN];
   cl_msg *e = queue_slot(w);
   if (e != NULL) e->arg.unload.set = set;
+  w->unloads++; /* a re-slice keeps nothing from a slice it may have freed */
   w->expect = e != NULL && queue_push(w, e, TS_MSG_UNLOAD, ++c->next_frame, write_unload, err) == 0;
 }
 

@@ -102,6 +102,7 @@ typedef struct {
   ts_wr out;
   size_t out_off;
   int expect;
+  uint32_t unloads;        /* times it was told to free slices ('Q') */
   uint32_t images_sent;    /* query images (bits) whose frames it was sent */
   uint64_t expected_bytes; /* bytes the batch asks it to scan */
   uint64_t answered_bytes; /* bytes the batch's answers report scanned */

@@ -24,9 +24,11 @@ typedef struct {
   ts_slice_held rows; /* what it holds once loaded */
 } cl_slice;
 
-/* A worker's loaded slice of a set: a re-slice keeps its rows. */
+/* A worker's loaded slice of a set: a re-slice keeps its rows, unless
+ * the worker has freed its slices since (a drain). */
 typedef struct {
   int worker; /* worker id */
+  uint32_t unloads; /* its count of unloads when it loaded the slice */
   ts_slice_held rows;
 } cl_held;
 
@@ -139,7 +141,7 @@ static const ts_slice_held *held_rows(cluster_search *cs, const cl_set *st, cons
   const cl_synced *y = synced_of(im, w);
   if (y == NULL || y->seq != im->rep.seq) return NULL;
   for (int i = 0; i < st->nheld; i++)
-    if (st->held[i].worker == w->id) return &st->held[i].rows;
+    if (st->held[i].worker == w->id && st->held[i].unloads == w->unloads) return &st->held[i].rows;
   return NULL;
 }
 
@@ -156,7 +158,8 @@ static void record_held(cl_set *st, int n) {
   st->nheld = 0;
   for (int i = 0; i < n; i++) {
     const cl_worker *w = st->slices[i].w;
-    if (w->state != TS_WORKER_FAILED && w->expect == 0) st->held[st->nheld++] = (cl_held){w->id, st->slices[i].rows};
+    if (w->state != TS_WORKER_FAILED && w->expect == 0)
+      st->held[st->nheld++] = (cl_held){w->id, w->unloads, st->slices[i].rows};
   }
 }
 
