@@ -20,7 +20,7 @@ Exact search keeps every vector: about 950 bytes per reference pixel at
 level 0 for this job (both sets, causal and square), 16 GB for 4096x4096,
 in the embedded process or spread over the workers. Every run starts only
 if /proc/meminfo's MemAvailable covers its estimate; the figure is written
-with the results. Takes about half an hour on 2 cores. Outside make bench.
+with the results. Takes about 10 minutes on 2 cores (30 with --baseline). Outside make bench.
 
 Writes OUT/big_reference.md (and .json).
 """
@@ -137,7 +137,8 @@ def write_md(args, results, path):
         f"`bench/big_reference.py` (commit {results['commit']}, {results['date']}). Machine: {model}, {cores} cores,",
         f"{total / 2**30:.0f} GiB, shared with other work while it ran.",
         "",
-        f"Reference: `aerial/aero1.jpg` resized to {args.side}x{args.side} RGB with oiiotool. Job: "
+        f"Reference: `aerial/aero1.jpg` resized to {args.side}x{args.side} RGB with oiiotool (sha256 "
+        f"`{results['reference_sha256'][:16]}`). Job: "
         "`texsyn synth --ref big.png --rgb-search --wn 11 --wb 3 --size 32x32 --levels 2` (level 1 searches the "
         f"{args.side // 2}² level, level 0 the {args.side}² one). Workers run with `--max-frame "
         f"{args.frame_limit}` ({args.frame_limit / 2**20:g} MiB), so the level-0 slices travel in pieces; "
@@ -178,7 +179,8 @@ def main():
     need = BYTES_PER_PIXEL * args.side * args.side
     results = {"commit": subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True,
                                         text=True).stdout.strip(),
-               "date": time.strftime("%Y-%m-%dT%H:%MZ", time.gmtime()), "runs": [], "mem_available": {}}
+               "date": time.strftime("%Y-%m-%dT%H:%MZ", time.gmtime()), "runs": [], "mem_available": {},
+               "reference_sha256": sha(ref)}  # oiiotool's resize: outputs compare across runs only with it
     need_memory("embedded", need, results)
     run_embedded(args, ref, args.work, results)
     for n in (1, 3):
