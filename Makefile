@@ -172,6 +172,7 @@ test-integration: all
 # names its seed: replay it with TEXSYN_FAULT_SEED=S.
 TRIALS ?= 20
 test-faults: all
+	TEXSYN_DATA=$$(bash tests/test-data.sh) && export TEXSYN_DATA && \
 	TEXSYN_BUILD=$(abspath $(BUILD)) TEXSYN_FAULT_TRIALS=$(TRIALS) TEXSYN_LONG_TESTS=1 /usr/bin/python3 -m pytest -q \
 	  -p no:cacheprovider --durations=5 tests/integration/test_faults.py tests/integration/test_load.py \
 	  tests/integration/test_resume.py

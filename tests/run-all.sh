@@ -4,38 +4,65 @@
 # then the unit tests and a short integration subset under ASan+UBSan; the
 # fuzz targets' seeds and crash regressions replayed on both builds; each
 # libFuzzer target for TEXSYN_FUZZ_SECONDS (10) seconds.
-# Ends with one "N passed, N failed" line over everything.
+# A skip is not a pass: every skipped test is listed, and the suite fails
+# if one is not in tests/skips.allow (each line: "FILE: reason", both of
+# which the skip's line must contain).
+# Ends with one line over everything: the distinct tests, the reruns under
+# the sanitizers, and how many passed, failed and skipped.
 set -u
 cd "$(dirname "$0")/.."
-total_pass=0; total_fail=0
-tally() { # reads a runner's closing "... N passed, N failed" line
-  local line; line=$(grep -E '[0-9]+ passed' "$1" | tail -n 1)
-  local p f
-  p=$(echo "$line" | grep -oE '[0-9]+ passed' | grep -oE '[0-9]+' || echo 0)
-  f=$(echo "$line" | grep -oE '[0-9]+ failed' | grep -oE '[0-9]+' || echo 0)
-  total_pass=$((total_pass + ${p:-0})); total_fail=$((total_fail + ${f:-0}))
+total_pass=0; total_fail=0; total_skip=0; distinct=0; reruns=0
+skips=$(mktemp)
+count() { # "N word" out of a runner's closing line
+  echo "$1" | grep -oE "[0-9]+ $2" | grep -oE '[0-9]+' || echo 0
+}
+tally() { # $1: the stage's log, $2: 1 when it reruns tests of an earlier stage
+  local line p f s
+  line=$(grep -E '[0-9]+ passed' "$1" | tail -n 1)
+  p=$(count "$line" passed); f=$(count "$line" failed); s=$(count "$line" skipped)
+  total_pass=$((total_pass + p)); total_fail=$((total_fail + f)); total_skip=$((total_skip + s))
+  if [ "$2" = 1 ]; then reruns=$((reruns + p + f + s)); else distinct=$((distinct + p + f + s)); fi
+  grep -E '^(SKIP |SKIPPED \[)' "$1" >>"$skips" || true
 }
 log=$(mktemp)
 status=0
-stage() { # runs one runner, tallies its closing line, says how long it took
-  local t0=$SECONDS
-  "$@" | tee "$log"; [ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log"
+stage() { # $1: 1 for a rerun stage; then the runner; tallies it, says how long it took
+  local rerun=$1 t0=$SECONDS
+  shift
+  "$@" | tee "$log"; [ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log" "$rerun"
   echo "(stage took $((SECONDS - t0)) s)"
 }
-stage bash tests/run-unit.sh build
-stage bash tests/run-fuzz.sh replay build
-stage bash tests/run-integration.sh build
-# The fast unwinder (ASan's default): the slow one made the sanitized stages
-# a fifth slower, and no report needs it (tests/lsan.supp).
+stage 0 bash tests/run-unit.sh build
+stage 0 bash tests/run-fuzz.sh replay build
+stage 0 bash tests/run-integration.sh build
+# ASan's fast unwinder: the slow one made the sanitized stages a fifth
+# slower, and no report needs it (tests/lsan.supp).
 export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:abort_on_error=1}
 export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
 export LSAN_OPTIONS="suppressions=$PWD/tests/lsan.supp"
-TEXSYN_TEST_TIMEOUT_MULTIPLIER=4 stage bash tests/run-unit.sh build-asan
-stage bash tests/run-fuzz.sh replay build-asan
-TEXSYN_SANITIZED=1 stage bash tests/run-integration.sh build-asan -m sanitize
+TEXSYN_TEST_TIMEOUT_MULTIPLIER=4 stage 1 bash tests/run-unit.sh build-asan
+stage 1 bash tests/run-fuzz.sh replay build-asan
+TEXSYN_SANITIZED=1 stage 1 bash tests/run-integration.sh build-asan -m sanitize
 # Each libFuzzer target for a bounded time (make fuzz-build; clang).
-stage bash tests/run-fuzz.sh fuzz "${TEXSYN_FUZZ_SECONDS:-10}" "${TEXSYN_FUZZ_SEED:-2004}"
-rm -f "$log"
+stage 0 bash tests/run-fuzz.sh fuzz "${TEXSYN_FUZZ_SECONDS:-10}" "${TEXSYN_FUZZ_SEED:-2004}"
+unlisted=0
+while IFS= read -r skip; do
+  allowed=0
+  while IFS= read -r entry; do
+    case "$entry" in '' | '#'*) continue ;; esac
+    file=${entry%%: *}; reason=${entry#*: }
+    [[ "$skip" == *"$file"* && "$skip" == *"$reason"* ]] && allowed=1 && break
+  done <tests/skips.allow
+  if [ $allowed -eq 0 ]; then
+    unlisted=$((unlisted + 1)); echo "skipped, and not in tests/skips.allow: $skip"
+  else
+    echo "skipped (allowed by tests/skips.allow): $skip"
+  fi
+done <"$skips"
+rm -f "$log" "$skips"
+# A runner that failed without counting a failure (it crashed) counts one.
 if [ $status -ne 0 ] && [ $total_fail -eq 0 ]; then total_fail=1; fi
-echo "all tests: $total_pass passed, $total_fail failed"
+[ $unlisted -eq 0 ] || status=1
+echo "all tests: $distinct distinct tests and $reruns reruns under ASan+UBSan; $total_pass passed," \
+  "$total_fail failed, $total_skip skipped ($unlisted not allowed)"
 exit $status

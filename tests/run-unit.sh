@@ -2,10 +2,14 @@
 # Runs every cmocka test of every unit-test binary in its own process, with a
 # timeout (scaled by TEXSYN_TEST_TIMEOUT_MULTIPLIER for slow or sanitized
 # builds), TEXSYN_TEST_JOBS (default: the CPUs) at a time. Prints one line
-# per test, in a fixed order, and a closing "N passed, N failed" line.
+# per test, in a fixed order ("SKIP ..." for a test that skipped itself),
+# and a closing "N passed, N failed, N skipped" line. The test images come
+# from tests/test-data.sh (TEXSYN_DATA).
 # Usage: tests/run-unit.sh BUILD_DIR
 set -u
 build=${1:-build}
+TEXSYN_DATA=$(bash "$(dirname "$0")/test-data.sh") || exit 1
+export TEXSYN_DATA
 # The test binaries sit in BUILD/tests/, not next to the image library.
 export TEXSYN_IMAGE_LIB=$(cd "$build" && pwd)/libtexsyn-image.so
 mult=${TEXSYN_TEST_TIMEOUT_MULTIPLIER:-1}
@@ -24,20 +28,22 @@ run_one() {
   log="$logdir/$(basename "$bin").$name"
   if timeout "$timeout_s" ${TEXSYN_TEST_WRAPPER:-} "$bin" "$name" >"$log.log" 2>&1 &&
     grep -q "PASSED" "$log.log" && ! grep -q "FAILED" "$log.log"; then
-    touch "$log.ok"
+    if grep -q "SKIPPED" "$log.log"; then touch "$log.skip"; else touch "$log.ok"; fi
   fi
 }
 export -f run_one
 xargs -P "${TEXSYN_TEST_JOBS:-$(nproc)}" -L 1 bash -c 'run_one "$0" "$1"' <"$list"
-pass=0; fail=0
+pass=0; fail=0; skip=0
 while read -r bin name; do
   log="$logdir/$(basename "$bin").$name"
   if [ -e "$log.ok" ]; then
     pass=$((pass + 1)); echo "ok   $(basename "$bin") $name"
+  elif [ -e "$log.skip" ]; then
+    skip=$((skip + 1)); echo "SKIP tests/unit/$(basename "$bin").c: $name"; sed 's/^/     | /' "$log.log"
   else
     fail=$((fail + 1)); echo "FAIL $(basename "$bin") $name"; sed 's/^/     | /' "$log.log"
   fi
 done <"$list"
 rm -rf "$logdir"
-echo "unit ($build): $pass passed, $fail failed"
+echo "unit ($build): $pass passed, $fail failed, $skip skipped"
 [ "$fail" -eq 0 ]

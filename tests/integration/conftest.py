@@ -42,7 +42,8 @@ def texsyn():
 @pytest.fixture(scope="session")
 def data():
     if not (DATA / "textures" / "brick.png").exists():
-        pytest.skip(f"shared test data not found at {DATA} (set TEXSYN_DATA)")
+        pytest.fail(f"test data not found at {DATA}: tests/test-data.sh gets it (tests/run-integration.sh runs "
+                    "it), or set TEXSYN_DATA to a directory holding it", pytrace=False)
     return DATA
 
 

@@ -180,8 +180,8 @@ def test_worker_behind_a_slow_link_keeps_its_share(texsyn, data, cluster, tmp_pa
                              "--rebalance-after", "1", "--rebalance-from", "batches",
                              "--workers", f"{near.addr},{far.addr}"], tmp_path / "server.log")
     cluster.wait_ready(2)
-    # Some 20 s of batches on the delayed link: many chances to rebalance.
-    cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "out.png", "--size", "512x384", "--quiet")
+    # Some 15 s of batches on the delayed link: many chances to rebalance.
+    cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "out.png", "--size", "384x288", "--quiet")
     after = {w["addr"]: w for w in cluster.pool()}
     far_now = after[far.addr]
     assert far_now["rate"] > 0.7 * far_now["calibrated"], (after, cluster.server.read_log())
