@@ -59,9 +59,11 @@ def run(exe, *args, env=None, check=True, timeout=600):
 
 
 def synth(exe, ref, out, size, *extra, env=None):
+    """An embedded run (a reference result): --embedded, so that a
+    TEXSYN_SERVER in the environment cannot send it to a cluster."""
     w, h = size
     report = Path(str(out) + ".json")
-    run(exe, "synth", "--ref", ref, "-o", out, "--size", f"{w}x{h}", "--quiet",
+    run(exe, "synth", "--embedded", "--ref", ref, "-o", out, "--size", f"{w}x{h}", "--quiet",
         "--report", report, *extra, env=env)
     return json.loads(report.read_text())
 
