@@ -2,20 +2,12 @@
 # `make demo`: an embedded synthesis of a real texture - the seed's Table 3.3
 # job (brick.png 512x512 -> 1024x1024, L=5, W_N=7, W_B=3, parity on) - with
 # the copy map, usage map and report next to it in demo/.
-# The texture comes from ../shared/data, or on a machine without it from
-# Debian's python3-skimage package (CC0 scikit-image sample data).
+# The texture comes from tests/test-data.sh: ../shared/data, or on a machine
+# without it Debian's python3-skimage package (CC0 scikit-image sample data).
 set -euo pipefail
 build=${1:-build}
 cd "$(dirname "$0")/.."
-ref=../shared/data/textures/brick.png
-if [ ! -f "$ref" ]; then
-  tmp=$(mktemp -d)
-  (cd "$tmp" && { apt-get download -qq python3-skimage >/dev/null 2>&1 ||
-    { apt-get update -qq && apt-get download -qq python3-skimage >/dev/null; }; } &&
-    dpkg -x python3-skimage_*.deb x)
-  ref=$(find "$tmp/x" -name brick.png | head -n 1)
-  [ -n "$ref" ] || { echo "demo: no brick.png in python3-skimage" >&2; exit 1; }
-fi
+ref=$(bash tests/test-data.sh textures/brick.png)/textures/brick.png
 mkdir -p demo
 "$build"/texsyn synth --ref "$ref" -o demo/brick-1024.png --size 1024x1024 \
   --levels 5 --wn 7 --wb 3 --parity --threads "$(nproc)" \
