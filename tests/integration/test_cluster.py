@@ -1,6 +1,7 @@
 """The cluster: a coordinator and workers on loopback give the embedded
 run's exact bytes, size slices by calibrated rate, serve several clients at
 once and survive peers that speak garbage."""
+import errno
 import os
 import signal
 import socket
@@ -326,7 +327,8 @@ BAD_STREAMS = {
 
 def send_bad(addr, data, one_byte=False):
     """Sends a stream (whole, or a byte per write), then reads until the
-    peer closes; the peer may close early, right at the first bad byte."""
+    peer closes; the peer may close early, right at the first bad byte, and
+    then even shutdown() finds the connection gone (ENOTCONN)."""
     host, port = addr.rsplit(":", 1)
     with socket.create_connection((host, int(port)), timeout=10) as s:
         try:
@@ -340,6 +342,9 @@ def send_bad(addr, data, one_byte=False):
                 pass
         except (ConnectionResetError, BrokenPipeError, socket.timeout):
             pass
+        except OSError as e:
+            if e.errno != errno.ENOTCONN:
+                raise
 
 
 # Under ASan+UBSan the 1-byte writes run: they take every reassembly path.
