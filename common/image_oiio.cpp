@@ -399,10 +399,16 @@ static void ts_out_channel_names(ImageSpec &spec) {
   }
 }
 
-/* Lossless defaults, JPEG at quality 95. Pixel values are written as they
- * are: OpenImageIO must not premultiply or unpremultiply alpha. */
-static void ts_out_defaults(const std::string &fmt, ImageSpec &spec) {
-  spec.attribute("oiio:UnassociatedAlpha", 1);
+/* Lossless defaults, JPEG at quality 95. Alpha keeps its meaning: samples
+ * of a source with associated (premultiplied) alpha, e.g. a TIFF with
+ * ExtraSamples=1, are written as associated - TIFF and EXR keep samples
+ * and label, a format that stores straight alpha only (PNG) gets them
+ * unpremultiplied by OpenImageIO. Straight alpha, and images of no source
+ * (copy maps), are written as they are. */
+static void ts_out_defaults(const std::string &fmt, ImageSpec &spec, const ts_meta *meta_from) {
+  bool assoc = meta_from != nullptr && spec.alpha_channel >= 0 &&
+               meta_from->attribs.get_int("oiio:UnassociatedAlpha", 0) == 0;
+  spec.attribute("oiio:UnassociatedAlpha", assoc ? 0 : 1);
   if (fmt == "jpeg") spec.attribute("compression", "jpeg:95");
   if (fmt == "tiff" || fmt == "openexr") spec.attribute("compression", "zip");
 }
@@ -461,7 +467,7 @@ static int ts_write(const char *path, const ts_image *img, const ts_meta *meta_f
   if (meta_from != nullptr)
     for (const ParamValue &p : meta_from->attribs)
       if (ts_meta_passes(p.name().string())) spec.extra_attribs.add_or_replace(p);
-  ts_out_defaults(fmt, spec);
+  ts_out_defaults(fmt, spec, meta_from);
 
   size_t tsize = ts_pixtype_size(img->type);
   OIIO::stride_t xstride = (OIIO::stride_t)(img->channels * tsize);

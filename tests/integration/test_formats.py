@@ -7,10 +7,10 @@ The references are cut from the colour aerial photograph (the textures are
 grey) and made with oiiotool. Each is resized from a crop twice its size, so
 the 16-bit, half and float files hold values between the 8-bit levels, not
 8-bit values widened: the output must carry them through untouched.
-
-Known bug, marked xfail (strict, so the fix turns it red until the marker
-goes): a TIFF reference with associated alpha gives a TIFF output whose
-samples are right but whose alpha is labelled unassociated (TIFF_ALPHA_BUG).
+A TIFF with associated alpha (ExtraSamples=1) once came out labelled
+unassociated: its samples were right, their meaning was not (readers
+premultiplied them again). test_output_keeps_the_references_alpha_association
+holds the fix (common/image_oiio.cpp, ts_out_defaults).
 """
 import re
 import struct
@@ -172,13 +172,7 @@ def test_cluster_job_keeps_format_and_matches_embedded(texsyn, refs, cluster, tm
     assert_gathered(name, got_px, ref_px, got_cm)
 
 
-TIFF_ALPHA_BUG = ("a TIFF reference with associated alpha (ExtraSamples=1) gives a TIFF output marked unassociated "
-                  "(ExtraSamples=2): ts_out_defaults (common/image_oiio.cpp) sets oiio:UnassociatedAlpha=1 on "
-                  "every output, so readers premultiply the already premultiplied samples again")
-
-
-@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=TIFF_ALPHA_BUG))
-                                  if n == "tif16-rgba" else n for n in FORMATS if FORMATS[n][1] == 4])
+@pytest.mark.parametrize("name", [n for n in FORMATS if FORMATS[n][1] == 4])
 def test_output_keeps_the_references_alpha_association(texsyn, refs, tmp_path, name):
     """The samples are copied as stored (the test above); here their meaning:
     read as an application reads them, honouring each file's alpha
