@@ -23,9 +23,13 @@ ifeq ($(SAN),1)
 BUILD ?= build-asan
 SANFLAGS = -fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=all
 OPT = -O1 -g
+# The worker's planted faults (worker/planted.h), which prove that the
+# suite notices a daemon's sanitizer report, exist only in this build.
+FAULT_HOOKS = -DTEXSYN_FAULT_HOOKS
 else
 BUILD ?= build
 SANFLAGS =
+FAULT_HOOKS =
 endif
 
 WARN = -Wall -Wextra -Werror -Wstrict-prototypes -Wno-missing-field-initializers
@@ -50,7 +54,7 @@ INC_bench = $(INC_ALL)
 # The include paths of a source file: those of its folder.
 inc = $(INC_$(patsubst %/,%,$(dir $(1))))
 
-CFLAGS_ALL = -std=c11 -D_GNU_SOURCE $(WARN) $(OPT) -g $(SANFLAGS) $(CFLAGS)
+CFLAGS_ALL = -std=c11 -D_GNU_SOURCE $(WARN) $(OPT) -g $(SANFLAGS) $(FAULT_HOOKS) $(CFLAGS)
 CXXFLAGS_ALL = -std=c++17 -Wall -Wextra -Werror $(OPT) -g $(SANFLAGS) -Icommon $(CXXFLAGS)
 # The programs link neither OpenImageIO nor the C++ runtime: loading those
 # cost every process 0.2 s at start, `texsyn status` included. They dlopen

@@ -28,7 +28,8 @@
   XX(ETIMEDOUT, -11, "timed out")                                     \
   XX(ECONN, -12, "connection failed")                                 \
   XX(ELIMIT, -13, "limit reached")                                    \
-  XX(ESTALE, -14, "the state changed meanwhile: try again")
+  XX(ESTALE, -14, "the state changed meanwhile: try again")           \
+  XX(ESTOPPED, -15, "stopped at a checkpoint, to resume later")
 
 enum {
 #define TS_ERR_ENUM(name, val, text) TS_##name = (val),

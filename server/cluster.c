@@ -323,7 +323,7 @@ static void heartbeat_idle(ts_cluster *c) {
   cl_lease(c, ws, n); /* none is leased: no wait */
   for (int i = 0; i < n; i++) queue_heartbeat(c, ws[i]);
   cl_traffic tr = {0, 0};
-  if (n > 0) cl_exchange(c, ws, n, 2 * c->o.heartbeat + 1.0, heartbeat_reply, NULL, &tr);
+  if (n > 0) cl_exchange(c, ws, n, 2 * c->o.heartbeat + 1.0, NULL, heartbeat_reply, NULL, &tr);
   cl_release(c, ws, n);
   free(ws);
 }
@@ -507,9 +507,10 @@ static void fail_unlocked(ts_cluster *c, cl_worker *w, const char *why) {
  * Whether a worker is gone is tracked here, not read from its state: a
  * failure seen elsewhere (Modbus, heartbeat) shuts its socket, which this
  * loop then sees. */
-int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, cl_reply_fn *fn, void *ctx,
-                cl_traffic *tr) {
+int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, const volatile int *cancel, cl_reply_fn *fn,
+                void *ctx, cl_traffic *tr) {
   double deadline = ts_now() + timeout;
+  char late[96] = "no answer before the batch deadline";
   int failed = 0;
   struct pollfd *pf = malloc(sizeof(*pf) * (size_t)n);
   int *pi = malloc(sizeof(*pi) * (size_t)n); /* worker of each pollfd */
@@ -542,12 +543,17 @@ int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, cl_reply_f
       np++;
     }
     if (np == 0) break;
+    if (cancel != NULL && *cancel && deadline > ts_now() + CL_CANCEL_WAIT) {
+      deadline = ts_now() + CL_CANCEL_WAIT;
+      snprintf(late, sizeof(late), "no answer within %g s of the job's cancel (a stalled worker)", CL_CANCEL_WAIT);
+    }
     double left = deadline - ts_now();
     if (left <= 0) {
-      for (int i = 0; i < np; i++) fail_unlocked(c, ws[pi[i]], "no answer before the batch deadline");
+      for (int i = 0; i < np; i++) fail_unlocked(c, ws[pi[i]], late);
       failed = 1;
       break;
     }
+    if (cancel != NULL && left > CL_CANCEL_POLL) left = CL_CANCEL_POLL; /* to see *cancel */
     int k = poll(pf, (nfds_t)np, (int)(left * 1000) + 1);
     if (k < 0 && errno != EINTR) {
       /* Nothing says which worker owes what: every one still owing answers

@@ -38,6 +38,12 @@
 /* A batch may take this many times its expected scan time before the
  * workers still owing answers are dropped (see batch_deadline). */
 #define CL_DEADLINE_SLACK 8.0
+/* A job canceled (or its daemon stopping) mid-exchange waits at most this
+ * long for the answers under way, so the workers' streams stay in step; a
+ * worker that owes answers after it is dropped (it is stalled). The flag
+ * is looked at every CL_CANCEL_POLL seconds. */
+#define CL_CANCEL_WAIT 1.0
+#define CL_CANCEL_POLL 0.1
 
 /* A worker's output is produced as its socket drains (cl_exchange): when
  * fewer than CL_OUT_HIGH bytes wait unsent, the next CL_OUT_CHUNK bytes of
@@ -195,9 +201,10 @@ typedef struct {
  * until every worker has answered its `expect` frames. Called with the lock
  * held and returns with it held; the lock is released while bytes travel,
  * so fn runs without it and may touch only the caller's context and the
- * leased workers' exchange state. See cluster.c. */
-int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, cl_reply_fn *fn, void *ctx,
-                cl_traffic *tr);
+ * leased workers' exchange state. Once *cancel (may be NULL) is set, the
+ * workers get CL_CANCEL_WAIT more seconds at most. See cluster.c. */
+int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, const volatile int *cancel, cl_reply_fn *fn,
+                void *ctx, cl_traffic *tr);
 /* An 'E' reply as an error. */
 int cl_reply_error(const ts_frame *f, char *err);
 /* Queues a 'Q' to w (leased; lock held) to free one set's slice, or all

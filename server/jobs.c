@@ -56,6 +56,8 @@ struct ts_jobs {
   uint64_t next_id;
   uint64_t spool_bytes; /* sum of the jobs' bytes */
   int stop;
+  volatile int stopping; /* read by the engines: stop at a checkpoint */
+  int running; /* jobs in run_job */
   int paused; /* no queued job starts */
   uint64_t last_ended; /* id of the job that ended last */
   int nrunners;
@@ -304,7 +306,8 @@ static int run_engine(ts_jobs *j, job *jb, const ts_image *ref, ts_search *searc
                            .resume_len = resume_len,
                            .tag = cc.tag,
                            .resume_refused = on_checkpoint_refused,
-                           .resumed = on_resumed};
+                           .resumed = on_resumed,
+                           .stop = &j->stopping};
   int rc = jb->spec.engine->run(&jb->spec.params, ref, search, &hooks, run, err);
   free(resume);
   return rc;
@@ -363,15 +366,21 @@ static void *runner(void *arg) {
     if (cs) cs->started++;
     jb->st.state = TS_JOB_RUNNING;
     jb->started = ts_now();
+    j->running++;
     job_changed(j, jb);
     pthread_mutex_unlock(&j->lock);
     char err[TS_ERR_LEN] = "";
     int rc = run_job(j, jb, err);
-    if (rc != 0 && j->stop) {
-      /* Shutting down mid-job: leave it unfinished so a restart reruns it. */
-    } else if (rc == TS_ECANCELED) job_finish(j, jb, TS_JOB_CANCELED, "canceled by a client");
+    if (rc == TS_ESTOPPED)
+      jobs_log(j, "job %" PRIu64 ": %s, checkpoint saved; a restart resumes it there", jb->id, err);
+    else if (rc != 0 && j->stop)
+      jobs_log(j, "job %" PRIu64 ": stopped before its step ended (%s); a restart resumes it from its last "
+               "checkpoint", jb->id, err);
+    else if (rc == TS_ECANCELED) job_finish(j, jb, TS_JOB_CANCELED, "canceled by a client");
     else job_finish(j, jb, rc == 0 ? TS_JOB_DONE : TS_JOB_FAILED, rc == 0 ? "" : err);
     pthread_mutex_lock(&j->lock);
+    j->running--;
+    pthread_cond_broadcast(&j->changed);
   }
   pthread_mutex_unlock(&j->lock);
   return NULL;
@@ -517,12 +526,29 @@ int ts_jobs_create(ts_jobs **out, const ts_jobs_opts *o, char *err) {
   return 0;
 }
 
+/* Asks the running jobs to stop at a checkpoint and waits up to
+ * o.stop_grace seconds for them (lock held); then cancels what still runs,
+ * which ends its search at once. */
+static void stop_running_jobs(ts_jobs *j) {
+  j->stop = 1;
+  j->stopping = 1;
+  pthread_cond_broadcast(&j->changed);
+  if (j->running > 0)
+    jobs_log(j, "stopping: %d running job%s to checkpoint (--stop-grace %g s)", j->running,
+             j->running == 1 ? "" : "s", j->o.stop_grace);
+  struct timespec until = ts_wait_until(j->o.stop_grace);
+  while (j->running > 0 && pthread_cond_timedwait(&j->changed, &j->lock, &until) == 0) {
+  }
+  if (j->running > 0)
+    jobs_log(j, "%d job%s did not reach a checkpoint within %g s (--stop-grace): stopping them now", j->running,
+             j->running == 1 ? "" : "s", j->o.stop_grace);
+  for (job *jb = j->head; jb != NULL; jb = jb->next) jb->cancel = 1;
+}
+
 void ts_jobs_destroy(ts_jobs *j) {
   if (j == NULL) return;
   pthread_mutex_lock(&j->lock);
-  j->stop = 1;
-  for (job *jb = j->head; jb != NULL; jb = jb->next) jb->cancel = 1;
-  pthread_cond_broadcast(&j->changed);
+  stop_running_jobs(j);
   pthread_mutex_unlock(&j->lock);
   for (int i = 0; i < j->nrunners; i++) pthread_join(j->runners[i], NULL);
   while (j->head != NULL) {

@@ -33,14 +33,19 @@ typedef struct {
   ts_cluster *cluster;
   double checkpoint_interval; /* seconds of work between checkpoints inside a
                                  level (0: after whole levels only) */
+  double stop_grace; /* ts_jobs_destroy waits this long for running jobs to
+                        stop at a checkpoint of their own */
 } ts_jobs_opts;
 
 typedef struct ts_jobs ts_jobs;
 
 /* Opens the spool (reloading earlier jobs) and starts the runners. */
 int ts_jobs_create(ts_jobs **out, const ts_jobs_opts *o, char *err);
-/* Stops the runners (running jobs are abandoned, not failed: they rerun
- * after a restart) and frees everything. */
+/* Stops the runners and frees everything. Running jobs are not failed:
+ * each finishes the step under way and saves a checkpoint there, so a
+ * restart resumes it with nothing redone; one still busy after
+ * o->stop_grace seconds (a step waiting for workers) is abandoned, and
+ * resumes from its last checkpoint. */
 void ts_jobs_destroy(ts_jobs *j);
 
 /* Accepts a job from `client` (a fairness key): checks the spec, stores

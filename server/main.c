@@ -328,6 +328,10 @@ static void usage(FILE *f) {
           "                            seconds of work, 0..86400 (default 5; 0 = after\n"
           "                            whole levels only): a restart redoes at most that\n"
           "                            much of a job\n"
+          "  --stop-grace S            on SIGTERM, wait up to S seconds, 0..3600 (default\n"
+          "                            10), for each running job to finish its step and\n"
+          "                            save a checkpoint there; a job still busy then is\n"
+          "                            stopped and resumes from its last checkpoint\n"
           "  --secret-file PATH        shared secret every client and worker must prove\n"
           "                            (owner-only file); without one only loopback\n"
           "                            peers are accepted (protected mode)\n"
@@ -348,7 +352,7 @@ typedef struct {
   int jobs, quiet, modbus_control;
   uint64_t max_pixels, max_spool;
   uint32_t max_client_jobs;
-  double checkpoint_interval;
+  double checkpoint_interval, stop_grace;
   ts_cluster_opts co;
 } server_opts;
 
@@ -390,7 +394,7 @@ static int rebalance_from(const char *s, int *out) {
 }
 
 static int parse_opts(int argc, char **argv, server_opts *o) {
-  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_MAX_WORKERS, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_CKPT, O_SECRET, O_MODBUS, O_MB_CONTROL, O_MB_POLL, O_REBAL_FROM, O_QUIET, O_HELP };
+  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_MAX_WORKERS, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_CKPT, O_GRACE, O_SECRET, O_MODBUS, O_MB_CONTROL, O_MB_POLL, O_REBAL_FROM, O_QUIET, O_HELP };
   static const struct option longopts[] = {
       {"listen", required_argument, 0, O_LISTEN}, {"workers", required_argument, 0, O_WORKERS},
       {"spool", required_argument, 0, O_SPOOL}, {"jobs", required_argument, 0, O_JOBS},
@@ -402,7 +406,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
       {"max-workers", required_argument, 0, O_MAX_WORKERS},
       {"max-frame", required_argument, 0, O_FRAME}, {"max-pixels", required_argument, 0, O_PIX},
       {"max-client-jobs", required_argument, 0, O_CLIENT_JOBS}, {"max-spool", required_argument, 0, O_SPOOL_MAX},
-      {"checkpoint-interval", required_argument, 0, O_CKPT},
+      {"checkpoint-interval", required_argument, 0, O_CKPT}, {"stop-grace", required_argument, 0, O_GRACE},
       {"secret-file", required_argument, 0, O_SECRET},
       {"modbus", required_argument, 0, O_MODBUS}, {"modbus-control", no_argument, 0, O_MB_CONTROL},
       {"modbus-poll", required_argument, 0, O_MB_POLL}, {"rebalance-from", required_argument, 0, O_REBAL_FROM},
@@ -415,6 +419,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
   o->max_client_jobs = 100;
   o->max_spool = 16ull << 30;
   o->checkpoint_interval = 5;
+  o->stop_grace = 10;
   ts_cluster_opts_default(&o->co);
   opterr = 0;
   int c;
@@ -443,6 +448,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
     case O_CLIENT_JOBS: rc = num("--max-client-jobs", optarg, 0, 1e6, &v); o->max_client_jobs = (uint32_t)v; break;
     case O_SPOOL_MAX: rc = bytes_opt("--max-spool", optarg, &o->max_spool); break;
     case O_CKPT: rc = num("--checkpoint-interval", optarg, 0, 86400, &o->checkpoint_interval); break;
+    case O_GRACE: rc = num("--stop-grace", optarg, 0, 3600, &o->stop_grace); break;
     case O_SECRET: o->secret_file = optarg; break;
     case O_MODBUS: o->modbus = optarg; break;
     case O_MB_CONTROL: o->modbus_control = 1; break;
@@ -531,7 +537,7 @@ int main(int argc, char **argv) {
   }
   if (o.workers != NULL && add_workers(g_server.cluster, o.workers) != 0) return 2;
   ts_jobs_opts jo = {o.spool, o.jobs, o.max_pixels, o.max_client_jobs, o.max_spool, g_server.cluster,
-                     o.checkpoint_interval};
+                     o.checkpoint_interval, o.stop_grace};
   if (ts_jobs_create(&g_server.jobs, &jo, err) != 0) {
     fprintf(stderr, "texsyn-server: %s\n", err);
     return 1;

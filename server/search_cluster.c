@@ -263,7 +263,7 @@ static int ensure_slices(cluster_search *cs, cl_set *st, char *err) {
     if (kept > 0)
       cl_log(c, "set %u generation %u over %d workers: %llu bytes of rows sent, %llu kept from their slices", st->gid,
              st->gen, n, (unsigned long long)sent, (unsigned long long)kept);
-    cl_exchange(c, ws, n, load_deadline(c, st, n), loaded_reply, st, &tr);
+    cl_exchange(c, ws, n, load_deadline(c, st, n), cs->cancel, loaded_reply, st, &tr);
     record_held(st, n);
     cl_release(c, ws, n);
     cs->base.stats.bytes_out += tr.bytes_out;
@@ -464,7 +464,7 @@ static int cluster_image_next(ts_search *s, int id, int w, int h, int rw, int rh
     if (cl_queue_image(ws[i], ++c->next_frame, &m, why) != 0) cl_worker_fail(c, ws[i], why);
   }
   cl_traffic tr = {0, 0};
-  if (n > 0) cl_exchange(c, ws, n, c->o.batch_timeout + 30.0, image_reply, &x, &tr);
+  if (n > 0) cl_exchange(c, ws, n, c->o.batch_timeout + 30.0, cs->cancel, image_reply, &x, &tr);
   cl_release(c, ws, n);
   cs->base.stats.bytes_out += tr.bytes_out;
   cs->base.stats.bytes_in += tr.bytes_in;
@@ -494,7 +494,7 @@ static void cluster_image_close(ts_search *s, int id) {
     ws[i]->expect = cl_queue_image(ws[i], ++c->next_frame, &m, why) == 0;
   }
   cl_traffic tr = {0, 0};
-  if (n > 0) cl_exchange(c, ws, n, c->o.batch_timeout, image_reply, &x, &tr);
+  if (n > 0) cl_exchange(c, ws, n, c->o.batch_timeout, cs->cancel, image_reply, &x, &tr);
   cl_release(c, ws, n);
   pthread_mutex_unlock(&c->lock);
   ts_replica_free(&im->rep);
@@ -800,7 +800,7 @@ static int exchange_batch(cluster_search *cs, batch_ctx *bc, const ts_search_req
     return rc;
   }
   cl_traffic tr = {0, 0};
-  rc = cl_exchange(c, ws, n, batch_deadline(c, ws, n), answer_reply, bc, &tr);
+  rc = cl_exchange(c, ws, n, batch_deadline(c, ws, n), cs->cancel, answer_reply, bc, &tr);
   cl_release(c, ws, n);
   char why[TS_ERR_LEN];
   if (settle_images(cs, bc, ws, n, why) != 0) return ts_error(err, TS_EINVAL, "%s", why);
@@ -901,7 +901,7 @@ static void set_clear(cluster_search *cs, cl_set *st) {
   cl_lease(c, ws, n);
   for (int i = 0; i < n; i++) cl_queue_unload(c, ws[i], st->gid);
   cl_traffic tr = {0, 0};
-  if (n > 0) cl_exchange(c, ws, n, c->o.batch_timeout, cl_unloaded_reply, NULL, &tr);
+  if (n > 0) cl_exchange(c, ws, n, c->o.batch_timeout, NULL, cl_unloaded_reply, NULL, &tr);
   cl_release(c, ws, n);
   pthread_mutex_unlock(&c->lock);
   ts_slice_free(st->local);

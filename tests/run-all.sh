@@ -17,10 +17,13 @@ count() { # "N word" out of a runner's closing line
   echo "$1" | grep -oE "[0-9]+ $2" | grep -oE '[0-9]+' || echo 0
 }
 tally() { # $1: the stage's log, $2: 1 when it reruns tests of an earlier stage
-  local line p f s
+  local line p f s e
   line=$(grep -E '[0-9]+ passed' "$1" | tail -n 1)
-  p=$(count "$line" passed); f=$(count "$line" failed); s=$(count "$line" skipped)
-  total_pass=$((total_pass + p)); total_fail=$((total_fail + f)); total_skip=$((total_skip + s))
+  # pytest counts a test whose teardown failed (a daemon that crashed or
+  # left a sanitizer report: conftest.check_daemons) as passed and as an
+  # error: the error is a failure, not another test.
+  p=$(count "$line" passed); f=$(count "$line" failed); s=$(count "$line" skipped); e=$(count "$line" error)
+  total_pass=$((total_pass + p)); total_fail=$((total_fail + f + e)); total_skip=$((total_skip + s))
   if [ "$2" = 1 ]; then reruns=$((reruns + p + f + s)); else distinct=$((distinct + p + f + s)); fi
   grep -E '^(SKIP |SKIPPED \[)' "$1" >>"$skips" || true
 }

@@ -25,6 +25,7 @@
 #include "wmon.h"
 #include "msg.h"
 #include "net.h"
+#include "planted.h"
 #include "pool.h"
 #include "replica.h"
 #include "slice.h"
@@ -272,6 +273,7 @@ static int query_vectors(session *s, ts_slice *slice, const ts_msg_query *q, uin
 }
 
 static int on_query(session *s, const ts_frame *f, char *err) {
+  ts_planted_fault();
   ts_msg_query q;
   int rc = ts_msg_query_read(f, &q, err);
   if (rc != 0) return rc;

@@ -73,6 +73,10 @@ typedef struct {
   /* Called when the engine resumed from `resume`: where it goes on, and at
    * most how many seconds of the interrupted run's work it does again. */
   void (*resumed)(void *ctx, const char *where, double redone);
+  /* Set (by another thread) to stop the run at the end of the step under
+   * way, with a checkpoint saved there: the run returns TS_ESTOPPED. A
+   * daemon shutting down sets it. NULL: never. */
+  const volatile int *stop;
 } ts_engine_hooks;
 
 typedef struct ts_engine_run ts_engine_run;

@@ -520,6 +520,13 @@ static int checkpoint_due(const engine *e) {
          ts_now() - e->last_checkpoint >= h->checkpoint_interval;
 }
 
+/* The run was asked to stop: it saves a checkpoint after this step and
+ * returns (ts_mrf_hooks.stop). Only a run that can save one stops early. */
+static int stop_requested(const engine *e) {
+  const ts_mrf_hooks *h = e->hooks;
+  return h->checkpoint != NULL && h->stop != NULL && *h->stop;
+}
+
 /* Runs steps t0.. of a schedule, every block of a step searched against
  * the canvas as the previous step left it (schedule.h); a checkpoint, when
  * due, goes between two steps. */
@@ -537,6 +544,11 @@ static int run_steps(engine *e, const ts_schedule *sch, int refine, uint32_t t0,
     e->prog.done += n;
     e->prog.work_done += n * level_cost(e->level);
     if (e->hooks->progress) e->hooks->progress(e->hooks->progress_ctx, &e->prog);
+    if (e->step < e->plan.steps && stop_requested(e)) { /* a level's end stops in the caller */
+      rc = save_checkpoint(e, err);
+      return rc != 0 ? rc : ts_error(err, TS_ESTOPPED, "stopped at level %d, step %llu of %llu", e->level,
+                                     (unsigned long long)e->step, (unsigned long long)e->plan.steps);
+    }
     if (checkpoint_due(e) && (rc = save_checkpoint(e, err)) != 0) return rc;
   }
   return 0;
@@ -904,6 +916,7 @@ int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *se
     /* Level l+2 is no longer needed as anyone's coarse part. */
     for (int k = 0; k < e.nplanes && l + 2 < p->levels; k++) ts_plane_free(&e.canvas[k][l + 2]);
     if (rc == 0 && l > p->stop_level && e.hooks->checkpoint) rc = save_checkpoint(&e, err);
+    if (rc == 0 && l > p->stop_level && stop_requested(&e)) rc = ts_error(err, TS_ESTOPPED, "stopped after level %d", l);
   }
   if (rc == 0) {
     ts_usage_stats(&e.usage, &res->usage_mean, &res->usage_variance);

@@ -127,6 +127,10 @@ typedef struct {
    * noise. NULL: synthesis fails with TS_EINVAL instead. */
   void (*refused)(void *ctx, const char *why);
   void *resume_ctx;
+  /* Set (by another thread) when the run should stop early: after the
+   * step under way it saves a checkpoint and returns TS_ESTOPPED, so a
+   * later run resumes there with nothing redone. NULL: never. */
+  const volatile int *stop;
 } ts_mrf_hooks;
 
 /* Synthesises p->width x p->height (or, with stop_level > 0, the

@@ -179,7 +179,8 @@ static int mrf_run(const void *params, const ts_image *ref, ts_search *search, c
                      .resume = resumed ? &resume : NULL,
                      .resumed = on_resumed,
                      .refused = on_refused,
-                     .resume_ctx = &hc};
+                     .resume_ctx = &hc,
+                     .stop = h->save ? h->stop : NULL};
   int rc = ts_mrf_synthesize(r->p, ref, search, &mh, &r->res, err);
   if (resumed) ts_checkpoint_free(&resume);
   return rc;

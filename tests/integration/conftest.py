@@ -18,18 +18,21 @@ FRAME_START = b"TS\x02"
 def pytest_configure(config):
     config.addinivalue_line("markers", "sanitize: small enough to run under ASan+UBSan too")
     config.addinivalue_line("markers", "long: a measurement of minutes, run by make test-faults only")
+    config.addinivalue_line("markers", "asan_only: needs the sanitizer build; run by its stage only")
 
 
 def pytest_collection_modifyitems(config, items):
     """Long measurements are left out of `make test` (deselected, so they are
     neither run nor reported as skipped); `make test-faults` sets
-    TEXSYN_LONG_TESTS=1 and runs them."""
-    if LONG:
-        return
-    long = [i for i in items if i.get_closest_marker("long")]
-    if long:
-        config.hook.pytest_deselected(items=long)
-        items[:] = [i for i in items if not i.get_closest_marker("long")]
+    TEXSYN_LONG_TESTS=1 and runs them. Tests of what only the sanitizer
+    build has run in the sanitized stage only (TEXSYN_SANITIZED=1)."""
+    def left_out(item):
+        return (not LONG and item.get_closest_marker("long")) or \
+            (not SANITIZED and item.get_closest_marker("asan_only"))
+    out = [i for i in items if left_out(i)]
+    if out:
+        config.hook.pytest_deselected(items=out)
+        items[:] = [i for i in items if not left_out(i)]
 
 
 @pytest.fixture(scope="session")
@@ -117,15 +120,42 @@ class LoopbackProxy:
         self.sock.close()
 
 
+class SignalledPopen(subprocess.Popen):
+    """A Popen that remembers the signals sent through it (kill() and
+    terminate() go through send_signal too): a daemon that ends by any
+    other signal crashed."""
+
+    def __init__(self, *args, **kwargs):
+        self.signals_sent = set()
+        super().__init__(*args, **kwargs)
+
+    def send_signal(self, sig):
+        self.signals_sent.add(sig)
+        super().send_signal(sig)
+
+
+# What a sanitizer prints when it finds an error: ASan and LSan name
+# themselves, UBSan reports "FILE:LINE:COL: runtime error: ...".
+SANITIZER_REPORT = re.compile(r"ERROR: (AddressSanitizer|LeakSanitizer)|^\S+:\d+:\d+: runtime error:", re.M)
+STOP_SECONDS = 20
+
+# Every daemon the running test started, for check_daemons (below).
+DAEMONS = []
+
+
 class Daemon:
     """A texsyn-server or texsyn-worker started on a kernel-chosen loopback
-    port; stopped (SIGTERM, then SIGKILL) by the fixture that made it."""
+    port; stopped (SIGTERM, then SIGKILL) by the fixture that made it, and
+    checked after the test by check_daemons. Signals go through
+    self.proc.send_signal (or kill/terminate), which records them."""
 
     def __init__(self, args, log_path):
+        self.name = Path(log_path).stem
         self.log_path = log_path
         self.log = open(log_path, "w")
-        self.proc = subprocess.Popen([str(a) for a in args], stdout=subprocess.PIPE,
-                                     stderr=self.log, text=True)
+        self.stop_timed_out = False
+        self.proc = SignalledPopen([str(a) for a in args], stdout=subprocess.PIPE, stderr=self.log, text=True)
+        DAEMONS.append(self)
         line = self.proc.stdout.readline()
         m = re.search(r"listening on (\S+)", line)
         if not m:
@@ -144,18 +174,68 @@ class Daemon:
     def alive(self):
         return self.proc.poll() is None
 
+    def wait_log(self, pattern, timeout=300):
+        """The first match of pattern in the log, polled every 10 ms: tests
+        wait for the event itself, not for a time it usually takes."""
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            m = re.search(pattern, self.read_log())
+            if m:
+                return m
+            assert self.alive(), f"{self.name} died waiting for {pattern!r}:\n{self.read_log()}"
+            time.sleep(0.01)
+        raise AssertionError(f"{self.name} never logged {pattern!r}:\n{self.read_log()}")
+
     def stop(self):
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
             try:
-                self.proc.wait(timeout=20)
+                self.proc.wait(timeout=STOP_SECONDS)
             except subprocess.TimeoutExpired:
+                self.stop_timed_out = True
                 self.proc.kill()
                 self.proc.wait()
         if self.proc.stdout:
             self.proc.stdout.close()
         self.log.close()
         return self.proc.returncode
+
+    def faults(self):
+        """What went wrong with this daemon, as sentences (none: all well):
+        an exit by a signal nobody sent (a crash, or a sanitizer's abort),
+        a sanitizer report in its log, or no exit within STOP_SECONDS of
+        SIGTERM."""
+        found = []
+        rc = self.proc.returncode
+        if rc is not None and rc < 0 and -rc not in self.proc.signals_sent:
+            found.append(f"{self.name} (pid {self.proc.pid}) died of {signal.Signals(-rc).name}, "
+                         "a signal the test did not send")
+        if self.stop_timed_out:
+            found.append(f"{self.name} (pid {self.proc.pid}) did not exit within {STOP_SECONDS} s of SIGTERM")
+        log = self.read_log()
+        m = SANITIZER_REPORT.search(log)
+        if m:
+            start = log.rfind("\n", 0, m.start()) + 1
+            found.append(f"{self.name}'s log ({self.log_path}) holds a sanitizer report:\n"
+                         + "\n".join(log[start:].splitlines()[:30]))
+        return found
+
+
+@pytest.fixture(autouse=True)
+def check_daemons():
+    """After every test: stops the daemons it left running, then fails it
+    (an error at teardown) if any daemon crashed, hung on SIGTERM or left a
+    sanitizer report. Autouse fixtures are set up first, so this runs after
+    the fixtures that stop their own daemons."""
+    DAEMONS.clear()
+    yield
+    found = []
+    for d in DAEMONS:
+        d.stop()
+        found += d.faults()
+    DAEMONS.clear()
+    if found:
+        pytest.fail("\n".join(found), pytrace=False)
 
 
 class Cluster:

@@ -28,18 +28,6 @@ def ref_of(data):
     return data / "textures" / "brick.png"
 
 
-def wait_log(daemon, pattern, timeout=300):
-    """The first match of pattern in the daemon's log, polled every 10 ms."""
-    deadline = time.time() + timeout
-    while time.time() < deadline:
-        m = re.search(pattern, daemon.read_log())
-        if m:
-            return m
-        assert daemon.alive(), f"the daemon died waiting for {pattern!r}:\n{daemon.read_log()}"
-        time.sleep(0.01)
-    raise AssertionError(f"never logged {pattern!r}:\n{daemon.read_log()}")
-
-
 def kill_coordinator(cluster):
     """kill -9; returns the moment (time.time())."""
     cluster.server.proc.send_signal(signal.SIGKILL)
@@ -78,7 +66,7 @@ def test_killed_inside_the_finest_level_resumes_there(texsyn, data, cluster, tmp
     args = [*SERVER_ARGS, "--checkpoint-interval", "0.2"]
     cluster.start(2, 1, *args)
     job_id = submit_detached(cluster, data, tmp_path, JOB)
-    seen = wait_log(cluster.server, rf"job {job_id}: checkpoint inside level 0 at step (\d+) of (\d+)")
+    seen = cluster.server.wait_log(rf"job {job_id}: checkpoint inside level 0 at step (\d+) of (\d+)")
     kill_coordinator(cluster)
     restart_coordinator(cluster, *args)
     w = cluster.texsyn("watch", job_id, "--quiet", check=False, timeout=300)
@@ -125,14 +113,14 @@ def test_kill_in_the_middle_of_level_0_of_a_long_job(texsyn, data, cluster, tmp_
     cluster.start(2, 1, *SERVER_ARGS)  # the default --checkpoint-interval, 5 s
     submitted = time.time()
     job_id = submit_detached(cluster, data, tmp_path, job)
-    wait_log(cluster.server, rf"job {job_id}: checkpoint after level 1 ")
+    cluster.server.wait_log(rf"job {job_id}: checkpoint after level 1 ")
     level0_start = time.time()
     # The cluster runs the coarser levels at about the embedded pace: level 0
     # should take as long, relative to them, as it did embedded.
     pace = (level0_start - submitted) / sum(s for lv, s in level.items() if lv > 0)
     kill_at = level0_start + 0.5 * level[0] * pace
     time.sleep(max(0.0, kill_at - time.time()))
-    inside = wait_log(cluster.server, rf"job {job_id}: checkpoint inside level 0 at step (\d+) of (\d+)")
+    inside = cluster.server.wait_log(rf"job {job_id}: checkpoint inside level 0 at step (\d+) of (\d+)")
     killed = kill_coordinator(cluster)
     restart_coordinator(cluster, *SERVER_ARGS)
     restarted = time.time()
