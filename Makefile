@@ -90,8 +90,9 @@ BENCH_SRC = $(wildcard bench/*.c)
 BENCH_BINS = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
 
 .PHONY: all install deps test test-unit test-integration test-faults test-valgrind fuzz fuzz-build bench demo clean
-# A poll() that fails on demand, preloaded into texsyn-server by a fault test.
-PRELOADS = $(BUILD)/tests/libfail_poll.so
+# Shims preloaded into texsyn-server by fault tests: a poll() that fails on
+# demand, a rename() that kills the process (tests/preload/).
+PRELOADS = $(BUILD)/tests/libfail_poll.so $(BUILD)/tests/libkill_at_rename.so
 all: $(BINS) $(IMAGE_LIB) $(UNIT_BINS) $(BENCH_BINS) $(REPLAY_BINS) $(PRELOADS)
 
 $(BUILD)/%.o: %.c

@@ -38,6 +38,7 @@
 #include <memory>
 #include <new>
 #include <string>
+#include <vector>
 
 #include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
@@ -445,6 +446,37 @@ static int ts_sync(const char *path, std::string &why) {
   return 0;
 }
 
+/* The encoded bytes into a new file, every error checked. The PNG and JPEG
+ * encoders write into memory (ts_write), so a full disk or a failing
+ * device is met here, not by a codec that overlooks it (the PNG writer
+ * left an empty file and reported success) or exits the process on it
+ * (libjpeg's default error handler). The TIFF and OpenEXR writers report
+ * write errors and write their files themselves: OpenImageIO 2.4's TIFF
+ * writer makes a broken file through a memory sink. */
+static int ts_write_file(const std::string &path, const std::vector<unsigned char> &bytes, std::string &why) {
+  int fd = open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) {
+    why = strerror(errno);
+    return -1;
+  }
+  size_t off = 0;
+  while (off < bytes.size()) {
+    ssize_t k = write(fd, bytes.data() + off, bytes.size() - off);
+    if (k < 0 && errno == EINTR) continue;
+    if (k <= 0) {
+      why = k < 0 ? strerror(errno) : "the device took no more bytes";
+      close(fd);
+      return -1;
+    }
+    off += (size_t)k;
+  }
+  if (close(fd) != 0) {
+    why = strerror(errno);
+    return -1;
+  }
+  return 0;
+}
+
 static int ts_write(const char *path, const ts_image *img, const ts_meta *meta_from, char *err) {
   int rc = ts_check_image(path, img, err);
   if (rc != 0) return rc;
@@ -472,12 +504,16 @@ static int ts_write(const char *path, const ts_image *img, const ts_meta *meta_f
   size_t tsize = ts_pixtype_size(img->type);
   OIIO::stride_t xstride = (OIIO::stride_t)(img->channels * tsize);
   std::string why;
-  bool ok = out->open(tmp.path, spec);
+  std::vector<unsigned char> bytes;
+  OIIO::Filesystem::IOVecOutput sink(bytes);
+  bool in_memory = fmt == "png" || fmt == "jpeg";
+  bool ok = (!in_memory || out->set_ioproxy(&sink)) && out->open(tmp.path, spec);
   if (ok) {
     ok = out->write_image(ts_oiio_type(img->type), img->pixels, xstride, xstride * img->width);
     ok = out->close() && ok; /* close even after a failed write */
   }
   if (!ok) why = ts_oneline(out->geterror());
+  if (ok && in_memory && ts_write_file(tmp.path, bytes, why) != 0) ok = false;
   if (ok && fmt == "tiff" && meta_from != nullptr && ts_has_geo(meta_from->attribs))
     ok = ts_geo_write_attrs(tmp.path.c_str(), meta_from->attribs, why);
   /* fsync before rename: after a crash the name holds the old file or the

@@ -123,6 +123,24 @@ static uint64_t dir_bytes(const char *dir) {
   return total;
 }
 
+/* Whether a file name is a temporary one of write_atomic ("NAME.tmp") or
+ * of the image library ("NAME.tmp-PID-N"). */
+static int temporary_name(const char *name) {
+  const char *t = strstr(name, ".tmp");
+  return t != NULL && (t[4] == '\0' || t[4] == '-');
+}
+
+/* Removes the temporary files a coordinator killed while writing left in
+ * a job's directory, before the job runs again. */
+static void remove_temporaries(const char *dir) {
+  DIR *d = opendir(dir);
+  if (d == NULL) return;
+  struct dirent *e;
+  while ((e = readdir(d)) != NULL)
+    if (temporary_name(e->d_name)) unlinkat(dirfd(d), e->d_name, 0);
+  closedir(d);
+}
+
 /* Removes a job's directory and the files in it. */
 static int remove_dir(const char *dir) {
   DIR *d = opendir(dir);
@@ -258,14 +276,18 @@ static uint64_t job_tag(const job *jb) {
 }
 
 /* Writes a checkpoint atomically: a kill at any moment leaves either the
- * previous checkpoint or this one. */
+ * previous checkpoint or this one. One that cannot be written (a full
+ * disk) does not fail the job: it goes on, and a restart would redo more. */
 static int on_checkpoint(void *arg, const uint8_t *buf, size_t len, const char *what, char *err) {
   checkpoint_ctx *cc = arg;
-  char path[JOBS_PATH + 32];
+  char path[JOBS_PATH + 32], why[TS_ERR_LEN];
+  (void)err;
   job_path(cc->jb, JOBS_CHECKPOINT, path, sizeof(path));
-  int rc = write_atomic(path, buf, len, err);
-  if (rc == 0) jobs_log(cc->j, "job %" PRIu64 ": checkpoint %s (%zu bytes)", cc->jb->id, what, len);
-  return rc;
+  if (write_atomic(path, buf, len, why) == 0)
+    jobs_log(cc->j, "job %" PRIu64 ": checkpoint %s (%zu bytes)", cc->jb->id, what, len);
+  else
+    jobs_log(cc->j, "job %" PRIu64 ": no checkpoint %s: %s; the job goes on without it", cc->jb->id, what, why);
+  return 0;
 }
 
 /* A damaged or foreign checkpoint: the job starts over, which gives the
@@ -314,6 +336,7 @@ static int run_engine(ts_jobs *j, job *jb, const ts_image *ref, ts_search *searc
 }
 
 static int run_job(ts_jobs *j, job *jb, char *err) {
+  remove_temporaries(jb->dir);
   char path[JOBS_PATH + 32];
   snprintf(path, sizeof(path), "%s/ref.%s", jb->dir, jb->ref_ext);
   ts_image_limits limits = {j->o.max_pixels, JOBS_MAX_PIXELS_OPTION};

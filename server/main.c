@@ -213,6 +213,15 @@ static int serve_request(ts_conn *c, const ts_frame *f, const char *client) {
   }
 }
 
+/* A client that went away: logged when it left a message unfinished (an
+ * upload cut off), which is then dropped whole - nothing of it is queued. */
+static void note_client_gone(const ts_conn *c, const char *client) {
+  uint64_t held = c->rd.len - c->rd.consumed + (c->pieces.active ? c->pieces.got : 0);
+  if (held > 0)
+    ts_log("client %s (%s) went away in the middle of a message (%" PRIu64 " bytes of it received): dropped, "
+           "nothing of it was accepted", c->peer, client, held);
+}
+
 static void serve_client(ts_conn *c, const ts_msg_ident *ident) {
   char client[TS_MSG_NAME_MAX];
   snprintf(client, sizeof(client), "%s", ident->name);
@@ -221,7 +230,10 @@ static void serve_client(ts_conn *c, const ts_msg_ident *ident) {
     char err[TS_ERR_LEN];
     int rc = ts_conn_recv(c, &f, 1000, err);
     if (rc == TS_ETIMEDOUT) continue;
-    if (rc == TS_ECONN) return;
+    if (rc == TS_ECONN) {
+      note_client_gone(c, client);
+      return;
+    }
     if (rc < 0) {
       ts_log("protocol error from client %s: %s; closing", c->peer, err);
       reply_error(c, 0, rc, err);

@@ -13,6 +13,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -274,6 +275,32 @@ static int synth_parse(int argc, char **argv, synth_opts *o, char *err) {
   return 0;
 }
 
+/* Whether the file path names can be written: a probe file made beside it
+ * and removed at once (permissions alone do not tell: root, read-only
+ * mounts). Checked before the job runs, so a wrong -o costs no synthesis. */
+static int check_writable(const char *path, char *err) {
+  struct stat st;
+  if (stat(path, &st) == 0 && S_ISDIR(st.st_mode))
+    return ts_error(err, TS_EINVAL, "cannot write %s: it is a directory; name a file in it", path);
+  char probe[4096];
+  int n = snprintf(probe, sizeof(probe), "%s.probe-XXXXXX", path);
+  if (n < 0 || (size_t)n >= sizeof(probe)) return ts_error(err, TS_EINVAL, "%s: path too long", path);
+  int fd = mkstemp(probe);
+  if (fd < 0)
+    return ts_error(err, TS_EIO, "cannot write %s: %s (found before the job ran; nothing was done)", path,
+                    strerror(errno));
+  close(fd);
+  unlink(probe);
+  return 0;
+}
+
+/* Every output path of a synth command is writable. */
+static int check_outputs(const synth_opts *o, char *err) {
+  for (int k = 0; k < TS_ENGINE_MAX_OUTPUTS; k++)
+    if (o->out.path[k] != NULL && check_writable(o->out.path[k], err) != 0) return TS_EIO;
+  return 0;
+}
+
 /* Every output given a path, from a finished run. */
 static int write_outputs(const synth_opts *o, const ts_engine_run *run, char *err) {
   const ts_engine *e = ts_engine_default();
@@ -424,7 +451,8 @@ static int remote_synth(const synth_opts *o) {
   uint64_t id = 0;
   int rc = connect_server(&c, o->server, o->secret_file, err);
   if (rc != 0) {
-    fprintf(stderr, "texsyn synth: %s\n", err);
+    fprintf(stderr, "texsyn synth: %s\n(no job was submitted: is texsyn-server running at %s%s? --embedded runs here)\n",
+            err, o->server, o->server == env_server() ? ", from $TEXSYN_SERVER" : "");
     return 1;
   }
   rc = submit_job(&c, o, &id, err);
@@ -452,6 +480,10 @@ static int cmd_synth(int argc, char **argv) {
   if (rc != 0) {
     fprintf(stderr, "texsyn synth: %s\n", err);
     return 2;
+  }
+  if (!o.detach && check_outputs(&o, err) != 0) {
+    fprintf(stderr, "texsyn synth: %s\n", err);
+    return 1;
   }
   ts_image_limits limits = {o.p.max_pixels};
   ts_image ref = {0};

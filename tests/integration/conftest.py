@@ -174,6 +174,11 @@ class Daemon:
     def alive(self):
         return self.proc.poll() is None
 
+    def expect_signal(self, sig):
+        """The daemon will die of sig by the test's doing, not sent through
+        proc.send_signal (a preloaded shim raises it)."""
+        self.proc.signals_sent.add(sig)
+
     def wait_log(self, pattern, timeout=300):
         """The first match of pattern in the log, polled every 10 ms: tests
         wait for the event itself, not for a time it usually takes."""
