@@ -223,7 +223,7 @@ def test_load_read_over_modbus_rebalances(data, cluster, tmp_path):
                           str(ref_of(data)), "-o", str(out), "--size", f"{w}x{h}", "--quiet"],
                          stderr=subprocess.PIPE, text=True)
     wait_until("a CPU-share baseline", lambda: all(named(x.modbus)["cpu_share"] != "unknown" for x in cluster.workers))
-    time.sleep(0.5)
+    wait_until("both workers answering the job", lambda: all(x["batches"] > 0 for x in cluster.pool()))
 
     def ratio():
         pool = cluster.pool()
