@@ -11,6 +11,8 @@
 #                       and a coordinator killed half-way through level 0 of a 20 s job
 #   make fuzz       run each libFuzzer target for FUZZ_SECONDS (default 30)
 #   make bench      run benchmarks, write bench/results/
+#   make soak       SOAK_MINUTES (default 10) of small jobs on 3 workers that are killed,
+#                   stalled and replaced; writes bench/results/soak.{json,txt}
 #   make demo       install missing packages, run an embedded synthesis
 #   make clean
 #
@@ -84,7 +86,7 @@ BINS = $(BUILD)/texsyn $(BUILD)/texsyn-server $(BUILD)/texsyn-worker
 UNIT_SRC = $(wildcard tests/unit/test_*.c)
 UNIT_BINS = $(UNIT_SRC:tests/unit/%.c=$(BUILD)/tests/%)
 # The libFuzzer targets' inputs replayed by a plain main() (tests/fuzz).
-FUZZ_TARGETS = frame msg jobspec image checkpoint
+FUZZ_TARGETS = frame msg jobspec image checkpoint modbus spool
 REPLAY_BINS = $(FUZZ_TARGETS:%=$(BUILD)/tests/replay_%)
 BENCH_SRC = $(wildcard bench/*.c)
 BENCH_BINS = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
@@ -236,6 +238,16 @@ fuzz: deps fuzz-build
 
 bench: deps all
 	bash bench/run.sh $(BUILD)
+
+# Soak (not in `make test`): 4 clients submit small jobs for SOAK_MINUTES to
+# a coordinator whose 3 workers are SIGKILLed, SIGSTOPped and replaced at
+# random; every job must finish with the embedded run's bytes, and the
+# daemons' fds, RSS and the spool must stay within the bounds bench/soak.py
+# states. Writes bench/results/soak.json and soak.txt.
+SOAK_MINUTES ?= 10
+.PHONY: soak
+soak: $(BINS) $(IMAGE_LIB)
+	/usr/bin/python3 bench/soak.py --build $(BUILD) --minutes $(SOAK_MINUTES)
 
 demo: deps all
 	bash deploy/demo.sh $(BUILD)
