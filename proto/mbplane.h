@@ -38,6 +38,21 @@ typedef struct {
   void (*log)(const char *msg); /* refused writes, dropped clients (may be NULL) */
 } ts_mbplane_opts;
 
+/* The request side of a plane, without its thread or sockets: a libmodbus
+ * context and the register map, answering one request at a time on a
+ * socket the caller owns. A plane's thread serves its clients with one;
+ * the fuzz target (tests/fuzz/fuzz_modbus.c) drives one over a socketpair. */
+typedef struct ts_mbserver ts_mbserver;
+
+/* A server for o's map, callbacks and control switch (o->listen unused). */
+int ts_mbserver_new(ts_mbserver **out, const ts_mbplane_opts *o, char *err);
+/* Reads one request from fd (the rest of a request once started may take
+ * up to a second) and answers it; peer names the client in log lines.
+ * Returns the request's length, 0 for a request ignored, or -1 when the
+ * connection should be closed (why is logged, unless the client left). */
+int ts_mbserver_serve(ts_mbserver *s, int fd, const char *peer);
+void ts_mbserver_free(ts_mbserver *s);
+
 /* Listens and starts the plane's thread; *port gets the bound port. */
 int ts_mbplane_start(ts_mbplane **out, const ts_mbplane_opts *o, int *port, char *err);
 /* Stops the thread and closes every socket. */
