@@ -18,6 +18,7 @@
 #include "image.h"
 #include "jobspec.h"
 #include "log.h"
+#include "spool.h"
 #include "util.h"
 
 #define JOBS_PATH 4096
@@ -95,14 +96,19 @@ static int write_atomic(const char *path, const void *data, size_t len, char *er
   return 0;
 }
 
-/* Reads a whole small file into buf (NUL-terminated); length or -1. */
-static long read_small(const char *path, char *buf, size_t cap) {
-  uint8_t *data;
-  size_t n;
-  if (ts_file_read(path, cap - 1, &data, &n, NULL) != 0) return -1;
-  memcpy(buf, data, n + 1);
-  free(data);
-  return (long)n;
+/* Reads a small file of the spool for spool.h's judges: its bytes into
+ * *buf (the caller frees it), or why it could not (f->why, pointing into
+ * why, stays NULL when the file is missing). */
+static void read_spool_file(const char *path, size_t cap, ts_spool_file *f, uint8_t **buf, char why[TS_ERR_LEN]) {
+  size_t len;
+  *f = (ts_spool_file){NULL, 0, NULL};
+  if (ts_file_read(path, cap, buf, &len, why) == 0) {
+    f->data = (const char *)*buf;
+    f->len = len;
+    return;
+  }
+  struct stat st;
+  if (lstat(path, &st) == 0 || errno != ENOENT) f->why = why;
 }
 
 static void job_path(const job *jb, const char *name, char *out, size_t cap) {
@@ -423,43 +429,65 @@ static int mkdir_p(const char *path) {
   return mkdir(buf, 0755) != 0 && errno != EEXIST ? -1 : 0;
 }
 
-/* Reloads one job directory; unfinished jobs queue again. */
+/* Judges job directory dir by its files (spool.h). */
+static int judge_job_dir(const char *dir, ts_spool_job *rec, char *err) {
+  static const struct {
+    const char *name;
+    size_t cap; /* more than the file's writer ever puts there */
+  } files[4] = {{"job.spec", TS_SPEC_MAX}, {"client", TS_SPOOL_CLIENT_LEN}, {"ref.ext", TS_EXT_LEN},
+                {"state", TS_ERR_LEN + 32}};
+  ts_spool_files f = {0};
+  ts_spool_file *slot[4] = {&f.spec, &f.client, &f.ref_ext, &f.state};
+  uint8_t *buf[4] = {NULL};
+  char why[4][TS_ERR_LEN], path[JOBS_PATH + 32];
+  for (int i = 0; i < 4; i++) {
+    snprintf(path, sizeof(path), "%s/%s", dir, files[i].name);
+    read_spool_file(path, files[i].cap, slot[i], &buf[i], why[i]);
+  }
+  struct stat st;
+  snprintf(path, sizeof(path), "%s/%s", dir, JOBS_CHECKPOINT);
+  f.checkpoint = lstat(path, &st) == 0;
+  int rc = ts_spool_read_job(dir, &f, rec, err);
+  for (int i = 0; i < 4; i++) free(buf[i]);
+  return rc;
+}
+
+/* Reloads one job directory; unfinished jobs queue again, damaged ones
+ * are kept as spool.h says, with a log line. */
 static void load_job(ts_jobs *j, uint64_t id) {
   /* Ids are never reused, not even an unacknowledged submission's: its
    * directory is still there and a new job could not be created in it. */
   if (id >= j->next_id) j->next_id = id + 1;
   job *jb = calloc(1, sizeof(*jb));
-  if (jb == NULL) return;
-  jb->id = id;
-  snprintf(jb->dir, sizeof(jb->dir), "%s/jobs/%" PRIu64, j->spool, id);
-  char path[JOBS_PATH + 32], text[TS_SPEC_MAX + 1], err[TS_ERR_LEN];
-  job_path(jb, "job.spec", path, sizeof(path));
-  long n = read_small(path, text, sizeof(text));
-  job_path(jb, "client", path, sizeof(path));
-  if (read_small(path, jb->client, sizeof(jb->client)) < 0) snprintf(jb->client, sizeof(jb->client), "?");
-  job_path(jb, "ref.ext", path, sizeof(path));
-  if (n < 0 || ts_jobspec_parse(text, (size_t)n, &jb->spec, err) != 0 ||
-      read_small(path, jb->ref_ext, sizeof(jb->ref_ext)) <= 0) {
-    /* An incomplete submission, never acknowledged: its files go, its id
-     * stays taken (last-id). */
-    jobs_log(j, "removing %s: a submission cut short", jb->dir);
-    remove_dir(jb->dir);
+  ts_spool_job *rec = malloc(sizeof(*rec));
+  char err[TS_ERR_LEN];
+  if (jb == NULL || rec == NULL) {
+    jobs_log(j, "out of memory loading job %" PRIu64 " from the spool: it is left out until a restart", id);
     free(jb);
+    free(rec);
     return;
   }
-  jb->st.id = id;
-  jb->st.levels = (uint8_t)jb->spec.engine->levels(&jb->spec.params);
-  jb->st.eta_ms = UINT32_MAX;
-  job_path(jb, "state", path, sizeof(path));
-  if (read_small(path, text, sizeof(text)) > 0) {
-    text[strcspn(text, "\n")] = '\0';
-    if (strcmp(text, "done") == 0) jb->st.state = TS_JOB_DONE, jb->st.permille = 1000;
-    else if (strcmp(text, "canceled") == 0) jb->st.state = TS_JOB_CANCELED;
-    else {
-      jb->st.state = TS_JOB_FAILED;
-      snprintf(jb->st.text, sizeof(jb->st.text), "%.500s", strncmp(text, "failed: ", 8) == 0 ? text + 8 : text);
-    }
+  jb->id = id;
+  snprintf(jb->dir, sizeof(jb->dir), "%s/jobs/%" PRIu64, j->spool, id);
+  if (judge_job_dir(jb->dir, rec, err) != 0) {
+    /* Never acknowledged: its files go, its id stays taken (last-id). */
+    jobs_log(j, "%s; removing it", err);
+    remove_dir(jb->dir);
+    free(jb);
+    free(rec);
+    return;
   }
+  if (rec->note[0] != '\0') jobs_log(j, "job %" PRIu64 ": %s", id, rec->note);
+  if (rec->has_spec) jb->spec = rec->spec;
+  snprintf(jb->client, sizeof(jb->client), "%s", rec->client);
+  snprintf(jb->ref_ext, sizeof(jb->ref_ext), "%s", rec->ref_ext);
+  jb->st.id = id;
+  jb->st.state = (uint8_t)rec->state;
+  jb->st.levels = rec->has_spec ? (uint8_t)jb->spec.engine->levels(&jb->spec.params) : 0;
+  jb->st.permille = rec->state == TS_JOB_DONE ? 1000 : 0;
+  jb->st.eta_ms = UINT32_MAX;
+  snprintf(jb->st.text, sizeof(jb->st.text), "%s", rec->text);
+  free(rec);
   jb->bytes = dir_bytes(jb->dir);
   j->spool_bytes += jb->bytes;
   client_share *cs = share_of(j, jb->client);
@@ -478,13 +506,26 @@ static void note_last_id(ts_jobs *j, uint64_t id) {
   if (write_atomic(path, text, (size_t)n, err) != 0) jobs_log(j, "%s", err);
 }
 
-static uint64_t read_last_id(ts_jobs *j) {
-  char path[JOBS_PATH + 16], text[32];
+/* Numbers new jobs after last-id (next_id is already past every job
+ * directory). Without a usable last-id the job directories are all there
+ * is: the ids of deleted jobs above them could come again, which the log
+ * line says, with what to do about it. */
+static void read_last_id(ts_jobs *j, size_t njobs) {
+  char path[JOBS_PATH + 16], why[TS_ERR_LEN], err[TS_ERR_LEN];
   snprintf(path, sizeof(path), "%s/%s", j->spool, JOBS_LAST_ID);
-  if (read_small(path, text, sizeof(text)) <= 0) return 0;
-  char *end;
-  uint64_t id = strtoull(text, &end, 10);
-  return *end == '\n' || *end == '\0' ? id : 0;
+  ts_spool_file f;
+  uint8_t *buf = NULL;
+  read_spool_file(path, 32, &f, &buf, why);
+  uint64_t last;
+  int rc = ts_spool_read_last_id(path, &f, &last, err);
+  free(buf);
+  if (rc == 0 && j->next_id <= last) j->next_id = last + 1;
+  if (j->next_id == 0) j->next_id = 1;
+  if (rc == 0 || (rc == TS_ENOENT && njobs == 0)) return; /* a new spool has none */
+  jobs_log(j,
+           "%s: new jobs are numbered from %" PRIu64 ", after the jobs in the spool; ids of jobs deleted "
+           "above %" PRIu64 " would be given out again: if there were any, write the highest id ever given to %s",
+           err, j->next_id, j->next_id - 1, path);
 }
 
 static int cmp_u64(const void *a, const void *b) {
@@ -517,9 +558,7 @@ static int load_spool(ts_jobs *j, char *err) {
   if (n > 0) qsort(ids, n, sizeof(*ids), cmp_u64);
   for (size_t i = 0; i < n; i++) load_job(j, ids[i]);
   free(ids);
-  uint64_t last = read_last_id(j);
-  if (j->next_id <= last) j->next_id = last + 1;
-  if (j->next_id == 0) j->next_id = 1;
+  read_last_id(j, n);
   return 0;
 }
 

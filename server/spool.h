@@ -1,0 +1,62 @@
+/* spool.h - what a restarted coordinator makes of a job directory
+ * (SPOOL/jobs/ID, see jobs.h) and of SPOOL/last-id.
+ *
+ * A submission writes the reference, `client`, `ref.ext` and, last,
+ * `job.spec`; the job's end writes `state`. So a directory without
+ * job.spec (and no sign of having run: a state or a checkpoint) is a
+ * submission cut short before it was acknowledged, and goes. Anything else
+ * was accepted, and is never dropped: a job whose job.spec or ref.ext is
+ * damaged (a disk error, an edit) and that still needs it is kept as
+ * failed, with a reason naming the file; a damaged `state` reruns the job
+ * (synthesis is deterministic, so a job that had finished gives the same
+ * bytes again); a damaged `client` only loses the job's fairness key. What
+ * was found damaged comes back as a note for the log.
+ *
+ * Pure: the caller reads the files, these functions judge their bytes
+ * (tests/unit/test_spool.c, tests/fuzz/fuzz_spool.c). */
+#ifndef TS_SPOOL_H
+#define TS_SPOOL_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "error.h"
+#include "jobspec.h"
+
+#define TS_SPOOL_CLIENT_LEN 128
+/* The client name of a job whose `client` file is damaged. */
+#define TS_SPOOL_NO_CLIENT "?"
+
+/* One file as read from disk. */
+typedef struct {
+  const char *data; /* its bytes (need not be NUL-terminated); NULL: not read */
+  size_t len;
+  const char *why; /* data NULL: why it could not be read, or NULL if it is missing */
+} ts_spool_file;
+
+typedef struct {
+  ts_spool_file spec, client, ref_ext, state;
+  int checkpoint; /* the directory holds a checkpoint: the job ran */
+} ts_spool_files;
+
+typedef struct {
+  int state;    /* TS_JOB_QUEUED (to run), TS_JOB_DONE, TS_JOB_FAILED or TS_JOB_CANCELED */
+  int has_spec; /* spec is the job's; 0 only for a failed or canceled job */
+  ts_jobspec spec;
+  char client[TS_SPOOL_CLIENT_LEN];
+  char ref_ext[TS_EXT_LEN]; /* "" when ref.ext is damaged (then the job does not run) */
+  char text[TS_ERR_LEN];    /* a failed job's reason, one line */
+  char note[TS_ERR_LEN];    /* what was found damaged and what became of the job; "" if nothing */
+} ts_spool_job;
+
+/* Judges the files of the job directory dir (named in every message).
+ * 0: a job to keep, in *out. TS_ENOENT: a submission cut short, to be
+ * removed (err says so). */
+int ts_spool_read_job(const char *dir, const ts_spool_files *f, ts_spool_job *out, char *err);
+
+/* The id in the last-id file at path (named in messages): 0 and *id (1 or
+ * more); TS_ENOENT if the file is missing; TS_EIO or TS_EFORMAT if it is
+ * unreadable or damaged. err says which. */
+int ts_spool_read_last_id(const char *path, const ts_spool_file *f, uint64_t *id, char *err);
+
+#endif
