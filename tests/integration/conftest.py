@@ -272,6 +272,19 @@ class Cluster:
     def texsyn(self, *args, check=True, timeout=600):
         return run(BUILD / "texsyn", *args, "--server", self.server.addr, check=check, timeout=timeout)
 
+    def submit(self, ref, *args):
+        """`texsyn synth --detach` of ref with args (size, options, side
+        outputs); returns the job id."""
+        p = self.texsyn("synth", "--ref", ref, "-o", self.tmp / "unused.png", *args, "--detach")
+        return p.stdout.split()[-1]
+
+    def restart_server(self, *server_args, log="server2.log"):
+        """A new coordinator on the same spool and workers (the old one
+        stopped or killed)."""
+        args = [BUILD / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", self.tmp / "spool",
+                "--workers", ",".join(w.addr for w in self.workers), *server_args]
+        self.server = Daemon(args, self.tmp / log)
+
     def pool(self):
         """`texsyn workers` as a list of dicts."""
         out = self.texsyn("workers").stdout.splitlines()

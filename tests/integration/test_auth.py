@@ -4,7 +4,6 @@ refused with a message the user can act on and a log line naming the peer,
 and the daemon goes on serving everyone else. Without a secret a daemon
 admits loopback peers only (protected mode)."""
 import os
-import socket
 import subprocess
 import time
 

@@ -4,7 +4,6 @@ daemon exits; a restart resumes there) or killed while writing a result,
 clients killed mid-upload or while watching, a spool whose disk fills up,
 and a `--server` or `-o` that cannot work found before any synthesis.
 Each ends with nothing lost and a message that says what happened."""
-import json
 import re
 import signal
 import time
@@ -19,17 +18,6 @@ JOB = ["--size", "%dx%d" % SIZE, "--usage-weight", "1"]
 
 def ref_of(data):
     return data / "textures" / "brick.png"
-
-
-def submit_detached(cluster, data, tmp_path, job=JOB, ref=None):
-    p = cluster.texsyn("synth", "--ref", ref or ref_of(data), "-o", tmp_path / "unused.png", *job, "--detach")
-    return p.stdout.split()[-1]
-
-
-def restart_coordinator(cluster, *server_args, log="server2.log"):
-    args = [BUILD / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", cluster.tmp / "spool",
-            "--workers", ",".join(w.addr for w in cluster.workers), *server_args]
-    cluster.server = Daemon(args, cluster.tmp / log)
 
 
 def fetch_bytes(cluster, job_id, tmp_path):
@@ -60,7 +48,7 @@ def test_sigterm_checkpoints_the_running_job_and_a_restart_resumes_it_there(texs
     synth(texsyn, ref_of(data), expected, SIZE, *JOB[2:])
     args = ["--calibrate-ms", "50", "--checkpoint-interval", "0"]
     cluster.start(2, 1, *args)
-    job_id = submit_detached(cluster, data, tmp_path)
+    job_id = cluster.submit(ref_of(data), *JOB)
     cluster.server.wait_log(rf"job {job_id}: checkpoint after level 1 ")
     rc, took = sigterm(cluster.server, timeout=15)
     log = cluster.server.read_log()
@@ -70,7 +58,7 @@ def test_sigterm_checkpoints_the_running_job_and_a_restart_resumes_it_there(texs
     assert saved, log
     assert re.search(rf"job {job_id}: stopped at level 0, step {saved.group(1)} of {saved.group(2)}, checkpoint "
                      r"saved; a restart resumes it there", log), log
-    restart_coordinator(cluster, *args)
+    cluster.restart_server(*args)
     w = cluster.texsyn("watch", job_id, "--quiet", check=False, timeout=300)
     log2 = cluster.server.read_log()
     assert w.returncode == 0, w.stderr + log2
@@ -87,7 +75,7 @@ def test_sigterm_with_a_step_that_cannot_end_waits_only_the_grace(texsyn, data, 
     synth(texsyn, ref_of(data), expected, SIZE, *JOB[2:])
     args = ["--calibrate-ms", "50", "--stop-grace", "1"]
     cluster.start(2, 1, *args)
-    job_id = submit_detached(cluster, data, tmp_path)
+    job_id = cluster.submit(ref_of(data), *JOB)
     cluster.server.wait_log(rf"job {job_id}: checkpoint after level 1 ")
     for w in cluster.workers:
         w.proc.send_signal(signal.SIGSTOP)
@@ -101,7 +89,7 @@ def test_sigterm_with_a_step_that_cannot_end_waits_only_the_grace(texsyn, data, 
     assert "1 job did not reach a checkpoint within 1 s (--stop-grace): stopping them now" in log, log
     assert re.search(rf"job {job_id}: stopped before its step ended \(.*\); a restart resumes it from its last "
                      r"checkpoint", log), log
-    restart_coordinator(cluster, *args)
+    cluster.restart_server(*args)
     w = cluster.texsyn("watch", job_id, "--quiet", check=False, timeout=300)
     assert w.returncode == 0, w.stderr + cluster.server.read_log()
     assert re.search(rf"job {job_id}: resuming (inside|after) level", cluster.server.read_log())
@@ -128,13 +116,13 @@ def test_coordinator_killed_while_writing_a_result_reruns_the_job(texsyn, data, 
     cluster.server = Daemon(["env", f"LD_PRELOAD={shim}", "TEXSYN_KILL_AT_RENAME=/jobs/1/" + at, *args],
                             cluster.tmp / "server.log")
     cluster.wait_ready(1)
-    job_id = submit_detached(cluster, data, tmp_path)
+    job_id = cluster.submit(ref_of(data), *JOB)
     assert job_id == "1"
     cluster.server.expect_signal(signal.SIGKILL)  # raised by the shim
     assert cluster.server.proc.wait(timeout=120) == -signal.SIGKILL
     job_dir = cluster.tmp / "spool" / "jobs" / job_id
     assert any(".tmp" in p.name for p in job_dir.iterdir()) or at == "state", sorted(job_dir.iterdir())
-    restart_coordinator(cluster, "--calibrate-ms", "50")
+    cluster.restart_server("--calibrate-ms", "50")
     w = cluster.texsyn("watch", job_id, "--quiet", check=False, timeout=300)
     assert w.returncode == 0, w.stderr + cluster.server.read_log()
     assert fetch_bytes(cluster, job_id, tmp_path) == expected.read_bytes()
@@ -205,7 +193,7 @@ def test_client_killed_mid_upload_leaves_no_job(texsyn, data, cluster, tmp_path)
     assert cluster.server.alive()
     assert jobs_listed(cluster) == [], "a job appeared from a cut-off upload"
     assert not list((cluster.tmp / "spool" / "jobs").iterdir())
-    job_id = submit_detached(cluster, data, tmp_path, ["--size", "128x96", "--levels", "3"])
+    job_id = cluster.submit(ref_of(data), "--size", "128x96", "--levels", "3")
     assert cluster.texsyn("watch", job_id, "--quiet", check=False, timeout=120).returncode == 0
 
 
@@ -276,7 +264,7 @@ def test_full_spool_disk_refuses_or_fails_with_the_reason_and_recovers(texsyn, d
         assert p.returncode != 0 and "No space left on device" in p.stderr, p.stderr
         assert jobs_listed(cluster) == []
         (disk.path / "filler").unlink()
-        job_id = submit_detached(cluster, data, tmp_path)
+        job_id = cluster.submit(ref_of(data), *JOB)
         disk.fill()  # while the job runs: its checkpoints and result find the disk full
         w = cluster.texsyn("watch", job_id, "--quiet", check=False, timeout=300)
         status = cluster.texsyn("status", job_id).stdout
@@ -286,7 +274,7 @@ def test_full_spool_disk_refuses_or_fails_with_the_reason_and_recovers(texsyn, d
         assert cluster.server.alive()
         (disk.path / "filler").unlink()
         cluster.texsyn("delete", job_id)
-        job_id = submit_detached(cluster, data, tmp_path)
+        job_id = cluster.submit(ref_of(data), *JOB)
         assert cluster.texsyn("watch", job_id, "--quiet", check=False, timeout=300).returncode == 0
         assert fetch_bytes(cluster, job_id, tmp_path) == expected.read_bytes()
     finally:

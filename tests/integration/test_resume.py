@@ -17,7 +17,7 @@ import time
 
 import pytest
 
-from conftest import BUILD, Daemon, SANITIZED, synth
+from conftest import SANITIZED, synth
 
 SIZE = (192, 144) if SANITIZED else (384, 288)
 JOB = ["--size", "%dx%d" % SIZE, "--usage-weight", "1"]  # usage counters cross the restart too
@@ -37,18 +37,6 @@ def kill_coordinator(cluster):
     return killed
 
 
-def restart_coordinator(cluster, *server_args):
-    args = [BUILD / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", cluster.tmp / "spool",
-            "--workers", ",".join(w.addr for w in cluster.workers), *server_args]
-    cluster.server = Daemon(args, cluster.tmp / "server2.log")
-
-
-def submit_detached(cluster, data, tmp_path, job):
-    p = cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "unused.png", *job,
-                       "--report", tmp_path / "unused.json", "--detach")
-    return p.stdout.split()[-1]
-
-
 def fetch(cluster, job_id, tmp_path):
     out, report = tmp_path / "out.png", tmp_path / "out.json"
     cluster.texsyn("fetch", job_id, "-o", out, "--report", report)
@@ -65,10 +53,10 @@ def test_killed_inside_the_finest_level_resumes_there(texsyn, data, cluster, tmp
     synth(texsyn, ref_of(data), expected, SIZE, *JOB[2:])
     args = [*SERVER_ARGS, "--checkpoint-interval", "0.2"]
     cluster.start(2, 1, *args)
-    job_id = submit_detached(cluster, data, tmp_path, JOB)
+    job_id = cluster.submit(ref_of(data), *JOB, "--report", tmp_path / "unused.json")
     seen = cluster.server.wait_log(rf"job {job_id}: checkpoint inside level 0 at step (\d+) of (\d+)")
     kill_coordinator(cluster)
-    restart_coordinator(cluster, *args)
+    cluster.restart_server(*args)
     w = cluster.texsyn("watch", job_id, "--quiet", check=False, timeout=300)
     log = cluster.server.read_log()
     assert w.returncode == 0, w.stderr + log
@@ -112,7 +100,7 @@ def test_kill_in_the_middle_of_level_0_of_a_long_job(texsyn, data, cluster, tmp_
     level = {lv["level"]: lv["seconds"] for lv in emb["levels"]}
     cluster.start(2, 1, *SERVER_ARGS)  # the default --checkpoint-interval, 5 s
     submitted = time.time()
-    job_id = submit_detached(cluster, data, tmp_path, job)
+    job_id = cluster.submit(ref_of(data), *job, "--report", tmp_path / "unused.json")
     cluster.server.wait_log(rf"job {job_id}: checkpoint after level 1 ")
     level0_start = time.time()
     # The cluster runs the coarser levels at about the embedded pace: level 0
@@ -122,7 +110,7 @@ def test_kill_in_the_middle_of_level_0_of_a_long_job(texsyn, data, cluster, tmp_
     time.sleep(max(0.0, kill_at - time.time()))
     inside = cluster.server.wait_log(rf"job {job_id}: checkpoint inside level 0 at step (\d+) of (\d+)")
     killed = kill_coordinator(cluster)
-    restart_coordinator(cluster, *SERVER_ARGS)
+    cluster.restart_server(*SERVER_ARGS)
     restarted = time.time()
     w = cluster.texsyn("watch", job_id, "--quiet", check=False, timeout=900)
     finished = time.time()

@@ -3,7 +3,7 @@ import subprocess
 
 import pytest
 
-from conftest import SANITIZED, quality, run, synth
+from conftest import quality, run, synth
 
 
 def read(path):
