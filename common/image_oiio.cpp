@@ -341,7 +341,12 @@ static int ts_read(const ts_image_src &src, ts_image *out, const ts_image_limits
   ts_pixtype type = ts_spec_type(spec);
   rc = ts_image_alloc(&h.img, spec.width, spec.height, spec.nchannels, type, why);
   if (rc != 0) return ts_error(err, rc, "%s: %s", src.name, why);
-  bool ok = io.in->read_image(0, 0, 0, spec.nchannels, ts_oiio_type(type), h.img.pixels);
+  /* The file's own type is asked for as UNKNOWN (native): OpenImageIO 2.4
+   * then reads straight into the buffer, while naming it, even unchanged,
+   * sends every read through a 64 MB scratch buffer. Same bytes either way. */
+  TypeDesc want = ts_oiio_type(type);
+  if (spec.channelformats.empty() && want == spec.format) want = TypeDesc::UNKNOWN;
+  bool ok = io.in->read_image(0, 0, 0, spec.nchannels, want, h.img.pixels);
   std::string reason = io.in->geterror();
   if (!ok || !reason.empty())
     return ts_error(err, TS_EFORMAT, "%s: unreadable or truncated image: %s", src.name,
