@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # The whole suite, as `make test` runs it: unit tests (each test in its own
-# process) on the normal build, integration tests driving the real binaries,
-# then the unit tests and a short integration subset under ASan+UBSan; the
-# fuzz targets' seeds and crash regressions replayed on both builds; each
-# libFuzzer target for TEXSYN_FUZZ_SECONDS (10) seconds.
+# process) on the normal build and under ASan+UBSan, the fuzz targets' seeds
+# and crash regressions replayed on both builds, each libFuzzer target for
+# TEXSYN_FUZZ_SECONDS (10) seconds beside them; then integration tests
+# driving the real binaries, and a subset of them under ASan+UBSan.
 # A skip is not a pass: every skipped test is listed, and the suite fails
 # if one is not in tests/skips.allow (each line: "FILE: reason", both of
 # which the skip's line must contain).
@@ -35,19 +35,31 @@ stage() { # $1: 1 for a rerun stage; then the runner; tallies it, says how long 
   "$@" | tee "$log"; [ "${PIPESTATUS[0]}" -eq 0 ] || status=1; tally "$log" "$rerun"
   echo "(stage took $((SECONDS - t0)) s)"
 }
+asan() { # runs "$@" with the sanitizers' options. ASan's fast unwinder: the
+  # slow one made the sanitized stages a fifth slower, and no report needs
+  # it (tests/lsan.supp).
+  ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:abort_on_error=1} \
+    UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1} \
+    LSAN_OPTIONS="suppressions=$PWD/tests/lsan.supp" "$@"
+}
+# Each libFuzzer target for a bounded time (make fuzz-build; clang), beside
+# the unit and replay stages: all are CPU-bound and untimed, a fuzz target
+# takes one core for a fixed time, and the two together end when the fuzz
+# runs do. Their lines follow the replay's.
+fuzz_out=$(mktemp)
+fuzz_t0=$SECONDS
+bash tests/run-fuzz.sh fuzz "${TEXSYN_FUZZ_SECONDS:-10}" "${TEXSYN_FUZZ_SEED:-2004}" >"$fuzz_out" 2>&1 &
+fuzz_pid=$!
 stage 0 bash tests/run-unit.sh build
 stage 0 bash tests/run-fuzz.sh replay build
+stage 1 asan env TEXSYN_TEST_TIMEOUT_MULTIPLIER=4 bash tests/run-unit.sh build-asan
+stage 1 asan bash tests/run-fuzz.sh replay build-asan
+wait "$fuzz_pid" || status=1
+tee "$log" <"$fuzz_out"; tally "$log" 0
+echo "(fuzz runs took $((SECONDS - fuzz_t0)) s, beside the stages above)"
+rm -f "$fuzz_out"
 stage 0 bash tests/run-integration.sh build
-# ASan's fast unwinder: the slow one made the sanitized stages a fifth
-# slower, and no report needs it (tests/lsan.supp).
-export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:abort_on_error=1}
-export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
-export LSAN_OPTIONS="suppressions=$PWD/tests/lsan.supp"
-TEXSYN_TEST_TIMEOUT_MULTIPLIER=4 stage 1 bash tests/run-unit.sh build-asan
-stage 1 bash tests/run-fuzz.sh replay build-asan
-TEXSYN_SANITIZED=1 stage 1 bash tests/run-integration.sh build-asan -m sanitize
-# Each libFuzzer target for a bounded time (make fuzz-build; clang).
-stage 0 bash tests/run-fuzz.sh fuzz "${TEXSYN_FUZZ_SECONDS:-10}" "${TEXSYN_FUZZ_SEED:-2004}"
+stage 1 asan env TEXSYN_SANITIZED=1 bash tests/run-integration.sh build-asan -m sanitize
 unlisted=0
 while IFS= read -r skip; do
   allowed=0

@@ -1,6 +1,9 @@
 """Golden outputs: the bytes of four jobs recorded before the search service
 was rebuilt for every engine (commit c8cebdc), checked embedded and on 1, 2,
-3 and 16 workers (16 worker processes on loopback, 1 scan thread each).
+3 and 16 workers (16 worker processes on loopback, 1 scan thread each). The
+Table 3.3 job, a third of the suite's golden time on its own, runs embedded
+and on 3 and 16 workers (an uneven split, and many thin slices); the three
+small ones run everywhere.
 
 Any change to the search service, the protocol or the engines must keep these
 bytes: the engine decides what is searched and in which order, and the backend
@@ -48,9 +51,9 @@ def run_golden(texsyn, data, tmp_path, name, *where):
     return sha256(out) == want_image, sha256(copy) == want_copy
 
 
-def assert_golden(texsyn, data, tmp_path, where, label):
+def assert_golden(texsyn, data, tmp_path, where, label, names=tuple(GOLDEN)):
     wrong = []
-    for name in GOLDEN:
+    for name in names:
         image_ok, copy_ok = run_golden(texsyn, data, tmp_path, name, *where)
         if not (image_ok and copy_ok):
             wrong.append(f"{name} ({'image' if not image_ok else ''}{' ' if not (image_ok or copy_ok) else ''}"
@@ -65,4 +68,5 @@ def test_golden_embedded(texsyn, data, tmp_path):
 @pytest.mark.parametrize("workers", [1, 2, 3, 16])
 def test_golden_on_workers(texsyn, data, cluster, tmp_path, workers):
     cluster.start(workers, 1)
-    assert_golden(texsyn, data, tmp_path, ["--server", cluster.server.addr], f"{workers} workers")
+    names = [n for n in GOLDEN if n != "table33" or workers in (3, 16)]
+    assert_golden(texsyn, data, tmp_path, ["--server", cluster.server.addr], f"{workers} workers", names)

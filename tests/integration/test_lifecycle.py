@@ -105,9 +105,10 @@ def test_coordinator_killed_while_writing_a_result_reruns_the_job(texsyn, data, 
     published, the job not yet marked done): either way the restart runs
     the job again and serves the embedded run's bytes, and no temporary
     file stays behind. The kill comes from a preloaded rename()
-    (tests/preload/kill_at_rename.c)."""
+    (tests/preload/kill_at_rename.c). A small job: only its end matters."""
+    small = (192, 144)
     expected = tmp_path / "expected.png"
-    synth(texsyn, ref_of(data), expected, SIZE, *JOB[2:])
+    synth(texsyn, ref_of(data), expected, small)
     shim = BUILD / "tests" / "libkill_at_rename.so"
     assert shim.exists(), f"{shim} is missing: run make"
     cluster.worker(1)
@@ -116,7 +117,7 @@ def test_coordinator_killed_while_writing_a_result_reruns_the_job(texsyn, data, 
     cluster.server = Daemon(["env", f"LD_PRELOAD={shim}", "TEXSYN_KILL_AT_RENAME=/jobs/1/" + at, *args],
                             cluster.tmp / "server.log")
     cluster.wait_ready(1)
-    job_id = cluster.submit(ref_of(data), *JOB)
+    job_id = cluster.submit(ref_of(data), "--size", "%dx%d" % small)
     assert job_id == "1"
     cluster.server.expect_signal(signal.SIGKILL)  # raised by the shim
     assert cluster.server.proc.wait(timeout=120) == -signal.SIGKILL

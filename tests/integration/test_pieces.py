@@ -37,9 +37,9 @@ def pieces_logged(worker):
                                                      worker.read_log())]
 
 
-# Under ASan+UBSan the colour case alone: it takes every path the grey one does.
-@pytest.mark.parametrize("extra", [[], pytest.param(["--rgb-search", "--usage-weight", "2", "--levels", "4"],
-                                                    marks=pytest.mark.sanitize)])
+# Not under ASan+UBSan: reassembly runs there in the malformed-pieces test
+# below, in test_pieces (unit) and in fuzz_frame.
+@pytest.mark.parametrize("extra", [[], ["--rgb-search", "--usage-weight", "2", "--levels", "4"]])
 def test_slices_in_many_pieces_match_embedded(texsyn, data, cluster, tmp_path, extra):
     """--max-frame 1024 (the smallest a worker takes): every slice and query
     frame goes in pieces of 1007 bytes, and the bytes are the embedded run's."""

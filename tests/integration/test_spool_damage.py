@@ -8,7 +8,6 @@ key, a damaged last-id gives no id out twice; a directory without job.spec
 with the embedded run's bytes."""
 import re
 
-import pytest
 
 from conftest import BUILD, Daemon, run, synth
 
@@ -46,7 +45,8 @@ def fetched(cluster, job, tmp_path):
     return out.read_bytes()
 
 
-@pytest.mark.sanitize
+# Not in the sanitized subset: the readers run under ASan+UBSan in
+# test_spool (unit) and fuzz_spool.
 def test_damaged_spool_files_after_a_restart(texsyn, data, cluster, tmp_path):
     expected = tmp_path / "expected.png"
     synth(texsyn, ref_of(data), expected, (64, 48), "--levels", "3")
