@@ -2,8 +2,7 @@
 was rebuilt for every engine (commit c8cebdc), checked embedded and on 1, 2,
 3 and 16 workers (16 worker processes on loopback, 1 scan thread each). The
 Table 3.3 job, a third of the suite's golden time on its own, runs embedded
-and on 3 and 16 workers (an uneven split, and many thin slices); the three
-small ones run everywhere.
+and on 16 workers (many thin slices); the three small ones run everywhere.
 
 Any change to the search service, the protocol or the engines must keep these
 bytes: the engine decides what is searched and in which order, and the backend
@@ -68,5 +67,5 @@ def test_golden_embedded(texsyn, data, tmp_path):
 @pytest.mark.parametrize("workers", [1, 2, 3, 16])
 def test_golden_on_workers(texsyn, data, cluster, tmp_path, workers):
     cluster.start(workers, 1)
-    names = [n for n in GOLDEN if n != "table33" or workers in (3, 16)]
+    names = [n for n in GOLDEN if n != "table33" or workers == 16]
     assert_golden(texsyn, data, tmp_path, ["--server", cluster.server.addr], f"{workers} workers", names)
