@@ -673,6 +673,12 @@ class Soak:
         pool has its workers ready; returns the chaos lock's holder state."""
         self.gate.drain()
         self.chaos_lock.acquire()
+        return self.settle(when)
+
+    def settle(self, when):
+        """Waits until every job has ended and the pool has its workers
+        ready, then for heartbeats, reaps and closes; returns the jobs'
+        states."""
         deadline = time.time() + POOL_TIMEOUT
         st = None
         while time.time() < deadline:
@@ -683,7 +689,7 @@ class Soak:
         else:
             self.problems.append(f"{when}: jobs still queued or running after {POOL_TIMEOUT} s: {st}")
         self.wait_pool(WORKERS, when)
-        time.sleep(2.0)  # let heartbeats, reaps and closes settle
+        time.sleep(2.0)
         return st
 
     def registers(self, w):
@@ -758,26 +764,13 @@ class Soak:
         self.gate.end()
         for t in clients:
             t.join(timeout=CMD_TIMEOUT + 60)
-        self.quiesce_end()
+        self.settle("end")
         self.snapshot("end")
         self.verify_q.join()
         self.verify_q.put(None)
         self.final_status = self.status()
         self.wall = self.t()
         return self.report()
-
-    def quiesce_end(self):
-        deadline = time.time() + POOL_TIMEOUT
-        st = None
-        while time.time() < deadline:
-            st = self.status()
-            if st is not None and not any(s in ("queued", "running") for s in st.values()):
-                break
-            time.sleep(0.2)
-        else:
-            self.problems.append(f"end: jobs still queued or running after {POOL_TIMEOUT} s: {st}")
-        self.wait_pool(WORKERS, "end")
-        time.sleep(2.0)
 
     def stop(self):
         if getattr(self, "server", None) is not None and self.server.poll() is None:

@@ -52,6 +52,16 @@ static void why_damaged(const ts_spool_file *f, const char *bad, char *why, size
   else snprintf(why, cap, "%s", bad);
 }
 
+/* why_damaged for a file whose first n bytes say the wrong thing:
+ * "it says 'BYTES'" and the tail, e.g. ", not a file extension". */
+static void damaged_saying(const ts_spool_file *f, size_t n, const char *tail, char *why, size_t cap) {
+  char says[SHOWN_MAX * 4 + 8];
+  shown(f->data != NULL ? f->data : "", n, says, sizeof(says));
+  char bad[sizeof(says) + 64];
+  snprintf(bad, sizeof(bad), "it says '%s'%s", says, tail);
+  why_damaged(f, bad, why, cap);
+}
+
 /* ---- the files --------------------------------------------------------- */
 
 /* job.spec: 0 and the spec, or why it is damaged. */
@@ -72,11 +82,7 @@ static int read_ref_ext(const ts_spool_file *f, char ext[TS_EXT_LEN], char *why,
     if (ts_ext_valid(ext)) return 0;
   }
   ext[0] = '\0';
-  char says[SHOWN_MAX * 4 + 8];
-  shown(f->data != NULL ? f->data : "", n, says, sizeof(says));
-  char bad[sizeof(says) + 64];
-  snprintf(bad, sizeof(bad), "it says '%s', not a file extension", says);
-  why_damaged(f, bad, why, cap);
+  damaged_saying(f, n, ", not a file extension", why, cap);
   return -1;
 }
 
@@ -110,11 +116,7 @@ static int read_state(const ts_spool_file *f, char text[TS_ERR_LEN], char *why, 
     text[n - 8] = '\0';
     return TS_JOB_FAILED;
   }
-  char says[SHOWN_MAX * 4 + 8];
-  shown(f->data != NULL ? f->data : "", n, says, sizeof(says));
-  char bad[sizeof(says) + 64];
-  snprintf(bad, sizeof(bad), "it says '%s'", says);
-  why_damaged(f, bad, why, cap);
+  damaged_saying(f, n, "", why, cap);
   return -1;
 }
 

@@ -39,17 +39,24 @@ RESUMED_AT = r"job {id}: resuming inside level 0 at step (\d+) of (\d+)"
 
 # ---- the coordinator stopped with jobs running ----------------------------
 
+def job_in_level_0(texsyn, data, cluster, tmp_path, *server_args):
+    """A cluster running the JOB, just inside level 0; returns the embedded
+    run's bytes and the job's id."""
+    expected = tmp_path / "expected.png"
+    synth(texsyn, ref_of(data), expected, SIZE, *JOB[2:])
+    cluster.start(2, 1, *server_args)
+    job_id = cluster.submit(ref_of(data), *JOB)
+    cluster.server.wait_log(rf"job {job_id}: checkpoint after level 1 ")
+    return expected.read_bytes(), job_id
+
+
 @pytest.mark.sanitize
 def test_sigterm_checkpoints_the_running_job_and_a_restart_resumes_it_there(texsyn, data, cluster, tmp_path):
     """No checkpoints inside levels (--checkpoint-interval 0): the only one
     inside level 0 is the one the stop writes, and the restart goes on
     from exactly that step."""
-    expected = tmp_path / "expected.png"
-    synth(texsyn, ref_of(data), expected, SIZE, *JOB[2:])
     args = ["--calibrate-ms", "50", "--checkpoint-interval", "0"]
-    cluster.start(2, 1, *args)
-    job_id = cluster.submit(ref_of(data), *JOB)
-    cluster.server.wait_log(rf"job {job_id}: checkpoint after level 1 ")
+    expected, job_id = job_in_level_0(texsyn, data, cluster, tmp_path, *args)
     rc, took = sigterm(cluster.server, timeout=15)
     log = cluster.server.read_log()
     assert rc == 0, log
@@ -64,19 +71,15 @@ def test_sigterm_checkpoints_the_running_job_and_a_restart_resumes_it_there(texs
     assert w.returncode == 0, w.stderr + log2
     resumed = re.search(RESUMED_AT.format(id=job_id), log2)
     assert resumed and resumed.groups() == saved.groups(), log2
-    assert fetch_bytes(cluster, job_id, tmp_path) == expected.read_bytes()
+    assert fetch_bytes(cluster, job_id, tmp_path) == expected
 
 
 def test_sigterm_with_a_step_that_cannot_end_waits_only_the_grace(texsyn, data, cluster, tmp_path):
     """Both workers stalled (SIGSTOP): the step under way cannot end, so
     the coordinator waits --stop-grace, says so and exits; the restart
     resumes from the last checkpoint written, with the same bytes."""
-    expected = tmp_path / "expected.png"
-    synth(texsyn, ref_of(data), expected, SIZE, *JOB[2:])
     args = ["--calibrate-ms", "50", "--stop-grace", "1"]
-    cluster.start(2, 1, *args)
-    job_id = cluster.submit(ref_of(data), *JOB)
-    cluster.server.wait_log(rf"job {job_id}: checkpoint after level 1 ")
+    expected, job_id = job_in_level_0(texsyn, data, cluster, tmp_path, *args)
     for w in cluster.workers:
         w.proc.send_signal(signal.SIGSTOP)
     try:
@@ -93,7 +96,7 @@ def test_sigterm_with_a_step_that_cannot_end_waits_only_the_grace(texsyn, data, 
     w = cluster.texsyn("watch", job_id, "--quiet", check=False, timeout=300)
     assert w.returncode == 0, w.stderr + cluster.server.read_log()
     assert re.search(rf"job {job_id}: resuming (inside|after) level", cluster.server.read_log())
-    assert fetch_bytes(cluster, job_id, tmp_path) == expected.read_bytes()
+    assert fetch_bytes(cluster, job_id, tmp_path) == expected
 
 
 # ---- the coordinator killed while writing a result -------------------------
