@@ -4,8 +4,8 @@ frame-aware proxy on every worker link (not by the coordinator's own
 accounting), per frame type and direction.
 
 Jobs: the seed's Table 3.3 job (brick 512^2 -> 1024^2, L=5, W_N=7, W_B=3,
-parity) and an 11x11 colour window (aero1.jpg, --rgb-search --wn 11), each
-on 1 and 3 workers. Queries are the blocks searched, summed over the levels
+parity) and an 11x11 colour window (aero1.jpg, --rgb-search --wn 11; a
+320x240 and a 1280x960 output), each on 1 and 3 workers. Queries are the blocks searched, summed over the levels
 of the job's report. Reported per job and pool size: coordinator egress per
 query and worker (all frames, and query frames 'V' alone), query-image
 loads and level changes 'R', slice loads 'N', and worker ingress per query
@@ -39,6 +39,10 @@ JOBS = {
     "table33": ["--ref", DATA / "textures/brick.png", "--size", "1024x1024", "--levels", 5, "--wn", 7, "--wb", 3,
                 "--parity"],
     "rgb-wn11": ["--ref", DATA / "aerial/aero1.jpg", "--size", "320x240", "--rgb-search", "--wn", 11, "--wb", 3],
+    # The same window on an output 16 times as large: the reference travels
+    # once per worker whatever the output, the queries with the output.
+    "rgb-wn11-big": ["--ref", DATA / "aerial/aero1.jpg", "--size", "1280x960", "--rgb-search", "--wn", 11, "--wb",
+                     3],
 }
 HEADER = 12
 

@@ -228,6 +228,17 @@ static ts_slice_rows rd_rows(ts_rd *r, size_t row, int y0, int y1, int k0, int k
   return out;
 }
 
+/* A label tile: its sides (1..TS_SLICE_MAX_TILE) and bytes. */
+static int rd_tile(ts_rd *r, ts_slice_desc *m, char *err) {
+  m->tile_w = ts_rd_u8(r);
+  m->tile_h = ts_rd_u8(r);
+  if (m->tile_w < 1 || m->tile_h < 1 || m->tile_w > TS_SLICE_MAX_TILE || m->tile_h > TS_SLICE_MAX_TILE)
+    return bad(err, 'N', "label tile size");
+  const uint8_t *t = ts_rd_bytes(r, (size_t)m->tile_w * m->tile_h);
+  if (t != NULL) memcpy(m->tile, t, (size_t)m->tile_w * m->tile_h);
+  return 0;
+}
+
 void ts_msg_slice_write(ts_wr *w, const ts_slice_desc *m) {
   ts_wr_u32(w, m->set);
   ts_wr_u32(w, m->gen);
@@ -240,6 +251,11 @@ void ts_msg_slice_write(ts_wr *w, const ts_slice_desc *m) {
   ts_wr_u16(w, m->nclass);
   ts_wr_u8(w, m->labelled);
   ts_wr_u8(w, m->masked);
+  if (m->labelled == TS_SLICE_LABELS_TILE) {
+    ts_wr_u8(w, m->tile_w);
+    ts_wr_u8(w, m->tile_h);
+    ts_wr_bytes(w, m->tile, (size_t)m->tile_w * m->tile_h);
+  }
   for (int c = 0; c < m->nclass; c++) {
     ts_wr_u32(w, m->count[c]);
     ts_wr_u32(w, m->i0[c]);
@@ -255,11 +271,14 @@ void ts_msg_slice_write(ts_wr *w, const ts_slice_desc *m) {
   ts_wr_u32(w, m->base_gen);
   const int32_t kept[6] = {m->kfy0, m->kfy1, m->kcy0, m->kcy1, m->kay0, m->kay1};
   for (int k = 0; k < 6; k++) ts_wr_u32(w, (uint32_t)kept[k]);
+  ts_wr_u8(w, m->fine_from_image);
+  if (m->fine_from_image) ts_wr_u64(w, m->fine_sum);
   size_t w1 = (size_t)m->w, cw = (size_t)m->cw;
-  for (int p = 0; p < m->win.nplanes[TS_SRC_FINE]; p++) wr_rows(w, m->fine[p], w1, m->fy0, m->fy1, m->kfy0, m->kfy1);
+  for (int p = 0; p < m->win.nplanes[TS_SRC_FINE] && !m->fine_from_image; p++)
+    wr_rows(w, m->fine[p], w1, m->fy0, m->fy1, m->kfy0, m->kfy1);
   for (int p = 0; p < m->win.nplanes[TS_SRC_COARSE]; p++)
     wr_rows(w, m->coarse[p], cw, m->cy0, m->cy1, m->kcy0, m->kcy1);
-  if (m->labelled) wr_rows(w, m->labels, w1, m->ay0, m->ay1, m->kay0, m->kay1);
+  if (m->labelled == TS_SLICE_LABELS_ROWS) wr_rows(w, m->labels, w1, m->ay0, m->ay1, m->kay0, m->kay1);
   if (m->masked) wr_rows(w, m->valid, w1, m->ay0, m->ay1, m->kay0, m->kay1);
   ts_wr_u8(w, m->usage);
   if (m->usage == TS_SLICE_USAGE_COUNTS) wr_rows(w, m->counts, 4 * w1, m->fy0, m->fy1, m->kfy0, m->kfy1);
@@ -274,8 +293,9 @@ static int slice_check_geometry(const ts_slice_desc *m, char *err) {
     return bad(err, 'N', "level size");
   if (coarse ? (m->cw < 1 || m->ch < 1 || m->cw > m->w || m->ch > m->h) : (m->cw != 0 || m->ch != 0))
     return bad(err, 'N', "coarse level size");
-  if (m->nclass < 1 || m->nclass > TS_MAX_CLASSES || m->labelled > 1 || m->masked > 1)
+  if (m->nclass < 1 || m->nclass > TS_MAX_CLASSES || m->labelled > TS_SLICE_LABELS_TILE || m->masked > 1)
     return bad(err, 'N', "classes, label or validity flag");
+  if (m->fine_from_image > 1) return bad(err, 'N', "fine-rows-from-image flag");
   if (m->ay0 < 0 || m->ay0 >= m->ay1 || m->ay1 > m->h) return bad(err, 'N', "anchor row range");
   if (m->fy0 < 0 || m->fy0 >= m->fy1 || m->fy1 > m->h) return bad(err, 'N', "fine row range");
   if (coarse ? (m->cy0 < 0 || m->cy0 >= m->cy1 || m->cy1 > m->ch) : (m->cy0 != 0 || m->cy1 != 0))
@@ -303,6 +323,7 @@ int ts_msg_slice_read(const ts_frame *f, ts_slice_desc *m, char *err) {
   m->labelled = ts_rd_u8(&r);
   m->masked = ts_rd_u8(&r);
   if (m->nclass > TS_MAX_CLASSES) return bad(err, 'N', "classes");
+  if (m->labelled == TS_SLICE_LABELS_TILE && (rc = rd_tile(&r, m, err)) != 0) return rc;
   for (int c = 0; c < m->nclass; c++) {
     m->count[c] = ts_rd_u32(&r);
     m->i0[c] = ts_rd_u32(&r);
@@ -318,15 +339,17 @@ int ts_msg_slice_read(const ts_frame *f, ts_slice_desc *m, char *err) {
   m->base_gen = ts_rd_u32(&r);
   int32_t *kept[6] = {&m->kfy0, &m->kfy1, &m->kcy0, &m->kcy1, &m->kay0, &m->kay1};
   for (int k = 0; k < 6; k++) *kept[k] = (int32_t)ts_rd_u32(&r);
+  m->fine_from_image = ts_rd_u8(&r);
+  if (m->fine_from_image == 1) m->fine_sum = ts_rd_u64(&r);
   if (r.failed) return bad(err, 'N', "truncated header");
   rc = slice_check_geometry(m, err);
   if (rc != 0) return rc;
   size_t w = (size_t)m->w, cw = (size_t)m->cw;
-  for (int p = 0; p < m->win.nplanes[TS_SRC_FINE] && p < TS_WIN_MAX_PLANES; p++)
+  for (int p = 0; p < m->win.nplanes[TS_SRC_FINE] && p < TS_WIN_MAX_PLANES && !m->fine_from_image; p++)
     m->fine[p] = rd_rows(&r, w, m->fy0, m->fy1, m->kfy0, m->kfy1);
   for (int p = 0; p < m->win.nplanes[TS_SRC_COARSE] && p < TS_WIN_MAX_PLANES; p++)
     m->coarse[p] = rd_rows(&r, cw, m->cy0, m->cy1, m->kcy0, m->kcy1);
-  if (m->labelled) m->labels = rd_rows(&r, w, m->ay0, m->ay1, m->kay0, m->kay1);
+  if (m->labelled == TS_SLICE_LABELS_ROWS) m->labels = rd_rows(&r, w, m->ay0, m->ay1, m->kay0, m->kay1);
   if (m->masked) m->valid = rd_rows(&r, w, m->ay0, m->ay1, m->kay0, m->kay1);
   m->usage = ts_rd_u8(&r);
   if (m->usage == TS_SLICE_USAGE_COUNTS) m->counts = rd_rows(&r, 4 * w, m->fy0, m->fy1, m->kfy0, m->kfy1);

@@ -49,6 +49,13 @@ typedef struct {
   cl_held *held; /* the workers that loaded the last slicing (o.max_workers slots) */
   int nheld;
   ts_slice *local; /* in-process slice when no worker is ready */
+  /* What need not travel in its 'N' messages: the fine rows, when they
+   * are the reference planes of its query image at image level
+   * `image_level` (a worker holding the image has them); the labels,
+   * when they repeat a tile (nonzero tile_w). */
+  int fine_in_image;
+  uint32_t image_level;
+  uint8_t tile_w, tile_h, tile[TS_SLICE_MAX_TILE * TS_SLICE_MAX_TILE];
 } cl_set;
 
 /* A query image (replica.h): the coordinator's replica, which new workers
@@ -68,6 +75,7 @@ typedef struct {
 typedef struct {
   int used;
   uint32_t gid; /* image id on the wire */
+  uint32_t level; /* levels it went through (image_next) */
   ts_replica rep; /* the state before `pending` */
   ts_place *pending;
   uint32_t npending, cap_pending;
@@ -121,10 +129,25 @@ static void cut_ranges(const ts_anchors *g, cl_worker **ws, int n, cl_slice *out
   }
 }
 
+/* Answers to a slicing: the 'N' of every worker, and the 'R' of those
+ * loaded with the set's image first. */
+typedef struct {
+  const cl_set *st;
+  int slot;       /* the image's: bit in images_sent */
+  uint32_t image; /* its id on the wire */
+} load_ctx;
+
 static int loaded_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
-  const cl_set *st = ctx;
+  const load_ctx *x = ctx;
+  const cl_set *st = x->st;
   ts_msg_loaded m;
   if (f->type == TS_MSG_ERROR) return cl_reply_error(f, err);
+  if (f->type == TS_MSG_IMAGE) {
+    uint32_t image;
+    if (ts_msg_image_ack_read(f, &image, err) != 0) return TS_EPROTO;
+    if (image == x->image && w->images_sent & 1u << x->slot) w->expect--;
+    return 0;
+  }
   if (f->type != TS_MSG_SLICE) return 0; /* a stale answer of an abandoned batch */
   if (ts_msg_loaded_read(f, &m, err) != 0) return TS_EPROTO;
   if (m.set == st->gid && m.gen == st->gen) w->expect--;
@@ -146,11 +169,43 @@ static const ts_slice_held *held_rows(cluster_search *cs, const cl_set *st, cons
 }
 
 /* Worker i's slice of st as an 'N' message: what changed since the slice
- * it holds. */
-static void describe_slice(cluster_search *cs, cl_set *st, int i, ts_slice_desc *m) {
+ * it holds; `loading`: the worker is sent st's image before it. */
+static void describe_slice(cluster_search *cs, cl_set *st, int i, int loading, ts_slice_desc *m) {
   cl_slice *sl = &st->slices[i];
+  cl_image *im = &cs->images[st->rs.image];
   ts_slice_describe(m, &st->rs, &st->usage, st->gid, st->gen, st->image, sl->i0, sl->i1, held_rows(cs, st, sl->w));
   sl->rows = ts_slice_held_by(m);
+  if (st->tile_w > 0) {
+    m->labelled = TS_SLICE_LABELS_TILE;
+    m->tile_w = st->tile_w;
+    m->tile_h = st->tile_h;
+    memcpy(m->tile, st->tile, sizeof(st->tile));
+  }
+  /* Any state of the image's current level holds its reference planes. */
+  if (st->fine_in_image && st->image_level == im->level && (loading || synced_of(im, sl->w) != NULL)) {
+    m->fine_sum = ts_slice_fine_sum(m);
+    m->fine_from_image = 1;
+  }
+}
+
+/* Whether st's fine planes are its image's reference planes (the MRF's:
+ * the canvas copies from the level the set is made of). */
+static int fine_is_image_ref(const cl_set *st, const ts_replica *r) {
+  int n = st->rs.window->spec.nplanes[TS_SRC_FINE];
+  if (r->copy == NULL || n > r->nplanes) return 0;
+  for (int p = 0; p < n; p++) {
+    const ts_plane *a = st->rs.ref->fine[p], *b = &r->ref[p];
+    if (a->w != b->w || a->h != b->h || memcmp(a->px, b->px, (size_t)a->w * (size_t)a->h) != 0) return 0;
+  }
+  return 1;
+}
+
+/* What of st need not travel (see cl_set). */
+static void find_shortcuts(cluster_search *cs, cl_set *st) {
+  const cl_image *im = &cs->images[st->rs.image];
+  st->fine_in_image = fine_is_image_ref(st, &im->rep);
+  st->image_level = im->level;
+  if (st->rs.labels == NULL || !ts_slice_label_tile(st->rs.labels, &st->tile_w, &st->tile_h, st->tile)) st->tile_w = 0;
 }
 
 /* After a slicing's exchange: the workers that loaded their slice. */
@@ -181,7 +236,7 @@ static int cut_fitting(cluster_search *cs, cl_set *st, cl_worker **ws, int n) {
     uint64_t bytes = 0;
     for (; i < n; i++) {
       ts_slice_desc m;
-      describe_slice(cs, st, i, &m);
+      describe_slice(cs, st, i, 0, &m);
       bytes = cl_slice_bytes(&m);
       if (!cl_worker_takes(ws[i], bytes)) break;
       bytes = image_bytes;
@@ -217,6 +272,23 @@ static double load_deadline(const ts_cluster *c, const cl_set *st, int n) {
   return c->o.batch_timeout + 30.0 + most / CL_BUILD_RATE;
 }
 
+static void mark_synced(ts_cluster *c, cl_image *im, const cl_worker *w, uint64_t seq);
+
+/* Whether w is loaded with st's query image before its slice, so that the
+ * slice's fine rows need not travel: they are the image's reference and
+ * w holds no state of the image's current level (it would be loaded
+ * before its first queries anyway). */
+static int loads_image_first(cluster_search *cs, const cl_set *st, const cl_worker *w) {
+  cl_image *im = &cs->images[st->rs.image];
+  return st->fine_in_image && st->image_level == im->level && synced_of(im, w) == NULL;
+}
+
+static int queue_image_load(ts_cluster *c, const cl_image *im, cl_worker *w, char *err) {
+  ts_msg_image m;
+  load_message(im, &m);
+  return cl_queue_image(w, ++c->next_frame, &m, err);
+}
+
 static int load_local(ts_cluster *c, cl_set *st, char *err) {
   static const uint32_t i0[TS_MAX_CLASSES] = {0};
   ts_slice_desc m;
@@ -249,21 +321,28 @@ static int ensure_slices(cluster_search *cs, cl_set *st, char *err) {
     for (int i = 0; i < n; i++) {
       ts_slice_desc m;
       char why[TS_ERR_LEN];
-      describe_slice(cs, st, i, &m);
+      int first = loads_image_first(cs, st, ws[i]);
+      ws[i]->images_sent = (uint32_t)first << st->rs.image;
+      if (first && queue_image_load(c, &cs->images[st->rs.image], ws[i], why) != 0) cl_worker_fail(c, ws[i], why);
+      describe_slice(cs, st, i, first, &m);
       sent += ts_slice_row_bytes(&m, 0);
       kept += ts_slice_row_bytes(&m, 1);
       /* The rows stay in the level planes: each chunk of the message is
        * copied from there as the worker's socket drains. */
       if (cl_queue_slice(ws[i], ++c->next_frame, &m, why) != 0)
         cl_worker_fail(c, ws[i], why); /* moves the epoch: sliced again without it */
-      ws[i]->expect = 1;
+      ws[i]->expect = 1 + first;
       ws[i]->share = (uint32_t)llround(1000.0 * ws[i]->slice_rate / total);
     }
     st->nslices = n;
     if (kept > 0)
       cl_log(c, "set %u generation %u over %d workers: %llu bytes of rows sent, %llu kept from their slices", st->gid,
              st->gen, n, (unsigned long long)sent, (unsigned long long)kept);
-    cl_exchange(c, ws, n, load_deadline(c, st, n), cs->cancel, loaded_reply, st, &tr);
+    load_ctx x = {st, st->rs.image, cs->images[st->rs.image].gid};
+    cl_exchange(c, ws, n, load_deadline(c, st, n), cs->cancel, loaded_reply, &x, &tr);
+    for (int i = 0; i < n; i++)
+      if (ws[i]->images_sent != 0 && ws[i]->state != TS_WORKER_FAILED)
+        mark_synced(c, &cs->images[st->rs.image], ws[i], cs->images[st->rs.image].rep.seq);
     record_held(st, n);
     cl_release(c, ws, n);
     cs->base.stats.bytes_out += tr.bytes_out;
@@ -304,6 +383,7 @@ static int cluster_prepare(ts_search *s, const ts_refset *rs, int *id, char *err
     st->slices[i].i1 = st->slices[i].i0 + nclass;
   }
   if (rs->usage && rs->counts != NULL) ts_usage_load(&st->usage, rs->counts->count);
+  find_shortcuts(cs, st);
   pthread_mutex_lock(&cs->c->lock);
   st->gid = ++cs->c->next_set;
   st->used = 1;
@@ -470,6 +550,7 @@ static int cluster_image_next(ts_search *s, int id, int w, int h, int rw, int rh
   cs->base.stats.bytes_in += tr.bytes_in;
   int rc = flush_image(cs, id, err);
   if (rc == 0) rc = ts_replica_next_level(&im->rep, w, h, rw, rh, ref, err);
+  im->level++;
   im->nsynced = 0; /* the others hold the level above, or nothing */
   for (int i = 0; rc == 0 && i < x.nacked; i++) im->synced[im->nsynced++] = (cl_synced){x.acked[i], 0};
   pthread_mutex_unlock(&c->lock);

@@ -222,6 +222,8 @@ static int on_slice(session *s, const ts_frame *f, char *err) {
   ts_slice_desc m;
   int rc = ts_msg_slice_read(f, &m, err);
   if (rc != 0) return rc;
+  if (m.fine_from_image && (rc = ts_replica_slice_rows(image_of(s, m.image), &m, err)) != 0)
+    return send_error(s, f->id, rc, err) == 0 ? 1 : TS_ECONN;
   ts_slice *sl;
   ts_slice **slot = slot_of(s, m.set); /* the slice it replaces, which it may keep rows of */
   ts_wmon_loading(1);

@@ -233,3 +233,20 @@ int ts_query_vectors(ts_query_scratch *s, const ts_replica *r, const ts_window *
   *out = (ts_vec_batch){b->nq, s->vec, b->masked ? s->mask : NULL, b->klass, b->usage_k};
   return rc;
 }
+
+int ts_replica_slice_rows(const ts_replica *r, ts_slice_desc *m, char *err) {
+  int n = m->win.nplanes[TS_SRC_FINE];
+  if (r == NULL || r->copy == NULL)
+    return ts_error(err, TS_EINVAL, "slice %u takes its rows from query image %u, which holds no reference here", m->set,
+                    m->image);
+  if (r->ref[0].w != m->w || r->ref[0].h != m->h || n > r->nplanes)
+    return ts_error(err, TS_EINVAL, "slice %u reads %d planes of %dx%d, query image %u's reference is %d of %dx%d",
+                    m->set, n, m->w, m->h, m->image, r->nplanes, r->ref[0].w, r->ref[0].h);
+  size_t w = (size_t)m->w;
+  for (int p = 0; p < n; p++)
+    m->fine[p] = (ts_slice_rows){r->ref[p].px + (size_t)m->fy0 * w, r->ref[p].px + (size_t)m->kfy1 * w};
+  if (ts_slice_fine_sum(m) != m->fine_sum)
+    return ts_error(err, TS_EINVAL, "slice %u: query image %u holds other reference rows than the coordinator's "
+                    "(another level)", m->set, m->image);
+  return 0;
+}

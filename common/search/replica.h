@@ -67,6 +67,12 @@ int ts_replica_place(ts_replica *r, const ts_place *p, uint32_t n, ts_commit *co
 int ts_replica_queries(const ts_replica *r, const ts_window *w, const uint32_t *pos, uint32_t n, int masked,
                        uint8_t *vec, uint8_t *mask, char *err);
 
+/* Points a slice message's fine rows (fine_from_image) at the reference
+ * planes of r, the image it names. Refuses (TS_EINVAL, with a message) an
+ * image without reference planes, of another size, or whose rows do not
+ * match the message's checksum (a replica of another level). */
+int ts_replica_slice_rows(const ts_replica *r, ts_slice_desc *m, char *err);
+
 /* Room for the vectors of a batch, grown on demand. */
 typedef struct {
   uint8_t *vec, *mask;

@@ -88,7 +88,7 @@ void ts_slice_describe(ts_slice_desc *m, const ts_refset *rs, const ts_usage *co
     m->ch = rs->ref->coarse[0]->h;
   }
   m->nclass = (uint16_t)a->nclass;
-  m->labelled = rs->labels != NULL;
+  m->labelled = rs->labels != NULL ? TS_SLICE_LABELS_ROWS : TS_SLICE_LABELS_NONE;
   m->masked = rs->valid != NULL;
   memcpy(m->count, a->count, sizeof(uint32_t) * (size_t)a->nclass);
   memcpy(m->i0, i0, sizeof(uint32_t) * (size_t)a->nclass);
@@ -106,7 +106,7 @@ void ts_slice_describe(ts_slice_desc *m, const ts_refset *rs, const ts_usage *co
     m->fine[p] = rows_of(rs->ref->fine[p]->px, (size_t)a->w, m->fy0, m->kfy1);
   for (int p = 0; p < win->spec.nplanes[TS_SRC_COARSE]; p++)
     m->coarse[p] = rows_of(rs->ref->coarse[p]->px, (size_t)m->cw, m->cy0, m->kcy1);
-  if (m->labelled) m->labels = rows_of(rs->labels->px, (size_t)a->w, m->ay0, m->kay1);
+  if (m->labelled == TS_SLICE_LABELS_ROWS) m->labels = rows_of(rs->labels->px, (size_t)a->w, m->ay0, m->kay1);
   if (m->masked) m->valid = rows_of(rs->valid->px, (size_t)a->w, m->ay0, m->kay1);
   m->usage = !rs->usage                           ? TS_SLICE_USAGE_NONE
              : counts == NULL || counts->total == 0 ? TS_SLICE_USAGE_ZERO
@@ -123,10 +123,56 @@ uint64_t ts_slice_row_bytes(const ts_slice_desc *m, int kept) {
     a = (uint64_t)(m->ay1 - m->ay0) - a;
   }
   uint64_t w = (uint64_t)m->w;
-  uint64_t bytes = f * w * m->win.nplanes[TS_SRC_FINE] + c * (uint64_t)m->cw * m->win.nplanes[TS_SRC_COARSE];
-  bytes += a * w * (uint64_t)(m->labelled + m->masked);
+  uint64_t bytes = c * (uint64_t)m->cw * m->win.nplanes[TS_SRC_COARSE];
+  if (kept || !m->fine_from_image) bytes += f * w * m->win.nplanes[TS_SRC_FINE];
+  bytes += a * w * (uint64_t)((m->labelled == TS_SLICE_LABELS_ROWS) + m->masked);
   if (m->usage == TS_SLICE_USAGE_COUNTS) bytes += 4 * f * w;
   return bytes;
+}
+
+/* FNV-1a, a word at a time: the check need not resist an adversary (the
+ * peer is trusted with the job anyway), only tell two levels apart. */
+static uint64_t sum_bytes(uint64_t h, const uint8_t *p, size_t n) {
+  size_t i = 0;
+  for (; i + 8 <= n; i += 8) {
+    uint64_t v;
+    memcpy(&v, p + i, 8);
+    h = (h ^ v) * 0x100000001b3ull;
+  }
+  for (; i < n; i++) h = (h ^ p[i]) * 0x100000001b3ull;
+  return h;
+}
+
+uint64_t ts_slice_fine_sum(const ts_slice_desc *m) {
+  uint64_t h = 0xcbf29ce484222325ull;
+  size_t row = (size_t)m->w;
+  for (int p = 0; p < m->win.nplanes[TS_SRC_FINE] && p < TS_WIN_MAX_PLANES; p++) {
+    h = sum_bytes(h, m->fine[p].lo, row * (size_t)(m->kfy0 - m->fy0));
+    h = sum_bytes(h, m->fine[p].hi, row * (size_t)(m->fy1 - m->kfy1));
+  }
+  return h;
+}
+
+/* Whether labels repeat the tw x th tile at their top-left corner. */
+static int repeats(const ts_plane *l, int tw, int th) {
+  for (int y = 0; y < l->h; y++) {
+    const uint8_t *row = l->px + (size_t)y * (size_t)l->w, *trow = l->px + (size_t)(y % th) * (size_t)l->w;
+    for (int x = 0; x < l->w; x++)
+      if (row[x] != trow[x % tw]) return 0;
+  }
+  return 1;
+}
+
+int ts_slice_label_tile(const ts_plane *labels, uint8_t *tw, uint8_t *th, uint8_t *tile) {
+  for (int h = 1; h <= TS_SLICE_MAX_TILE && h <= labels->h; h++)
+    for (int w = 1; w <= TS_SLICE_MAX_TILE && w <= labels->w; w++) {
+      if (!repeats(labels, w, h)) continue;
+      *tw = (uint8_t)w;
+      *th = (uint8_t)h;
+      for (int y = 0; y < h; y++) memcpy(tile + y * w, labels->px + (size_t)y * (size_t)labels->w, (size_t)w);
+      return 1;
+    }
+  return 0;
 }
 
 ts_slice_held ts_slice_held_by(const ts_slice_desc *m) {
@@ -279,6 +325,19 @@ static void load_usage(ts_slice *s, const ts_slice_desc *m, const ts_slice *base
   ts_usage_sum_blocks(u, m->fy0, m->fy1);
 }
 
+/* Label rows [ay0, ay1) of a tiled message, or NULL. */
+static uint8_t *tile_rows(const ts_slice_desc *m) {
+  size_t w = (size_t)m->w;
+  uint8_t *rows = malloc(w * (size_t)(m->ay1 - m->ay0));
+  if (rows == NULL) return NULL;
+  for (int y = m->ay0; y < m->ay1; y++) {
+    const uint8_t *t = m->tile + (y % m->tile_h) * m->tile_w;
+    uint8_t *row = rows + w * (size_t)(y - m->ay0);
+    for (size_t x = 0; x < w; x++) row[x] = t[x % m->tile_w];
+  }
+  return rows;
+}
+
 /* The rows the slice reads, joined from the message and the base, kept
  * for the next slice; full-size level planes of them for the build. */
 static int load_rows(ts_slice *s, const ts_slice_desc *m, const ts_slice *base, ts_levelplanes *planes, char *err) {
@@ -299,9 +358,12 @@ static int load_rows(ts_slice *s, const ts_slice_desc *m, const ts_slice *base, 
       return ts_error(err, TS_ENOMEM, "out of memory for the slice's planes");
     planes->coarse[p] = &s->coarse[p];
   }
-  if (m->labelled &&
-      (s->rows_labels = rows_copy(w, m->ay0, m->ay1, m->kay0, m->kay1, m->labels,
-                                  h ? held_rows(base->rows_labels, w, h->ay0, m->kay0, m->kay1) : NULL)) == NULL)
+  if (m->labelled == TS_SLICE_LABELS_ROWS)
+    s->rows_labels = rows_copy(w, m->ay0, m->ay1, m->kay0, m->kay1, m->labels,
+                               h ? held_rows(base->rows_labels, w, h->ay0, m->kay0, m->kay1) : NULL);
+  else if (m->labelled == TS_SLICE_LABELS_TILE)
+    s->rows_labels = tile_rows(m);
+  if (m->labelled != TS_SLICE_LABELS_NONE && s->rows_labels == NULL)
     return ts_error(err, TS_ENOMEM, "out of memory for the slice's label rows");
   if (m->masked && (s->rows_valid = rows_copy(w, m->ay0, m->ay1, m->kay0, m->kay1, m->valid,
                                               h ? held_rows(base->rows_valid, w, h->ay0, m->kay0, m->kay1) : NULL)) == NULL)

@@ -18,6 +18,10 @@
 #include "usage.h"
 
 enum { TS_SLICE_USAGE_NONE = 0, TS_SLICE_USAGE_ZERO = 1, TS_SLICE_USAGE_COUNTS = 2 };
+/* How a slice's labels travel: none, as rows, or as a small tile they
+ * repeat (parity classes are a 2 x 2 tile: no need to send a plane). */
+enum { TS_SLICE_LABELS_NONE = 0, TS_SLICE_LABELS_ROWS = 1, TS_SLICE_LABELS_TILE = 2 };
+#define TS_SLICE_MAX_TILE 16
 #define TS_SLICE_MAX_SIDE 65536
 #define TS_SLICE_MAX_PIXELS (1u << 28)
 
@@ -53,7 +57,12 @@ typedef struct {
   ts_window_spec win; /* offsets: the coordinator's window, or offbuf */
   int32_t w, h, cw, ch; /* level and coarser level sizes (cw, ch 0: none) */
   uint16_t nclass;
-  uint8_t labelled, masked; /* label / validity rows follow */
+  uint8_t labelled; /* TS_SLICE_LABELS_* */
+  uint8_t masked;   /* validity rows follow */
+  /* LABELS_TILE: the label of anchor (x, y) is tile[(y % tile_h) * tile_w
+   * + x % tile_w]. */
+  uint8_t tile_w, tile_h;
+  uint8_t tile[TS_SLICE_MAX_TILE * TS_SLICE_MAX_TILE];
   uint32_t count[TS_MAX_CLASSES];        /* the set's anchors per class */
   uint32_t i0[TS_MAX_CLASSES], i1[TS_MAX_CLASSES]; /* this slice's ranges */
   int32_t ay0, ay1;                      /* anchor rows held */
@@ -61,6 +70,11 @@ typedef struct {
   int32_t fy0, fy1;      /* fine rows [fy0, fy1) read, plane by plane */
   int32_t cy0, cy1;      /* coarse rows [cy0, cy1) read */
   int32_t kfy0, kfy1, kcy0, kcy1, kay0, kay1; /* of those, and of the anchor rows, the kept ones */
+  /* 1: the fine rows to send are the reference planes of the query image
+   * (replica.h) the worker holds, so they do not travel; fine_sum
+   * (ts_slice_fine_sum) lets the worker check it holds the same. */
+  uint8_t fine_from_image;
+  uint64_t fine_sum;
   ts_slice_rows fine[TS_WIN_MAX_PLANES], coarse[TS_WIN_MAX_PLANES]; /* w, cw bytes a row */
   ts_slice_rows labels, valid; /* anchor rows [ay0, ay1), w bytes a row */
   uint8_t usage;          /* TS_SLICE_USAGE_* */
@@ -89,6 +103,14 @@ typedef struct {
 void ts_slice_describe(ts_slice_desc *m, const ts_refset *rs, const ts_usage *counts, uint32_t set,
                        uint32_t gen, uint32_t image, const uint32_t *i0, const uint32_t *i1,
                        const ts_slice_held *held);
+/* A checksum of the fine rows m sends (FNV-1a over 8-byte words, plane
+ * by plane). */
+uint64_t ts_slice_fine_sum(const ts_slice_desc *m);
+
+/* If the labels repeat a tile of at most TS_SLICE_MAX_TILE on each side,
+ * its size and bytes, and 1; else 0. */
+int ts_slice_label_tile(const ts_plane *labels, uint8_t *tw, uint8_t *th, uint8_t *tile);
+
 /* What a worker holds once it has loaded m. */
 ts_slice_held ts_slice_held_by(const ts_slice_desc *m);
 /* Bytes of rows m sends, and of rows it keeps. */

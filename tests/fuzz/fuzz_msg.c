@@ -36,10 +36,11 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
     ts_slice_desc m;
     if (ts_msg_slice_read(&f, &m, err) == 0) {
       size_t w = (size_t)m.w, cw = (size_t)m.cw;
-      for (int p = 0; p < m.win.nplanes[TS_SRC_FINE]; p++) check_rows(&f, m.fine[p], w, m.fy0, m.fy1, m.kfy0, m.kfy1);
+      for (int p = 0; p < m.win.nplanes[TS_SRC_FINE] && !m.fine_from_image; p++)
+        check_rows(&f, m.fine[p], w, m.fy0, m.fy1, m.kfy0, m.kfy1);
       for (int p = 0; p < m.win.nplanes[TS_SRC_COARSE]; p++)
         check_rows(&f, m.coarse[p], cw, m.cy0, m.cy1, m.kcy0, m.kcy1);
-      if (m.labelled) check_rows(&f, m.labels, w, m.ay0, m.ay1, m.kay0, m.kay1);
+      if (m.labelled == TS_SLICE_LABELS_ROWS) check_rows(&f, m.labels, w, m.ay0, m.ay1, m.kay0, m.kay1);
       if (m.masked) check_rows(&f, m.valid, w, m.ay0, m.ay1, m.kay0, m.kay1);
       if (m.usage == TS_SLICE_USAGE_COUNTS) check_rows(&f, m.counts, 4 * w, m.fy0, m.fy1, m.kfy0, m.kfy1);
     }

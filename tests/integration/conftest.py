@@ -12,7 +12,7 @@ DATA = Path(os.environ.get("TEXSYN_DATA", REPO.parent / "shared" / "data"))
 SANITIZED = os.environ.get("TEXSYN_SANITIZED") == "1"
 LONG = os.environ.get("TEXSYN_LONG_TESTS") == "1"
 # Frame header start: magic and the protocol version (proto/frame.h).
-FRAME_START = b"TS\x02"
+FRAME_START = b"TS\x03"
 
 
 def pytest_configure(config):
@@ -340,6 +340,8 @@ def slice_ranges(body):
     off += 1 + 7 * nparts
     off += 1 + (first_noff if body[off] else 0)  # the known flags
     off += 16
-    nclass = struct.unpack_from("<H", body, off)[0]
+    nclass, labelled = struct.unpack_from("<HB", body, off)
     off += 4
+    if labelled == 2:  # the labels as a tile: its sides, then its bytes
+        off += 2 + body[off] * body[off + 1]
     return [struct.unpack_from("<III", body, off + 12 * c)[1:] for c in range(nclass)]

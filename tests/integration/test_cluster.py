@@ -386,7 +386,8 @@ def test_server_survives_bad_peers(data, cluster, tmp_path, one_byte):
     log = cluster.server.read_log()
     assert "protocol error" in log and "bad magic" in log and "exceeds the limit" in log
     # A peer of the first protocol is told what is wrong and what to do.
-    assert "speaks texsyn protocol version 1, this build 2: run the same release on both sides" in log
+    assert (f"speaks texsyn protocol version 1, this build {FRAME_START[2]}: run the same release on both sides"
+            in log)
     remote(cluster, data, tmp_path)
 
 

@@ -53,7 +53,9 @@ def test_slices_in_many_pieces_match_embedded(texsyn, data, cluster, tmp_path, e
     assert logged, "no slice came in pieces:\n" + small.read_log()
     for size, n in logged:
         assert n == -(-size // (1024 - 17)), f"a message of {size} bytes in {n} pieces"
-    assert max(n for _, n in logged) > 100
+    # A slice carries coarse rows (its fine rows come from the query image),
+    # 20-30 KB at level 0 here: dozens of pieces.
+    assert max(n for _, n in logged) > 20
     assert all(w["batches"] > 0 for w in cluster.pool()), "a worker never answered"
 
 

@@ -8,6 +8,7 @@
 #include "error.h"
 #include "msg.h"
 #include "pool.h"
+#include "replica.h"
 #include "rng.h"
 #include "slice.h"
 #include "ts_test.h"
@@ -259,13 +260,72 @@ static ts_l1_best brute_best(const feature_set *f, const uint8_t *q, int klass) 
   return best;
 }
 
+/* The set's labels as a 7 x 3 tile, its anchors made again from them. */
+static void tile_labels(feature_set *f) {
+  char err[TS_ERR_LEN];
+  for (int y = 0; y < H; y++)
+    for (int x = 0; x < W; x++) f->labels.px[y * W + x] = (uint8_t)((x % 7 + 2 * (y % 3)) % NCLASS);
+  ts_anchors_free(&f->a);
+  assert_int_equal(ts_anchors_init(&f->a, &f->w, W, H, CW, CH, &f->labels, NCLASS, &f->valid, err), 0);
+}
+
+/* A query image whose reference planes are the set's fine planes, as a
+ * worker holding the MRF's canvas has them. */
+static void image_of_set(ts_replica *r, const feature_set *f) {
+  static uint32_t copy[2 * 4 * 4]; /* every pixel copied from (0, 0) */
+  ts_replica_desc d = {.w = 4, .h = 4, .nplanes = NFINE, .block = 2, .rw = W, .rh = H, .copy = copy};
+  for (int p = 0; p < NFINE; p++) d.ref[p] = f->fine[p].px;
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_replica_init(r, &d, err), 0);
+}
+
+/* Slice k of 3 of the set, through the wire format, loaded as a worker
+ * would: with shortcuts, labels travel as a tile and fine rows not at
+ * all, the worker taking them from its query image. */
+static ts_slice *slice_through_wire(const feature_set *f, int k, int shortcuts, const ts_replica *image, ts_pool *pool,
+                                    size_t *bytes) {
+  uint32_t i0[TS_MAX_CLASSES], i1[TS_MAX_CLASSES];
+  for (int c = 0; c < NCLASS; c++) {
+    i0[c] = f->a.count[c] * (uint32_t)k / 3;
+    i1[c] = f->a.count[c] * (uint32_t)(k + 1) / 3;
+  }
+  ts_refset rs = {0, &f->w, &f->a, &f->lp, &f->labels, &f->valid, 0, NULL};
+  static ts_slice_desc m, back;
+  char err[TS_ERR_LEN];
+  ts_slice_describe(&m, &rs, NULL, 1, 1, 0, i0, i1, NULL);
+  assert_true(m.ay1 - m.ay0 < f->a.ny); /* a slice holds only its rows */
+  if (shortcuts) {
+    assert_int_equal(ts_slice_label_tile(&f->labels, &m.tile_w, &m.tile_h, m.tile), 1);
+    assert_int_equal(m.tile_w * m.tile_h, 21);
+    m.labelled = TS_SLICE_LABELS_TILE;
+    m.fine_from_image = 1;
+    m.fine_sum = ts_slice_fine_sum(&m);
+  }
+  ts_wr wr;
+  ts_wr_init(&wr);
+  ts_msg_slice_write(&wr, &m);
+  assert_int_equal(ts_wr_status(&wr), 0);
+  *bytes = wr.len;
+  ts_frame fr = {'N', 1, (uint32_t)wr.len, wr.buf};
+  assert_int_equal(ts_msg_slice_read(&fr, &back, err), 0);
+  if (shortcuts && ts_replica_slice_rows(image, &back, err) != 0) fail_msg("slice %d: %s", k, err);
+  ts_slice *sl;
+  if (ts_slice_load(&sl, &back, NULL, pool, err) != 0) fail_msg("slice %d: %s", k, err);
+  ts_wr_free(&wr);
+  return sl;
+}
+
 /* Cuts every class into three ranges, sends each slice through the wire
  * format, loads it as a worker would and scans queries of every class:
  * the merged answers are the brute-force ones. */
-static void sliced_labelled_set_matches_brute_force(void **state) {
-  (void)state;
+static void sliced_set_matches_brute_force(int shortcuts) {
   feature_set f;
   set_up(&f, 11);
+  ts_replica image;
+  if (shortcuts) {
+    tile_labels(&f);
+    image_of_set(&image, &f);
+  }
   enum { NQ = 40 };
   uint32_t vb = ts_window_bytes(&f.w);
   uint8_t *q = malloc((size_t)NQ * vb), klass[NQ];
@@ -278,36 +338,24 @@ static void sliced_labelled_set_matches_brute_force(void **state) {
   }
   ts_l1_best merged[NQ], part[NQ];
   ts_l1_best_reset(merged, NQ);
-  ts_refset rs = {0, &f.w, &f.a, &f.lp, &f.labels, &f.valid, 0, NULL};
   const ts_l1_impl *simd;
   char err[TS_ERR_LEN];
   assert_int_equal(ts_l1_select(&simd, err), 0);
   ts_pool *pool; /* three threads build each slice's vectors, by bands of rows */
   assert_int_equal(ts_pool_create(&pool, 3), 0);
   for (int k = 0; k < 3; k++) {
-    uint32_t i0[TS_MAX_CLASSES], i1[TS_MAX_CLASSES];
-    for (int c = 0; c < NCLASS; c++) {
-      i0[c] = f.a.count[c] * (uint32_t)k / 3;
-      i1[c] = f.a.count[c] * (uint32_t)(k + 1) / 3;
-    }
-    static ts_slice_desc m, back;
-    ts_slice_describe(&m, &rs, NULL, 1, 1, 0, i0, i1, NULL);
-    assert_true(m.ay1 - m.ay0 < f.a.ny); /* a slice holds only its rows */
-    ts_wr wr;
-    ts_wr_init(&wr);
-    ts_msg_slice_write(&wr, &m);
-    assert_int_equal(ts_wr_status(&wr), 0);
-    ts_frame fr = {'N', 1, (uint32_t)wr.len, wr.buf};
-    assert_int_equal(ts_msg_slice_read(&fr, &back, err), 0);
-    ts_slice *sl;
-    if (ts_slice_load(&sl, &back, NULL, pool, err) != 0) fail_msg("slice %d: %s", k, err);
+    size_t bytes, whole;
+    ts_slice *sl = slice_through_wire(&f, k, shortcuts, &image, pool, &bytes);
     ts_vec_batch b = {NQ, q, NULL, klass, 0};
     uint64_t pairs;
     assert_int_equal(ts_slice_scan(sl, NULL, 1, simd, &b, part, &pairs, err), 0);
     for (int i = 0; i < NQ; i++)
       if (part[i].index != UINT32_MAX) ts_l1_best_merge(&merged[i], &part[i], 1);
     ts_slice_free(sl);
-    ts_wr_free(&wr);
+    if (shortcuts) { /* a fine plane's rows and the label rows did not travel */
+      ts_slice_free(slice_through_wire(&f, k, 0, NULL, pool, &whole));
+      assert_true(whole > bytes + (NFINE + 1) * 4 * W);
+    }
   }
   ts_pool_destroy(pool);
   for (int i = 0; i < NQ; i++) {
@@ -316,7 +364,44 @@ static void sliced_labelled_set_matches_brute_force(void **state) {
     assert_int_equal(merged[i].dist, want.dist);
     assert_int_equal(ts_anchors_class(&f.a, merged[i].index), klass[i]);
   }
+  if (shortcuts) ts_replica_free(&image);
   free(q);
+  tear_down(&f);
+}
+
+static void sliced_labelled_set_matches_brute_force(void **state) {
+  (void)state;
+  sliced_set_matches_brute_force(0);
+}
+
+static void sliced_set_without_rows_or_labels_matches_brute_force(void **state) {
+  (void)state;
+  sliced_set_matches_brute_force(1);
+}
+
+/* A worker refuses to take fine rows from an image of another level (its
+ * reference differs) or of another size. */
+static void rows_from_another_image_are_refused(void **state) {
+  (void)state;
+  feature_set f;
+  set_up(&f, 13);
+  ts_replica image;
+  image_of_set(&image, &f);
+  ts_refset rs = {0, &f.w, &f.a, &f.lp, &f.labels, &f.valid, 0, NULL};
+  static const uint32_t i0[TS_MAX_CLASSES] = {0};
+  static ts_slice_desc m;
+  char err[TS_ERR_LEN];
+  ts_slice_describe(&m, &rs, NULL, 1, 1, 0, i0, f.a.count, NULL);
+  m.fine_from_image = 1;
+  m.fine_sum = ts_slice_fine_sum(&m);
+  image.ref[2].px[W * (m.fy0 + 1) + 3] ^= 1; /* one byte of another level */
+  assert_int_equal(ts_replica_slice_rows(&image, &m, err), TS_EINVAL);
+  assert_non_null(strstr(err, "other reference rows"));
+  m.w = W - 1;
+  assert_int_equal(ts_replica_slice_rows(&image, &m, err), TS_EINVAL);
+  assert_non_null(strstr(err, "reference is 5 of 48x40"));
+  assert_int_equal(ts_replica_slice_rows(NULL, &m, err), TS_EINVAL);
+  ts_replica_free(&image);
   tear_down(&f);
 }
 
@@ -455,6 +540,8 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(anchors_order_with_256_classes),
     cmocka_unit_test(validity_from_mask_avoids_holes),
     cmocka_unit_test(sliced_labelled_set_matches_brute_force),
+    cmocka_unit_test(sliced_set_without_rows_or_labels_matches_brute_force),
+    cmocka_unit_test(rows_from_another_image_are_refused),
     cmocka_unit_test(anchors_from_rows_agree_with_the_whole),
     cmocka_unit_test(reslice_moves_only_what_changed),
 };

@@ -150,6 +150,44 @@ static void slice_round_trip(void **state) {
   assert_memory_equal(out.valid.hi, valid + 7 * 64, 64);
   assert_exact(&w, 'N', rd_slice, &out);
   ts_wr_free(&w);
+  /* labels as a 3 x 1 tile and fine rows from the query image: neither
+   * travels, the tile and the checksum do */
+  in = slice_example(fine, coarse, labels, valid, counts);
+  in.labelled = TS_SLICE_LABELS_TILE, in.tile_w = 3, in.tile_h = 1;
+  memcpy(in.tile, (const uint8_t[]){0, 1, 2}, 3);
+  in.fine_from_image = 1, in.fine_sum = ts_slice_fine_sum(&in);
+  ts_wr_init(&w);
+  ts_msg_slice_write(&w, &in);
+  f = frame_of(&w, 'N');
+  assert_int_equal(ts_msg_slice_read(&f, &out, err), 0);
+  assert_int_equal(whole - w.len, sizeof(fine) + sizeof(labels) - (2 + 3) - 8);
+  assert_int_equal(out.labelled, TS_SLICE_LABELS_TILE);
+  assert_int_equal(out.tile_w, 3);
+  assert_int_equal(out.tile[2], 2);
+  assert_int_equal(out.fine_from_image, 1);
+  assert_true(out.fine_sum == in.fine_sum);
+  assert_null(out.fine[0].lo);
+  assert_memory_equal(out.valid.lo, valid, sizeof(valid));
+  assert_exact(&w, 'N', rd_slice, &out);
+  ts_wr_free(&w);
+}
+
+/* A label plane that repeats a tile is found to; one that does not is
+ * not. */
+static void label_tiles_are_found(void **state) {
+  (void)state;
+  ts_plane p;
+  uint8_t tw, th, tile[TS_SLICE_MAX_TILE * TS_SLICE_MAX_TILE];
+  assert_int_equal(ts_plane_alloc(&p, 37, 23), 0);
+  for (int y = 0; y < 23; y++)
+    for (int x = 0; x < 37; x++) p.px[y * 37 + x] = (uint8_t)((x & 1) | (y & 1) << 1);
+  assert_int_equal(ts_slice_label_tile(&p, &tw, &th, tile), 1);
+  assert_int_equal(tw, 2);
+  assert_int_equal(th, 2);
+  assert_memory_equal(tile, ((const uint8_t[]){0, 1, 2, 3}), 4);
+  p.px[22 * 37 + 36] ^= 1; /* one pixel off the pattern, bottom right */
+  assert_int_equal(ts_slice_label_tile(&p, &tw, &th, tile), 0);
+  ts_plane_free(&p);
 }
 
 /* Geometry that would make a worker read outside the message or its
@@ -171,7 +209,7 @@ static void slice_geometry_is_checked(void **state) {
     case 4: m.cw = 0; break;      /* a coarse source without a coarse level */
     case 5: m.w = 0; break;
     case 6: m.nclass = 0; break;
-    case 7: m.labelled = 2; break;
+    case 7: m.labelled = 3; break;
     case 8: m.kfy0 = 21, m.kfy1 = 20; break; /* kept rows that are no range */
     case 9: m.kay0 = 28, m.kay1 = 27; break;
     }
@@ -543,6 +581,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(ident_round_trip),
     cmocka_unit_test(auth_steps_round_trip_and_are_exact),
     cmocka_unit_test(slice_round_trip),
+    cmocka_unit_test(label_tiles_are_found),
     cmocka_unit_test(slice_geometry_is_checked),
     cmocka_unit_test(query_round_trip_with_placements),
     cmocka_unit_test(image_round_trip),
