@@ -661,15 +661,15 @@ void ts_jobs_destroy(ts_jobs *j) {
 /* Disk a job will use: its reference, and a reserve for its results and
  * checkpoints (the engine's estimate, ts_engine.result_bytes) until they
  * are written and counted. */
-static uint64_t job_reserve(const ts_jobspec *s, size_t inputs_len) {
-  return inputs_len + s->engine->result_bytes(&s->params, &s->wants) + 65536;
+static uint64_t job_reserve(const ts_jobspec *s, size_t inputs_len, const ts_image_info *in) {
+  return inputs_len + s->engine->result_bytes(&s->params, &s->wants, in) + 65536;
 }
 
 static double mib(uint64_t bytes) { return (double)bytes / (1024.0 * 1024.0); }
 
 /* Checks the limits and takes an id and the disk reserve (lock taken). */
-static int admit(ts_jobs *j, job *jb, size_t inputs_len, char *err) {
-  uint64_t need = job_reserve(&jb->spec, inputs_len);
+static int admit(ts_jobs *j, job *jb, size_t inputs_len, const ts_image_info *in, char *err) {
+  uint64_t need = job_reserve(&jb->spec, inputs_len, in);
   int rc = 0;
   pthread_mutex_lock(&j->lock);
   client_share *cs = share_of(j, jb->client);
@@ -726,13 +726,13 @@ static int check_input_names(const ts_jobspec *spec, const ts_msg_submit *m, con
  * file that is no image or is over the limit is refused to its sender at
  * once, not queued to fail later. The extension into ext. */
 static int check_input(ts_jobs *j, const char *name, const uint8_t *data, size_t len, char ext[TS_EXT_LEN],
-                       char *err) {
+                       ts_image_info *info, char *err) {
   const char *e = ts_path_ext(name);
   /* The spec's extension rule: letters and digits only. */
   if (!ts_ext_valid(e)) return ts_error(err, TS_EINVAL, "input name '%s' needs a plain extension (.png, .tif, ...)", name);
   snprintf(ext, TS_EXT_LEN, "%s", e);
   ts_image_limits limits = {j->o.max_pixels, JOBS_MAX_PIXELS_OPTION};
-  return ts_image_probe_mem(name, data, len, &limits, NULL, err);
+  return ts_image_probe_mem(name, data, len, &limits, info, err);
 }
 
 /* The files of an admitted job: its inputs, client, ref.ext, inputs (with
@@ -774,13 +774,14 @@ int ts_jobs_submit(ts_jobs *j, const char *client, const ts_msg_submit *m, uint6
     rc = check_input_names(&jb->spec, m, &names, err);
   }
   size_t bytes = m->ref_len;
-  if (rc == 0) rc = check_input(j, m->ref_name, m->ref, m->ref_len, jb->ref_ext, err);
+  ts_image_info info[TS_ENGINE_MAX_INPUTS];
+  if (rc == 0) rc = check_input(j, m->ref_name, m->ref, m->ref_len, jb->ref_ext, &info[0], err);
   for (uint32_t k = 0; rc == 0 && k < m->nmore; k++) {
-    rc = check_input(j, m->more[k].name, m->more[k].data, m->more[k].len, jb->more_ext[k], err);
+    rc = check_input(j, m->more[k].name, m->more[k].data, m->more[k].len, jb->more_ext[k], &info[k + 1], err);
     bytes += m->more[k].len;
   }
   snprintf(jb->client, sizeof(jb->client), "%s", client);
-  if (rc == 0) rc = admit(j, jb, bytes, err);
+  if (rc == 0) rc = admit(j, jb, bytes, info, err);
   if (rc != 0) {
     free(jb);
     return rc;

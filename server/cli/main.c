@@ -3,6 +3,7 @@
  *   texsyn synth ...     synthesise a texture (embedded: in-process engine
  *                        and local scan threads; `run` is an alias), or
  *                        submit it to a coordinator with --server
+ *   texsyn stylize ...   paint a target in an exemplar's style (stylize.c)
  *   texsyn status|watch|fetch|cancel|workers   manage jobs on a coordinator
  *   texsyn quality ...   neighbourhood error of an image against a reference
  *   texsyn shuffle ...   random block shuffle baseline
@@ -29,6 +30,7 @@
 #include "mrf.h"
 #include "outputs.h"
 #include "quality.h"
+#include "stylize.h"
 #include "search.h"
 
 
@@ -149,7 +151,7 @@ static int synth_option(synth_opts *o, int c, const char *arg, char *err) {
   case OPT_REFINE: rc = ts_arg_long("--refine", arg, -1000, 1000, &v, err); p->refine = (int)v; break;
   default:
     rc = ts_job_option(&o->job, c, arg, err);
-    if (rc == TS_ENOENT && c != OPT_NNF && output_option(&o->job.out, c, arg)) rc = 0;
+    if (rc == TS_ENOENT && output_option(&o->job.out, c, arg)) rc = 0;
     if (rc == TS_ENOENT) rc = ts_error(err, TS_EINVAL, "unknown option (see texsyn synth --help)");
   }
   return rc;
@@ -478,6 +480,7 @@ static void usage_main(FILE *f) {
   fprintf(f,
           "usage: texsyn COMMAND [options]   (texsyn COMMAND --help for details)\n"
           "  synth    synthesise a texture from a reference (alias: run)\n"
+          "  stylize  paint a target in the style of an exemplar, guided by image pairs\n"
           "  quality  neighbourhood error of an image against a reference\n"
           "  shuffle  random block shuffle of a reference (a baseline)\n"
           "  simd     list the L1 kernel variants this CPU supports\n"
@@ -498,6 +501,7 @@ int main(int argc, char **argv) {
   }
   const char *cmd = argv[1];
   if (strcmp(cmd, "synth") == 0 || strcmp(cmd, "run") == 0) return cmd_synth(argc - 1, argv + 1);
+  if (strcmp(cmd, "stylize") == 0) return ts_cmd_stylize(argc - 1, argv + 1);
   if (strcmp(cmd, "quality") == 0) return cmd_quality(argc - 1, argv + 1);
   if (strcmp(cmd, "shuffle") == 0) return cmd_shuffle(argc - 1, argv + 1);
   if (strcmp(cmd, "simd") == 0) return cmd_simd();

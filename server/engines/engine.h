@@ -116,8 +116,8 @@ typedef struct ts_engine {
   /* Applies a daemon's pixel limit to the parameters. */
   void (*set_max_pixels)(void *params, uint64_t max_pixels);
   /* Bytes the wanted outputs and the checkpoints may take (the spool's
-   * disk reserve). */
-  uint64_t (*result_bytes)(const void *params, const ts_engine_wants *w);
+   * disk reserve), given the inputs' headers (in[k] is input k's). */
+  uint64_t (*result_bytes)(const void *params, const ts_engine_wants *w, const ts_image_info *in);
   /* Pyramid levels the job goes through (for its status). */
   int (*levels)(const void *params);
   /* Runs the job on its inputs (alive until run_free): *out is the run's

@@ -93,8 +93,9 @@ static void mrf_set_max_pixels(void *params, uint64_t max_pixels) {
  * maps (8 bytes each), and a checkpoint inside the finest level (its copy
  * map, placed blocks, canvas planes and a quarter of them for the level
  * above: 10.25 or 12.75 bytes) twice, while the next one replaces it. */
-static uint64_t mrf_result_bytes(const void *params, const ts_engine_wants *w) {
+static uint64_t mrf_result_bytes(const void *params, const ts_engine_wants *w, const ts_image_info *in) {
   const ts_mrf_params *p = params;
+  (void)in; /* the output's size is a parameter */
   uint64_t checkpoint = p->rgb_search ? 13 : 11;
   uint64_t per_px = 8 + 3 + (w->want[OUT_COPY_MAP][0] ? 8 : 0) + (w->want[OUT_COPY_MAP_RAW][0] ? 8 : 0) +
                     2 * checkpoint;
