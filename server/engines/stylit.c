@@ -14,6 +14,15 @@
  * a cluster). Only the traffic's shape: results never depend on them. */
 #define BATCH 4096
 #define BATCHES_PER_CALL 16
+/* With uniformity on, a search step goes in 16 sub-steps, the target
+ * pixels of each (x mod 4, y mod 4) in turn; Ω is frozen within a sub-step
+ * and updated after it (each of its patches leaves its old source patch
+ * and takes the new one). Frozen for a whole step, Ω makes every patch
+ * flee the same crowded source patches at once into the same few free
+ * ones, and the next step back (the oscillation of a Jacobi update): on
+ * the stylit scene the exemplar coverage fell as uniformity rose. The
+ * order is fixed, so the result still depends on nothing but the job. */
+#define SUBSTEP_SIDE 4
 
 typedef struct {
   const ts_stylit_params *p;
@@ -31,8 +40,7 @@ typedef struct {
   int level, sw, sh, tw, th;
   uint32_t *nnf;
   ts_anchors grid;
-  ts_usage omega;
-  uint32_t *counts;
+  ts_usage omega; /* counters only: the backend sums them per patch */
   ts_plane est[TS_WIN_MAX_PLANES]; /* the style estimate, planes 0..nstyle-1 */
   ts_progress prog;
 } run;
@@ -113,9 +121,14 @@ static void count_occurrences(const uint32_t *nnf, size_t n, int r, int sw, uint
       for (int x = (int)nnf[2 * i] - r; x <= (int)nnf[2 * i] + r; x++) counts[(size_t)y * (size_t)sw + (size_t)x]++;
 }
 
-static void rebuild_omega(run *e) {
-  count_occurrences(e->nnf, (size_t)e->tw * (size_t)e->th, e->r, e->sw, e->counts, (size_t)e->sw * (size_t)e->sh);
-  ts_usage_load(&e->omega, e->counts);
+static int build_omega(run *e) {
+  size_t n = (size_t)e->sw * (size_t)e->sh;
+  uint32_t *counts = malloc(n * sizeof(*counts));
+  if (counts == NULL) return TS_ENOMEM;
+  count_occurrences(e->nnf, (size_t)e->tw * (size_t)e->th, e->r, e->sw, counts, n);
+  ts_usage_load(&e->omega, counts);
+  free(counts);
+  return 0;
 }
 
 /* ---- the vote ---------------------------------------------------------- */
@@ -173,11 +186,9 @@ static void report_progress(run *e, uint64_t n) {
   if (e->h != NULL && e->h->progress != NULL) e->h->progress(e->h->progress_ctx, &e->prog);
 }
 
-/* Every target patch against the set, BATCHES_PER_CALL batches a call;
- * the penalty factor is the same for all (Ω frozen for the step). */
-static int query_all(run *e, int set, int pw, ts_l1_best *best, uint32_t *pos, char *err) {
-  size_t n = (size_t)e->tw * (size_t)e->th;
-  for (size_t i = 0; i < n; i++) pos[i] = (uint32_t)((i / (size_t)e->tw) * (size_t)pw + i % (size_t)e->tw);
+/* The n queries at pos against the set, BATCHES_PER_CALL batches a call,
+ * all with the penalty of Ω as it is. */
+static int query_set(run *e, int set, const uint32_t *pos, size_t n, ts_l1_best *best, char *err) {
   uint64_t k = e->lambda > 0 ? ts_usage_factor(&e->omega, e->lambda, e->d1) : 0;
   ts_l1_best_reset(best, n);
   for (size_t i0 = 0; i0 < n;) {
@@ -195,36 +206,73 @@ static int query_all(run *e, int set, int pw, ts_l1_best *best, uint32_t *pos, c
   return 0;
 }
 
-/* One search step: a query image and a set for this Ω, every target patch
+/* The target pixels of sub-step c (row-major; all of them with one
+ * sub-step): their NNF indices and query positions (pw: the query
+ * image's width). */
+static size_t substep_pixels(const run *e, int c, int substeps, int pw, uint32_t *idx, uint32_t *pos) {
+  size_t n = 0;
+  for (int y = 0; y < e->th; y++)
+    for (int x = 0; x < e->tw; x++) {
+      if (substeps > 1 && (y % SUBSTEP_SIDE) * SUBSTEP_SIDE + x % SUBSTEP_SIDE != c) continue;
+      idx[n] = (uint32_t)((size_t)y * (size_t)e->tw + (size_t)x);
+      pos[n++] = (uint32_t)((size_t)y * (size_t)pw + (size_t)x);
+    }
+  return n;
+}
+
+/* The answers into the NNF; Ω follows each patch from its old source
+ * patch to its new one. */
+static void take_answers(run *e, const uint32_t *idx, const ts_l1_best *best, size_t n) {
+  int p = e->patch;
+  for (size_t i = 0; i < n; i++) {
+    uint32_t *o = &e->nnf[2 * (size_t)idx[i]];
+    int x, y;
+    ts_anchors_pos(&e->grid, best[i].index, &x, &y);
+    ts_usage_commit(&e->omega, (int)o[0] - e->r, (int)o[1] - e->r, p, p, -1);
+    ts_usage_commit(&e->omega, x, y, p, p, 1);
+    o[0] = (uint32_t)(x + e->r);
+    o[1] = (uint32_t)(y + e->r);
+  }
+}
+
+/* The sub-steps of a search step on one query image: a set per sub-step,
+ * carrying Ω as it is then. */
+static int search_substeps(run *e, int image, int pw, char *err) {
+  size_t n = (size_t)e->tw * (size_t)e->th;
+  ts_l1_best *best = malloc(n * sizeof(*best));
+  uint32_t *pos = malloc(n * sizeof(*pos)), *idx = malloc(n * sizeof(*idx));
+  int rc = best != NULL && pos != NULL && idx != NULL ? 0 : ts_error(err, TS_ENOMEM, "out of memory");
+  ts_levelplanes lp = {{NULL}, {NULL}};
+  for (int k = 0; k < e->pl.nplanes; k++) lp.fine[k] = &e->src[k][e->level];
+  int substeps = e->lambda > 0 ? SUBSTEP_SIDE * SUBSTEP_SIDE : 1;
+  for (int c = 0; rc == 0 && c < substeps; c++) {
+    size_t nc = substep_pixels(e, c, substeps, pw, idx, pos);
+    ts_refset rs = {image, &e->win, &e->grid, &lp, NULL, NULL, e->lambda > 0, &e->omega};
+    int set = -1;
+    rc = ts_search_prepare(e->search, &rs, &set, err);
+    if (rc == 0) rc = query_set(e, set, pos, nc, best, err);
+    if (set >= 0) ts_search_release(e->search, set);
+    if (rc == 0) take_answers(e, idx, best, nc);
+  }
+  free(best);
+  free(pos);
+  free(idx);
+  return rc;
+}
+
+/* One search step: the query image of this estimate, every target patch
  * searched, the NNF and Ω renewed. */
 static int search_step(run *e, char *err) {
   ts_plane pad[TS_WIN_MAX_PLANES] = {0};
-  int pw = e->tw + 2 * e->r, image = -1, set = -1;
-  size_t n = (size_t)e->tw * (size_t)e->th;
-  ts_l1_best *best = malloc(n * sizeof(*best));
-  uint32_t *pos = malloc(n * sizeof(*pos));
-  int rc = best != NULL && pos != NULL ? padded_planes(e, pad) : TS_ENOMEM;
+  int pw = e->tw + 2 * e->r, image = -1;
+  int rc = padded_planes(e, pad);
   if (rc != 0) rc = ts_error(err, TS_ENOMEM, "out of memory for a %dx%d target", e->tw, e->th);
   ts_replica_desc d = {.w = pw, .h = e->th + 2 * e->r, .nplanes = e->pl.nplanes};
   for (int k = 0; k < e->pl.nplanes; k++) d.fine[k] = pad[k].px;
   if (rc == 0) rc = ts_search_image_open(e->search, &d, &image, err);
-  ts_levelplanes lp = {{NULL}, {NULL}};
-  for (int k = 0; k < e->pl.nplanes; k++) lp.fine[k] = &e->src[k][e->level];
-  ts_refset rs = {image, &e->win, &e->grid, &lp, NULL, NULL, e->lambda > 0, &e->omega};
-  if (rc == 0) rc = ts_search_prepare(e->search, &rs, &set, err);
-  if (rc == 0) rc = query_all(e, set, pw, best, pos, err);
-  for (size_t i = 0; rc == 0 && i < n; i++) {
-    int x, y;
-    ts_anchors_pos(&e->grid, best[i].index, &x, &y);
-    e->nnf[2 * i] = (uint32_t)(x + e->r);
-    e->nnf[2 * i + 1] = (uint32_t)(y + e->r);
-  }
-  if (rc == 0) rebuild_omega(e);
-  if (set >= 0) ts_search_release(e->search, set);
+  if (rc == 0) rc = search_substeps(e, image, pw, err);
   if (image >= 0) ts_search_image_close(e->search, image);
   for (int k = 0; k < e->pl.nplanes; k++) ts_plane_free(&pad[k]);
-  free(best);
-  free(pos);
   return rc;
 }
 
@@ -233,8 +281,6 @@ static int search_step(run *e, char *err) {
 static void level_free(run *e) {
   ts_usage_free(&e->omega);
   ts_anchors_free(&e->grid);
-  free(e->counts);
-  e->counts = NULL;
   for (int k = 0; k < e->pl.nstyle; k++) ts_plane_free(&e->est[k]);
 }
 
@@ -249,8 +295,7 @@ static int level_start(run *e, int l, char *err) {
   e->th = e->tgt[e->pl.nstyle][l].h;
   size_t n = (size_t)e->tw * (size_t)e->th;
   e->nnf = malloc(2 * n * sizeof(uint32_t));
-  e->counts = malloc((size_t)e->sw * (size_t)e->sh * sizeof(uint32_t));
-  int rc = e->nnf != NULL && e->counts != NULL ? 0 : TS_ENOMEM;
+  int rc = e->nnf != NULL ? 0 : TS_ENOMEM;
   for (int k = 0; rc == 0 && k < e->pl.nstyle; k++) rc = ts_plane_alloc(&e->est[k], e->tw, e->th);
   if (rc != 0) {
     free(prev);
@@ -260,9 +305,8 @@ static int level_start(run *e, int l, char *err) {
   else nnf_upsample(e, prev, pw, ph);
   free(prev);
   rc = ts_anchors_init(&e->grid, &e->win, e->sw, e->sh, 0, 0, NULL, 1, NULL, err);
-  if (rc == 0 && ts_usage_init(&e->omega, &e->grid, e->patch, e->lambda > 0) != 0)
+  if (rc == 0 && (ts_usage_init(&e->omega, &e->grid, e->patch, 0) != 0 || build_omega(e) != 0))
     rc = ts_error(err, TS_ENOMEM, "out of memory for the occurrence map");
-  if (rc == 0) rebuild_omega(e);
   e->prog.level = l;
   e->prog.done = 0;
   e->prog.total = (uint64_t)n * (uint64_t)e->p->iters;
