@@ -129,13 +129,14 @@ static int check_outputs(const ts_job_cmd *o, char *err) {
   return 0;
 }
 
-/* The spec's wants: for every output given a path, the format its
- * extension names ("1" for a flag output). */
-static int set_wants(ts_job_cmd *o, char *err) {
-  const ts_engine *e = o->spec.engine;
+/* The spec's wants, for a coordinator (an embedded run writes to the
+ * paths): for every output given a path, the format its extension names
+ * ("1" for a flag output). */
+static int set_wants(const ts_job_cmd *o, ts_jobspec *spec, char *err) {
+  const ts_engine *e = spec->engine;
   for (int k = 0; k < e->noutputs; k++) {
     const char *path = ts_output_path(&o->out, e->outputs[k].key);
-    char *want = o->spec.wants.want[k];
+    char *want = spec->wants.want[k];
     if (path == NULL) want[0] = '\0';
     else if (e->outputs[k].kind == TS_OUTPUT_FLAG) snprintf(want, TS_EXT_LEN, "1");
     else if (!ts_ext_valid(ts_path_ext(path)))
@@ -304,8 +305,11 @@ static void base_name(const char *path, char *out, size_t cap) {
 #define SUBMIT_MAX (TS_FRAME_DEFAULT_MAX - 8192)
 
 static int submit_job(ts_conn *c, const ts_job_cmd *o, uint64_t *id, char *err) {
+  ts_jobspec js = o->spec;
   char spec[TS_SPEC_MAX];
-  int n = ts_jobspec_format(&o->spec, spec, sizeof(spec));
+  int n = set_wants(o, &js, err);
+  if (n != 0) return n;
+  n = ts_jobspec_format(&js, spec, sizeof(spec));
   if (n < 0) return ts_error(err, TS_ETOOBIG, "job spec too long");
   ts_engine_inputs names;
   o->spec.engine->inputs(&o->spec.params, &names);
@@ -381,10 +385,6 @@ static int run_remote(const ts_job_cmd *o) {
 int ts_job_run(ts_job_cmd *o) {
   char err[TS_ERR_LEN] = "", msg[4096];
   const ts_engine *e = o->spec.engine;
-  if (set_wants(o, err) != 0) {
-    fprintf(stderr, "texsyn %s: %s\n", o->cmd, err);
-    return 2;
-  }
   if (!o->detach && check_outputs(o, err) != 0) {
     fprintf(stderr, "texsyn %s: %s\n", o->cmd, err);
     return 1;
