@@ -607,12 +607,50 @@ int ts_msg_error_read(const ts_frame *f, ts_msg_error *m, char *err) {
 
 /* ---- S ------------------------------------------------------------------ */
 
+int ts_msg_key_valid(const char *key) {
+  size_t n = strlen(key);
+  if (n == 0 || n >= TS_MSG_KEY_MAX) return 0;
+  for (size_t i = 0; i < n; i++)
+    if (!((key[i] >= 'a' && key[i] <= 'z') || (key[i] >= '0' && key[i] <= '9') || key[i] == '_')) return 0;
+  return 1;
+}
+
 void ts_msg_submit_write(ts_wr *w, const ts_msg_submit *m) {
   ts_wr_u32(w, m->spec_len);
   ts_wr_bytes(w, m->spec, m->spec_len);
   ts_wr_str(w, m->ref_name);
   ts_wr_u32(w, m->ref_len);
   ts_wr_bytes(w, m->ref, m->ref_len);
+  if (m->nmore == 0) return; /* no tail: the message as it was before inputs had names */
+  ts_wr_u8(w, (uint8_t)m->nmore);
+  for (uint32_t k = 0; k < m->nmore; k++) {
+    ts_wr_str(w, m->more[k].key);
+    ts_wr_str(w, m->more[k].name);
+    ts_wr_u32(w, m->more[k].len);
+    ts_wr_bytes(w, m->more[k].data, m->more[k].len);
+  }
+}
+
+/* The tail of further inputs, if the payload goes on after the first. */
+static int submit_read_more(ts_rd *r, ts_msg_submit *m, char *err) {
+  m->nmore = 0;
+  if (r->failed || r->off == r->len) return 0;
+  m->nmore = ts_rd_u8(r);
+  if (m->nmore == 0 || m->nmore >= TS_MSG_MAX_INPUTS)
+    return bad(err, 'S', "the count of further inputs must be 1..63");
+  for (uint32_t k = 0; k < m->nmore && !r->failed; k++) {
+    ts_msg_input *in = &m->more[k];
+    ts_rd_str(r, in->key, sizeof(in->key));
+    ts_rd_str(r, in->name, sizeof(in->name));
+    in->len = ts_rd_u32(r);
+    in->data = ts_rd_bytes(r, in->len);
+    if (r->failed) break;
+    if (!ts_msg_key_valid(in->key)) return bad(err, 'S', "an input key must be 1..31 of a-z, 0-9 and _");
+    if (in->len == 0) return bad(err, 'S', "empty input image");
+    for (uint32_t i = 0; i < k; i++)
+      if (strcmp(m->more[i].key, in->key) == 0) return bad(err, 'S', "an input key given twice");
+  }
+  return 0;
 }
 
 int ts_msg_submit_read(const ts_frame *f, ts_msg_submit *m, char *err) {
@@ -624,6 +662,7 @@ int ts_msg_submit_read(const ts_frame *f, ts_msg_submit *m, char *err) {
   ts_rd_str(&r, m->ref_name, sizeof(m->ref_name));
   m->ref_len = ts_rd_u32(&r);
   m->ref = ts_rd_bytes(&r, m->ref_len);
+  if (submit_read_more(&r, m, err) != 0) return TS_EPROTO;
   if (finish(&r, err, 'S') != 0) return TS_EPROTO;
   if (m->spec_len > 0 && memchr(m->spec, 0, m->spec_len) != NULL) return bad(err, 'S', "NUL in the job spec");
   if (m->ref_len == 0) return bad(err, 'S', "empty reference image");

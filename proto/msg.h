@@ -218,13 +218,37 @@ int ts_msg_error_read(const ts_frame *f, ts_msg_error *m, char *err);
 /* ---- S: submit ---------------------------------------------------------- */
 
 #define TS_SPEC_MAX 4096
+/* Input images a job takes: the first (the reference of an MRF job, the
+ * style exemplar of a stylization) and up to TS_MSG_MAX_INPUTS - 1 more,
+ * each named by the key its engine declares (server/engines/engine.h). */
+#define TS_MSG_MAX_INPUTS 64
+#define TS_MSG_KEY_MAX 32 /* an input key's bytes, NUL included */
+
+/* An input after the first: its key ("guide_src_0"), its file name (for
+ * its format) and its bytes. */
+typedef struct {
+  char key[TS_MSG_KEY_MAX];
+  char name[TS_MSG_NAME_MAX];
+  const uint8_t *data;
+  uint32_t len;
+} ts_msg_input;
+
 typedef struct {
   const char *spec;      /* job spec text (jobspec.h), spec_len bytes */
   uint32_t spec_len;
-  char ref_name[TS_MSG_NAME_MAX]; /* reference file name (for its format) */
-  const uint8_t *ref;    /* reference file bytes */
+  char ref_name[TS_MSG_NAME_MAX]; /* first input's file name (for its format) */
+  const uint8_t *ref;    /* first input's file bytes */
   uint32_t ref_len;
+  /* The inputs after the first, in the engine's order. On the wire they
+   * follow the first as an optional tail, so a one-input submission is the
+   * bytes it always was (PROTOCOL.md). */
+  uint32_t nmore; /* 0..TS_MSG_MAX_INPUTS - 1 */
+  ts_msg_input more[TS_MSG_MAX_INPUTS - 1];
 } ts_msg_submit;
+
+/* Whether key is a valid input key: 1..TS_MSG_KEY_MAX - 1 bytes of
+ * lower-case letters, digits and '_' (it names a file in the spool). */
+int ts_msg_key_valid(const char *key);
 
 void ts_msg_submit_write(ts_wr *w, const ts_msg_submit *m);
 int ts_msg_submit_read(const ts_frame *f, ts_msg_submit *m, char *err);

@@ -26,11 +26,15 @@
 #define JOBS_CLIENT_LEN 128
 #define JOBS_MAX_PIXELS_OPTION "texsyn-server --max-pixels" /* named in limit errors */
 
+_Static_assert(TS_ENGINE_MAX_INPUTS <= TS_MSG_MAX_INPUTS && TS_ENGINE_KEY_LEN == TS_MSG_KEY_MAX,
+               "an engine's inputs must fit a submission");
+
 typedef struct job {
   uint64_t id;
   char client[JOBS_CLIENT_LEN];
   char dir[JOBS_SPOOL_LEN + 32];
-  char ref_ext[TS_EXT_LEN];
+  char ref_ext[TS_EXT_LEN]; /* input 0: ref.EXT */
+  char more_ext[TS_ENGINE_MAX_INPUTS - 1][TS_EXT_LEN]; /* input k > 0: NAME.EXT, more_ext[k - 1] */
   ts_jobspec spec;
   ts_job_status st;
   uint64_t version;
@@ -316,7 +320,7 @@ static void on_resumed(void *arg, const char *where, double redone) {
 }
 
 /* Runs the job's engine, from its last checkpoint if it has one. */
-static int run_engine(ts_jobs *j, job *jb, const ts_image *ref, ts_search *search, ts_engine_run **run,
+static int run_engine(ts_jobs *j, job *jb, const ts_image *const *in, ts_search *search, ts_engine_run **run,
                       char *err) {
   progress_ctx pc = {j, jb, 0};
   checkpoint_ctx cc = {j, jb, job_tag(jb)};
@@ -336,34 +340,57 @@ static int run_engine(ts_jobs *j, job *jb, const ts_image *ref, ts_search *searc
                            .resume_refused = on_checkpoint_refused,
                            .resumed = on_resumed,
                            .stop = &j->stopping};
-  int rc = jb->spec.engine->run(&jb->spec.params, ref, search, &hooks, run, err);
+  int rc = jb->spec.engine->run(&jb->spec.params, in, search, &hooks, run, err);
   free(resume);
   return rc;
 }
 
+/* Where input k of a job lives: ref.EXT for the first, NAME.EXT after. */
+static void input_path(const job *jb, const ts_engine_inputs *names, int k, char *out, size_t cap) {
+  if (k == 0) snprintf(out, cap, "%s/ref.%s", jb->dir, jb->ref_ext);
+  else snprintf(out, cap, "%s/%s.%s", jb->dir, names->name[k], jb->more_ext[k - 1]);
+}
+
+/* Reads every input of a job; on failure the ones read are freed. */
+static int read_inputs(ts_jobs *j, const job *jb, ts_image *in, int *n, char *err) {
+  ts_engine_inputs names;
+  jb->spec.engine->inputs(&jb->spec.params, &names);
+  ts_image_limits limits = {j->o.max_pixels, JOBS_MAX_PIXELS_OPTION};
+  char path[JOBS_PATH + 64];
+  for (int k = 0; k < names.n; k++) {
+    input_path(jb, &names, k, path, sizeof(path));
+    int rc = ts_image_read(path, &in[k], &limits, err);
+    if (rc != 0) {
+      while (k-- > 0) ts_image_free(&in[k]);
+      return rc;
+    }
+  }
+  *n = names.n;
+  return 0;
+}
+
 static int run_job(ts_jobs *j, job *jb, char *err) {
   remove_temporaries(jb->dir);
-  char path[JOBS_PATH + 32];
-  snprintf(path, sizeof(path), "%s/ref.%s", jb->dir, jb->ref_ext);
-  ts_image_limits limits = {j->o.max_pixels, JOBS_MAX_PIXELS_OPTION};
-  ts_image ref = {0};
-  int rc = ts_image_read(path, &ref, &limits, err);
+  ts_image in[TS_ENGINE_MAX_INPUTS] = {0};
+  const ts_image *inp[TS_ENGINE_MAX_INPUTS];
+  int n;
+  int rc = read_inputs(j, jb, in, &n, err);
   if (rc != 0) return rc;
+  for (int k = 0; k < n; k++) inp[k] = &in[k];
   const ts_engine *e = jb->spec.engine;
   char msg[2048];
   e->set_max_pixels(&jb->spec.params, j->o.max_pixels);
-  if (e->check(&jb->spec.params, &ref, msg, sizeof(msg)) != 0) {
-    ts_image_free(&ref);
-    return ts_error(err, TS_EINVAL, "invalid parameters for the %dx%d reference: %s", ref.width, ref.height, msg);
-  }
+  if (e->check(&jb->spec.params, inp, msg, sizeof(msg)) != 0)
+    rc = ts_error(err, TS_EINVAL, "invalid parameters for the %dx%d %s: %s", in[0].width, in[0].height,
+                  n == 1 ? "reference" : "inputs", msg);
   ts_search *search = NULL;
   ts_engine_run *run = NULL;
-  rc = ts_search_cluster_create(&search, j->o.cluster, &jb->cancel, err);
-  if (rc == 0) rc = run_engine(j, jb, &ref, search, &run, err);
+  if (rc == 0) rc = ts_search_cluster_create(&search, j->o.cluster, &jb->cancel, err);
+  if (rc == 0) rc = run_engine(j, jb, inp, search, &run, err);
   if (rc == 0) rc = write_results(jb, run, err);
   e->run_free(run);
   ts_search_destroy(search);
-  ts_image_free(&ref);
+  for (int k = 0; k < n; k++) ts_image_free(&in[k]);
   return rc;
 }
 
@@ -431,16 +458,18 @@ static int mkdir_p(const char *path) {
 
 /* Judges job directory dir by its files (spool.h). */
 static int judge_job_dir(const char *dir, ts_spool_job *rec, char *err) {
+  enum { NFILES = 5 };
   static const struct {
     const char *name;
     size_t cap; /* more than the file's writer ever puts there */
-  } files[4] = {{"job.spec", TS_SPEC_MAX}, {"client", TS_SPOOL_CLIENT_LEN}, {"ref.ext", TS_EXT_LEN},
-                {"state", TS_ERR_LEN + 32}};
+  } files[NFILES] = {{"job.spec", TS_SPEC_MAX}, {"client", TS_SPOOL_CLIENT_LEN}, {"ref.ext", TS_EXT_LEN},
+                     {"inputs", TS_ENGINE_MAX_INPUTS * (TS_ENGINE_KEY_LEN + TS_EXT_LEN + 2)},
+                     {"state", TS_ERR_LEN + 32}};
   ts_spool_files f = {0};
-  ts_spool_file *slot[4] = {&f.spec, &f.client, &f.ref_ext, &f.state};
-  uint8_t *buf[4] = {NULL};
-  char why[4][TS_ERR_LEN], path[JOBS_PATH + 32];
-  for (int i = 0; i < 4; i++) {
+  ts_spool_file *slot[NFILES] = {&f.spec, &f.client, &f.ref_ext, &f.inputs, &f.state};
+  uint8_t *buf[NFILES] = {NULL};
+  char why[NFILES][TS_ERR_LEN], path[JOBS_PATH + 32];
+  for (int i = 0; i < NFILES; i++) {
     snprintf(path, sizeof(path), "%s/%s", dir, files[i].name);
     read_spool_file(path, files[i].cap, slot[i], &buf[i], why[i]);
   }
@@ -448,7 +477,7 @@ static int judge_job_dir(const char *dir, ts_spool_job *rec, char *err) {
   snprintf(path, sizeof(path), "%s/%s", dir, JOBS_CHECKPOINT);
   f.checkpoint = lstat(path, &st) == 0;
   int rc = ts_spool_read_job(dir, &f, rec, err);
-  for (int i = 0; i < 4; i++) free(buf[i]);
+  for (int i = 0; i < NFILES; i++) free(buf[i]);
   return rc;
 }
 
@@ -481,6 +510,7 @@ static void load_job(ts_jobs *j, uint64_t id) {
   if (rec->has_spec) jb->spec = rec->spec;
   snprintf(jb->client, sizeof(jb->client), "%s", rec->client);
   snprintf(jb->ref_ext, sizeof(jb->ref_ext), "%s", rec->ref_ext);
+  memcpy(jb->more_ext, rec->more_ext, sizeof(jb->more_ext));
   jb->st.id = id;
   jb->st.state = (uint8_t)rec->state;
   jb->st.levels = rec->has_spec ? (uint8_t)jb->spec.engine->levels(&jb->spec.params) : 0;
@@ -631,15 +661,15 @@ void ts_jobs_destroy(ts_jobs *j) {
 /* Disk a job will use: its reference, and a reserve for its results and
  * checkpoints (the engine's estimate, ts_engine.result_bytes) until they
  * are written and counted. */
-static uint64_t job_reserve(const ts_jobspec *s, size_t ref_len) {
-  return ref_len + s->engine->result_bytes(&s->params, &s->wants) + 65536;
+static uint64_t job_reserve(const ts_jobspec *s, size_t inputs_len, const ts_image_info *in) {
+  return inputs_len + s->engine->result_bytes(&s->params, &s->wants, in) + 65536;
 }
 
 static double mib(uint64_t bytes) { return (double)bytes / (1024.0 * 1024.0); }
 
 /* Checks the limits and takes an id and the disk reserve (lock taken). */
-static int admit(ts_jobs *j, job *jb, size_t ref_len, char *err) {
-  uint64_t need = job_reserve(&jb->spec, ref_len);
+static int admit(ts_jobs *j, job *jb, size_t inputs_len, const ts_image_info *in, char *err) {
+  uint64_t need = job_reserve(&jb->spec, inputs_len, in);
   int rc = 0;
   pthread_mutex_lock(&j->lock);
   client_share *cs = share_of(j, jb->client);
@@ -674,44 +704,90 @@ static void unadmit(ts_jobs *j, job *jb) {
   pthread_mutex_unlock(&j->lock);
 }
 
-int ts_jobs_submit(ts_jobs *j, const char *client, const char *spec, size_t spec_len, const char *ref_name,
-                   const uint8_t *ref, size_t ref_len, uint64_t *id, char *err) {
+/* The inputs a submission carries must be the ones its engine declares
+ * for its spec, in that order: the message lists both when they are not. */
+static int check_input_names(const ts_jobspec *spec, const ts_msg_submit *m, const ts_engine_inputs *names,
+                             char *err) {
+  int same = (int)m->nmore + 1 == names->n;
+  for (int k = 1; same && k < names->n; k++) same = strcmp(m->more[k - 1].key, names->name[k]) == 0;
+  if (same) return 0;
+  char want[1024] = "", got[1024] = "";
+  size_t nw = 0, ng = 0;
+  for (int k = 0; k < names->n && nw < sizeof(want); k++)
+    nw += (size_t)snprintf(want + nw, sizeof(want) - nw, "%s%s", k ? ", " : "", names->name[k]);
+  ng += (size_t)snprintf(got, sizeof(got), "%s", names->name[0]);
+  for (uint32_t k = 0; k < m->nmore && ng < sizeof(got); k++)
+    ng += (size_t)snprintf(got + ng, sizeof(got) - ng, ", %s", m->more[k].key);
+  return ts_error(err, TS_EINVAL, "this %s job takes the inputs %s, in that order; the submission has %s",
+                  spec->engine->name, want, got);
+}
+
+/* Checks a file name's extension and the image header it names, so a
+ * file that is no image or is over the limit is refused to its sender at
+ * once, not queued to fail later. The extension into ext. */
+static int check_input(ts_jobs *j, const char *name, const uint8_t *data, size_t len, char ext[TS_EXT_LEN],
+                       ts_image_info *info, char *err) {
+  const char *e = ts_path_ext(name);
+  /* The spec's extension rule: letters and digits only. */
+  if (!ts_ext_valid(e)) return ts_error(err, TS_EINVAL, "input name '%s' needs a plain extension (.png, .tif, ...)", name);
+  snprintf(ext, TS_EXT_LEN, "%s", e);
+  ts_image_limits limits = {j->o.max_pixels, JOBS_MAX_PIXELS_OPTION};
+  return ts_image_probe_mem(name, data, len, &limits, info, err);
+}
+
+/* The files of an admitted job: its inputs, client, ref.ext, inputs (with
+ * more than one) and, last, job.spec - a job directory without it was
+ * never accepted. */
+static int write_job_files(job *jb, const char *client, const ts_msg_submit *m, const ts_engine_inputs *names,
+                           char *err) {
+  char path[JOBS_PATH + 64], list[TS_ENGINE_MAX_INPUTS * (TS_ENGINE_KEY_LEN + TS_EXT_LEN + 2)];
+  int rc = 0;
+  size_t nl = 0;
+  if (mkdir(jb->dir, 0755) != 0) rc = ts_error(err, TS_EIO, "cannot create %s: %s", jb->dir, strerror(errno));
+  input_path(jb, names, 0, path, sizeof(path));
+  if (rc == 0) rc = write_atomic(path, m->ref, m->ref_len, err);
+  for (int k = 1; rc == 0 && k < names->n; k++) {
+    input_path(jb, names, k, path, sizeof(path));
+    rc = write_atomic(path, m->more[k - 1].data, m->more[k - 1].len, err);
+    nl += (size_t)snprintf(list + nl, sizeof(list) - nl, "%s=%s\n", names->name[k], jb->more_ext[k - 1]);
+  }
+  job_path(jb, "client", path, sizeof(path));
+  if (rc == 0) rc = write_atomic(path, client, strlen(client), err);
+  job_path(jb, "ref.ext", path, sizeof(path));
+  if (rc == 0) rc = write_atomic(path, jb->ref_ext, strlen(jb->ref_ext), err);
+  job_path(jb, "inputs", path, sizeof(path));
+  if (rc == 0 && names->n > 1) rc = write_atomic(path, list, nl, err);
+  char text[TS_SPEC_MAX];
+  int n = ts_jobspec_format(&jb->spec, text, sizeof(text));
+  job_path(jb, "job.spec", path, sizeof(path));
+  if (rc == 0) rc = n < 0 ? ts_error(err, TS_ETOOBIG, "job spec too long") : write_atomic(path, text, (size_t)n, err);
+  return rc;
+}
+
+int ts_jobs_submit(ts_jobs *j, const char *client, const ts_msg_submit *m, uint64_t *id, char *err) {
   job *jb = calloc(1, sizeof(*jb));
   if (jb == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
-  int rc = ts_jobspec_parse(spec, spec_len, &jb->spec, err);
-  const char *ext = ts_path_ext(ref_name);
-  /* The spec's extension rule: letters and digits only. */
-  if (rc == 0 && !ts_ext_valid(ext))
-    rc = ts_error(err, TS_EINVAL, "reference name '%s' needs a plain extension (.png, .tif, ...)", ref_name);
-  /* The reference's header now, so a file that is no image or is over the
-   * limit is refused to its sender at once, not queued to fail later. */
-  ts_image_limits limits = {j->o.max_pixels, JOBS_MAX_PIXELS_OPTION};
-  if (rc == 0) rc = ts_image_probe_mem(ref_name, ref, ref_len, &limits, NULL, err);
-  if (rc != 0) {
-    free(jb);
-    return rc;
+  int rc = ts_jobspec_parse(m->spec, m->spec_len, &jb->spec, err);
+  ts_engine_inputs names;
+  if (rc == 0) {
+    jb->spec.engine->inputs(&jb->spec.params, &names);
+    rc = check_input_names(&jb->spec, m, &names, err);
   }
-  snprintf(jb->ref_ext, sizeof(jb->ref_ext), "%s", ext);
+  size_t bytes = m->ref_len;
+  ts_image_info info[TS_ENGINE_MAX_INPUTS];
+  if (rc == 0) rc = check_input(j, m->ref_name, m->ref, m->ref_len, jb->ref_ext, &info[0], err);
+  for (uint32_t k = 0; rc == 0 && k < m->nmore; k++) {
+    rc = check_input(j, m->more[k].name, m->more[k].data, m->more[k].len, jb->more_ext[k], &info[k + 1], err);
+    bytes += m->more[k].len;
+  }
   snprintf(jb->client, sizeof(jb->client), "%s", client);
-  rc = admit(j, jb, ref_len, err);
+  if (rc == 0) rc = admit(j, jb, bytes, info, err);
   if (rc != 0) {
     free(jb);
     return rc;
   }
   snprintf(jb->dir, sizeof(jb->dir), "%s/jobs/%" PRIu64, j->spool, jb->id);
-  char path[JOBS_PATH + 32];
-  if (mkdir(jb->dir, 0755) != 0) rc = ts_error(err, TS_EIO, "cannot create %s: %s", jb->dir, strerror(errno));
-  snprintf(path, sizeof(path), "%s/ref.%s", jb->dir, jb->ref_ext);
-  if (rc == 0) rc = write_atomic(path, ref, ref_len, err);
-  job_path(jb, "client", path, sizeof(path));
-  if (rc == 0) rc = write_atomic(path, client, strlen(client), err);
-  job_path(jb, "ref.ext", path, sizeof(path));
-  if (rc == 0) rc = write_atomic(path, jb->ref_ext, strlen(jb->ref_ext), err);
-  /* The spec goes last: a job directory without it was never accepted. */
-  char text[TS_SPEC_MAX];
-  int n = ts_jobspec_format(&jb->spec, text, sizeof(text));
-  job_path(jb, "job.spec", path, sizeof(path));
-  if (rc == 0) rc = n < 0 ? ts_error(err, TS_ETOOBIG, "job spec too long") : write_atomic(path, text, (size_t)n, err);
+  rc = write_job_files(jb, client, m, &names, err);
   if (rc != 0) {
     remove_dir(jb->dir);
     unadmit(j, jb);

@@ -1,7 +1,8 @@
 /* jobs.h - the coordinator's job queue and spool.
  *
  * A submitted job gets the next id and a directory SPOOL/jobs/ID holding
- * its spec (job.spec), its reference (ref.EXT), its results and, last, a
+ * its spec (job.spec), its input images (ref.EXT, then NAME.EXT for an
+ * engine's further inputs: spool.h), its results and, last, a
  * `state` file ("done", or "failed: reason"). Everything is written
  * atomically (temporary name, then rename), so a coordinator killed at any
  * moment restarts from a consistent spool: finished jobs are served again,
@@ -48,11 +49,10 @@ int ts_jobs_create(ts_jobs **out, const ts_jobs_opts *o, char *err);
  * resumes from its last checkpoint. */
 void ts_jobs_destroy(ts_jobs *j);
 
-/* Accepts a job from `client` (a fairness key): checks the spec, stores
- * spec and reference, queues it. */
-int ts_jobs_submit(ts_jobs *j, const char *client, const char *spec, size_t spec_len,
-                   const char *ref_name, const uint8_t *ref, size_t ref_len, uint64_t *id,
-                   char *err);
+/* Accepts a job from `client` (a fairness key): checks the spec and that
+ * the inputs are the ones its engine takes, stores spec and inputs,
+ * queues it. */
+int ts_jobs_submit(ts_jobs *j, const char *client, const ts_msg_submit *m, uint64_t *id, char *err);
 /* Status of one job: 0, or TS_ENOENT. *version changes whenever the
  * status does. */
 int ts_jobs_status(ts_jobs *j, uint64_t id, ts_job_status *out, uint64_t *version);

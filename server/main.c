@@ -71,7 +71,7 @@ static int serve_submit(ts_conn *c, const ts_frame *f, const char *client) {
   ts_msg_submit m;
   int rc = ts_msg_submit_read(f, &m, err);
   uint64_t id = 0;
-  if (rc == 0) rc = ts_jobs_submit(g_server.jobs, client, m.spec, m.spec_len, m.ref_name, m.ref, m.ref_len, &id, err);
+  if (rc == 0) rc = ts_jobs_submit(g_server.jobs, client, &m, &id, err);
   if (rc != 0) {
     ts_log("refused a job from %s: %s", c->peer, err);
     return reply_error(c, f->id, rc, err);

@@ -86,6 +86,36 @@ static int read_ref_ext(const ts_spool_file *f, char ext[TS_EXT_LEN], char *why,
   return -1;
 }
 
+/* inputs: for an engine with more than one input, one NAME=EXT line per
+ * input after the first, names and order the engine's for the spec (so
+ * nothing in the file can steer a path); 0, or why it is damaged. */
+static int read_inputs(const ts_spool_file *f, const ts_jobspec *spec, char ext[][TS_EXT_LEN], char *why,
+                       size_t cap) {
+  ts_engine_inputs in;
+  spec->engine->inputs(&spec->params, &in);
+  if (in.n <= 1) return 0;
+  size_t off = 0;
+  int k = 1;
+  for (; f->data != NULL && k < in.n; k++) {
+    const char *nl = off < f->len ? memchr(f->data + off, '\n', f->len - off) : NULL;
+    size_t n = nl ? (size_t)(nl - (f->data + off)) : 0, key = strlen(in.name[k]);
+    if (nl == NULL || n <= key + 1 || n - key - 1 >= TS_EXT_LEN || memcmp(f->data + off, in.name[k], key) != 0 ||
+        f->data[off + key] != '=')
+      break;
+    memcpy(ext[k - 1], f->data + off + key + 1, n - key - 1);
+    ext[k - 1][n - key - 1] = '\0';
+    if (memchr(ext[k - 1], '\0', n - key - 1) != NULL || !ts_ext_valid(ext[k - 1])) break;
+    off += n + 1;
+  }
+  if (k == in.n && off == f->len) return 0;
+  memset(ext, 0, sizeof(char[TS_EXT_LEN]) * (size_t)(in.n - 1));
+  char tail[160];
+  snprintf(tail, sizeof(tail), ", not the %d lines NAME=EXT of the job's further inputs (%s=..., ...)", in.n - 1,
+           in.name[1]);
+  damaged_saying(f, f->len, tail, why, cap);
+  return -1;
+}
+
 /* client: the fairness key, any name a client gave (so only its length and
  * NUL bytes can tell damage); 0, or why it is damaged. */
 static int read_client(const ts_spool_file *f, char client[TS_SPOOL_CLIENT_LEN], char *why, size_t cap) {
@@ -136,9 +166,12 @@ int ts_spool_read_job(const char *dir, const ts_spool_files *f, ts_spool_job *ou
   int ran = f->state.data != NULL || f->state.why != NULL || f->checkpoint;
   if (f->spec.data == NULL && f->spec.why == NULL && !ran)
     return ts_error(err, TS_ENOENT, "%s has no job.spec: a submission cut short before it was acknowledged", dir);
-  char spec_why[TS_ERR_LEN] = "", ref_why[TS_ERR_LEN] = "", why[TS_ERR_LEN];
+  char spec_why[TS_ERR_LEN] = "", ref_why[TS_ERR_LEN] = "", inputs_why[TS_ERR_LEN] = "", why[TS_ERR_LEN];
   out->has_spec = read_spec(&f->spec, &out->spec, spec_why, sizeof(spec_why)) == 0;
   int ref_ok = read_ref_ext(&f->ref_ext, out->ref_ext, ref_why, sizeof(ref_why)) == 0;
+  /* Without a spec there is no telling which inputs the job had. */
+  int inputs_ok = !out->has_spec || read_inputs(&f->inputs, &out->spec, out->more_ext, inputs_why,
+                                                sizeof(inputs_why)) == 0;
   if (read_client(&f->client, out->client, why, sizeof(why)) != 0)
     note_add(out->note, "client in %s is damaged (%s); the job counts as client '%s'", dir, why, out->client);
   int state = read_state(&f->state, out->text, why, sizeof(why));
@@ -152,10 +185,12 @@ int ts_spool_read_job(const char *dir, const ts_spool_files *f, ts_spool_job *ou
              state == TS_JOB_DONE ? "the job's results cannot be served" : "the job cannot run");
   else if (!ref_ok && state == TS_JOB_QUEUED)
     fail_job(out, dir, "ref.ext", ref_why, "the job's reference cannot be found, so the job cannot run");
-  else if (!out->has_spec || !ref_ok) /* a final job: nothing more needs the file */
+  else if (!inputs_ok && state == TS_JOB_QUEUED)
+    fail_job(out, dir, "inputs", inputs_why, "the job's input images cannot be found, so the job cannot run");
+  else if (!out->has_spec || !ref_ok || !inputs_ok) /* a final job: nothing more needs the file */
     note_add(out->note, "%s in %s is damaged (%s); the job was %s already, and stays so",
-             !out->has_spec ? "job.spec" : "ref.ext", dir, !out->has_spec ? spec_why : ref_why,
-             ts_job_state_name(state));
+             !out->has_spec ? "job.spec" : !ref_ok ? "ref.ext" : "inputs", dir,
+             !out->has_spec ? spec_why : !ref_ok ? ref_why : inputs_why, ts_job_state_name(state));
   one_line(out->text);
   one_line(out->note);
   return 0;

@@ -1,13 +1,19 @@
 /* spool.h - what a restarted coordinator makes of a job directory
  * (SPOOL/jobs/ID, see jobs.h) and of SPOOL/last-id.
  *
- * A submission writes the reference, `client`, `ref.ext` and, last,
- * `job.spec`; the job's end writes `state`. So a directory without
- * job.spec (and no sign of having run: a state or a checkpoint) is a
- * submission cut short before it was acknowledged, and goes. Anything else
- * was accepted, and is never dropped: a job whose job.spec or ref.ext is
- * damaged (a disk error, an edit) and that still needs it is kept as
- * failed, with a reason naming the file; a damaged `state` reruns the job
+ * A submission writes its input images, `client`, `ref.ext`, `inputs`
+ * (for an engine with more than one input) and, last, `job.spec`; the
+ * job's end writes `state`. The first input is `ref.EXT`, its extension in
+ * `ref.ext` (the names from before inputs had names); each further input
+ * is `NAME.EXT`, the engine's name for it (engine.h), and `inputs` holds
+ * one `NAME=EXT` line per further input, in the engine's order. So a
+ * directory without job.spec (and no sign of having run: a state or a
+ * checkpoint) is a submission cut short before it was acknowledged, and
+ * goes. Anything else was accepted, and is never dropped: a job whose
+ * job.spec, ref.ext or inputs is damaged (a disk error, an edit) and that
+ * still needs it is kept as failed, with a reason naming the file (an
+ * input image itself is judged when the job runs: one that cannot be read
+ * fails the job, naming it); a damaged `state` reruns the job
  * (synthesis is deterministic, so a job that had finished gives the same
  * bytes again); a damaged `client` only loses the job's fairness key. What
  * was found damaged comes back as a note for the log.
@@ -37,6 +43,7 @@ typedef struct {
 typedef struct {
   ts_spool_file spec, client, ref_ext, state;
   int checkpoint; /* the directory holds a checkpoint: the job ran */
+  ts_spool_file inputs; /* read only for an engine with more than one input */
 } ts_spool_files;
 
 typedef struct {
@@ -45,6 +52,9 @@ typedef struct {
   ts_jobspec spec;
   char client[TS_SPOOL_CLIENT_LEN];
   char ref_ext[TS_EXT_LEN]; /* "" when ref.ext is damaged (then the job does not run) */
+  /* Extensions of inputs 1.. of the spec's engine (more_ext[k - 1] for
+   * input k), from `inputs`; all "" when it is damaged. */
+  char more_ext[TS_ENGINE_MAX_INPUTS - 1][TS_EXT_LEN];
   char text[TS_ERR_LEN];    /* a failed job's reason, one line */
   char note[TS_ERR_LEN];    /* what was found damaged and what became of the job; "" if nothing */
 } ts_spool_job;

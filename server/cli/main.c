@@ -3,6 +3,7 @@
  *   texsyn synth ...     synthesise a texture (embedded: in-process engine
  *                        and local scan threads; `run` is an alias), or
  *                        submit it to a coordinator with --server
+ *   texsyn stylize ...   paint a target in an exemplar's style (stylize.c)
  *   texsyn status|watch|fetch|cancel|workers   manage jobs on a coordinator
  *   texsyn quality ...   neighbourhood error of an image against a reference
  *   texsyn shuffle ...   random block shuffle baseline
@@ -18,6 +19,7 @@
 #include <unistd.h>
 
 #include "client.h"
+#include "jobcmd.h"
 #include "error.h"
 #include "util.h"
 #include "image.h"
@@ -28,9 +30,9 @@
 #include "mrf.h"
 #include "outputs.h"
 #include "quality.h"
+#include "stylize.h"
 #include "search.h"
 
-#define DEFAULT_THREADS 2
 
 static void usage_synth(FILE *f) {
   fprintf(f,
@@ -43,7 +45,6 @@ static void usage_synth(FILE *f) {
           "lowest index), so a job and seed give the same bytes on any machine.\n"
           "\n"
           "  --ref IMG            reference texture (PNG, JPEG, TIFF, OpenEXR, ...)\n"
-          "  -o, --output OUT     output image; format from the extension\n"
           "  --size WxH           output size in pixels (any size, >= 1)\n"
           "  --levels L           pyramid levels, 1..%d (default 5)\n"
           "  --wn N               neighbourhood width, odd, > --wb, <= 41 (default 7)\n"
@@ -62,45 +63,41 @@ static void usage_synth(FILE *f) {
           "                       better joins and seam, ~1/10 of level 0's time per sweep\n"
           "  --seed S             noise initialisation seed, 0..2^64-1 (default 1)\n"
           "  --rgb-search         search on the colour channels instead of luminance\n"
-          "  --threads T          scan threads, 1..1024 (default %d)\n"
           "  --copy-map F         copy map as an image (red = source x, green = source y)\n"
           "  --copy-map-raw F     copy map as raw little-endian uint32 (x, y) per pixel\n"
           "  --usage-map F        usage map: counts per reference pixel (.tif/.exr as\n"
           "                       float counts; other formats normalised to the maximum)\n"
-          "  --report F           JSON report: parameters, timings, statistics\n"
-          "  --max-pixels N       refuse inputs and outputs above N pixels (default %llu)\n"
           "  --stop-level N       stop after pyramid level N and write its luminance at\n"
           "                       that level's size: a quick preview (default 0 = full)\n"
-          "  --quiet              no progress bar\n"
-          "  --server HOST:PORT   run the job on a texsyn-server (and its workers) instead\n"
-          "                       of in-process; same options, same output bytes\n"
-          "                       (default: $TEXSYN_SERVER if set, else in-process)\n"
-          "  --embedded           run in-process even if $TEXSYN_SERVER is set\n"
-          "  --detach             with --server: print the job id and return at once\n"
-          "                       (then texsyn watch/fetch ID)\n"
-          "  --secret-file PATH   with --server: the shared secret the coordinator\n"
-          "                       requires (default: $TEXSYN_SECRET_FILE if set)\n"
+          "%s"
           "\n"
           "TEXSYN_SIMD=scalar|mmx|sse2|avx2|avx512 forces a kernel variant.\n",
-          TS_MRF_MAX_LEVELS, DEFAULT_THREADS, (unsigned long long)TS_IMAGE_DEFAULT_MAX_PIXELS);
+          TS_MRF_MAX_LEVELS, ts_job_options_help);
 }
 
-/* ---- argument parsing helpers ----------------------------------------- */
+/* ---- synth ------------------------------------------------------------- */
 
-/* The shared parsers (util.h), with the option named in the message. */
-static int parse_long(const char *opt, const char *s, long lo, long hi, long *out, char *err) {
-  if (ts_parse_long(s, lo, hi, out) != 0)
-    return ts_error(err, TS_EINVAL, "%s %s: need a whole number in %ld..%ld", opt, s, lo, hi);
-  return 0;
-}
+enum {
+  OPT_REF = TS_OPT_OWN, OPT_SIZE, OPT_LEVELS, OPT_WN, OPT_WB, OPT_PARITY, OPT_USAGE, OPT_COARSE,
+  OPT_SEED, OPT_RGB, OPT_COPY, OPT_COPY_RAW, OPT_USAGE_MAP, OPT_STOP, OPT_REFINE, OPT_IMAGE, OPT_SAMPLES,
+  OPT_BLOCK, OPT_NNF
+};
 
-static int parse_u64(const char *opt, const char *s, uint64_t *out, char *err) {
-  if (ts_parse_u64(s, out) != 0) return ts_error(err, TS_EINVAL, "%s %s: need a whole number >= 0", opt, s);
-  return 0;
-}
+/* The options that name a side output's path, by the output's spec key
+ * (-o and --report are every job's). */
+static const struct {
+  int opt;
+  const char *key;
+} output_opts[] = {{OPT_COPY, "copy_map"}, {OPT_COPY_RAW, "copy_map_raw"}, {OPT_USAGE_MAP, "usage_map"},
+                   {OPT_NNF, "nnf"}};
 
-static int parse_double(const char *opt, const char *s, double *out, char *err) {
-  if (ts_parse_double(s, out) != 0) return ts_error(err, TS_EINVAL, "%s %s: need a number", opt, s);
+/* Records a side output option's path; 0 if c is no such option. */
+static int output_option(ts_output_paths *t, int c, const char *path) {
+  for (size_t i = 0; i < sizeof(output_opts) / sizeof(output_opts[0]); i++) {
+    if (output_opts[i].opt != c) continue;
+    ts_output_set(t, output_opts[i].key, path);
+    return 1;
+  }
   return 0;
 }
 
@@ -111,79 +108,8 @@ static int parse_size(const char *s, int *w, int *h, char *err) {
   return 0;
 }
 
-/* ---- progress bar ------------------------------------------------------ */
-
-typedef struct {
-  int enabled;
-  double start, last;
-} progress_bar;
-
-
-static void progress_draw(void *ctx, const ts_progress *p) {
-  progress_bar *pb = ctx;
-  double t = ts_now();
-  int level_done = p->done == p->total;
-  if (!pb->enabled || (t - pb->last < 0.1 && !level_done)) return;
-  pb->last = t;
-  double frac = p->work_total > 0 ? p->work_done / p->work_total : 1.0;
-  double eta = frac > 0.001 ? (t - pb->start) * (1.0 - frac) / frac : 0.0;
-  int pct = p->total ? (int)(100 * p->done / p->total) : 100;
-  char bar[31];
-  int fill = (int)(frac * 30);
-  for (int i = 0; i < 30; i++) bar[i] = i < fill ? '#' : '.';
-  bar[30] = '\0';
-  fprintf(stderr, "\rlevel %d (%d of %d) %3d%% of blocks [%s] ETA %5.1fs ", p->level,
-          p->levels - p->level, p->levels, pct, bar, eta);
-  fflush(stderr);
-}
-
-/* ---- synth ------------------------------------------------------------- */
-
-/* Local paths of a job's outputs, by output index of its engine (NULL:
- * not wanted); [0] is -o, the result image. */
-typedef struct {
-  const char *path[TS_ENGINE_MAX_OUTPUTS];
-} output_paths;
-
-typedef struct {
-  ts_mrf_params p;
-  const char *ref, *server, *secret_file;
-  output_paths out; /* -o and the side outputs' paths */
-  int threads, quiet, have_size, detach, embedded;
-} synth_opts;
-
-enum {
-  OPT_REF = 256, OPT_SIZE, OPT_LEVELS, OPT_WN, OPT_WB, OPT_PARITY, OPT_USAGE, OPT_COARSE,
-  OPT_SEED, OPT_RGB, OPT_THREADS, OPT_COPY, OPT_COPY_RAW, OPT_USAGE_MAP, OPT_REPORT,
-  OPT_MAXPIX, OPT_STOP, OPT_REFINE, OPT_QUIET, OPT_HELP, OPT_IMAGE, OPT_SAMPLES, OPT_BLOCK,
-  OPT_SERVER, OPT_DETACH, OPT_EMBEDDED, OPT_SECRET
-};
-
-/* The options that name an output's path, by the output's spec key. */
-static const struct {
-  int opt;
-  const char *key;
-} output_opts[] = {{'o', "output"},
-                   {OPT_COPY, "copy_map"},
-                   {OPT_COPY_RAW, "copy_map_raw"},
-                   {OPT_USAGE_MAP, "usage_map"},
-                   {OPT_REPORT, "report"}};
-
-/* Records an output option's path; 0 if c is no output option. */
-static int output_option(output_paths *t, int c, const char *path) {
-  for (size_t i = 0; i < sizeof(output_opts) / sizeof(output_opts[0]); i++) {
-    if (output_opts[i].opt != c) continue;
-    int k = ts_engine_output_index(ts_engine_default(), output_opts[i].key);
-    if (k < 0) return 0;
-    t->path[k] = path;
-    return 1;
-  }
-  return 0;
-}
-
 static const struct option synth_longopts[] = {
     {"ref", required_argument, 0, OPT_REF},
-    {"output", required_argument, 0, 'o'},
     {"size", required_argument, 0, OPT_SIZE},
     {"levels", required_argument, 0, OPT_LEVELS},
     {"wn", required_argument, 0, OPT_WN},
@@ -193,67 +119,52 @@ static const struct option synth_longopts[] = {
     {"coarse-weight", required_argument, 0, OPT_COARSE},
     {"seed", required_argument, 0, OPT_SEED},
     {"rgb-search", no_argument, 0, OPT_RGB},
-    {"threads", required_argument, 0, OPT_THREADS},
     {"copy-map", required_argument, 0, OPT_COPY},
     {"copy-map-raw", required_argument, 0, OPT_COPY_RAW},
     {"usage-map", required_argument, 0, OPT_USAGE_MAP},
-    {"report", required_argument, 0, OPT_REPORT},
-    {"max-pixels", required_argument, 0, OPT_MAXPIX},
     {"stop-level", required_argument, 0, OPT_STOP},
     {"refine", required_argument, 0, OPT_REFINE},
-    {"quiet", no_argument, 0, OPT_QUIET},
-    {"server", required_argument, 0, OPT_SERVER},
-    {"detach", no_argument, 0, OPT_DETACH},
-    {"embedded", no_argument, 0, OPT_EMBEDDED},
-    {"secret-file", required_argument, 0, OPT_SECRET},
-    {"help", no_argument, 0, OPT_HELP},
+    TS_JOB_LONGOPTS,
     {0, 0, 0, 0}};
 
+typedef struct {
+  ts_job_cmd job;
+  int have_size;
+} synth_opts;
+
 static int synth_option(synth_opts *o, int c, const char *arg, char *err) {
+  ts_mrf_params *p = (ts_mrf_params *)o->job.spec.params.bytes;
   long v;
   int rc = 0;
   switch (c) {
-  case OPT_REF: o->ref = arg; break;
-  case OPT_SIZE: rc = parse_size(arg, &o->p.width, &o->p.height, err); o->have_size = 1; break;
-  case OPT_LEVELS: rc = parse_long("--levels", arg, -1000, 1000, &v, err); o->p.levels = (int)v; break;
-  case OPT_WN: rc = parse_long("--wn", arg, -1000, 1000, &v, err); o->p.wn = (int)v; break;
-  case OPT_WB: rc = parse_long("--wb", arg, -1000, 1000, &v, err); o->p.wb = (int)v; break;
-  case OPT_PARITY: o->p.parity = 1; break;
-  case OPT_USAGE: rc = parse_double("--usage-weight", arg, &o->p.usage_weight, err); break;
-  case OPT_COARSE: rc = parse_double("--coarse-weight", arg, &o->p.coarse_weight, err); break;
-  case OPT_SEED: rc = parse_u64("--seed", arg, &o->p.seed, err); break;
-  case OPT_RGB: o->p.rgb_search = 1; break;
-  case OPT_THREADS: rc = parse_long("--threads", arg, 1, 1024, &v, err); o->threads = (int)v; break;
-  case OPT_MAXPIX: rc = parse_u64("--max-pixels", arg, &o->p.max_pixels, err); break;
-  case OPT_STOP: rc = parse_long("--stop-level", arg, -1000, 1000, &v, err); o->p.stop_level = (int)v; break;
-  case OPT_REFINE: rc = parse_long("--refine", arg, -1000, 1000, &v, err); o->p.refine = (int)v; break;
-  case OPT_QUIET: o->quiet = 1; break;
-  case OPT_SERVER: o->server = arg; break;
-  case OPT_DETACH: o->detach = 1; break;
-  case OPT_EMBEDDED: o->embedded = 1; break;
-  case OPT_SECRET: o->secret_file = arg; break;
+  case OPT_REF: o->job.in[0] = arg; break;
+  case OPT_SIZE: rc = parse_size(arg, &p->width, &p->height, err); o->have_size = 1; break;
+  case OPT_LEVELS: rc = ts_arg_long("--levels", arg, -1000, 1000, &v, err); p->levels = (int)v; break;
+  case OPT_WN: rc = ts_arg_long("--wn", arg, -1000, 1000, &v, err); p->wn = (int)v; break;
+  case OPT_WB: rc = ts_arg_long("--wb", arg, -1000, 1000, &v, err); p->wb = (int)v; break;
+  case OPT_PARITY: p->parity = 1; break;
+  case OPT_USAGE: rc = ts_arg_double("--usage-weight", arg, &p->usage_weight, err); break;
+  case OPT_COARSE: rc = ts_arg_double("--coarse-weight", arg, &p->coarse_weight, err); break;
+  case OPT_SEED: rc = ts_arg_u64("--seed", arg, &p->seed, err); break;
+  case OPT_RGB: p->rgb_search = 1; break;
+  case OPT_STOP: rc = ts_arg_long("--stop-level", arg, -1000, 1000, &v, err); p->stop_level = (int)v; break;
+  case OPT_REFINE: rc = ts_arg_long("--refine", arg, -1000, 1000, &v, err); p->refine = (int)v; break;
   default:
-    if (!output_option(&o->out, c, arg)) rc = ts_error(err, TS_EINVAL, "unknown option (see texsyn synth --help)");
+    rc = ts_job_option(&o->job, c, arg, err);
+    if (rc == TS_ENOENT && output_option(&o->job.out, c, arg)) rc = 0;
+    if (rc == TS_ENOENT) rc = ts_error(err, TS_EINVAL, "unknown option (see texsyn synth --help)");
   }
   return rc;
 }
 
-/* The coordinator from $TEXSYN_SERVER (as left by deploy/local-cluster.sh),
- * or NULL when it is unset or empty. */
-static const char *env_server(void) {
-  const char *s = getenv("TEXSYN_SERVER");
-  return s != NULL && s[0] != '\0' ? s : NULL;
-}
-
 static int synth_parse(int argc, char **argv, synth_opts *o, char *err) {
   memset(o, 0, sizeof(*o));
-  ts_mrf_params_default(&o->p);
-  o->threads = DEFAULT_THREADS;
+  ts_job_cmd_init(&o->job, "synth", ts_engine_find("mrf"));
   optind = 1;
   opterr = 0;
   int c;
   while ((c = getopt_long(argc, argv, "o:h", synth_longopts, NULL)) != -1) {
-    if (c == OPT_HELP || c == 'h') {
+    if (c == TS_OPT_HELP || c == 'h') {
       usage_synth(stdout);
       exit(0);
     }
@@ -264,263 +175,24 @@ static int synth_parse(int argc, char **argv, synth_opts *o, char *err) {
     if (rc != 0) return rc;
   }
   if (optind < argc) return ts_error(err, TS_EINVAL, "unexpected argument '%s'", argv[optind]);
-  if (o->server != NULL && o->embedded) return ts_error(err, TS_EINVAL, "--server and --embedded exclude each other");
-  if (o->server == NULL && !o->embedded) o->server = env_server();
-  if (o->ref == NULL) return ts_error(err, TS_EINVAL, "--ref IMG is required (see texsyn synth --help)");
-  if (o->out.path[0] == NULL) return ts_error(err, TS_EINVAL, "-o OUT is required (see texsyn synth --help)");
+  if (o->job.in[0] == NULL) return ts_error(err, TS_EINVAL, "--ref IMG is required (see texsyn synth --help)");
+  int rc = ts_job_parse_end(&o->job, err);
+  if (rc != 0) return rc;
   if (!o->have_size) return ts_error(err, TS_EINVAL, "--size WxH is required (see texsyn synth --help)");
-  if (o->detach && o->server == NULL) return ts_error(err, TS_EINVAL, "--detach needs --server");
-  if (o->server != NULL && o->p.stop_level != 0)
+  const ts_mrf_params *p = (const ts_mrf_params *)o->job.spec.params.bytes;
+  if (o->job.server != NULL && p->stop_level != 0)
     return ts_error(err, TS_EINVAL, "--stop-level previews run embedded only (add --embedded)");
   return 0;
-}
-
-/* Whether the file path names can be written: a probe file made beside it
- * and removed at once (permissions alone do not tell: root, read-only
- * mounts). Checked before the job runs, so a wrong -o costs no synthesis. */
-static int check_writable(const char *path, char *err) {
-  struct stat st;
-  if (stat(path, &st) == 0 && S_ISDIR(st.st_mode))
-    return ts_error(err, TS_EINVAL, "cannot write %s: it is a directory; name a file in it", path);
-  char probe[4096];
-  int n = snprintf(probe, sizeof(probe), "%s.probe-XXXXXX", path);
-  if (n < 0 || (size_t)n >= sizeof(probe)) return ts_error(err, TS_EINVAL, "%s: path too long", path);
-  int fd = mkstemp(probe);
-  if (fd < 0)
-    return ts_error(err, TS_EIO, "cannot write %s: %s (found before the job ran; nothing was done)", path,
-                    strerror(errno));
-  close(fd);
-  unlink(probe);
-  return 0;
-}
-
-/* Every output path of a synth command is writable. */
-static int check_outputs(const synth_opts *o, char *err) {
-  for (int k = 0; k < TS_ENGINE_MAX_OUTPUTS; k++)
-    if (o->out.path[k] != NULL && check_writable(o->out.path[k], err) != 0) return TS_EIO;
-  return 0;
-}
-
-/* Every output given a path, from a finished run. */
-static int write_outputs(const synth_opts *o, const ts_engine_run *run, char *err) {
-  const ts_engine *e = ts_engine_default();
-  int rc = 0;
-  for (int k = 0; rc == 0 && k < e->noutputs; k++)
-    if (o->out.path[k] != NULL) rc = e->write_output(run, k, o->out.path[k], o->threads, err);
-  return rc;
-}
-
-/* ---- the job plane: texsyn synth --server and job commands ---------------- */
-
-/* Writes bytes to path atomically. */
-static int write_bytes(const char *path, const uint8_t *data, size_t len, char *err) {
-  char tmp[4096];
-  snprintf(tmp, sizeof(tmp), "%s.tmp-%ld", path, (long)getpid());
-  FILE *f = fopen(tmp, "wb");
-  if (f == NULL) return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
-  size_t n = len ? fwrite(data, 1, len, f) : 0;
-  if (fclose(f) != 0 || n != len || rename(tmp, path) != 0) {
-    unlink(tmp);
-    return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
-  }
-  return 0;
-}
-
-/* A reference to submit: at most what one frame carries. */
-static uint8_t *slurp(const char *path, uint32_t *len, char *err) {
-  uint8_t *buf;
-  size_t n;
-  int rc = ts_file_read(path, TS_FRAME_DEFAULT_MAX - 8192, &buf, &n, err);
-  if (rc == TS_ETOOBIG)
-    ts_error(err, rc, "%s: cannot send a reference of %zu bytes (limit %u)", path, n, TS_FRAME_DEFAULT_MAX - 8192);
-  *len = (uint32_t)n;
-  return rc == 0 ? buf : NULL;
-}
-
-/* Connects to a coordinator with the shared secret from --secret-file
- * (path), else $TEXSYN_SECRET_FILE, else none. */
-static int connect_server(ts_conn *c, const char *addr, const char *path, char *err) {
-  if (path == NULL) path = getenv("TEXSYN_SECRET_FILE");
-  ts_auth auth = {0};
-  int rc = path != NULL && path[0] != '\0' ? ts_auth_load(&auth, path, err) : 0;
-  if (rc == 0) rc = ts_client_connect(c, addr, &auth, err);
-  ts_auth_clear(&auth);
-  return rc;
-}
-
-static int fetch_job(ts_conn *c, uint64_t id, const output_paths *t, char *err) {
-  ts_wr w;
-  ts_wr_init(&w);
-  ts_msg_jobid_write(&w, id);
-  ts_frame f;
-  int rc = ts_client_call(c, TS_MSG_FETCH, &w, 600000, &f, err);
-  ts_wr_free(&w);
-  ts_msg_files m;
-  if (rc == 0) rc = ts_msg_files_read(&f, &m, err);
-  for (uint32_t i = 0; rc == 0 && i < m.n; i++) {
-    int k = ts_engine_output_of_file(ts_engine_default(), m.name[i]);
-    const char *path = k >= 0 ? t->path[k] : NULL;
-    if (path != NULL) rc = write_bytes(path, m.data[i], m.len[i], err);
-  }
-  return rc;
-}
-
-static void remote_progress(const ts_job_status *s, double start) {
-  char bar[31];
-  int fill = s->permille * 30 / 1000;
-  for (int i = 0; i < 30; i++) bar[i] = i < fill ? '#' : '.';
-  bar[30] = '\0';
-  if (s->state == TS_JOB_QUEUED) {
-    fprintf(stderr, "\rjob %llu queued (%.0fs) ", (unsigned long long)s->id, ts_now() - start);
-  } else {
-    char eta[32] = "  ?";
-    if (s->eta_ms != UINT32_MAX) snprintf(eta, sizeof(eta), "%5.1fs", s->eta_ms / 1000.0);
-    fprintf(stderr, "\rjob %llu level %d of %d %5.1f%% [%s] ETA %s, %u worker%s ", (unsigned long long)s->id,
-            s->levels - s->level, s->levels, s->permille / 10.0, bar, eta, s->workers, s->workers == 1 ? "" : "s");
-  }
-  fflush(stderr);
-}
-
-/* Follows a job until it ends; its final status in *last. */
-static int watch_job(ts_conn *c, uint64_t id, int show, ts_job_status *last, char *err) {
-  ts_wr w;
-  ts_wr_init(&w);
-  ts_msg_status_req req = {id, 1};
-  ts_msg_status_req_write(&w, &req);
-  int rc = ts_wr_status(&w) ? TS_ENOMEM : ts_net_send(c->fd, TS_MSG_STATUS, 1, w.buf, w.len, err);
-  ts_wr_free(&w);
-  double start = ts_now();
-  while (rc == 0) {
-    ts_frame f;
-    uint32_t n;
-    rc = ts_client_next(c, TS_MSG_STATUS, -1, &f, err);
-    if (rc == 0) rc = ts_msg_status_read(&f, last, 1, &n, err);
-    if (rc == 0 && n != 1) rc = ts_error(err, TS_EPROTO, "empty status update");
-    if (rc != 0) break;
-    if (show) remote_progress(last, start);
-    if (last->state > TS_JOB_RUNNING) break;
-  }
-  if (show) fputc('\n', stderr);
-  return rc;
-}
-
-/* The job spec of a synth command: its parameters and, for every output
- * given a path, the format its extension names. */
-static int synth_spec(const synth_opts *o, ts_jobspec *js, char *err) {
-  ts_jobspec_default(js, ts_engine_default());
-  memcpy(js->params.bytes, &o->p, sizeof(o->p));
-  const ts_engine *e = js->engine;
-  for (int k = 0; k < e->noutputs; k++) {
-    const char *path = o->out.path[k];
-    if (path == NULL) js->wants.want[k][0] = '\0';
-    else if (e->outputs[k].kind == TS_OUTPUT_FLAG) snprintf(js->wants.want[k], TS_EXT_LEN, "1");
-    else if (!ts_ext_valid(ts_path_ext(path)))
-      return ts_error(err, TS_EINVAL, "%s: needs an extension (.png, .tif, .exr, ...)", path);
-    else snprintf(js->wants.want[k], TS_EXT_LEN, "%s", ts_path_ext(path));
-  }
-  return 0;
-}
-
-static int submit_job(ts_conn *c, const synth_opts *o, uint64_t *id, char *err) {
-  ts_jobspec js;
-  int rc = synth_spec(o, &js, err);
-  if (rc != 0) return rc;
-  char spec[TS_SPEC_MAX];
-  int n = ts_jobspec_format(&js, spec, sizeof(spec));
-  if (n < 0) return ts_error(err, TS_ETOOBIG, "job spec too long");
-  uint32_t len;
-  uint8_t *ref = slurp(o->ref, &len, err);
-  if (ref == NULL) return TS_EIO;
-  ts_msg_submit m = {spec, (uint32_t)n, "", ref, len};
-  const char *slash = strrchr(o->ref, '/');
-  snprintf(m.ref_name, sizeof(m.ref_name), "%s", slash ? slash + 1 : o->ref);
-  ts_wr w;
-  ts_wr_init(&w);
-  ts_msg_submit_write(&w, &m);
-  free(ref);
-  ts_frame f;
-  rc = ts_client_call(c, TS_MSG_SUBMIT, &w, 60000, &f, err);
-  ts_wr_free(&w);
-  if (rc == 0) rc = ts_msg_jobid_read(&f, id, err);
-  return rc;
-}
-
-static int remote_synth(const synth_opts *o) {
-  char err[TS_ERR_LEN] = "";
-  ts_conn c;
-  uint64_t id = 0;
-  int rc = connect_server(&c, o->server, o->secret_file, err);
-  if (rc != 0) {
-    fprintf(stderr, "texsyn synth: %s\n(no job was submitted: is texsyn-server running at %s%s? --embedded runs here)\n",
-            err, o->server, o->server == env_server() ? ", from $TEXSYN_SERVER" : "");
-    return 1;
-  }
-  rc = submit_job(&c, o, &id, err);
-  ts_job_status st = {0};
-  if (rc == 0 && o->detach) {
-    printf("%llu\n", (unsigned long long)id);
-  } else if (rc == 0) {
-    rc = watch_job(&c, id, !o->quiet && isatty(STDERR_FILENO), &st, err);
-    if (rc == 0 && st.state != TS_JOB_DONE)
-      rc = ts_error(err, TS_EINVAL, "job %llu %s%s%s", (unsigned long long)id, ts_job_state_name(st.state),
-                    st.text[0] ? ": " : "", st.text);
-    if (rc == 0) rc = fetch_job(&c, id, &o->out, err);
-    if (rc == 0 && !o->quiet) fprintf(stderr, "texsyn: %s %dx%d (job %llu on %s)\n", o->out.path[0], o->p.width, o->p.height,
-                                      (unsigned long long)id, o->server);
-  }
-  if (rc != 0) fprintf(stderr, "texsyn synth: %s\n", err);
-  ts_conn_close(&c);
-  return rc == 0 ? 0 : 1;
 }
 
 static int cmd_synth(int argc, char **argv) {
   char err[TS_ERR_LEN] = "";
   synth_opts o;
-  int rc = synth_parse(argc, argv, &o, err);
-  if (rc != 0) {
+  if (synth_parse(argc, argv, &o, err) != 0) {
     fprintf(stderr, "texsyn synth: %s\n", err);
     return 2;
   }
-  if (!o.detach && check_outputs(&o, err) != 0) {
-    fprintf(stderr, "texsyn synth: %s\n", err);
-    return 1;
-  }
-  ts_image_limits limits = {o.p.max_pixels};
-  ts_image ref = {0};
-  rc = ts_image_read(o.ref, &ref, &limits, err);
-  if (rc != 0) {
-    fprintf(stderr, "texsyn synth: %s\n", err);
-    return 1;
-  }
-  const ts_engine *e = ts_engine_default();
-  char msg[2048];
-  if (e->check(&o.p, &ref, msg, sizeof(msg)) != 0) {
-    fprintf(stderr, "texsyn synth: invalid parameters for reference %s (%dx%d):\n%s\n", o.ref,
-            ref.width, ref.height, msg);
-    ts_image_free(&ref);
-    return 2;
-  }
-  if (o.server != NULL) {
-    ts_image_free(&ref);
-    return remote_synth(&o);
-  }
-  ts_search *search = NULL;
-  ts_engine_run *run = NULL;
-  rc = ts_search_local_create(&search, o.threads, NULL, err);
-  progress_bar pb = {!o.quiet && isatty(STDERR_FILENO), ts_now(), 0};
-  ts_engine_hooks hooks = {.progress = progress_draw, .progress_ctx = &pb};
-  double t0 = ts_now();
-  if (rc == 0) rc = e->run(&o.p, &ref, search, &hooks, &run, err);
-  if (pb.enabled) fputc('\n', stderr);
-  if (rc == 0) rc = write_outputs(&o, run, err);
-  if (rc == 0 && !o.quiet)
-    fprintf(stderr, "texsyn: %s %dx%d in %.2fs (%s, %d threads, %.3g comparisons)\n", o.out.path[0], o.p.width,
-            o.p.height, ts_now() - t0, search->simd->name, o.threads, (double)search->stats.pairs);
-  if (rc != 0) fprintf(stderr, "texsyn synth: %s\n", err);
-  e->run_free(run);
-  ts_search_destroy(search);
-  ts_image_free(&ref);
-  return rc == 0 ? 0 : 1;
+  return ts_job_run(&o.job);
 }
 
 /* ---- quality and shuffle ---------------------------------------------- */
@@ -541,7 +213,7 @@ static const struct option eval_longopts[] = {
     {"output", required_argument, 0, 'o'},        {"size", required_argument, 0, OPT_SIZE},
     {"wn", required_argument, 0, OPT_WN},         {"block", required_argument, 0, OPT_BLOCK},
     {"samples", required_argument, 0, OPT_SAMPLES}, {"seed", required_argument, 0, OPT_SEED},
-    {"threads", required_argument, 0, OPT_THREADS}, {"help", no_argument, 0, OPT_HELP},
+    {"threads", required_argument, 0, TS_OPT_THREADS}, {"help", no_argument, 0, TS_OPT_HELP},
     {0, 0, 0, 0}};
 
 typedef struct {
@@ -552,7 +224,7 @@ typedef struct {
 } eval_opts;
 
 static int eval_parse(int argc, char **argv, eval_opts *o, const char *usage, char *err) {
-  *o = (eval_opts){NULL, NULL, NULL, 0, 0, 7, 16, DEFAULT_THREADS, 2000, 1};
+  *o = (eval_opts){NULL, NULL, NULL, 0, 0, 7, 16, TS_DEFAULT_THREADS, 2000, 1};
   optind = 1;
   opterr = 0;
   int c, rc = 0;
@@ -563,12 +235,12 @@ static int eval_parse(int argc, char **argv, eval_opts *o, const char *usage, ch
     case OPT_IMAGE: o->image = optarg; break;
     case 'o': o->out = optarg; break;
     case OPT_SIZE: rc = parse_size(optarg, &o->w, &o->h, err); break;
-    case OPT_WN: rc = parse_long("--wn", optarg, 3, TS_MAX_WN, &v, err); o->wn = (int)(v | 1); break;
-    case OPT_BLOCK: rc = parse_long("--block", optarg, 1, 4096, &v, err); o->block = (int)v; break;
-    case OPT_SAMPLES: rc = parse_long("--samples", optarg, 1, 10000000, &o->samples, err); break;
-    case OPT_SEED: rc = parse_u64("--seed", optarg, &o->seed, err); break;
-    case OPT_THREADS: rc = parse_long("--threads", optarg, 1, 1024, &v, err); o->threads = (int)v; break;
-    case OPT_HELP: case 'h': printf("%s", usage); exit(0);
+    case OPT_WN: rc = ts_arg_long("--wn", optarg, 3, TS_MAX_WN, &v, err); o->wn = (int)(v | 1); break;
+    case OPT_BLOCK: rc = ts_arg_long("--block", optarg, 1, 4096, &v, err); o->block = (int)v; break;
+    case OPT_SAMPLES: rc = ts_arg_long("--samples", optarg, 1, 10000000, &o->samples, err); break;
+    case OPT_SEED: rc = ts_arg_u64("--seed", optarg, &o->seed, err); break;
+    case TS_OPT_THREADS: rc = ts_arg_long("--threads", optarg, 1, 1024, &v, err); o->threads = (int)v; break;
+    case TS_OPT_HELP: case 'h': printf("%s", usage); exit(0);
     default: rc = ts_error(err, TS_EINVAL, "unknown option or missing value\n%s", usage);
     }
   }
@@ -675,34 +347,37 @@ typedef struct {
   const char *server, *secret_file;
   uint64_t id;
   int have_id, quiet;
-  output_paths t;
+  ts_output_paths t;
 } job_opts;
 
 static int job_parse(int argc, char **argv, job_opts *o, char *err) {
   static const struct option longopts[] = {
-      {"server", required_argument, 0, OPT_SERVER},     {"output", required_argument, 0, 'o'},
-      {"copy-map", required_argument, 0, OPT_COPY},     {"copy-map-raw", required_argument, 0, OPT_COPY_RAW},
-      {"usage-map", required_argument, 0, OPT_USAGE_MAP}, {"report", required_argument, 0, OPT_REPORT},
-      {"quiet", no_argument, 0, OPT_QUIET},             {"help", no_argument, 0, OPT_HELP},
-      {"secret-file", required_argument, 0, OPT_SECRET}, {0, 0, 0, 0}};
+      {"server", required_argument, 0, TS_OPT_SERVER},    {"output", required_argument, 0, 'o'},
+      {"copy-map", required_argument, 0, OPT_COPY},       {"copy-map-raw", required_argument, 0, OPT_COPY_RAW},
+      {"usage-map", required_argument, 0, OPT_USAGE_MAP}, {"report", required_argument, 0, TS_OPT_REPORT},
+      {"nnf", required_argument, 0, OPT_NNF},             {"quiet", no_argument, 0, TS_OPT_QUIET},
+      {"help", no_argument, 0, TS_OPT_HELP},              {"secret-file", required_argument, 0, TS_OPT_SECRET},
+      {0, 0, 0, 0}};
   memset(o, 0, sizeof(*o));
-  o->server = env_server() ? env_server() : "127.0.0.1:7070";
+  o->server = ts_env_server() ? ts_env_server() : "127.0.0.1:7070";
   optind = 1;
   opterr = 0;
   int c;
   while ((c = getopt_long(argc, argv, "o:h", longopts, NULL)) != -1) {
     switch (c) {
-    case OPT_SERVER: o->server = optarg; break;
-    case OPT_SECRET: o->secret_file = optarg; break;
-    case OPT_QUIET: o->quiet = 1; break;
-    case OPT_HELP: case 'h': printf("%s", kJobUsage); exit(0);
+    case TS_OPT_SERVER: o->server = optarg; break;
+    case TS_OPT_SECRET: o->secret_file = optarg; break;
+    case TS_OPT_QUIET: o->quiet = 1; break;
+    case TS_OPT_HELP: case 'h': printf("%s", kJobUsage); exit(0);
+    case 'o': ts_output_set(&o->t, "output", optarg); break;
+    case TS_OPT_REPORT: ts_output_set(&o->t, "report", optarg); break;
     default:
       if (!output_option(&o->t, c, optarg))
         return ts_error(err, TS_EINVAL, "%s: unknown option or missing value\n%s", argv[optind - 1], kJobUsage);
     }
   }
   if (optind < argc) {
-    int rc = parse_u64("job id", argv[optind], &o->id, err);
+    int rc = ts_arg_u64("job id", argv[optind], &o->id, err);
     if (rc != 0) return rc;
     if (o->id == 0) return ts_error(err, TS_EINVAL, "job ids start at 1");
     o->have_id = 1;
@@ -770,20 +445,20 @@ static int cmd_job(const char *cmd, int argc, char **argv) {
   int rc = job_parse(argc, argv, &o, err);
   int needs_id = strcmp(cmd, "status") != 0 && strcmp(cmd, "workers") != 0;
   if (rc == 0 && needs_id && !o.have_id) rc = ts_error(err, TS_EINVAL, "%s needs a job id\n%s", cmd, kJobUsage);
-  if (rc == 0 && strcmp(cmd, "fetch") == 0 && o.t.path[0] == NULL) rc = ts_error(err, TS_EINVAL, "fetch needs -o OUT");
+  if (rc == 0 && strcmp(cmd, "fetch") == 0 && ts_output_path(&o.t, "output") == NULL) rc = ts_error(err, TS_EINVAL, "fetch needs -o OUT");
   if (rc != 0) {
     fprintf(stderr, "texsyn %s: %s\n", cmd, err);
     return 2;
   }
   ts_conn c;
-  rc = connect_server(&c, o.server, o.secret_file, err);
+  rc = ts_job_connect(&c, o.server, o.secret_file, err);
   if (rc == 0) {
     ts_job_status st;
     if (strcmp(cmd, "status") == 0) rc = job_status(&c, &o, err);
     else if (strcmp(cmd, "workers") == 0) rc = job_workers(&c, err);
-    else if (strcmp(cmd, "fetch") == 0) rc = fetch_job(&c, o.id, &o.t, err);
+    else if (strcmp(cmd, "fetch") == 0) rc = ts_job_fetch(&c, o.id, &o.t, err);
     else if (strcmp(cmd, "watch") == 0) {
-      rc = watch_job(&c, o.id, !o.quiet && isatty(STDERR_FILENO), &st, err);
+      rc = ts_job_watch(&c, o.id, !o.quiet && isatty(STDERR_FILENO), &st, err);
       if (rc == 0) print_status(&st);
       if (rc == 0 && st.state != TS_JOB_DONE)
         rc = ts_error(err, TS_EINVAL, "job %llu %s", (unsigned long long)o.id, ts_job_state_name(st.state));
@@ -805,6 +480,7 @@ static void usage_main(FILE *f) {
   fprintf(f,
           "usage: texsyn COMMAND [options]   (texsyn COMMAND --help for details)\n"
           "  synth    synthesise a texture from a reference (alias: run)\n"
+          "  stylize  paint a target in the style of an exemplar, guided by image pairs\n"
           "  quality  neighbourhood error of an image against a reference\n"
           "  shuffle  random block shuffle of a reference (a baseline)\n"
           "  simd     list the L1 kernel variants this CPU supports\n"
@@ -825,6 +501,7 @@ int main(int argc, char **argv) {
   }
   const char *cmd = argv[1];
   if (strcmp(cmd, "synth") == 0 || strcmp(cmd, "run") == 0) return cmd_synth(argc - 1, argv + 1);
+  if (strcmp(cmd, "stylize") == 0) return ts_cmd_stylize(argc - 1, argv + 1);
   if (strcmp(cmd, "quality") == 0) return cmd_quality(argc - 1, argv + 1);
   if (strcmp(cmd, "shuffle") == 0) return cmd_shuffle(argc - 1, argv + 1);
   if (strcmp(cmd, "simd") == 0) return cmd_simd();

@@ -5,9 +5,9 @@
 #include <stdio.h>
 #include <string.h>
 
-extern const ts_engine ts_engine_mrf;
+extern const ts_engine ts_engine_mrf, ts_engine_stylize;
 
-static const ts_engine *const registry[] = {&ts_engine_mrf};
+static const ts_engine *const registry[] = {&ts_engine_mrf, &ts_engine_stylize};
 
 const ts_engine *ts_engine_find(const char *name) {
   for (size_t i = 0; i < sizeof(registry) / sizeof(registry[0]); i++)
@@ -29,7 +29,8 @@ void ts_engine_output_file(const ts_engine *e, int k, const ts_engine_wants *w, 
   else snprintf(out, cap, "%s", o->file);
 }
 
-int ts_engine_output_of_file(const ts_engine *e, const char *name) {
+/* The output of e a fetched file name belongs to, or -1. */
+static int output_of_file(const ts_engine *e, const char *name) {
   /* Exact names first: "copymap.raw" is no copy map image in raw format. */
   for (int k = 0; k < e->noutputs; k++)
     if (e->outputs[k].kind == TS_OUTPUT_FLAG && strcmp(e->outputs[k].file, name) == 0) return k;
@@ -39,4 +40,12 @@ int ts_engine_output_of_file(const ts_engine *e, const char *name) {
       return k;
   }
   return -1;
+}
+
+const char *ts_engine_output_key_of_file(const char *name) {
+  for (size_t i = 0; i < sizeof(registry) / sizeof(registry[0]); i++) {
+    int k = output_of_file(registry[i], name);
+    if (k >= 0) return registry[i]->outputs[k].key;
+  }
+  return NULL;
 }

@@ -9,8 +9,11 @@
  * wire or the CLI: the same code runs embedded and on a cluster.
  *
  * An engine's parameters are its own struct, stored in a ts_engine_params
- * buffer; it reads and writes them as `key=value` spec lines. Its results
- * are named files (ts_engine_output): the spec asks for each by key, the
+ * buffer; it reads and writes them as `key=value` spec lines. Its inputs
+ * are named images (ts_engine_inputs): which ones a job takes follows from
+ * its parameters (a stylization's guide count), the client sends them
+ * under those names, the spool keeps them under them. Its results are
+ * named files (ts_engine_output): the spec asks for each by key, the
  * spool keeps them under their file names, the CLI writes them to paths. */
 #ifndef TS_ENGINE_H
 #define TS_ENGINE_H
@@ -24,6 +27,8 @@
 
 #define TS_ENGINE_PARAMS_MAX 512 /* bytes of any engine's parameter struct */
 #define TS_ENGINE_MAX_OUTPUTS 8
+#define TS_ENGINE_MAX_INPUTS 33 /* a style and 16 guide pairs */
+#define TS_ENGINE_KEY_LEN 32    /* an input name's bytes, NUL included */
 #define TS_EXT_LEN 16
 /* Largest output width or height a spec (and the command line) takes. */
 #define TS_OUTPUT_SIDE_MAX 1000000
@@ -44,6 +49,14 @@ typedef struct {
   const char *file; /* spool file: stem ("copymap") or name ("report.json") */
   ts_output_kind kind;
 } ts_engine_output;
+
+/* The input images of a job, in the order run and check receive them.
+ * Names are 1..31 lower-case letters, digits and '_' (they name files in
+ * the spool); input 0 is the one every job has (mrf: "ref"). */
+typedef struct {
+  int n;
+  char name[TS_ENGINE_MAX_INPUTS][TS_ENGINE_KEY_LEN];
+} ts_engine_inputs;
 
 /* Which outputs a job wants: per output of the engine, the extension
  * (IMAGE) or "1" (FLAG); "" = not wanted. Output 0 is the result image
@@ -95,19 +108,22 @@ typedef struct ts_engine {
   int (*spec_complete)(const void *params, char *err);
   /* Appends its keys as `key=value\n` lines; the length, or TS_ETOOBIG. */
   int (*spec_format)(const void *params, char *buf, size_t cap);
-  /* Checks parameters against a reference: 0, or TS_EINVAL with every
-   * problem listed in msg, one per line. */
-  int (*check)(const void *params, const ts_image *ref, char *msg, size_t len);
+  /* The inputs a job with these parameters takes. */
+  void (*inputs)(const void *params, ts_engine_inputs *out);
+  /* Checks parameters against the inputs (in[k] is input k of `inputs`):
+   * 0, or TS_EINVAL with every problem listed in msg, one per line. */
+  int (*check)(const void *params, const ts_image *const *in, char *msg, size_t len);
   /* Applies a daemon's pixel limit to the parameters. */
   void (*set_max_pixels)(void *params, uint64_t max_pixels);
   /* Bytes the wanted outputs and the checkpoints may take (the spool's
-   * disk reserve). */
-  uint64_t (*result_bytes)(const void *params, const ts_engine_wants *w);
+   * disk reserve), given the inputs' headers (in[k] is input k's). */
+  uint64_t (*result_bytes)(const void *params, const ts_engine_wants *w, const ts_image_info *in);
   /* Pyramid levels the job goes through (for its status). */
   int (*levels)(const void *params);
-  /* Runs the job: *out is the run's state, results included, to write
-   * outputs from and free with run_free (on failure too). */
-  int (*run)(const void *params, const ts_image *ref, ts_search *search, const ts_engine_hooks *hooks,
+  /* Runs the job on its inputs (alive until run_free): *out is the run's
+   * state, results included, to write outputs from and free with run_free
+   * (on failure too). */
+  int (*run)(const void *params, const ts_image *const *in, ts_search *search, const ts_engine_hooks *hooks,
              ts_engine_run **out, char *err);
   /* Writes output k of a finished run to path (threads: for the report). */
   int (*write_output)(const ts_engine_run *run, int k, const char *path, int threads, char *err);
@@ -121,9 +137,11 @@ const ts_engine *ts_engine_find(const char *name);
 const ts_engine *ts_engine_default(void);
 /* Index of the output whose spec key is `key`, or -1. */
 int ts_engine_output_index(const ts_engine *e, const char *key);
-/* The output a fetched file name belongs to ("copymap.png": the copy
- * map), or -1. */
-int ts_engine_output_of_file(const ts_engine *e, const char *name);
+/* The spec key of the output a fetched file name is ("copymap.png":
+ * "copy_map"), in whichever engine makes it, or NULL. Engines that make
+ * the same file give it the same key, so a client can place a job's files
+ * without knowing its engine. */
+const char *ts_engine_output_key_of_file(const char *name);
 /* The spool file name of output k as wanted ("out.png", "report.json"). */
 void ts_engine_output_file(const ts_engine *e, int k, const ts_engine_wants *w, char *out, size_t cap);
 

@@ -74,8 +74,15 @@ void ts_mrf_params_default(ts_mrf_params *p) {
 
 static void mrf_params_default(void *params) { ts_mrf_params_default(params); }
 
-static int mrf_check(const void *params, const ts_image *ref, char *msg, size_t len) {
-  return ts_mrf_check(params, ref->width, ref->height, ref->channels, msg, len);
+/* One input: the reference texture. */
+static void mrf_inputs(const void *params, ts_engine_inputs *out) {
+  (void)params;
+  out->n = 1;
+  snprintf(out->name[0], sizeof(out->name[0]), "ref");
+}
+
+static int mrf_check(const void *params, const ts_image *const *in, char *msg, size_t len) {
+  return ts_mrf_check(params, in[0]->width, in[0]->height, in[0]->channels, msg, len);
 }
 
 static void mrf_set_max_pixels(void *params, uint64_t max_pixels) {
@@ -86,8 +93,9 @@ static void mrf_set_max_pixels(void *params, uint64_t max_pixels) {
  * maps (8 bytes each), and a checkpoint inside the finest level (its copy
  * map, placed blocks, canvas planes and a quarter of them for the level
  * above: 10.25 or 12.75 bytes) twice, while the next one replaces it. */
-static uint64_t mrf_result_bytes(const void *params, const ts_engine_wants *w) {
+static uint64_t mrf_result_bytes(const void *params, const ts_engine_wants *w, const ts_image_info *in) {
   const ts_mrf_params *p = params;
+  (void)in; /* the output's size is a parameter */
   uint64_t checkpoint = p->rgb_search ? 13 : 11;
   uint64_t per_px = 8 + 3 + (w->want[OUT_COPY_MAP][0] ? 8 : 0) + (w->want[OUT_COPY_MAP_RAW][0] ? 8 : 0) +
                     2 * checkpoint;
@@ -159,8 +167,9 @@ static int decode_resume(const ts_mrf_params *p, const ts_engine_hooks *h, ts_mr
   return 1;
 }
 
-static int mrf_run(const void *params, const ts_image *ref, ts_search *search, const ts_engine_hooks *h,
+static int mrf_run(const void *params, const ts_image *const *in, ts_search *search, const ts_engine_hooks *h,
                    ts_engine_run **out, char *err) {
+  const ts_image *ref = in[0];
   ts_engine_run *r = calloc(1, sizeof(*r));
   *out = r;
   if (r == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
@@ -213,6 +222,7 @@ const ts_engine ts_engine_mrf = {
     .spec_set = mrf_spec_set,
     .spec_complete = mrf_spec_complete,
     .spec_format = mrf_spec_format,
+    .inputs = mrf_inputs,
     .check = mrf_check,
     .set_max_pixels = mrf_set_max_pixels,
     .result_bytes = mrf_result_bytes,

@@ -8,6 +8,7 @@
 #include "jobspec.h"
 #include "mrf.h"
 #include "msg.h"
+#include "stylit.h"
 #include "ts_test.h"
 
 static ts_frame frame_of(const ts_wr *w, uint8_t type) {
@@ -472,6 +473,94 @@ static void jobspec_round_trip(void **state) {
   assert_string_equal(b.wants.want[out_of(&b, "copy_map_raw")], "1");
 }
 
+/* A stylize spec: per-guide weights (a default one written as the value
+ * it stands for), its inputs named after its guides. */
+static void stylize_spec_round_trip(void **state) {
+  (void)state;
+  ts_jobspec a, b;
+  ts_jobspec_default(&a, ts_engine_find("stylize"));
+  ts_stylit_params *p = (ts_stylit_params *)a.params.bytes;
+  p->guides = 3, p->patch = 7, p->iters = 2, p->uniformity = 2.5, p->seed = 9, p->style_weight = 0.25;
+  p->weight[0] = 0.5, p->weight[2] = 1.0 / 3.0;
+  snprintf(a.wants.want[out_of(&a, "nnf")], TS_EXT_LEN, "raw");
+  char text[TS_SPEC_MAX], again[TS_SPEC_MAX], err[TS_ERR_LEN];
+  int n = ts_jobspec_format(&a, text, sizeof(text));
+  assert_true(n > 0);
+  assert_non_null(strstr(text, "engine=stylize\n"));
+  assert_non_null(strstr(text, "weight_1=0.33333333333333331\n")); /* the default, 1 / guides */
+  assert_int_equal(ts_jobspec_parse(text, (size_t)n, &b, err), 0);
+  const ts_stylit_params *q = (const ts_stylit_params *)b.params.bytes;
+  assert_int_equal(q->guides, 3);
+  assert_int_equal(q->patch, 7);
+  assert_true(q->uniformity == 2.5 && q->style_weight == 0.25);
+  assert_true(ts_stylit_weight(q, 0) == 0.5 && ts_stylit_weight(q, 2) == 1.0 / 3.0);
+  assert_string_equal(b.wants.want[out_of(&b, "nnf")], "raw");
+  assert_int_equal(ts_jobspec_format(&b, again, sizeof(again)), n);
+  assert_memory_equal(again, text, (size_t)n);
+  ts_engine_inputs in;
+  b.engine->inputs(&b.params, &in);
+  assert_int_equal(in.n, 7);
+  assert_string_equal(in.name[0], "style");
+  assert_string_equal(in.name[5], "guide_src_2");
+  assert_string_equal(in.name[6], "guide_tgt_2");
+  /* A weight of a guide the job does not have would be lost on a restart. */
+  const char *extra = "engine=stylize\nguides=1\nweight_1=2\noutput=png\n";
+  assert_int_equal(ts_jobspec_parse(extra, strlen(extra), &b, err), TS_EINVAL);
+  assert_non_null(strstr(err, "weight_1 given for a job of 1 guide"));
+}
+
+/* Further inputs travel as a tail after the first; without them the
+ * message is the one-input message byte for byte. */
+static void submit_with_more_inputs(void **state) {
+  (void)state;
+  char err[TS_ERR_LEN];
+  const char spec[] = "engine=stylize\nguides=1\n";
+  const uint8_t style[] = {1, 2, 3}, src[] = {4, 5}, tgt[] = {6};
+  ts_msg_submit s = {spec, sizeof(spec) - 1, "style.png", style, sizeof(style), 2}, *so = malloc(sizeof(*so));
+  s.more[0] = (ts_msg_input){"guide_src_0", "a.png", src, sizeof(src)};
+  s.more[1] = (ts_msg_input){"guide_tgt_0", "b.exr", tgt, sizeof(tgt)};
+  ts_wr w, one;
+  ts_wr_init(&w);
+  ts_msg_submit_write(&w, &s);
+  ts_frame f = frame_of(&w, 'S');
+  assert_int_equal(ts_msg_submit_read(&f, so, err), 0);
+  assert_int_equal(so->nmore, 2);
+  assert_string_equal(so->more[1].key, "guide_tgt_0");
+  assert_string_equal(so->more[1].name, "b.exr");
+  assert_memory_equal(so->more[0].data, src, sizeof(src));
+  /* Cut anywhere but at the tail's start, or with a byte more: refused. */
+  ts_wr_init(&one);
+  s.nmore = 0;
+  ts_msg_submit_write(&one, &s);
+  for (size_t cut = 0; cut < w.len; cut++) {
+    ts_frame c = {'S', 7, (uint32_t)cut, w.buf};
+    assert_int_equal(ts_msg_submit_read(&c, so, err) == 0, cut == one.len);
+  }
+  assert_int_equal(memcmp(one.buf, w.buf, one.len), 0);
+  /* A key that could steer a spool path, or one given twice: refused. */
+  s.nmore = 2;
+  const char *bad[] = {"../x", "Guide", ""};
+  for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++) {
+    ts_wr b;
+    ts_wr_init(&b);
+    snprintf(s.more[0].key, sizeof(s.more[0].key), "%s", bad[i]);
+    ts_msg_submit_write(&b, &s);
+    f = frame_of(&b, 'S');
+    assert_int_equal(ts_msg_submit_read(&f, so, err), TS_EPROTO);
+    ts_wr_free(&b);
+  }
+  snprintf(s.more[0].key, sizeof(s.more[0].key), "guide_tgt_0");
+  ts_wr_free(&w);
+  ts_wr_init(&w);
+  ts_msg_submit_write(&w, &s);
+  f = frame_of(&w, 'S');
+  assert_int_equal(ts_msg_submit_read(&f, so, err), TS_EPROTO);
+  assert_non_null(strstr(err, "twice"));
+  ts_wr_free(&w);
+  ts_wr_free(&one);
+  free(so);
+}
+
 /* A spec spooled before engines had names is an mrf job; an unknown
  * engine is refused by name. */
 static void jobspec_engine_key(void **state) {
@@ -592,6 +681,8 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(job_plane_round_trips),
     cmocka_unit_test(strings_refuse_nul_and_overflow),
     cmocka_unit_test(jobspec_round_trip),
+    cmocka_unit_test(stylize_spec_round_trip),
+    cmocka_unit_test(submit_with_more_inputs),
     cmocka_unit_test(jobspec_engine_key),
     cmocka_unit_test(jobspec_refuses_bad_lines),
 };

@@ -176,6 +176,33 @@ static void a_damaged_ref_ext_fails_a_job_that_must_run(void **state) {
   assert_contains(job.note, "ref.ext in " DIR_ " is damaged (it is missing); the job was done already");
 }
 
+/* A job of several inputs: `inputs` names the ones after the first, in
+ * the engine's order; damaged, a job that must run fails naming it. */
+static void a_damaged_inputs_list_fails_a_job_that_must_run(void **state) {
+  (void)state;
+  static const char spec[] = "engine=stylize\nguides=1\noutput=png\n";
+  ts_spool_files f = sound(NULL);
+  f.spec = file(spec);
+  f.inputs = file("guide_src_0=png\nguide_tgt_0=exr\n");
+  ts_spool_job job = read_ok(&f);
+  assert_int_equal(job.state, TS_JOB_QUEUED);
+  assert_string_equal(job.more_ext[0], "png");
+  assert_string_equal(job.more_ext[1], "exr");
+  const ts_spool_file bad[] = {kMissing, file("guide_tgt_0=png\nguide_src_0=png\n"), file("guide_src_0=png\n"),
+                               file("guide_src_0=p/g\nguide_tgt_0=png\n")};
+  for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++) {
+    f.inputs = bad[i];
+    job = read_ok(&f);
+    assert_int_equal(job.state, TS_JOB_FAILED);
+    assert_contains(job.text, "inputs in " DIR_ " is damaged (");
+    assert_contains(job.text, "the job's input images cannot be found, so the job cannot run: resubmit it");
+  }
+  f.state = file("done\n");
+  job = read_ok(&f);
+  assert_int_equal(job.state, TS_JOB_DONE); /* its results need no inputs */
+  assert_contains(job.note, "inputs in " DIR_ " is damaged (");
+}
+
 static void a_damaged_client_only_loses_the_fairness_key(void **state) {
   (void)state;
   char long_name[300];
@@ -234,6 +261,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(a_garbled_state_reruns_the_job),
     cmocka_unit_test(a_garbled_state_with_a_damaged_spec_fails),
     cmocka_unit_test(a_damaged_ref_ext_fails_a_job_that_must_run),
+    cmocka_unit_test(a_damaged_inputs_list_fails_a_job_that_must_run),
     cmocka_unit_test(a_damaged_client_only_loses_the_fairness_key),
     cmocka_unit_test(last_id_is_a_number_or_refused),
 };

@@ -1,0 +1,413 @@
+/* jobcmd.c - see jobcmd.h. */
+#include "jobcmd.h"
+
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "error.h"
+#include "image.h"
+#include "search.h"
+#include "util.h"
+
+const char *const ts_job_options_help =
+    "  -o, --output OUT     output image; format from the extension\n"
+    "  --report F           JSON report: parameters, timings, statistics\n"
+    "  --threads T          scan threads, 1..1024 (default 2)\n"
+    "  --max-pixels N       refuse inputs and outputs above N pixels (default 268435456)\n"
+    "  --quiet              no progress bar\n"
+    "  --server HOST:PORT   run the job on a texsyn-server (and its workers) instead\n"
+    "                       of in-process; same options, same output bytes\n"
+    "                       (default: $TEXSYN_SERVER if set, else in-process)\n"
+    "  --embedded           run in-process even if $TEXSYN_SERVER is set\n"
+    "  --detach             with --server: print the job id and return at once\n"
+    "                       (then texsyn watch/fetch ID)\n"
+    "  --secret-file PATH   with --server: the shared secret the coordinator\n"
+    "                       requires (default: $TEXSYN_SECRET_FILE if set)\n";
+
+/* ---- arguments --------------------------------------------------------- */
+
+int ts_arg_long(const char *opt, const char *s, long lo, long hi, long *out, char *err) {
+  if (ts_parse_long(s, lo, hi, out) != 0)
+    return ts_error(err, TS_EINVAL, "%s %s: need a whole number in %ld..%ld", opt, s, lo, hi);
+  return 0;
+}
+
+int ts_arg_u64(const char *opt, const char *s, uint64_t *out, char *err) {
+  if (ts_parse_u64(s, out) != 0) return ts_error(err, TS_EINVAL, "%s %s: need a whole number >= 0", opt, s);
+  return 0;
+}
+
+int ts_arg_double(const char *opt, const char *s, double *out, char *err) {
+  if (ts_parse_double(s, out) != 0) return ts_error(err, TS_EINVAL, "%s %s: need a number", opt, s);
+  return 0;
+}
+
+const char *ts_env_server(void) {
+  const char *s = getenv("TEXSYN_SERVER");
+  return s != NULL && s[0] != '\0' ? s : NULL;
+}
+
+const char *ts_output_path(const ts_output_paths *t, const char *key) {
+  for (int i = 0; i < t->n; i++)
+    if (strcmp(t->key[i], key) == 0) return t->path[i];
+  return NULL;
+}
+
+void ts_output_set(ts_output_paths *t, const char *key, const char *path) {
+  int i = 0;
+  while (i < t->n && strcmp(t->key[i], key) != 0) i++;
+  if (i == (int)(sizeof(t->key) / sizeof(t->key[0]))) return; /* more keys than any engine has outputs */
+  t->key[i] = key;
+  t->path[i] = path;
+  if (i == t->n) t->n++;
+}
+
+void ts_job_cmd_init(ts_job_cmd *o, const char *cmd, const ts_engine *e) {
+  memset(o, 0, sizeof(*o));
+  o->cmd = cmd;
+  ts_jobspec_default(&o->spec, e);
+  o->threads = TS_DEFAULT_THREADS;
+  o->max_pixels = TS_IMAGE_DEFAULT_MAX_PIXELS;
+}
+
+int ts_job_option(ts_job_cmd *o, int c, const char *arg, char *err) {
+  long v;
+  int rc = 0;
+  switch (c) {
+  case 'o': ts_output_set(&o->out, "output", arg); break;
+  case TS_OPT_REPORT: ts_output_set(&o->out, "report", arg); break;
+  case TS_OPT_THREADS: rc = ts_arg_long("--threads", arg, 1, 1024, &v, err); o->threads = (int)v; break;
+  case TS_OPT_MAXPIX: rc = ts_arg_u64("--max-pixels", arg, &o->max_pixels, err); break;
+  case TS_OPT_QUIET: o->quiet = 1; break;
+  case TS_OPT_SERVER: o->server = arg; break;
+  case TS_OPT_DETACH: o->detach = 1; break;
+  case TS_OPT_EMBEDDED: o->embedded = 1; break;
+  case TS_OPT_SECRET: o->secret_file = arg; break;
+  default: rc = TS_ENOENT;
+  }
+  return rc;
+}
+
+int ts_job_parse_end(ts_job_cmd *o, char *err) {
+  if (o->server != NULL && o->embedded) return ts_error(err, TS_EINVAL, "--server and --embedded exclude each other");
+  if (o->server == NULL && !o->embedded) o->server = ts_env_server();
+  if (ts_output_path(&o->out, "output") == NULL)
+    return ts_error(err, TS_EINVAL, "-o OUT is required (see texsyn %s --help)", o->cmd);
+  if (o->detach && o->server == NULL) return ts_error(err, TS_EINVAL, "--detach needs --server");
+  o->spec.engine->set_max_pixels(&o->spec.params, o->max_pixels);
+  return 0;
+}
+
+/* ---- before the work --------------------------------------------------- */
+
+/* Whether the file path names can be written: a probe file made beside it
+ * and removed at once (permissions alone do not tell: root, read-only
+ * mounts). Checked before the job runs, so a wrong -o costs no work. */
+static int check_writable(const char *path, char *err) {
+  struct stat st;
+  if (stat(path, &st) == 0 && S_ISDIR(st.st_mode))
+    return ts_error(err, TS_EINVAL, "cannot write %s: it is a directory; name a file in it", path);
+  char probe[4096];
+  int n = snprintf(probe, sizeof(probe), "%s.probe-XXXXXX", path);
+  if (n < 0 || (size_t)n >= sizeof(probe)) return ts_error(err, TS_EINVAL, "%s: path too long", path);
+  int fd = mkstemp(probe);
+  if (fd < 0)
+    return ts_error(err, TS_EIO, "cannot write %s: %s (found before the job ran; nothing was done)", path,
+                    strerror(errno));
+  close(fd);
+  unlink(probe);
+  return 0;
+}
+
+static int check_outputs(const ts_job_cmd *o, char *err) {
+  for (int i = 0; i < o->out.n; i++)
+    if (check_writable(o->out.path[i], err) != 0) return TS_EIO;
+  return 0;
+}
+
+/* The spec's wants, for a coordinator (an embedded run writes to the
+ * paths): for every output given a path, the format its extension names
+ * ("1" for a flag output). */
+static int set_wants(const ts_job_cmd *o, ts_jobspec *spec, char *err) {
+  const ts_engine *e = spec->engine;
+  for (int k = 0; k < e->noutputs; k++) {
+    const char *path = ts_output_path(&o->out, e->outputs[k].key);
+    char *want = spec->wants.want[k];
+    if (path == NULL) want[0] = '\0';
+    else if (e->outputs[k].kind == TS_OUTPUT_FLAG) snprintf(want, TS_EXT_LEN, "1");
+    else if (!ts_ext_valid(ts_path_ext(path)))
+      return ts_error(err, TS_EINVAL, "%s: needs an extension (.png, .tif, .exr, ...)", path);
+    else snprintf(want, TS_EXT_LEN, "%s", ts_path_ext(path));
+  }
+  return 0;
+}
+
+/* Reads the inputs; on failure the ones read are freed. */
+static int read_inputs(const ts_job_cmd *o, int n, ts_image *in, char *err) {
+  ts_image_limits limits = {o->max_pixels, NULL};
+  for (int k = 0; k < n; k++) {
+    int rc = ts_image_read(o->in[k], &in[k], &limits, err);
+    if (rc != 0) {
+      while (k-- > 0) ts_image_free(&in[k]);
+      return rc;
+    }
+  }
+  return 0;
+}
+
+/* ---- progress bar ------------------------------------------------------ */
+
+typedef struct {
+  int enabled;
+  double start, last;
+} progress_bar;
+
+static void progress_draw(void *ctx, const ts_progress *p) {
+  progress_bar *pb = ctx;
+  double t = ts_now();
+  int level_done = p->done == p->total;
+  if (!pb->enabled || (t - pb->last < 0.1 && !level_done)) return;
+  pb->last = t;
+  double frac = p->work_total > 0 ? p->work_done / p->work_total : 1.0;
+  double eta = frac > 0.001 ? (t - pb->start) * (1.0 - frac) / frac : 0.0;
+  int pct = p->total ? (int)(100 * p->done / p->total) : 100;
+  char bar[31];
+  int fill = (int)(frac * 30);
+  for (int i = 0; i < 30; i++) bar[i] = i < fill ? '#' : '.';
+  bar[30] = '\0';
+  fprintf(stderr, "\rlevel %d (%d of %d) %3d%% of blocks [%s] ETA %5.1fs ", p->level,
+          p->levels - p->level, p->levels, pct, bar, eta);
+  fflush(stderr);
+}
+
+/* ---- in-process -------------------------------------------------------- */
+
+static int write_outputs(const ts_job_cmd *o, const ts_engine_run *run, char *err) {
+  const ts_engine *e = o->spec.engine;
+  int rc = 0;
+  for (int k = 0; rc == 0 && k < e->noutputs; k++) {
+    const char *path = ts_output_path(&o->out, e->outputs[k].key);
+    if (path != NULL) rc = e->write_output(run, k, path, o->threads, err);
+  }
+  return rc;
+}
+
+static int run_embedded(const ts_job_cmd *o, const ts_image *const *in, char *err) {
+  const ts_engine *e = o->spec.engine;
+  ts_search *search = NULL;
+  ts_engine_run *run = NULL;
+  int rc = ts_search_local_create(&search, o->threads, NULL, err);
+  progress_bar pb = {!o->quiet && isatty(STDERR_FILENO), ts_now(), 0};
+  ts_engine_hooks hooks = {.progress = progress_draw, .progress_ctx = &pb};
+  double t0 = ts_now();
+  if (rc == 0) rc = e->run(&o->spec.params, in, search, &hooks, &run, err);
+  if (pb.enabled) fputc('\n', stderr);
+  if (rc == 0) rc = write_outputs(o, run, err);
+  if (rc == 0 && !o->quiet)
+    fprintf(stderr, "texsyn: %s in %.2fs (%s, %d threads, %.3g comparisons)\n", ts_output_path(&o->out, "output"),
+            ts_now() - t0, search->simd->name, o->threads, (double)search->stats.pairs);
+  e->run_free(run);
+  ts_search_destroy(search);
+  return rc;
+}
+
+/* ---- on a coordinator -------------------------------------------------- */
+
+/* Writes bytes to path atomically. */
+static int write_bytes(const char *path, const uint8_t *data, size_t len, char *err) {
+  char tmp[4096];
+  snprintf(tmp, sizeof(tmp), "%s.tmp-%ld", path, (long)getpid());
+  FILE *f = fopen(tmp, "wb");
+  if (f == NULL) return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
+  size_t n = len ? fwrite(data, 1, len, f) : 0;
+  if (fclose(f) != 0 || n != len || rename(tmp, path) != 0) {
+    unlink(tmp);
+    return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
+  }
+  return 0;
+}
+
+int ts_job_connect(ts_conn *c, const char *addr, const char *path, char *err) {
+  if (path == NULL) path = getenv("TEXSYN_SECRET_FILE");
+  ts_auth auth = {0};
+  int rc = path != NULL && path[0] != '\0' ? ts_auth_load(&auth, path, err) : 0;
+  if (rc == 0) rc = ts_client_connect(c, addr, &auth, err);
+  ts_auth_clear(&auth);
+  return rc;
+}
+
+int ts_job_fetch(ts_conn *c, uint64_t id, const ts_output_paths *t, char *err) {
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_jobid_write(&w, id);
+  ts_frame f;
+  int rc = ts_client_call(c, TS_MSG_FETCH, &w, 600000, &f, err);
+  ts_wr_free(&w);
+  ts_msg_files m;
+  if (rc == 0) rc = ts_msg_files_read(&f, &m, err);
+  for (uint32_t i = 0; rc == 0 && i < m.n; i++) {
+    const char *key = ts_engine_output_key_of_file(m.name[i]);
+    const char *path = key != NULL ? ts_output_path(t, key) : NULL;
+    if (path != NULL) rc = write_bytes(path, m.data[i], m.len[i], err);
+  }
+  return rc;
+}
+
+static void remote_progress(const ts_job_status *s, double start) {
+  char bar[31];
+  int fill = s->permille * 30 / 1000;
+  for (int i = 0; i < 30; i++) bar[i] = i < fill ? '#' : '.';
+  bar[30] = '\0';
+  if (s->state == TS_JOB_QUEUED) {
+    fprintf(stderr, "\rjob %llu queued (%.0fs) ", (unsigned long long)s->id, ts_now() - start);
+  } else {
+    char eta[32] = "  ?";
+    if (s->eta_ms != UINT32_MAX) snprintf(eta, sizeof(eta), "%5.1fs", s->eta_ms / 1000.0);
+    fprintf(stderr, "\rjob %llu level %d of %d %5.1f%% [%s] ETA %s, %u worker%s ", (unsigned long long)s->id,
+            s->levels - s->level, s->levels, s->permille / 10.0, bar, eta, s->workers, s->workers == 1 ? "" : "s");
+  }
+  fflush(stderr);
+}
+
+int ts_job_watch(ts_conn *c, uint64_t id, int show, ts_job_status *last, char *err) {
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_status_req req = {id, 1};
+  ts_msg_status_req_write(&w, &req);
+  int rc = ts_wr_status(&w) ? TS_ENOMEM : ts_net_send(c->fd, TS_MSG_STATUS, 1, w.buf, w.len, err);
+  ts_wr_free(&w);
+  double start = ts_now();
+  while (rc == 0) {
+    ts_frame f;
+    uint32_t n;
+    rc = ts_client_next(c, TS_MSG_STATUS, -1, &f, err);
+    if (rc == 0) rc = ts_msg_status_read(&f, last, 1, &n, err);
+    if (rc == 0 && n != 1) rc = ts_error(err, TS_EPROTO, "empty status update");
+    if (rc != 0) break;
+    if (show) remote_progress(last, start);
+    if (last->state > TS_JOB_RUNNING) break;
+  }
+  if (show) fputc('\n', stderr);
+  return rc;
+}
+
+/* The file name of a path, as the coordinator is told it. */
+static void base_name(const char *path, char *out, size_t cap) {
+  const char *slash = strrchr(path, '/');
+  snprintf(out, cap, "%s", slash ? slash + 1 : path);
+}
+
+/* Every input goes in the one submit frame: together they must fit it. */
+#define SUBMIT_MAX (TS_FRAME_DEFAULT_MAX - 8192)
+
+static int submit_job(ts_conn *c, const ts_job_cmd *o, uint64_t *id, char *err) {
+  ts_jobspec js = o->spec;
+  char spec[TS_SPEC_MAX];
+  int n = set_wants(o, &js, err);
+  if (n != 0) return n;
+  n = ts_jobspec_format(&js, spec, sizeof(spec));
+  if (n < 0) return ts_error(err, TS_ETOOBIG, "job spec too long");
+  ts_engine_inputs names;
+  o->spec.engine->inputs(&o->spec.params, &names);
+  uint8_t *data[TS_ENGINE_MAX_INPUTS] = {NULL};
+  size_t len[TS_ENGINE_MAX_INPUTS], total = 0;
+  int rc = 0;
+  for (int k = 0; rc == 0 && k < names.n; k++) {
+    rc = ts_file_read(o->in[k], SUBMIT_MAX, &data[k], &len[k], err);
+    total += rc == 0 ? len[k] : 0;
+  }
+  if (rc == TS_ETOOBIG || (rc == 0 && total > SUBMIT_MAX))
+    rc = ts_error(err, TS_ETOOBIG, "the inputs take more than the %u bytes a submission can carry",
+                  (unsigned)SUBMIT_MAX);
+  ts_msg_submit *m = rc == 0 ? calloc(1, sizeof(*m)) : NULL;
+  if (rc == 0 && m == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
+  ts_wr w;
+  ts_wr_init(&w);
+  if (rc == 0) {
+    *m = (ts_msg_submit){.spec = spec, .spec_len = (uint32_t)n, .ref = data[0], .ref_len = (uint32_t)len[0],
+                         .nmore = (uint32_t)names.n - 1};
+    base_name(o->in[0], m->ref_name, sizeof(m->ref_name));
+    for (int k = 1; k < names.n; k++) {
+      ts_msg_input *in = &m->more[k - 1];
+      snprintf(in->key, sizeof(in->key), "%s", names.name[k]);
+      base_name(o->in[k], in->name, sizeof(in->name));
+      in->data = data[k];
+      in->len = (uint32_t)len[k];
+    }
+    ts_msg_submit_write(&w, m);
+  }
+  for (int k = 0; k < names.n; k++) free(data[k]);
+  free(m);
+  ts_frame f;
+  if (rc == 0) rc = ts_client_call(c, TS_MSG_SUBMIT, &w, 60000, &f, err);
+  ts_wr_free(&w);
+  if (rc == 0) rc = ts_msg_jobid_read(&f, id, err);
+  return rc;
+}
+
+static int run_remote(const ts_job_cmd *o) {
+  char err[TS_ERR_LEN] = "";
+  ts_conn c;
+  uint64_t id = 0;
+  int rc = ts_job_connect(&c, o->server, o->secret_file, err);
+  if (rc != 0) {
+    fprintf(stderr, "texsyn %s: %s\n(no job was submitted: is texsyn-server running at %s%s? --embedded runs here)\n",
+            o->cmd, err, o->server, o->server == ts_env_server() ? ", from $TEXSYN_SERVER" : "");
+    return 1;
+  }
+  rc = submit_job(&c, o, &id, err);
+  ts_job_status st = {0};
+  if (rc == 0 && o->detach) {
+    printf("%llu\n", (unsigned long long)id);
+  } else if (rc == 0) {
+    rc = ts_job_watch(&c, id, !o->quiet && isatty(STDERR_FILENO), &st, err);
+    if (rc == 0 && st.state != TS_JOB_DONE)
+      rc = ts_error(err, TS_EINVAL, "job %llu %s%s%s", (unsigned long long)id, ts_job_state_name(st.state),
+                    st.text[0] ? ": " : "", st.text);
+    if (rc == 0) rc = ts_job_fetch(&c, id, &o->out, err);
+    if (rc == 0 && !o->quiet)
+      fprintf(stderr, "texsyn: %s (job %llu on %s)\n", ts_output_path(&o->out, "output"), (unsigned long long)id,
+              o->server);
+  }
+  if (rc != 0) fprintf(stderr, "texsyn %s: %s\n", o->cmd, err);
+  ts_conn_close(&c);
+  return rc == 0 ? 0 : 1;
+}
+
+/* ---- the job ----------------------------------------------------------- */
+
+/* The inputs are read here in either case: a job the engine refuses is
+ * refused before anything travels or runs. */
+int ts_job_run(ts_job_cmd *o) {
+  char err[TS_ERR_LEN] = "", msg[4096];
+  const ts_engine *e = o->spec.engine;
+  if (!o->detach && check_outputs(o, err) != 0) {
+    fprintf(stderr, "texsyn %s: %s\n", o->cmd, err);
+    return 1;
+  }
+  ts_engine_inputs names;
+  e->inputs(&o->spec.params, &names);
+  ts_image in[TS_ENGINE_MAX_INPUTS] = {0};
+  const ts_image *inp[TS_ENGINE_MAX_INPUTS];
+  if (read_inputs(o, names.n, in, err) != 0) {
+    fprintf(stderr, "texsyn %s: %s\n", o->cmd, err);
+    return 1;
+  }
+  for (int k = 0; k < names.n; k++) inp[k] = &in[k];
+  int status = 0;
+  if (e->check(&o->spec.params, inp, msg, sizeof(msg)) != 0) {
+    fprintf(stderr, "texsyn %s: invalid parameters for %s (%dx%d):\n%s\n", o->cmd, o->in[0], in[0].width,
+            in[0].height, msg);
+    status = 2;
+  } else if (o->server == NULL) {
+    int rc = run_embedded(o, inp, err);
+    if (rc != 0) fprintf(stderr, "texsyn %s: %s\n", o->cmd, err);
+    status = rc == 0 ? 0 : 1;
+  }
+  for (int k = 0; k < names.n; k++) ts_image_free(&in[k]);
+  return status != 0 || o->server == NULL ? status : run_remote(o);
+}

@@ -1,0 +1,87 @@
+/* jobcmd.h - what the CLI's job commands (texsyn synth, texsyn stylize)
+ * share: the options every job takes, the output paths by spec key, the
+ * checks made before any work (outputs writable, inputs readable, the
+ * engine's verdict on them), and running the job in-process or on a
+ * coordinator (same options, same bytes). A command parses its own
+ * options into a ts_job_cmd and hands it to ts_job_run. */
+#ifndef TS_JOBCMD_H
+#define TS_JOBCMD_H
+
+#include <getopt.h>
+#include <stdint.h>
+
+#include "client.h"
+#include "engine.h"
+#include "jobspec.h"
+
+#define TS_DEFAULT_THREADS 2
+
+/* Local paths of a job's outputs, by spec key ("output" is -o). */
+typedef struct {
+  int n;
+  const char *key[TS_ENGINE_MAX_OUTPUTS * 2];
+  const char *path[TS_ENGINE_MAX_OUTPUTS * 2];
+} ts_output_paths;
+
+/* The path given for output key, or NULL. */
+const char *ts_output_path(const ts_output_paths *t, const char *key);
+/* Records (or replaces) the path of output key. */
+void ts_output_set(ts_output_paths *t, const char *key, const char *path);
+
+typedef struct {
+  const char *cmd;                       /* "synth": messages say "texsyn synth: ..." */
+  ts_jobspec spec;                       /* engine and parameters (wants follow from out) */
+  const char *in[TS_ENGINE_MAX_INPUTS];  /* input paths, in the engine's order */
+  ts_output_paths out;
+  const char *server, *secret_file;
+  int threads, quiet, detach, embedded;
+  uint64_t max_pixels;
+} ts_job_cmd;
+
+/* Option codes of the options every job takes; a command numbers its own
+ * from TS_OPT_OWN. */
+enum {
+  TS_OPT_THREADS = 256, TS_OPT_QUIET, TS_OPT_SERVER, TS_OPT_EMBEDDED, TS_OPT_DETACH, TS_OPT_SECRET,
+  TS_OPT_REPORT, TS_OPT_MAXPIX, TS_OPT_HELP, TS_OPT_OWN
+};
+
+/* The options every job takes, for a command's getopt_long table. */
+#define TS_JOB_LONGOPTS                                                                               \
+  {"output", required_argument, 0, 'o'}, {"threads", required_argument, 0, TS_OPT_THREADS},          \
+      {"quiet", no_argument, 0, TS_OPT_QUIET}, {"server", required_argument, 0, TS_OPT_SERVER},      \
+      {"embedded", no_argument, 0, TS_OPT_EMBEDDED}, {"detach", no_argument, 0, TS_OPT_DETACH},      \
+      {"secret-file", required_argument, 0, TS_OPT_SECRET},                                          \
+      {"report", required_argument, 0, TS_OPT_REPORT},                                               \
+      {"max-pixels", required_argument, 0, TS_OPT_MAXPIX}, {"help", no_argument, 0, TS_OPT_HELP}
+
+/* Their lines of a command's --help, as one string. */
+extern const char *const ts_job_options_help;
+
+/* A job command for engine e with its defaults. */
+void ts_job_cmd_init(ts_job_cmd *o, const char *cmd, const ts_engine *e);
+/* Takes option c if it is one of every job's: 0, TS_EINVAL with a message,
+ * or TS_ENOENT when c is the command's own. */
+int ts_job_option(ts_job_cmd *o, int c, const char *arg, char *err);
+/* After the options: where the job runs, and what every job needs. */
+int ts_job_parse_end(ts_job_cmd *o, char *err);
+/* Runs the job: checks, reads, runs embedded or remotely, writes. The
+ * process exit status: 0, 1 (I/O, a failed job), 2 (bad parameters). */
+int ts_job_run(ts_job_cmd *o);
+
+/* The shared parsers (util.h), with the option named in the message. */
+int ts_arg_long(const char *opt, const char *s, long lo, long hi, long *out, char *err);
+int ts_arg_u64(const char *opt, const char *s, uint64_t *out, char *err);
+int ts_arg_double(const char *opt, const char *s, double *out, char *err);
+
+/* The coordinator from $TEXSYN_SERVER, or NULL when unset or empty. */
+const char *ts_env_server(void);
+/* Connects to a coordinator with the shared secret from path, else
+ * $TEXSYN_SECRET_FILE, else none. */
+int ts_job_connect(ts_conn *c, const char *addr, const char *path, char *err);
+/* Follows a job until it ends (a progress line if show); its final
+ * status in *last. */
+int ts_job_watch(ts_conn *c, uint64_t id, int show, ts_job_status *last, char *err);
+/* Writes a finished job's files to the paths given for their outputs. */
+int ts_job_fetch(ts_conn *c, uint64_t id, const ts_output_paths *t, char *err);
+
+#endif

@@ -1,0 +1,128 @@
+/* stylit.h - guided stylization after StyLit (Fišer et al. 2016) with
+ * Kaspar's occurrence-map uniformity term (seed 001, digest 001-004):
+ * paint a target in the style of a painted exemplar, guided by pairs of
+ * images (render passes, segmentations) that say which source region
+ * should go where.
+ *
+ * Inputs: the style exemplar A', and per guide K a source guide A_K (the
+ * exemplar's size) and a target guide B_K (the output's size). Output: B',
+ * the target painted with the exemplar's patches.
+ *
+ * Method, coarse to fine over a pyramid of all inputs:
+ *
+ *   level start   NNF: seeded random source patches (coarsest level), or
+ *                 the level above's, doubled (NNF_up(x, y) =
+ *                 2 NNF(x/2, y/2) + (x & 1, y & 1), clamped to the source
+ *                 patches); the occurrence map Ω rebuilt from it.
+ *   K times       vote: every target pixel becomes the mean of the style
+ *                 pixels the patches covering it bring (below);
+ *                 search: every target patch takes the source patch with
+ *                 the least  sum_parts w_part * L1(part) + λ-penalty(Ω),
+ *                 exactly (ties to the lowest source index), through the
+ *                 search service; Ω rebuilt from the new NNF.
+ *   end           a last vote of the finest NNF gives the output.
+ *
+ * Patches: p x p squares (p odd, r = p / 2) centred on a pixel. Source
+ * patches lie wholly inside the exemplar (centres r .. size - r - 1); the
+ * target has a patch at every pixel, reading past its edges as the edge
+ * pixel repeated, so every target pixel has an NNF entry.
+ *
+ * Vectors: the style's colour channels and every guide's, each a part of
+ * its own (window.h), weighted by w / channels of the part (so a weight is
+ * what the whole image counts, whatever its channels: the style 1 by
+ * default, each of N guides 1/N), in 1/840 steps.
+ *
+ * Uniformity: Ω counts, per source pixel, the target patches whose source
+ * patch covers it; the penalty of a source patch is
+ * λ * D1 * (sum of Ω over its p x p pixels) / E, with E that sum under
+ * perfectly even use and D1 the distance of a one-grey-level error in
+ * every component (usage.h): λ = 1 charges a patch used at the average
+ * rate as much as one grey level of error everywhere. Ω is frozen for
+ * each search step (all its batches see the Ω of the NNF it starts from)
+ * and rebuilt after it: the result is a function of the inputs and the
+ * seed, never of the batching, the threads or the workers.
+ *
+ * Vote: the mean, rounded to nearest, of the up to p^2 votes a pixel gets.
+ * The median would minimise the L1 energy per pixel, but it picks one
+ * patch's value and keeps the joins between patches visible; the mean
+ * (the L2 optimum, as in StyLit and Kwatra's texture optimisation) blends
+ * them, at the price of slight blur where the votes disagree.
+ *
+ * Types: every input is turned into 8-bit planes. 8- and 16-bit channels
+ * keep their full range (16-bit to 8-bit rounds); float and half guide
+ * channels, which have no fixed range (render passes), are stretched per
+ * channel from the least to the greatest value of that channel over both
+ * images of the pair, so the source and target guide stay comparable
+ * (NaN reads as the least). A float style is read in [0, 1]. Colour
+ * channels are the first three (the first of a grey image); an alpha
+ * channel is not compared but is voted into the output, which is 8-bit
+ * with the style's channels. */
+#ifndef TS_STYLIT_H
+#define TS_STYLIT_H
+
+#include <stdint.h>
+
+#include "image.h"
+#include "progress.h"
+#include "search.h"
+
+#define TS_STYLIT_MAX_GUIDES 16
+#define TS_STYLIT_MAX_LEVELS 12
+#define TS_STYLIT_MAX_PATCH 15
+#define TS_STYLIT_WEIGHT_STEPS 840 /* a weight's integer unit: lcm(1..8) / w, exact per channel count */
+
+typedef struct {
+  int patch;          /* p: odd, 3..TS_STYLIT_MAX_PATCH (5) */
+  int levels;         /* 1..TS_STYLIT_MAX_LEVELS; 0: as many as fit (see ts_stylit_levels) */
+  int iters;          /* EM iterations per level, 1..100 (6) */
+  double uniformity;  /* λ, 0..1000 (0: off) */
+  uint64_t seed;      /* the coarsest level's random NNF */
+  uint64_t max_pixels;
+  int guides;         /* 1..TS_STYLIT_MAX_GUIDES */
+  double style_weight; /* 0 or 0.01..100 (1) */
+  double weight[TS_STYLIT_MAX_GUIDES]; /* 0 or 0.01..100; < 0: 1 / guides */
+} ts_stylit_params;
+
+/* Inputs in the engine's order: style, then per guide K source, target. */
+enum { TS_STYLIT_IN_STYLE = 0 };
+static inline int ts_stylit_in_src(int k) { return 1 + 2 * k; }
+static inline int ts_stylit_in_tgt(int k) { return 2 + 2 * k; }
+
+void ts_stylit_params_default(ts_stylit_params *p);
+/* Guide k's weight, the default resolved. */
+double ts_stylit_weight(const ts_stylit_params *p, int k);
+/* Every problem with the parameters and inputs (sizes, channels, ranges,
+ * the pyramid against the patch), one per line: 0 or TS_EINVAL. */
+int ts_stylit_check(const ts_stylit_params *p, const ts_image *const *in, char *msg, size_t len);
+/* The levels a job runs: p->levels, or when 0 the most (up to 6) that
+ * leave the coarsest source and target at least 4 patches on each side
+ * (at least 1). */
+int ts_stylit_levels(const ts_stylit_params *p, const ts_image *const *in);
+
+typedef struct {
+  double seconds;
+  uint64_t pairs, queries;
+  int w, h; /* target size at the level */
+} ts_stylit_level_stats;
+
+typedef struct {
+  ts_image image;  /* 8-bit, the style's channels, the target's size */
+  uint32_t *nnf;   /* x, y of the source pixel of each target pixel */
+  int src_w, src_h;
+  int levels;
+  double coverage; /* share of source pixels some output patch covers */
+  double seconds;
+  ts_stylit_level_stats level[TS_STYLIT_MAX_LEVELS];
+} ts_stylit_result;
+
+typedef struct {
+  ts_progress_fn *progress; /* may be NULL */
+  void *progress_ctx;
+} ts_stylit_hooks;
+
+/* Runs a checked job. 0, or a TS_E* code with a message. */
+int ts_stylit_run(const ts_stylit_params *p, const ts_image *const *in, ts_search *search, const ts_stylit_hooks *h,
+                  ts_stylit_result *res, char *err);
+void ts_stylit_result_free(ts_stylit_result *res);
+
+#endif

@@ -1,0 +1,196 @@
+/* stylit_engine.c - guided stylization (stylit.h) as an engine (engine.h):
+ * its inputs, spec keys, result files and report. No checkpoints yet: a
+ * job a coordinator restart interrupts runs again from its start, which
+ * gives the same bytes. */
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "engine.h"
+#include "error.h"
+#include "outputs.h"
+#include "stylit.h"
+#include "util.h"
+
+_Static_assert(sizeof(ts_stylit_params) <= TS_ENGINE_PARAMS_MAX, "stylize parameters outgrew ts_engine_params");
+_Static_assert(1 + 2 * TS_STYLIT_MAX_GUIDES <= TS_ENGINE_MAX_INPUTS, "stylize inputs outgrew ts_engine_inputs");
+
+enum { OUT_IMAGE, OUT_NNF, OUT_REPORT, OUT_COUNT };
+
+static const ts_engine_output stylit_outputs[OUT_COUNT] = {
+    [OUT_IMAGE] = {"output", "out", TS_OUTPUT_IMAGE},
+    [OUT_NNF] = {"nnf", "nnf", TS_OUTPUT_IMAGE},
+    [OUT_REPORT] = {"report", "report.json", TS_OUTPUT_FLAG},
+};
+
+static void stylit_inputs(const void *params, ts_engine_inputs *out) {
+  const ts_stylit_params *p = params;
+  int g = p->guides < TS_STYLIT_MAX_GUIDES ? p->guides : TS_STYLIT_MAX_GUIDES;
+  out->n = 1 + 2 * g;
+  snprintf(out->name[TS_STYLIT_IN_STYLE], TS_ENGINE_KEY_LEN, "style");
+  for (int k = 0; k < g; k++) {
+    snprintf(out->name[ts_stylit_in_src(k)], TS_ENGINE_KEY_LEN, "guide_src_%d", k);
+    snprintf(out->name[ts_stylit_in_tgt(k)], TS_ENGINE_KEY_LEN, "guide_tgt_%d", k);
+  }
+}
+
+/* ---- spec keys ---------------------------------------------------------- */
+
+/* weight_K: K's weight; ranges are the check's business. */
+static int set_weight(ts_stylit_params *p, const char *k, const char *v) {
+  int g;
+  if (strncmp(k, "weight_", 7) != 0 || ts_parse_int(k + 7, 0, TS_STYLIT_MAX_GUIDES - 1, &g) != 0) return TS_ENOENT;
+  return ts_parse_double(v, &p->weight[g]) != 0 || p->weight[g] < 0 ? TS_EINVAL : 0;
+}
+
+static int stylit_spec_set(void *params, const char *k, const char *v) {
+  ts_stylit_params *p = params;
+  if (strcmp(k, "patch_size") == 0) return ts_parse_int(v, -1000, 1000, &p->patch);
+  if (strcmp(k, "levels") == 0) return ts_parse_int(v, -1000, 1000, &p->levels);
+  if (strcmp(k, "iters") == 0) return ts_parse_int(v, -1000, 1000, &p->iters);
+  if (strcmp(k, "uniformity") == 0) return ts_parse_double(v, &p->uniformity);
+  if (strcmp(k, "seed") == 0) return ts_parse_u64(v, &p->seed);
+  if (strcmp(k, "max_pixels") == 0) return ts_parse_u64(v, &p->max_pixels);
+  if (strcmp(k, "guides") == 0) return ts_parse_int(v, 1, TS_STYLIT_MAX_GUIDES, &p->guides);
+  if (strcmp(k, "style_weight") == 0) return ts_parse_double(v, &p->style_weight);
+  return set_weight(p, k, v);
+}
+
+/* A weight for a guide the job does not have would not survive format
+ * and parse. */
+static int stylit_spec_complete(const void *params, char *err) {
+  const ts_stylit_params *p = params;
+  for (int k = p->guides; k < TS_STYLIT_MAX_GUIDES; k++)
+    if (p->weight[k] >= 0)
+      return ts_error(err, TS_EINVAL, "job spec: weight_%d given for a job of %d guide%s", k, p->guides,
+                      p->guides == 1 ? "" : "s");
+  return 0;
+}
+
+/* Doubles with 17 significant digits, so they round-trip; guide weights
+ * resolved (a default weight is written as the value it stands for). */
+static int stylit_spec_format(const void *params, char *buf, size_t cap) {
+  const ts_stylit_params *p = params;
+  int n = snprintf(buf, cap,
+                   "patch_size=%d\nlevels=%d\niters=%d\nuniformity=%.17g\nseed=%llu\nmax_pixels=%llu\nguides=%d\n"
+                   "style_weight=%.17g\n",
+                   p->patch, p->levels, p->iters, p->uniformity, (unsigned long long)p->seed,
+                   (unsigned long long)p->max_pixels, p->guides, p->style_weight);
+  for (int k = 0; n >= 0 && (size_t)n < cap && k < p->guides; k++)
+    n += snprintf(buf + n, cap - (size_t)n, "weight_%d=%.17g\n", k, ts_stylit_weight(p, k));
+  return n < 0 || (size_t)n >= cap ? TS_ETOOBIG : n;
+}
+
+static void stylit_params_default(void *params) { ts_stylit_params_default(params); }
+
+static int stylit_check(const void *params, const ts_image *const *in, char *msg, size_t len) {
+  return ts_stylit_check(params, in, msg, len);
+}
+
+static void stylit_set_max_pixels(void *params, uint64_t max_pixels) {
+  ((ts_stylit_params *)params)->max_pixels = max_pixels;
+}
+
+/* Per target pixel: the image (4 bytes at most) and the NNF (8). */
+static uint64_t stylit_result_bytes(const void *params, const ts_engine_wants *w, const ts_image_info *in) {
+  (void)params;
+  const ts_image_info *t = &in[ts_stylit_in_tgt(0)];
+  return (uint64_t)t->width * (uint64_t)t->height * (4 + (w->want[OUT_NNF][0] ? 8 : 0));
+}
+
+static int stylit_levels(const void *params) { return ((const ts_stylit_params *)params)->levels; }
+
+/* ---- running ------------------------------------------------------------ */
+
+struct ts_engine_run {
+  const ts_stylit_params *p;
+  const ts_search *search;
+  ts_stylit_result res;
+};
+
+static int stylit_run(const void *params, const ts_image *const *in, ts_search *search, const ts_engine_hooks *h,
+                      ts_engine_run **out, char *err) {
+  ts_engine_run *r = calloc(1, sizeof(*r));
+  *out = r;
+  if (r == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+  r->p = params;
+  r->search = search;
+  ts_stylit_hooks sh = {h->progress, h->progress_ctx};
+  return ts_stylit_run(r->p, in, search, &sh, &r->res, err);
+}
+
+/* The report: parameters, the search (exact, no lossy shortcut), per
+ * level sizes, queries, comparisons and seconds, the exemplar coverage. */
+static int write_report(const ts_engine_run *r, const char *path, int threads, char *err) {
+  const ts_stylit_params *p = r->p;
+  const ts_stylit_result *res = &r->res;
+  char tmp[4096];
+  snprintf(tmp, sizeof(tmp), "%s.tmp-%ld", path, (long)getpid());
+  FILE *f = fopen(tmp, "w");
+  if (f == NULL) return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
+  fprintf(f, "{\n  \"engine\": \"stylize\",\n  \"search\": {\"mode\": \"exact\", \"lossy\": [], "
+             "\"backend\": \"%s\", \"simd\": \"%s\", \"threads\": %d},\n",
+          r->search->ops->name, r->search->simd->name, threads);
+  fprintf(f, "  \"params\": {\"patch_size\": %d, \"levels\": %d, \"iters\": %d, \"uniformity\": %g, "
+             "\"seed\": %llu, \"style_weight\": %g, \"guide_weights\": [",
+          p->patch, res->levels, p->iters, p->uniformity, (unsigned long long)p->seed, p->style_weight);
+  for (int k = 0; k < p->guides; k++) fprintf(f, "%s%g", k ? ", " : "", ts_stylit_weight(p, k));
+  fprintf(f, "]},\n  \"seconds\": %.4f,\n  \"coverage\": %.6f,\n  \"levels\": [\n", res->seconds, res->coverage);
+  for (int l = res->levels - 1; l >= 0; l--) {
+    const ts_stylit_level_stats *s = &res->level[l];
+    fprintf(f, "    {\"level\": %d, \"target\": [%d, %d], \"queries\": %llu, \"comparisons\": %llu, "
+               "\"seconds\": %.4f}%s\n",
+            l, s->w, s->h, (unsigned long long)s->queries, (unsigned long long)s->pairs, s->seconds,
+            l > 0 ? "," : "");
+  }
+  fprintf(f, "  ]\n}\n");
+  if (fclose(f) != 0 || rename(tmp, path) != 0) {
+    unlink(tmp);
+    return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
+  }
+  return 0;
+}
+
+/* The NNF: raw (x, y) uint32 pairs for a .raw path, else a 16-bit image
+ * (red = x, green = y, scaled to the exemplar), as the MRF's copy map. */
+static int write_nnf(const ts_stylit_result *res, const char *path, char *err) {
+  int w = res->image.width, h = res->image.height;
+  const char *dot = strrchr(path, '.');
+  if (dot != NULL && strcmp(dot, ".raw") == 0) return ts_write_copy_map_raw(path, res->nnf, w, h, err);
+  return ts_write_copy_map_image(path, res->nnf, w, h, res->src_w, res->src_h, err);
+}
+
+static int stylit_write_output(const ts_engine_run *r, int k, const char *path, int threads, char *err) {
+  switch (k) {
+  case OUT_IMAGE: return ts_image_write(path, &r->res.image, NULL, err);
+  case OUT_NNF: return write_nnf(&r->res, path, err);
+  case OUT_REPORT: return write_report(r, path, threads, err);
+  default: return ts_error(err, TS_EINVAL, "the stylize engine has no output %d", k);
+  }
+}
+
+static void stylit_run_free(ts_engine_run *r) {
+  if (r == NULL) return;
+  ts_stylit_result_free(&r->res);
+  free(r);
+}
+
+const ts_engine ts_engine_stylize = {
+    .name = "stylize",
+    .outputs = stylit_outputs,
+    .noutputs = OUT_COUNT,
+    .params_default = stylit_params_default,
+    .spec_set = stylit_spec_set,
+    .spec_complete = stylit_spec_complete,
+    .spec_format = stylit_spec_format,
+    .inputs = stylit_inputs,
+    .check = stylit_check,
+    .set_max_pixels = stylit_set_max_pixels,
+    .result_bytes = stylit_result_bytes,
+    .levels = stylit_levels,
+    .run = stylit_run,
+    .write_output = stylit_write_output,
+    .run_free = stylit_run_free,
+};

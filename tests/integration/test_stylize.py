@@ -1,0 +1,115 @@
+"""texsyn stylize on a small synthetic scene made from aero1.jpg (a test image
+every machine has, tests/test-data.sh): the style is a 64x48 crop, its guide
+the crop's blurred luminance, the target guide that guide mirrored. Checked:
+every NNF entry is a source patch centre and the output is exactly the vote
+of its NNF; the same bytes for any thread count and on a cluster; uniformity
+raises the exemplar coverage; every size and channel mismatch in one error.
+"""
+import json
+import struct
+import subprocess
+
+import pytest
+
+from conftest import run
+
+PATCH = 5
+
+
+def oiiotool(*args):
+    subprocess.run(["oiiotool", *map(str, args)], check=True, capture_output=True, timeout=120)
+
+
+def read_ppm(path):
+    """(width, height, channels, bytes) of a binary PNM written by oiiotool."""
+    data = path.read_bytes()
+    fields, pos = [], 0
+    while len(fields) < 4:
+        while data[pos:pos + 1].isspace():
+            pos += 1
+        end = pos
+        while not data[end:end + 1].isspace():
+            end += 1
+        fields.append(data[pos:end])
+        pos = end
+    magic, w, h = fields[0], int(fields[1]), int(fields[2])
+    return w, h, 3 if magic == b"P6" else 1, data[pos + 1:]
+
+
+@pytest.fixture(scope="module")
+def scene(data, tmp_path_factory):
+    d = tmp_path_factory.mktemp("scene")
+    oiiotool(data / "aerial/aero1.jpg", "--cut", "128x96+200+150", "--resize", "64x48", "-o", d / "style.png")
+    oiiotool(d / "style.png", "--chsum:weight=.3,.59,.11", "--blur", "3x3", "-o", d / "src.png")
+    oiiotool(d / "src.png", "--flop", "-o", d / "tgt.png")
+    oiiotool(d / "style.png", "-o", d / "style.ppm")
+    return d
+
+
+def stylize(texsyn, scene, out, *extra, check=True):
+    return run(texsyn, "stylize", "--style", scene / "style.png", "--guide", scene / "src.png", scene / "tgt.png",
+               "-o", out, "--quiet", "--iters", "3", *extra, check=check)
+
+
+def test_output_is_the_vote_of_its_nnf(texsyn, scene, tmp_path):
+    out, nnf = tmp_path / "out.png", tmp_path / "nnf.raw"
+    stylize(texsyn, scene, out, "--nnf", nnf)
+    oiiotool(out, "-o", tmp_path / "out.ppm")
+    sw, sh, ch, style = read_ppm(scene / "style.ppm")
+    tw, th, och, got = read_ppm(tmp_path / "out.ppm")
+    assert (tw, th, och) == (64, 48, ch)
+    pairs = struct.unpack(f"<{2 * tw * th}I", nnf.read_bytes())
+    r = PATCH // 2
+    for i in range(tw * th):
+        assert r <= pairs[2 * i] < sw - r and r <= pairs[2 * i + 1] < sh - r, f"pixel {i}: no source patch there"
+    for y in range(th):
+        for x in range(tw):
+            sums, n = [0] * ch, 0
+            for cy in range(max(0, y - r), min(th, y + r + 1)):
+                for cx in range(max(0, x - r), min(tw, x + r + 1)):
+                    sx = pairs[2 * (cy * tw + cx)] + x - cx
+                    sy = pairs[2 * (cy * tw + cx) + 1] + y - cy
+                    for c in range(ch):
+                        sums[c] += style[(sy * sw + sx) * ch + c]
+                    n += 1
+            want = bytes((s + n // 2) // n for s in sums)
+            assert got[(y * tw + x) * ch:(y * tw + x + 1) * ch] == want, f"pixel ({x}, {y}) is not its vote"
+
+
+def test_same_bytes_for_any_thread_count_and_on_a_cluster(texsyn, scene, cluster, tmp_path):
+    outs = []
+    for name, where in (("t1", ["--threads", "1"]), ("t3", ["--threads", "3"])):
+        stylize(texsyn, scene, tmp_path / f"{name}.png", "--nnf", tmp_path / f"{name}.raw", *where)
+        outs.append(name)
+    cluster.start(2, 1)
+    stylize(texsyn, scene, tmp_path / "c.png", "--nnf", tmp_path / "c.raw", "--server", cluster.server.addr)
+    outs.append("c")
+    for name in outs[1:]:
+        assert (tmp_path / f"{name}.png").read_bytes() == (tmp_path / "t1.png").read_bytes(), name
+        assert (tmp_path / f"{name}.raw").read_bytes() == (tmp_path / "t1.raw").read_bytes(), name
+
+
+def test_uniformity_raises_the_exemplar_coverage(texsyn, scene, tmp_path):
+    coverage = {}
+    for u in ("0", "4"):
+        report = tmp_path / f"u{u}.json"
+        stylize(texsyn, scene, tmp_path / f"u{u}.png", "--uniformity", u, "--report", report)
+        coverage[u] = json.loads(report.read_text())["coverage"]
+    assert coverage["4"] > coverage["0"] + 0.05, coverage
+
+
+def test_every_mismatch_in_one_error(texsyn, scene, tmp_path):
+    oiiotool(scene / "src.png", "--resize", "32x24", "-o", tmp_path / "small.png")
+    oiiotool(scene / "style.png", "-o", tmp_path / "rgb.png")
+    p = run(texsyn, "stylize", "--style", scene / "style.png",
+            "--guide", tmp_path / "small.png", scene / "tgt.png",
+            "--guide", scene / "src.png", tmp_path / "small.png",
+            "--guide", scene / "src.png", tmp_path / "rgb.png",
+            "--patch-size", "4", "-o", tmp_path / "x.png", check=False)
+    assert p.returncode == 2
+    for line in ("--patch-size 4: need an odd number",
+                 "guide 1: its source is 32x24, the style 64x48",
+                 "guide 2: its target is 32x24, guide 1's 64x48",
+                 "guide 3: its source has 1 channels, its target 3"):
+        assert line in p.stderr, p.stderr
+    assert not (tmp_path / "x.png").exists()
