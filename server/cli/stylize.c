@@ -66,7 +66,9 @@ static ts_stylit_params *params(stylize_opts *o) { return (ts_stylit_params *)o-
 
 /* --guide SRC TGT: getopt hands over SRC; TGT is the next word. */
 static int guide_option(stylize_opts *o, int argc, char **argv, const char *src, char *err) {
-  if (optind >= argc) return ts_error(err, TS_EINVAL, "--guide %s: needs a target guide after it (--guide SRC TGT)", src);
+  /* An option where TGT should be is a forgotten TGT, not a file name. */
+  if (optind >= argc || strncmp(argv[optind], "--", 2) == 0)
+    return ts_error(err, TS_EINVAL, "--guide %s: needs a target guide after it (--guide SRC TGT)", src);
   if (o->guides == TS_STYLIT_MAX_GUIDES)
     return ts_error(err, TS_EINVAL, "--guide: at most %d guide pairs", TS_STYLIT_MAX_GUIDES);
   o->job.in[ts_stylit_in_src(o->guides)] = src;

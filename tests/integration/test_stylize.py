@@ -136,7 +136,8 @@ def test_apply_nnf_to_the_style_gives_the_output(texsyn, scene, tmp_path):
 def test_energy_prints_a_line_and_json(texsyn, scene, tmp_path):
     """The line and the JSON agree and count every 2nd pixel in x and y; the
     exemplar scored as its own stylization (target guide = source guide)
-    beats a stylize output; a grey image for an RGB style is refused."""
+    beats a stylize output; a grey image for an RGB style and a --guide
+    without its TGT are refused."""
     out = tmp_path / "out.png"
     stylize(texsyn, scene, out)
     args = ["energy", "--style", scene / "style.png", "--guide", scene / "src.png", scene / "tgt.png",
@@ -152,3 +153,5 @@ def test_energy_prints_a_line_and_json(texsyn, scene, tmp_path):
     p = run(texsyn, "energy", "--style", scene / "style.png", "--guide", scene / "src.png", scene / "tgt.png",
             "--image", scene / "src.png", check=False)
     assert p.returncode == 2 and "--image" in p.stderr, p.stderr
+    p = run(texsyn, "energy", "--style", scene / "style.png", "--guide", scene / "src.png", "--image", out, check=False)
+    assert p.returncode == 2 and "needs a target guide after it" in p.stderr, p.stderr
