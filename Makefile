@@ -10,7 +10,8 @@
 #   make test-faults    fault injection (TRIALS random trials, default 20), the load test
 #                       and a coordinator killed half-way through level 0 of a 20 s job
 #   make fuzz       run each libFuzzer target for FUZZ_SECONDS (default 30)
-#   make bench      run benchmarks, write bench/results/
+#   make bench      run benchmarks, write bench/results/ (with TEXSYN_EBSYNTH=PATH to
+#                   the peer, also texsyn stylize against Ebsynth: bench/stylize.py)
 #   make soak       SOAK_MINUTES (default 10) of small jobs on 3 workers that are killed,
 #                   stalled and replaced; writes bench/results/soak.{json,txt}
 #   make demo       install missing packages, run an embedded synthesis

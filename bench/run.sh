@@ -3,7 +3,9 @@
 # next to the measured memory bandwidth, the seed's Table 3.3 job, quality
 # figures and example pictures. Every figure of one run is measured side by
 # side on the same machine; medians of repeated runs.
-# Usage: bench/run.sh BUILD_DIR [--quick]
+# texsyn stylize against Ebsynth runs only when TEXSYN_EBSYNTH names the peer's
+# binary (../shared/peers/build-ebsynth.sh DIR builds DIR/ebsynth).
+# Usage: [TEXSYN_EBSYNTH=PATH] bench/run.sh BUILD_DIR [--quick]
 set -euo pipefail
 build=${1:-build}; shift || true
 cd "$(dirname "$0")/.."
@@ -30,3 +32,10 @@ echo "== bytes on the wire per query"
 /usr/bin/python3 bench/wire.py --build "$build" --out "$out" "$@"
 echo "== answer times under load"
 /usr/bin/python3 bench/latency.py --build "$build" --out "$out" "$@"
+echo "== stylize against Ebsynth"
+if [ -n "${TEXSYN_EBSYNTH:-}" ] && [ -x "$TEXSYN_EBSYNTH" ]; then
+  /usr/bin/python3 bench/stylize.py --build "$build" --out "$out" --ebsynth "$TEXSYN_EBSYNTH" "$@"
+else
+  echo "skipped: no Ebsynth binary; build it with ../shared/peers/build-ebsynth.sh DIR and run" \
+    "TEXSYN_EBSYNTH=DIR/ebsynth make bench"
+fi

@@ -146,8 +146,7 @@ static int set_wants(const ts_job_cmd *o, ts_jobspec *spec, char *err) {
   return 0;
 }
 
-/* Reads the inputs; on failure the ones read are freed. */
-static int read_inputs(const ts_job_cmd *o, int n, ts_image *in, char *err) {
+int ts_job_read_inputs(const ts_job_cmd *o, int n, ts_image *in, char *err) {
   ts_image_limits limits = {o->max_pixels, NULL};
   for (int k = 0; k < n; k++) {
     int rc = ts_image_read(o->in[k], &in[k], &limits, err);
@@ -393,7 +392,7 @@ int ts_job_run(ts_job_cmd *o) {
   e->inputs(&o->spec.params, &names);
   ts_image in[TS_ENGINE_MAX_INPUTS] = {0};
   const ts_image *inp[TS_ENGINE_MAX_INPUTS];
-  if (read_inputs(o, names.n, in, err) != 0) {
+  if (ts_job_read_inputs(o, names.n, in, err) != 0) {
     fprintf(stderr, "texsyn %s: %s\n", o->cmd, err);
     return 1;
   }

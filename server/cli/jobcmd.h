@@ -64,6 +64,9 @@ void ts_job_cmd_init(ts_job_cmd *o, const char *cmd, const ts_engine *e);
 int ts_job_option(ts_job_cmd *o, int c, const char *arg, char *err);
 /* After the options: where the job runs, and what every job needs. */
 int ts_job_parse_end(ts_job_cmd *o, char *err);
+/* Reads the first n inputs (within --max-pixels); on failure the ones
+ * read are freed. */
+int ts_job_read_inputs(const ts_job_cmd *o, int n, ts_image *in, char *err);
 /* Runs the job: checks, reads, runs embedded or remotely, writes. The
  * process exit status: 0, 1 (I/O, a failed job), 2 (bad parameters). */
 int ts_job_run(ts_job_cmd *o);

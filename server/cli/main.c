@@ -4,6 +4,8 @@
  *                        and local scan threads; `run` is an alias), or
  *                        submit it to a coordinator with --server
  *   texsyn stylize ...   paint a target in an exemplar's style (stylize.c)
+ *   texsyn energy ...    score a stylized image (stylize.c)
+ *   texsyn apply-nnf ... vote a saved NNF over another layer (stylize.c)
  *   texsyn status|watch|fetch|cancel|workers   manage jobs on a coordinator
  *   texsyn quality ...   neighbourhood error of an image against a reference
  *   texsyn shuffle ...   random block shuffle baseline
@@ -481,6 +483,8 @@ static void usage_main(FILE *f) {
           "usage: texsyn COMMAND [options]   (texsyn COMMAND --help for details)\n"
           "  synth    synthesise a texture from a reference (alias: run)\n"
           "  stylize  paint a target in the style of an exemplar, guided by image pairs\n"
+          "  energy   score a stylized image: mean exact best guided patch distance, coverage\n"
+          "  apply-nnf  vote a stylize --nnf field over another layer of the exemplar\n"
           "  quality  neighbourhood error of an image against a reference\n"
           "  shuffle  random block shuffle of a reference (a baseline)\n"
           "  simd     list the L1 kernel variants this CPU supports\n"
@@ -502,6 +506,8 @@ int main(int argc, char **argv) {
   const char *cmd = argv[1];
   if (strcmp(cmd, "synth") == 0 || strcmp(cmd, "run") == 0) return cmd_synth(argc - 1, argv + 1);
   if (strcmp(cmd, "stylize") == 0) return ts_cmd_stylize(argc - 1, argv + 1);
+  if (strcmp(cmd, "energy") == 0) return ts_cmd_energy(argc - 1, argv + 1);
+  if (strcmp(cmd, "apply-nnf") == 0) return ts_cmd_apply_nnf(argc - 1, argv + 1);
   if (strcmp(cmd, "quality") == 0) return cmd_quality(argc - 1, argv + 1);
   if (strcmp(cmd, "shuffle") == 0) return cmd_shuffle(argc - 1, argv + 1);
   if (strcmp(cmd, "simd") == 0) return cmd_simd();

@@ -66,7 +66,9 @@ static ts_stylit_params *params(stylize_opts *o) { return (ts_stylit_params *)o-
 
 /* --guide SRC TGT: getopt hands over SRC; TGT is the next word. */
 static int guide_option(stylize_opts *o, int argc, char **argv, const char *src, char *err) {
-  if (optind >= argc) return ts_error(err, TS_EINVAL, "--guide %s: needs a target guide after it (--guide SRC TGT)", src);
+  /* An option where TGT should be is a forgotten TGT, not a file name. */
+  if (optind >= argc || strncmp(argv[optind], "--", 2) == 0)
+    return ts_error(err, TS_EINVAL, "--guide %s: needs a target guide after it (--guide SRC TGT)", src);
   if (o->guides == TS_STYLIT_MAX_GUIDES)
     return ts_error(err, TS_EINVAL, "--guide: at most %d guide pairs", TS_STYLIT_MAX_GUIDES);
   o->job.in[ts_stylit_in_src(o->guides)] = src;
@@ -86,7 +88,9 @@ static int weight_option(stylize_opts *o, const char *arg, char *err) {
   return rc;
 }
 
-static int stylize_option(stylize_opts *o, int c, int argc, char **argv, char *err) {
+/* The options that describe the scene, shared by stylize and energy:
+ * TS_ENOENT when c is none of them. */
+static int scene_option(stylize_opts *o, int c, int argc, char **argv, char *err) {
   ts_stylit_params *p = params(o);
   long v;
   int rc = 0;
@@ -95,6 +99,18 @@ static int stylize_option(stylize_opts *o, int c, int argc, char **argv, char *e
   case OPT_GUIDE: rc = guide_option(o, argc, argv, optarg, err); break;
   case OPT_WEIGHT: rc = weight_option(o, optarg, err); break;
   case OPT_PATCH: rc = ts_arg_long("--patch-size", optarg, -1000, 1000, &v, err); p->patch = (int)v; break;
+  default: rc = TS_ENOENT;
+  }
+  return rc;
+}
+
+static int stylize_option(stylize_opts *o, int c, int argc, char **argv, char *err) {
+  ts_stylit_params *p = params(o);
+  long v;
+  int rc = scene_option(o, c, argc, argv, err);
+  if (rc != TS_ENOENT) return rc;
+  rc = 0;
+  switch (c) {
   case OPT_LEVELS: rc = ts_arg_long("--levels", optarg, -1000, 1000, &v, err); p->levels = (int)v; break;
   case OPT_ITERS: rc = ts_arg_long("--iters", optarg, -1000, 1000, &v, err); p->iters = (int)v; break;
   case OPT_UNIFORMITY: rc = ts_arg_double("--uniformity", optarg, &p->uniformity, err); break;
@@ -105,6 +121,15 @@ static int stylize_option(stylize_opts *o, int c, int argc, char **argv, char *e
     if (rc == TS_ENOENT) rc = ts_error(err, TS_EINVAL, "unknown option (see texsyn stylize --help)");
   }
   return rc;
+}
+
+/* The scene's required parts, after the options. */
+static int scene_complete(stylize_opts *o, const char *cmd, char *err) {
+  if (o->job.in[TS_STYLIT_IN_STYLE] == NULL)
+    return ts_error(err, TS_EINVAL, "--style EXEMPLAR is required (see texsyn %s --help)", cmd);
+  if (o->guides == 0) return ts_error(err, TS_EINVAL, "at least one --guide SRC TGT is required");
+  params(o)->guides = o->guides;
+  return 0;
 }
 
 /* '+': no reordering of argv, so the word after --guide SRC is its TGT. */
@@ -127,11 +152,8 @@ static int stylize_parse(int argc, char **argv, stylize_opts *o, char *err) {
     if (rc != 0) return rc;
   }
   if (optind < argc) return ts_error(err, TS_EINVAL, "unexpected argument '%s'", argv[optind]);
-  if (o->job.in[TS_STYLIT_IN_STYLE] == NULL)
-    return ts_error(err, TS_EINVAL, "--style EXEMPLAR is required (see texsyn stylize --help)");
-  if (o->guides == 0) return ts_error(err, TS_EINVAL, "at least one --guide SRC TGT is required");
-  params(o)->guides = o->guides;
-  return ts_job_parse_end(&o->job, err);
+  int rc = scene_complete(o, "stylize", err);
+  return rc != 0 ? rc : ts_job_parse_end(&o->job, err);
 }
 
 int ts_cmd_stylize(int argc, char **argv) {
@@ -142,4 +164,243 @@ int ts_cmd_stylize(int argc, char **argv) {
     return 2;
   }
   return ts_job_run(&o.job);
+}
+
+/* ---- texsyn energy ------------------------------------------------------ */
+
+static const char *const kEnergyUsage =
+    "usage: texsyn energy --style EXEMPLAR --guide SRC TGT [--weight W] [--guide SRC TGT ...]\n"
+    "                     --image OUT [--sample STEP] [--patch-size 5] [--threads N] [--json]\n"
+    "\n"
+    "Scores any stylized image OUT of this scene, whatever made it: the mean, over the\n"
+    "target patches at every STEP-th pixel in x and y (default 1: all), of the exact least\n"
+    "guided distance to any exemplar patch - stylize's vectors (OUT in place of the style\n"
+    "estimate, the target guides), weights and 8-bit conversions, no uniformity penalty -\n"
+    "in grey levels per compared value. Coverage: the share of exemplar pixels covered\n"
+    "by those best exemplar patches (each counts all its pixels). Lower energy is better.\n"
+    "Prints: energy=E coverage=C samples=N step=S patch=P (or one JSON object, --json).\n";
+
+enum { OPT_IMAGE = OPT_NNF + 1, OPT_SAMPLE, OPT_JSON, OPT_SOURCE, OPT_SIZE };
+
+static const struct option energy_longopts[] = {
+    {"style", required_argument, 0, OPT_STYLE},     {"guide", required_argument, 0, OPT_GUIDE},
+    {"weight", required_argument, 0, OPT_WEIGHT},   {"patch-size", required_argument, 0, OPT_PATCH},
+    {"image", required_argument, 0, OPT_IMAGE},     {"sample", required_argument, 0, OPT_SAMPLE},
+    {"json", no_argument, 0, OPT_JSON},             {"threads", required_argument, 0, TS_OPT_THREADS},
+    {"help", no_argument, 0, TS_OPT_HELP},          {0, 0, 0, 0}};
+
+typedef struct {
+  stylize_opts s;
+  const char *image;
+  int step, json;
+} energy_opts;
+
+static int energy_option(energy_opts *o, int c, int argc, char **argv, char *err) {
+  long v;
+  int rc = scene_option(&o->s, c, argc, argv, err);
+  if (rc != TS_ENOENT) return rc;
+  switch (c) {
+  case OPT_IMAGE: o->image = optarg; return 0;
+  case OPT_SAMPLE: rc = ts_arg_long("--sample", optarg, 1, 1 << 16, &v, err); o->step = (int)v; return rc;
+  case OPT_JSON: o->json = 1; return 0;
+  case TS_OPT_THREADS: return ts_job_option(&o->s.job, c, optarg, err);
+  default: return ts_error(err, TS_EINVAL, "unknown option (see texsyn energy --help)");
+  }
+}
+
+static int energy_parse(int argc, char **argv, energy_opts *o, char *err) {
+  memset(o, 0, sizeof(*o));
+  ts_job_cmd_init(&o->s.job, "energy", ts_engine_find("stylize"));
+  o->s.weighs = -1;
+  o->step = 1;
+  optind = 1;
+  opterr = 0;
+  int c;
+  while ((c = getopt_long(argc, argv, "+h", energy_longopts, NULL)) != -1) {
+    if (c == TS_OPT_HELP || c == 'h') {
+      printf("%s", kEnergyUsage);
+      exit(0);
+    }
+    if (c == '?' || c == ':')
+      return ts_error(err, TS_EINVAL, "%s: unknown option or missing value (see texsyn energy --help)",
+                      argv[optind - 1]);
+    int rc = energy_option(o, c, argc, argv, err);
+    if (rc != 0) return rc;
+  }
+  if (optind < argc) return ts_error(err, TS_EINVAL, "unexpected argument '%s'", argv[optind]);
+  if (o->image == NULL) return ts_error(err, TS_EINVAL, "--image OUT is required: the stylized image to score");
+  return scene_complete(&o->s, "energy", err);
+}
+
+/* Reads the scene and the image, checks them as stylize would, measures. */
+static int energy_measure(energy_opts *o, ts_stylit_energy *en, char *err) {
+  ts_stylit_params *p = params(&o->s);
+  ts_image in[TS_ENGINE_MAX_INPUTS] = {0}, img = {0};
+  const ts_image *inp[TS_ENGINE_MAX_INPUTS];
+  int n = 1 + 2 * p->guides;
+  ts_image_limits limits = {o->s.job.max_pixels, NULL};
+  int rc = ts_job_read_inputs(&o->s.job, n, in, err), have_inputs = rc == 0;
+  if (rc == 0) rc = ts_image_read(o->image, &img, &limits, err);
+  for (int k = 0; k < n; k++) inp[k] = &in[k];
+  char msg[4096];
+  if (rc == 0 && ts_stylit_check(p, inp, msg, sizeof(msg)) != 0)
+    rc = ts_error(err, TS_EINVAL, "invalid scene:\n%s", msg);
+  ts_search *search = NULL;
+  if (rc == 0) rc = ts_search_local_create(&search, o->s.job.threads, NULL, err);
+  if (rc == 0) rc = ts_stylit_energy_measure(p, inp, &img, o->step, search, en, err);
+  ts_search_destroy(search);
+  ts_image_free(&img);
+  for (int k = 0; have_inputs && k < n; k++) ts_image_free(&in[k]);
+  return rc;
+}
+
+int ts_cmd_energy(int argc, char **argv) {
+  char err[TS_ERR_LEN] = "";
+  energy_opts o;
+  int rc = energy_parse(argc, argv, &o, err);
+  if (rc != 0) {
+    fprintf(stderr, "texsyn energy: %s\n", err);
+    return 2;
+  }
+  ts_stylit_energy en;
+  rc = energy_measure(&o, &en, err);
+  if (rc != 0) {
+    fprintf(stderr, "texsyn energy: %s\n", err);
+    return rc == TS_EINVAL ? 2 : 1;
+  }
+  int patch = params(&o.s)->patch;
+  if (o.json)
+    printf("{\"energy\": %.6f, \"coverage\": %.6f, \"coverage_of\": \"exemplar pixels\", \"samples\": %u, "
+           "\"step\": %d, \"patch_size\": %d}\n",
+           en.energy, en.coverage, en.samples, o.step, patch);
+  else printf("energy=%.6f coverage=%.6f samples=%u step=%d patch=%d\n", en.energy, en.coverage, en.samples, o.step, patch);
+  return 0;
+}
+
+/* ---- texsyn apply-nnf --------------------------------------------------- */
+
+static const char *const kApplyUsage =
+    "usage: texsyn apply-nnf --nnf F --source IMG -o OUT [--patch-size 5] [--size WxH]\n"
+    "\n"
+    "Re-applies a correspondence field saved by texsyn stylize --nnf to another layer\n"
+    "IMG of the exemplar (same size), with stylize's vote: each OUT pixel is the rounded\n"
+    "mean of what the patches covering it bring from IMG. Applied to the style exemplar\n"
+    "itself, it gives the stylize output byte for byte. OUT is 8-bit with IMG's channels.\n"
+    "  --patch-size P   the stylize job's patch size (default 5)\n"
+    "  --size WxH       the output size, needed for a .raw NNF (it has no header)\n";
+
+static const struct option apply_longopts[] = {
+    {"nnf", required_argument, 0, OPT_NNF},          {"source", required_argument, 0, OPT_SOURCE},
+    {"output", required_argument, 0, 'o'},           {"patch-size", required_argument, 0, OPT_PATCH},
+    {"size", required_argument, 0, OPT_SIZE},        {"help", no_argument, 0, TS_OPT_HELP},
+    {0, 0, 0, 0}};
+
+typedef struct {
+  const char *nnf, *source, *out;
+  int patch, w, h;
+} apply_opts;
+
+static int apply_option(apply_opts *o, int c, const char *arg, char *err) {
+  long v;
+  int rc = 0;
+  switch (c) {
+  case OPT_NNF: o->nnf = arg; break;
+  case OPT_SOURCE: o->source = arg; break;
+  case 'o': o->out = arg; break;
+  case OPT_PATCH: rc = ts_arg_long("--patch-size", arg, -1000, 1000, &v, err); o->patch = (int)v; break;
+  case OPT_SIZE:
+    if (ts_parse_size(arg, 1 << 16, &o->w, &o->h) != 0)
+      rc = ts_error(err, TS_EINVAL, "--size %s: expected WxH, e.g. 640x480", arg);
+    break;
+  default: rc = ts_error(err, TS_EINVAL, "%s: unknown option or missing value (see texsyn apply-nnf --help)", arg);
+  }
+  return rc;
+}
+
+static int apply_parse(int argc, char **argv, apply_opts *o, char *err) {
+  *o = (apply_opts){NULL, NULL, NULL, 5, 0, 0};
+  optind = 1;
+  opterr = 0;
+  int c;
+  while ((c = getopt_long(argc, argv, "o:h", apply_longopts, NULL)) != -1) {
+    if (c == TS_OPT_HELP || c == 'h') {
+      printf("%s", kApplyUsage);
+      exit(0);
+    }
+    int rc = apply_option(o, c, c == '?' || c == ':' ? argv[optind - 1] : optarg, err);
+    if (rc != 0) return rc;
+  }
+  if (optind < argc) return ts_error(err, TS_EINVAL, "unexpected argument '%s'", argv[optind]);
+  if (o->nnf == NULL || o->source == NULL || o->out == NULL)
+    return ts_error(err, TS_EINVAL, "--nnf, --source and -o are required (see texsyn apply-nnf --help)");
+  return 0;
+}
+
+static int is_raw(const char *path) {
+  const char *dot = strrchr(path, '.');
+  return dot != NULL && strcmp(dot, ".raw") == 0;
+}
+
+/* A .raw NNF: w x h little-endian uint32 (x, y) pairs, nothing else. */
+static int read_nnf_raw(const char *path, int w, int h, uint32_t *nnf, char *err) {
+  if (w == 0) return ts_error(err, TS_EINVAL, "%s: a .raw NNF has no header; give the output's --size WxH", path);
+  FILE *f = fopen(path, "rb");
+  if (f == NULL) return ts_error(err, TS_EIO, "cannot read %s: %m", path);
+  size_t n = 2 * (size_t)w * (size_t)h;
+  uint8_t b[4];
+  size_t i = 0;
+  for (; i < n && fread(b, 4, 1, f) == 1; i++)
+    nnf[i] = (uint32_t)b[0] | (uint32_t)b[1] << 8 | (uint32_t)b[2] << 16 | (uint32_t)b[3] << 24;
+  int extra = fread(b, 1, 1, f) == 1;
+  fclose(f);
+  if (i < n || extra)
+    return ts_error(err, TS_EINVAL, "%s: %s than a %dx%d NNF (%zu bytes); is --size right?", path,
+                    i < n ? "shorter" : "longer", w, h, 4 * n);
+  return 0;
+}
+
+/* An image NNF: red = x / (sw - 1), green = y / (sh - 1), 16-bit, the
+ * exemplar being sw x sh (exact back to the pixel while sw, sh <= 65536). */
+static int read_nnf_image(const char *path, const ts_image *img, int sw, int sh, uint32_t *nnf, char *err) {
+  if (img->type != TS_PIX_U16 || img->channels < 2)
+    return ts_error(err, TS_EINVAL, "%s: not an NNF image (need 16-bit, red = x, green = y)", path);
+  double kx = (sw - 1) / 65535.0, ky = (sh - 1) / 65535.0;
+  const uint16_t *px = img->pixels;
+  for (size_t i = 0; i < (size_t)img->width * (size_t)img->height; i++) {
+    nnf[2 * i] = (uint32_t)(px[i * (size_t)img->channels] * kx + 0.5);
+    nnf[2 * i + 1] = (uint32_t)(px[i * (size_t)img->channels + 1] * ky + 0.5);
+  }
+  return 0;
+}
+
+static int apply_nnf(const apply_opts *o, char *err) {
+  ts_image src = {0}, map = {0}, out = {0};
+  uint32_t *nnf = NULL;
+  int rc = ts_image_read(o->source, &src, NULL, err), w = o->w, h = o->h;
+  if (rc == 0 && !is_raw(o->nnf)) {
+    rc = ts_image_read(o->nnf, &map, NULL, err);
+    w = map.width;
+    h = map.height;
+  }
+  if (rc == 0 && (nnf = malloc(2 * sizeof(*nnf) * ((size_t)w * (size_t)h + 1))) == NULL)
+    rc = ts_error(err, TS_ENOMEM, "out of memory for a %dx%d NNF", w, h);
+  if (rc == 0)
+    rc = is_raw(o->nnf) ? read_nnf_raw(o->nnf, w, h, nnf, err)
+                        : read_nnf_image(o->nnf, &map, src.width, src.height, nnf, err);
+  if (rc == 0) rc = ts_stylit_apply_nnf(nnf, w, h, o->patch, &src, &out, err);
+  if (rc == 0) rc = ts_image_write(o->out, &out, NULL, err);
+  free(nnf);
+  ts_image_free(&src);
+  ts_image_free(&map);
+  ts_image_free(&out);
+  return rc;
+}
+
+int ts_cmd_apply_nnf(int argc, char **argv) {
+  char err[TS_ERR_LEN] = "";
+  apply_opts o;
+  int rc = apply_parse(argc, argv, &o, err);
+  if (rc == 0) rc = apply_nnf(&o, err);
+  if (rc != 0) fprintf(stderr, "texsyn apply-nnf: %s\n", err);
+  return rc == 0 ? 0 : rc == TS_EINVAL ? 2 : 1;
 }

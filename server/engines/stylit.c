@@ -45,6 +45,68 @@ typedef struct {
   ts_progress prog;
 } run;
 
+static uint32_t clampu(long v, long lo, long hi) { return (uint32_t)(v < lo ? lo : v > hi ? hi : v); }
+
+/* ---- shared with energy and apply-nnf (stylit_input.h) ---------------- */
+
+int ts_stylit_window(ts_window *win, const ts_stylit_params *p, const ts_stylit_planes *pl, char *err) {
+  int16_t dx[TS_STYLIT_MAX_PATCH * TS_STYLIT_MAX_PATCH], dy[TS_STYLIT_MAX_PATCH * TS_STYLIT_MAX_PATCH];
+  int n = 0;
+  for (int y = 0; y < p->patch; y++)
+    for (int x = 0; x < p->patch; x++) {
+      dx[n] = (int16_t)x;
+      dy[n++] = (int16_t)y;
+    }
+  ts_window_spec s = {.nplanes = {pl->nplanes, 0}, .noff = {n, 0}, .dx = {dx, NULL}, .dy = {dy, NULL},
+                      .extent = {{0, 0, (int16_t)p->patch, (int16_t)p->patch}}, .block = p->patch,
+                      .nparts = 1 + p->guides};
+  s.part[0] = (ts_part){TS_SRC_FINE, 0, (uint8_t)pl->nstyle,
+                        (uint32_t)llround(p->style_weight * TS_STYLIT_WEIGHT_STEPS / pl->nstyle)};
+  int plane = pl->nstyle;
+  for (int k = 0; k < p->guides; k++) {
+    int ng = pl->nguide[k];
+    s.part[1 + k] = (ts_part){TS_SRC_FINE, (uint8_t)plane, (uint8_t)ng,
+                              (uint32_t)llround(ts_stylit_weight(p, k) * TS_STYLIT_WEIGHT_STEPS / ng)};
+    plane += ng;
+  }
+  return ts_window_init(win, &s, err);
+}
+
+/* Ω: per source pixel, the target patches whose source patch covers it. */
+void ts_stylit_occurrences(const uint32_t *nnf, size_t n, int r, int sw, uint32_t *counts, size_t ncounts) {
+  memset(counts, 0, ncounts * sizeof(*counts));
+  for (size_t i = 0; i < n; i++)
+    for (int y = (int)nnf[2 * i + 1] - r; y <= (int)nnf[2 * i + 1] + r; y++)
+      for (int x = (int)nnf[2 * i] - r; x <= (int)nnf[2 * i] + r; x++) counts[(size_t)y * (size_t)sw + (size_t)x]++;
+}
+
+void ts_stylit_vote(const uint32_t *nnf, int tw, int th, int r, const ts_plane *src, int n, uint8_t *const *out) {
+  for (int y = 0; y < th; y++)
+    for (int x = 0; x < tw; x++) {
+      uint32_t sum[TS_WIN_MAX_PLANES] = {0}, votes = 0;
+      for (int cy = y - r < 0 ? 0 : y - r; cy <= y + r && cy < th; cy++)
+        for (int cx = x - r < 0 ? 0 : x - r; cx <= x + r && cx < tw; cx++) {
+          const uint32_t *c = &nnf[2 * ((size_t)cy * (size_t)tw + (size_t)cx)];
+          size_t at = ((size_t)c[1] + (size_t)(y - cy)) * (size_t)src[0].w + (size_t)c[0] + (size_t)(x - cx);
+          for (int k = 0; k < n; k++) sum[k] += src[k].px[at];
+          votes++;
+        }
+      for (int k = 0; k < n; k++) out[k][(size_t)y * (size_t)tw + (size_t)x] = (uint8_t)((sum[k] + votes / 2) / votes);
+    }
+}
+
+int ts_stylit_pad(const ts_plane *const *t, int n, int r, ts_plane *pad) {
+  int tw = t[0]->w, th = t[0]->h, pw = tw + 2 * r, ph = th + 2 * r;
+  for (int k = 0; k < n; k++) {
+    if (ts_plane_alloc(&pad[k], pw, ph) != 0) return TS_ENOMEM;
+    for (int y = 0; y < ph; y++)
+      for (int x = 0; x < pw; x++)
+        pad[k].px[(size_t)y * (size_t)pw + (size_t)x] =
+            ts_plane_at(t[k], (int)clampu(x - r, 0, tw - 1), (int)clampu(y - r, 0, th - 1));
+  }
+  return 0;
+}
+
 /* ---- set-up ------------------------------------------------------------ */
 
 /* Every plane's pyramid, source and target; the style estimate's planes
@@ -57,37 +119,13 @@ static int build_pyramids(run *e) {
   return 0;
 }
 
-/* The p x p window over every plane, anchored at the patch's top-left
- * corner (so the usage block of an anchor is its patch); one part for the
- * style, one per guide, each weighted by its weight per channel. */
 static int build_window(run *e, char *err) {
-  int16_t dx[TS_STYLIT_MAX_PATCH * TS_STYLIT_MAX_PATCH], dy[TS_STYLIT_MAX_PATCH * TS_STYLIT_MAX_PATCH];
-  int n = 0;
-  for (int y = 0; y < e->patch; y++)
-    for (int x = 0; x < e->patch; x++) {
-      dx[n] = (int16_t)x;
-      dy[n++] = (int16_t)y;
-    }
-  ts_window_spec s = {.nplanes = {e->pl.nplanes, 0}, .noff = {n, 0}, .dx = {dx, NULL}, .dy = {dy, NULL},
-                      .extent = {{0, 0, (int16_t)e->patch, (int16_t)e->patch}}, .block = e->patch,
-                      .nparts = 1 + e->p->guides};
-  s.part[0] = (ts_part){TS_SRC_FINE, 0, (uint8_t)e->pl.nstyle,
-                        (uint32_t)llround(e->p->style_weight * TS_STYLIT_WEIGHT_STEPS / e->pl.nstyle)};
-  int plane = e->pl.nstyle;
-  for (int k = 0; k < e->p->guides; k++) {
-    int ng = e->pl.nguide[k];
-    s.part[1 + k] = (ts_part){TS_SRC_FINE, (uint8_t)plane, (uint8_t)ng,
-                              (uint32_t)llround(ts_stylit_weight(e->p, k) * TS_STYLIT_WEIGHT_STEPS / ng)};
-    plane += ng;
-  }
-  int rc = ts_window_init(&e->win, &s, err);
+  int rc = ts_stylit_window(&e->win, e->p, &e->pl, err);
   if (rc == 0) e->d1 = ts_window_unit_distance(&e->win);
   return rc;
 }
 
 /* ---- the NNF ----------------------------------------------------------- */
-
-static uint32_t clampu(long v, long lo, long hi) { return (uint32_t)(v < lo ? lo : v > hi ? hi : v); }
 
 /* The coarsest level's: seeded random source patches. */
 static void nnf_random(run *e) {
@@ -113,42 +151,17 @@ static void nnf_upsample(run *e, const uint32_t *prev, int pw, int ph) {
     }
 }
 
-/* Ω: per source pixel, the target patches whose source patch covers it. */
-static void count_occurrences(const uint32_t *nnf, size_t n, int r, int sw, uint32_t *counts, size_t ncounts) {
-  memset(counts, 0, ncounts * sizeof(*counts));
-  for (size_t i = 0; i < n; i++)
-    for (int y = (int)nnf[2 * i + 1] - r; y <= (int)nnf[2 * i + 1] + r; y++)
-      for (int x = (int)nnf[2 * i] - r; x <= (int)nnf[2 * i] + r; x++) counts[(size_t)y * (size_t)sw + (size_t)x]++;
-}
-
 static int build_omega(run *e) {
   size_t n = (size_t)e->sw * (size_t)e->sh;
   uint32_t *counts = malloc(n * sizeof(*counts));
   if (counts == NULL) return TS_ENOMEM;
-  count_occurrences(e->nnf, (size_t)e->tw * (size_t)e->th, e->r, e->sw, counts, n);
+  ts_stylit_occurrences(e->nnf, (size_t)e->tw * (size_t)e->th, e->r, e->sw, counts, n);
   ts_usage_load(&e->omega, counts);
   free(counts);
   return 0;
 }
 
 /* ---- the vote ---------------------------------------------------------- */
-
-/* out[c] (tw x th) = the rounded mean of what the patches covering each
- * pixel bring from src[c] (sw wide), for n planes. */
-static void vote(const uint32_t *nnf, int tw, int th, int r, const ts_plane *src, int n, uint8_t *const *out) {
-  for (int y = 0; y < th; y++)
-    for (int x = 0; x < tw; x++) {
-      uint32_t sum[TS_WIN_MAX_PLANES] = {0}, votes = 0;
-      for (int cy = y - r < 0 ? 0 : y - r; cy <= y + r && cy < th; cy++)
-        for (int cx = x - r < 0 ? 0 : x - r; cx <= x + r && cx < tw; cx++) {
-          const uint32_t *c = &nnf[2 * ((size_t)cy * (size_t)tw + (size_t)cx)];
-          size_t at = ((size_t)c[1] + (size_t)(y - cy)) * (size_t)src[0].w + (size_t)c[0] + (size_t)(x - cx);
-          for (int k = 0; k < n; k++) sum[k] += src[k].px[at];
-          votes++;
-        }
-      for (int k = 0; k < n; k++) out[k][(size_t)y * (size_t)tw + (size_t)x] = (uint8_t)((sum[k] + votes / 2) / votes);
-    }
-}
 
 /* The style estimate of this level from its NNF. */
 static void vote_estimate(run *e) {
@@ -158,26 +171,17 @@ static void vote_estimate(run *e) {
     planes[k] = e->src[k][e->level];
     out[k] = e->est[k].px;
   }
-  vote(e->nnf, e->tw, e->th, e->r, planes, e->pl.nstyle, out);
+  ts_stylit_vote(e->nnf, e->tw, e->th, e->r, planes, e->pl.nstyle, out);
 }
 
 /* ---- the search step --------------------------------------------------- */
 
-/* The query image: the target's planes (style estimate, guides) with r
- * pixels of border, each the nearest edge pixel, so the patch of every
- * target pixel lies inside it; the patch of pixel (x, y) is the window at
- * (x, y). */
+/* The query image of this estimate (the style estimate, then the
+ * guides). */
 static int padded_planes(const run *e, ts_plane *pad) {
-  int pw = e->tw + 2 * e->r, ph = e->th + 2 * e->r;
-  for (int k = 0; k < e->pl.nplanes; k++) {
-    const ts_plane *t = k < e->pl.nstyle ? &e->est[k] : &e->tgt[k][e->level];
-    if (ts_plane_alloc(&pad[k], pw, ph) != 0) return TS_ENOMEM;
-    for (int y = 0; y < ph; y++)
-      for (int x = 0; x < pw; x++)
-        pad[k].px[(size_t)y * (size_t)pw + (size_t)x] =
-            ts_plane_at(t, (int)clampu(x - e->r, 0, e->tw - 1), (int)clampu(y - e->r, 0, e->th - 1));
-  }
-  return 0;
+  const ts_plane *t[TS_WIN_MAX_PLANES];
+  for (int k = 0; k < e->pl.nplanes; k++) t[k] = k < e->pl.nstyle ? &e->est[k] : &e->tgt[k][e->level];
+  return ts_stylit_pad(t, e->pl.nplanes, e->r, pad);
 }
 
 static void report_progress(run *e, uint64_t n) {
@@ -348,11 +352,11 @@ static int make_result(run *e, ts_stylit_result *res, char *err) {
   if (rc == 0) {
     uint8_t *out[TS_STYLIT_MAX_STYLE_CHANNELS];
     for (int c = 0; c < e->pl.nvote; c++) out[c] = planes + (size_t)c * n;
-    vote(e->nnf, e->tw, e->th, e->r, e->pl.vote, e->pl.nvote, out);
+    ts_stylit_vote(e->nnf, e->tw, e->th, e->r, e->pl.vote, e->pl.nvote, out);
     uint8_t *px = res->image.pixels;
     for (size_t i = 0; i < n; i++)
       for (int c = 0; c < e->pl.nvote; c++) px[i * (size_t)e->pl.nvote + (size_t)c] = out[c][i];
-    count_occurrences(e->nnf, n, e->r, e->sw, counts, (size_t)e->sw * (size_t)e->sh);
+    ts_stylit_occurrences(e->nnf, n, e->r, e->sw, counts, (size_t)e->sw * (size_t)e->sh);
     size_t used = 0;
     for (size_t i = 0; i < (size_t)e->sw * (size_t)e->sh; i++) used += counts[i] > 0;
     res->coverage = (double)used / ((double)e->sw * e->sh);

@@ -125,4 +125,35 @@ int ts_stylit_run(const ts_stylit_params *p, const ts_image *const *in, ts_searc
                   ts_stylit_result *res, char *err);
 void ts_stylit_result_free(ts_stylit_result *res);
 
+/* ---- quality tools (stylit_energy.c) ------------------------------------
+ *
+ * Energy: a score of any stylized image B' of the job's target, whatever
+ * made it. Target patches are sampled at every step-th pixel in x and y
+ * (from (0, 0); patches past the edges read the edge pixel, as in the
+ * engine); each gets its exact least guided distance to any source patch:
+ * the engine's vectors (B' in place of the style estimate, the target
+ * guides, the same 8-bit planes and weights) through the search service,
+ * with no uniformity penalty. energy = the mean of those distances divided
+ * by the window's one-grey-level distance (usage.h's D1): the weighted mean
+ * absolute difference per compared value, in grey levels.
+ * Coverage: the share of source pixels that the best source patches of the
+ * sampled target patches cover (pixels, not patch centres: a source patch
+ * counts all its p x p pixels, as the engine's coverage does). */
+typedef struct {
+  double energy;
+  double coverage;
+  uint32_t samples;
+} ts_stylit_energy;
+
+/* in: checked inputs (ts_stylit_check); image: B', the target's size with
+ * the style's colour channels (any type; converted as the style is). */
+int ts_stylit_energy_measure(const ts_stylit_params *p, const ts_image *const *in, const ts_image *image, int step,
+                             ts_search *search, ts_stylit_energy *out, char *err);
+
+/* Apply-nnf: out (8-bit, src's channels, tw x th) = the engine's vote of
+ * src's channels through nnf (tw x th source patch centres, x, y pairs),
+ * patch p. Every entry must be the centre of a patch inside src. */
+int ts_stylit_apply_nnf(const uint32_t *nnf, int tw, int th, int patch, const ts_image *src, ts_image *out,
+                        char *err);
+
 #endif

@@ -113,3 +113,45 @@ def test_every_mismatch_in_one_error(texsyn, scene, tmp_path):
                  "guide 3: its source has 1 channels, its target 3"):
         assert line in p.stderr, p.stderr
     assert not (tmp_path / "x.png").exists()
+
+
+def test_apply_nnf_to_the_style_gives_the_output(texsyn, scene, tmp_path):
+    """Both NNF files stylize writes (.raw, and the 16-bit image) voted over
+    the exemplar give the stylize output byte for byte; a .raw NNF of the
+    wrong size is refused, naming --size."""
+    for name in ("nnf.raw", "nnf.png"):
+        out = tmp_path / f"out-{name}.png"
+        stylize(texsyn, scene, out, "--nnf", tmp_path / name)
+        size = ["--size", "64x48"] if name.endswith(".raw") else []
+        run(texsyn, "apply-nnf", "--nnf", tmp_path / name, "--source", scene / "style.png",
+            "-o", tmp_path / f"again-{name}.png", *size)
+        oiiotool(out, "-o", tmp_path / "a.ppm")
+        oiiotool(tmp_path / f"again-{name}.png", "-o", tmp_path / "b.ppm")
+        assert (tmp_path / "a.ppm").read_bytes() == (tmp_path / "b.ppm").read_bytes(), name
+    p = run(texsyn, "apply-nnf", "--nnf", tmp_path / "nnf.raw", "--source", scene / "style.png",
+            "-o", tmp_path / "x.png", "--size", "64x47", check=False)
+    assert p.returncode == 2 and "is --size right?" in p.stderr, p.stderr
+
+
+def test_energy_prints_a_line_and_json(texsyn, scene, tmp_path):
+    """The line and the JSON agree and count every 2nd pixel in x and y; the
+    exemplar scored as its own stylization (target guide = source guide)
+    beats a stylize output; a grey image for an RGB style and a --guide
+    without its TGT are refused."""
+    out = tmp_path / "out.png"
+    stylize(texsyn, scene, out)
+    args = ["energy", "--style", scene / "style.png", "--guide", scene / "src.png", scene / "tgt.png",
+            "--image", out, "--sample", "2"]
+    line = run(texsyn, *args).stdout.split()
+    fields = dict(f.split("=") for f in line)
+    got = json.loads(run(texsyn, *args, "--json").stdout)
+    assert got["samples"] == int(fields["samples"]) == 32 * 24
+    assert abs(got["energy"] - float(fields["energy"])) < 1e-6 and 0 < got["coverage"] <= 1
+    copy = run(texsyn, "energy", "--style", scene / "style.png", "--guide", scene / "src.png", scene / "src.png",
+               "--image", scene / "style.png", "--json").stdout
+    assert json.loads(copy)["energy"] < got["energy"]
+    p = run(texsyn, "energy", "--style", scene / "style.png", "--guide", scene / "src.png", scene / "tgt.png",
+            "--image", scene / "src.png", check=False)
+    assert p.returncode == 2 and "--image" in p.stderr, p.stderr
+    p = run(texsyn, "energy", "--style", scene / "style.png", "--guide", scene / "src.png", "--image", out, check=False)
+    assert p.returncode == 2 and "needs a target guide after it" in p.stderr, p.stderr
