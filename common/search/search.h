@@ -18,6 +18,7 @@
 #include <stdint.h>
 
 #include "anchors.h"
+#include "error.h"
 #include "l1.h"
 #include "usage.h"
 #include "window.h"
@@ -37,6 +38,10 @@ typedef struct {
   /* Where the replicas start (read during prepare only): the counts a
    * level resumed mid-way had at its checkpoint. NULL: all zero. */
   const ts_usage *counts;
+  /* 1: a PatchMatch source (patchmatch.h): kept as planes, whole on every
+   * holder, asked only field passes (the window a square over fine
+   * planes; anchors, labels and usage unused). */
+  int field;
 } ts_refset;
 
 /* A usage change: the w x h reference pixels at (x, y) were copied (+1),
@@ -86,6 +91,20 @@ typedef struct {
   uint64_t bytes_out, bytes_in, round_trips;
 } ts_search_stats;
 
+/* A PatchMatch pass (patchmatch.h) against a field set: the field of
+ * query image `image` (tw x th patches, the image (tw + p - 1) x
+ * (th + p - 1)) improved from in to out. usage_k: the penalty factor
+ * (usage.h), the occurrences counted from in; 0: none. */
+typedef struct {
+  int set, image;
+  int tw, th;
+  const uint32_t *in;
+  uint32_t *out;
+  uint64_t usage_k;
+  uint64_t seed;
+  uint32_t pass;
+} ts_field_pass;
+
 /* One batch of a ts_search_query_many call. */
 typedef struct {
   int id;              /* set */
@@ -113,6 +132,8 @@ typedef struct {
   /* Optional: answers independent batches (no commit between them) at
    * once - a remote backend in one round trip. NULL = one query each. */
   int (*query_many)(ts_search *s, const ts_search_req *r, uint32_t n, char *err);
+  /* Optional: a PatchMatch pass; NULL = the backend has none. */
+  int (*field_pass)(ts_search *s, const ts_field_pass *fp, char *err);
   void (*release)(ts_search *s, int id);
   void (*destroy)(ts_search *s);
 } ts_search_ops;
@@ -156,6 +177,10 @@ static inline int ts_search_query_many(ts_search *s, const ts_search_req *r,
     if (rc != 0) return rc;
   }
   return 0;
+}
+static inline int ts_search_field_pass(ts_search *s, const ts_field_pass *fp, char *err) {
+  if (s->ops->field_pass == NULL) return ts_error(err, TS_ENOTSUP, "the %s search backend runs no patchmatch", s->ops->name);
+  return s->ops->field_pass(s, fp, err);
 }
 static inline void ts_search_release(ts_search *s, int id) {
   s->ops->release(s, id);

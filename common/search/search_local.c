@@ -7,6 +7,7 @@
 #include <time.h>
 
 #include "error.h"
+#include "patchmatch.h"
 #include "util.h"
 #include "pool.h"
 #include "replica.h"
@@ -33,6 +34,11 @@ typedef struct {
   ts_pool *pool;
   int inline_small; /* 0: every batch goes through the pool (tests) */
   ts_slice *sets[LOCAL_MAX_SETS];
+  /* PatchMatch sets, and the image (by generation) whose target each
+   * holds packed. */
+  ts_pm_field *fields[LOCAL_MAX_SETS];
+  uint64_t field_gen[LOCAL_MAX_SETS];
+  uint64_t image_gen[LOCAL_MAX_IMAGES], next_gen;
   uint32_t count[LOCAL_MAX_SETS][TS_MAX_CLASSES];
   ts_replica images[LOCAL_MAX_IMAGES];
   int image_used[LOCAL_MAX_IMAGES];
@@ -51,6 +57,7 @@ static int local_image_open(ts_search *s, const ts_replica_desc *d, int *id, cha
   int rc = ts_replica_init(&ls->images[slot], d, err);
   if (rc != 0) return rc;
   ls->image_used[slot] = 1;
+  ls->image_gen[slot] = ++ls->next_gen;
   *id = slot;
   return 0;
 }
@@ -87,11 +94,29 @@ static int local_place(ts_search *s, int id, const ts_place *p, uint32_t n, char
 }
 
 
+static int prepare_field(local_search *ls, const ts_refset *rs, int slot, char *err) {
+  ts_pm_field *f = calloc(1, sizeof(*f));
+  if (f == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+  int rc = ts_pm_field_init(f, rs->window, rs->ref->fine, ts_pool_size(ls->pool), err);
+  if (rc != 0) {
+    free(f);
+    return rc;
+  }
+  ls->fields[slot] = f;
+  ls->field_gen[slot] = 0;
+  return 0;
+}
+
 static int local_prepare(ts_search *s, const ts_refset *rs, int *id, char *err) {
   local_search *ls = (local_search *)s;
   int slot = 0;
-  while (slot < LOCAL_MAX_SETS && ls->sets[slot] != NULL) slot++;
+  while (slot < LOCAL_MAX_SETS && (ls->sets[slot] != NULL || ls->fields[slot] != NULL)) slot++;
   if (slot == LOCAL_MAX_SETS) return ts_error(err, TS_ENOMEM, "too many reference sets prepared at once");
+  if (rs->field) {
+    int rc = prepare_field(ls, rs, slot, err);
+    if (rc == 0) *id = slot;
+    return rc;
+  }
   static const uint32_t i0[TS_MAX_CLASSES] = {0};
   if (image_get(ls, rs->image) == NULL) return ts_error(err, TS_EINVAL, "unknown query image %d", rs->image);
   ts_slice_desc m;
@@ -131,8 +156,39 @@ static int local_query(ts_search *s, int id, const ts_query_batch *b, ts_l1_best
   return 0;
 }
 
+/* A pass over every tile on the pool; the target is packed once per
+ * image opened. */
+static int local_field_pass(ts_search *s, const ts_field_pass *fp, char *err) {
+  local_search *ls = (local_search *)s;
+  ts_pm_field *f = fp->set >= 0 && fp->set < LOCAL_MAX_SETS ? ls->fields[fp->set] : NULL;
+  if (f == NULL) return ts_error(err, TS_EINVAL, "unknown patchmatch set %d", fp->set);
+  const ts_replica *r = image_get(ls, fp->image);
+  if (r == NULL) return ts_error(err, TS_EINVAL, "unknown query image %d", fp->image);
+  double t0 = ts_now();
+  int rc = 0;
+  if (ls->field_gen[fp->set] != ls->image_gen[fp->image]) {
+    const ts_plane *t[TS_WIN_MAX_PLANES];
+    for (int k = 0; k < r->nplanes; k++) t[k] = &r->fine[k];
+    rc = ts_pm_field_target(f, t, err);
+    ls->field_gen[fp->set] = rc == 0 ? ls->image_gen[fp->image] : 0;
+  }
+  ts_pm_job j = {fp->tw, fp->th, fp->in, fp->usage_k, fp->seed, fp->pass, s->simd->id == TS_SIMD_SCALAR};
+  if (rc == 0) rc = ts_pm_field_pass(f, &j, NULL, 0, ls->pool, fp->out, err);
+  s->stats.scan_seconds += ts_now() - t0;
+  if (rc == 0) {
+    s->stats.batches++;
+    s->stats.queries += (uint64_t)fp->tw * (uint64_t)fp->th;
+  }
+  return rc;
+}
+
 static void local_release(ts_search *s, int id) {
   local_search *ls = (local_search *)s;
+  if (id >= 0 && id < LOCAL_MAX_SETS && ls->fields[id] != NULL) {
+    ts_pm_field_free(ls->fields[id]);
+    free(ls->fields[id]);
+    ls->fields[id] = NULL;
+  }
   if (set_get(ls, id) == NULL) return;
   ts_slice_free(ls->sets[id]);
   ls->sets[id] = NULL;
@@ -140,7 +196,7 @@ static void local_release(ts_search *s, int id) {
 
 static void local_destroy(ts_search *s) {
   local_search *ls = (local_search *)s;
-  for (int i = 0; i < LOCAL_MAX_SETS; i++) ts_slice_free(ls->sets[i]);
+  for (int i = 0; i < LOCAL_MAX_SETS; i++) local_release(s, i);
   for (int i = 0; i < LOCAL_MAX_IMAGES; i++) ts_replica_free(&ls->images[i]);
   ts_query_scratch_free(&ls->scratch);
   ts_pool_destroy(ls->pool);
@@ -155,6 +211,7 @@ static const ts_search_ops local_ops = {
     .place = local_place,
     .image_close = local_image_close,
     .query = local_query,
+    .field_pass = local_field_pass,
     .release = local_release,
     .destroy = local_destroy,
 };

@@ -38,7 +38,16 @@ static void usage(FILE *f) {
           "  --uniformity U       how much a source patch used more than its share costs,\n"
           "                       0..1000 (default 1; 0 = off): U = 1 charges a patch used\n"
           "                       at the average rate one grey level per compared value\n"
-          "  --seed S             seed of the coarsest level's random start (default 1)\n"
+          "  --search MODE        exact: every target patch takes the best source patch;\n"
+          "                       patchmatch: passes of propagation and random search over\n"
+          "                       fixed seeded tiles (approximate; the same bytes on any pool);\n"
+          "                       auto (default): exact at each level whose estimated time\n"
+          "                       fits --budget, patchmatch at the others (the report says\n"
+          "                       which ran where; the choice depends on the machine's speed)\n"
+          "  --pm-iters N         patchmatch passes per search step, 1..100 (default 4)\n"
+          "  --budget SECONDS     auto: the longest an exact level may take (default 10)\n"
+          "  --seed S             seed of the coarsest level's random start and of the\n"
+          "                       patchmatch passes (default 1)\n"
           "  --nnf F              the nearest-neighbour field: for each output pixel the\n"
           "                       exemplar pixel it comes from (.raw: little-endian uint32\n"
           "                       x, y pairs; else a 16-bit image, red = x, green = y)\n"
@@ -46,14 +55,17 @@ static void usage(FILE *f) {
           TS_STYLIT_MAX_GUIDES, TS_STYLIT_MAX_PATCH, TS_STYLIT_MAX_LEVELS, ts_job_options_help);
 }
 
-enum { OPT_STYLE = TS_OPT_OWN, OPT_GUIDE, OPT_WEIGHT, OPT_PATCH, OPT_LEVELS, OPT_ITERS, OPT_UNIFORMITY, OPT_SEED, OPT_NNF };
+enum { OPT_STYLE = TS_OPT_OWN, OPT_GUIDE, OPT_WEIGHT, OPT_PATCH, OPT_LEVELS, OPT_ITERS, OPT_UNIFORMITY, OPT_SEED, OPT_NNF,
+       OPT_SEARCH, OPT_PM_ITERS, OPT_BUDGET };
 
 static const struct option longopts[] = {
     {"style", required_argument, 0, OPT_STYLE},       {"guide", required_argument, 0, OPT_GUIDE},
     {"weight", required_argument, 0, OPT_WEIGHT},     {"patch-size", required_argument, 0, OPT_PATCH},
     {"levels", required_argument, 0, OPT_LEVELS},     {"iters", required_argument, 0, OPT_ITERS},
     {"uniformity", required_argument, 0, OPT_UNIFORMITY}, {"seed", required_argument, 0, OPT_SEED},
-    {"nnf", required_argument, 0, OPT_NNF},           TS_JOB_LONGOPTS,
+    {"nnf", required_argument, 0, OPT_NNF},           {"search", required_argument, 0, OPT_SEARCH},
+    {"pm-iters", required_argument, 0, OPT_PM_ITERS}, {"budget", required_argument, 0, OPT_BUDGET},
+    TS_JOB_LONGOPTS,
     {0, 0, 0, 0}};
 
 typedef struct {
@@ -116,6 +128,9 @@ static int stylize_option(stylize_opts *o, int c, int argc, char **argv, char *e
   case OPT_UNIFORMITY: rc = ts_arg_double("--uniformity", optarg, &p->uniformity, err); break;
   case OPT_SEED: rc = ts_arg_u64("--seed", optarg, &p->seed, err); break;
   case OPT_NNF: ts_output_set(&o->job.out, "nnf", optarg); break;
+  case OPT_SEARCH: rc = ts_stylit_search_parse(optarg, &p->search, err); break;
+  case OPT_PM_ITERS: rc = ts_arg_long("--pm-iters", optarg, -1000, 1000, &v, err); p->pm_iters = (int)v; break;
+  case OPT_BUDGET: rc = ts_arg_double("--budget", optarg, &p->budget, err); break;
   default:
     rc = ts_job_option(&o->job, c, optarg, err);
     if (rc == TS_ENOENT) rc = ts_error(err, TS_EINVAL, "unknown option (see texsyn stylize --help)");

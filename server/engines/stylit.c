@@ -6,6 +6,7 @@
 #include <string.h>
 
 #include "error.h"
+#include "patchmatch.h"
 #include "rng.h"
 #include "stylit_input.h"
 #include "util.h"
@@ -43,6 +44,8 @@ typedef struct {
   ts_usage omega; /* counters only: the backend sums them per patch */
   ts_plane est[TS_WIN_MAX_PLANES]; /* the style estimate, planes 0..nstyle-1 */
   ts_progress prog;
+  uint64_t usage_k; /* patchmatch's penalty factor at this level */
+  double rate;      /* exact comparisons per second measured so far (auto), 0: none yet */
 } run;
 
 static uint32_t clampu(long v, long lo, long hi) { return (uint32_t)(v < lo ? lo : v > hi ? hi : v); }
@@ -280,6 +283,65 @@ static int search_step(run *e, char *err) {
   return rc;
 }
 
+/* ---- the patchmatch search step ------------------------------------------ */
+
+/* The pass seed of a level: the job's seed with the level mixed in (each
+ * pass and tile then draw from their own stream of it, patchmatch.h). */
+static uint64_t level_seed(const run *e) { return e->p->seed ^ (0x9E3779B97F4A7C15ull * (uint64_t)(e->level + 1)); }
+
+/* One search step in patchmatch passes against the level's field set: the
+ * query image of this estimate, pm_iters passes, the NNF renewed. Passes
+ * are numbered through the level, so their directions alternate across
+ * steps too. */
+static int search_step_pm(run *e, int set, int it, uint32_t *spare, char *err) {
+  ts_plane pad[TS_WIN_MAX_PLANES] = {0};
+  int image = -1, rc = padded_planes(e, pad);
+  if (rc != 0) rc = ts_error(err, TS_ENOMEM, "out of memory for a %dx%d target", e->tw, e->th);
+  ts_replica_desc d = {.w = e->tw + 2 * e->r, .h = e->th + 2 * e->r, .nplanes = e->pl.nplanes};
+  for (int k = 0; k < e->pl.nplanes; k++) d.fine[k] = pad[k].px;
+  if (rc == 0) rc = ts_search_image_open(e->search, &d, &image, err);
+  for (int q = 0; rc == 0 && q < e->p->pm_iters; q++) {
+    ts_field_pass fp = {set, image, e->tw, e->th, e->nnf, spare, e->usage_k, level_seed(e),
+                        (uint32_t)(it * e->p->pm_iters + q)};
+    rc = ts_search_field_pass(e->search, &fp, err);
+    if (rc == 0) {
+      memcpy(e->nnf, spare, 2 * sizeof(uint32_t) * (size_t)e->tw * (size_t)e->th);
+      report_progress(e, (uint64_t)e->tw * (uint64_t)e->th / (uint64_t)e->p->pm_iters);
+    }
+  }
+  if (image >= 0) ts_search_image_close(e->search, image);
+  for (int k = 0; k < e->pl.nplanes; k++) ts_plane_free(&pad[k]);
+  return rc;
+}
+
+/* A level's EM iterations with patchmatch: the source is prepared once as
+ * a field set (held whole by every holder) and searched pass by pass. */
+static int iterate_pm(run *e, char *err) {
+  ts_levelplanes lp = {{NULL}, {NULL}};
+  for (int k = 0; k < e->pl.nplanes; k++) lp.fine[k] = &e->src[k][e->level];
+  ts_refset rs = {.image = -1, .window = &e->win, .anchors = &e->grid, .ref = &lp, .field = 1};
+  int set = -1, rc = ts_search_prepare(e->search, &rs, &set, err);
+  uint32_t *spare = malloc(2 * sizeof(uint32_t) * (size_t)e->tw * (size_t)e->th);
+  if (rc == 0 && spare == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
+  e->usage_k = e->lambda > 0 ? ts_usage_factor(&e->omega, e->lambda, e->d1) : 0;
+  for (int it = 0; rc == 0 && it < e->p->iters; it++) {
+    vote_estimate(e);
+    rc = search_step_pm(e, set, it, spare, err);
+  }
+  if (set >= 0) ts_search_release(e->search, set);
+  free(spare);
+  return rc;
+}
+
+static int iterate_exact(run *e, char *err) {
+  int rc = 0;
+  for (int it = 0; rc == 0 && it < e->p->iters; it++) {
+    vote_estimate(e);
+    rc = search_step(e, err);
+  }
+  return rc;
+}
+
 /* ---- levels ------------------------------------------------------------ */
 
 static void level_free(run *e) {
@@ -317,17 +379,34 @@ static int level_start(run *e, int l, char *err) {
   return rc;
 }
 
+/* The comparisons an exact level makes: every target patch against every
+ * source patch, per iteration. */
+static double exact_pairs(const run *e, int l) {
+  const ts_plane *s = &e->src[0][l], *t = &e->tgt[e->pl.nstyle][l];
+  return (double)t->w * t->h * (double)(s->w - e->patch + 1) * (s->h - e->patch + 1) * e->p->iters;
+}
+
+/* Auto's choice for level l: exact when its comparisons at the rate the
+ * exact levels before it ran (at the first, a rate no machine is slower
+ * than: 10^8 comparisons a second) fit the budget. */
+#define AUTO_FIRST_RATE 1e8
+static int level_mode(const run *e, int l, double *estimate) {
+  *estimate = 0;
+  if (e->p->search != TS_STYLIT_AUTO) return e->p->search;
+  *estimate = exact_pairs(e, l) / (e->rate > 0 ? e->rate : AUTO_FIRST_RATE);
+  return *estimate <= e->p->budget ? TS_STYLIT_EXACT : TS_STYLIT_PATCHMATCH;
+}
+
 static int run_level(run *e, int l, ts_stylit_level_stats *st, char *err) {
-  double t0 = ts_now();
+  double t0 = ts_now(), estimate;
   ts_search_stats s0 = e->search->stats;
+  int mode = level_mode(e, l, &estimate);
   int rc = level_start(e, l, err);
-  for (int it = 0; rc == 0 && it < e->p->iters; it++) {
-    vote_estimate(e);
-    rc = search_step(e, err);
-  }
+  if (rc == 0) rc = mode == TS_STYLIT_EXACT ? iterate_exact(e, err) : iterate_pm(e, err);
   level_free(e);
   *st = (ts_stylit_level_stats){ts_now() - t0, e->search->stats.pairs - s0.pairs,
-                                e->search->stats.queries - s0.queries, e->tw, e->th};
+                                e->search->stats.queries - s0.queries, e->tw, e->th, mode, estimate};
+  if (mode == TS_STYLIT_EXACT && st->seconds > 0) e->rate = (double)st->pairs / st->seconds;
   return rc;
 }
 

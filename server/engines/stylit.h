@@ -71,6 +71,12 @@
 #define TS_STYLIT_MAX_PATCH 15
 #define TS_STYLIT_WEIGHT_STEPS 840 /* a weight's integer unit: lcm(1..8) / w, exact per channel count */
 
+/* How a level's search step runs: exact (every source patch compared),
+ * patchmatch (patchmatch.h: passes of propagation and random search over
+ * fixed seeded tiles), or auto: exact where the level's estimated exact
+ * time fits the budget, else patchmatch. */
+enum { TS_STYLIT_EXACT = 0, TS_STYLIT_PATCHMATCH = 1, TS_STYLIT_AUTO = 2 };
+
 typedef struct {
   int patch;          /* p: odd, 3..TS_STYLIT_MAX_PATCH (5) */
   int levels;         /* 1..TS_STYLIT_MAX_LEVELS; 0: as many as fit (see ts_stylit_levels) */
@@ -81,6 +87,9 @@ typedef struct {
   int guides;         /* 1..TS_STYLIT_MAX_GUIDES */
   double style_weight; /* 0 or 0.01..100 (1) */
   double weight[TS_STYLIT_MAX_GUIDES]; /* 0 or 0.01..100; < 0: 1 / guides */
+  int search;         /* TS_STYLIT_EXACT / PATCHMATCH / AUTO (AUTO) */
+  int pm_iters;       /* patchmatch passes per search step, 1..100 (4) */
+  double budget;      /* auto: seconds an exact level may take, 0..1e6 (10) */
 } ts_stylit_params;
 
 /* Inputs in the engine's order: style, then per guide K source, target. */
@@ -89,6 +98,9 @@ static inline int ts_stylit_in_src(int k) { return 1 + 2 * k; }
 static inline int ts_stylit_in_tgt(int k) { return 2 + 2 * k; }
 
 void ts_stylit_params_default(ts_stylit_params *p);
+/* Search mode names: "exact", "patchmatch", "auto". */
+const char *ts_stylit_search_name(int mode);
+int ts_stylit_search_parse(const char *name, int *mode, char *err);
 /* Guide k's weight, the default resolved. */
 double ts_stylit_weight(const ts_stylit_params *p, int k);
 /* Every problem with the parameters and inputs (sizes, channels, ranges,
@@ -102,7 +114,9 @@ int ts_stylit_levels(const ts_stylit_params *p, const ts_image *const *in);
 typedef struct {
   double seconds;
   uint64_t pairs, queries;
-  int w, h; /* target size at the level */
+  int w, h;  /* target size at the level */
+  int mode;  /* TS_STYLIT_EXACT or TS_STYLIT_PATCHMATCH: what ran */
+  double estimate; /* auto: the exact level's estimated seconds (0: not estimated) */
 } ts_stylit_level_stats;
 
 typedef struct {

@@ -55,6 +55,9 @@ static int stylit_spec_set(void *params, const char *k, const char *v) {
   if (strcmp(k, "max_pixels") == 0) return ts_parse_u64(v, &p->max_pixels);
   if (strcmp(k, "guides") == 0) return ts_parse_int(v, 1, TS_STYLIT_MAX_GUIDES, &p->guides);
   if (strcmp(k, "style_weight") == 0) return ts_parse_double(v, &p->style_weight);
+  if (strcmp(k, "search") == 0) return ts_stylit_search_parse(v, &p->search, NULL) == 0 ? 0 : TS_EINVAL;
+  if (strcmp(k, "pm_iters") == 0) return ts_parse_int(v, -1000, 1000, &p->pm_iters);
+  if (strcmp(k, "budget") == 0) return ts_parse_double(v, &p->budget);
   return set_weight(p, k, v);
 }
 
@@ -75,9 +78,10 @@ static int stylit_spec_format(const void *params, char *buf, size_t cap) {
   const ts_stylit_params *p = params;
   int n = snprintf(buf, cap,
                    "patch_size=%d\nlevels=%d\niters=%d\nuniformity=%.17g\nseed=%llu\nmax_pixels=%llu\nguides=%d\n"
-                   "style_weight=%.17g\n",
+                   "style_weight=%.17g\nsearch=%s\npm_iters=%d\nbudget=%.17g\n",
                    p->patch, p->levels, p->iters, p->uniformity, (unsigned long long)p->seed,
-                   (unsigned long long)p->max_pixels, p->guides, p->style_weight);
+                   (unsigned long long)p->max_pixels, p->guides, p->style_weight, ts_stylit_search_name(p->search),
+                   p->pm_iters, p->budget);
   for (int k = 0; n >= 0 && (size_t)n < cap && k < p->guides; k++)
     n += snprintf(buf + n, cap - (size_t)n, "weight_%d=%.17g\n", k, ts_stylit_weight(p, k));
   return n < 0 || (size_t)n >= cap ? TS_ETOOBIG : n;
@@ -130,8 +134,11 @@ static int write_report(const ts_engine_run *r, const char *path, int threads, c
   snprintf(tmp, sizeof(tmp), "%s.tmp-%ld", path, (long)getpid());
   FILE *f = fopen(tmp, "w");
   if (f == NULL) return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
-  fprintf(f, "{\n  \"engine\": \"stylize\",\n  \"search\": {\"mode\": \"exact\", \"lossy\": [], "
-             "\"backend\": \"%s\", \"simd\": \"%s\", \"threads\": %d},\n",
+  int pm_levels = 0;
+  for (int l = 0; l < res->levels; l++) pm_levels += res->level[l].mode == TS_STYLIT_PATCHMATCH;
+  fprintf(f, "{\n  \"engine\": \"stylize\",\n  \"search\": {\"mode\": \"%s\", \"lossy\": [%s], "
+             "\"pm_iters\": %d, \"budget\": %g, \"backend\": \"%s\", \"simd\": \"%s\", \"threads\": %d},\n",
+          ts_stylit_search_name(p->search), pm_levels ? "\"patchmatch\"" : "", p->pm_iters, p->budget,
           r->search->ops->name, r->search->simd->name, threads);
   fprintf(f, "  \"params\": {\"patch_size\": %d, \"levels\": %d, \"iters\": %d, \"uniformity\": %g, "
              "\"seed\": %llu, \"style_weight\": %g, \"guide_weights\": [",
@@ -140,10 +147,10 @@ static int write_report(const ts_engine_run *r, const char *path, int threads, c
   fprintf(f, "]},\n  \"seconds\": %.4f,\n  \"coverage\": %.6f,\n  \"levels\": [\n", res->seconds, res->coverage);
   for (int l = res->levels - 1; l >= 0; l--) {
     const ts_stylit_level_stats *s = &res->level[l];
-    fprintf(f, "    {\"level\": %d, \"target\": [%d, %d], \"queries\": %llu, \"comparisons\": %llu, "
-               "\"seconds\": %.4f}%s\n",
-            l, s->w, s->h, (unsigned long long)s->queries, (unsigned long long)s->pairs, s->seconds,
-            l > 0 ? "," : "");
+    fprintf(f, "    {\"level\": %d, \"target\": [%d, %d], \"search\": \"%s\", \"exact_estimate_s\": %.4g, "
+               "\"queries\": %llu, \"comparisons\": %llu, \"seconds\": %.4f}%s\n",
+            l, s->w, s->h, ts_stylit_search_name(s->mode), s->estimate, (unsigned long long)s->queries,
+            (unsigned long long)s->pairs, s->seconds, l > 0 ? "," : "");
   }
   fprintf(f, "  ]\n}\n");
   if (fclose(f) != 0 || rename(tmp, path) != 0) {

@@ -18,6 +18,24 @@ void ts_stylit_params_default(ts_stylit_params *p) {
   p->guides = 1;
   p->style_weight = 1.0;
   for (int k = 0; k < TS_STYLIT_MAX_GUIDES; k++) p->weight[k] = -1.0;
+  p->search = TS_STYLIT_AUTO;
+  p->pm_iters = 4;
+  p->budget = 10.0;
+}
+
+static const char *const kSearchNames[] = {"exact", "patchmatch", "auto"};
+
+const char *ts_stylit_search_name(int mode) {
+  return mode >= TS_STYLIT_EXACT && mode <= TS_STYLIT_AUTO ? kSearchNames[mode] : "unknown";
+}
+
+int ts_stylit_search_parse(const char *name, int *mode, char *err) {
+  for (int m = TS_STYLIT_EXACT; m <= TS_STYLIT_AUTO; m++)
+    if (strcmp(name, kSearchNames[m]) == 0) {
+      *mode = m;
+      return 0;
+    }
+  return ts_error(err, TS_EINVAL, "--search %s: need exact, patchmatch or auto", name);
 }
 
 double ts_stylit_weight(const ts_stylit_params *p, int k) {
@@ -53,6 +71,9 @@ static void check_params(const ts_stylit_params *p, problems *pr) {
   if (p->levels < 0 || p->levels > TS_STYLIT_MAX_LEVELS)
     problem(pr, "--levels %d: need 1..%d (or 0: as many as fit)", p->levels, TS_STYLIT_MAX_LEVELS);
   if (p->iters < 1 || p->iters > 100) problem(pr, "--iters %d: need 1..100", p->iters);
+  if (p->search < TS_STYLIT_EXACT || p->search > TS_STYLIT_AUTO) problem(pr, "search mode %d: need exact, patchmatch or auto", p->search);
+  if (p->pm_iters < 1 || p->pm_iters > 100) problem(pr, "--pm-iters %d: need 1..100", p->pm_iters);
+  if (!(p->budget >= 0 && p->budget <= 1e6)) problem(pr, "--budget %g: need 0..1000000 seconds", p->budget);
   if (!(p->uniformity >= 0.0 && p->uniformity <= 1000.0))
     problem(pr, "--uniformity %g: need 0..1000 (0: off)", p->uniformity);
   if (!weight_ok(p->style_weight)) problem(pr, "--weight %g of the style: need 0 or 0.01..100", p->style_weight);
