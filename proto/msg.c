@@ -7,6 +7,7 @@
 #include <string.h>
 
 #include "error.h"
+#include "patchmatch.h"
 
 static int bad(char *err, char type, const char *what) {
   return ts_error(err, TS_EPROTO, "malformed '%c' message: %s", type, what);
@@ -175,9 +176,7 @@ static void wr_window(ts_wr *w, const ts_window_spec *s) {
 /* Reads a window into m->win, its offsets into m->offbuf. Counts are
  * bounded here so the reads stay in offbuf; the rest is ts_window_init's
  * to check. */
-static int rd_window(ts_rd *r, ts_slice_desc *m, char *err) {
-  ts_window_spec *s = &m->win;
-  int16_t *o = m->offbuf;
+static int rd_window(ts_rd *r, ts_window_spec *s, int16_t *o, uint8_t *knownbuf, char *err) {
   for (int src = 0; src < TS_NSRC; src++) s->nplanes[src] = ts_rd_u8(r);
   s->centre = ts_rd_u16(r);
   s->block = ts_rd_u16(r);
@@ -206,8 +205,8 @@ static int rd_window(ts_rd *r, ts_slice_desc *m, char *err) {
   if (known > 1) return bad(err, 'N', "known-offsets flag");
   if (known) {
     const uint8_t *k = ts_rd_bytes(r, (size_t)s->noff[TS_SRC_FINE]);
-    if (k != NULL) memcpy(m->knownbuf, k, (size_t)s->noff[TS_SRC_FINE]);
-    s->known = m->knownbuf;
+    if (k != NULL) memcpy(knownbuf, k, (size_t)s->noff[TS_SRC_FINE]);
+    s->known = knownbuf;
   }
   return 0;
 }
@@ -313,7 +312,7 @@ int ts_msg_slice_read(const ts_frame *f, ts_slice_desc *m, char *err) {
   m->set = ts_rd_u32(&r);
   m->gen = ts_rd_u32(&r);
   m->image = ts_rd_u32(&r);
-  int rc = rd_window(&r, m, err);
+  int rc = rd_window(&r, &m->win, m->offbuf, m->knownbuf, err);
   if (rc != 0) return rc;
   m->w = (int32_t)ts_rd_u32(&r);
   m->h = (int32_t)ts_rd_u32(&r);
@@ -797,4 +796,125 @@ int ts_msg_pool_read(const ts_frame *f, ts_worker_info *wi, uint32_t cap, uint32
     if (wi[i].state >= TS_WORKER_STATE_COUNT || wi[i].share > 1000) return bad(err, 'P', "worker record");
   }
   return finish(&r, err, 'P');
+}
+
+/* ---- G ------------------------------------------------------------------ */
+
+void ts_msg_field_write(ts_wr *w, const ts_msg_field *m) {
+  ts_wr_u32(w, m->set);
+  wr_window(w, &m->win);
+  ts_wr_u32(w, (uint32_t)m->w);
+  ts_wr_u32(w, (uint32_t)m->h);
+  ts_wr_u8(w, (uint8_t)m->nplanes);
+  wr_planes(w, m->plane, m->nplanes, m->w, m->h);
+}
+
+int ts_msg_field_read(const ts_frame *f, ts_msg_field *m, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  memset(m, 0, sizeof(*m));
+  m->set = ts_rd_u32(&r);
+  int rc = rd_window(&r, &m->win, m->offbuf, m->knownbuf, err);
+  if (rc != 0) return rc;
+  m->w = (int)ts_rd_u32(&r);
+  m->h = (int)ts_rd_u32(&r);
+  m->nplanes = ts_rd_u8(&r);
+  if (r.failed) return bad(err, 'G', "truncated header");
+  if (m->nplanes < 1 || m->nplanes > TS_WIN_MAX_PLANES || m->nplanes != m->win.nplanes[TS_SRC_FINE])
+    return bad(err, 'G', "plane count");
+  if (m->w < 1 || m->h < 1 || m->w > TS_PASS_MAX_SIDE || m->h > TS_PASS_MAX_SIDE ||
+      rd_planes(&r, m->plane, m->nplanes, m->w, m->h) != 0)
+    return bad(err, 'G', "source size");
+  return finish(&r, err, 'G');
+}
+
+void ts_msg_field_ack_write(ts_wr *w, uint32_t set) { ts_wr_u32(w, set); }
+
+int ts_msg_field_ack_read(const ts_frame *f, uint32_t *set, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  *set = ts_rd_u32(&r);
+  return finish(&r, err, 'G');
+}
+
+/* ---- T ------------------------------------------------------------------ */
+
+void ts_msg_pass_write(ts_wr *w, const ts_msg_pass *m) {
+  ts_wr_u32(w, m->set);
+  ts_wr_u32(w, m->image);
+  ts_wr_u64(w, m->seq);
+  ts_wr_u32(w, m->tw);
+  ts_wr_u32(w, m->th);
+  ts_wr_u64(w, m->usage_k);
+  ts_wr_u64(w, m->seed);
+  ts_wr_u32(w, m->pass);
+  ts_wr_u32(w, m->ntiles);
+  for (uint32_t i = 0; i < m->ntiles; i++) ts_wr_u32(w, m->tiles[i]);
+  for (size_t i = 0; i < 2 * (size_t)m->tw * m->th; i++) ts_wr_u16(w, (uint16_t)m->field[i]);
+}
+
+int ts_msg_pass_read(const ts_frame *f, ts_msg_pass *m, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  memset(m, 0, sizeof(*m));
+  m->set = ts_rd_u32(&r);
+  m->image = ts_rd_u32(&r);
+  m->seq = ts_rd_u64(&r);
+  m->tw = ts_rd_u32(&r);
+  m->th = ts_rd_u32(&r);
+  m->usage_k = ts_rd_u64(&r);
+  m->seed = ts_rd_u64(&r);
+  m->pass = ts_rd_u32(&r);
+  m->ntiles = ts_rd_u32(&r);
+  if (r.failed) return bad(err, 'T', "truncated header");
+  uint64_t n = (uint64_t)m->tw * m->th;
+  if (m->tw < 1 || m->th < 1 || m->tw > TS_PASS_MAX_SIDE || m->th > TS_PASS_MAX_SIDE || 4 * n > r.len - r.off)
+    return bad(err, 'T', "field size");
+  if (m->ntiles > (r.len - r.off) / 4) return bad(err, 'T', "tile count");
+  m->tiles_le = ts_rd_bytes(&r, (size_t)m->ntiles * 4);
+  m->field_le = ts_rd_bytes(&r, (size_t)n * 4);
+  return finish(&r, err, 'T');
+}
+
+void ts_msg_pass_field(const ts_msg_pass *m, uint32_t *field) {
+  const uint8_t *p = m->field_le;
+  for (size_t i = 0; i < 2 * (size_t)m->tw * m->th; i++) field[i] = (uint32_t)p[2 * i] | (uint32_t)p[2 * i + 1] << 8;
+}
+
+uint32_t ts_msg_pass_tile(const ts_msg_pass *m, uint32_t i) { return le32(m->tiles_le + (size_t)i * 4); }
+
+void ts_msg_pass_answer_write(ts_wr *w, uint32_t set, uint32_t pass, uint64_t nanos, const uint32_t *tiles,
+                              uint32_t n, uint32_t tw, uint32_t th, const uint32_t *out) {
+  uint32_t ntx = (tw + TS_PM_TILE - 1) / TS_PM_TILE, count = 0;
+  for (uint32_t i = 0; i < n; i++) {
+    uint32_t x0 = tiles[i] % ntx * TS_PM_TILE, y0 = tiles[i] / ntx * TS_PM_TILE;
+    count += ((x0 + TS_PM_TILE < tw ? x0 + TS_PM_TILE : tw) - x0) * ((y0 + TS_PM_TILE < th ? y0 + TS_PM_TILE : th) - y0);
+  }
+  ts_wr_u32(w, set);
+  ts_wr_u32(w, pass);
+  ts_wr_u64(w, nanos);
+  ts_wr_u32(w, count);
+  for (uint32_t i = 0; i < n; i++) {
+    uint32_t x0 = tiles[i] % ntx * TS_PM_TILE, y0 = tiles[i] / ntx * TS_PM_TILE;
+    uint32_t x1 = x0 + TS_PM_TILE < tw ? x0 + TS_PM_TILE : tw, y1 = y0 + TS_PM_TILE < th ? y0 + TS_PM_TILE : th;
+    for (uint32_t y = y0; y < y1; y++)
+      for (uint32_t x = x0; x < x1; x++) {
+        ts_wr_u16(w, (uint16_t)out[2 * ((size_t)y * tw + x)]);
+        ts_wr_u16(w, (uint16_t)out[2 * ((size_t)y * tw + x) + 1]);
+      }
+  }
+}
+
+int ts_msg_pass_answer_read(const ts_frame *f, ts_msg_pass_answer *m, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  memset(m, 0, sizeof(*m));
+  m->set = ts_rd_u32(&r);
+  m->pass = ts_rd_u32(&r);
+  m->nanos = ts_rd_u64(&r);
+  m->nentries = ts_rd_u32(&r);
+  if (r.failed) return bad(err, 'T', "truncated answer");
+  if (m->nentries > (r.len - r.off) / 4) return bad(err, 'T', "entry count");
+  m->entries = ts_rd_bytes(&r, (size_t)m->nentries * 4);
+  return finish(&r, err, 'T');
 }

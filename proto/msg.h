@@ -40,6 +40,8 @@ enum {
   TS_MSG_CANCEL = 'X',
   TS_MSG_POOL = 'P',
   TS_MSG_DELETE = 'D',
+  TS_MSG_FIELD = 'G',
+  TS_MSG_PASS = 'T',
   TS_MSG_PIECE = TS_FRAME_PIECE, /* transport: a piece of a larger message (pieces.h) */
 };
 
@@ -194,6 +196,55 @@ void ts_msg_answer_write(ts_wr *w, uint32_t set, uint32_t gen,
                          const ts_l1_best *best, uint32_t nq);
 int ts_msg_answer_read(const ts_frame *f, ts_msg_answer *m, char *err);
 void ts_msg_result_at(const ts_msg_answer *m, uint32_t i, ts_l1_best *b);
+
+/* ---- G: PatchMatch source ---------------------------------------------- */
+/* A field set's source (patchmatch.h), whole: the window and its planes.
+ * Reply: G with the set id. */
+typedef struct {
+  uint32_t set;
+  ts_window_spec win;
+  int w, h, nplanes;
+  const uint8_t *plane[TS_WIN_MAX_PLANES];
+  int16_t offbuf[2 * TS_NSRC * TS_WIN_MAX_OFFSETS]; /* decoded offsets */
+  uint8_t knownbuf[TS_WIN_MAX_OFFSETS];
+} ts_msg_field;
+void ts_msg_field_write(ts_wr *w, const ts_msg_field *m);
+int ts_msg_field_read(const ts_frame *f, ts_msg_field *m, char *err);
+void ts_msg_field_ack_write(ts_wr *w, uint32_t set);
+int ts_msg_field_ack_read(const ts_frame *f, uint32_t *set, char *err);
+
+/* ---- T: PatchMatch pass ------------------------------------------------- */
+/* Tiles of one pass over the field of query image `image` at state seq;
+ * the field travels whole (each entry u16 x, u16 y: sources are at most
+ * 65535 pixels on a side). Reply: the tiles' new entries, tile after tile
+ * in the order asked, each row-major. */
+#define TS_PASS_MAX_SIDE 65535
+typedef struct {
+  uint32_t set, image;
+  uint64_t seq;
+  uint32_t tw, th;
+  uint64_t usage_k, seed;
+  uint32_t pass, ntiles;
+  const uint32_t *tiles;   /* writing */
+  const uint32_t *field;   /* writing: tw * th x, y pairs */
+  const uint8_t *tiles_le; /* reading: ntiles u32 */
+  const uint8_t *field_le; /* reading: tw * th u16 pairs */
+} ts_msg_pass;
+void ts_msg_pass_write(ts_wr *w, const ts_msg_pass *m);
+int ts_msg_pass_read(const ts_frame *f, ts_msg_pass *m, char *err);
+/* Entry i of the field as u32 pairs; tile i's index. */
+void ts_msg_pass_field(const ts_msg_pass *m, uint32_t *field);
+uint32_t ts_msg_pass_tile(const ts_msg_pass *m, uint32_t i);
+
+typedef struct {
+  uint32_t set, pass, nentries;
+  uint64_t nanos;
+  const uint8_t *entries; /* nentries u16 pairs */
+} ts_msg_pass_answer;
+/* Writes the entries of tiles[0..n) of a tw x th field `out`. */
+void ts_msg_pass_answer_write(ts_wr *w, uint32_t set, uint32_t pass, uint64_t nanos, const uint32_t *tiles,
+                              uint32_t n, uint32_t tw, uint32_t th, const uint32_t *out);
+int ts_msg_pass_answer_read(const ts_frame *f, ts_msg_pass_answer *m, char *err);
 
 /* ---- Q: unload ---------------------------------------------------------- */
 

@@ -99,6 +99,24 @@ int cl_queue_image(cl_worker *w, uint32_t id, const ts_msg_image *m, char *err) 
   return queue_push(w, e, TS_MSG_IMAGE, id, write_image, err);
 }
 
+static void write_field(ts_wr *w, const void *arg) { ts_msg_field_write(w, arg); }
+
+int cl_queue_field(cl_worker *w, uint32_t id, const ts_msg_field *m, char *err) {
+  cl_msg *e = queue_slot(w);
+  if (e == NULL) return NO_SLOT(err);
+  e->arg.field = *m;
+  return queue_push(w, e, TS_MSG_FIELD, id, write_field, err);
+}
+
+static void write_pass(ts_wr *w, const void *arg) { ts_msg_pass_write(w, arg); }
+
+int cl_queue_pass(cl_worker *w, uint32_t id, const ts_msg_pass *m, char *err) {
+  cl_msg *e = queue_slot(w);
+  if (e == NULL) return NO_SLOT(err);
+  e->arg.pass = *m;
+  return queue_push(w, e, TS_MSG_PASS, id, write_pass, err);
+}
+
 uint64_t cl_image_bytes(const ts_msg_image *m) { return ts_payload_size(write_image, m); }
 
 static void write_unload(ts_wr *w, const void *arg) { ts_msg_unload_write(w, arg); }

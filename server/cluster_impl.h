@@ -79,6 +79,8 @@ typedef struct {
     cl_query_frame query;
     ts_msg_image image;
     ts_msg_unload unload;
+    ts_msg_field field;
+    ts_msg_pass pass;
   } arg;
 } cl_msg;
 
@@ -165,6 +167,9 @@ int cl_queue_slice(cl_worker *w, uint32_t id, const ts_slice_desc *m, char *err)
 int cl_queue_query(cl_worker *w, uint32_t id, const cl_query_frame *q, char *err);
 /* An 'R' (query image). */
 int cl_queue_image(cl_worker *w, uint32_t id, const ts_msg_image *m, char *err);
+/* A 'G' (PatchMatch source) and a 'T' (PatchMatch pass). */
+int cl_queue_field(cl_worker *w, uint32_t id, const ts_msg_field *m, char *err);
+int cl_queue_pass(cl_worker *w, uint32_t id, const ts_msg_pass *m, char *err);
 /* Payload bytes of an 'R' message. */
 uint64_t cl_image_bytes(const ts_msg_image *m);
 /* Payload bytes of a slice's 'N' message. */

@@ -8,7 +8,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "cluster_impl.h"
+#include "search_cluster_impl.h"
 #include "error.h"
 #include "replica.h"
 #include "slice.h"
@@ -18,83 +18,6 @@
 #error "usage counters are shipped as in memory: little-endian hosts only"
 #endif
 
-typedef struct {
-  cl_worker *w;
-  uint32_t *i0, *i1; /* per class: into the set's ranges */
-  ts_slice_held rows; /* what it holds once loaded */
-} cl_slice;
-
-/* A worker's loaded slice of a set: a re-slice keeps its rows, unless
- * the worker has freed its slices since (a drain). */
-typedef struct {
-  int worker; /* worker id */
-  uint32_t unloads; /* its count of unloads when it loaded the slice */
-  ts_slice_held rows;
-} cl_held;
-
-typedef struct {
-  int used;
-  uint32_t gid; /* set id on the wire, unique in the cluster */
-  uint32_t gen; /* slicing generation */
-  uint32_t image; /* its query image's id on the wire */
-  ts_refset rs;
-  const ts_anchors *grid;
-  int with_usage;
-  ts_usage usage; /* the coordinator's replica: the counts new slices get */
-  uint64_t epoch; /* cluster epoch of the slicing below */
-  int sliced;
-  cl_slice *slices; /* one per worker holding a part (o.max_workers slots) */
-  uint32_t *ranges; /* their class ranges: 2 * nclass per slot */
-  int nslices;
-  cl_held *held; /* the workers that loaded the last slicing (o.max_workers slots) */
-  int nheld;
-  ts_slice *local; /* in-process slice when no worker is ready */
-  /* What need not travel in its 'N' messages: the fine rows, when they
-   * are the reference planes of its query image at image level
-   * `image_level` (a worker holding the image has them); the labels,
-   * when they repeat a tile (nonzero tile_w). */
-  int fine_in_image;
-  uint32_t image_level;
-  uint8_t tile_w, tile_h, tile[TS_SLICE_MAX_TILE * TS_SLICE_MAX_TILE];
-} cl_set;
-
-/* A query image (replica.h): the coordinator's replica, which new workers
- * are loaded from, and the placements made since the last exchange, which
- * the exchange's first frame to each worker carries. A worker holds the
- * replica's state when it came through every exchange that carried
- * placements since it was loaded: a worker that fails one is dropped, and
- * comes back under a new id, to be loaded again. (A rebalance reloads
- * nobody: the image does not depend on the slicing.) */
-#define CL_MAX_IMAGES 4
-
-typedef struct {
-  int worker; /* worker id */
-  uint64_t seq;
-} cl_synced;
-
-typedef struct {
-  int used;
-  uint32_t gid; /* image id on the wire */
-  uint32_t level; /* levels it went through (image_next) */
-  ts_replica rep; /* the state before `pending` */
-  ts_place *pending;
-  uint32_t npending, cap_pending;
-  ts_commit *commits; /* scratch: the commits of applying pending */
-  cl_synced *synced; /* workers holding rep's state (o.max_workers slots) */
-  int nsynced;
-} cl_image;
-
-typedef struct {
-  ts_search base;
-  ts_cluster *c;
-  const volatile int *cancel;
-  cl_set sets[CL_MAX_SETS];
-  cl_image images[CL_MAX_IMAGES];
-  ts_query_scratch scratch; /* query vectors when no worker is ready */
-  cl_worker **ws; /* the workers of one request (lock held): o.max_workers slots */
-  ts_l1_best *best;
-  uint32_t cap_best;
-} cluster_search;
 
 static cl_image *image_get(cluster_search *cs, int id) {
   if (id < 0 || id >= CL_MAX_IMAGES || !cs->images[id].used) return NULL;
@@ -154,14 +77,13 @@ static int loaded_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
   return 0;
 }
 
-static cl_synced *synced_of(cl_image *im, const cl_worker *w);
 
 /* The rows w holds of st that its next slice may keep, or NULL. Its
  * usage counters are those of the coordinator's replica only if it holds
  * the image's current state: it has counted the same placements. */
 static const ts_slice_held *held_rows(cluster_search *cs, const cl_set *st, const cl_worker *w) {
   cl_image *im = &cs->images[st->rs.image];
-  const cl_synced *y = synced_of(im, w);
+  const cl_synced *y = cl_synced_of(im, w);
   if (y == NULL || y->seq != im->rep.seq) return NULL;
   for (int i = 0; i < st->nheld; i++)
     if (st->held[i].worker == w->id && st->held[i].unloads == w->unloads) return &st->held[i].rows;
@@ -182,7 +104,7 @@ static void describe_slice(cluster_search *cs, cl_set *st, int i, int loading, t
     memcpy(m->tile, st->tile, sizeof(st->tile));
   }
   /* Any state of the image's current level holds its reference planes. */
-  if (st->fine_in_image && st->image_level == im->level && (loading || synced_of(im, sl->w) != NULL)) {
+  if (st->fine_in_image && st->image_level == im->level && (loading || cl_synced_of(im, sl->w) != NULL)) {
     m->fine_sum = ts_slice_fine_sum(m);
     m->fine_from_image = 1;
   }
@@ -223,12 +145,11 @@ static void record_held(cl_set *st, int n) {
  * takes no pieces) gets no slice of this set and the others share it, so
  * the set never goes to a worker that must refuse it (it would be dropped,
  * rejoin and be refused again). Returns how many workers hold slices. */
-static void load_message(const cl_image *im, ts_msg_image *m);
 
 static int cut_fitting(cluster_search *cs, cl_set *st, cl_worker **ws, int n) {
   ts_cluster *c = cs->c;
   ts_msg_image load; /* a worker holding a slice may need the image whole */
-  load_message(&cs->images[st->rs.image], &load);
+  cl_load_message(&cs->images[st->rs.image], &load);
   uint64_t image_bytes = cl_image_bytes(&load);
   for (;;) {
     cut_ranges(st->grid, ws, n, st->slices);
@@ -272,7 +193,6 @@ static double load_deadline(const ts_cluster *c, const cl_set *st, int n) {
   return c->o.batch_timeout + 30.0 + most / CL_BUILD_RATE;
 }
 
-static void mark_synced(ts_cluster *c, cl_image *im, const cl_worker *w, uint64_t seq);
 
 /* Whether w is loaded with st's query image before its slice, so that the
  * slice's fine rows need not travel: they are the image's reference and
@@ -280,12 +200,12 @@ static void mark_synced(ts_cluster *c, cl_image *im, const cl_worker *w, uint64_
  * before its first queries anyway). */
 static int loads_image_first(cluster_search *cs, const cl_set *st, const cl_worker *w) {
   cl_image *im = &cs->images[st->rs.image];
-  return st->fine_in_image && st->image_level == im->level && synced_of(im, w) == NULL;
+  return st->fine_in_image && st->image_level == im->level && cl_synced_of(im, w) == NULL;
 }
 
 static int queue_image_load(ts_cluster *c, const cl_image *im, cl_worker *w, char *err) {
   ts_msg_image m;
-  load_message(im, &m);
+  cl_load_message(im, &m);
   return cl_queue_image(w, ++c->next_frame, &m, err);
 }
 
@@ -342,7 +262,7 @@ static int ensure_slices(cluster_search *cs, cl_set *st, char *err) {
     cl_exchange(c, ws, n, load_deadline(c, st, n), cs->cancel, loaded_reply, &x, &tr);
     for (int i = 0; i < n; i++)
       if (ws[i]->images_sent != 0 && ws[i]->state != TS_WORKER_FAILED)
-        mark_synced(c, &cs->images[st->rs.image], ws[i], cs->images[st->rs.image].rep.seq);
+        cl_mark_synced(c, &cs->images[st->rs.image], ws[i], cs->images[st->rs.image].rep.seq);
     record_held(st, n);
     cl_release(c, ws, n);
     cs->base.stats.bytes_out += tr.bytes_out;
@@ -357,8 +277,15 @@ static int cluster_prepare(ts_search *s, const ts_refset *rs, int *id, char *err
   int slot = 0;
   while (slot < CL_MAX_SETS && cs->sets[slot].used) slot++;
   if (slot == CL_MAX_SETS) return ts_error(err, TS_ENOMEM, "too many reference sets prepared at once");
-  if (image_get(cs, rs->image) == NULL) return ts_error(err, TS_EINVAL, "unknown query image %d", rs->image);
   cl_set *st = &cs->sets[slot];
+  if (rs->field) {
+    memset(st, 0, sizeof(*st));
+    st->rs = *rs;
+    int rc = cl_field_prepare(cs, st, err);
+    *id = slot;
+    return rc;
+  }
+  if (image_get(cs, rs->image) == NULL) return ts_error(err, TS_EINVAL, "unknown query image %d", rs->image);
   memset(st, 0, sizeof(*st));
   st->rs = *rs;
   st->image = cs->images[rs->image].gid;
@@ -436,7 +363,7 @@ static int cluster_place(ts_search *s, int id, const ts_place *p, uint32_t n, ch
 /* The pending placements reach the coordinator's replica, and their
  * commits the usage replicas of the image's sets, once they are on their
  * way to the workers: what is loaded later starts from them. */
-static int flush_image(cluster_search *cs, int id, char *err) {
+int cl_flush_image(cluster_search *cs, int id, char *err) {
   cl_image *im = &cs->images[id];
   if (im->npending == 0) return 0;
   uint32_t nc;
@@ -455,21 +382,21 @@ static int flush_image(cluster_search *cs, int id, char *err) {
 }
 
 /* What worker w holds of the image: its record, or NULL (lock held). */
-static cl_synced *synced_of(cl_image *im, const cl_worker *w) {
+cl_synced *cl_synced_of(cl_image *im, const cl_worker *w) {
   for (int i = 0; i < im->nsynced; i++)
     if (im->synced[i].worker == w->id) return &im->synced[i];
   return NULL;
 }
 
-static void mark_synced(ts_cluster *c, cl_image *im, const cl_worker *w, uint64_t seq) {
-  cl_synced *y = synced_of(im, w);
+void cl_mark_synced(ts_cluster *c, cl_image *im, const cl_worker *w, uint64_t seq) {
+  cl_synced *y = cl_synced_of(im, w);
   if (y == NULL && im->nsynced < (int)c->o.max_workers) y = &im->synced[im->nsynced++];
   if (y != NULL) *y = (cl_synced){w->id, seq};
 }
 
 /* The replica as a LOAD message (its pointers stay valid until the
  * replica changes, after the exchange). */
-static void load_message(const cl_image *im, ts_msg_image *m) {
+void cl_load_message(const cl_image *im, ts_msg_image *m) {
   const ts_replica *r = &im->rep;
   memset(m, 0, sizeof(*m));
   m->image = im->gid;
@@ -534,7 +461,7 @@ static int cluster_image_next(ts_search *s, int id, int w, int h, int rw, int rh
   cl_worker **ws = cs->ws;
   int n = 0, all = cl_ready_workers(c, ws);
   for (int i = 0; i < all; i++) {
-    cl_synced *y = synced_of(im, ws[i]);
+    cl_synced *y = cl_synced_of(im, ws[i]);
     if (y != NULL && y->seq == im->rep.seq) ws[n++] = ws[i];
   }
   cl_lease(c, ws, n);
@@ -548,7 +475,7 @@ static int cluster_image_next(ts_search *s, int id, int w, int h, int rw, int rh
   cl_release(c, ws, n);
   cs->base.stats.bytes_out += tr.bytes_out;
   cs->base.stats.bytes_in += tr.bytes_in;
-  int rc = flush_image(cs, id, err);
+  int rc = cl_flush_image(cs, id, err);
   if (rc == 0) rc = ts_replica_next_level(&im->rep, w, h, rw, rh, ref, err);
   im->level++;
   im->nsynced = 0; /* the others hold the level above, or nothing */
@@ -730,7 +657,7 @@ static int query_local(cluster_search *cs, cl_set *st, const ts_query_batch *b, 
                        char *err) {
   ts_cluster *c = cs->c;
   ts_vec_batch vb;
-  int rc = flush_image(cs, st->rs.image, err);
+  int rc = cl_flush_image(cs, st->rs.image, err);
   if (rc == 0) rc = ts_query_vectors(&cs->scratch, &cs->images[st->rs.image].rep, st->rs.window, b, &vb, err);
   if (rc == 0) rc = ts_slice_scan(st->local, c->local_pool, 0, c->simd, &vb, out, pairs, err);
   return rc;
@@ -785,10 +712,10 @@ static int image_frame(cluster_search *cs, const batch_ctx *bc, cl_worker *w, in
   if (w->images_sent & 1u << id) return 0;
   w->images_sent |= 1u << id;
   *nplace = im->npending;
-  cl_synced *y = synced_of(im, w);
+  cl_synced *y = cl_synced_of(im, w);
   if (y != NULL && y->seq == im->rep.seq) return 0;
   ts_msg_image m;
-  load_message(im, &m);
+  cl_load_message(im, &m);
   int rc = cl_queue_image(w, (bc->seq & 0xFF) << CL_ID_QUERY_BITS | CL_ID_QUERY_MASK, &m, err);
   if (rc == 0) w->expect++;
   return rc;
@@ -838,11 +765,11 @@ static int settle_images(cluster_search *cs, const batch_ctx *bc, cl_worker **ws
   int rc = 0;
   for (uint32_t r = 0; r < bc->nreq; r++) {
     int id = bc->st[r]->rs.image;
-    int fr = flush_image(cs, id, err);
+    int fr = cl_flush_image(cs, id, err);
     if (rc == 0) rc = fr;
     for (int i = 0; i < n; i++)
       if (ws[i]->images_sent & 1u << id && ws[i]->state != TS_WORKER_FAILED)
-        mark_synced(cs->c, &cs->images[id], ws[i], cs->images[id].rep.seq);
+        cl_mark_synced(cs->c, &cs->images[id], ws[i], cs->images[id].rep.seq);
   }
   return rc;
 }
@@ -897,7 +824,7 @@ static int exchange_batch(cluster_search *cs, batch_ctx *bc, const ts_search_req
 /* Checks a request against its set; *st = the set. */
 static int check_req(cluster_search *cs, const ts_search_req *r, cl_set **st, char *err) {
   *st = set_get(cs, r->id);
-  if (*st == NULL) return ts_error(err, TS_EINVAL, "unknown reference set %d", r->id);
+  if (*st == NULL || (*st)->field) return ts_error(err, TS_EINVAL, "unknown reference set %d", r->id);
   if (r->b.usage_k != 0 && !(*st)->with_usage)
     return ts_error(err, TS_EINVAL, "a usage penalty on a set prepared without usage");
   return 0;
@@ -996,13 +923,13 @@ static void set_clear(cluster_search *cs, cl_set *st) {
 static void cluster_release(ts_search *s, int id) {
   cluster_search *cs = (cluster_search *)s;
   cl_set *st = set_get(cs, id);
-  if (st != NULL) set_clear(cs, st);
+  if (st != NULL && st->field) cl_field_clear(cs, st);
+  else if (st != NULL) set_clear(cs, st);
 }
 
 static void cluster_destroy(ts_search *s) {
   cluster_search *cs = (cluster_search *)s;
-  for (int i = 0; i < CL_MAX_SETS; i++)
-    if (cs->sets[i].used) set_clear(cs, &cs->sets[i]);
+  for (int i = 0; i < CL_MAX_SETS; i++) cluster_release(s, i);
   for (int i = 0; i < CL_MAX_IMAGES; i++) cluster_image_close(s, i);
   ts_query_scratch_free(&cs->scratch);
   free(cs->best);
@@ -1019,6 +946,7 @@ static const ts_search_ops cluster_ops = {
     .image_close = cluster_image_close,
     .query = cluster_query,
     .query_many = cluster_query_many,
+    .field_pass = cl_field_pass,
     .release = cluster_release,
     .destroy = cluster_destroy,
 };

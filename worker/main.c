@@ -23,6 +23,7 @@
 #include "l1.h"
 #include "log.h"
 #include "mbplane.h"
+#include "wfield.h"
 #include "wmon.h"
 #include "msg.h"
 #include "net.h"
@@ -70,6 +71,7 @@ typedef struct {
   uint32_t cap_places;
   ts_l1_best *best;
   uint32_t cap_best;
+  ts_wfields fields; /* PatchMatch sources */
 } session;
 
 static int send_reply(session *s, uint8_t type, uint32_t id, ts_wr *w) {
@@ -103,6 +105,7 @@ static void drop_slice(ts_slice **slot) {
 
 static void unload_all(session *s) {
   for (int i = 0; i < WORKER_MAX_SLICES; i++) drop_slice(&s->slices[i]);
+  ts_wfield_drop(&s->fields, TS_UNLOAD_ALL);
 }
 
 static ts_replica *image_of(session *s, uint32_t id) {
@@ -322,6 +325,7 @@ static int on_unload(session *s, const ts_frame *f, char *err) {
   } else {
     ts_slice **slot = slot_of(s, m.set);
     if (slot != NULL) drop_slice(slot);
+    ts_wfield_drop(&s->fields, m.set);
   }
   /* Slices are freed whole when a job is done with them: glibc keeps what
    * is freed for reuse, and an idle worker kept the RSS of its largest job
@@ -332,6 +336,44 @@ static int on_unload(session *s, const ts_frame *f, char *err) {
   return send_reply(s, TS_MSG_UNLOAD, f->id, &w);
 }
 
+/* 'G': a PatchMatch source, held whole. */
+static int on_field(session *s, const ts_frame *f, char *err) {
+  ts_msg_field *m = malloc(sizeof(*m));
+  if (m == NULL) return send_error(s, f->id, TS_ENOMEM, "out of memory") == 0 ? 1 : TS_ECONN;
+  int rc = ts_msg_field_read(f, m, err);
+  if (rc != 0) {
+    free(m);
+    return rc;
+  }
+  uint32_t set = m->set;
+  rc = ts_wfield_load(&s->fields, m, g_w.threads, err);
+  if (rc == 0) ts_log("patchmatch source %u: %dx%d, %d planes", set, m->w, m->h, m->nplanes);
+  free(m);
+  if (rc != 0) return send_error(s, f->id, rc, err) == 0 ? 1 : TS_ECONN;
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_field_ack_write(&w, set);
+  return send_reply(s, TS_MSG_FIELD, f->id, &w);
+}
+
+/* 'T': tiles of a PatchMatch pass, on the scan threads. */
+static int on_pass(session *s, const ts_frame *f, char *err) {
+  ts_planted_fault();
+  ts_msg_pass m;
+  int rc = ts_msg_pass_read(f, &m, err);
+  if (rc != 0) return rc;
+  ts_wr w;
+  ts_wr_init(&w);
+  pthread_mutex_lock(&g_w.pool_lock);
+  rc = ts_wfield_pass(&s->fields, &m, image_of(s, m.image), g_w.pool, g_w.simd->id == TS_SIMD_SCALAR, &w, err);
+  pthread_mutex_unlock(&g_w.pool_lock);
+  if (rc != 0) {
+    ts_wr_free(&w);
+    return send_error(s, f->id, rc, err) == 0 ? 1 : TS_ECONN;
+  }
+  return send_reply(s, TS_MSG_PASS, f->id, &w);
+}
+
 static int handle(session *s, const ts_frame *f, char *err) {
   switch (f->type) {
   case TS_MSG_CALIBRATE: return on_calibrate(s, f, err);
@@ -339,6 +381,8 @@ static int handle(session *s, const ts_frame *f, char *err) {
   case TS_MSG_QUERY: return on_query(s, f, err);
   case TS_MSG_UNLOAD: return on_unload(s, f, err);
   case TS_MSG_IMAGE: return on_image(s, f, err);
+  case TS_MSG_FIELD: return on_field(s, f, err);
+  case TS_MSG_PASS: return on_pass(s, f, err);
   case TS_MSG_HEARTBEAT: {
     if (f->len != 0) return ts_error(err, TS_EPROTO, "malformed 'H' message: payload must be empty");
     ts_wr w;

@@ -11,6 +11,7 @@
 #include "error.h"
 #include "jobspec.h"
 #include "msg.h"
+#include "wfield.h"
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
 
@@ -29,7 +30,9 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   if (size == 0) return 0;
   ts_frame f = {data[0], 1, (uint32_t)(size - 1), data + 1};
   char err[TS_ERR_LEN];
-  switch (data[0] % 14) {
+  /* 0xF0 and 0xF1 pick the PatchMatch messages (added after the seeds of
+   * the others, whose first bytes keep their meaning). */
+  switch (data[0] == 0xF0 ? 14 : data[0] == 0xF1 ? 15 : data[0] % 14) {
   case 0: { ts_msg_ident m; ts_msg_ident_read(&f, &m, err); break; }
   case 1: { ts_msg_calib_req m; ts_msg_calib_req_read(&f, &m, err); ts_msg_calib c; ts_msg_calib_read(&f, &c, err); break; }
   case 2: {
@@ -100,6 +103,29 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
       ts_replica r;
       if (ts_replica_init(&r, &m.d, err) == 0) ts_replica_free(&r);
       free(copy);
+    }
+    break;
+  }
+  case 14: {
+    /* 'G' as the worker takes it: decoded, then packed */
+    ts_msg_field *m = malloc(sizeof(*m));
+    if (m != NULL && ts_msg_field_read(&f, m, err) == 0) {
+      for (int p = 0; p < m->nplanes; p++) check_inside(m->plane[p], (size_t)m->w * (size_t)m->h, f.payload, f.len);
+      ts_wfields fs = {0};
+      ts_wfield_load(&fs, m, 1, err);
+      ts_wfield_drop(&fs, TS_UNLOAD_ALL);
+    }
+    free(m);
+    ts_msg_pass_answer a;
+    if (ts_msg_field_ack_read(&f, &(uint32_t){0}, err) == 0) break;
+    if (ts_msg_pass_answer_read(&f, &a, err) == 0) check_inside(a.entries, 4 * (size_t)a.nentries, f.payload, f.len);
+    break;
+  }
+  case 15: {
+    ts_msg_pass m;
+    if (ts_msg_pass_read(&f, &m, err) == 0) {
+      check_inside(m.tiles_le, 4 * (size_t)m.ntiles, f.payload, f.len);
+      check_inside(m.field_le, 4 * (size_t)m.tw * m.th, f.payload, f.len);
     }
     break;
   }

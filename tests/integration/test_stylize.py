@@ -76,17 +76,45 @@ def test_output_is_the_vote_of_its_nnf(texsyn, scene, tmp_path):
             assert got[(y * tw + x) * ch:(y * tw + x + 1) * ch] == want, f"pixel ({x}, {y}) is not its vote"
 
 
-def test_same_bytes_for_any_thread_count_and_on_a_cluster(texsyn, scene, cluster, tmp_path):
+@pytest.mark.parametrize("search", ["exact", "patchmatch"])
+def test_same_bytes_for_any_thread_count_and_on_a_cluster(texsyn, scene, cluster, tmp_path, search):
     outs = []
     for name, where in (("t1", ["--threads", "1"]), ("t3", ["--threads", "3"])):
-        stylize(texsyn, scene, tmp_path / f"{name}.png", "--nnf", tmp_path / f"{name}.raw", *where)
+        stylize(texsyn, scene, tmp_path / f"{name}.png", "--nnf", tmp_path / f"{name}.raw", "--search", search,
+                *where)
         outs.append(name)
     cluster.start(2, 1)
-    stylize(texsyn, scene, tmp_path / "c.png", "--nnf", tmp_path / "c.raw", "--server", cluster.server.addr)
+    stylize(texsyn, scene, tmp_path / "c.png", "--nnf", tmp_path / "c.raw", "--search", search,
+            "--server", cluster.server.addr)
     outs.append("c")
     for name in outs[1:]:
         assert (tmp_path / f"{name}.png").read_bytes() == (tmp_path / "t1.png").read_bytes(), name
         assert (tmp_path / f"{name}.raw").read_bytes() == (tmp_path / "t1.raw").read_bytes(), name
+
+
+def test_patchmatch_keeps_its_bytes_when_a_worker_is_killed_mid_job(texsyn, data, cluster, tmp_path):
+    """A 256x192 scene in patchmatch on 3 workers: one is killed once it
+    holds a patchmatch source (the passes of a level are under way); the
+    others sweep its tiles again and the result is the embedded bytes."""
+    d = tmp_path
+    oiiotool(data / "aerial/aero1.jpg", "--cut", "512x384+100+100", "--resize", "256x192", "-o", d / "style.png")
+    oiiotool(d / "style.png", "--chsum:weight=.3,.59,.11", "--blur", "3x3", "-o", d / "src.png")
+    oiiotool(d / "src.png", "--flop", "-o", d / "tgt.png")
+    args = ["stylize", "--style", d / "style.png", "--guide", d / "src.png", d / "tgt.png", "--search", "patchmatch",
+            "--pm-iters", "8", "--quiet"]
+    run(texsyn, *args, "-o", d / "embedded.png", "--nnf", d / "embedded.raw", "--threads", "2")
+    cluster.start(3, 1)
+    job = subprocess.Popen([str(texsyn), *map(str, args), "-o", d / "c.png", "--nnf", d / "c.raw",
+                            "--server", cluster.server.addr], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    victim = cluster.workers[1]
+    victim.wait_log(r"patchmatch source \d+")
+    assert job.poll() is None, "the job ended before the worker was killed"
+    victim.proc.kill()
+    out, err = job.communicate(timeout=600)
+    assert job.returncode == 0, err
+    cluster.server.wait_log(r"worker 2 \(\S+\) dropped")
+    assert (d / "c.png").read_bytes() == (d / "embedded.png").read_bytes()
+    assert (d / "c.raw").read_bytes() == (d / "embedded.raw").read_bytes()
 
 
 def test_uniformity_raises_the_exemplar_coverage(texsyn, scene, tmp_path):

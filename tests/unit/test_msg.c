@@ -42,6 +42,9 @@ static int rd_submit(const ts_frame *f, void *o, char *e) { return ts_msg_submit
 static int rd_files(const ts_frame *f, void *o, char *e) { return ts_msg_files_read(f, o, e); }
 static int rd_error(const ts_frame *f, void *o, char *e) { return ts_msg_error_read(f, o, e); }
 static int rd_auth(const ts_frame *f, void *o, char *e) { return ts_msg_auth_read(f, o, e); }
+static int rd_field(const ts_frame *f, void *o, char *e) { return ts_msg_field_read(f, o, e); }
+static int rd_pass(const ts_frame *f, void *o, char *e) { return ts_msg_pass_read(f, o, e); }
+static int rd_pass_answer(const ts_frame *f, void *o, char *e) { return ts_msg_pass_answer_read(f, o, e); }
 
 static void ident_round_trip(void **state) {
   (void)state;
@@ -666,7 +669,95 @@ static void calib_reply_limits_are_optional_and_checked(void **state) {
   ts_wr_free(&w);
 }
 
+/* 'G': a 3x3 window over two planes of 9 x 7. */
+static void field_round_trip(void **state) {
+  (void)state;
+  int16_t dx[9], dy[9];
+  for (int i = 0; i < 9; i++) {
+    dx[i] = (int16_t)(i % 3);
+    dy[i] = (int16_t)(i / 3);
+  }
+  uint8_t a[63], b[63];
+  for (int i = 0; i < 63; i++) {
+    a[i] = (uint8_t)i;
+    b[i] = (uint8_t)(200 - i);
+  }
+  ts_msg_field *m = calloc(2, sizeof(*m));
+  m->set = 42;
+  m->win = (ts_window_spec){.nplanes = {2, 0}, .noff = {9, 0}, .dx = {dx, NULL}, .dy = {dy, NULL},
+                            .extent = {{0, 0, 3, 3}}, .block = 3, .nparts = 1};
+  m->win.part[0] = (ts_part){TS_SRC_FINE, 0, 2, 77};
+  m->w = 9;
+  m->h = 7;
+  m->nplanes = 2;
+  m->plane[0] = a;
+  m->plane[1] = b;
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_field_write(&w, m);
+  ts_frame f = frame_of(&w, 'G');
+  char err[TS_ERR_LEN];
+  ts_msg_field *o = m + 1;
+  assert_int_equal(ts_msg_field_read(&f, o, err), 0);
+  assert_int_equal(o->set, 42);
+  assert_int_equal(o->w, 9);
+  assert_int_equal(o->h, 7);
+  assert_int_equal(o->win.part[0].weight, 77);
+  assert_int_equal(o->win.dx[TS_SRC_FINE][4], 1);
+  assert_memory_equal(o->plane[1], b, 63);
+  assert_exact(&w, 'G', rd_field, o);
+  ts_wr_free(&w);
+  m->nplanes = 1; /* planes other than the window's */
+  ts_wr_init(&w);
+  ts_msg_field_write(&w, m);
+  f = frame_of(&w, 'G');
+  assert_int_equal(ts_msg_field_read(&f, o, err), TS_EPROTO);
+  assert_non_null(strstr(err, "plane count"));
+  ts_wr_free(&w);
+  free(m);
+}
+
+/* 'T' and its answer: a 70 x 66 field is 2 x 2 tiles; tiles 1 and 3
+ * answer 6 x 64 + 6 x 2 entries. */
+static void pass_round_trip(void **state) {
+  (void)state;
+  enum { TW = 70, TH = 66 };
+  uint32_t *field = malloc(sizeof(uint32_t) * 2 * TW * TH), *back = malloc(sizeof(uint32_t) * 2 * TW * TH);
+  for (uint32_t i = 0; i < 2 * TW * TH; i++) field[i] = (i * 7919u) % 65536u;
+  uint32_t tiles[2] = {1, 3};
+  ts_msg_pass m = {5, 6, 99, TW, TH, 1ull << 33, 0x1234567890ull, 17, 2, tiles, field, NULL, NULL}, o;
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_pass_write(&w, &m);
+  ts_frame f = frame_of(&w, 'T');
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_msg_pass_read(&f, &o, err), 0);
+  assert_int_equal(o.seq, 99);
+  assert_int_equal(o.usage_k, 1ull << 33);
+  assert_int_equal(o.seed, 0x1234567890ull);
+  assert_int_equal(o.ntiles, 2);
+  assert_int_equal(ts_msg_pass_tile(&o, 1), 3);
+  ts_msg_pass_field(&o, back);
+  assert_memory_equal(back, field, sizeof(uint32_t) * 2 * TW * TH);
+  assert_exact(&w, 'T', rd_pass, &o);
+  ts_wr_free(&w);
+  ts_wr_init(&w);
+  ts_msg_pass_answer_write(&w, 5, 17, 1000, tiles, 2, TW, TH, field);
+  f = frame_of(&w, 'T');
+  ts_msg_pass_answer a;
+  assert_int_equal(ts_msg_pass_answer_read(&f, &a, err), 0);
+  assert_int_equal(a.nentries, 6 * 64 + 6 * 2);
+  /* tile 1 starts at (64, 0) */
+  assert_int_equal(a.entries[0] | a.entries[1] << 8, field[2 * 64]);
+  assert_exact(&w, 'T', rd_pass_answer, &a);
+  ts_wr_free(&w);
+  free(field);
+  free(back);
+}
+
 static const struct CMUnitTest tests[] = {
+    cmocka_unit_test(field_round_trip),
+    cmocka_unit_test(pass_round_trip),
     cmocka_unit_test(ident_round_trip),
     cmocka_unit_test(auth_steps_round_trip_and_are_exact),
     cmocka_unit_test(slice_round_trip),

@@ -1,0 +1,383 @@
+/* search_field.c - PatchMatch passes over the pool (patchmatch.h): every
+ * worker holds a field set's source whole ('G', once), and a pass's tiles
+ * are cut among the ready workers in proportion to their rates ('T'),
+ * each worker reading the target from its replica of the query image. A
+ * tile's result depends only on the pass's input field and seed, so the
+ * tiles of a worker that fails are swept again by the others (or by the
+ * coordinator, with none left) and the field is the same bytes whoever
+ * swept what - and the same as the local backend's. */
+#include <math.h>
+#include <pthread.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "error.h"
+#include "search_cluster_impl.h"
+
+/* Candidates a pixel tries in a pass (current, two neighbours, about 12
+ * random), for deadlines only. */
+#define PASS_CANDIDATES 15.0
+
+int cl_field_prepare(cluster_search *cs, cl_set *st, char *err) {
+  const ts_plane *p0 = st->rs.ref->fine[0];
+  int patch;
+  int rc = ts_pm_window_check(st->rs.window, &patch, err);
+  if (rc != 0) return rc;
+  if (p0->w > TS_PASS_MAX_SIDE || p0->h > TS_PASS_MAX_SIDE)
+    return ts_error(err, TS_ETOOBIG, "a %dx%d patchmatch source is over the wire's %d pixels a side", p0->w, p0->h,
+                    TS_PASS_MAX_SIDE);
+  size_t slots = (size_t)cs->c->o.max_workers;
+  st->held = calloc(slots, sizeof(*st->held));
+  if (st->held == NULL) return ts_error(err, TS_ENOMEM, "out of memory for a patchmatch source");
+  st->field = 1;
+  pthread_mutex_lock(&cs->c->lock);
+  st->gid = ++cs->c->next_set;
+  st->used = 1;
+  pthread_mutex_unlock(&cs->c->lock);
+  return 0;
+}
+
+/* Whether w holds st's source (it loaded it and freed nothing since). */
+static int holds(const cl_set *st, const cl_worker *w) {
+  for (int i = 0; i < st->nheld; i++)
+    if (st->held[i].worker == w->id && st->held[i].unloads == w->unloads) return 1;
+  return 0;
+}
+
+static void note_holder(ts_cluster *c, cl_set *st, const cl_worker *w) {
+  if (holds(st, w)) return;
+  for (int i = 0; i < st->nheld; i++)
+    if (st->held[i].worker == w->id) {
+      st->held[i].unloads = w->unloads;
+      return;
+    }
+  if (st->nheld < (int)c->o.max_workers) st->held[st->nheld++] = (cl_held){w->id, w->unloads, {0}};
+}
+
+void cl_field_clear(cluster_search *cs, cl_set *st) {
+  ts_cluster *c = cs->c;
+  pthread_mutex_lock(&c->lock);
+  cl_worker **ws = cs->ws;
+  int all = cl_ready_workers(c, ws), n = 0;
+  for (int i = 0; i < all; i++)
+    if (holds(st, ws[i])) ws[n++] = ws[i];
+  cl_lease(c, ws, n);
+  for (int i = 0; i < n; i++) cl_queue_unload(c, ws[i], st->gid);
+  cl_traffic tr = {0, 0};
+  if (n > 0) cl_exchange(c, ws, n, c->o.batch_timeout, NULL, cl_unloaded_reply, NULL, &tr);
+  cl_release(c, ws, n);
+  pthread_mutex_unlock(&c->lock);
+  if (st->local_field != NULL) ts_pm_field_free(st->local_field);
+  free(st->local_field);
+  free(st->held);
+  memset(st, 0, sizeof(*st));
+}
+
+/* ---- with no worker: the coordinator sweeps the tiles itself ------------ */
+
+static int pass_local(cluster_search *cs, cl_set *st, cl_image *im, const ts_pm_job *j, const uint32_t *tiles,
+                      int n, uint32_t *out, char *err) {
+  ts_cluster *c = cs->c;
+  int rc = 0;
+  if (st->local_field == NULL) {
+    st->local_field = calloc(1, sizeof(*st->local_field));
+    if (st->local_field == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+    rc = ts_pm_field_init(st->local_field, st->rs.window, st->rs.ref->fine, ts_pool_size(c->local_pool), err);
+    if (rc != 0) {
+      free(st->local_field);
+      st->local_field = NULL;
+      return rc;
+    }
+    st->local_image = 0;
+  }
+  if (st->local_image != im->gid || st->local_seq != im->rep.seq) {
+    const ts_plane *t[TS_WIN_MAX_PLANES];
+    for (int k = 0; k < im->rep.nplanes; k++) t[k] = &im->rep.fine[k];
+    st->local_image = 0;
+    if ((rc = ts_pm_field_target(st->local_field, t, err)) != 0) return rc;
+    st->local_image = im->gid;
+    st->local_seq = im->rep.seq;
+  }
+  return ts_pm_field_pass(st->local_field, j, tiles, n, c->local_pool, out, err);
+}
+
+/* ---- one exchange ------------------------------------------------------- */
+
+/* A worker's part of the exchange: its tiles, and what it was sent. */
+typedef struct {
+  cl_worker *w;
+  const uint32_t *tiles;
+  uint32_t ntiles;
+  int sent_field, sent_image;
+  int field_acked, image_acked, answered;
+} part;
+
+typedef struct {
+  cluster_search *cs;
+  cl_set *st;
+  cl_image *im;
+  const ts_field_pass *fp;
+  part *parts;
+  int n;
+  uint8_t *done; /* per tile */
+} pass_ctx;
+
+static part *part_of(pass_ctx *x, const cl_worker *w) {
+  for (int i = 0; i < x->n; i++)
+    if (x->parts[i].w == w) return &x->parts[i];
+  return NULL;
+}
+
+/* A tile's pixel rectangle. */
+static void tile_rect(int tw, int th, uint32_t t, int *x0, int *y0, int *x1, int *y1) {
+  int ntx = (tw + TS_PM_TILE - 1) / TS_PM_TILE;
+  *x0 = (int)(t % (uint32_t)ntx) * TS_PM_TILE;
+  *y0 = (int)(t / (uint32_t)ntx) * TS_PM_TILE;
+  *x1 = *x0 + TS_PM_TILE < tw ? *x0 + TS_PM_TILE : tw;
+  *y1 = *y0 + TS_PM_TILE < th ? *y0 + TS_PM_TILE : th;
+}
+
+static uint32_t le16(const uint8_t *p) { return (uint32_t)p[0] | (uint32_t)p[1] << 8; }
+
+/* The answer's entries into the field, tile by tile; every entry must be a
+ * patch centre of the source (the engine indexes the source with them). */
+static int take_answer(pass_ctx *x, part *pt, const ts_msg_pass_answer *a, char *err) {
+  const ts_field_pass *fp = x->fp;
+  const ts_plane *src = x->st->rs.ref->fine[0];
+  int patch;
+  if (ts_pm_window_check(x->st->rs.window, &patch, err) != 0) return TS_EPROTO;
+  int r = patch / 2;
+  uint32_t k = 0;
+  for (uint32_t i = 0; i < pt->ntiles; i++) {
+    int x0, y0, x1, y1;
+    tile_rect(fp->tw, fp->th, pt->tiles[i], &x0, &y0, &x1, &y1);
+    if (a->nentries - k < (uint32_t)((x1 - x0) * (y1 - y0)))
+      return ts_error(err, TS_EPROTO, "a patchmatch answer of %u entries for %u tiles", a->nentries, pt->ntiles);
+    for (int y = y0; y < y1; y++)
+      for (int xx = x0; xx < x1; xx++, k++) {
+        uint32_t cx = le16(a->entries + 4 * (size_t)k), cy = le16(a->entries + 4 * (size_t)k + 2);
+        if (cx < (uint32_t)r || cy < (uint32_t)r || cx >= (uint32_t)(src->w - r) || cy >= (uint32_t)(src->h - r))
+          return ts_error(err, TS_EPROTO, "a patchmatch answer names (%u, %u), no patch centre", cx, cy);
+        fp->out[2 * ((size_t)y * (size_t)fp->tw + (size_t)xx)] = cx;
+        fp->out[2 * ((size_t)y * (size_t)fp->tw + (size_t)xx) + 1] = cy;
+      }
+  }
+  if (k != a->nentries)
+    return ts_error(err, TS_EPROTO, "a patchmatch answer of %u entries for %u tiles", a->nentries, pt->ntiles);
+  for (uint32_t i = 0; i < pt->ntiles; i++) x->done[pt->tiles[i]] = 1;
+  return 0;
+}
+
+static int pass_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
+  pass_ctx *x = ctx;
+  part *pt = part_of(x, w);
+  if (pt == NULL) return 0;
+  if (f->type == TS_MSG_ERROR) return cl_reply_error(f, err);
+  if (f->type == TS_MSG_FIELD) {
+    uint32_t set;
+    if (ts_msg_field_ack_read(f, &set, err) != 0) return TS_EPROTO;
+    if (set == x->st->gid && pt->sent_field && !pt->field_acked) {
+      pt->field_acked = 1;
+      w->expect--;
+    }
+    return 0;
+  }
+  if (f->type == TS_MSG_IMAGE) {
+    uint32_t image;
+    if (ts_msg_image_ack_read(f, &image, err) != 0) return TS_EPROTO;
+    if (image == x->im->gid && pt->sent_image && !pt->image_acked) {
+      pt->image_acked = 1;
+      w->expect--;
+    }
+    return 0;
+  }
+  if (f->type != TS_MSG_PASS) return 0; /* a stale answer of an abandoned exchange */
+  ts_msg_pass_answer a;
+  if (ts_msg_pass_answer_read(f, &a, err) != 0) return TS_EPROTO;
+  if (a.set != x->st->gid || a.pass != x->fp->pass) return 0;
+  if (pt->answered) return ts_error(err, TS_EPROTO, "a second answer to a patchmatch pass");
+  int rc = take_answer(x, pt, &a, err);
+  if (rc != 0) return rc;
+  pt->answered = 1;
+  w->expect--;
+  return 0;
+}
+
+/* The tiles left, cut in order among the parts by the workers' rates. */
+static void cut_tiles(part *parts, int n, const uint32_t *left, uint32_t nleft) {
+  double total = 0, cum = 0;
+  for (int i = 0; i < n; i++) total += parts[i].w->slice_rate > 0 ? parts[i].w->slice_rate : 1;
+  uint32_t start = 0;
+  for (int i = 0; i < n; i++) {
+    cum += parts[i].w->slice_rate > 0 ? parts[i].w->slice_rate : 1;
+    uint32_t end = i == n - 1 ? nleft : (uint32_t)llround((double)nleft * cum / total);
+    if (end < start) end = start;
+    parts[i].tiles = left + start;
+    parts[i].ntiles = end - start;
+    start = end;
+  }
+}
+
+/* What the slowest worker's tiles should take at its rate (bytes of
+ * vectors compared a second), CL_DEADLINE_SLACK times over, plus the
+ * loads' floor. */
+static double pass_deadline(const ts_cluster *c, const pass_ctx *x) {
+  double need = 0, vbytes = ts_window_bytes(x->st->rs.window);
+  for (int i = 0; i < x->n; i++) {
+    double rate = x->parts[i].w->slice_rate, pixels = (double)x->parts[i].ntiles * TS_PM_TILE * TS_PM_TILE;
+    if (rate > 0) need = fmax(need, pixels * PASS_CANDIDATES * vbytes / rate);
+  }
+  return c->o.batch_timeout + 30.0 + CL_DEADLINE_SLACK * need;
+}
+
+/* Queues a part's messages: the source if the worker lacks it, the image
+ * if it does not hold its state, the pass. */
+static int queue_part(pass_ctx *x, part *pt, const ts_msg_field *src, char *err) {
+  ts_cluster *c = x->cs->c;
+  cl_worker *w = pt->w;
+  w->expect = 0;
+  if (!holds(x->st, w)) {
+    int rc = cl_queue_field(w, ++c->next_frame, src, err);
+    if (rc != 0) return rc;
+    pt->sent_field = 1;
+    w->expect++;
+  }
+  cl_synced *y = cl_synced_of(x->im, w);
+  if (y == NULL || y->seq != x->im->rep.seq) {
+    ts_msg_image m;
+    cl_load_message(x->im, &m);
+    int rc = cl_queue_image(w, ++c->next_frame, &m, err);
+    if (rc != 0) return rc;
+    pt->sent_image = 1;
+    w->expect++;
+  }
+  const ts_field_pass *fp = x->fp;
+  ts_msg_pass m = {x->st->gid, x->im->gid, x->im->rep.seq, (uint32_t)fp->tw, (uint32_t)fp->th, fp->usage_k,
+                   fp->seed, fp->pass, pt->ntiles, pt->tiles, fp->in, NULL, NULL};
+  int rc = cl_queue_pass(w, ++c->next_frame, &m, err);
+  if (rc == 0) w->expect++;
+  return rc;
+}
+
+static void source_message(const cl_set *st, ts_msg_field *m) {
+  memset(m, 0, sizeof(*m));
+  m->set = st->gid;
+  m->win = st->rs.window->spec;
+  m->w = st->rs.ref->fine[0]->w;
+  m->h = st->rs.ref->fine[0]->h;
+  m->nplanes = st->rs.window->spec.nplanes[TS_SRC_FINE];
+  for (int k = 0; k < m->nplanes; k++) m->plane[k] = st->rs.ref->fine[k]->px;
+}
+
+/* One exchange over the ready workers ws[0..n) (lock held) for the tiles
+ * left; the tiles answered are marked done. */
+static int exchange_pass(pass_ctx *x, cl_worker **ws, int n, const uint32_t *left, uint32_t nleft, char *err) {
+  ts_cluster *c = x->cs->c;
+  part *parts = calloc((size_t)n, sizeof(*parts));
+  ts_msg_field *src = malloc(sizeof(*src));
+  if (parts == NULL || src == NULL) {
+    free(parts);
+    free(src);
+    return ts_error(err, TS_ENOMEM, "out of memory for a patchmatch pass");
+  }
+  source_message(x->st, src);
+  cl_lease(c, ws, n);
+  for (int i = 0; i < n; i++) parts[i].w = ws[i];
+  cut_tiles(parts, n, left, nleft);
+  x->parts = parts;
+  x->n = n;
+  for (int i = 0; i < n; i++) {
+    char why[TS_ERR_LEN];
+    if (ws[i]->state == TS_WORKER_FAILED) continue;
+    if (queue_part(x, &parts[i], src, why) != 0) {
+      cl_out_reset(ws[i]);
+      cl_worker_fail(c, ws[i], why);
+    }
+  }
+  cl_traffic tr = {0, 0};
+  int rc = cl_exchange(c, ws, n, pass_deadline(c, x), x->cs->cancel, pass_reply, x, &tr);
+  for (int i = 0; i < n; i++) {
+    if (ws[i]->state == TS_WORKER_FAILED) continue;
+    if (parts[i].field_acked) note_holder(c, x->st, ws[i]);
+    if (parts[i].image_acked || (!parts[i].sent_image && parts[i].answered))
+      cl_mark_synced(c, x->im, ws[i], x->im->rep.seq);
+  }
+  cl_release(c, ws, n);
+  x->cs->base.stats.bytes_out += tr.bytes_out;
+  x->cs->base.stats.bytes_in += tr.bytes_in;
+  x->parts = NULL;
+  free(parts);
+  free(src);
+  return rc;
+}
+
+/* The tiles not done yet, in order: how many. */
+static uint32_t tiles_left(const uint8_t *done, uint32_t ntiles, uint32_t *left) {
+  uint32_t n = 0;
+  for (uint32_t t = 0; t < ntiles; t++)
+    if (!done[t]) left[n++] = t;
+  return n;
+}
+
+static int check_pass(cluster_search *cs, const ts_field_pass *fp, cl_set **st, cl_image **im, char *err) {
+  *st = fp->set >= 0 && fp->set < CL_MAX_SETS && cs->sets[fp->set].used ? &cs->sets[fp->set] : NULL;
+  if (*st == NULL || !(*st)->field) return ts_error(err, TS_EINVAL, "unknown patchmatch set %d", fp->set);
+  *im = fp->image >= 0 && fp->image < CL_MAX_IMAGES && cs->images[fp->image].used ? &cs->images[fp->image] : NULL;
+  if (*im == NULL) return ts_error(err, TS_EINVAL, "unknown query image %d", fp->image);
+  if (fp->tw < 1 || fp->th < 1 || fp->tw > TS_PASS_MAX_SIDE || fp->th > TS_PASS_MAX_SIDE)
+    return ts_error(err, TS_ETOOBIG, "a %dx%d patchmatch field is over the wire's %d pixels a side", fp->tw, fp->th,
+                    TS_PASS_MAX_SIDE);
+  return 0;
+}
+
+int cl_field_pass(ts_search *s, const ts_field_pass *fp, char *err) {
+  cluster_search *cs = (cluster_search *)s;
+  ts_cluster *c = cs->c;
+  cl_set *st = NULL;
+  cl_image *im = NULL;
+  int rc = check_pass(cs, fp, &st, &im, err);
+  if (rc != 0) return rc;
+  if (cs->cancel != NULL && *cs->cancel) return ts_error(err, TS_ECANCELED, "job canceled");
+  uint32_t ntiles = (uint32_t)ts_pm_tiles(fp->tw, fp->th);
+  uint8_t *done = calloc(ntiles, 1);
+  uint32_t *left = malloc(sizeof(uint32_t) * ntiles);
+  if (done == NULL || left == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory for a patchmatch pass");
+  double t0 = ts_now();
+  pass_ctx x = {cs, st, im, fp, NULL, 0, done};
+  pthread_mutex_lock(&c->lock);
+  if (rc == 0) rc = cl_flush_image(cs, fp->image, err);
+  for (int lost = 0; rc == 0;) {
+    if (cs->cancel != NULL && *cs->cancel) {
+      rc = ts_error(err, TS_ECANCELED, "job canceled");
+      break;
+    }
+    uint32_t nleft = tiles_left(done, ntiles, left);
+    if (nleft == 0) break;
+    cl_worker **ws = cs->ws;
+    int n = cl_ready_workers(c, ws);
+    if (n == 0) {
+      ts_pm_job j = {fp->tw, fp->th, fp->in, fp->usage_k, fp->seed, fp->pass, c->simd->id == TS_SIMD_SCALAR};
+      rc = pass_local(cs, st, im, &j, left, (int)nleft, fp->out, err);
+      break;
+    }
+    rc = exchange_pass(&x, ws, n, left, nleft, err);
+    if (rc == TS_ECANCELED) break;
+    /* Workers that failed left their tiles undone: sweep them again
+     * elsewhere - unless passes keep killing workers. */
+    if (tiles_left(done, ntiles, left) > 0 && ++lost >= (int)c->o.max_redispatch) {
+      rc = ts_error(err, TS_ECONN, "a patchmatch pass lost workers %d times in a row; giving up on this job to "
+                    "protect the pool", lost);
+      break;
+    }
+    rc = 0;
+  }
+  pthread_mutex_unlock(&c->lock);
+  free(done);
+  free(left);
+  if (rc != 0) return rc;
+  s->stats.batches++;
+  s->stats.queries += (uint64_t)fp->tw * (uint64_t)fp->th;
+  s->stats.round_trips++;
+  s->stats.scan_seconds += ts_now() - t0;
+  return 0;
+}
