@@ -76,6 +76,7 @@ def test_output_is_the_vote_of_its_nnf(texsyn, scene, tmp_path):
             assert got[(y * tw + x) * ch:(y * tw + x + 1) * ch] == want, f"pixel ({x}, {y}) is not its vote"
 
 
+@pytest.mark.sanitize
 @pytest.mark.parametrize("search", ["exact", "patchmatch"])
 def test_same_bytes_for_any_thread_count_and_on_a_cluster(texsyn, scene, cluster, tmp_path, search):
     outs = []
