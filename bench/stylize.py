@@ -271,8 +271,10 @@ def uniformity_sweep(build, sc, tmp, out_dir, score):
         seconds = timed(cmd)
         row = {"uniformity": "1 (default)" if u is None else u, "seconds": seconds,
                **report_summary(report), "energy": score(sc, out), "repeats": nnf_repeats(nnf, src_size, tgt_size)}
-        row["picture"] = (picture(out, out_dir / f"stylize-stylit-uniformity-{tag}.png") + ", "
-                          + crop(out, out_dir / f"stylize-stylit-uniformity-{tag}-crop.png"))
+        # The default's whole picture is the comparison's texsyn picture (the same job and bytes).
+        whole = ("stylize-stylit-texsyn.png (the comparison's texsyn picture: the same run)" if u is None
+                 else picture(out, out_dir / f"stylize-stylit-uniformity-{tag}.png"))
+        row["picture"] = whole + ", " + crop(out, out_dir / f"stylize-stylit-uniformity-{tag}-crop.png")
         rows.append(row)
         print(f"  uniformity {row['uniformity']}: {seconds:.1f} s, energy {row['energy']['energy']:.4f}, "
               f"coverage {row['energy']['coverage']:.4f}, NNF coverage {row['nnf_coverage']:.4f}", flush=True)

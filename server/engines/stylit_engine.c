@@ -125,8 +125,9 @@ static int stylit_run(const void *params, const ts_image *const *in, ts_search *
   return ts_stylit_run(r->p, in, search, &sh, &r->res, err);
 }
 
-/* The report: parameters, the search (exact, no lossy shortcut), per
- * level sizes, queries, comparisons and seconds, the exemplar coverage. */
+/* The report: parameters, the search (its mode, and "patchmatch" among
+ * the lossy shortcuts when a level ran it), per level sizes, the search
+ * that ran, queries, exact comparisons and seconds, the exemplar coverage. */
 static int write_report(const ts_engine_run *r, const char *path, int threads, char *err) {
   const ts_stylit_params *p = r->p;
   const ts_stylit_result *res = &r->res;
