@@ -121,7 +121,9 @@ uint64_t cl_image_bytes(const ts_msg_image *m) { return ts_payload_size(write_im
 
 static void write_unload(ts_wr *w, const void *arg) { ts_msg_unload_write(w, arg); }
 
-void cl_queue_unload(ts_cluster *c, cl_worker *w, uint32_t set) {
+/* Queues a 'Q' to w (leased) and expects its answer (none if it could
+ * not be queued). */
+static void cl_queue_unload(ts_cluster *c, cl_worker *w, uint32_t set) {
   char err[TS_ERR_LEN];
   cl_msg *e = queue_slot(w);
   if (e != NULL) e->arg.unload.set = set;
@@ -650,9 +652,17 @@ int cl_reply_error(const ts_frame *f, char *err) {
   return ts_error(err, e.code, "worker error: %s", e.text);
 }
 
-int cl_unloaded_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
+static int cl_unloaded_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
   (void)ctx;
   (void)err;
   if (f->type == TS_MSG_UNLOAD) w->expect--;
   return 0;
+}
+
+void cl_unload_set(ts_cluster *c, cl_worker **ws, int n, uint32_t set) {
+  cl_lease(c, ws, n);
+  for (int i = 0; i < n; i++) cl_queue_unload(c, ws[i], set);
+  cl_traffic tr = {0, 0};
+  if (n > 0) cl_exchange(c, ws, n, c->o.batch_timeout, NULL, cl_unloaded_reply, NULL, &tr);
+  cl_release(c, ws, n);
 }

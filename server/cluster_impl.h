@@ -212,11 +212,9 @@ int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, const vola
                 void *ctx, cl_traffic *tr);
 /* An 'E' reply as an error. */
 int cl_reply_error(const ts_frame *f, char *err);
-/* Queues a 'Q' to w (leased; lock held) to free one set's slice, or all
- * (TS_UNLOAD_ALL), and expects its answer (none if it could not be queued). */
-void cl_queue_unload(ts_cluster *c, cl_worker *w, uint32_t set);
-/* Counts a 'Q' (unload) answer. */
-int cl_unloaded_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err);
+/* Tells ws[0..n) to free a set (lock held): leases them, sends each a
+ * 'Q' and awaits the answers. */
+void cl_unload_set(ts_cluster *c, cl_worker **ws, int n, uint32_t set);
 
 /* The Modbus supervisor's thread (supervise.c). */
 void *cl_supervisor_thread(void *arg);

@@ -906,11 +906,7 @@ static void set_clear(cluster_search *cs, cl_set *st) {
     for (int i = 0; i < st->nslices; i++) ws[n++] = st->slices[i].w;
   else /* slices may be on any worker that is still with us */
     n = cl_ready_workers(c, ws);
-  cl_lease(c, ws, n);
-  for (int i = 0; i < n; i++) cl_queue_unload(c, ws[i], st->gid);
-  cl_traffic tr = {0, 0};
-  if (n > 0) cl_exchange(c, ws, n, c->o.batch_timeout, NULL, cl_unloaded_reply, NULL, &tr);
-  cl_release(c, ws, n);
+  cl_unload_set(c, ws, n, st->gid);
   pthread_mutex_unlock(&c->lock);
   ts_slice_free(st->local);
   ts_usage_free(&st->usage);

@@ -61,11 +61,7 @@ void cl_field_clear(cluster_search *cs, cl_set *st) {
   int all = cl_ready_workers(c, ws), n = 0;
   for (int i = 0; i < all; i++)
     if (holds(st, ws[i])) ws[n++] = ws[i];
-  cl_lease(c, ws, n);
-  for (int i = 0; i < n; i++) cl_queue_unload(c, ws[i], st->gid);
-  cl_traffic tr = {0, 0};
-  if (n > 0) cl_exchange(c, ws, n, c->o.batch_timeout, NULL, cl_unloaded_reply, NULL, &tr);
-  cl_release(c, ws, n);
+  cl_unload_set(c, ws, n, st->gid);
   pthread_mutex_unlock(&c->lock);
   if (st->local_field != NULL) ts_pm_field_free(st->local_field);
   free(st->local_field);
