@@ -114,9 +114,13 @@ def test_worker_with_wrong_secret_is_refused_listen_and_join(texsyn, data, clust
     start_server(cluster, "--secret-file", key, workers=[good.addr, bad_listen.addr, no_secret.addr])
     bad_join = cluster.worker(1, "--secret-file", wrong, "--join", cluster.server.addr)
     cluster.wait_ready(1)
+    # Each refusal by its own line: the joiner's retries alone can make
+    # three "authentication failed" before the coordinator has dialled the
+    # worker without a secret.
     wait_for("the refusals in the logs", lambda: "join" in bad_join.read_log()
              and "refused" in bad_listen.read_log()
-             and cluster.server.read_log().count("authentication failed") >= 3)
+             and f"worker {bad_listen.addr}: " in cluster.server.read_log()
+             and f"worker {no_secret.addr}: " in cluster.server.read_log())
     log = cluster.server.read_log()
     assert f"worker {bad_listen.addr}: {bad_listen.addr}: authentication failed: wrong secret" in log, log
     assert f"worker {no_secret.addr}: {no_secret.addr}: authentication failed: this worker has no --secret-file" \
