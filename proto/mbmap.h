@@ -3,13 +3,13 @@
  *
  * Input registers (function 04), 16-bit each; u32 values take 2 registers
  * and u64 values 4, most significant word first. Both daemons share the
- * block 0..31; the coordinator adds 32..47. Coils (functions 01, 05, 15)
+ * block 0..31; the coordinator adds 32..47, a worker 32..37. Coils (functions 01, 05, 15)
  * switch the daemon; writes need --modbus-control. */
 #ifndef TS_MBMAP_H
 #define TS_MBMAP_H
 
 #define TS_MB_MAGIC 0x5453 /* "TS" */
-#define TS_MB_BUILD 4      /* bumped with every release of the map's meaning */
+#define TS_MB_BUILD 5      /* bumped with every release of the map's meaning */
 #define TS_MB_UNKNOWN 0xFFFF
 
 enum {
@@ -44,6 +44,11 @@ enum {
   TS_MB_IR_ETA = 45,       /* u32 its ETA in seconds (0xFFFFFFFF: unknown) */
   TS_MB_IR_PAUSED = 47,    /* 1 while the queue is paused */
   TS_MB_IR_SERVER_END = 48,
+  /* worker only */
+  TS_MB_IR_SOURCES_LOADED = 32, /* u32 PatchMatch sources loaded ('G') since start */
+  TS_MB_IR_SOURCES_HELD = 34,   /* PatchMatch sources held now */
+  TS_MB_IR_PASSES = 35,         /* u32 PatchMatch passes answered ('T') */
+  TS_MB_IR_WORKER_END = 37,
 };
 
 typedef enum {

@@ -128,6 +128,7 @@ static void cl_queue_unload(ts_cluster *c, cl_worker *w, uint32_t set) {
   cl_msg *e = queue_slot(w);
   if (e != NULL) e->arg.unload.set = set;
   w->unloads++; /* a re-slice keeps nothing from a slice it may have freed */
+  if (set == TS_UNLOAD_ALL) w->wipes++;
   w->expect = e != NULL && queue_push(w, e, TS_MSG_UNLOAD, ++c->next_frame, write_unload, err) == 0;
 }
 
@@ -392,6 +393,7 @@ static void *cluster_thread(void *arg) {
 
 static void cluster_free(ts_cluster *c) {
   ts_pool_destroy(c->local_pool);
+  for (int i = 0; i < CL_MAX_SOURCES; i++) free(c->sources[i].held);
   free(c->w);
   free(c->addrs);
   free(c);
@@ -406,7 +408,9 @@ int ts_cluster_create(ts_cluster **out, const ts_cluster_opts *o, char *err) {
   c->o = *o;
   c->w = calloc(o->max_workers, sizeof(*c->w));
   c->addrs = calloc(TS_CLUSTER_MAX_WORKERS, sizeof(*c->addrs));
-  int rc = c->w && c->addrs ? ts_l1_select(&c->simd, err) : ts_error(err, TS_ENOMEM, "out of memory");
+  int ok = c->w != NULL && c->addrs != NULL;
+  for (int i = 0; ok && i < CL_MAX_SOURCES; i++) ok = (c->sources[i].held = calloc(o->max_workers, sizeof(cl_holder))) != NULL;
+  int rc = ok ? ts_l1_select(&c->simd, err) : ts_error(err, TS_ENOMEM, "out of memory");
   if (rc == 0 && ts_pool_create(&c->local_pool, o->local_threads) != 0)
     rc = ts_error(err, TS_ENOMEM, "cannot start %d scan threads", o->local_threads);
   if (rc != 0) {

@@ -111,6 +111,7 @@ typedef struct {
   size_t out_off;
   int expect;
   uint32_t unloads;        /* times it was told to free slices ('Q') */
+  uint32_t wipes;          /* times it was told to free everything ('Q' of all sets) */
   uint32_t images_sent;    /* query images (bits) whose frames it was sent */
   uint64_t expected_bytes; /* bytes the batch asks it to scan */
   uint64_t answered_bytes; /* bytes the batch's answers report scanned */
@@ -125,6 +126,35 @@ typedef struct {
   cl_frame_sent *frames;
   uint32_t nframes, cap_frames;
 } cl_worker;
+
+/* A worker that loaded a PatchMatch source: it holds it until it is told
+ * to free that source or everything (a drain: `wipes` moves), or leaves
+ * (it rejoins under a new id). */
+typedef struct {
+  int worker;
+  uint32_t wipes;
+} cl_holder;
+
+/* The PatchMatch sources the workers hold, shared by every job
+ * (search_field.c): a field set a job prepares with the same window and
+ * planes as a source some workers already hold - an earlier frame of a
+ * sequence, another job on the same exemplar - goes only to the workers
+ * that lack it. A source stays after its last set is released, until a
+ * new one needs its entry (least recently used first). A worker never
+ * holds more sources than there are entries: the worker takes 8
+ * (PROTOCOL.md, 'G'). */
+#define CL_MAX_SOURCES 8
+#define CL_SOURCE_KEY 32 /* BLAKE2b of the 'G' message with set id 0 */
+
+typedef struct {
+  int used;
+  int refs; /* field sets using it */
+  uint8_t key[CL_SOURCE_KEY];
+  uint32_t gid; /* its set id on the wire */
+  uint64_t last_use;
+  cl_holder *held; /* o.max_workers slots */
+  int nheld;
+} cl_source;
 
 typedef struct {
   char addr[TS_NET_ADDR_LEN];
@@ -154,6 +184,8 @@ struct ts_cluster {
   pthread_cond_t wake;
   pthread_cond_t released; /* a lease ended */
   uint64_t batches, queries; /* answered for jobs */
+  cl_source sources[CL_MAX_SOURCES];
+  uint64_t source_clock; /* last_use's clock */
 };
 
 /* The cluster's lines go to the daemon's log (log.h). */

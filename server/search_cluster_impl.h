@@ -48,11 +48,12 @@ typedef struct {
   int fine_in_image;
   uint32_t image_level;
   uint8_t tile_w, tile_h, tile[TS_SLICE_MAX_TILE * TS_SLICE_MAX_TILE];
-  /* A PatchMatch source (rs.field): held whole by the workers in held
-   * (unloads: their count when they loaded it), or by the coordinator's
-   * own field when no worker is ready, whose target is of image
-   * local_image at state local_seq. */
+  /* A PatchMatch source (rs.field): held whole by the workers that hold
+   * entry `source` of the cluster's sources, or by the coordinator's own
+   * field when no worker is ready, whose target is of image local_image at
+   * state local_seq. */
   int field;
+  int source;
   ts_pm_field *local_field;
   uint32_t local_image;
   uint64_t local_seq;

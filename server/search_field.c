@@ -11,6 +11,8 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include <sodium.h>
+
 #include "error.h"
 #include "search_cluster_impl.h"
 
@@ -18,54 +20,142 @@
  * random), for deadlines only. */
 #define PASS_CANDIDATES 15.0
 
+static void source_message(const cl_set *st, uint32_t gid, ts_msg_field *m) {
+  memset(m, 0, sizeof(*m));
+  m->set = gid;
+  m->win = st->rs.window->spec;
+  m->w = st->rs.ref->fine[0]->w;
+  m->h = st->rs.ref->fine[0]->h;
+  m->nplanes = st->rs.window->spec.nplanes[TS_SRC_FINE];
+  for (int k = 0; k < m->nplanes; k++) m->plane[k] = st->rs.ref->fine[k]->px;
+}
+
+/* What a worker would hold of the source: the hash of its 'G' message
+ * with set id 0 (header, then the planes as they lie). */
+static int source_key(const cl_set *st, uint8_t key[CL_SOURCE_KEY], char *err) {
+  ts_msg_field *m = malloc(sizeof(*m));
+  if (m == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+  source_message(st, 0, m);
+  int nplanes = m->nplanes;
+  m->nplanes = 0; /* the header alone */
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_field_write(&w, m);
+  int rc = ts_wr_status(&w) ? ts_error(err, TS_ENOMEM, "out of memory") : 0;
+  crypto_generichash_state h;
+  crypto_generichash_init(&h, NULL, 0, CL_SOURCE_KEY);
+  crypto_generichash_update(&h, w.buf, w.len);
+  uint8_t n = (uint8_t)nplanes;
+  crypto_generichash_update(&h, &n, 1);
+  for (int k = 0; k < nplanes; k++) crypto_generichash_update(&h, m->plane[k], (size_t)m->w * (size_t)m->h);
+  crypto_generichash_final(&h, key, CL_SOURCE_KEY);
+  ts_wr_free(&w);
+  free(m);
+  return rc;
+}
+
+/* Tells the workers holding an unused entry to free its source (lock
+ * held) and empties it. */
+static void source_evict(cluster_search *cs, cl_source *e) {
+  ts_cluster *c = cs->c;
+  cl_worker **ws = cs->ws;
+  int all = cl_ready_workers(c, ws), n = 0;
+  for (int i = 0; i < all; i++)
+    for (int h = 0; h < e->nheld; h++)
+      if (e->held[h].worker == ws[i]->id && e->held[h].wipes == ws[i]->wipes) ws[n++] = ws[i];
+  cl_log(c, "patchmatch source %u: freed on %d worker%s to make room", e->gid, n, n == 1 ? "" : "s");
+  cl_unload_set(c, ws, n, e->gid);
+  e->used = 0;
+  e->nheld = 0;
+}
+
+/* The entry of a source with that key (lock held): the one that has it,
+ * else a free one, else the least recently used unused one, emptied.
+ * -1 when every entry is in use. */
+static int source_entry(cluster_search *cs, const uint8_t *key) {
+  ts_cluster *c = cs->c;
+  int found = -1, spare = -1;
+  for (int i = 0; i < CL_MAX_SOURCES && found < 0; i++) {
+    cl_source *e = &c->sources[i];
+    if (e->used && memcmp(e->key, key, CL_SOURCE_KEY) == 0) found = i;
+    else if (!e->used && spare < 0) spare = i;
+  }
+  if (found >= 0) return found;
+  if (spare < 0) {
+    for (int i = 0; i < CL_MAX_SOURCES; i++)
+      if (c->sources[i].refs == 0 && (spare < 0 || c->sources[i].last_use < c->sources[spare].last_use)) spare = i;
+    if (spare < 0) return -1;
+    /* The unload waits for leases with the lock released: the entry is
+     * taken first (in use, no key), so no other job finds or takes it. */
+    cl_source *e = &c->sources[spare];
+    memset(e->key, 0, CL_SOURCE_KEY);
+    e->refs = 1;
+    source_evict(cs, e);
+    e->refs = 0;
+  }
+  cl_source *e = &c->sources[spare];
+  memcpy(e->key, key, CL_SOURCE_KEY);
+  e->gid = ++c->next_set;
+  e->used = 1;
+  e->nheld = 0;
+  return spare;
+}
+
 int cl_field_prepare(cluster_search *cs, cl_set *st, char *err) {
   const ts_plane *p0 = st->rs.ref->fine[0];
   int patch;
+  uint8_t key[CL_SOURCE_KEY];
   int rc = ts_pm_window_check(st->rs.window, &patch, err);
   if (rc != 0) return rc;
   if (p0->w > TS_PASS_MAX_SIDE || p0->h > TS_PASS_MAX_SIDE)
     return ts_error(err, TS_ETOOBIG, "a %dx%d patchmatch source is over the wire's %d pixels a side", p0->w, p0->h,
                     TS_PASS_MAX_SIDE);
-  size_t slots = (size_t)cs->c->o.max_workers;
-  st->held = calloc(slots, sizeof(*st->held));
-  if (st->held == NULL) return ts_error(err, TS_ENOMEM, "out of memory for a patchmatch source");
-  st->field = 1;
-  pthread_mutex_lock(&cs->c->lock);
-  st->gid = ++cs->c->next_set;
-  st->used = 1;
-  pthread_mutex_unlock(&cs->c->lock);
+  if ((rc = source_key(st, key, err)) != 0) return rc;
+  ts_cluster *c = cs->c;
+  pthread_mutex_lock(&c->lock);
+  int i = source_entry(cs, key);
+  if (i >= 0) {
+    c->sources[i].refs++;
+    c->sources[i].last_use = ++c->source_clock;
+    st->source = i;
+    st->gid = c->sources[i].gid;
+    st->field = 1;
+    st->used = 1;
+  }
+  pthread_mutex_unlock(&c->lock);
+  if (i < 0)
+    return ts_error(err, TS_ELIMIT, "%d patchmatch sources are in use at once, the most workers hold; run fewer "
+                    "jobs at once (texsyn-server --jobs)", CL_MAX_SOURCES);
   return 0;
 }
 
-/* Whether w holds st's source (it loaded it and freed nothing since). */
-static int holds(const cl_set *st, const cl_worker *w) {
-  for (int i = 0; i < st->nheld; i++)
-    if (st->held[i].worker == w->id && st->held[i].unloads == w->unloads) return 1;
+/* Whether w holds st's source (it loaded it and freed it since by no
+ * drain). */
+static int holds(const ts_cluster *c, const cl_set *st, const cl_worker *w) {
+  const cl_source *e = &c->sources[st->source];
+  for (int i = 0; i < e->nheld; i++)
+    if (e->held[i].worker == w->id && e->held[i].wipes == w->wipes) return 1;
   return 0;
 }
 
 static void note_holder(ts_cluster *c, cl_set *st, const cl_worker *w) {
-  if (holds(st, w)) return;
-  for (int i = 0; i < st->nheld; i++)
-    if (st->held[i].worker == w->id) {
-      st->held[i].unloads = w->unloads;
+  cl_source *e = &c->sources[st->source];
+  for (int i = 0; i < e->nheld; i++)
+    if (e->held[i].worker == w->id) {
+      e->held[i].wipes = w->wipes;
       return;
     }
-  if (st->nheld < (int)c->o.max_workers) st->held[st->nheld++] = (cl_held){w->id, w->unloads, {0}};
+  if (e->nheld < (int)c->o.max_workers) e->held[e->nheld++] = (cl_holder){w->id, w->wipes};
 }
 
+/* The workers keep the source for the next set with its key. */
 void cl_field_clear(cluster_search *cs, cl_set *st) {
   ts_cluster *c = cs->c;
   pthread_mutex_lock(&c->lock);
-  cl_worker **ws = cs->ws;
-  int all = cl_ready_workers(c, ws), n = 0;
-  for (int i = 0; i < all; i++)
-    if (holds(st, ws[i])) ws[n++] = ws[i];
-  cl_unload_set(c, ws, n, st->gid);
+  c->sources[st->source].refs--;
   pthread_mutex_unlock(&c->lock);
   if (st->local_field != NULL) ts_pm_field_free(st->local_field);
   free(st->local_field);
-  free(st->held);
   memset(st, 0, sizeof(*st));
 }
 
@@ -232,7 +322,7 @@ static int queue_part(pass_ctx *x, part *pt, const ts_msg_field *src, char *err)
   ts_cluster *c = x->cs->c;
   cl_worker *w = pt->w;
   w->expect = 0;
-  if (!holds(x->st, w)) {
+  if (!holds(c, x->st, w)) {
     int rc = cl_queue_field(w, ++c->next_frame, src, err);
     if (rc != 0) return rc;
     pt->sent_field = 1;
@@ -255,16 +345,6 @@ static int queue_part(pass_ctx *x, part *pt, const ts_msg_field *src, char *err)
   return rc;
 }
 
-static void source_message(const cl_set *st, ts_msg_field *m) {
-  memset(m, 0, sizeof(*m));
-  m->set = st->gid;
-  m->win = st->rs.window->spec;
-  m->w = st->rs.ref->fine[0]->w;
-  m->h = st->rs.ref->fine[0]->h;
-  m->nplanes = st->rs.window->spec.nplanes[TS_SRC_FINE];
-  for (int k = 0; k < m->nplanes; k++) m->plane[k] = st->rs.ref->fine[k]->px;
-}
-
 /* One exchange over the ready workers ws[0..n) (lock held) for the tiles
  * left; the tiles answered are marked done. */
 static int exchange_pass(pass_ctx *x, cl_worker **ws, int n, const uint32_t *left, uint32_t nleft, char *err) {
@@ -276,7 +356,7 @@ static int exchange_pass(pass_ctx *x, cl_worker **ws, int n, const uint32_t *lef
     free(src);
     return ts_error(err, TS_ENOMEM, "out of memory for a patchmatch pass");
   }
-  source_message(x->st, src);
+  source_message(x->st, x->st->gid, src);
   cl_lease(c, ws, n);
   for (int i = 0; i < n; i++) parts[i].w = ws[i];
   cut_tiles(parts, n, left, nleft);

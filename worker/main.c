@@ -371,6 +371,7 @@ static int on_pass(session *s, const ts_frame *f, char *err) {
     ts_wr_free(&w);
     return send_error(s, f->id, rc, err) == 0 ? 1 : TS_ECONN;
   }
+  ts_wmon_pass();
   return send_reply(s, TS_MSG_PASS, f->id, &w);
 }
 

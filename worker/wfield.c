@@ -6,6 +6,7 @@
 
 #include "error.h"
 #include "util.h"
+#include "wmon.h"
 
 struct ts_wfield {
   uint32_t set;
@@ -25,6 +26,7 @@ static ts_wfield **slot_of(ts_wfields *fs, uint32_t set) {
 
 static void field_free(ts_wfield **slot) {
   if (*slot == NULL) return;
+  ts_wmon_source(-1);
   ts_pm_field_free(&(*slot)->f);
   ts_window_free(&(*slot)->win);
   free(*slot);
@@ -68,6 +70,7 @@ int ts_wfield_load(ts_wfields *fs, const ts_msg_field *m, int threads, char *err
   }
   wf->set = m->set;
   *slot = wf;
+  ts_wmon_source(1);
   return 0;
 }
 

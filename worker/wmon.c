@@ -17,6 +17,7 @@ static struct {
   double started;
   int threads, simd, draining;
   uint32_t loading, errors;
+  uint32_t sources_loaded, sources_held, passes;
   uint64_t rate, vectors, batches, queries;
   double scan_rate; /* bytes/s scanned in recent batches, averaged over ~1 s of scanning */
   uint64_t ran_ns, waited_ns; /* schedstat totals at the last CPU-share sample */
@@ -66,6 +67,19 @@ void ts_wmon_batch(uint32_t queries, uint64_t bytes, uint64_t nanos) {
 void ts_wmon_error(void) {
   pthread_mutex_lock(&g_mon.lock);
   g_mon.errors++;
+  pthread_mutex_unlock(&g_mon.lock);
+}
+
+void ts_wmon_source(int delta) {
+  pthread_mutex_lock(&g_mon.lock);
+  if (delta > 0) g_mon.sources_loaded++;
+  g_mon.sources_held = (uint32_t)((int)g_mon.sources_held + delta);
+  pthread_mutex_unlock(&g_mon.lock);
+}
+
+void ts_wmon_pass(void) {
+  pthread_mutex_lock(&g_mon.lock);
+  g_mon.passes++;
   pthread_mutex_unlock(&g_mon.lock);
 }
 
@@ -140,6 +154,9 @@ static void refresh(void *ctx, uint16_t *ir, uint8_t *coils) {
   ts_mb_put64(ir, TS_MB_IR_BATCHES, g_mon.batches);
   ts_mb_put64(ir, TS_MB_IR_QUERIES, g_mon.queries);
   ts_mb_put64(ir, TS_MB_IR_SCAN_RATE, (uint64_t)g_mon.scan_rate);
+  ts_mb_put32(ir, TS_MB_IR_SOURCES_LOADED, g_mon.sources_loaded);
+  ir[TS_MB_IR_SOURCES_HELD] = (uint16_t)g_mon.sources_held;
+  ts_mb_put32(ir, TS_MB_IR_PASSES, g_mon.passes);
   coils[TS_MB_COIL_DRAIN] = (uint8_t)g_mon.draining;
   pthread_mutex_unlock(&g_mon.lock);
 }
@@ -154,7 +171,7 @@ static int write_coil(void *ctx, int addr, int value) {
 }
 
 int ts_wmon_start_modbus(const char *listen, int control, void (*log)(const char *msg), int *port, char *err) {
-  ts_mbplane_opts o = {listen, control, TS_MB_IR_COMMON_END, 1, refresh, write_coil, NULL, log};
+  ts_mbplane_opts o = {listen, control, TS_MB_IR_WORKER_END, 1, refresh, write_coil, NULL, log};
   return ts_mbplane_start(&g_mon.plane, &o, port, err);
 }
 

@@ -13,6 +13,9 @@ void ts_wmon_vectors(int64_t delta);     /* vectors held */
 /* A batch answered: its queries, comparisons and scan time. */
 void ts_wmon_batch(uint32_t queries, uint64_t bytes, uint64_t nanos); /* bytes scanned */
 void ts_wmon_error(void);                /* a failed request or a protocol error */
+/* PatchMatch sources: one loaded (+1) or freed (-1); a pass answered. */
+void ts_wmon_source(int delta);
+void ts_wmon_pass(void);
 /* 1 while the drain coil is set: the coordinator gives no new slices. */
 int ts_wmon_draining(void);
 

@@ -123,7 +123,7 @@ static int check_writable(const char *path, char *err) {
   return 0;
 }
 
-static int check_outputs(const ts_job_cmd *o, char *err) {
+int ts_job_check_outputs(const ts_job_cmd *o, char *err) {
   for (int i = 0; i < o->out.n; i++)
     if (check_writable(o->out.path[i], err) != 0) return TS_EIO;
   return 0;
@@ -195,21 +195,27 @@ static int write_outputs(const ts_job_cmd *o, const ts_engine_run *run, char *er
   return rc;
 }
 
-static int run_embedded(const ts_job_cmd *o, const ts_image *const *in, char *err) {
+int ts_job_embedded(const ts_job_cmd *o, const ts_image *const *in, ts_search *search, char *err) {
   const ts_engine *e = o->spec.engine;
-  ts_search *search = NULL;
   ts_engine_run *run = NULL;
-  int rc = ts_search_local_create(&search, o->threads, NULL, err);
   progress_bar pb = {!o->quiet && isatty(STDERR_FILENO), ts_now(), 0};
   ts_engine_hooks hooks = {.progress = progress_draw, .progress_ctx = &pb};
   double t0 = ts_now();
-  if (rc == 0) rc = e->run(&o->spec.params, in, search, &hooks, &run, err);
+  uint64_t pairs = search->stats.pairs;
+  int rc = e->run(&o->spec.params, in, search, &hooks, &run, err);
   if (pb.enabled) fputc('\n', stderr);
   if (rc == 0) rc = write_outputs(o, run, err);
   if (rc == 0 && !o->quiet)
     fprintf(stderr, "texsyn: %s in %.2fs (%s, %d threads, %.3g comparisons)\n", ts_output_path(&o->out, "output"),
-            ts_now() - t0, search->simd->name, o->threads, (double)search->stats.pairs);
+            ts_now() - t0, search->simd->name, o->threads, (double)(search->stats.pairs - pairs));
   e->run_free(run);
+  return rc;
+}
+
+static int run_embedded(const ts_job_cmd *o, const ts_image *const *in, char *err) {
+  ts_search *search = NULL;
+  int rc = ts_search_local_create(&search, o->threads, NULL, err);
+  if (rc == 0) rc = ts_job_embedded(o, in, search, err);
   ts_search_destroy(search);
   return rc;
 }
@@ -303,7 +309,7 @@ static void base_name(const char *path, char *out, size_t cap) {
 /* Every input goes in the one submit frame: together they must fit it. */
 #define SUBMIT_MAX (TS_FRAME_DEFAULT_MAX - 8192)
 
-static int submit_job(ts_conn *c, const ts_job_cmd *o, uint64_t *id, char *err) {
+int ts_job_submit(ts_conn *c, const ts_job_cmd *o, uint64_t *id, char *err) {
   ts_jobspec js = o->spec;
   char spec[TS_SPEC_MAX];
   int n = set_wants(o, &js, err);
@@ -358,7 +364,7 @@ static int run_remote(const ts_job_cmd *o) {
             o->cmd, err, o->server, o->server == ts_env_server() ? ", from $TEXSYN_SERVER" : "");
     return 1;
   }
-  rc = submit_job(&c, o, &id, err);
+  rc = ts_job_submit(&c, o, &id, err);
   ts_job_status st = {0};
   if (rc == 0 && o->detach) {
     printf("%llu\n", (unsigned long long)id);
@@ -384,7 +390,7 @@ static int run_remote(const ts_job_cmd *o) {
 int ts_job_run(ts_job_cmd *o) {
   char err[TS_ERR_LEN] = "", msg[4096];
   const ts_engine *e = o->spec.engine;
-  if (!o->detach && check_outputs(o, err) != 0) {
+  if (!o->detach && ts_job_check_outputs(o, err) != 0) {
     fprintf(stderr, "texsyn %s: %s\n", o->cmd, err);
     return 1;
   }

@@ -71,6 +71,14 @@ int ts_job_read_inputs(const ts_job_cmd *o, int n, ts_image *in, char *err);
  * process exit status: 0, 1 (I/O, a failed job), 2 (bad parameters). */
 int ts_job_run(ts_job_cmd *o);
 
+/* The steps of ts_job_run, for commands that run several jobs (frames.h):
+ * whether every output path can be written; a checked job run on the
+ * inputs in-process on `search`, its outputs written; a job submitted to
+ * a coordinator (its id in *id). */
+int ts_job_check_outputs(const ts_job_cmd *o, char *err);
+int ts_job_embedded(const ts_job_cmd *o, const ts_image *const *in, ts_search *search, char *err);
+int ts_job_submit(ts_conn *c, const ts_job_cmd *o, uint64_t *id, char *err);
+
 /* The shared parsers (util.h), with the option named in the message. */
 int ts_arg_long(const char *opt, const char *s, long lo, long hi, long *out, char *err);
 int ts_arg_u64(const char *opt, const char *s, uint64_t *out, char *err);

@@ -41,6 +41,11 @@ static void print_common(const uint16_t *r) {
   printf("scan_rate %llu\n", (unsigned long long)get64(r, TS_MB_IR_SCAN_RATE));
 }
 
+static void print_worker(const uint16_t *r) {
+  printf("sources_loaded %u\nsources_held %u\npasses %u\n", get32(r, TS_MB_IR_SOURCES_LOADED),
+         r[TS_MB_IR_SOURCES_HELD], get32(r, TS_MB_IR_PASSES));
+}
+
 static void print_coordinator(const uint16_t *r) {
   uint32_t eta = get32(r, TS_MB_IR_ETA);
   printf("workers %u\nqueued %u\nrunning %u\ndone %u\nfailed %u\njob %llu\nprogress %u\nlevel %u\n",
@@ -80,9 +85,10 @@ static int run(const char *addr, const char *set, char *err) {
   else if (r[TS_MB_IR_MAGIC] != TS_MB_MAGIC)
     rc = ts_error(err, TS_EPROTO, "%s is a Modbus device but not a texsyn daemon", addr);
   int coordinator = rc == 0 && r[TS_MB_IR_ROLE] == 1;
-  if (coordinator && modbus_read_input_registers(m, TS_MB_IR_COMMON_END, TS_MB_IR_SERVER_END - TS_MB_IR_COMMON_END,
-                                                 r + TS_MB_IR_COMMON_END) < 0)
-    rc = ts_error(err, TS_EPROTO, "%s: reading registers: %s", addr, modbus_strerror(errno));
+  int end = coordinator ? TS_MB_IR_SERVER_END : TS_MB_IR_WORKER_END;
+  if (rc == 0 && modbus_read_input_registers(m, TS_MB_IR_COMMON_END, end - TS_MB_IR_COMMON_END, r + TS_MB_IR_COMMON_END) < 0)
+    rc = ts_error(err, TS_EPROTO, "%s: reading registers: %s%s", addr, modbus_strerror(errno),
+                  coordinator ? "" : " (a worker older than register-map build 5?)");
   int coil = 0, value = 0;
   if (rc == 0 && set != NULL) rc = parse_set(set, coordinator ? 1 : 2, &coil, &value, err);
   if (rc == 0 && set != NULL && modbus_write_bit(m, coil, value) != 1)
@@ -91,6 +97,7 @@ static int run(const char *addr, const char *set, char *err) {
   if (rc == 0 && set == NULL) {
     print_common(r);
     if (coordinator) print_coordinator(r);
+    else print_worker(r);
   }
   modbus_close(m);
   modbus_free(m);

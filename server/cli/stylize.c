@@ -9,6 +9,7 @@
 #include <string.h>
 
 #include "error.h"
+#include "frames.h"
 #include "jobcmd.h"
 #include "stylit.h"
 
@@ -51,12 +52,18 @@ static void usage(FILE *f) {
           "  --nnf F              the nearest-neighbour field: for each output pixel the\n"
           "                       exemplar pixel it comes from (.raw: little-endian uint32\n"
           "                       x, y pairs; else a 16-bit image, red = x, green = y)\n"
+          "  --frames A..B        a sequence: frames A to B (0..%d, at most %d), each\n"
+          "                       a job on the files whose names hold the frame number as\n"
+          "                       %%d or %%04d (target guides; -o, --nnf and --report must);\n"
+          "                       the exemplar and source guides are shared, sent to the\n"
+          "                       workers once; frames run side by side on a coordinator\n"
           "%s",
-          TS_STYLIT_MAX_GUIDES, TS_STYLIT_MAX_PATCH, TS_STYLIT_MAX_LEVELS, ts_job_options_help);
+          TS_STYLIT_MAX_GUIDES, TS_STYLIT_MAX_PATCH, TS_STYLIT_MAX_LEVELS, TS_FRAME_LAST, TS_FRAMES_MAX,
+          ts_job_options_help);
 }
 
 enum { OPT_STYLE = TS_OPT_OWN, OPT_GUIDE, OPT_WEIGHT, OPT_PATCH, OPT_LEVELS, OPT_ITERS, OPT_UNIFORMITY, OPT_SEED, OPT_NNF,
-       OPT_SEARCH, OPT_PM_ITERS, OPT_BUDGET };
+       OPT_SEARCH, OPT_PM_ITERS, OPT_BUDGET, OPT_FRAMES };
 
 static const struct option longopts[] = {
     {"style", required_argument, 0, OPT_STYLE},       {"guide", required_argument, 0, OPT_GUIDE},
@@ -65,13 +72,15 @@ static const struct option longopts[] = {
     {"uniformity", required_argument, 0, OPT_UNIFORMITY}, {"seed", required_argument, 0, OPT_SEED},
     {"nnf", required_argument, 0, OPT_NNF},           {"search", required_argument, 0, OPT_SEARCH},
     {"pm-iters", required_argument, 0, OPT_PM_ITERS}, {"budget", required_argument, 0, OPT_BUDGET},
-    TS_JOB_LONGOPTS,
+    {"frames", required_argument, 0, OPT_FRAMES},     TS_JOB_LONGOPTS,
     {0, 0, 0, 0}};
 
 typedef struct {
   ts_job_cmd job;
   int guides;
   int weighs; /* what --weight sets: -1 nothing yet, 0 the style, k + 1 guide k */
+  int sequence; /* --frames given */
+  ts_frames frames;
 } stylize_opts;
 
 static ts_stylit_params *params(stylize_opts *o) { return (ts_stylit_params *)o->job.spec.params.bytes; }
@@ -131,6 +140,7 @@ static int stylize_option(stylize_opts *o, int c, int argc, char **argv, char *e
   case OPT_SEARCH: rc = ts_stylit_search_parse(optarg, &p->search, err); break;
   case OPT_PM_ITERS: rc = ts_arg_long("--pm-iters", optarg, -1000, 1000, &v, err); p->pm_iters = (int)v; break;
   case OPT_BUDGET: rc = ts_arg_double("--budget", optarg, &p->budget, err); break;
+  case OPT_FRAMES: rc = ts_frames_parse(optarg, &o->frames, err); o->sequence = 1; break;
   default:
     rc = ts_job_option(&o->job, c, optarg, err);
     if (rc == TS_ENOENT) rc = ts_error(err, TS_EINVAL, "unknown option (see texsyn stylize --help)");
@@ -178,7 +188,10 @@ int ts_cmd_stylize(int argc, char **argv) {
     fprintf(stderr, "texsyn stylize: %s\n", err);
     return 2;
   }
-  return ts_job_run(&o.job);
+  if (!o.sequence) return ts_job_run(&o.job);
+  const char *fixed[TS_ENGINE_MAX_INPUTS] = {"the style exemplar"};
+  for (int k = 0; k < o.guides; k++) fixed[ts_stylit_in_src(k)] = "a source guide";
+  return ts_job_run_frames(&o.job, &o.frames, fixed);
 }
 
 /* ---- texsyn energy ------------------------------------------------------ */

@@ -5,7 +5,7 @@
  * thread does, until the server drops the connection or the input runs
  * out. Each input meets two daemons: the coordinator's map (input
  * registers 0..TS_MB_IR_SERVER_END-1, the pause coil) with
- * --modbus-control, and the worker's (0..TS_MB_IR_COMMON_END-1, the drain
+ * --modbus-control, and the worker's (0..TS_MB_IR_WORKER_END-1, the drain
  * coil) without.
  *
  * Checked, besides crashes and sanitizer reports: every request answered
@@ -83,7 +83,7 @@ int LLVMFuzzerInitialize(int *argc, char ***argv) {
   (void)argv;
   static const struct {
     int role, ninput, control;
-  } shape[2] = {{1, TS_MB_IR_SERVER_END, 1}, {2, TS_MB_IR_COMMON_END, 0}};
+  } shape[2] = {{1, TS_MB_IR_SERVER_END, 1}, {2, TS_MB_IR_WORKER_END, 0}};
   for (int i = 0; i < 2; i++) {
     daemon_state *d = &g_daemons[i];
     d->role = shape[i].role;

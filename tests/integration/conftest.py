@@ -61,6 +61,12 @@ def run(exe, *args, env=None, check=True, timeout=600):
     return p
 
 
+def modbus_registers(addr):
+    """A daemon's Modbus registers by name (`texsyn modbus HOST:PORT`)."""
+    out = run(BUILD / "texsyn", "modbus", addr).stdout
+    return dict(line.split(" ", 1) for line in out.splitlines())
+
+
 def synth(exe, ref, out, size, *extra, env=None):
     """An embedded run (a reference result): --embedded, so that a
     TEXSYN_SERVER in the environment cannot send it to a cluster."""

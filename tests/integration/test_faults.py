@@ -16,7 +16,7 @@ import time
 
 import pytest
 
-from conftest import BUILD, Daemon, FRAME_START, LoopbackProxy, SANITIZED, run, shutdown_all, synth
+from conftest import BUILD, Daemon, FRAME_START, LoopbackProxy, SANITIZED, modbus_registers, shutdown_all, synth
 
 TRIALS = int(os.environ.get("TEXSYN_FAULT_TRIALS", "6"))
 SEED = int(os.environ.get("TEXSYN_FAULT_SEED", "2004"))
@@ -81,18 +81,12 @@ def inject(cluster, fault, victim, rng):
 JOB_BATCHES = 488 if SANITIZED else 778
 
 
-def worker_registers(w):
-    """A worker's Modbus registers, by name (`texsyn modbus`)."""
-    out = run(BUILD / "texsyn", "modbus", w.modbus).stdout
-    return dict(line.split(" ", 1) for line in out.splitlines())
-
-
 def wait_until_answered(w, batches, what, timeout=120):
     """Waits, by the worker's own counters, until it has answered `batches`
     batches and holds a slice; returns the vectors it holds."""
     deadline = time.time() + timeout
     while time.time() < deadline:
-        regs = worker_registers(w)
+        regs = modbus_registers(w.modbus)
         if int(regs["batches"]) >= batches and int(regs["vectors"]) > 0:
             return int(regs["vectors"])
         time.sleep(0.01)

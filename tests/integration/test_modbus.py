@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from conftest import BUILD, FRAME_START, run, synth
+from conftest import BUILD, FRAME_START, modbus_registers, run, synth
 
 JOB = ["--size", "384x288", "--usage-weight", "1"]
 SERVER_ARGS = ["--calibrate-ms", "50", "--modbus-poll", "0.2"]
@@ -50,12 +50,6 @@ def input_registers(addr, start, count):
 
 def u64(regs, at):
     return regs[at] << 48 | regs[at + 1] << 32 | regs[at + 2] << 16 | regs[at + 3]
-
-
-def named(addr):
-    """`texsyn modbus HOST:PORT` as a dict."""
-    out = run(BUILD / "texsyn", "modbus", addr).stdout
-    return dict(line.split(" ", 1) for line in out.splitlines())
 
 
 def start(cluster, nworkers, *server_args, control=True):
@@ -96,7 +90,7 @@ def test_maps_read_with_mbpoll_and_libmodbus(data, cluster, tmp_path, expected):
     job = submit(cluster, data, tmp_path / "out.png")
     wait_until("queries served to grow while the job runs",
                lambda: job.poll() is None and u64(input_registers(w.modbus, 0, 32), 24) > before)
-    seen = named(cluster.server.modbus)
+    seen = modbus_registers(cluster.server.modbus)
     assert seen["role"] == "coordinator" and seen["workers"] == "2"
     assert job.wait(timeout=300) == 0, job.stderr.read()
     job.stderr.close()
@@ -104,7 +98,7 @@ def test_maps_read_with_mbpoll_and_libmodbus(data, cluster, tmp_path, expected):
     server = input_registers(cluster.server.modbus, 32, 16)
     assert server[32] == 2 and server[35] << 16 | server[36] == 1  # workers, jobs done
     assert u64(server, 39) == 1 and server[43] == 1000  # the last job, finished
-    worker = named(w.modbus)
+    worker = modbus_registers(w.modbus)
     assert worker["role"] == "worker" and int(worker["queries"]) > before and worker["state"] in ("idle", "scanning")
 
 
@@ -116,20 +110,20 @@ def test_writes_need_modbus_control(data, cluster, tmp_path):
     p = run(BUILD / "texsyn", "modbus", cluster.workers[0].modbus, "--set", "drain=1", check=False)
     assert p.returncode == 1 and "--modbus-control" in p.stderr
     assert "coil write refused" in cluster.workers[0].read_log()
-    assert named(cluster.workers[0].modbus)["state"] != "draining"
+    assert modbus_registers(cluster.workers[0].modbus)["state"] != "draining"
 
 
 def test_drain_mid_job_keeps_the_bytes(data, cluster, tmp_path, expected):
     start(cluster, 3)
     victim = cluster.workers[1]
     job = submit(cluster, data, tmp_path / "out.png")
-    wait_until("the job to load slices", lambda: int(named(victim.modbus)["vectors"]) > 0)
+    wait_until("the job to load slices", lambda: int(modbus_registers(victim.modbus)["vectors"]) > 0)
     run(BUILD / "texsyn", "modbus", victim.modbus, "--set", "drain=1")
     assert job.wait(timeout=300) == 0, job.stderr.read()
     job.stderr.close()
     assert (tmp_path / "out.png").read_bytes() == expected
-    wait_until("the drained worker to hold nothing", lambda: named(victim.modbus)["vectors"] == "0")
-    assert named(victim.modbus)["state"] == "draining"
+    wait_until("the drained worker to hold nothing", lambda: modbus_registers(victim.modbus)["vectors"] == "0")
+    assert modbus_registers(victim.modbus)["state"] == "draining"
     states = [w["state"] for w in cluster.pool()]
     assert states.count("draining") == 1 and states.count("ready") == 2, states
     assert "draining: its slices are handed back" in cluster.server.read_log()
@@ -140,18 +134,18 @@ def test_drain_mid_job_keeps_the_bytes(data, cluster, tmp_path, expected):
     assert job.wait(timeout=300) == 0
     job.stderr.close()
     assert (tmp_path / "again.png").read_bytes() == expected
-    assert int(named(victim.modbus)["batches"]) > 0
+    assert int(modbus_registers(victim.modbus)["batches"]) > 0
 
 
 def test_pause_holds_the_queue(data, cluster, tmp_path, expected):
     start(cluster, 1)
     run(BUILD / "texsyn", "modbus", cluster.server.modbus, "--set", "pause=1")
-    assert named(cluster.server.modbus)["paused"] == "1"
+    assert modbus_registers(cluster.server.modbus)["paused"] == "1"
     p = cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "x.png", *JOB, "--detach")
     job = p.stdout.strip()
     time.sleep(1.0)
     assert " queued" in cluster.texsyn("status", job).stdout
-    assert named(cluster.server.modbus)["queued"] == "1"
+    assert modbus_registers(cluster.server.modbus)["queued"] == "1"
     run(BUILD / "texsyn", "modbus", cluster.server.modbus, "--set", "pause=0")
     cluster.texsyn("watch", job, "--quiet")
     cluster.texsyn("fetch", job, "-o", tmp_path / "y.png")
@@ -184,7 +178,7 @@ def test_malformed_modbus_requests_leave_both_planes_serving(data, cluster, tmp_
         assert raw_modbus(addr, b"GET / HTTP/1.1\r\nHost: x\r\n\r\n") == b""
         assert raw_modbus(addr, mbap(struct.pack(">BHH", 4, 0, 1), proto=5)) == b""
         assert raw_modbus(addr, struct.pack(">HHHB", 1, 0, 50, 1) + b"\x04\x00\x00\x00\x01") == b""
-        assert named(addr)["magic"] == "0x5453"
+        assert modbus_registers(addr)["magic"] == "0x5453"
     w, h = 96, 64
     cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "x.png", "--size", f"{w}x{h}", "--levels", "3",
                    "--quiet")
@@ -222,7 +216,7 @@ def test_load_read_over_modbus_rebalances(data, cluster, tmp_path):
     p = subprocess.Popen([str(BUILD / "texsyn"), "synth", "--server", cluster.server.addr, "--ref",
                           str(ref_of(data)), "-o", str(out), "--size", f"{w}x{h}", "--quiet"],
                          stderr=subprocess.PIPE, text=True)
-    wait_until("a CPU-share baseline", lambda: all(named(x.modbus)["cpu_share"] != "unknown" for x in cluster.workers))
+    wait_until("a CPU-share baseline", lambda: all(modbus_registers(x.modbus)["cpu_share"] != "unknown" for x in cluster.workers))
     wait_until("both workers answering the job", lambda: all(x["batches"] > 0 for x in cluster.pool()))
 
     def ratio():

@@ -11,7 +11,7 @@ import subprocess
 
 import pytest
 
-from conftest import run
+from conftest import modbus_registers, run
 
 PATCH = 5
 
@@ -184,3 +184,67 @@ def test_energy_prints_a_line_and_json(texsyn, scene, tmp_path):
     assert p.returncode == 2 and "--image" in p.stderr, p.stderr
     p = run(texsyn, "energy", "--style", scene / "style.png", "--guide", scene / "src.png", "--image", out, check=False)
     assert p.returncode == 2 and "needs a target guide after it" in p.stderr, p.stderr
+
+
+@pytest.fixture(scope="module")
+def frames(data, tmp_path_factory):
+    """Three target guides of a camera pan: the scene's guide made from
+    crops of aero1.jpg that move 8 pixels right and 4 down a frame."""
+    d = tmp_path_factory.mktemp("frames")
+    for f in (1, 2, 3):
+        oiiotool(data / "aerial/aero1.jpg", "--cut", f"128x96+{200 + 8 * f}+{150 + 4 * f}", "--resize", "64x48",
+                 "--chsum:weight=.3,.59,.11", "--blur", "3x3", "--flop", "-o", d / f"tgt_{f:04d}.png")
+    return d
+
+
+def sequence_args(scene, frames, *extra):
+    return ["stylize", "--style", scene / "style.png", "--guide", scene / "src.png", frames / "tgt_%04d.png",
+            "--iters", "3", "--search", "patchmatch", "--quiet", *extra]
+
+
+@pytest.mark.sanitize
+def test_a_sequence_is_its_frames_jobs_and_sends_the_exemplar_to_each_worker_once(texsyn, scene, frames, cluster,
+                                                                                   tmp_path):
+    run(texsyn, *sequence_args(scene, frames, "--frames", "1..3"), "-o", tmp_path / "e_%04d.png",
+        "--nnf", tmp_path / "e_%04d.raw", "--report", tmp_path / "e_%04d.json")
+    for f in (1, 2, 3):
+        run(texsyn, "stylize", "--style", scene / "style.png", "--guide", scene / "src.png",
+            frames / f"tgt_{f:04d}.png", "--iters", "3", "--search", "patchmatch", "--quiet",
+            "-o", tmp_path / f"s{f}.png", "--nnf", tmp_path / f"s{f}.raw")
+        assert (tmp_path / f"e_{f:04d}.png").read_bytes() == (tmp_path / f"s{f}.png").read_bytes(), f
+        assert (tmp_path / f"e_{f:04d}.raw").read_bytes() == (tmp_path / f"s{f}.raw").read_bytes(), f
+    assert (tmp_path / "e_0001.png").read_bytes() != (tmp_path / "e_0002.png").read_bytes()
+    levels = len(json.loads((tmp_path / "e_0001.json").read_text())["levels"])
+    for _ in range(2):
+        cluster.worker(1, "--modbus", "0")
+    cluster.start()
+    run(texsyn, *sequence_args(scene, frames, "--frames", "1..3"), "-o", tmp_path / "c_%04d.png",
+        "--nnf", tmp_path / "c_%04d.raw", "--server", cluster.server.addr)
+    for f in (1, 2, 3):
+        assert (tmp_path / f"c_{f:04d}.png").read_bytes() == (tmp_path / f"e_{f:04d}.png").read_bytes(), f
+        assert (tmp_path / f"c_{f:04d}.raw").read_bytes() == (tmp_path / f"e_{f:04d}.raw").read_bytes(), f
+    for w in cluster.workers:
+        regs = modbus_registers(w.modbus)
+        # One source per patchmatch level, whatever the number of frames.
+        assert regs["sources_loaded"] == str(levels), regs
+        assert int(regs["passes"]) >= 3 * levels * 3, regs
+
+
+def test_a_sequence_refuses_bad_patterns_and_missing_frames_before_any_work(texsyn, scene, frames, tmp_path):
+    def refused(*args, code=2):
+        p = run(texsyn, *args, check=False)
+        assert p.returncode == code, p.stderr
+        return p.stderr
+
+    out = ["-o", tmp_path / "o_%04d.png"]
+    bad_style = sequence_args(scene, frames, "--frames", "1..3", *out)
+    bad_style[bad_style.index("--style") + 1] = scene / "style_%04d.png"
+    assert "the style exemplar is the same for every frame" in refused(*bad_style)
+    assert "needs the frame number in its name" in refused(
+        *sequence_args(scene, frames, "--frames", "1..3"), "-o", tmp_path / "o.png")
+    assert "need A <= B" in refused(*sequence_args(scene, frames, "--frames", "3..1", *out))
+    assert "expected A..B" in refused(*sequence_args(scene, frames, "--frames", "1-3", *out))
+    assert "'%'" in refused(*sequence_args(scene, frames, "--frames", "1..3"), "-o", tmp_path / "o_%s.png")
+    err = refused(*sequence_args(scene, frames, "--frames", "1..4", *out), code=1)
+    assert "frame 4: cannot read" in err and "tgt_0004.png" in err
+    assert not list(tmp_path.glob("o_*.png")), "a frame ran before the missing one was found"
