@@ -38,6 +38,7 @@ def start(args, log):
     m = re.search(r"listening on (\S+)", line)
     if not m:
         sys.exit(f"bench: {args[0]} did not start, see {log}")
+    p.banner = line  # what else it says there: a worker's Modbus address
     return p, m.group(1)
 
 

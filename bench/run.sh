@@ -32,6 +32,8 @@ echo "== bytes on the wire per query"
 /usr/bin/python3 bench/wire.py --build "$build" --out "$out" "$@"
 echo "== answer times under load"
 /usr/bin/python3 bench/latency.py --build "$build" --out "$out" "$@"
+echo "== a stylization sequence against separate jobs"
+/usr/bin/python3 bench/sequence.py --build "$build" --out "$out" "$@"
 echo "== stylize against Ebsynth"
 if [ -n "${TEXSYN_EBSYNTH:-}" ] && [ -x "$TEXSYN_EBSYNTH" ]; then
   /usr/bin/python3 bench/stylize.py --build "$build" --out "$out" --ebsynth "$TEXSYN_EBSYNTH" "$@"
