@@ -250,7 +250,7 @@ static int calibrate(ts_cluster *c, cl_worker *w, char *err) {
   w->pieces = (w->ident.caps & TS_CAP_PIECES) && cal.max_payload != 0;
   w->max_payload = cal.max_payload != 0 ? cal.max_payload : TS_FRAME_DEFAULT_MAX;
   w->max_message = w->pieces ? cal.max_message : w->max_payload;
-  w->calib_rate = (double)cal.pairs * TS_CALIB_CHUNKS * TS_L1_CHUNK / ((double)cal.nanos * 1e-9);
+  w->calib_rate = ts_calib_bytes_per_second(cal.pairs, cal.nanos);
   w->slice_rate = w->ewma_rate = w->calib_rate;
   return 0;
 }

@@ -29,6 +29,7 @@
 #include "slice.h"
 
 #define CL_MAX_SETS 8
+#define CL_LOCAL_CALIB_MILLIS 50 /* the coordinator's own calibration, when asked */
 /* Time constant of the measured-rate averages: long enough to smooth the
  * jitter of single small batches, short against `persist`. */
 #define CL_RATE_TAU 0.5
@@ -186,6 +187,7 @@ struct ts_cluster {
   uint64_t batches, queries; /* answered for jobs */
   cl_source sources[CL_MAX_SOURCES];
   uint64_t source_clock; /* last_use's clock */
+  double local_rate; /* local_pool's calibrated rate, 0 until asked */
 };
 
 /* The cluster's lines go to the daemon's log (log.h). */

@@ -9,6 +9,7 @@
 #include <string.h>
 
 #include "search_cluster_impl.h"
+#include "calib.h"
 #include "error.h"
 #include "replica.h"
 #include "slice.h"
@@ -933,6 +934,23 @@ static void cluster_destroy(ts_search *s) {
   free(cs);
 }
 
+/* The pool's calibrated rate: the ready workers' summed (each measured
+ * when it joined), or with none the coordinator's own threads' (measured
+ * once, when first asked). */
+static double cluster_rate(ts_search *s) {
+  ts_cluster *c = ((cluster_search *)s)->c;
+  double rate = 0;
+  uint64_t pairs, nanos;
+  pthread_mutex_lock(&c->lock);
+  for (int i = 0; i < c->nw; i++)
+    if (c->w[i]->state == TS_WORKER_READY) rate += c->w[i]->calib_rate;
+  if (rate == 0 && c->local_rate == 0 && ts_calib_run(c->local_pool, c->simd, CL_LOCAL_CALIB_MILLIS, &pairs, &nanos) == 0)
+    c->local_rate = ts_calib_bytes_per_second(pairs, nanos);
+  if (rate == 0) rate = c->local_rate;
+  pthread_mutex_unlock(&c->lock);
+  return rate;
+}
+
 static const ts_search_ops cluster_ops = {
     .name = "cluster",
     .prepare = cluster_prepare,
@@ -943,6 +961,7 @@ static const ts_search_ops cluster_ops = {
     .query = cluster_query,
     .query_many = cluster_query_many,
     .field_pass = cl_field_pass,
+    .rate = cluster_rate,
     .release = cluster_release,
     .destroy = cluster_destroy,
 };

@@ -66,3 +66,7 @@ out:
   ts_l1_set_free(&set);
   return rc;
 }
+
+double ts_calib_bytes_per_second(uint64_t pairs, uint64_t nanos) {
+  return nanos > 0 ? (double)pairs * TS_CALIB_CHUNKS * TS_L1_CHUNK / ((double)nanos * 1e-9) : 0.0;
+}

@@ -20,5 +20,7 @@
  * `millis`; *pairs = comparisons done, *nanos = time taken. */
 int ts_calib_run(ts_pool *pool, const ts_l1_impl *simd, uint32_t millis,
                  uint64_t *pairs, uint64_t *nanos);
+/* A run's rate: bytes of vectors compared a second. */
+double ts_calib_bytes_per_second(uint64_t pairs, uint64_t nanos);
 
 #endif

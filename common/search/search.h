@@ -134,6 +134,10 @@ typedef struct {
   int (*query_many)(ts_search *s, const ts_search_req *r, uint32_t n, char *err);
   /* Optional: a PatchMatch pass; NULL = the backend has none. */
   int (*field_pass)(ts_search *s, const ts_field_pass *fp, char *err);
+  /* Optional: bytes of vectors the backend compares a second, from the
+   * standard calibration (calib.h): what exact search costs on it. 0 or
+   * NULL: unknown. */
+  double (*rate)(ts_search *s);
   void (*release)(ts_search *s, int id);
   void (*destroy)(ts_search *s);
 } ts_search_ops;
@@ -181,6 +185,9 @@ static inline int ts_search_query_many(ts_search *s, const ts_search_req *r,
 static inline int ts_search_field_pass(ts_search *s, const ts_field_pass *fp, char *err) {
   if (s->ops->field_pass == NULL) return ts_error(err, TS_ENOTSUP, "the %s search backend runs no patchmatch", s->ops->name);
   return s->ops->field_pass(s, fp, err);
+}
+static inline double ts_search_rate(ts_search *s) {
+  return s->ops->rate != NULL ? s->ops->rate(s) : 0.0;
 }
 static inline void ts_search_release(ts_search *s, int id) {
   s->ops->release(s, id);

@@ -6,6 +6,7 @@
 #include <string.h>
 #include <time.h>
 
+#include "calib.h"
 #include "error.h"
 #include "patchmatch.h"
 #include "util.h"
@@ -43,6 +44,7 @@ typedef struct {
   ts_replica images[LOCAL_MAX_IMAGES];
   int image_used[LOCAL_MAX_IMAGES];
   ts_query_scratch scratch;
+  double rate; /* calibrated on first asking, 0 before */
 } local_search;
 
 static ts_replica *image_get(local_search *ls, int id) {
@@ -203,6 +205,17 @@ static void local_destroy(ts_search *s) {
   free(ls);
 }
 
+/* Calibrated once, when first asked (most jobs never ask). */
+#define LOCAL_CALIB_MILLIS 50
+
+static double local_rate(ts_search *s) {
+  local_search *ls = (local_search *)s;
+  uint64_t pairs, nanos;
+  if (ls->rate == 0 && ts_calib_run(ls->pool, s->simd, LOCAL_CALIB_MILLIS, &pairs, &nanos) == 0)
+    ls->rate = ts_calib_bytes_per_second(pairs, nanos);
+  return ls->rate;
+}
+
 static const ts_search_ops local_ops = {
     .name = "local",
     .prepare = local_prepare,
@@ -212,6 +225,7 @@ static const ts_search_ops local_ops = {
     .image_close = local_image_close,
     .query = local_query,
     .field_pass = local_field_pass,
+    .rate = local_rate,
     .release = local_release,
     .destroy = local_destroy,
 };

@@ -42,11 +42,14 @@ static void usage(FILE *f) {
           "  --search MODE        exact: every target patch takes the best source patch;\n"
           "                       patchmatch: passes of propagation and random search over\n"
           "                       fixed seeded tiles (approximate; the same bytes on any pool);\n"
-          "                       auto (default): exact at each level whose estimated time\n"
-          "                       fits --budget, patchmatch at the others (the report says\n"
-          "                       which ran where; the choice depends on the machine's speed)\n"
+          "                       auto (default): exact at each level whose exact time,\n"
+          "                       estimated from the calibrated speed of the threads or the\n"
+          "                       pool, fits --budget, patchmatch at the others, so its bytes\n"
+          "                       depend on the pool; the report's search.levels says which\n"
+          "                       ran where; or a list of exact and patchmatch, one per level,\n"
+          "                       coarsest first (that list: the same job on any pool)\n"
           "  --pm-iters N         patchmatch passes per search step, 1..100 (default 4)\n"
-          "  --budget SECONDS     auto: the longest an exact level may take (default 10)\n"
+          "  --budget SECONDS     auto: the longest an exact level may take (default 1)\n"
           "  --seed S             seed of the coarsest level's random start and of the\n"
           "                       patchmatch passes (default 1)\n"
           "  --nnf F              the nearest-neighbour field: for each output pixel the\n"
@@ -137,7 +140,7 @@ static int stylize_option(stylize_opts *o, int c, int argc, char **argv, char *e
   case OPT_UNIFORMITY: rc = ts_arg_double("--uniformity", optarg, &p->uniformity, err); break;
   case OPT_SEED: rc = ts_arg_u64("--seed", optarg, &p->seed, err); break;
   case OPT_NNF: ts_output_set(&o->job.out, "nnf", optarg); break;
-  case OPT_SEARCH: rc = ts_stylit_search_parse(optarg, &p->search, err); break;
+  case OPT_SEARCH: rc = ts_stylit_search_parse(optarg, p, err); break;
   case OPT_PM_ITERS: rc = ts_arg_long("--pm-iters", optarg, -1000, 1000, &v, err); p->pm_iters = (int)v; break;
   case OPT_BUDGET: rc = ts_arg_double("--budget", optarg, &p->budget, err); break;
   case OPT_FRAMES: rc = ts_frames_parse(optarg, &o->frames, err); o->sequence = 1; break;

@@ -45,7 +45,10 @@ typedef struct {
   ts_plane est[TS_WIN_MAX_PLANES]; /* the style estimate, planes 0..nstyle-1 */
   ts_progress prog;
   uint64_t usage_k; /* patchmatch's penalty factor at this level */
-  double rate;      /* exact comparisons per second measured so far (auto), 0: none yet */
+  /* Every level's search mode, and auto's estimate of its exact time,
+   * decided before the first level runs. */
+  int mode[TS_STYLIT_MAX_LEVELS];
+  double estimate[TS_STYLIT_MAX_LEVELS];
 } run;
 
 static uint32_t clampu(long v, long lo, long hi) { return (uint32_t)(v < lo ? lo : v > hi ? hi : v); }
@@ -386,27 +389,37 @@ static double exact_pairs(const run *e, int l) {
   return (double)t->w * t->h * (double)(s->w - e->patch + 1) * (s->h - e->patch + 1) * e->p->iters;
 }
 
-/* Auto's choice for level l: exact when its comparisons at the rate the
- * exact levels before it ran (at the first, a rate no machine is slower
- * than: 10^8 comparisons a second) fit the budget. */
-#define AUTO_FIRST_RATE 1e8
-static int level_mode(const run *e, int l, double *estimate) {
-  *estimate = 0;
-  if (e->p->search != TS_STYLIT_AUTO) return e->p->search;
-  *estimate = exact_pairs(e, l) / (e->rate > 0 ? e->rate : AUTO_FIRST_RATE);
-  return *estimate <= e->p->budget ? TS_STYLIT_EXACT : TS_STYLIT_PATCHMATCH;
+/* Auto's rate when the backend knows none: slower than any machine. */
+#define AUTO_UNKNOWN_RATE 1e8
+
+/* Every level's mode, before any runs: auto's are exact where the level's
+ * comparisons at the backend's calibrated rate (bytes of vectors a
+ * second, over this window's bytes) fit the budget. Returns the rate. */
+static double plan_levels(run *e) {
+  const ts_stylit_params *p = e->p;
+  double rate = 0;
+  if (p->search == TS_STYLIT_AUTO) {
+    rate = ts_search_rate(e->search) / ts_window_bytes(&e->win);
+    if (!(rate > 0)) rate = AUTO_UNKNOWN_RATE;
+  }
+  for (int l = 0; l < e->levels; l++) {
+    e->estimate[l] = rate > 0 ? exact_pairs(e, l) / rate : 0;
+    if (p->search == TS_STYLIT_LIST) e->mode[l] = p->level_mode[e->levels - 1 - l];
+    else if (p->search == TS_STYLIT_AUTO) e->mode[l] = e->estimate[l] <= p->budget ? TS_STYLIT_EXACT : TS_STYLIT_PATCHMATCH;
+    else e->mode[l] = p->search;
+  }
+  return rate;
 }
 
 static int run_level(run *e, int l, ts_stylit_level_stats *st, char *err) {
-  double t0 = ts_now(), estimate;
+  double t0 = ts_now();
   ts_search_stats s0 = e->search->stats;
-  int mode = level_mode(e, l, &estimate);
+  int mode = e->mode[l];
   int rc = level_start(e, l, err);
   if (rc == 0) rc = mode == TS_STYLIT_EXACT ? iterate_exact(e, err) : iterate_pm(e, err);
   level_free(e);
   *st = (ts_stylit_level_stats){ts_now() - t0, e->search->stats.pairs - s0.pairs,
-                                e->search->stats.queries - s0.queries, e->tw, e->th, mode, estimate};
-  if (mode == TS_STYLIT_EXACT && st->seconds > 0) e->rate = (double)st->pairs / st->seconds;
+                                e->search->stats.queries - s0.queries, e->tw, e->th, mode, e->estimate[l]};
   return rc;
 }
 
@@ -472,6 +485,7 @@ int ts_stylit_run(const ts_stylit_params *p, const ts_image *const *in, ts_searc
   if (rc != 0) rc = ts_error(err, TS_ENOMEM, "out of memory for the inputs' pyramids");
   if (rc == 0) rc = build_window(e, err);
   e->prog = (ts_progress){.levels = e->levels, .work_total = rc == 0 ? total_work(e) : 0};
+  if (rc == 0) res->rate = plan_levels(e);
   for (int l = e->levels - 1; rc == 0 && l >= 0; l--) rc = run_level(e, l, &res->level[l], err);
   res->levels = e->levels;
   if (rc == 0) rc = make_result(e, res, err);

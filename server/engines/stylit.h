@@ -73,9 +73,15 @@
 
 /* How a level's search step runs: exact (every source patch compared),
  * patchmatch (patchmatch.h: passes of propagation and random search over
- * fixed seeded tiles), or auto: exact where the level's estimated exact
- * time fits the budget, else patchmatch. */
-enum { TS_STYLIT_EXACT = 0, TS_STYLIT_PATCHMATCH = 1, TS_STYLIT_AUTO = 2 };
+ * fixed seeded tiles), auto: exact where the level's estimated exact time
+ * fits the budget, else patchmatch, or a list: the mode of each level,
+ * coarsest first (what an auto run's report records, to run the same job
+ * again anywhere). Auto decides every level before the first runs, from
+ * the search backend's calibrated rate (search.h: the pool's, on a
+ * cluster), so its bytes depend on the pool; the other modes' do not. */
+enum { TS_STYLIT_EXACT = 0, TS_STYLIT_PATCHMATCH = 1, TS_STYLIT_AUTO = 2, TS_STYLIT_LIST = 3 };
+/* The longest search value: a list of TS_STYLIT_MAX_LEVELS modes. */
+#define TS_STYLIT_SEARCH_LEN (TS_STYLIT_MAX_LEVELS * 11)
 
 typedef struct {
   int patch;          /* p: odd, 3..TS_STYLIT_MAX_PATCH (5) */
@@ -87,9 +93,11 @@ typedef struct {
   int guides;         /* 1..TS_STYLIT_MAX_GUIDES */
   double style_weight; /* 0 or 0.01..100 (1) */
   double weight[TS_STYLIT_MAX_GUIDES]; /* 0 or 0.01..100; < 0: 1 / guides */
-  int search;         /* TS_STYLIT_EXACT / PATCHMATCH / AUTO (AUTO) */
+  int search;         /* TS_STYLIT_EXACT / PATCHMATCH / AUTO / LIST (AUTO) */
+  int nlevel_modes;   /* LIST: the modes of the levels, coarsest first */
+  uint8_t level_mode[TS_STYLIT_MAX_LEVELS];
   int pm_iters;       /* patchmatch passes per search step, 1..100 (4) */
-  double budget;      /* auto: seconds an exact level may take, 0..1e6 (10) */
+  double budget;      /* auto: seconds an exact level may take, 0..1e6 (1) */
 } ts_stylit_params;
 
 /* Inputs in the engine's order: style, then per guide K source, target. */
@@ -100,7 +108,11 @@ static inline int ts_stylit_in_tgt(int k) { return 2 + 2 * k; }
 void ts_stylit_params_default(ts_stylit_params *p);
 /* Search mode names: "exact", "patchmatch", "auto". */
 const char *ts_stylit_search_name(int mode);
-int ts_stylit_search_parse(const char *name, int *mode, char *err);
+/* The search value: a mode name, or a list of exact and patchmatch, one
+ * per level, coarsest first, comma-separated. */
+int ts_stylit_search_parse(const char *text, ts_stylit_params *p, char *err);
+/* The search value as the parser reads it (TS_STYLIT_SEARCH_LEN bytes). */
+void ts_stylit_search_format(const ts_stylit_params *p, char *out, size_t cap);
 /* Guide k's weight, the default resolved. */
 double ts_stylit_weight(const ts_stylit_params *p, int k);
 /* Every problem with the parameters and inputs (sizes, channels, ranges,
@@ -126,6 +138,7 @@ typedef struct {
   int levels;
   double coverage; /* share of source pixels some output patch covers */
   double seconds;
+  double rate;     /* auto: the comparisons a second its estimates assumed */
   ts_stylit_level_stats level[TS_STYLIT_MAX_LEVELS];
 } ts_stylit_result;
 

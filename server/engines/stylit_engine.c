@@ -55,7 +55,7 @@ static int stylit_spec_set(void *params, const char *k, const char *v) {
   if (strcmp(k, "max_pixels") == 0) return ts_parse_u64(v, &p->max_pixels);
   if (strcmp(k, "guides") == 0) return ts_parse_int(v, 1, TS_STYLIT_MAX_GUIDES, &p->guides);
   if (strcmp(k, "style_weight") == 0) return ts_parse_double(v, &p->style_weight);
-  if (strcmp(k, "search") == 0) return ts_stylit_search_parse(v, &p->search, NULL) == 0 ? 0 : TS_EINVAL;
+  if (strcmp(k, "search") == 0) return ts_stylit_search_parse(v, p, NULL) == 0 ? 0 : TS_EINVAL;
   if (strcmp(k, "pm_iters") == 0) return ts_parse_int(v, -1000, 1000, &p->pm_iters);
   if (strcmp(k, "budget") == 0) return ts_parse_double(v, &p->budget);
   return set_weight(p, k, v);
@@ -76,11 +76,13 @@ static int stylit_spec_complete(const void *params, char *err) {
  * resolved (a default weight is written as the value it stands for). */
 static int stylit_spec_format(const void *params, char *buf, size_t cap) {
   const ts_stylit_params *p = params;
+  char search[TS_STYLIT_SEARCH_LEN];
+  ts_stylit_search_format(p, search, sizeof(search));
   int n = snprintf(buf, cap,
                    "patch_size=%d\nlevels=%d\niters=%d\nuniformity=%.17g\nseed=%llu\nmax_pixels=%llu\nguides=%d\n"
                    "style_weight=%.17g\nsearch=%s\npm_iters=%d\nbudget=%.17g\n",
                    p->patch, p->levels, p->iters, p->uniformity, (unsigned long long)p->seed,
-                   (unsigned long long)p->max_pixels, p->guides, p->style_weight, ts_stylit_search_name(p->search),
+                   (unsigned long long)p->max_pixels, p->guides, p->style_weight, search,
                    p->pm_iters, p->budget);
   for (int k = 0; n >= 0 && (size_t)n < cap && k < p->guides; k++)
     n += snprintf(buf + n, cap - (size_t)n, "weight_%d=%.17g\n", k, ts_stylit_weight(p, k));
@@ -136,11 +138,21 @@ static int write_report(const ts_engine_run *r, const char *path, int threads, c
   FILE *f = fopen(tmp, "w");
   if (f == NULL) return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
   int pm_levels = 0;
-  for (int l = 0; l < res->levels; l++) pm_levels += res->level[l].mode == TS_STYLIT_PATCHMATCH;
-  fprintf(f, "{\n  \"engine\": \"stylize\",\n  \"search\": {\"mode\": \"%s\", \"lossy\": [%s], "
-             "\"pm_iters\": %d, \"budget\": %g, \"backend\": \"%s\", \"simd\": \"%s\", \"threads\": %d},\n",
-          ts_stylit_search_name(p->search), pm_levels ? "\"patchmatch\"" : "", p->pm_iters, p->budget,
-          r->search->ops->name, r->search->simd->name, threads);
+  ts_stylit_params ran = *p; /* what ran, as a list (coarsest first) */
+  ran.search = TS_STYLIT_LIST;
+  ran.nlevel_modes = res->levels;
+  for (int l = 0; l < res->levels; l++) {
+    pm_levels += res->level[l].mode == TS_STYLIT_PATCHMATCH;
+    ran.level_mode[res->levels - 1 - l] = (uint8_t)res->level[l].mode;
+  }
+  char mode[TS_STYLIT_SEARCH_LEN], levels[TS_STYLIT_SEARCH_LEN];
+  ts_stylit_search_format(p, mode, sizeof(mode));
+  ts_stylit_search_format(&ran, levels, sizeof(levels));
+  fprintf(f, "{\n  \"engine\": \"stylize\",\n  \"search\": {\"mode\": \"%s\", \"levels\": \"%s\", \"lossy\": [%s], "
+             "\"pm_iters\": %d, \"budget\": %g, \"auto_rate\": %.4g, \"backend\": \"%s\", \"simd\": \"%s\", "
+             "\"threads\": %d},\n",
+          mode, levels, pm_levels ? "\"patchmatch\"" : "", p->pm_iters, p->budget, res->rate, r->search->ops->name,
+          r->search->simd->name, threads);
   fprintf(f, "  \"params\": {\"patch_size\": %d, \"levels\": %d, \"iters\": %d, \"uniformity\": %g, "
              "\"seed\": %llu, \"style_weight\": %g, \"guide_weights\": [",
           p->patch, res->levels, p->iters, p->uniformity, (unsigned long long)p->seed, p->style_weight);

@@ -20,7 +20,7 @@ void ts_stylit_params_default(ts_stylit_params *p) {
   for (int k = 0; k < TS_STYLIT_MAX_GUIDES; k++) p->weight[k] = -1.0;
   p->search = TS_STYLIT_AUTO;
   p->pm_iters = 4;
-  p->budget = 10.0;
+  p->budget = 1.0;
 }
 
 static const char *const kSearchNames[] = {"exact", "patchmatch", "auto"};
@@ -29,13 +29,47 @@ const char *ts_stylit_search_name(int mode) {
   return mode >= TS_STYLIT_EXACT && mode <= TS_STYLIT_AUTO ? kSearchNames[mode] : "unknown";
 }
 
-int ts_stylit_search_parse(const char *name, int *mode, char *err) {
-  for (int m = TS_STYLIT_EXACT; m <= TS_STYLIT_AUTO; m++)
-    if (strcmp(name, kSearchNames[m]) == 0) {
-      *mode = m;
-      return 0;
-    }
-  return ts_error(err, TS_EINVAL, "--search %s: need exact, patchmatch or auto", name);
+static int mode_of(const char *name, size_t len, int last) {
+  for (int m = TS_STYLIT_EXACT; m <= last; m++)
+    if (strlen(kSearchNames[m]) == len && strncmp(name, kSearchNames[m], len) == 0) return m;
+  return -1;
+}
+
+int ts_stylit_search_parse(const char *text, ts_stylit_params *p, char *err) {
+  int m = mode_of(text, strlen(text), TS_STYLIT_AUTO);
+  if (m >= 0) {
+    p->search = m;
+    p->nlevel_modes = 0;
+    return 0;
+  }
+  int n = 0;
+  for (const char *s = text;; n++) {
+    const char *comma = strchr(s, ',');
+    size_t len = comma != NULL ? (size_t)(comma - s) : strlen(s);
+    int lm = n < TS_STYLIT_MAX_LEVELS ? mode_of(s, len, TS_STYLIT_PATCHMATCH) : -1;
+    if (lm < 0)
+      return ts_error(err, TS_EINVAL, "--search %s: need exact, patchmatch, auto, or a list of exact and patchmatch "
+                      "with one per level, coarsest first (at most %d)", text, TS_STYLIT_MAX_LEVELS);
+    p->level_mode[n] = (uint8_t)lm;
+    if (comma == NULL) break;
+    s = comma + 1;
+  }
+  p->search = TS_STYLIT_LIST;
+  p->nlevel_modes = n + 1;
+  return 0;
+}
+
+void ts_stylit_search_format(const ts_stylit_params *p, char *out, size_t cap) {
+  if (p->search != TS_STYLIT_LIST) {
+    snprintf(out, cap, "%s", ts_stylit_search_name(p->search));
+    return;
+  }
+  size_t o = 0;
+  out[0] = '\0';
+  for (int l = 0; l < p->nlevel_modes && o < cap; l++) {
+    int n = snprintf(out + o, cap - o, "%s%s", l ? "," : "", ts_stylit_search_name(p->level_mode[l]));
+    o += n > 0 ? (size_t)n : 0;
+  }
 }
 
 double ts_stylit_weight(const ts_stylit_params *p, int k) {
@@ -71,7 +105,7 @@ static void check_params(const ts_stylit_params *p, problems *pr) {
   if (p->levels < 0 || p->levels > TS_STYLIT_MAX_LEVELS)
     problem(pr, "--levels %d: need 1..%d (or 0: as many as fit)", p->levels, TS_STYLIT_MAX_LEVELS);
   if (p->iters < 1 || p->iters > 100) problem(pr, "--iters %d: need 1..100", p->iters);
-  if (p->search < TS_STYLIT_EXACT || p->search > TS_STYLIT_AUTO) problem(pr, "search mode %d: need exact, patchmatch or auto", p->search);
+  if (p->search < TS_STYLIT_EXACT || p->search > TS_STYLIT_LIST) problem(pr, "search mode %d: need exact, patchmatch or auto", p->search);
   if (p->pm_iters < 1 || p->pm_iters > 100) problem(pr, "--pm-iters %d: need 1..100", p->pm_iters);
   if (!(p->budget >= 0 && p->budget <= 1e6)) problem(pr, "--budget %g: need 0..1000000 seconds", p->budget);
   if (!(p->uniformity >= 0.0 && p->uniformity <= 1000.0))
@@ -132,6 +166,9 @@ static void check_pyramid(const ts_stylit_params *p, const ts_image *const *in, 
             "--levels %d: the coarsest level's source is %dx%d and target %dx%d, and the source needs room for a "
             "%dx%d patch; use fewer levels or a smaller --patch-size",
             l + 1, sw, sh, tw, th, p->patch, p->patch);
+  if (p->search == TS_STYLIT_LIST && p->nlevel_modes != l + 1)
+    problem(pr, "--search lists %d level%s, the job runs %d: give one mode per level, coarsest first (or set --levels)",
+            p->nlevel_modes, p->nlevel_modes == 1 ? "" : "s", l + 1);
 }
 
 int ts_stylit_check(const ts_stylit_params *p, const ts_image *const *in, char *msg, size_t len) {

@@ -248,3 +248,25 @@ def test_a_sequence_refuses_bad_patterns_and_missing_frames_before_any_work(texs
     err = refused(*sequence_args(scene, frames, "--frames", "1..4", *out), code=1)
     assert "frame 4: cannot read" in err and "tgt_0004.png" in err
     assert not list(tmp_path.glob("o_*.png")), "a frame ran before the missing one was found"
+
+
+@pytest.mark.sanitize
+def test_auto_records_the_modes_it_ran_and_that_list_gives_its_bytes_on_a_cluster(texsyn, scene, cluster, tmp_path):
+    """Auto decides from the calibrated speed, so its choice depends on the
+    pool; the list its report records runs the same job anywhere."""
+    report = tmp_path / "a.json"
+    stylize(texsyn, scene, tmp_path / "a.png", "--nnf", tmp_path / "a.raw", "--report", report, "--budget", "0.0005")
+    search = json.loads(report.read_text())["search"]
+    levels = search["levels"].split(",")
+    assert search["mode"] == "auto" and search["auto_rate"] > 0
+    assert set(levels) <= {"exact", "patchmatch"} and len(levels) == len(json.loads(report.read_text())["levels"])
+    assert search["lossy"] == (["patchmatch"] if "patchmatch" in levels else [])
+    cluster.start(2, 1)
+    stylize(texsyn, scene, tmp_path / "c.png", "--nnf", tmp_path / "c.raw", "--search", search["levels"],
+            "--server", cluster.server.addr)
+    assert (tmp_path / "c.png").read_bytes() == (tmp_path / "a.png").read_bytes()
+    assert (tmp_path / "c.raw").read_bytes() == (tmp_path / "a.raw").read_bytes()
+    p = stylize(texsyn, scene, tmp_path / "x.png", "--search", ",".join(levels + ["exact"]), check=False)
+    assert p.returncode == 2 and f"--search lists {len(levels) + 1} levels, the job runs {len(levels)}" in p.stderr
+    p = stylize(texsyn, scene, tmp_path / "x.png", "--search", "exact,fast", check=False)
+    assert p.returncode == 2 and "a list of exact and patchmatch" in p.stderr
