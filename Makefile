@@ -160,7 +160,7 @@ deps:
 # The whole suite: unit tests (each test in its own process), integration
 # tests driving the real binaries, then the unit tests again under ASan+UBSan;
 # the fuzz seeds and regressions replayed on both builds; each libFuzzer
-# target for 10 s.
+# target for 7 s (as long as the unit stages it runs beside).
 test: deps
 	$(MAKE) -j2 all
 	$(MAKE) -j2 SAN=1 all
@@ -192,7 +192,7 @@ test-valgrind: deps all
 # libFuzzer targets (clang, clang++ for the OpenImageIO shim) in
 # build-fuzz/: each runs FUZZ_SECONDS on build-fuzz/corpus-<target>, seeded
 # from tests/fuzz/seeds/<target> and tests/fuzz/regress/<target>; findings
-# go to build-fuzz/artifacts/. `make test` runs each for 10 s.
+# go to build-fuzz/artifacts/. `make test` runs each for 7 s.
 FUZZ_SECONDS ?= 30
 FUZZ_SAN = -g -O1 -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sanitize-recover=undefined
 FUZZ_CC = clang -std=c11 -D_GNU_SOURCE $(WARN) $(FUZZ_SAN) -fsanitize=fuzzer-no-link

@@ -48,7 +48,7 @@ asan() { # runs "$@" with the sanitizers' options. ASan's fast unwinder: the
 # runs do. Their lines follow the replay's.
 fuzz_out=$(mktemp)
 fuzz_t0=$SECONDS
-bash tests/run-fuzz.sh fuzz "${TEXSYN_FUZZ_SECONDS:-10}" "${TEXSYN_FUZZ_SEED:-2004}" >"$fuzz_out" 2>&1 &
+bash tests/run-fuzz.sh fuzz "${TEXSYN_FUZZ_SECONDS:-7}" "${TEXSYN_FUZZ_SEED:-2004}" >"$fuzz_out" 2>&1 &
 fuzz_pid=$!
 stage 0 bash tests/run-unit.sh build
 stage 0 bash tests/run-fuzz.sh replay build
