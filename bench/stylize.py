@@ -302,7 +302,7 @@ def markdown(res):
              "Both programs run with their own defaults (search, iterations, uniformity) apart from the patch "
              "size on texbynum and the guide weights; the uniformity settings are on different scales and are "
              "not matched. texsyn's default search is `auto`: exact at the levels whose estimated exact time "
-             "fits `--budget` (10 s), PatchMatch at the others; the search column shows which ran, coarsest "
+             "at the calibrated rate fits `--budget` (1 s), PatchMatch at the others; the search column shows which ran, coarsest "
              "level first.", "",
              "Energy: `texsyn energy --sample STEP`, the mean exact least guided patch distance (grey levels "
              "per compared value; lower is better) of every STEP-th target pixel in x and y. Coverage: the "
