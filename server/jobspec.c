@@ -11,7 +11,7 @@ void ts_jobspec_default(ts_jobspec *s, const ts_engine *engine) {
   memset(s, 0, sizeof(*s));
   s->engine = engine ? engine : ts_engine_default();
   s->engine->params_default(&s->params);
-  snprintf(s->wants.want[0], TS_EXT_LEN, "png");
+  snprintf(s->wants.want[0], TS_EXT_LEN, "%s", s->engine->outputs[0].kind == TS_OUTPUT_FLAG ? "1" : "png");
 }
 
 const char *ts_path_ext(const char *path) {
@@ -116,7 +116,8 @@ int ts_jobspec_parse(const char *text, size_t len, ts_jobspec *s, char *err) {
     if (rc != 0) return ts_error(err, TS_EINVAL, "job spec line %d: bad value '%s' for %s", line, eq + 1, buf);
   }
   if (s->wants.want[0][0] == '\0')
-    return ts_error(err, TS_EINVAL, "job spec: %s format is required", s->engine->outputs[0].key);
+    return ts_error(err, TS_EINVAL, "job spec: %s%s is required", s->engine->outputs[0].key,
+                    s->engine->outputs[0].kind == TS_OUTPUT_FLAG ? "=1" : " format");
   /* A spec must survive format and parse (the spool relies on it): an
    * engine names what it cannot default, e.g. mrf's size. */
   return s->engine->spec_complete(&s->params, err);

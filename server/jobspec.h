@@ -12,8 +12,9 @@
  *   output=png  copy_map=png  copy_map_raw=1  usage_map=tif  report=1
  *
  * An image output's value is a file extension (the format of the file the
- * coordinator writes), empty or absent meaning not wanted; the engine's
- * first output, the result image, is required. A flag output is 0 or 1. */
+ * coordinator writes), empty or absent meaning not wanted. A flag output is
+ * 0 or 1. The engine's first output, its result (an image, or a flag
+ * output such as energy's JSON), is required. */
 #ifndef TS_JOBSPEC_H
 #define TS_JOBSPEC_H
 
@@ -28,7 +29,7 @@ typedef struct {
 } ts_jobspec;
 
 /* A spec for `engine` (NULL: the default engine) with its defaults and
- * only the result image, as png. */
+ * only the result: an image as png, or a flag output. */
 void ts_jobspec_default(ts_jobspec *s, const ts_engine *engine);
 /* Writes the spec; returns its length, or TS_ETOOBIG if cap is too small. */
 int ts_jobspec_format(const ts_jobspec *s, char *buf, size_t cap);

@@ -15,18 +15,7 @@
 
 const char *const ts_job_options_help =
     "  -o, --output OUT     output image; format from the extension\n"
-    "  --report F           JSON report: parameters, timings, statistics\n"
-    "  --threads T          scan threads, 1..1024 (default 2)\n"
-    "  --max-pixels N       refuse inputs and outputs above N pixels (default 268435456)\n"
-    "  --quiet              no progress bar\n"
-    "  --server HOST:PORT   run the job on a texsyn-server (and its workers) instead\n"
-    "                       of in-process; same options, same output bytes\n"
-    "                       (default: $TEXSYN_SERVER if set, else in-process)\n"
-    "  --embedded           run in-process even if $TEXSYN_SERVER is set\n"
-    "  --detach             with --server: print the job id and return at once\n"
-    "                       (then texsyn watch/fetch ID)\n"
-    "  --secret-file PATH   with --server: the shared secret the coordinator\n"
-    "                       requires (default: $TEXSYN_SECRET_FILE if set)\n";
+    "  --report F           JSON report: parameters, timings, statistics\n" TS_JOB_RUN_HELP;
 
 /* ---- arguments --------------------------------------------------------- */
 
@@ -146,7 +135,9 @@ static int set_wants(const ts_job_cmd *o, ts_jobspec *spec, char *err) {
   return 0;
 }
 
-int ts_job_read_inputs(const ts_job_cmd *o, int n, ts_image *in, char *err) {
+/* Reads the first n inputs (within --max-pixels); on failure the ones
+ * read are freed. */
+static int read_inputs(const ts_job_cmd *o, int n, ts_image *in, char *err) {
   ts_image_limits limits = {o->max_pixels, NULL};
   for (int k = 0; k < n; k++) {
     int rc = ts_image_read(o->in[k], &in[k], &limits, err);
@@ -195,6 +186,11 @@ static int write_outputs(const ts_job_cmd *o, const ts_engine_run *run, char *er
   return rc;
 }
 
+/* What the closing line names. */
+static const char *result_name(const ts_job_cmd *o) {
+  return o->result_name != NULL ? o->result_name : ts_output_path(&o->out, "output");
+}
+
 int ts_job_embedded(const ts_job_cmd *o, const ts_image *const *in, ts_search *search, char *err) {
   const ts_engine *e = o->spec.engine;
   ts_engine_run *run = NULL;
@@ -206,8 +202,8 @@ int ts_job_embedded(const ts_job_cmd *o, const ts_image *const *in, ts_search *s
   if (pb.enabled) fputc('\n', stderr);
   if (rc == 0) rc = write_outputs(o, run, err);
   if (rc == 0 && !o->quiet)
-    fprintf(stderr, "texsyn: %s in %.2fs (%s, %d threads, %.3g comparisons)\n", ts_output_path(&o->out, "output"),
-            ts_now() - t0, search->simd->name, o->threads, (double)(search->stats.pairs - pairs));
+    fprintf(stderr, "texsyn: %s in %.2fs (%s, %d threads, %.3g comparisons)\n", result_name(o), ts_now() - t0,
+            search->simd->name, o->threads, (double)(search->stats.pairs - pairs));
   e->run_free(run);
   return rc;
 }
@@ -375,8 +371,7 @@ static int run_remote(const ts_job_cmd *o) {
                     st.text[0] ? ": " : "", st.text);
     if (rc == 0) rc = ts_job_fetch(&c, id, &o->out, err);
     if (rc == 0 && !o->quiet)
-      fprintf(stderr, "texsyn: %s (job %llu on %s)\n", ts_output_path(&o->out, "output"), (unsigned long long)id,
-              o->server);
+      fprintf(stderr, "texsyn: %s (job %llu on %s)\n", result_name(o), (unsigned long long)id, o->server);
   }
   if (rc != 0) fprintf(stderr, "texsyn %s: %s\n", o->cmd, err);
   ts_conn_close(&c);
@@ -398,7 +393,7 @@ int ts_job_run(ts_job_cmd *o) {
   e->inputs(&o->spec.params, &names);
   ts_image in[TS_ENGINE_MAX_INPUTS] = {0};
   const ts_image *inp[TS_ENGINE_MAX_INPUTS];
-  if (ts_job_read_inputs(o, names.n, in, err) != 0) {
+  if (read_inputs(o, names.n, in, err) != 0) {
     fprintf(stderr, "texsyn %s: %s\n", o->cmd, err);
     return 1;
   }

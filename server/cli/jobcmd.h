@@ -1,4 +1,4 @@
-/* jobcmd.h - what the CLI's job commands (texsyn synth, texsyn stylize)
+/* jobcmd.h - what the CLI's job commands (texsyn synth, stylize, energy)
  * share: the options every job takes, the output paths by spec key, the
  * checks made before any work (outputs writable, inputs readable, the
  * engine's verdict on them), and running the job in-process or on a
@@ -30,6 +30,7 @@ void ts_output_set(ts_output_paths *t, const char *key, const char *path);
 
 typedef struct {
   const char *cmd;                       /* "synth": messages say "texsyn synth: ..." */
+  const char *result_name;               /* what the closing line names: NULL, the -o path */
   ts_jobspec spec;                       /* engine and parameters (wants follow from out) */
   const char *in[TS_ENGINE_MAX_INPUTS];  /* input paths, in the engine's order */
   ts_output_paths out;
@@ -45,16 +46,31 @@ enum {
   TS_OPT_REPORT, TS_OPT_MAXPIX, TS_OPT_HELP, TS_OPT_OWN
 };
 
-/* The options every job takes, for a command's getopt_long table. */
-#define TS_JOB_LONGOPTS                                                                               \
-  {"output", required_argument, 0, 'o'}, {"threads", required_argument, 0, TS_OPT_THREADS},          \
-      {"quiet", no_argument, 0, TS_OPT_QUIET}, {"server", required_argument, 0, TS_OPT_SERVER},      \
-      {"embedded", no_argument, 0, TS_OPT_EMBEDDED}, {"detach", no_argument, 0, TS_OPT_DETACH},      \
-      {"secret-file", required_argument, 0, TS_OPT_SECRET},                                          \
-      {"report", required_argument, 0, TS_OPT_REPORT},                                               \
+/* The options every job takes, for a command's getopt_long table: where
+ * and how it runs, then (TS_JOB_LONGOPTS) the result image and report of
+ * a job whose result is an image. */
+#define TS_JOB_RUN_LONGOPTS                                                                           \
+  {"threads", required_argument, 0, TS_OPT_THREADS}, {"quiet", no_argument, 0, TS_OPT_QUIET},        \
+      {"server", required_argument, 0, TS_OPT_SERVER}, {"embedded", no_argument, 0, TS_OPT_EMBEDDED}, \
+      {"detach", no_argument, 0, TS_OPT_DETACH}, {"secret-file", required_argument, 0, TS_OPT_SECRET}, \
       {"max-pixels", required_argument, 0, TS_OPT_MAXPIX}, {"help", no_argument, 0, TS_OPT_HELP}
+#define TS_JOB_LONGOPTS                                                                               \
+  {"output", required_argument, 0, 'o'}, {"report", required_argument, 0, TS_OPT_REPORT}, TS_JOB_RUN_LONGOPTS
 
-/* Their lines of a command's --help, as one string. */
+/* Their lines of a command's --help: TS_JOB_RUN_HELP those of
+ * TS_JOB_RUN_LONGOPTS, ts_job_options_help all of them. */
+#define TS_JOB_RUN_HELP                                                                      \
+  "  --threads T          scan threads, 1..1024 (default 2)\n"                               \
+  "  --max-pixels N       refuse inputs and outputs above N pixels (default 268435456)\n"    \
+  "  --quiet              no progress bar\n"                                                 \
+  "  --server HOST:PORT   run the job on a texsyn-server (and its workers) instead\n"        \
+  "                       of in-process; same options, same output bytes\n"                 \
+  "                       (default: $TEXSYN_SERVER if set, else in-process)\n"              \
+  "  --embedded           run in-process even if $TEXSYN_SERVER is set\n"                    \
+  "  --detach             with --server: print the job id and return at once\n"             \
+  "                       (then texsyn watch/fetch ID)\n"                                    \
+  "  --secret-file PATH   with --server: the shared secret the coordinator\n"               \
+  "                       requires (default: $TEXSYN_SECRET_FILE if set)\n"
 extern const char *const ts_job_options_help;
 
 /* A job command for engine e with its defaults. */
@@ -64,9 +80,6 @@ void ts_job_cmd_init(ts_job_cmd *o, const char *cmd, const ts_engine *e);
 int ts_job_option(ts_job_cmd *o, int c, const char *arg, char *err);
 /* After the options: where the job runs, and what every job needs. */
 int ts_job_parse_end(ts_job_cmd *o, char *err);
-/* Reads the first n inputs (within --max-pixels); on failure the ones
- * read are freed. */
-int ts_job_read_inputs(const ts_job_cmd *o, int n, ts_image *in, char *err);
 /* Runs the job: checks, reads, runs embedded or remotely, writes. The
  * process exit status: 0, 1 (I/O, a failed job), 2 (bad parameters). */
 int ts_job_run(ts_job_cmd *o);

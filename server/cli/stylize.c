@@ -4,14 +4,17 @@
  * job itself runs through jobcmd.h like every job. */
 #include "stylize.h"
 
+#include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "error.h"
 #include "frames.h"
 #include "jobcmd.h"
 #include "stylit.h"
+#include "util.h"
 
 static void usage(FILE *f) {
   fprintf(f,
@@ -80,13 +83,14 @@ static const struct option longopts[] = {
 
 typedef struct {
   ts_job_cmd job;
+  ts_stylit_params *scene; /* in job.spec's parameters: stylize's, or the energy engine's scene */
   int guides;
   int weighs; /* what --weight sets: -1 nothing yet, 0 the style, k + 1 guide k */
   int sequence; /* --frames given */
   ts_frames frames;
 } stylize_opts;
 
-static ts_stylit_params *params(stylize_opts *o) { return (ts_stylit_params *)o->job.spec.params.bytes; }
+static ts_stylit_params *params(stylize_opts *o) { return o->scene; }
 
 /* --guide SRC TGT: getopt hands over SRC; TGT is the next word. */
 static int guide_option(stylize_opts *o, int argc, char **argv, const char *src, char *err) {
@@ -164,6 +168,7 @@ static int scene_complete(stylize_opts *o, const char *cmd, char *err) {
 static int stylize_parse(int argc, char **argv, stylize_opts *o, char *err) {
   memset(o, 0, sizeof(*o));
   ts_job_cmd_init(&o->job, "stylize", ts_engine_find("stylize"));
+  o->scene = (ts_stylit_params *)o->job.spec.params.bytes;
   o->weighs = -1;
   optind = 1;
   opterr = 0;
@@ -199,9 +204,14 @@ int ts_cmd_stylize(int argc, char **argv) {
 
 /* ---- texsyn energy ------------------------------------------------------ */
 
+/* A job of the energy engine (energy_engine.c) like any other, run here or
+ * on a coordinator by ts_job_run; its result, one JSON line, goes to a
+ * temporary file and is printed from there, so the output is the same
+ * bytes wherever the measure ran. */
+
 static const char *const kEnergyUsage =
     "usage: texsyn energy --style EXEMPLAR --guide SRC TGT [--weight W] [--guide SRC TGT ...]\n"
-    "                     --image OUT [--sample STEP] [--patch-size 5] [--threads N] [--json]\n"
+    "                     --image OUT [--sample STEP] [--patch-size 5] [--json] [options]\n"
     "\n"
     "Scores any stylized image OUT of this scene, whatever made it: the mean, over the\n"
     "target patches at every STEP-th pixel in x and y (default 1: all), of the exact least\n"
@@ -209,7 +219,18 @@ static const char *const kEnergyUsage =
     "estimate, the target guides), weights and 8-bit conversions, no uniformity penalty -\n"
     "in grey levels per compared value. Coverage: the share of exemplar pixels covered\n"
     "by those best exemplar patches (each counts all its pixels). Lower energy is better.\n"
-    "Prints: energy=E coverage=C samples=N step=S patch=P (or one JSON object, --json).\n";
+    "Prints: energy=E coverage=C samples=N step=S patch=P (or one JSON object, --json),\n"
+    "the same numbers in-process and on a cluster (--server: the coordinator's workers\n"
+    "run the search).\n"
+    "\n"
+    "  --style, --guide, --weight, --patch-size   the scene, as texsyn stylize takes it\n"
+    "  --image OUT          the image to score: the target guides' size; 1 or 2\n"
+    "                       channels for a grey style, 3 or 4 for a colour one\n"
+    "  --sample STEP        score the patches at every STEP-th pixel, 1..%d (default 1)\n"
+    "  --json               print one JSON object instead of the line\n"
+    "%s"
+    "\n"
+    "With --detach, texsyn fetch ID -o F writes the JSON object to F.\n";
 
 enum { OPT_IMAGE = OPT_NNF + 1, OPT_SAMPLE, OPT_JSON, OPT_SOURCE, OPT_SIZE };
 
@@ -217,14 +238,19 @@ static const struct option energy_longopts[] = {
     {"style", required_argument, 0, OPT_STYLE},     {"guide", required_argument, 0, OPT_GUIDE},
     {"weight", required_argument, 0, OPT_WEIGHT},   {"patch-size", required_argument, 0, OPT_PATCH},
     {"image", required_argument, 0, OPT_IMAGE},     {"sample", required_argument, 0, OPT_SAMPLE},
-    {"json", no_argument, 0, OPT_JSON},             {"threads", required_argument, 0, TS_OPT_THREADS},
-    {"help", no_argument, 0, TS_OPT_HELP},          {0, 0, 0, 0}};
+    {"json", no_argument, 0, OPT_JSON},             TS_JOB_RUN_LONGOPTS,
+    {0, 0, 0, 0}};
 
 typedef struct {
   stylize_opts s;
   const char *image;
-  int step, json;
+  int json;
+  char result[4096]; /* the temporary file the result goes to (mkstemp's template until made) */
 } energy_opts;
+
+static ts_stylit_energy_params *energy_params(energy_opts *o) {
+  return (ts_stylit_energy_params *)o->s.job.spec.params.bytes;
+}
 
 static int energy_option(energy_opts *o, int c, int argc, char **argv, char *err) {
   long v;
@@ -232,24 +258,30 @@ static int energy_option(energy_opts *o, int c, int argc, char **argv, char *err
   if (rc != TS_ENOENT) return rc;
   switch (c) {
   case OPT_IMAGE: o->image = optarg; return 0;
-  case OPT_SAMPLE: rc = ts_arg_long("--sample", optarg, 1, 1 << 16, &v, err); o->step = (int)v; return rc;
+  case OPT_SAMPLE:
+    rc = ts_arg_long("--sample", optarg, 1, TS_STYLIT_MAX_STEP, &v, err);
+    energy_params(o)->step = (int)v;
+    return rc;
   case OPT_JSON: o->json = 1; return 0;
-  case TS_OPT_THREADS: return ts_job_option(&o->s.job, c, optarg, err);
-  default: return ts_error(err, TS_EINVAL, "unknown option (see texsyn energy --help)");
+  default:
+    rc = ts_job_option(&o->s.job, c, optarg, err);
+    return rc != TS_ENOENT ? rc : ts_error(err, TS_EINVAL, "unknown option (see texsyn energy --help)");
   }
 }
 
+/* The result's path is set here, made by energy_result_file. */
 static int energy_parse(int argc, char **argv, energy_opts *o, char *err) {
   memset(o, 0, sizeof(*o));
-  ts_job_cmd_init(&o->s.job, "energy", ts_engine_find("stylize"));
+  ts_job_cmd_init(&o->s.job, "energy", ts_engine_find("energy"));
+  o->s.job.result_name = "energy";
+  o->s.scene = &energy_params(o)->scene;
   o->s.weighs = -1;
-  o->step = 1;
   optind = 1;
   opterr = 0;
   int c;
   while ((c = getopt_long(argc, argv, "+h", energy_longopts, NULL)) != -1) {
     if (c == TS_OPT_HELP || c == 'h') {
-      printf("%s", kEnergyUsage);
+      printf(kEnergyUsage, TS_STYLIT_MAX_STEP, TS_JOB_RUN_HELP);
       exit(0);
     }
     if (c == '?' || c == ':')
@@ -260,52 +292,62 @@ static int energy_parse(int argc, char **argv, energy_opts *o, char *err) {
   }
   if (optind < argc) return ts_error(err, TS_EINVAL, "unexpected argument '%s'", argv[optind]);
   if (o->image == NULL) return ts_error(err, TS_EINVAL, "--image OUT is required: the stylized image to score");
-  return scene_complete(&o->s, "energy", err);
+  int rc = scene_complete(&o->s, "energy", err);
+  if (rc != 0) return rc;
+  o->s.job.in[1 + 2 * o->s.guides] = o->image;
+  const char *dir = getenv("TMPDIR");
+  snprintf(o->result, sizeof(o->result), "%s/texsyn-energy-XXXXXX", dir != NULL && dir[0] != '\0' ? dir : "/tmp");
+  ts_output_set(&o->s.job.out, "output", o->result);
+  return ts_job_parse_end(&o->s.job, err);
 }
 
-/* Reads the scene and the image, checks them as stylize would, measures. */
-static int energy_measure(energy_opts *o, ts_stylit_energy *en, char *err) {
-  ts_stylit_params *p = params(&o->s);
-  ts_image in[TS_ENGINE_MAX_INPUTS] = {0}, img = {0};
-  const ts_image *inp[TS_ENGINE_MAX_INPUTS];
-  int n = 1 + 2 * p->guides;
-  ts_image_limits limits = {o->s.job.max_pixels, NULL};
-  int rc = ts_job_read_inputs(&o->s.job, n, in, err), have_inputs = rc == 0;
-  if (rc == 0) rc = ts_image_read(o->image, &img, &limits, err);
-  for (int k = 0; k < n; k++) inp[k] = &in[k];
-  char msg[4096];
-  if (rc == 0 && ts_stylit_check(p, inp, msg, sizeof(msg)) != 0)
-    rc = ts_error(err, TS_EINVAL, "invalid scene:\n%s", msg);
-  ts_search *search = NULL;
-  if (rc == 0) rc = ts_search_local_create(&search, o->s.job.threads, NULL, err);
-  if (rc == 0) rc = ts_stylit_energy_measure(p, inp, &img, o->step, search, en, err);
-  ts_search_destroy(search);
-  ts_image_free(&img);
-  for (int k = 0; have_inputs && k < n; k++) ts_image_free(&in[k]);
+/* Makes the temporary result file, under the name the job was given. */
+static int energy_result_file(energy_opts *o, char *err) {
+  char tmpl[sizeof(o->result)];
+  snprintf(tmpl, sizeof(tmpl), "%s", o->result);
+  int fd = mkstemp(o->result);
+  if (fd < 0)
+    return ts_error(err, TS_EIO, "cannot make a temporary file %s for the result: %s (set TMPDIR to a writable "
+                    "directory)", tmpl, strerror(errno));
+  close(fd);
+  return 0;
+}
+
+/* Prints the result the job wrote: the line, or with --json the JSON. */
+static int energy_print(const energy_opts *o, char *err) {
+  uint8_t *buf = NULL;
+  size_t len = 0;
+  ts_stylit_energy en;
+  char why[TS_ERR_LEN];
+  int rc = ts_file_read(o->result, 4096, &buf, &len, err);
+  if (rc == 0 && ts_stylit_energy_json_read((const char *)buf, len, &en, why) != 0)
+    rc = ts_error(err, TS_EFORMAT, "the job's result (energy.json): %.400s", why);
+  if (rc == 0 && o->json) fwrite(buf, 1, len, stdout);
+  else if (rc == 0)
+    printf("energy=%.6f coverage=%.6f samples=%u step=%d patch=%d\n", en.energy, en.coverage, en.samples, en.step,
+           en.patch);
+  free(buf);
   return rc;
 }
 
 int ts_cmd_energy(int argc, char **argv) {
   char err[TS_ERR_LEN] = "";
   energy_opts o;
-  int rc = energy_parse(argc, argv, &o, err);
-  if (rc != 0) {
+  if (energy_parse(argc, argv, &o, err) != 0) {
     fprintf(stderr, "texsyn energy: %s\n", err);
     return 2;
   }
-  ts_stylit_energy en;
-  rc = energy_measure(&o, &en, err);
-  if (rc != 0) {
+  if (energy_result_file(&o, err) != 0) {
     fprintf(stderr, "texsyn energy: %s\n", err);
-    return rc == TS_EINVAL ? 2 : 1;
+    return 1;
   }
-  int patch = params(&o.s)->patch;
-  if (o.json)
-    printf("{\"energy\": %.6f, \"coverage\": %.6f, \"coverage_of\": \"exemplar pixels\", \"samples\": %u, "
-           "\"step\": %d, \"patch_size\": %d}\n",
-           en.energy, en.coverage, en.samples, o.step, patch);
-  else printf("energy=%.6f coverage=%.6f samples=%u step=%d patch=%d\n", en.energy, en.coverage, en.samples, o.step, patch);
-  return 0;
+  int status = ts_job_run(&o.s.job);
+  if (status == 0 && !o.s.job.detach && energy_print(&o, err) != 0) {
+    fprintf(stderr, "texsyn energy: %s\n", err);
+    status = 1;
+  }
+  unlink(o.result);
+  return status;
 }
 
 /* ---- texsyn apply-nnf --------------------------------------------------- */

@@ -27,7 +27,7 @@
 
 #define TS_ENGINE_PARAMS_MAX 512 /* bytes of any engine's parameter struct */
 #define TS_ENGINE_MAX_OUTPUTS 8
-#define TS_ENGINE_MAX_INPUTS 33 /* a style and 16 guide pairs */
+#define TS_ENGINE_MAX_INPUTS 34 /* a style, 16 guide pairs and the image energy scores */
 #define TS_ENGINE_KEY_LEN 32    /* an input name's bytes, NUL included */
 #define TS_EXT_LEN 16
 /* Largest output width or height a spec (and the command line) takes. */
@@ -59,8 +59,9 @@ typedef struct {
 } ts_engine_inputs;
 
 /* Which outputs a job wants: per output of the engine, the extension
- * (IMAGE) or "1" (FLAG); "" = not wanted. Output 0 is the result image
- * and always wanted. */
+ * (IMAGE) or "1" (FLAG); "" = not wanted. Output 0 is the result, always
+ * wanted, with the spec key "output" (the CLI's -o): an image, or a FLAG
+ * output for an engine whose result is a file of its own (energy.json). */
 typedef struct {
   char want[TS_ENGINE_MAX_OUTPUTS][TS_EXT_LEN];
 } ts_engine_wants;
@@ -96,7 +97,7 @@ typedef struct ts_engine_run ts_engine_run;
 
 typedef struct ts_engine {
   const char *name;  /* the spec's engine= value */
-  const ts_engine_output *outputs; /* noutputs entries, [0] the result image */
+  const ts_engine_output *outputs; /* noutputs entries, [0] the result */
   int noutputs;
   void (*params_default)(void *params);
   /* Sets one spec key: 0, TS_EINVAL for a bad value, TS_ENOENT for a key

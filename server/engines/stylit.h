@@ -170,12 +170,39 @@ typedef struct {
   double energy;
   double coverage;
   uint32_t samples;
+  int step, patch; /* measured with: the sampling step, the patch size */
 } ts_stylit_energy;
 
 /* in: checked inputs (ts_stylit_check); image: B', the target's size with
  * the style's colour channels (any type; converted as the style is). */
 int ts_stylit_energy_measure(const ts_stylit_params *p, const ts_image *const *in, const ts_image *image, int step,
                              ts_search *search, ts_stylit_energy *out, char *err);
+/* Every problem with the scene (ts_stylit_check), the image to score (its
+ * size and channels against the scene's) and the step, one per line: 0 or
+ * TS_EINVAL. */
+int ts_stylit_energy_check(const ts_stylit_params *p, const ts_image *const *in, const ts_image *image, int step,
+                           char *msg, size_t len);
+
+/* The energy engine (energy_engine.c): the measure as a job, so that it
+ * runs on a cluster as stylize does. Its parameters: the scene's (patch,
+ * guides, weights, max_pixels; stylize's other parameters keep their
+ * defaults, unused) and the step; its inputs the scene's and then "image",
+ * B'; its result the JSON line below, as energy.json. */
+typedef struct {
+  ts_stylit_params scene;
+  int step; /* 1..TS_STYLIT_MAX_STEP (1) */
+} ts_stylit_energy_params;
+
+#define TS_STYLIT_MAX_STEP 65536
+
+/* The energy as one JSON line, what `texsyn energy --json` prints:
+ * {"energy": E, "coverage": C, "coverage_of": "exemplar pixels",
+ *  "samples": N, "step": S, "patch_size": P} (E and C with 6 decimals).
+ * The length, or TS_ETOOBIG. */
+int ts_stylit_energy_json(const ts_stylit_energy *e, char *buf, size_t cap);
+/* Reads such a line back (len bytes, not NUL-terminated; a client reads
+ * the file a coordinator sent): 0, or TS_EFORMAT saying what is wrong. */
+int ts_stylit_energy_json_read(const char *text, size_t len, ts_stylit_energy *e, char *err);
 
 /* Apply-nnf: out (8-bit, src's channels, tw x th) = the engine's vote of
  * src's channels through nnf (tw x th source patch centres, x, y pairs),

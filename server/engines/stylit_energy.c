@@ -1,6 +1,8 @@
 /* stylit_energy.c - the stylization's quality tools (stylit.h): the
  * energy of any stylized image, measured with the engine's own vectors
  * and search, and re-applying a saved NNF with the engine's vote. */
+#include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -18,17 +20,46 @@ typedef struct {
   int tw, th, image, set;
 } meter;
 
-/* B' must have the target's size and the style's colour planes. */
-static int check_image(const ts_stylit_planes *pl, const ts_image *const *in, const ts_image *img, char *err) {
+/* B' must have the target's size and the style's colour planes: 0, or
+ * TS_EINVAL with the problem in msg (len bytes). */
+static int image_problem(const ts_image *const *in, const ts_image *img, char *msg, size_t len) {
   const ts_image *tgt = in[ts_stylit_in_tgt(0)], *style = in[TS_STYLIT_IN_STYLE];
-  int planes = img->channels < 3 ? 1 : 3;
-  if (img->width != tgt->width || img->height != tgt->height || planes != pl->nstyle)
-    return ts_error(err, TS_EINVAL,
-                    "--image is %dx%d with %d channel%s; it must have the target guides' size %dx%d and, like "
-                    "the %d-channel style, %s",
-                    img->width, img->height, img->channels, img->channels == 1 ? "" : "s", tgt->width,
-                    tgt->height, style->channels, pl->nstyle == 1 ? "one or two channels" : "3 or 4 channels");
-  return 0;
+  int planes = img->channels < 3 ? 1 : 3, style_planes = style->channels < 3 ? 1 : 3;
+  if (img->width == tgt->width && img->height == tgt->height && planes == style_planes) return 0;
+  snprintf(msg, len,
+           "--image is %dx%d with %d channel%s; it must have the target guides' size %dx%d and, like the "
+           "%d-channel style, %s",
+           img->width, img->height, img->channels, img->channels == 1 ? "" : "s", tgt->width, tgt->height,
+           style->channels, style_planes == 1 ? "one or two channels" : "3 or 4 channels");
+  return TS_EINVAL;
+}
+
+static int step_problem(int step, char *msg, size_t len) {
+  if (step >= 1 && step <= TS_STYLIT_MAX_STEP) return 0;
+  snprintf(msg, len, "--sample %d: need a step of 1..%d pixels", step, TS_STYLIT_MAX_STEP);
+  return TS_EINVAL;
+}
+
+/* Appends a line to the problems in msg. */
+static void add_problem(char *msg, size_t len, const char *line) {
+  size_t used = strlen(msg);
+  if (used + 1 < len) snprintf(msg + used, len - used, "%s%s", used > 0 ? "\n" : "", line);
+}
+
+int ts_stylit_energy_check(const ts_stylit_params *p, const ts_image *const *in, const ts_image *image, int step,
+                           char *msg, size_t len) {
+  int rc = ts_stylit_check(p, in, msg, len);
+  if (p->guides < 1 || p->guides > TS_STYLIT_MAX_GUIDES) return rc; /* then in[] has no target guide */
+  char line[TS_ERR_LEN];
+  if (image_problem(in, image, line, sizeof(line)) != 0) {
+    add_problem(msg, len, line);
+    rc = TS_EINVAL;
+  }
+  if (step_problem(step, line, sizeof(line)) != 0) {
+    add_problem(msg, len, line);
+    rc = TS_EINVAL;
+  }
+  return rc;
 }
 
 /* The engine's planes with B' in the style estimate's place, its window,
@@ -36,7 +67,7 @@ static int check_image(const ts_stylit_planes *pl, const ts_image *const *in, co
 static int meter_open(meter *m, const ts_stylit_params *p, const ts_image *const *in, const ts_image *img,
                       ts_search *search, char *err) {
   if (ts_stylit_planes_init(&m->pl, p, in) != 0) return ts_error(err, TS_ENOMEM, "out of memory for the inputs");
-  int rc = check_image(&m->pl, in, img, err);
+  int rc = image_problem(in, img, err, TS_ERR_LEN);
   m->tw = img->width;
   m->th = img->height;
   for (int c = 0; rc == 0 && c < m->pl.nstyle; c++) {
@@ -111,7 +142,7 @@ static int coverage(const uint32_t *centres, uint32_t n, int r, int sw, int sh, 
 int ts_stylit_energy_measure(const ts_stylit_params *p, const ts_image *const *in, const ts_image *image, int step,
                              ts_search *search, ts_stylit_energy *out, char *err) {
   memset(out, 0, sizeof(*out));
-  if (step < 1) return ts_error(err, TS_EINVAL, "--sample %d: need a step of 1 or more pixels", step);
+  if (step_problem(step, err, TS_ERR_LEN) != 0) return TS_EINVAL;
   meter m = {.image = -1, .set = -1};
   int rc = meter_open(&m, p, in, image, search, err);
   uint32_t n = (uint32_t)(((m.tw + step - 1) / step) * ((m.th + step - 1) / step));
@@ -123,10 +154,49 @@ int ts_stylit_energy_measure(const ts_stylit_params *p, const ts_image *const *i
   if (rc == 0) {
     out->samples = n;
     out->energy = sum / n / (double)ts_window_unit_distance(&m.win);
+    out->step = step;
+    out->patch = p->patch;
   }
   free(centres);
   meter_close(&m, search);
   return rc;
+}
+
+/* ---- the result as JSON ------------------------------------------------ */
+
+int ts_stylit_energy_json(const ts_stylit_energy *e, char *buf, size_t cap) {
+  int n = snprintf(buf, cap,
+                   "{\"energy\": %.6f, \"coverage\": %.6f, \"coverage_of\": \"exemplar pixels\", \"samples\": %u, "
+                   "\"step\": %d, \"patch_size\": %d}\n",
+                   e->energy, e->coverage, e->samples, e->step, e->patch);
+  return n < 0 || (size_t)n >= cap ? TS_ETOOBIG : n;
+}
+
+/* The values are read, then written again: only the very line that
+ * ts_stylit_energy_json writes is taken, so what a client prints from it
+ * is that line whichever process measured; and only values a measure
+ * gives (a NaN would write itself back). */
+int ts_stylit_energy_json_read(const char *text, size_t len, ts_stylit_energy *e, char *err) {
+  char in[256], again[256];
+  int end = -1;
+  memset(e, 0, sizeof(*e));
+  if (len < sizeof(in) && memchr(text, '\0', len) == NULL) {
+    memcpy(in, text, len);
+    in[len] = '\0';
+    if (sscanf(in, "{\"energy\": %lf, \"coverage\": %lf, \"coverage_of\": \"exemplar pixels\", \"samples\": %u, "
+                   "\"step\": %d, \"patch_size\": %d}\n%n",
+               &e->energy, &e->coverage, &e->samples, &e->step, &e->patch, &end) != 5)
+      end = -1;
+  }
+  int measured = isfinite(e->energy) && e->energy >= 0 && e->coverage >= 0 && e->coverage <= 1;
+  if (end < 0 || !measured || ts_stylit_energy_json(e, again, sizeof(again)) != (int)len ||
+      memcmp(again, in, len) != 0) {
+    memset(e, 0, sizeof(*e));
+    return ts_error(err, TS_EFORMAT,
+                    "not the one-line JSON result of texsyn's energy engine ({\"energy\": E, \"coverage\": C, "
+                    "...}, %zu bytes): was it made by a texsyn of another version?", len);
+  }
+  return 0;
 }
 
 /* ---- apply-nnf --------------------------------------------------------- */

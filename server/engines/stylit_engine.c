@@ -1,7 +1,8 @@
 /* stylit_engine.c - guided stylization (stylit.h) as an engine (engine.h):
- * its inputs, spec keys, result files and report. No checkpoints yet: a
- * job a coordinator restart interrupts runs again from its start, which
- * gives the same bytes. */
+ * the scene's inputs and spec keys (stylit_engine.h, shared with the
+ * energy engine), its own keys, result files and report. No checkpoints
+ * yet: a job a coordinator restart interrupts runs again from its start,
+ * which gives the same bytes. */
 #include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -12,6 +13,7 @@
 #include "error.h"
 #include "outputs.h"
 #include "stylit.h"
+#include "stylit_engine.h"
 #include "util.h"
 
 _Static_assert(sizeof(ts_stylit_params) <= TS_ENGINE_PARAMS_MAX, "stylize parameters outgrew ts_engine_params");
@@ -25,8 +27,7 @@ static const ts_engine_output stylit_outputs[OUT_COUNT] = {
     [OUT_REPORT] = {"report", "report.json", TS_OUTPUT_FLAG},
 };
 
-static void stylit_inputs(const void *params, ts_engine_inputs *out) {
-  const ts_stylit_params *p = params;
+void ts_stylit_scene_inputs(const ts_stylit_params *p, ts_engine_inputs *out) {
   int g = p->guides < TS_STYLIT_MAX_GUIDES ? p->guides : TS_STYLIT_MAX_GUIDES;
   out->n = 1 + 2 * g;
   snprintf(out->name[TS_STYLIT_IN_STYLE], TS_ENGINE_KEY_LEN, "style");
@@ -35,6 +36,8 @@ static void stylit_inputs(const void *params, ts_engine_inputs *out) {
     snprintf(out->name[ts_stylit_in_tgt(k)], TS_ENGINE_KEY_LEN, "guide_tgt_%d", k);
   }
 }
+
+static void stylit_inputs(const void *params, ts_engine_inputs *out) { ts_stylit_scene_inputs(params, out); }
 
 /* ---- spec keys ---------------------------------------------------------- */
 
@@ -45,26 +48,29 @@ static int set_weight(ts_stylit_params *p, const char *k, const char *v) {
   return ts_parse_double(v, &p->weight[g]) != 0 || p->weight[g] < 0 ? TS_EINVAL : 0;
 }
 
+int ts_stylit_scene_set(ts_stylit_params *p, const char *k, const char *v) {
+  if (strcmp(k, "patch_size") == 0) return ts_parse_int(v, -1000, 1000, &p->patch);
+  if (strcmp(k, "max_pixels") == 0) return ts_parse_u64(v, &p->max_pixels);
+  if (strcmp(k, "guides") == 0) return ts_parse_int(v, 1, TS_STYLIT_MAX_GUIDES, &p->guides);
+  if (strcmp(k, "style_weight") == 0) return ts_parse_double(v, &p->style_weight);
+  return set_weight(p, k, v);
+}
+
 static int stylit_spec_set(void *params, const char *k, const char *v) {
   ts_stylit_params *p = params;
-  if (strcmp(k, "patch_size") == 0) return ts_parse_int(v, -1000, 1000, &p->patch);
   if (strcmp(k, "levels") == 0) return ts_parse_int(v, -1000, 1000, &p->levels);
   if (strcmp(k, "iters") == 0) return ts_parse_int(v, -1000, 1000, &p->iters);
   if (strcmp(k, "uniformity") == 0) return ts_parse_double(v, &p->uniformity);
   if (strcmp(k, "seed") == 0) return ts_parse_u64(v, &p->seed);
-  if (strcmp(k, "max_pixels") == 0) return ts_parse_u64(v, &p->max_pixels);
-  if (strcmp(k, "guides") == 0) return ts_parse_int(v, 1, TS_STYLIT_MAX_GUIDES, &p->guides);
-  if (strcmp(k, "style_weight") == 0) return ts_parse_double(v, &p->style_weight);
   if (strcmp(k, "search") == 0) return ts_stylit_search_parse(v, p, NULL) == 0 ? 0 : TS_EINVAL;
   if (strcmp(k, "pm_iters") == 0) return ts_parse_int(v, -1000, 1000, &p->pm_iters);
   if (strcmp(k, "budget") == 0) return ts_parse_double(v, &p->budget);
-  return set_weight(p, k, v);
+  return ts_stylit_scene_set(p, k, v);
 }
 
 /* A weight for a guide the job does not have would not survive format
  * and parse. */
-static int stylit_spec_complete(const void *params, char *err) {
-  const ts_stylit_params *p = params;
+int ts_stylit_scene_complete(const ts_stylit_params *p, char *err) {
   for (int k = p->guides; k < TS_STYLIT_MAX_GUIDES; k++)
     if (p->weight[k] >= 0)
       return ts_error(err, TS_EINVAL, "job spec: weight_%d given for a job of %d guide%s", k, p->guides,
@@ -72,21 +78,28 @@ static int stylit_spec_complete(const void *params, char *err) {
   return 0;
 }
 
+static int stylit_spec_complete(const void *params, char *err) { return ts_stylit_scene_complete(params, err); }
+
 /* Doubles with 17 significant digits, so they round-trip; guide weights
  * resolved (a default weight is written as the value it stands for). */
+int ts_stylit_scene_format(const ts_stylit_params *p, char *buf, size_t cap) {
+  int n = snprintf(buf, cap, "patch_size=%d\nmax_pixels=%llu\nguides=%d\nstyle_weight=%.17g\n", p->patch,
+                   (unsigned long long)p->max_pixels, p->guides, p->style_weight);
+  for (int k = 0; n >= 0 && (size_t)n < cap && k < p->guides; k++)
+    n += snprintf(buf + n, cap - (size_t)n, "weight_%d=%.17g\n", k, ts_stylit_weight(p, k));
+  return n < 0 || (size_t)n >= cap ? TS_ETOOBIG : n;
+}
+
 static int stylit_spec_format(const void *params, char *buf, size_t cap) {
   const ts_stylit_params *p = params;
   char search[TS_STYLIT_SEARCH_LEN];
   ts_stylit_search_format(p, search, sizeof(search));
-  int n = snprintf(buf, cap,
-                   "patch_size=%d\nlevels=%d\niters=%d\nuniformity=%.17g\nseed=%llu\nmax_pixels=%llu\nguides=%d\n"
-                   "style_weight=%.17g\nsearch=%s\npm_iters=%d\nbudget=%.17g\n",
-                   p->patch, p->levels, p->iters, p->uniformity, (unsigned long long)p->seed,
-                   (unsigned long long)p->max_pixels, p->guides, p->style_weight, search,
-                   p->pm_iters, p->budget);
-  for (int k = 0; n >= 0 && (size_t)n < cap && k < p->guides; k++)
-    n += snprintf(buf + n, cap - (size_t)n, "weight_%d=%.17g\n", k, ts_stylit_weight(p, k));
-  return n < 0 || (size_t)n >= cap ? TS_ETOOBIG : n;
+  int n = ts_stylit_scene_format(p, buf, cap);
+  if (n < 0) return n;
+  int k = snprintf(buf + n, cap - (size_t)n,
+                   "levels=%d\niters=%d\nuniformity=%.17g\nseed=%llu\nsearch=%s\npm_iters=%d\nbudget=%.17g\n",
+                   p->levels, p->iters, p->uniformity, (unsigned long long)p->seed, search, p->pm_iters, p->budget);
+  return k < 0 || (size_t)k >= cap - (size_t)n ? TS_ETOOBIG : n + k;
 }
 
 static void stylit_params_default(void *params) { ts_stylit_params_default(params); }

@@ -4,14 +4,17 @@ the crop's blurred luminance, the target guide that guide mirrored. Checked:
 every NNF entry is a source patch centre and the output is exactly the vote
 of its NNF; the same bytes for any thread count and on a cluster; uniformity
 raises the exemplar coverage; every size and channel mismatch in one error.
+The energy of an image: the same output in-process and on a cluster, its
+errors on either, and a queued energy job surviving a coordinator restart.
 """
 import json
+import re
 import struct
 import subprocess
 
 import pytest
 
-from conftest import modbus_registers, run
+from conftest import BUILD, modbus_registers, run
 
 PATCH = 5
 
@@ -270,3 +273,77 @@ def test_auto_records_the_modes_it_ran_and_that_list_gives_its_bytes_on_a_cluste
     assert p.returncode == 2 and f"--search lists {len(levels) + 1} levels, the job runs {len(levels)}" in p.stderr
     p = stylize(texsyn, scene, tmp_path / "x.png", "--search", "exact,fast", check=False)
     assert p.returncode == 2 and "a list of exact and patchmatch" in p.stderr
+
+
+def energy_args(scene, image, *extra, tgt=None):
+    return ["energy", "--style", scene / "style.png", "--guide", scene / "src.png", tgt or scene / "tgt.png",
+            "--image", image, *extra]
+
+
+@pytest.mark.sanitize
+def test_energy_on_a_cluster_prints_what_it_prints_in_process(texsyn, scene, cluster, tmp_path):
+    """A stylize output (every patch, and every 2nd pixel) and the exemplar
+    as its own stylization, each as the line and as JSON: in-process, with
+    --server and with $TEXSYN_SERVER on 2 workers, the same bytes on
+    stdout, and both workers searched; --embedded stays in-process whatever
+    $TEXSYN_SERVER says; --quiet leaves stderr empty."""
+    out = tmp_path / "out.png"
+    stylize(texsyn, scene, out)
+    cases = [energy_args(scene, out, "--sample", step, *form) for step in ("1", "2") for form in ([], ["--json"])]
+    cases.append(energy_args(scene, scene / "style.png", "--json", tgt=scene / "src.png"))
+
+    def score(*where, env=None):
+        ps = [run(texsyn, *args, "--quiet", *where, env=env) for args in cases]
+        assert all(p.stderr == "" for p in ps), [p.stderr for p in ps]
+        return [p.stdout for p in ps]
+
+    embedded = score("--embedded")
+    fields = dict(f.split("=") for f in embedded[2].split())
+    assert fields["samples"] == "768" and fields["step"] == "2" and fields["patch"] == "5", embedded[2]
+    assert json.loads(embedded[4])["energy"] < json.loads(embedded[1])["energy"], embedded
+    cluster.start(2, 1)
+    addr = cluster.server.addr
+    before = [w["batches"] for w in cluster.pool()]
+    assert score("--server", addr) == embedded
+    after = [w["batches"] for w in cluster.pool()]
+    assert all(a > b for a, b in zip(after, before)), (before, after)
+    assert score(env={"TEXSYN_SERVER": addr}) == embedded
+    assert score("--embedded", env={"TEXSYN_SERVER": "127.0.0.1:1"}) == embedded
+    p = run(texsyn, *cases[0], "--server", addr)
+    assert p.stdout == embedded[0] and re.search(rf"texsyn: energy \(job \d+ on {addr}\)", p.stderr), p.stderr
+
+
+@pytest.mark.sanitize
+def test_energy_lists_every_mismatch_in_one_error_on_a_cluster_too(texsyn, scene, cluster, tmp_path):
+    """A guide source and an image of the wrong size: both in one message,
+    exit status 2, in-process and with --server, where nothing is
+    submitted."""
+    small = tmp_path / "small.png"
+    oiiotool(scene / "src.png", "--resize", "32x24", "-o", small)
+    cluster.start(2, 1)
+    args = ["energy", "--style", scene / "style.png", "--guide", small, scene / "tgt.png", "--image", small]
+    for where in (["--embedded"], ["--server", cluster.server.addr]):
+        p = run(texsyn, *args, *where, check=False)
+        assert p.returncode == 2 and p.stdout == "", (where, p.stderr)
+        for line in ("guide 1: its source is 32x24, the style 64x48",
+                     "--image is 32x24 with 1 channel; it must have the target guides' size 64x48"):
+            assert line in p.stderr, (where, p.stderr)
+    assert cluster.texsyn("status").stdout == ""
+
+
+def test_a_queued_energy_job_runs_after_a_coordinator_restart(texsyn, scene, cluster, tmp_path):
+    """Queued behind a paused queue, the coordinator stopped: the restarted
+    one reads the energy job from its spool, runs it, and `texsyn fetch -o`
+    writes the JSON an in-process run prints."""
+    out = tmp_path / "out.png"
+    stylize(texsyn, scene, out)
+    want = run(texsyn, *energy_args(scene, out, "--sample", "2", "--json", "--embedded")).stdout
+    cluster.start(2, 1, "--modbus", "0", "--modbus-control")
+    run(BUILD / "texsyn", "modbus", cluster.server.modbus, "--set", "pause=1")
+    job = cluster.texsyn(*energy_args(scene, out, "--sample", "2", "--detach")).stdout.split()[-1]
+    assert cluster.texsyn("status", job).stdout.split()[:2] == [job, "queued"]
+    cluster.server.stop()
+    cluster.restart_server()
+    cluster.texsyn("watch", job, "--quiet")
+    cluster.texsyn("fetch", job, "-o", tmp_path / "energy.json")
+    assert (tmp_path / "energy.json").read_text() == want

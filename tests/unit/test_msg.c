@@ -512,6 +512,45 @@ static void stylize_spec_round_trip(void **state) {
   assert_non_null(strstr(err, "weight_1 given for a job of 1 guide"));
 }
 
+/* An energy spec: the scene's keys (as stylize writes them) and the step;
+ * its result, output 0, a flag output that is always wanted; its inputs
+ * the scene's and then the image. */
+static void energy_spec_round_trip(void **state) {
+  (void)state;
+  ts_jobspec a, b;
+  ts_jobspec_default(&a, ts_engine_find("energy"));
+  ts_stylit_energy_params *p = (ts_stylit_energy_params *)a.params.bytes;
+  assert_int_equal(p->step, 1);
+  p->scene.guides = 2, p->scene.patch = 7, p->scene.style_weight = 0.5, p->scene.weight[1] = 1.0 / 3.0;
+  p->step = 4;
+  char text[TS_SPEC_MAX], again[TS_SPEC_MAX], err[TS_ERR_LEN];
+  int n = ts_jobspec_format(&a, text, sizeof(text));
+  assert_true(n > 0);
+  assert_non_null(strstr(text, "engine=energy\n"));
+  assert_non_null(strstr(text, "sample=4\n"));
+  assert_non_null(strstr(text, "weight_0=0.5\n")); /* the default, 1 / guides */
+  assert_non_null(strstr(text, "output=1\n"));
+  assert_null(strstr(text, "iters=")); /* stylize's own keys are not energy's */
+  assert_int_equal(ts_jobspec_parse(text, (size_t)n, &b, err), 0);
+  const ts_stylit_energy_params *q = (const ts_stylit_energy_params *)b.params.bytes;
+  assert_int_equal(q->step, 4);
+  assert_int_equal(q->scene.guides, 2);
+  assert_int_equal(q->scene.patch, 7);
+  assert_true(q->scene.style_weight == 0.5 && ts_stylit_weight(&q->scene, 1) == 1.0 / 3.0);
+  assert_int_equal(ts_jobspec_format(&b, again, sizeof(again)), n);
+  assert_memory_equal(again, text, (size_t)n);
+  ts_engine_inputs in;
+  b.engine->inputs(&b.params, &in);
+  assert_int_equal(in.n, 6);
+  assert_string_equal(in.name[4], "guide_tgt_1");
+  assert_string_equal(in.name[5], "image");
+  const char *no_result = "engine=energy\nguides=1\noutput=0\n", *stylize_key = "engine=energy\niters=3\n";
+  assert_int_equal(ts_jobspec_parse(no_result, strlen(no_result), &b, err), TS_EINVAL);
+  assert_non_null(strstr(err, "output=1 is required"));
+  assert_int_equal(ts_jobspec_parse(stylize_key, strlen(stylize_key), &b, err), TS_EINVAL);
+  assert_non_null(strstr(err, "unknown key 'iters'"));
+}
+
 /* Further inputs travel as a tail after the first; without them the
  * message is the one-input message byte for byte. */
 static void submit_with_more_inputs(void **state) {
@@ -773,6 +812,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(strings_refuse_nul_and_overflow),
     cmocka_unit_test(jobspec_round_trip),
     cmocka_unit_test(stylize_spec_round_trip),
+    cmocka_unit_test(energy_spec_round_trip),
     cmocka_unit_test(submit_with_more_inputs),
     cmocka_unit_test(jobspec_engine_key),
     cmocka_unit_test(jobspec_refuses_bad_lines),

@@ -203,6 +203,23 @@ static void a_damaged_inputs_list_fails_a_job_that_must_run(void **state) {
   assert_contains(job.note, "inputs in " DIR_ " is damaged (");
 }
 
+/* An energy job: the scene's inputs and then the image, whose line a
+ * stylize job's list lacks. */
+static void an_energy_job_reads_back_with_its_image(void **state) {
+  (void)state;
+  ts_spool_files f = sound(NULL);
+  f.spec = file("engine=energy\nguides=1\nsample=2\noutput=1\n");
+  f.inputs = file("guide_src_0=png\nguide_tgt_0=png\nimage=tif\n");
+  ts_spool_job job = read_ok(&f);
+  assert_int_equal(job.state, TS_JOB_QUEUED);
+  assert_string_equal(job.spec.engine->name, "energy");
+  assert_string_equal(job.more_ext[2], "tif");
+  f.inputs = file("guide_src_0=png\nguide_tgt_0=png\n");
+  job = read_ok(&f);
+  assert_int_equal(job.state, TS_JOB_FAILED);
+  assert_contains(job.text, "not the 3 lines NAME=EXT of the job's further inputs");
+}
+
 static void a_damaged_client_only_loses_the_fairness_key(void **state) {
   (void)state;
   char long_name[300];
@@ -262,6 +279,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(a_garbled_state_with_a_damaged_spec_fails),
     cmocka_unit_test(a_damaged_ref_ext_fails_a_job_that_must_run),
     cmocka_unit_test(a_damaged_inputs_list_fails_a_job_that_must_run),
+    cmocka_unit_test(an_energy_job_reads_back_with_its_image),
     cmocka_unit_test(a_damaged_client_only_loses_the_fairness_key),
     cmocka_unit_test(last_id_is_a_number_or_refused),
 };

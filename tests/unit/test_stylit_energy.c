@@ -2,9 +2,11 @@
  * against a brute-force scorer (plain loops over every source patch, the
  * weights worked out by hand), a copy of the exemplar covering all of
  * it, a wrong-sized image and a step of 0 refused; apply-nnf of a stylize run's NNF
- * over the style giving that run's output byte for byte. */
+ * over the style giving that run's output byte for byte; the energy's JSON
+ * line read back, and the energy engine giving the measure's line. */
 #include <math.h>
 
+#include "engine.h"
 #include "error.h"
 #include "image.h"
 #include "rng.h"
@@ -222,11 +224,121 @@ static void apply_nnf_of_a_run_gives_its_output(void **state) {
   scene_free(&s);
 }
 
+/* The JSON line reads back to the same values, and only that very line
+ * is taken: cut anywhere, spaced otherwise, with a NUL, a value of another
+ * type or anything after it, it is refused with a message. */
+static void energy_json_reads_back_only_its_own_line(void **state) {
+  (void)state;
+  ts_stylit_energy e = {6.587873, 0.836589, 768, 2, 5}, back;
+  char line[256], err[TS_ERR_LEN];
+  int n = ts_stylit_energy_json(&e, line, sizeof(line));
+  assert_string_equal(line, "{\"energy\": 6.587873, \"coverage\": 0.836589, \"coverage_of\": \"exemplar pixels\", "
+                            "\"samples\": 768, \"step\": 2, \"patch_size\": 5}\n");
+  assert_int_equal(ts_stylit_energy_json_read(line, (size_t)n, &back, err), 0);
+  assert_true(back.energy == e.energy && back.coverage == e.coverage);
+  assert_true(back.samples == 768 && back.step == 2 && back.patch == 5);
+  for (int cut = 0; cut < n; cut++) {
+    err[0] = '\0';
+    assert_int_equal(ts_stylit_energy_json_read(line, (size_t)cut, &back, err), TS_EFORMAT);
+    assert_non_null(strstr(err, "energy engine"));
+  }
+  const char *bad[] = {
+      "{\"energy\":6.587873, \"coverage\": 0.836589, \"coverage_of\": \"exemplar pixels\", \"samples\": 768, "
+      "\"step\": 2, \"patch_size\": 5}\n",
+      "{\"energy\": 6.5878730, \"coverage\": 0.836589, \"coverage_of\": \"exemplar pixels\", \"samples\": 768, "
+      "\"step\": 2, \"patch_size\": 5}\n",
+      "{\"energy\": 6.587873, \"coverage\": 0.836589, \"coverage_of\": \"exemplar pixels\", \"samples\": -768, "
+      "\"step\": 2, \"patch_size\": 5}\n",
+      "{\"energy\": nan, \"coverage\": 0.836589, \"coverage_of\": \"exemplar pixels\", \"samples\": 768, "
+      "\"step\": 2, \"patch_size\": 5}\n",
+      "{\"energy\": 6.587873, \"coverage\": 0.836589, \"coverage_of\": \"exemplar pixels\", \"samples\": 768, "
+      "\"step\": 2, \"patch_size\": 5}\n{}",
+  };
+  for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++)
+    assert_int_equal(ts_stylit_energy_json_read(bad[i], strlen(bad[i]), &back, err), TS_EFORMAT);
+  line[10] = '\0';
+  assert_int_equal(ts_stylit_energy_json_read(line, (size_t)n, &back, err), TS_EFORMAT);
+}
+
+/* The energy engine (engine.h) on the scene: its inputs are the scene's
+ * and "image"; its check lists the image's problem with the scene's, one
+ * per line; its result file is the JSON line of the measure itself. */
+static void energy_engine_measures_and_lists_every_problem(void **state) {
+  (void)state;
+  const ts_engine *e = ts_engine_find("energy");
+  assert_non_null(e);
+  scene s;
+  scene_make(&s, 3, 13);
+  ts_image img;
+  ts_rng rng;
+  ts_rng_seed(&rng, 3, 0);
+  random_image(&img, TW, TH, 3, &rng);
+  ts_engine_params params;
+  e->params_default(&params);
+  ts_stylit_energy_params *p = (ts_stylit_energy_params *)params.bytes;
+  p->scene = s.p;
+  p->step = 2;
+  ts_engine_inputs names;
+  e->inputs(&params, &names);
+  assert_int_equal(names.n, 6);
+  assert_string_equal(names.name[0], "style");
+  assert_string_equal(names.name[3], "guide_src_1");
+  assert_string_equal(names.name[5], "image");
+  const ts_image *in[6] = {s.in[0], s.in[1], s.in[2], s.in[3], s.in[4], &img};
+  char msg[2048], err[TS_ERR_LEN];
+  assert_int_equal(e->check(&params, in, msg, sizeof(msg)), 0);
+
+  ts_search *search;
+  assert_int_equal(ts_search_local_create(&search, 2, NULL, err), 0);
+  ts_engine_hooks hooks = {0};
+  ts_engine_run *run = NULL;
+  assert_int_equal(e->run(&params, in, search, &hooks, &run, err), 0);
+  char path[32];
+  ts_test_put_file(path, "", 0);
+  assert_int_equal(e->write_output(run, 0, path, 2, err), 0);
+  e->run_free(run);
+  char got[256] = "", want[256];
+  FILE *f = fopen(path, "r");
+  assert_non_null(f);
+  assert_non_null(fgets(got, sizeof(got), f));
+  fclose(f);
+  unlink(path);
+  ts_stylit_energy en;
+  measure(&s, &img, 2, &en);
+  assert_true(ts_stylit_energy_json(&en, want, sizeof(want)) > 0);
+  assert_string_equal(got, want);
+  assert_int_equal(en.step, 2);
+  assert_int_equal(en.patch, 3);
+
+  /* A guide source of the wrong size and an image of the wrong size and
+   * channels: both, one per line. */
+  ts_image small, grey;
+  random_image(&small, SW - 1, SH, 3, &rng);
+  random_image(&grey, TW, TH + 1, 1, &rng);
+  in[3] = &small;
+  in[5] = &grey;
+  assert_int_equal(e->check(&params, in, msg, sizeof(msg)), TS_EINVAL);
+  assert_non_null(strstr(msg, "guide 2: its source is 16x13, the style 17x13"));
+  assert_non_null(strstr(msg, "\n--image is 11x10 with 1 channel; it must have the target guides' size 11x9"));
+  p->step = 0;
+  in[3] = s.in[3];
+  in[5] = &img;
+  assert_int_equal(e->check(&params, in, msg, sizeof(msg)), TS_EINVAL);
+  assert_string_equal(msg, "--sample 0: need a step of 1..65536 pixels");
+  ts_image_free(&small);
+  ts_image_free(&grey);
+  ts_search_destroy(search);
+  ts_image_free(&img);
+  scene_free(&s);
+}
+
 static const struct CMUnitTest tests[] = {
     cmocka_unit_test(energy_matches_brute_force),
     cmocka_unit_test(a_copy_of_the_exemplar_covers_it_all),
     cmocka_unit_test(an_image_of_the_wrong_size_is_refused),
     cmocka_unit_test(apply_nnf_of_a_run_gives_its_output),
+    cmocka_unit_test(energy_json_reads_back_only_its_own_line),
+    cmocka_unit_test(energy_engine_measures_and_lists_every_problem),
 };
 
 TS_TEST_MAIN(tests)
