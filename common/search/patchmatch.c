@@ -62,47 +62,28 @@ void ts_pm_image_free(ts_pm_image *im) {
 
 /* ---- distance ---------------------------------------------------------- */
 
-static uint32_t sad_scalar(const uint8_t *a, const uint8_t *b, int n) {
-  uint32_t s = 0;
-  for (int i = 0; i < n; i++) s += (uint32_t)(a[i] > b[i] ? a[i] - b[i] : b[i] - a[i]);
-  return s;
-}
-
-#ifdef __SSE2__
-/* 16 bytes of 0xFF then 16 of 0: the mask of the first m bytes of a load
- * starts at 16 - m. Both sides are masked, so bytes past the span add 0. */
-static const uint8_t kHeadMask[32] = {255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255,
-                                      255, 255, 255, 255, 255};
-
-static uint32_t sad_sse2(const uint8_t *a, const uint8_t *b, int n) {
-  __m128i acc = _mm_setzero_si128();
-  int i = 0;
-  for (; i + 16 <= n; i += 16)
-    acc = _mm_add_epi64(acc, _mm_sad_epu8(_mm_loadu_si128((const __m128i *)(a + i)),
-                                          _mm_loadu_si128((const __m128i *)(b + i))));
-  if (i < n) {
-    __m128i m = _mm_loadu_si128((const __m128i *)(kHeadMask + 16 - (n - i)));
-    __m128i x = _mm_and_si128(_mm_loadu_si128((const __m128i *)(a + i)), m);
-    __m128i y = _mm_and_si128(_mm_loadu_si128((const __m128i *)(b + i)), m);
-    acc = _mm_add_epi64(acc, _mm_sad_epu8(x, y));
-  }
-  return (uint32_t)(_mm_cvtsi128_si32(acc) + _mm_cvtsi128_si32(_mm_unpackhi_epi64(acc, acc)));
-}
-#define SAD_FAST sad_sse2
-#else
-#define SAD_FAST sad_scalar
-#endif
-
-typedef uint32_t sad_fn(const uint8_t *a, const uint8_t *b, int n);
+/* Where part k of a patch lies: the packed planes of source and target and
+ * their strides; with SSE2, how the target's rows are cut into 16-byte
+ * chunks. */
+typedef struct {
+  const uint8_t *src, *tgt;
+  size_t src_row, tgt_row; /* bytes per image row */
+  uint32_t ch, span;       /* bytes per pixel, per patch row */
+  uint32_t nchunks;        /* 16-byte chunks per patch row */
+  uint64_t weight;
+} part_geom;
 
 /* What a sweep reads, resolved once per tile. */
 typedef struct {
   const ts_pm_pass *ps;
-  sad_fn *sad;
-  int p, r, sw, nx; /* nx: source patches per row */
+  int p, r, nx; /* nx: source patches per row */
   int cx_max, cy_max;
-  int tgt_w;
+  int nparts, scalar;
+  part_geom part[TS_L1_MAX_PARTS];
+  const uint32_t *ublock;
   const int32_t *du;
+  uint64_t k;
+  uint8_t *query; /* SSE2: the target patch, chunked and masked */
 } sweep;
 
 /* Index of the source patch centred at (cx, cy): its anchor index. */
@@ -110,27 +91,105 @@ static inline uint32_t patch_index(const sweep *sw, uint32_t cx, uint32_t cy) {
   return (cy - (uint32_t)sw->r) * (uint32_t)sw->nx + (cx - (uint32_t)sw->r);
 }
 
-/* Distance of target pixel (x, y) to the source patch centred at (cx, cy),
- * stopping early once it exceeds bound (the value returned is then only
- * known to exceed it). */
-static uint64_t distance(const sweep *sw, int x, int y, uint32_t cx, uint32_t cy, uint64_t bound) {
-  const ts_pm_pass *ps = sw->ps;
+static uint32_t sad_scalar(const uint8_t *a, const uint8_t *b, uint32_t n) {
+  uint32_t s = 0;
+  for (uint32_t i = 0; i < n; i++) s += (uint32_t)(a[i] > b[i] ? a[i] - b[i] : b[i] - a[i]);
+  return s;
+}
+
+/* Weighted SAD of target pixel (x, y)'s patch and the source patch with
+ * top-left pixel (sx, sy), plain loops: the reference the SIMD path must
+ * match. Stops once the sum exceeds bound. */
+static uint64_t patch_sad_scalar(const sweep *sw, int x, int y, int sx, int sy, uint64_t bound) {
   uint64_t d = 0;
-  if (ps->k != 0) {
-    uint32_t j = patch_index(sw, cx, cy);
-    d = ts_usage_penalty((uint32_t)((int64_t)ps->ublock[j] + sw->du[j]), ps->k);
-  }
-  int sx = (int)cx - sw->r, sy = (int)cy - sw->r;
-  for (int k = 0; k < ps->src->nparts && d <= bound; k++) {
-    int ch = ps->src->ch[k], span = sw->p * ch;
-    const uint8_t *t = ps->tgt->part[k] + ((size_t)y * (size_t)sw->tgt_w + (size_t)x) * (size_t)ch;
-    const uint8_t *s = ps->src->part[k] + ((size_t)sy * (size_t)sw->sw + (size_t)sx) * (size_t)ch;
+  for (int k = 0; k < sw->nparts && d <= bound; k++) {
+    const part_geom *g = &sw->part[k];
+    const uint8_t *t = g->tgt + (size_t)y * g->tgt_row + (size_t)x * g->ch;
+    const uint8_t *s = g->src + (size_t)sy * g->src_row + (size_t)sx * g->ch;
     uint32_t sum = 0;
-    for (int row = 0; row < sw->p; row++)
-      sum += sw->sad(t + (size_t)row * (size_t)sw->tgt_w * (size_t)ch, s + (size_t)row * (size_t)sw->sw * (size_t)ch,
-                     span);
-    d += (uint64_t)ps->win->spec.part[k].weight * sum;
+    for (int row = 0; row < sw->p; row++, t += g->tgt_row, s += g->src_row) sum += sad_scalar(t, s, g->span);
+    d += g->weight * sum;
   }
+  return d;
+}
+
+#ifdef __SSE2__
+/* 16 bytes of 0xFF then 16 of 0: the mask of the first m bytes of a load
+ * starts at 16 - m. */
+static const uint8_t kHeadMask[32] = {255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255,
+                                      255, 255, 255, 255, 255};
+
+static inline __m128i head_mask(uint32_t m) { return _mm_loadu_si128((const __m128i *)(kHeadMask + 16 - m)); }
+
+/* Copies target pixel (x, y)'s patch into sw->query, each part row as
+ * nchunks 16-byte chunks with the bytes past the span zeroed: it is read
+ * by every candidate of the pixel. */
+static void query_load_sse2(sweep *sw, int x, int y) {
+  __m128i *q = (__m128i *)sw->query;
+  for (int k = 0; k < sw->nparts; k++) {
+    const part_geom *g = &sw->part[k];
+    const uint8_t *t = g->tgt + (size_t)y * g->tgt_row + (size_t)x * g->ch;
+    __m128i tail = head_mask(g->span - 16 * (g->nchunks - 1));
+    for (int row = 0; row < sw->p; row++, t += g->tgt_row) {
+      uint32_t c = 0;
+      for (; c + 1 < g->nchunks; c++) _mm_store_si128(q++, _mm_loadu_si128((const __m128i *)(t + 16 * c)));
+      _mm_store_si128(q++, _mm_and_si128(_mm_loadu_si128((const __m128i *)(t + 16 * c)), tail));
+    }
+  }
+}
+
+/* patch_sad_scalar against the query: source bytes past a row's span are
+ * masked like the query's, so they add 0. */
+static uint64_t patch_sad_sse2(const sweep *sw, int sx, int sy, uint64_t bound) {
+  const __m128i *q = (const __m128i *)sw->query;
+  uint64_t d = 0;
+  for (int k = 0; k < sw->nparts && d <= bound; k++) {
+    const part_geom *g = &sw->part[k];
+    const uint8_t *s = g->src + (size_t)sy * g->src_row + (size_t)sx * g->ch;
+    __m128i tail = head_mask(g->span - 16 * (g->nchunks - 1)), acc = _mm_setzero_si128();
+    for (int row = 0; row < sw->p; row++, s += g->src_row) {
+      uint32_t c = 0;
+      for (; c + 1 < g->nchunks; c++)
+        acc = _mm_add_epi64(acc, _mm_sad_epu8(_mm_loadu_si128((const __m128i *)(s + 16 * c)), _mm_load_si128(q++)));
+      __m128i last = _mm_and_si128(_mm_loadu_si128((const __m128i *)(s + 16 * c)), tail);
+      acc = _mm_add_epi64(acc, _mm_sad_epu8(last, _mm_load_si128(q++)));
+    }
+    uint32_t sum = (uint32_t)(_mm_cvtsi128_si32(acc) + _mm_cvtsi128_si32(_mm_unpackhi_epi64(acc, acc)));
+    d += g->weight * sum;
+  }
+  return d;
+}
+#endif
+
+/* Bytes of the SSE2 query of a window with patch p. */
+static size_t query_bytes(const ts_pm_image *src, int p) {
+  size_t n = 0;
+  for (int k = 0; k < src->nparts; k++) n += (size_t)p * (((size_t)p * src->ch[k] + 15) / 16) * 16;
+  return n;
+}
+
+/* Makes target pixel (x, y) the one candidates are compared with. */
+static void query_load(sweep *sw, int x, int y) {
+#ifdef __SSE2__
+  if (!sw->scalar) query_load_sse2(sw, x, y);
+#else
+  (void)sw, (void)x, (void)y;
+#endif
+}
+
+/* Distance of target pixel (x, y) (the loaded query) to the source patch
+ * j centred at (cx, cy), stopping early once it exceeds bound (the value
+ * returned is then only known to exceed it). The penalty comes last: a
+ * candidate the patch already rules out never reads the usage. */
+static uint64_t distance(const sweep *sw, int x, int y, uint32_t cx, uint32_t cy, uint32_t j, uint64_t bound) {
+  int sx = (int)cx - sw->r, sy = (int)cy - sw->r;
+  uint64_t d;
+#ifdef __SSE2__
+  if (!sw->scalar) d = patch_sad_sse2(sw, sx, sy, bound);
+  else
+#endif
+    d = patch_sad_scalar(sw, x, y, sx, sy, bound);
+  if (sw->k != 0 && d <= bound) d += ts_usage_penalty((uint32_t)((int64_t)sw->ublock[j] + sw->du[j]), sw->k);
   return d;
 }
 
@@ -182,10 +241,16 @@ static void du_move(const sweep *sw, int32_t *du, int ny, uint32_t j0, int delta
   }
 }
 
-static int scratch_ready(ts_pm_scratch *scr, size_t npatches) {
-  if (scr->du == NULL) {
+static int scratch_ready(ts_pm_scratch *scr, size_t npatches, size_t query) {
+  if (npatches > 0 && scr->du == NULL) {
     scr->du = calloc(npatches, sizeof(*scr->du));
     if (scr->du == NULL) return TS_ENOMEM;
+  }
+  if (query > scr->query_cap) {
+    free(scr->query);
+    scr->query = aligned_alloc(16, query);
+    scr->query_cap = scr->query != NULL ? query : 0;
+    if (scr->query == NULL) return TS_ENOMEM;
   }
   scr->nmoves = 0;
   return 0;
@@ -207,6 +272,7 @@ static int log_move(ts_pm_scratch *scr, uint32_t from, uint32_t to) {
 void ts_pm_scratch_free(ts_pm_scratch *scr) {
   free(scr->du);
   free(scr->moves);
+  free(scr->query);
   memset(scr, 0, sizeof(*scr));
 }
 
@@ -225,7 +291,7 @@ static void try_centre(const sweep *sw, int x, int y, long cx, long cy, best_t *
   if (cx < sw->r || cy < sw->r || cx > sw->cx_max || cy > sw->cy_max) return;
   uint32_t j = patch_index(sw, (uint32_t)cx, (uint32_t)cy);
   if (j == b->index) return;
-  uint64_t d = distance(sw, x, y, (uint32_t)cx, (uint32_t)cy, b->d);
+  uint64_t d = distance(sw, x, y, (uint32_t)cx, (uint32_t)cy, j, b->d);
   if (d < b->d || (d == b->d && j < b->index)) *b = (best_t){d, (uint32_t)cx, (uint32_t)cy, j};
 }
 
@@ -251,17 +317,33 @@ static void random_search(const sweep *sw, ts_rng *rng, int x, int y, best_t *b)
   }
 }
 
+/* Resolves what tile sweeps of a pass read. */
+static void sweep_init(sweep *sw, const ts_pm_pass *ps, ts_pm_scratch *scr) {
+  int p = ps->patch, r = p / 2;
+  *sw = (sweep){ps, p, r, ps->src->w - p + 1, ps->src->w - 1 - r, ps->src->h - 1 - r, ps->src->nparts, ps->scalar};
+  for (int k = 0; k < sw->nparts; k++) {
+    uint32_t ch = ps->src->ch[k];
+    sw->part[k] = (part_geom){ps->src->part[k], ps->tgt->part[k], (size_t)ps->src->w * ch, (size_t)ps->tgt->w * ch, ch,
+                              (uint32_t)p * ch, ((uint32_t)p * ch + 15) / 16, ps->win->spec.part[k].weight};
+  }
+  sw->ublock = ps->ublock;
+  sw->du = scr->du;
+  sw->k = ps->k;
+  sw->query = scr->query;
+}
+
 uint64_t ts_pm_sweep_tile(const ts_pm_pass *ps, int t, ts_pm_scratch *scr, uint32_t *out, int *rc) {
-  int p = ps->patch, r = p / 2, sw_ = ps->src->w, sh = ps->src->h;
+  int p = ps->patch;
   int ntx = (ps->tw + TS_PM_TILE - 1) / TS_PM_TILE;
   int x0 = (t % ntx) * TS_PM_TILE, y0 = (t / ntx) * TS_PM_TILE;
   int x1 = x0 + TS_PM_TILE < ps->tw ? x0 + TS_PM_TILE : ps->tw;
   int y1 = y0 + TS_PM_TILE < ps->th ? y0 + TS_PM_TILE : ps->th;
-  int ny = sh - p + 1;
-  *rc = ps->k != 0 ? scratch_ready(scr, (size_t)(sw_ - p + 1) * (size_t)ny) : 0;
+  int ny = ps->src->h - p + 1;
+  size_t npatches = ps->k != 0 ? (size_t)(ps->src->w - p + 1) * (size_t)ny : 0;
+  *rc = scratch_ready(scr, npatches, query_bytes(ps->src, p));
   if (*rc != 0) return 0;
-  sweep sw = {ps, ps->scalar ? sad_scalar : SAD_FAST, p, r, sw_, sw_ - p + 1, sw_ - 1 - r, sh - 1 - r,
-              ps->tw + p - 1, scr->du};
+  sweep sw;
+  sweep_init(&sw, ps, scr);
   ts_rng rng;
   ts_rng_seed(&rng, ps->seed, ((uint64_t)ps->pass << 32) | (uint32_t)t);
   int back = ps->pass & 1, step = back ? -1 : 1;
@@ -272,7 +354,8 @@ uint64_t ts_pm_sweep_tile(const ts_pm_pass *ps, int t, ts_pm_scratch *scr, uint3
       int x = back ? x1 - 1 - jj : x0 + jj;
       const uint32_t *cur = ps->in + 2 * ((size_t)y * (size_t)ps->tw + (size_t)x);
       best_t b = {0, cur[0], cur[1], patch_index(&sw, cur[0], cur[1])};
-      b.d = distance(&sw, x, y, b.cx, b.cy, UINT64_MAX);
+      query_load(&sw, x, y);
+      b.d = distance(&sw, x, y, b.cx, b.cy, b.index, UINT64_MAX);
       uint32_t was = b.index;
       try_neighbour(&sw, out, x0, y0, x1, y1, x, y, x - step, y, &b);
       try_neighbour(&sw, out, x0, y0, x1, y1, x, y, x, y - step, &b);

@@ -77,6 +77,8 @@ typedef struct {
   int32_t *du;  /* change of U_j by the tile's moves, zero between tiles */
   uint32_t *moves;
   size_t nmoves, cap;
+  uint8_t *query; /* the target patch a pixel's candidates are compared with */
+  size_t query_cap;
 } ts_pm_scratch;
 
 int ts_pm_tiles(int tw, int th);
