@@ -60,6 +60,8 @@ void ts_pm_image_free(ts_pm_image *im) {
   memset(im, 0, sizeof(*im));
 }
 
+#define MAX_PATCH 45 /* p * p offsets fit TS_WIN_MAX_OFFSETS */
+
 /* ---- distance ---------------------------------------------------------- */
 
 /* Where part k of a patch lies: the packed planes of source and target and
@@ -76,13 +78,13 @@ typedef struct {
 /* What a sweep reads, resolved once per tile. */
 typedef struct {
   const ts_pm_pass *ps;
-  int p, r, nx; /* nx: source patches per row */
+  int p, r, nx, ny; /* nx x ny source patches */
   int cx_max, cy_max;
   int nparts, scalar;
   part_geom part[TS_L1_MAX_PARTS];
-  const uint32_t *ublock;
-  const int32_t *du;
+  uint32_t *usage; /* U_j now (scratch): NULL without a penalty */
   uint64_t k;
+  uint32_t tent[2 * MAX_PATCH]; /* p - |i - (p - 1)|: overlaps along an axis */
   uint8_t *query; /* SSE2: the target patch, chunked and masked */
 } sweep;
 
@@ -189,7 +191,7 @@ static uint64_t distance(const sweep *sw, int x, int y, uint32_t cx, uint32_t cy
   else
 #endif
     d = patch_sad_scalar(sw, x, y, sx, sy, bound);
-  if (sw->k != 0 && d <= bound) d += ts_usage_penalty((uint32_t)((int64_t)sw->ublock[j] + sw->du[j]), sw->k);
+  if (sw->usage != NULL && d <= bound) d += ts_usage_penalty(sw->usage[j], sw->k);
   return d;
 }
 
@@ -225,52 +227,64 @@ void ts_pm_block_sums(const uint32_t *counts, int p, int sw, int sh, uint32_t *c
 
 /* ---- the tile's own moves ---------------------------------------------- */
 
-/* U_j of every source patch overlapping patch j0 changes by delta times
- * the overlap's area. */
-static void du_move(const sweep *sw, int32_t *du, int ny, uint32_t j0, int delta) {
-  int p = sw->p, jx = (int)(j0 % (uint32_t)sw->nx), jy = (int)(j0 / (uint32_t)sw->nx);
-  for (int dy = -(p - 1); dy <= p - 1; dy++) {
-    int y = jy + dy;
-    if (y < 0 || y >= ny) continue;
-    int oy = p - (dy < 0 ? -dy : dy);
-    for (int dx = -(p - 1); dx <= p - 1; dx++) {
-      int x = jx + dx;
-      if (x < 0 || x >= sw->nx) continue;
-      du[(size_t)y * (size_t)sw->nx + (size_t)x] += delta * oy * (p - (dx < 0 ? -dx : dx));
-    }
+/* U_j of every source patch overlapping the one at anchor (ax, ay) changes
+ * by delta times the overlap's area, (p - |dx|) * (p - |dy|). Unsigned
+ * arithmetic wraps, so a move and its undoing cancel exactly. */
+static void usage_move(const sweep *sw, int ax, int ay, int32_t delta) {
+  int p = sw->p, reach = p - 1;
+  int x0 = ax > reach ? ax - reach : 0, x1 = ax + p < sw->nx ? ax + p : sw->nx;
+  int y0 = ay > reach ? ay - reach : 0, y1 = ay + p < sw->ny ? ay + p : sw->ny;
+  const uint32_t *wx = sw->tent + (x0 - ax + reach);
+  for (int y = y0; y < y1; y++) {
+    uint32_t f = (uint32_t)delta * sw->tent[y - ay + reach];
+    uint32_t *row = sw->usage + (size_t)y * (size_t)sw->nx + (size_t)x0;
+    for (int i = 0; i < x1 - x0; i++) row[i] += f * wx[i];
   }
 }
 
-static int scratch_ready(ts_pm_scratch *scr, size_t npatches, size_t query) {
-  if (npatches > 0 && scr->du == NULL) {
-    scr->du = calloc(npatches, sizeof(*scr->du));
-    if (scr->du == NULL) return TS_ENOMEM;
-  }
+int ts_pm_scratch_begin(ts_pm_scratch *scr, const ts_pm_pass *ps) {
+  size_t query = query_bytes(ps->src, ps->patch);
   if (query > scr->query_cap) {
     free(scr->query);
     scr->query = aligned_alloc(16, query);
     scr->query_cap = scr->query != NULL ? query : 0;
     if (scr->query == NULL) return TS_ENOMEM;
   }
-  scr->nmoves = 0;
+  if (ps->k == 0) return 0;
+  size_t n = (size_t)(ps->src->w - ps->patch + 1) * (size_t)(ps->src->h - ps->patch + 1);
+  if (n > scr->usage_cap) {
+    free(scr->usage);
+    scr->usage = malloc(n * sizeof(*scr->usage));
+    scr->usage_cap = scr->usage != NULL ? n : 0;
+    if (scr->usage == NULL) return TS_ENOMEM;
+  }
+  memcpy(scr->usage, ps->ublock, n * sizeof(*scr->usage));
   return 0;
 }
 
-static int log_move(ts_pm_scratch *scr, uint32_t from, uint32_t to) {
-  if (scr->nmoves + 2 > scr->cap) {
+/* Logs a move of a pixel's match from centre (fx, fy) to (tx, ty). */
+static int log_move(ts_pm_scratch *scr, uint32_t fx, uint32_t fy, uint32_t tx, uint32_t ty) {
+  if (scr->nmoves + 4 > scr->cap) {
     size_t cap = scr->cap ? 2 * scr->cap : 4096;
     uint32_t *m = realloc(scr->moves, cap * sizeof(*m));
     if (m == NULL) return TS_ENOMEM;
     scr->moves = m;
     scr->cap = cap;
   }
-  scr->moves[scr->nmoves++] = from;
-  scr->moves[scr->nmoves++] = to;
+  uint32_t *m = scr->moves + scr->nmoves;
+  m[0] = fx, m[1] = fy, m[2] = tx, m[3] = ty;
+  scr->nmoves += 4;
   return 0;
 }
 
+/* Applies (sign 1) or undoes (-1) a logged move. */
+static void replay_move(const sweep *sw, const uint32_t *m, int32_t sign) {
+  usage_move(sw, (int)m[0] - sw->r, (int)m[1] - sw->r, -sign);
+  usage_move(sw, (int)m[2] - sw->r, (int)m[3] - sw->r, sign);
+}
+
 void ts_pm_scratch_free(ts_pm_scratch *scr) {
-  free(scr->du);
+  free(scr->usage);
   free(scr->moves);
   free(scr->query);
   memset(scr, 0, sizeof(*scr));
@@ -320,43 +334,40 @@ static void random_search(const sweep *sw, ts_rng *rng, int x, int y, best_t *b)
 /* Resolves what tile sweeps of a pass read. */
 static void sweep_init(sweep *sw, const ts_pm_pass *ps, ts_pm_scratch *scr) {
   int p = ps->patch, r = p / 2;
-  *sw = (sweep){ps, p, r, ps->src->w - p + 1, ps->src->w - 1 - r, ps->src->h - 1 - r, ps->src->nparts, ps->scalar};
+  *sw = (sweep){ps, p, r, ps->src->w - p + 1, ps->src->h - p + 1, ps->src->w - 1 - r, ps->src->h - 1 - r, ps->src->nparts, ps->scalar};
   for (int k = 0; k < sw->nparts; k++) {
     uint32_t ch = ps->src->ch[k];
     sw->part[k] = (part_geom){ps->src->part[k], ps->tgt->part[k], (size_t)ps->src->w * ch, (size_t)ps->tgt->w * ch, ch,
                               (uint32_t)p * ch, ((uint32_t)p * ch + 15) / 16, ps->win->spec.part[k].weight};
   }
-  sw->ublock = ps->ublock;
-  sw->du = scr->du;
+  sw->usage = ps->k != 0 ? scr->usage : NULL;
   sw->k = ps->k;
   sw->query = scr->query;
+  for (int i = 0; i < 2 * p - 1; i++) sw->tent[i] = (uint32_t)(p - (i < p ? p - 1 - i : i - (p - 1)));
 }
 
 uint64_t ts_pm_sweep_tile(const ts_pm_pass *ps, int t, ts_pm_scratch *scr, uint32_t *out, int *rc) {
-  int p = ps->patch;
   int ntx = (ps->tw + TS_PM_TILE - 1) / TS_PM_TILE;
   int x0 = (t % ntx) * TS_PM_TILE, y0 = (t / ntx) * TS_PM_TILE;
   int x1 = x0 + TS_PM_TILE < ps->tw ? x0 + TS_PM_TILE : ps->tw;
   int y1 = y0 + TS_PM_TILE < ps->th ? y0 + TS_PM_TILE : ps->th;
-  int ny = ps->src->h - p + 1;
-  size_t npatches = ps->k != 0 ? (size_t)(ps->src->w - p + 1) * (size_t)ny : 0;
-  *rc = scratch_ready(scr, npatches, query_bytes(ps->src, p));
-  if (*rc != 0) return 0;
+  *rc = 0;
+  scr->nmoves = 0;
   sweep sw;
   sweep_init(&sw, ps, scr);
   ts_rng rng;
   ts_rng_seed(&rng, ps->seed, ((uint64_t)ps->pass << 32) | (uint32_t)t);
   int back = ps->pass & 1, step = back ? -1 : 1;
   uint64_t total = 0;
-  for (int i = 0; i < y1 - y0; i++) {
+  for (int i = 0; i < y1 - y0 && *rc == 0; i++) {
     int y = back ? y1 - 1 - i : y0 + i;
-    for (int jj = 0; jj < x1 - x0; jj++) {
+    for (int jj = 0; jj < x1 - x0 && *rc == 0; jj++) {
       int x = back ? x1 - 1 - jj : x0 + jj;
       const uint32_t *cur = ps->in + 2 * ((size_t)y * (size_t)ps->tw + (size_t)x);
       best_t b = {0, cur[0], cur[1], patch_index(&sw, cur[0], cur[1])};
       query_load(&sw, x, y);
       b.d = distance(&sw, x, y, b.cx, b.cy, b.index, UINT64_MAX);
-      uint32_t was = b.index;
+      uint32_t was = b.index, was_x = b.cx, was_y = b.cy;
       try_neighbour(&sw, out, x0, y0, x1, y1, x, y, x - step, y, &b);
       try_neighbour(&sw, out, x0, y0, x1, y1, x, y, x, y - step, &b);
       random_search(&sw, &rng, x, y, &b);
@@ -364,16 +375,11 @@ uint64_t ts_pm_sweep_tile(const ts_pm_pass *ps, int t, ts_pm_scratch *scr, uint3
       o[0] = b.cx;
       o[1] = b.cy;
       total += b.d;
-      if (ps->k == 0 || b.index == was) continue;
-      if ((*rc = log_move(scr, was, b.index)) != 0) return 0;
-      du_move(&sw, scr->du, ny, was, -1);
-      du_move(&sw, scr->du, ny, b.index, 1);
+      if (sw.usage == NULL || b.index == was) continue;
+      if ((*rc = log_move(scr, was_x, was_y, b.cx, b.cy)) == 0) replay_move(&sw, scr->moves + scr->nmoves - 4, 1);
     }
   }
-  /* Undo the tile's moves so the scratch is zero for the next tile. */
-  for (size_t m = 0; m < scr->nmoves; m += 2) {
-    du_move(&sw, scr->du, ny, scr->moves[m], 1);
-    du_move(&sw, scr->du, ny, scr->moves[m + 1], -1);
-  }
-  return total;
+  /* Undo the tile's moves: the usage is the pass's input again. */
+  for (size_t m = 0; m < scr->nmoves; m += 4) replay_move(&sw, scr->moves + m, -1);
+  return *rc == 0 ? total : 0;
 }
