@@ -1,4 +1,6 @@
 /* patchmatch.c - tile sweeps of the PatchMatch field (patchmatch.h). */
+#include <stdalign.h>
+#include <stddef.h>
 #include <stdlib.h>
 #include <string.h>
 #ifdef __SSE2__
@@ -62,17 +64,18 @@ void ts_pm_image_free(ts_pm_image *im) {
 
 #define MAX_PATCH 45 /* p * p offsets fit TS_WIN_MAX_OFFSETS */
 
-/* ---- distance ---------------------------------------------------------- */
+/* ---- distance kernels -------------------------------------------------- */
 
 /* Where part k of a patch lies: the packed planes of source and target and
- * their strides; with SSE2, how the target's rows are cut into 16-byte
- * chunks. */
+ * their strides; with SSE2, how a patch row is cut into 16-byte chunks and
+ * the mask of its last chunk's bytes. */
 typedef struct {
   const uint8_t *src, *tgt;
   size_t src_row, tgt_row; /* bytes per image row */
   uint32_t ch, span;       /* bytes per pixel, per patch row */
   uint32_t nchunks;        /* 16-byte chunks per patch row */
   uint64_t weight;
+  alignas(16) uint8_t tail[16];
 } part_geom;
 
 /* What a sweep reads, resolved once per tile. */
@@ -80,18 +83,23 @@ typedef struct {
   const ts_pm_pass *ps;
   int p, r, nx, ny; /* nx x ny source patches */
   int cx_max, cy_max;
-  int nparts, scalar;
-  part_geom part[TS_L1_MAX_PARTS];
+  int nparts;
   uint32_t *usage; /* U_j now (scratch): NULL without a penalty */
   uint64_t k;
-  uint32_t tent[2 * MAX_PATCH]; /* p - |i - (p - 1)|: overlaps along an axis */
-  uint8_t *query; /* SSE2: the target patch, chunked and masked */
+  const uint32_t *area; /* overlap areas of two patches (scratch) */
+  uint8_t *query;       /* SSE2: the target patch, chunked and masked */
+  long radius[64];      /* the random search's: max(sw, sh) halved to 1 */
+  int nradii;
+  part_geom part[TS_L1_MAX_PARTS];
 } sweep;
 
-/* Index of the source patch centred at (cx, cy): its anchor index. */
-static inline uint32_t patch_index(const sweep *sw, uint32_t cx, uint32_t cy) {
-  return (cy - (uint32_t)sw->r) * (uint32_t)sw->nx + (cx - (uint32_t)sw->r);
-}
+/* A kernel: the weighted SAD of target pixel (x, y)'s patch and the source
+ * patch with top-left pixel (sx, sy). Once the sum exceeds bound it may
+ * stop: the value returned is then only known to exceed bound. Every kernel
+ * returns the same value whenever it is within bound. */
+typedef uint64_t patch_sad_fn(const sweep *sw, int x, int y, int sx, int sy, uint64_t bound);
+/* Makes target pixel (x, y) the query of the kernels that read one. */
+typedef void query_fn(sweep *sw, int x, int y);
 
 static uint32_t sad_scalar(const uint8_t *a, const uint8_t *b, uint32_t n) {
   uint32_t s = 0;
@@ -99,9 +107,7 @@ static uint32_t sad_scalar(const uint8_t *a, const uint8_t *b, uint32_t n) {
   return s;
 }
 
-/* Weighted SAD of target pixel (x, y)'s patch and the source patch with
- * top-left pixel (sx, sy), plain loops: the reference the SIMD path must
- * match. Stops once the sum exceeds bound. */
+/* Plain loops on the planes: the reference the SIMD kernels must match. */
 static uint64_t patch_sad_scalar(const sweep *sw, int x, int y, int sx, int sy, uint64_t bound) {
   uint64_t d = 0;
   for (int k = 0; k < sw->nparts && d <= bound; k++) {
@@ -115,23 +121,18 @@ static uint64_t patch_sad_scalar(const sweep *sw, int x, int y, int sx, int sy, 
   return d;
 }
 
+static void query_none(sweep *sw, int x, int y) { (void)sw, (void)x, (void)y; }
+
 #ifdef __SSE2__
-/* 16 bytes of 0xFF then 16 of 0: the mask of the first m bytes of a load
- * starts at 16 - m. */
-static const uint8_t kHeadMask[32] = {255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 255,
-                                      255, 255, 255, 255, 255};
-
-static inline __m128i head_mask(uint32_t m) { return _mm_loadu_si128((const __m128i *)(kHeadMask + 16 - m)); }
-
 /* Copies target pixel (x, y)'s patch into sw->query, each part row as
- * nchunks 16-byte chunks with the bytes past the span zeroed: it is read
- * by every candidate of the pixel. */
+ * nchunks 16-byte chunks with the bytes past the span zeroed: every
+ * candidate of the pixel reads it. */
 static void query_load_sse2(sweep *sw, int x, int y) {
   __m128i *q = (__m128i *)sw->query;
   for (int k = 0; k < sw->nparts; k++) {
     const part_geom *g = &sw->part[k];
     const uint8_t *t = g->tgt + (size_t)y * g->tgt_row + (size_t)x * g->ch;
-    __m128i tail = head_mask(g->span - 16 * (g->nchunks - 1));
+    __m128i tail = _mm_load_si128((const __m128i *)g->tail);
     for (int row = 0; row < sw->p; row++, t += g->tgt_row) {
       uint32_t c = 0;
       for (; c + 1 < g->nchunks; c++) _mm_store_si128(q++, _mm_loadu_si128((const __m128i *)(t + 16 * c)));
@@ -140,15 +141,21 @@ static void query_load_sse2(sweep *sw, int x, int y) {
   }
 }
 
-/* patch_sad_scalar against the query: source bytes past a row's span are
- * masked like the query's, so they add 0. */
-static uint64_t patch_sad_sse2(const sweep *sw, int sx, int sy, uint64_t bound) {
+/* The two 64-bit lanes of psadbw sums, added (each sum is below 2^32). */
+static inline uint32_t lanes_sum(__m128i acc) {
+  return (uint32_t)_mm_cvtsi128_si32(_mm_add_epi32(acc, _mm_unpackhi_epi64(acc, acc)));
+}
+
+/* Against the query: source bytes past a row's span are masked like the
+ * query's, so they add 0. */
+static uint64_t patch_sad_sse2(const sweep *sw, int x, int y, int sx, int sy, uint64_t bound) {
+  (void)x, (void)y;
   const __m128i *q = (const __m128i *)sw->query;
   uint64_t d = 0;
   for (int k = 0; k < sw->nparts && d <= bound; k++) {
     const part_geom *g = &sw->part[k];
     const uint8_t *s = g->src + (size_t)sy * g->src_row + (size_t)sx * g->ch;
-    __m128i tail = head_mask(g->span - 16 * (g->nchunks - 1)), acc = _mm_setzero_si128();
+    __m128i tail = _mm_load_si128((const __m128i *)g->tail), acc = _mm_setzero_si128();
     for (int row = 0; row < sw->p; row++, s += g->src_row) {
       uint32_t c = 0;
       for (; c + 1 < g->nchunks; c++)
@@ -156,10 +163,40 @@ static uint64_t patch_sad_sse2(const sweep *sw, int sx, int sy, uint64_t bound) 
       __m128i last = _mm_and_si128(_mm_loadu_si128((const __m128i *)(s + 16 * c)), tail);
       acc = _mm_add_epi64(acc, _mm_sad_epu8(last, _mm_load_si128(q++)));
     }
-    uint32_t sum = (uint32_t)(_mm_cvtsi128_si32(acc) + _mm_cvtsi128_si32(_mm_unpackhi_epi64(acc, acc)));
-    d += g->weight * sum;
+    d += g->weight * lanes_sum(acc);
   }
   return d;
+}
+
+/* patch_sad_sse2 when every part row fits one chunk, for a patch side p
+ * the compiler knows: the rows unrolled, no chunk loop. */
+static inline __attribute__((always_inline)) uint64_t patch_sad_narrow(const sweep *sw, int sx, int sy, uint64_t bound,
+                                                                       const int p) {
+  const __m128i *q = (const __m128i *)sw->query;
+  size_t px = (size_t)sy * (size_t)sw->ps->src->w + (size_t)sx;
+  uint64_t d = 0;
+  for (int k = 0; k < sw->nparts; k++, q += p) {
+    const part_geom *g = &sw->part[k];
+    const uint8_t *s = g->src + px * g->ch;
+    __m128i tail = _mm_load_si128((const __m128i *)g->tail), acc = _mm_setzero_si128();
+    for (int row = 0; row < p; row++) {
+      __m128i v = _mm_and_si128(_mm_loadu_si128((const __m128i *)(s + (size_t)row * g->src_row)), tail);
+      acc = _mm_add_epi32(acc, _mm_sad_epu8(v, _mm_load_si128(q + row)));
+    }
+    d += g->weight * lanes_sum(acc);
+    if (d > bound) break;
+  }
+  return d;
+}
+
+static uint64_t patch_sad_narrow3(const sweep *sw, int x, int y, int sx, int sy, uint64_t bound) {
+  (void)x, (void)y;
+  return patch_sad_narrow(sw, sx, sy, bound, 3);
+}
+
+static uint64_t patch_sad_narrow5(const sweep *sw, int x, int y, int sx, int sy, uint64_t bound) {
+  (void)x, (void)y;
+  return patch_sad_narrow(sw, sx, sy, bound, 5);
 }
 #endif
 
@@ -168,31 +205,6 @@ static size_t query_bytes(const ts_pm_image *src, int p) {
   size_t n = 0;
   for (int k = 0; k < src->nparts; k++) n += (size_t)p * (((size_t)p * src->ch[k] + 15) / 16) * 16;
   return n;
-}
-
-/* Makes target pixel (x, y) the one candidates are compared with. */
-static void query_load(sweep *sw, int x, int y) {
-#ifdef __SSE2__
-  if (!sw->scalar) query_load_sse2(sw, x, y);
-#else
-  (void)sw, (void)x, (void)y;
-#endif
-}
-
-/* Distance of target pixel (x, y) (the loaded query) to the source patch
- * j centred at (cx, cy), stopping early once it exceeds bound (the value
- * returned is then only known to exceed it). The penalty comes last: a
- * candidate the patch already rules out never reads the usage. */
-static uint64_t distance(const sweep *sw, int x, int y, uint32_t cx, uint32_t cy, uint32_t j, uint64_t bound) {
-  int sx = (int)cx - sw->r, sy = (int)cy - sw->r;
-  uint64_t d;
-#ifdef __SSE2__
-  if (!sw->scalar) d = patch_sad_sse2(sw, sx, sy, bound);
-  else
-#endif
-    d = patch_sad_scalar(sw, x, y, sx, sy, bound);
-  if (sw->usage != NULL && d <= bound) d += ts_usage_penalty(sw->usage[j], sw->k);
-  return d;
 }
 
 /* ---- occurrences ------------------------------------------------------- */
@@ -227,38 +239,44 @@ void ts_pm_block_sums(const uint32_t *counts, int p, int sw, int sh, uint32_t *c
 
 /* ---- the tile's own moves ---------------------------------------------- */
 
-/* U_j of every source patch overlapping the one at anchor (ax, ay) changes
- * by delta times the overlap's area, (p - |dx|) * (p - |dy|). Unsigned
- * arithmetic wraps, so a move and its undoing cancel exactly. */
-static void usage_move(const sweep *sw, int ax, int ay, int32_t delta) {
-  int p = sw->p, reach = p - 1;
+/* U_j of every source patch overlapping the one at anchor (ax, ay) grows
+ * (sign 1) or shrinks (-1) by the overlap's area. Unsigned arithmetic
+ * wraps, so a move and its undoing cancel exactly. */
+static void usage_move(const sweep *sw, int ax, int ay, int sign) {
+  int p = sw->p, reach = p - 1, side = 2 * p - 1;
   int x0 = ax > reach ? ax - reach : 0, x1 = ax + p < sw->nx ? ax + p : sw->nx;
   int y0 = ay > reach ? ay - reach : 0, y1 = ay + p < sw->ny ? ay + p : sw->ny;
-  const uint32_t *wx = sw->tent + (x0 - ax + reach);
   for (int y = y0; y < y1; y++) {
-    uint32_t f = (uint32_t)delta * sw->tent[y - ay + reach];
-    uint32_t *row = sw->usage + (size_t)y * (size_t)sw->nx + (size_t)x0;
-    for (int i = 0; i < x1 - x0; i++) row[i] += f * wx[i];
+    uint32_t *restrict row = sw->usage + (size_t)y * (size_t)sw->nx + (size_t)x0;
+    const uint32_t *restrict a = sw->area + (size_t)(y - ay + reach) * (size_t)side + (size_t)(x0 - ax + reach);
+    if (sign > 0)
+      for (int i = 0; i < x1 - x0; i++) row[i] += a[i];
+    else
+      for (int i = 0; i < x1 - x0; i++) row[i] -= a[i];
   }
 }
 
+/* Grows *buf to n elements of size bytes (contents lost): 0 or TS_ENOMEM. */
+static int buffer_reserve(void **buf, size_t *cap, size_t n, size_t size) {
+  if (n <= *cap) return 0;
+  free(*buf);
+  *buf = aligned_alloc(16, (n * size + 15) / 16 * 16);
+  *cap = *buf != NULL ? n : 0;
+  return *buf != NULL ? 0 : TS_ENOMEM;
+}
+
 int ts_pm_scratch_begin(ts_pm_scratch *scr, const ts_pm_pass *ps) {
-  size_t query = query_bytes(ps->src, ps->patch);
-  if (query > scr->query_cap) {
-    free(scr->query);
-    scr->query = aligned_alloc(16, query);
-    scr->query_cap = scr->query != NULL ? query : 0;
-    if (scr->query == NULL) return TS_ENOMEM;
-  }
+  int p = ps->patch, side = 2 * p - 1;
+  size_t npatches = (size_t)(ps->src->w - p + 1) * (size_t)(ps->src->h - p + 1);
+  if (buffer_reserve((void **)&scr->query, &scr->query_cap, query_bytes(ps->src, p), 1) != 0) return TS_ENOMEM;
   if (ps->k == 0) return 0;
-  size_t n = (size_t)(ps->src->w - ps->patch + 1) * (size_t)(ps->src->h - ps->patch + 1);
-  if (n > scr->usage_cap) {
-    free(scr->usage);
-    scr->usage = malloc(n * sizeof(*scr->usage));
-    scr->usage_cap = scr->usage != NULL ? n : 0;
-    if (scr->usage == NULL) return TS_ENOMEM;
-  }
-  memcpy(scr->usage, ps->ublock, n * sizeof(*scr->usage));
+  if (buffer_reserve((void **)&scr->usage, &scr->usage_cap, npatches, sizeof(*scr->usage)) != 0 ||
+      buffer_reserve((void **)&scr->area, &scr->area_cap, (size_t)side * (size_t)side, sizeof(*scr->area)) != 0)
+    return TS_ENOMEM;
+  memcpy(scr->usage, ps->ublock, npatches * sizeof(*scr->usage));
+  for (int dy = 0; dy < side; dy++)
+    for (int dx = 0; dx < side; dx++)
+      scr->area[dy * side + dx] = (uint32_t)((p - abs(dy - (p - 1))) * (p - abs(dx - (p - 1))));
   return 0;
 }
 
@@ -278,7 +296,7 @@ static int log_move(ts_pm_scratch *scr, uint32_t fx, uint32_t fy, uint32_t tx, u
 }
 
 /* Applies (sign 1) or undoes (-1) a logged move. */
-static void replay_move(const sweep *sw, const uint32_t *m, int32_t sign) {
+static void replay_move(const sweep *sw, const uint32_t *m, int sign) {
   usage_move(sw, (int)m[0] - sw->r, (int)m[1] - sw->r, -sign);
   usage_move(sw, (int)m[2] - sw->r, (int)m[3] - sw->r, sign);
 }
@@ -287,6 +305,7 @@ void ts_pm_scratch_free(ts_pm_scratch *scr) {
   free(scr->usage);
   free(scr->moves);
   free(scr->query);
+  free(scr->area);
   memset(scr, 0, sizeof(*scr));
 }
 
@@ -301,84 +320,168 @@ typedef struct {
   uint32_t cx, cy, index;
 } best_t;
 
-static void try_centre(const sweep *sw, int x, int y, long cx, long cy, best_t *b) {
-  if (cx < sw->r || cy < sw->r || cx > sw->cx_max || cy > sw->cy_max) return;
-  uint32_t j = patch_index(sw, (uint32_t)cx, (uint32_t)cy);
-  if (j == b->index) return;
-  uint64_t d = distance(sw, x, y, (uint32_t)cx, (uint32_t)cy, j, b->d);
-  if (d < b->d || (d == b->d && j < b->index)) *b = (best_t){d, (uint32_t)cx, (uint32_t)cy, j};
+/* Index of the source patch centred at (cx, cy): its anchor index. */
+static inline uint32_t patch_index(const sweep *sw, uint32_t cx, uint32_t cy) {
+  return (cy - (uint32_t)sw->r) * (uint32_t)sw->nx + (cx - (uint32_t)sw->r);
 }
 
-static long clampl(long v, long lo, long hi) { return v < lo ? lo : v > hi ? hi : v; }
+/* Distance of target pixel (x, y) to source patch j centred at (cx, cy), as
+ * the kernel's: exact within bound. The penalty comes last, so a candidate
+ * the patch alone rules out never reads the usage. */
+static inline __attribute__((always_inline)) uint64_t distance(const sweep *sw, patch_sad_fn *sad, int x, int y,
+                                                               uint32_t cx, uint32_t cy, uint32_t j, uint64_t bound) {
+  uint64_t d = sad(sw, x, y, (int)cx - sw->r, (int)cy - sw->r, bound);
+  if (sw->usage != NULL && d <= bound) d += ts_usage_penalty(sw->usage[j], sw->k);
+  return d;
+}
 
-/* The match of neighbour (nx, ny) of (x, y), shifted by the step back to
+/* Keeps the candidate centred at (cx, cy), a patch centre, when strictly
+ * better: a smaller distance, or an equal one at a lower index. */
+static inline __attribute__((always_inline)) void try_centre(const sweep *sw, patch_sad_fn *sad, int x, int y,
+                                                             uint32_t cx, uint32_t cy, best_t *b) {
+  uint32_t j = patch_index(sw, cx, cy);
+  if (j == b->index) return;
+  uint64_t d = distance(sw, sad, x, y, cx, cy, j, b->d);
+  if (d < b->d || (d == b->d && j < b->index)) *b = (best_t){d, cx, cy, j};
+}
+
+static inline long clampl(long v, long lo, long hi) { return v < lo ? lo : v > hi ? hi : v; }
+
+/* Where a sweep stands: the tile, its direction, the fields. */
+typedef struct {
+  int x0, y0, x1, y1;
+  int back;
+  const uint32_t *in;
+  uint32_t *out;
+} tile_pos;
+
+/* The match of neighbour (nbx, nby) of (x, y), shifted by the step back to
  * (x, y): from this pass when it lies in the tile, else from the input. */
-static void try_neighbour(const sweep *sw, const uint32_t *out, int x0, int y0, int x1, int y1, int x, int y, int nbx,
-                          int nby, best_t *b) {
+static inline __attribute__((always_inline)) void try_neighbour(const sweep *sw, patch_sad_fn *sad, const tile_pos *tp,
+                                                                int x, int y, int nbx, int nby, best_t *b) {
   const ts_pm_pass *ps = sw->ps;
   if (nbx < 0 || nby < 0 || nbx >= ps->tw || nby >= ps->th) return;
-  int inside = nbx >= x0 && nbx < x1 && nby >= y0 && nby < y1;
-  const uint32_t *f = (inside ? out : ps->in) + 2 * ((size_t)nby * (size_t)ps->tw + (size_t)nbx);
-  try_centre(sw, x, y, (long)f[0] + (x - nbx), (long)f[1] + (y - nby), b);
+  int inside = nbx >= tp->x0 && nbx < tp->x1 && nby >= tp->y0 && nby < tp->y1;
+  const uint32_t *f = (inside ? tp->out : tp->in) + 2 * ((size_t)nby * (size_t)ps->tw + (size_t)nbx);
+  long cx = (long)f[0] + (x - nbx), cy = (long)f[1] + (y - nby);
+  if (cx < sw->r || cy < sw->r || cx > sw->cx_max || cy > sw->cy_max) return;
+  try_centre(sw, sad, x, y, (uint32_t)cx, (uint32_t)cy, b);
 }
 
-static void random_search(const sweep *sw, ts_rng *rng, int x, int y, best_t *b) {
-  long radius = sw->ps->src->w > sw->ps->src->h ? sw->ps->src->w : sw->ps->src->h;
-  for (; radius >= 1; radius /= 2) {
+static inline __attribute__((always_inline)) void random_search(const sweep *sw, patch_sad_fn *sad, ts_rng *rng, int x,
+                                                                int y, best_t *b) {
+  for (int i = 0; i < sw->nradii; i++) {
+    long radius = sw->radius[i];
     long cx = (long)b->cx + (long)ts_rng_below(rng, (uint32_t)(2 * radius + 1)) - radius;
     long cy = (long)b->cy + (long)ts_rng_below(rng, (uint32_t)(2 * radius + 1)) - radius;
-    try_centre(sw, x, y, clampl(cx, sw->r, sw->cx_max), clampl(cy, sw->r, sw->cy_max), b);
+    try_centre(sw, sad, x, y, (uint32_t)clampl(cx, sw->r, sw->cx_max), (uint32_t)clampl(cy, sw->r, sw->cy_max), b);
   }
 }
 
 /* Resolves what tile sweeps of a pass read. */
-static void sweep_init(sweep *sw, const ts_pm_pass *ps, ts_pm_scratch *scr) {
+static void sweep_init(sweep *sw, const ts_pm_pass *ps, const ts_pm_scratch *scr) {
   int p = ps->patch, r = p / 2;
-  *sw = (sweep){ps, p, r, ps->src->w - p + 1, ps->src->h - p + 1, ps->src->w - 1 - r, ps->src->h - 1 - r, ps->src->nparts, ps->scalar};
+  memset(sw, 0, offsetof(sweep, part));
+  sw->ps = ps;
+  sw->p = p;
+  sw->r = r;
+  sw->nx = ps->src->w - p + 1;
+  sw->ny = ps->src->h - p + 1;
+  sw->cx_max = ps->src->w - 1 - r;
+  sw->cy_max = ps->src->h - 1 - r;
+  sw->nparts = ps->src->nparts;
   for (int k = 0; k < sw->nparts; k++) {
-    uint32_t ch = ps->src->ch[k];
-    sw->part[k] = (part_geom){ps->src->part[k], ps->tgt->part[k], (size_t)ps->src->w * ch, (size_t)ps->tgt->w * ch, ch,
-                              (uint32_t)p * ch, ((uint32_t)p * ch + 15) / 16, ps->win->spec.part[k].weight};
+    part_geom *g = &sw->part[k];
+    g->ch = ps->src->ch[k];
+    g->src = ps->src->part[k];
+    g->tgt = ps->tgt->part[k];
+    g->src_row = (size_t)ps->src->w * g->ch;
+    g->tgt_row = (size_t)ps->tgt->w * g->ch;
+    g->span = (uint32_t)p * g->ch;
+    g->nchunks = (g->span + 15) / 16;
+    g->weight = ps->win->spec.part[k].weight;
+    uint32_t last = g->span - 16 * (g->nchunks - 1);
+    for (uint32_t i = 0; i < 16; i++) g->tail[i] = i < last ? 0xFF : 0;
   }
   sw->usage = ps->k != 0 ? scr->usage : NULL;
   sw->k = ps->k;
+  sw->area = scr->area;
   sw->query = scr->query;
-  for (int i = 0; i < 2 * p - 1; i++) sw->tent[i] = (uint32_t)(p - (i < p ? p - 1 - i : i - (p - 1)));
+  for (long radius = ps->src->w > ps->src->h ? ps->src->w : ps->src->h; radius >= 1; radius /= 2)
+    sw->radius[sw->nradii++] = radius;
+}
+
+/* The tile's pixels in sweep order, each trying its own match, its two
+ * neighbours' and the random candidates: the sweep with one kernel, which
+ * the compiler inlines. */
+static inline __attribute__((always_inline)) uint64_t sweep_pixels(sweep *sw, const tile_pos *tp, ts_pm_scratch *scr,
+                                                                  ts_rng *rng, query_fn *load, patch_sad_fn *sad,
+                                                                  int *rc) {
+  const ts_pm_pass *ps = sw->ps;
+  int step = tp->back ? -1 : 1;
+  uint64_t total = 0;
+  for (int i = 0; i < tp->y1 - tp->y0 && *rc == 0; i++) {
+    int y = tp->back ? tp->y1 - 1 - i : tp->y0 + i;
+    for (int jj = 0; jj < tp->x1 - tp->x0 && *rc == 0; jj++) {
+      int x = tp->back ? tp->x1 - 1 - jj : tp->x0 + jj;
+      size_t at = 2 * ((size_t)y * (size_t)ps->tw + (size_t)x);
+      best_t b = {0, tp->in[at], tp->in[at + 1], patch_index(sw, tp->in[at], tp->in[at + 1])};
+      load(sw, x, y);
+      b.d = distance(sw, sad, x, y, b.cx, b.cy, b.index, UINT64_MAX);
+      best_t was = b;
+      try_neighbour(sw, sad, tp, x, y, x - step, y, &b);
+      try_neighbour(sw, sad, tp, x, y, x, y - step, &b);
+      random_search(sw, sad, rng, x, y, &b);
+      tp->out[at] = b.cx;
+      tp->out[at + 1] = b.cy;
+      total += b.d;
+      if (sw->usage == NULL || b.index == was.index) continue;
+      if ((*rc = log_move(scr, was.cx, was.cy, b.cx, b.cy)) == 0) replay_move(sw, scr->moves + scr->nmoves - 4, 1);
+    }
+  }
+  return total;
+}
+
+#define SWEEP_WITH(name, load, sad)                                                                           \
+  static uint64_t name(sweep *sw, const tile_pos *tp, ts_pm_scratch *scr, ts_rng *rng, int *rc) {           \
+    return sweep_pixels(sw, tp, scr, rng, load, sad, rc);                                                    \
+  }
+SWEEP_WITH(sweep_scalar, query_none, patch_sad_scalar)
+#ifdef __SSE2__
+SWEEP_WITH(sweep_sse2, query_load_sse2, patch_sad_sse2)
+SWEEP_WITH(sweep_narrow3, query_load_sse2, patch_sad_narrow3)
+SWEEP_WITH(sweep_narrow5, query_load_sse2, patch_sad_narrow5)
+#endif
+
+typedef uint64_t sweep_fn(sweep *sw, const tile_pos *tp, ts_pm_scratch *scr, ts_rng *rng, int *rc);
+
+/* The sweep of the pass's variant: scalar, or SSE2 with the rows unrolled
+ * for patches 3 and 5 when each part row fits a chunk. */
+static sweep_fn *sweep_variant(const sweep *sw) {
+#ifdef __SSE2__
+  if (sw->ps->scalar) return sweep_scalar;
+  int narrow = 1;
+  for (int k = 0; k < sw->nparts; k++) narrow &= sw->part[k].nchunks == 1;
+  if (narrow && sw->p == 3) return sweep_narrow3;
+  if (narrow && sw->p == 5) return sweep_narrow5;
+  return sweep_sse2;
+#else
+  return sweep_scalar;
+#endif
 }
 
 uint64_t ts_pm_sweep_tile(const ts_pm_pass *ps, int t, ts_pm_scratch *scr, uint32_t *out, int *rc) {
   int ntx = (ps->tw + TS_PM_TILE - 1) / TS_PM_TILE;
-  int x0 = (t % ntx) * TS_PM_TILE, y0 = (t / ntx) * TS_PM_TILE;
-  int x1 = x0 + TS_PM_TILE < ps->tw ? x0 + TS_PM_TILE : ps->tw;
-  int y1 = y0 + TS_PM_TILE < ps->th ? y0 + TS_PM_TILE : ps->th;
+  tile_pos tp = {(t % ntx) * TS_PM_TILE, (t / ntx) * TS_PM_TILE, 0, 0, (int)(ps->pass & 1), ps->in, out};
+  tp.x1 = tp.x0 + TS_PM_TILE < ps->tw ? tp.x0 + TS_PM_TILE : ps->tw;
+  tp.y1 = tp.y0 + TS_PM_TILE < ps->th ? tp.y0 + TS_PM_TILE : ps->th;
   *rc = 0;
   scr->nmoves = 0;
   sweep sw;
   sweep_init(&sw, ps, scr);
   ts_rng rng;
   ts_rng_seed(&rng, ps->seed, ((uint64_t)ps->pass << 32) | (uint32_t)t);
-  int back = ps->pass & 1, step = back ? -1 : 1;
-  uint64_t total = 0;
-  for (int i = 0; i < y1 - y0 && *rc == 0; i++) {
-    int y = back ? y1 - 1 - i : y0 + i;
-    for (int jj = 0; jj < x1 - x0 && *rc == 0; jj++) {
-      int x = back ? x1 - 1 - jj : x0 + jj;
-      const uint32_t *cur = ps->in + 2 * ((size_t)y * (size_t)ps->tw + (size_t)x);
-      best_t b = {0, cur[0], cur[1], patch_index(&sw, cur[0], cur[1])};
-      query_load(&sw, x, y);
-      b.d = distance(&sw, x, y, b.cx, b.cy, b.index, UINT64_MAX);
-      uint32_t was = b.index, was_x = b.cx, was_y = b.cy;
-      try_neighbour(&sw, out, x0, y0, x1, y1, x, y, x - step, y, &b);
-      try_neighbour(&sw, out, x0, y0, x1, y1, x, y, x, y - step, &b);
-      random_search(&sw, &rng, x, y, &b);
-      uint32_t *o = out + 2 * ((size_t)y * (size_t)ps->tw + (size_t)x);
-      o[0] = b.cx;
-      o[1] = b.cy;
-      total += b.d;
-      if (sw.usage == NULL || b.index == was) continue;
-      if ((*rc = log_move(scr, was_x, was_y, b.cx, b.cy)) == 0) replay_move(&sw, scr->moves + scr->nmoves - 4, 1);
-    }
-  }
+  uint64_t total = sweep_variant(&sw)(&sw, &tp, scr, &rng, rc);
   /* Undo the tile's moves: the usage is the pass's input again. */
   for (size_t m = 0; m < scr->nmoves; m += 4) replay_move(&sw, scr->moves + m, -1);
   return *rc == 0 ? total : 0;

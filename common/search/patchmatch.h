@@ -81,6 +81,8 @@ typedef struct {
   size_t nmoves, cap;
   uint8_t *query;  /* the target patch a pixel's candidates are compared with */
   size_t query_cap;
+  uint32_t *area;  /* overlap areas of two patches, (2p - 1)^2 offsets */
+  size_t area_cap;
 } ts_pm_scratch;
 
 int ts_pm_tiles(int tw, int th);
