@@ -62,7 +62,7 @@ void ts_pm_image_free(ts_pm_image *im) {
   memset(im, 0, sizeof(*im));
 }
 
-#define MAX_PATCH 45 /* p * p offsets fit TS_WIN_MAX_OFFSETS */
+#define AREA_PAD 3 /* zero overlap areas after each row, usage entries after the last */
 
 /* ---- distance kernels -------------------------------------------------- */
 
@@ -179,6 +179,7 @@ static inline __attribute__((always_inline)) uint64_t patch_sad_narrow(const swe
     const part_geom *g = &sw->part[k];
     const uint8_t *s = g->src + px * g->ch;
     __m128i tail = _mm_load_si128((const __m128i *)g->tail), acc = _mm_setzero_si128();
+#pragma GCC unroll 8
     for (int row = 0; row < p; row++) {
       __m128i v = _mm_and_si128(_mm_loadu_si128((const __m128i *)(s + (size_t)row * g->src_row)), tail);
       acc = _mm_add_epi32(acc, _mm_sad_epu8(v, _mm_load_si128(q + row)));
@@ -189,12 +190,12 @@ static inline __attribute__((always_inline)) uint64_t patch_sad_narrow(const swe
   return d;
 }
 
-static uint64_t patch_sad_narrow3(const sweep *sw, int x, int y, int sx, int sy, uint64_t bound) {
+static inline __attribute__((always_inline)) uint64_t patch_sad_narrow3(const sweep *sw, int x, int y, int sx, int sy, uint64_t bound) {
   (void)x, (void)y;
   return patch_sad_narrow(sw, sx, sy, bound, 3);
 }
 
-static uint64_t patch_sad_narrow5(const sweep *sw, int x, int y, int sx, int sy, uint64_t bound) {
+static inline __attribute__((always_inline)) uint64_t patch_sad_narrow5(const sweep *sw, int x, int y, int sx, int sy, uint64_t bound) {
   (void)x, (void)y;
   return patch_sad_narrow(sw, sx, sy, bound, 5);
 }
@@ -239,21 +240,35 @@ void ts_pm_block_sums(const uint32_t *counts, int p, int sw, int sh, uint32_t *c
 
 /* ---- the tile's own moves ---------------------------------------------- */
 
+/* row[i] += a[i] for n entries, or -= a[i] when neg is all ones ((a ^ neg)
+ * - neg is a or -a). padded: a row of areas that runs to its end, so in
+ * fours the up to 3 entries past n add its zero padding (AREA_PAD). */
+static void add_row(uint32_t *restrict row, const uint32_t *restrict a, int n, uint32_t neg, int padded) {
+  int i = 0;
+#ifdef __SSE2__
+  __m128i m = _mm_set1_epi32((int)neg);
+  for (; padded && i < n; i += 4) {
+    __m128i v = _mm_sub_epi32(_mm_xor_si128(_mm_loadu_si128((const __m128i *)(a + i)), m), m);
+    _mm_storeu_si128((__m128i *)(row + i), _mm_add_epi32(_mm_loadu_si128((const __m128i *)(row + i)), v));
+  }
+#else
+  (void)padded;
+#endif
+  for (; i < n; i++) row[i] += (a[i] ^ neg) - neg;
+}
+
 /* U_j of every source patch overlapping the one at anchor (ax, ay) grows
  * (sign 1) or shrinks (-1) by the overlap's area. Unsigned arithmetic
  * wraps, so a move and its undoing cancel exactly. */
 static void usage_move(const sweep *sw, int ax, int ay, int sign) {
-  int p = sw->p, reach = p - 1, side = 2 * p - 1;
+  int p = sw->p, reach = p - 1, stride = 2 * p - 1 + AREA_PAD;
   int x0 = ax > reach ? ax - reach : 0, x1 = ax + p < sw->nx ? ax + p : sw->nx;
   int y0 = ay > reach ? ay - reach : 0, y1 = ay + p < sw->ny ? ay + p : sw->ny;
-  for (int y = y0; y < y1; y++) {
-    uint32_t *restrict row = sw->usage + (size_t)y * (size_t)sw->nx + (size_t)x0;
-    const uint32_t *restrict a = sw->area + (size_t)(y - ay + reach) * (size_t)side + (size_t)(x0 - ax + reach);
-    if (sign > 0)
-      for (int i = 0; i < x1 - x0; i++) row[i] += a[i];
-    else
-      for (int i = 0; i < x1 - x0; i++) row[i] -= a[i];
-  }
+  uint32_t neg = sign > 0 ? 0 : UINT32_MAX;
+  int padded = x1 == ax + p; /* not cut by the right edge */
+  for (int y = y0; y < y1; y++)
+    add_row(sw->usage + (size_t)y * (size_t)sw->nx + (size_t)x0,
+            sw->area + (size_t)(y - ay + reach) * (size_t)stride + (size_t)(x0 - ax + reach), x1 - x0, neg, padded);
 }
 
 /* Grows *buf to n elements of size bytes (contents lost): 0 or TS_ENOMEM. */
@@ -266,17 +281,17 @@ static int buffer_reserve(void **buf, size_t *cap, size_t n, size_t size) {
 }
 
 int ts_pm_scratch_begin(ts_pm_scratch *scr, const ts_pm_pass *ps) {
-  int p = ps->patch, side = 2 * p - 1;
+  int p = ps->patch, side = 2 * p - 1, stride = side + AREA_PAD;
   size_t npatches = (size_t)(ps->src->w - p + 1) * (size_t)(ps->src->h - p + 1);
   if (buffer_reserve((void **)&scr->query, &scr->query_cap, query_bytes(ps->src, p), 1) != 0) return TS_ENOMEM;
   if (ps->k == 0) return 0;
-  if (buffer_reserve((void **)&scr->usage, &scr->usage_cap, npatches, sizeof(*scr->usage)) != 0 ||
-      buffer_reserve((void **)&scr->area, &scr->area_cap, (size_t)side * (size_t)side, sizeof(*scr->area)) != 0)
+  if (buffer_reserve((void **)&scr->usage, &scr->usage_cap, npatches + AREA_PAD, sizeof(*scr->usage)) != 0 ||
+      buffer_reserve((void **)&scr->area, &scr->area_cap, (size_t)side * (size_t)stride, sizeof(*scr->area)) != 0)
     return TS_ENOMEM;
   memcpy(scr->usage, ps->ublock, npatches * sizeof(*scr->usage));
   for (int dy = 0; dy < side; dy++)
-    for (int dx = 0; dx < side; dx++)
-      scr->area[dy * side + dx] = (uint32_t)((p - abs(dy - (p - 1))) * (p - abs(dx - (p - 1))));
+    for (int dx = 0; dx < stride; dx++)
+      scr->area[dy * stride + dx] = dx < side ? (uint32_t)((p - abs(dy - (p - 1))) * (p - abs(dx - (p - 1)))) : 0;
   return 0;
 }
 
