@@ -190,6 +190,27 @@ static inline __attribute__((always_inline)) uint64_t patch_sad_narrow(const swe
   return d;
 }
 
+/* query_load_sse2 when every part row fits one chunk, patch side p known. */
+static inline __attribute__((always_inline)) void query_load_narrow(sweep *sw, int x, int y, const int p) {
+  __m128i *q = (__m128i *)sw->query;
+  for (int k = 0; k < sw->nparts; k++, q += p) {
+    const part_geom *g = &sw->part[k];
+    const uint8_t *t = g->tgt + (size_t)y * g->tgt_row + (size_t)x * g->ch;
+    __m128i tail = _mm_load_si128((const __m128i *)g->tail);
+#pragma GCC unroll 8
+    for (int row = 0; row < p; row++)
+      _mm_store_si128(q + row, _mm_and_si128(_mm_loadu_si128((const __m128i *)(t + (size_t)row * g->tgt_row)), tail));
+  }
+}
+
+static inline __attribute__((always_inline)) void query_load_narrow3(sweep *sw, int x, int y) {
+  query_load_narrow(sw, x, y, 3);
+}
+
+static inline __attribute__((always_inline)) void query_load_narrow5(sweep *sw, int x, int y) {
+  query_load_narrow(sw, x, y, 5);
+}
+
 static inline __attribute__((always_inline)) uint64_t patch_sad_narrow3(const sweep *sw, int x, int y, int sx, int sy, uint64_t bound) {
   (void)x, (void)y;
   return patch_sad_narrow(sw, sx, sy, bound, 3);
@@ -464,8 +485,8 @@ static inline __attribute__((always_inline)) uint64_t sweep_pixels(sweep *sw, co
 SWEEP_WITH(sweep_scalar, query_none, patch_sad_scalar)
 #ifdef __SSE2__
 SWEEP_WITH(sweep_sse2, query_load_sse2, patch_sad_sse2)
-SWEEP_WITH(sweep_narrow3, query_load_sse2, patch_sad_narrow3)
-SWEEP_WITH(sweep_narrow5, query_load_sse2, patch_sad_narrow5)
+SWEEP_WITH(sweep_narrow3, query_load_narrow3, patch_sad_narrow3)
+SWEEP_WITH(sweep_narrow5, query_load_narrow5, patch_sad_narrow5)
 #endif
 
 typedef uint64_t sweep_fn(sweep *sw, const tile_pos *tp, ts_pm_scratch *scr, ts_rng *rng, int *rc);
