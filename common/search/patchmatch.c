@@ -264,10 +264,12 @@ void ts_pm_block_sums(const uint32_t *counts, int p, int sw, int sh, uint32_t *c
 /* row[i] += a[i] for n entries, or -= a[i] when neg is all ones ((a ^ neg)
  * - neg is a or -a). padded: a row of areas that runs to its end, so in
  * fours the up to 3 entries past n add its zero padding (AREA_PAD). */
-static void add_row(uint32_t *restrict row, const uint32_t *restrict a, int n, uint32_t neg, int padded) {
+static inline __attribute__((always_inline)) void add_row(uint32_t *restrict row, const uint32_t *restrict a, int n,
+                                                          uint32_t neg, int padded) {
   int i = 0;
 #ifdef __SSE2__
   __m128i m = _mm_set1_epi32((int)neg);
+#pragma GCC unroll 4
   for (; padded && i < n; i += 4) {
     __m128i v = _mm_sub_epi32(_mm_xor_si128(_mm_loadu_si128((const __m128i *)(a + i)), m), m);
     _mm_storeu_si128((__m128i *)(row + i), _mm_add_epi32(_mm_loadu_si128((const __m128i *)(row + i)), v));
@@ -331,10 +333,39 @@ static int log_move(ts_pm_scratch *scr, uint32_t fx, uint32_t fy, uint32_t tx, u
   return 0;
 }
 
-/* Applies (sign 1) or undoes (-1) a logged move. */
-static void replay_move(const sweep *sw, const uint32_t *m, int sign) {
-  usage_move(sw, (int)m[0] - sw->r, (int)m[1] - sw->r, -sign);
-  usage_move(sw, (int)m[2] - sw->r, (int)m[3] - sw->r, sign);
+/* usage_move with a patch side p the compiler knows (0: sw->p, unknown):
+ * a patch clear of the edges takes its rows unrolled. */
+static inline __attribute__((always_inline)) void usage_move_fixed(const sweep *sw, int ax, int ay, int sign,
+                                                                   const int p) {
+  if (p == 0 || ax < p - 1 || ay < p - 1 || ax + p > sw->nx || ay + p > sw->ny) {
+    usage_move(sw, ax, ay, sign);
+    return;
+  }
+  uint32_t neg = sign > 0 ? 0 : UINT32_MAX;
+  uint32_t *row = sw->usage + (size_t)(ay - (p - 1)) * (size_t)sw->nx + (size_t)(ax - (p - 1));
+  const uint32_t *a = sw->area;
+#pragma GCC unroll 16
+  for (int y = 0; y < 2 * p - 1; y++, row += sw->nx, a += 2 * p - 1 + AREA_PAD) add_row(row, a, 2 * p - 1, neg, 1);
+}
+
+/* Applies (sign 1) or undoes (-1) a logged move; p as usage_move_fixed's. */
+static inline __attribute__((always_inline)) void replay_move_fixed(const sweep *sw, const uint32_t *m, int sign,
+                                                                    const int p) {
+  usage_move_fixed(sw, (int)m[0] - sw->r, (int)m[1] - sw->r, -sign, p);
+  usage_move_fixed(sw, (int)m[2] - sw->r, (int)m[3] - sw->r, sign, p);
+}
+
+/* The replays a sweep calls: never inlined, as they would crowd the
+ * registers of the sweep's loop (which then runs slower). */
+typedef void replay_fn(const sweep *sw, const uint32_t *m, int sign);
+static __attribute__((noinline)) void replay_any(const sweep *sw, const uint32_t *m, int sign) {
+  replay_move_fixed(sw, m, sign, 0);
+}
+static __attribute__((noinline)) void replay_p3(const sweep *sw, const uint32_t *m, int sign) {
+  replay_move_fixed(sw, m, sign, 3);
+}
+static __attribute__((noinline)) void replay_p5(const sweep *sw, const uint32_t *m, int sign) {
+  replay_move_fixed(sw, m, sign, 5);
 }
 
 void ts_pm_scratch_free(ts_pm_scratch *scr) {
@@ -448,14 +479,16 @@ static void sweep_init(sweep *sw, const ts_pm_pass *ps, const ts_pm_scratch *scr
 }
 
 /* The tile's pixels in sweep order, each trying its own match, its two
- * neighbours' and the random candidates: the sweep with one kernel, which
- * the compiler inlines. */
+ * neighbours' and the random candidates, then the tile's moves undone (the
+ * usage is the pass's input again): the sweep with one kernel, which the
+ * compiler inlines, and one replay of moves. */
 static inline __attribute__((always_inline)) uint64_t sweep_pixels(sweep *sw, const tile_pos *tp, ts_pm_scratch *scr,
-                                                                  ts_rng *rng, query_fn *load, patch_sad_fn *sad,
-                                                                  int *rc) {
+                                                                  ts_rng *stream, query_fn *load, patch_sad_fn *sad,
+                                                                  replay_fn *replay, int *rc) {
   const ts_pm_pass *ps = sw->ps;
   int step = tp->back ? -1 : 1;
   uint64_t total = 0;
+  ts_rng rng_copy = *stream, *rng = &rng_copy; /* a local the compiler keeps in registers */
   for (int i = 0; i < tp->y1 - tp->y0 && *rc == 0; i++) {
     int y = tp->back ? tp->y1 - 1 - i : tp->y0 + i;
     for (int jj = 0; jj < tp->x1 - tp->x0 && *rc == 0; jj++) {
@@ -472,21 +505,23 @@ static inline __attribute__((always_inline)) uint64_t sweep_pixels(sweep *sw, co
       tp->out[at + 1] = b.cy;
       total += b.d;
       if (sw->usage == NULL || b.index == was.index) continue;
-      if ((*rc = log_move(scr, was.cx, was.cy, b.cx, b.cy)) == 0) replay_move(sw, scr->moves + scr->nmoves - 4, 1);
+      if ((*rc = log_move(scr, was.cx, was.cy, b.cx, b.cy)) == 0) replay(sw, scr->moves + scr->nmoves - 4, 1);
     }
   }
+  for (size_t m = 0; m < scr->nmoves; m += 4) replay(sw, scr->moves + m, -1);
+  *stream = rng_copy;
   return total;
 }
 
-#define SWEEP_WITH(name, load, sad)                                                                           \
-  static uint64_t name(sweep *sw, const tile_pos *tp, ts_pm_scratch *scr, ts_rng *rng, int *rc) {           \
-    return sweep_pixels(sw, tp, scr, rng, load, sad, rc);                                                    \
+#define SWEEP_WITH(name, load, sad, replay)                                                         \
+  static uint64_t name(sweep *sw, const tile_pos *tp, ts_pm_scratch *scr, ts_rng *rng, int *rc) { \
+    return sweep_pixels(sw, tp, scr, rng, load, sad, replay, rc);                                  \
   }
-SWEEP_WITH(sweep_scalar, query_none, patch_sad_scalar)
+SWEEP_WITH(sweep_scalar, query_none, patch_sad_scalar, replay_any)
 #ifdef __SSE2__
-SWEEP_WITH(sweep_sse2, query_load_sse2, patch_sad_sse2)
-SWEEP_WITH(sweep_narrow3, query_load_narrow3, patch_sad_narrow3)
-SWEEP_WITH(sweep_narrow5, query_load_narrow5, patch_sad_narrow5)
+SWEEP_WITH(sweep_sse2, query_load_sse2, patch_sad_sse2, replay_any)
+SWEEP_WITH(sweep_narrow3, query_load_narrow3, patch_sad_narrow3, replay_p3)
+SWEEP_WITH(sweep_narrow5, query_load_narrow5, patch_sad_narrow5, replay_p5)
 #endif
 
 typedef uint64_t sweep_fn(sweep *sw, const tile_pos *tp, ts_pm_scratch *scr, ts_rng *rng, int *rc);
@@ -518,7 +553,5 @@ uint64_t ts_pm_sweep_tile(const ts_pm_pass *ps, int t, ts_pm_scratch *scr, uint3
   ts_rng rng;
   ts_rng_seed(&rng, ps->seed, ((uint64_t)ps->pass << 32) | (uint32_t)t);
   uint64_t total = sweep_variant(&sw)(&sw, &tp, scr, &rng, rc);
-  /* Undo the tile's moves: the usage is the pass's input again. */
-  for (size_t m = 0; m < scr->nmoves; m += 4) replay_move(&sw, scr->moves + m, -1);
   return *rc == 0 ? total : 0;
 }
