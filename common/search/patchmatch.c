@@ -231,30 +231,52 @@ static size_t query_bytes(const ts_pm_image *src, int p) {
 
 /* ---- occurrences ------------------------------------------------------- */
 
+/* Each centre counts once at its patch's top-left pixel; a p-wide box sum
+ * along the rows, then along the columns, spreads the counts over the
+ * patches: p - 1 additions a pixel each way, not p * p per field entry.
+ * Both sums run against the direction of their reach (from the right,
+ * from the bottom), so each reads only entries not yet overwritten. */
 void ts_pm_occurrences(const uint32_t *field, size_t n, int p, int sw, int sh, uint32_t *counts) {
   int r = p / 2;
   memset(counts, 0, (size_t)sw * (size_t)sh * sizeof(*counts));
-  for (size_t i = 0; i < n; i++) {
-    uint32_t *row = counts + ((size_t)field[2 * i + 1] - (size_t)r) * (size_t)sw + field[2 * i] - (size_t)r;
-    for (int y = 0; y < p; y++, row += sw)
-      for (int x = 0; x < p; x++) row[x]++;
+  for (size_t i = 0; i < n; i++) counts[((size_t)field[2 * i + 1] - (size_t)r) * (size_t)sw + field[2 * i] - (size_t)r]++;
+  for (int y = 0; y < sh; y++) {
+    uint32_t *row = counts + (size_t)y * (size_t)sw, sum = 0; /* row[x] becomes row[x - p + 1 .. x]'s sum */
+    for (int x = sw - p > 0 ? sw - p : 0; x < sw; x++) sum += row[x];
+    for (int x = sw - 1; x >= 0; x--) {
+      uint32_t own = row[x];
+      row[x] = sum;
+      sum -= own;
+      if (x >= p) sum += row[x - p];
+    }
+  }
+  for (int y = sh - 1; y > 0; y--) {
+    uint32_t *row = counts + (size_t)y * (size_t)sw;
+    for (int k = 1; k < p && k <= y; k++) {
+      const uint32_t *above = row - (size_t)k * (size_t)sw;
+      for (int x = 0; x < sw; x++) row[x] += above[x];
+    }
   }
 }
 
 void ts_pm_block_sums(const uint32_t *counts, int p, int sw, int sh, uint32_t *col, uint32_t *ublock) {
   int nx = sw - p + 1;
-  memset(col, 0, (size_t)sw * sizeof(*col)); /* column sums over the last p rows */
-  for (int y = 0; y < sh; y++) {
-    for (int x = 0; x < sw; x++) {
-      col[x] += counts[(size_t)y * (size_t)sw + (size_t)x];
-      if (y >= p) col[x] -= counts[(size_t)(y - p) * (size_t)sw + (size_t)x];
+  memset(col, 0, (size_t)sw * sizeof(*col)); /* column sums over p rows */
+  for (int y = 0; y < p - 1; y++)
+    for (int x = 0; x < sw; x++) col[x] += counts[(size_t)y * (size_t)sw + (size_t)x];
+  for (int y = 0; y + p <= sh; y++) {
+    const uint32_t *in = counts + (size_t)(y + p - 1) * (size_t)sw;
+    for (int x = 0; x < sw; x++) col[x] += in[x];
+    if (y > 0) { /* the row leaving the window */
+      const uint32_t *out = in - (size_t)p * (size_t)sw;
+      for (int x = 0; x < sw; x++) col[x] -= out[x];
     }
-    if (y < p - 1) continue;
-    uint32_t s = 0;
-    for (int x = 0; x < sw; x++) {
-      s += col[x];
-      if (x >= p) s -= col[x - p];
-      if (x >= p - 1) ublock[(size_t)(y - p + 1) * (size_t)nx + (size_t)(x - p + 1)] = s;
+    uint32_t *u = ublock + (size_t)y * (size_t)nx, s = 0;
+    for (int x = 0; x < p - 1; x++) s += col[x];
+    for (int x = 0; x < nx; x++) {
+      s += col[x + p - 1];
+      u[x] = s;
+      s -= col[x];
     }
   }
 }
