@@ -82,7 +82,6 @@ typedef struct {
 typedef struct {
   const ts_pm_pass *ps;
   int p, r, nx, ny; /* nx x ny source patches */
-  int cx_max, cy_max;
   int nparts;
   uint32_t *usage; /* U_j now (scratch): NULL without a penalty */
   uint64_t k;
@@ -340,7 +339,7 @@ int ts_pm_scratch_begin(ts_pm_scratch *scr, const ts_pm_pass *ps) {
   return 0;
 }
 
-/* Logs a move of a pixel's match from centre (fx, fy) to (tx, ty). */
+/* Logs a move of a pixel's match from anchor (fx, fy) to (tx, ty). */
 static int log_move(ts_pm_scratch *scr, uint32_t fx, uint32_t fy, uint32_t tx, uint32_t ty) {
   if (scr->nmoves + 4 > scr->cap) {
     size_t cap = scr->cap ? 2 * scr->cap : 4096;
@@ -373,8 +372,8 @@ static inline __attribute__((always_inline)) void usage_move_fixed(const sweep *
 /* Applies (sign 1) or undoes (-1) a logged move; p as usage_move_fixed's. */
 static inline __attribute__((always_inline)) void replay_move_fixed(const sweep *sw, const uint32_t *m, int sign,
                                                                     const int p) {
-  usage_move_fixed(sw, (int)m[0] - sw->r, (int)m[1] - sw->r, -sign, p);
-  usage_move_fixed(sw, (int)m[2] - sw->r, (int)m[3] - sw->r, sign, p);
+  usage_move_fixed(sw, (int)m[0], (int)m[1], -sign, p);
+  usage_move_fixed(sw, (int)m[2], (int)m[3], sign, p);
 }
 
 /* The replays a sweep calls: never inlined, as they would crowd the
@@ -404,37 +403,44 @@ int ts_pm_tiles(int tw, int th) {
   return ((tw + TS_PM_TILE - 1) / TS_PM_TILE) * ((th + TS_PM_TILE - 1) / TS_PM_TILE);
 }
 
+/* The best source patch of a pixel so far. The sweep works on patches'
+ * anchors (top-left pixels, centre - r), the field holds their centres. */
 typedef struct {
   uint64_t d;
-  uint32_t cx, cy, index;
+  uint32_t ax, ay, index;
 } best_t;
 
-/* Index of the source patch centred at (cx, cy): its anchor index. */
-static inline uint32_t patch_index(const sweep *sw, uint32_t cx, uint32_t cy) {
-  return (cy - (uint32_t)sw->r) * (uint32_t)sw->nx + (cx - (uint32_t)sw->r);
+/* Index of the source patch anchored at (ax, ay). */
+static inline uint32_t patch_index(const sweep *sw, uint32_t ax, uint32_t ay) {
+  return ay * (uint32_t)sw->nx + ax;
 }
 
-/* Distance of target pixel (x, y) to source patch j centred at (cx, cy), as
- * the kernel's: exact within bound. The penalty comes last, so a candidate
- * the patch alone rules out never reads the usage. */
+/* Distance of target pixel (x, y) to source patch j anchored at (ax, ay),
+ * as the kernel's: exact within bound. The penalty comes last, so a
+ * candidate the patch alone rules out never reads the usage. */
 static inline __attribute__((always_inline)) uint64_t distance(const sweep *sw, patch_sad_fn *sad, int x, int y,
-                                                               uint32_t cx, uint32_t cy, uint32_t j, uint64_t bound) {
-  uint64_t d = sad(sw, x, y, (int)cx - sw->r, (int)cy - sw->r, bound);
+                                                               uint32_t ax, uint32_t ay, uint32_t j, uint64_t bound) {
+  uint64_t d = sad(sw, x, y, (int)ax, (int)ay, bound);
   if (sw->usage != NULL && d <= bound) d += ts_usage_penalty(sw->usage[j], sw->k);
   return d;
 }
 
-/* Keeps the candidate centred at (cx, cy), a patch centre, when strictly
- * better: a smaller distance, or an equal one at a lower index. */
-static inline __attribute__((always_inline)) void try_centre(const sweep *sw, patch_sad_fn *sad, int x, int y,
-                                                             uint32_t cx, uint32_t cy, best_t *b) {
-  uint32_t j = patch_index(sw, cx, cy);
+/* Keeps the patch anchored at (ax, ay) when strictly better: a smaller
+ * distance, or an equal one at a lower index. */
+static inline __attribute__((always_inline)) void try_patch(const sweep *sw, patch_sad_fn *sad, int x, int y,
+                                                            uint32_t ax, uint32_t ay, best_t *b) {
+  uint32_t j = patch_index(sw, ax, ay);
   if (j == b->index) return;
-  uint64_t d = distance(sw, sad, x, y, cx, cy, j, b->d);
-  if (d < b->d || (d == b->d && j < b->index)) *b = (best_t){d, cx, cy, j};
+  uint64_t d = distance(sw, sad, x, y, ax, ay, j, b->d);
+  if (d < b->d || (d == b->d && j < b->index)) *b = (best_t){d, ax, ay, j};
 }
 
-static inline long clampl(long v, long lo, long hi) { return v < lo ? lo : v > hi ? hi : v; }
+/* v clamped to [0, hi] without a branch: at the wide radii either side is a
+ * coin toss, which a branch would mispredict half the time. */
+static inline long clamp_to(long v, long hi) {
+  v &= -(long)(v > 0);
+  return v < hi ? v : hi;
+}
 
 /* Where a sweep stands: the tile, its direction, the fields. */
 typedef struct {
@@ -452,18 +458,18 @@ static inline __attribute__((always_inline)) void try_neighbour(const sweep *sw,
   if (nbx < 0 || nby < 0 || nbx >= ps->tw || nby >= ps->th) return;
   int inside = nbx >= tp->x0 && nbx < tp->x1 && nby >= tp->y0 && nby < tp->y1;
   const uint32_t *f = (inside ? tp->out : tp->in) + 2 * ((size_t)nby * (size_t)ps->tw + (size_t)nbx);
-  long cx = (long)f[0] + (x - nbx), cy = (long)f[1] + (y - nby);
-  if (cx < sw->r || cy < sw->r || cx > sw->cx_max || cy > sw->cy_max) return;
-  try_centre(sw, sad, x, y, (uint32_t)cx, (uint32_t)cy, b);
+  long ax = (long)f[0] - sw->r + (x - nbx), ay = (long)f[1] - sw->r + (y - nby);
+  if (ax < 0 || ay < 0 || ax >= sw->nx || ay >= sw->ny) return;
+  try_patch(sw, sad, x, y, (uint32_t)ax, (uint32_t)ay, b);
 }
 
 static inline __attribute__((always_inline)) void random_search(const sweep *sw, patch_sad_fn *sad, ts_rng *rng, int x,
                                                                 int y, best_t *b) {
   for (int i = 0; i < sw->nradii; i++) {
     long radius = sw->radius[i];
-    long cx = (long)b->cx + (long)ts_rng_below(rng, (uint32_t)(2 * radius + 1)) - radius;
-    long cy = (long)b->cy + (long)ts_rng_below(rng, (uint32_t)(2 * radius + 1)) - radius;
-    try_centre(sw, sad, x, y, (uint32_t)clampl(cx, sw->r, sw->cx_max), (uint32_t)clampl(cy, sw->r, sw->cy_max), b);
+    long ax = (long)b->ax + (long)ts_rng_below(rng, (uint32_t)(2 * radius + 1)) - radius;
+    long ay = (long)b->ay + (long)ts_rng_below(rng, (uint32_t)(2 * radius + 1)) - radius;
+    try_patch(sw, sad, x, y, (uint32_t)clamp_to(ax, sw->nx - 1), (uint32_t)clamp_to(ay, sw->ny - 1), b);
   }
 }
 
@@ -476,8 +482,6 @@ static void sweep_init(sweep *sw, const ts_pm_pass *ps, const ts_pm_scratch *scr
   sw->r = r;
   sw->nx = ps->src->w - p + 1;
   sw->ny = ps->src->h - p + 1;
-  sw->cx_max = ps->src->w - 1 - r;
-  sw->cy_max = ps->src->h - 1 - r;
   sw->nparts = ps->src->nparts;
   for (int k = 0; k < sw->nparts; k++) {
     part_geom *g = &sw->part[k];
@@ -516,18 +520,19 @@ static inline __attribute__((always_inline)) uint64_t sweep_pixels(sweep *sw, co
     for (int jj = 0; jj < tp->x1 - tp->x0 && *rc == 0; jj++) {
       int x = tp->back ? tp->x1 - 1 - jj : tp->x0 + jj;
       size_t at = 2 * ((size_t)y * (size_t)ps->tw + (size_t)x);
-      best_t b = {0, tp->in[at], tp->in[at + 1], patch_index(sw, tp->in[at], tp->in[at + 1])};
+      best_t b = {0, tp->in[at] - (uint32_t)sw->r, tp->in[at + 1] - (uint32_t)sw->r, 0};
+      b.index = patch_index(sw, b.ax, b.ay);
       load(sw, x, y);
-      b.d = distance(sw, sad, x, y, b.cx, b.cy, b.index, UINT64_MAX);
+      b.d = distance(sw, sad, x, y, b.ax, b.ay, b.index, UINT64_MAX);
       best_t was = b;
       try_neighbour(sw, sad, tp, x, y, x - step, y, &b);
       try_neighbour(sw, sad, tp, x, y, x, y - step, &b);
       random_search(sw, sad, rng, x, y, &b);
-      tp->out[at] = b.cx;
-      tp->out[at + 1] = b.cy;
+      tp->out[at] = b.ax + (uint32_t)sw->r;
+      tp->out[at + 1] = b.ay + (uint32_t)sw->r;
       total += b.d;
       if (sw->usage == NULL || b.index == was.index) continue;
-      if ((*rc = log_move(scr, was.cx, was.cy, b.cx, b.cy)) == 0) replay(sw, scr->moves + scr->nmoves - 4, 1);
+      if ((*rc = log_move(scr, was.ax, was.ay, b.ax, b.ay)) == 0) replay(sw, scr->moves + scr->nmoves - 4, 1);
     }
   }
   for (size_t m = 0; m < scr->nmoves; m += 4) replay(sw, scr->moves + m, -1);

@@ -77,7 +77,7 @@ typedef struct {
   uint32_t *usage; /* with a penalty: U_j of the pass's input plus the moves
                       of the tile under way (ublock again between tiles) */
   size_t usage_cap;
-  uint32_t *moves; /* the tile's moves (centre from, centre to) */
+  uint32_t *moves; /* the tile's moves (anchor from, anchor to) */
   size_t nmoves, cap;
   uint8_t *query;  /* the target patch a pixel's candidates are compared with */
   size_t query_cap;
