@@ -62,7 +62,7 @@ void ts_pm_image_free(ts_pm_image *im) {
   memset(im, 0, sizeof(*im));
 }
 
-#define AREA_PAD 3 /* zero overlap areas after each row, usage entries after the last */
+#define AREA_PAD 3 /* zero overlap areas after each row; usage entries after the last */
 
 /* ---- distance kernels -------------------------------------------------- */
 
@@ -87,7 +87,8 @@ typedef struct {
   uint64_t k;
   const uint32_t *area; /* overlap areas of two patches (scratch) */
   uint8_t *query;       /* SSE2: the target patch, chunked and masked */
-  long radius[64];      /* the random search's: max(sw, sh) halved to 1 */
+  long radius[64];      /* the random search's: max(sw, sh) halved to 1 (an
+                           int halves at most 31 times) */
   int nradii;
   part_geom part[TS_L1_MAX_PARTS];
 } sweep;
@@ -210,12 +211,14 @@ static inline __attribute__((always_inline)) void query_load_narrow5(sweep *sw, 
   query_load_narrow(sw, x, y, 5);
 }
 
-static inline __attribute__((always_inline)) uint64_t patch_sad_narrow3(const sweep *sw, int x, int y, int sx, int sy, uint64_t bound) {
+static inline __attribute__((always_inline)) uint64_t patch_sad_narrow3(const sweep *sw, int x, int y, int sx, int sy,
+                                                                        uint64_t bound) {
   (void)x, (void)y;
   return patch_sad_narrow(sw, sx, sy, bound, 3);
 }
 
-static inline __attribute__((always_inline)) uint64_t patch_sad_narrow5(const sweep *sw, int x, int y, int sx, int sy, uint64_t bound) {
+static inline __attribute__((always_inline)) uint64_t patch_sad_narrow5(const sweep *sw, int x, int y, int sx, int sy,
+                                                                        uint64_t bound) {
   (void)x, (void)y;
   return patch_sad_narrow(sw, sx, sy, bound, 5);
 }
@@ -238,7 +241,8 @@ static size_t query_bytes(const ts_pm_image *src, int p) {
 void ts_pm_occurrences(const uint32_t *field, size_t n, int p, int sw, int sh, uint32_t *counts) {
   int r = p / 2;
   memset(counts, 0, (size_t)sw * (size_t)sh * sizeof(*counts));
-  for (size_t i = 0; i < n; i++) counts[((size_t)field[2 * i + 1] - (size_t)r) * (size_t)sw + field[2 * i] - (size_t)r]++;
+  for (size_t i = 0; i < n; i++)
+    counts[((size_t)field[2 * i + 1] - (size_t)r) * (size_t)sw + field[2 * i] - (size_t)r]++;
   for (int y = 0; y < sh; y++) {
     uint32_t *row = counts + (size_t)y * (size_t)sw, sum = 0; /* row[x] becomes row[x - p + 1 .. x]'s sum */
     for (int x = sw - p > 0 ? sw - p : 0; x < sw; x++) sum += row[x];
@@ -509,8 +513,8 @@ static void sweep_init(sweep *sw, const ts_pm_pass *ps, const ts_pm_scratch *scr
  * usage is the pass's input again): the sweep with one kernel, which the
  * compiler inlines, and one replay of moves. */
 static inline __attribute__((always_inline)) uint64_t sweep_pixels(sweep *sw, const tile_pos *tp, ts_pm_scratch *scr,
-                                                                  ts_rng *stream, query_fn *load, patch_sad_fn *sad,
-                                                                  replay_fn *replay, int *rc) {
+                                                                   ts_rng *stream, query_fn *load, patch_sad_fn *sad,
+                                                                   replay_fn *replay, int *rc) {
   const ts_pm_pass *ps = sw->ps;
   int step = tp->back ? -1 : 1;
   uint64_t total = 0;
@@ -540,9 +544,9 @@ static inline __attribute__((always_inline)) uint64_t sweep_pixels(sweep *sw, co
   return total;
 }
 
-#define SWEEP_WITH(name, load, sad, replay)                                                         \
+#define SWEEP_WITH(name, load, sad, replay)                                                       \
   static uint64_t name(sweep *sw, const tile_pos *tp, ts_pm_scratch *scr, ts_rng *rng, int *rc) { \
-    return sweep_pixels(sw, tp, scr, rng, load, sad, replay, rc);                                  \
+    return sweep_pixels(sw, tp, scr, rng, load, sad, replay, rc);                                 \
   }
 SWEEP_WITH(sweep_scalar, query_none, patch_sad_scalar, replay_any)
 #ifdef __SSE2__

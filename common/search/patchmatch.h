@@ -89,9 +89,9 @@ int ts_pm_tiles(int tw, int th);
 /* Readies scr for the tiles of pass ps (once per pass and thread, before
  * its first tile): 0 or TS_ENOMEM. */
 int ts_pm_scratch_begin(ts_pm_scratch *scr, const ts_pm_pass *ps);
-/* Sweeps tile t with scr readied for ps: writes the tile's entries of out (a whole field, tw x th
- * entries; the rest untouched) and returns the sum of its pixels' final
- * distances. 0 or TS_ENOMEM in *rc. */
+/* Sweeps tile t with scr readied for ps: writes the tile's entries of out
+ * (a whole field, tw x th entries; the rest untouched) and returns the sum
+ * of its pixels' final distances. 0 or TS_ENOMEM in *rc. */
 uint64_t ts_pm_sweep_tile(const ts_pm_pass *ps, int t, ts_pm_scratch *scr, uint32_t *out, int *rc);
 void ts_pm_scratch_free(ts_pm_scratch *scr);
 

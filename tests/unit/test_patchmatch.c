@@ -14,7 +14,7 @@
 #include "ts_test.h"
 
 enum { P = 5, R = P / 2, NPL = 4 }; /* planes: an RGB part and a grey part */
-enum { MAXP = 7 };                    /* the largest patch a scene takes */
+enum { MAXP = 7 };                  /* the largest patch a scene takes */
 
 typedef struct {
   ts_plane src[NPL], tgt[NPL];
@@ -178,7 +178,7 @@ typedef struct {
 static void plain_try(const plain_pass *pp, int x, int y, long cx, long cy, plain_best *b) {
   if (cx < pp->r || cy < pp->r || cx >= pp->sw - pp->r || cy >= pp->sh - pp->r) return;
   uint64_t d = plain_distance(pp, x, y, (int)cx, (int)cy);
-  long j = (cy - pp->r) * (pp->sw - 2 * pp->r) + cx - pp->r, bj = (b->cy - pp->r) * (pp->sw - 2 * pp->r) + b->cx - pp->r;
+  long nx = pp->sw - 2 * pp->r, j = (cy - pp->r) * nx + cx - pp->r, bj = (b->cy - pp->r) * nx + b->cx - pp->r;
   if (d < b->d || (d == b->d && j < bj)) *b = (plain_best){d, (int)cx, (int)cy};
 }
 
@@ -215,7 +215,8 @@ static void plain_tile(plain_pass *pp, const uint32_t *in, uint32_t *out, uint64
   }
 }
 
-static void plain_pass_run(const scene *s, const uint32_t *in, uint64_t k, uint64_t seed, uint32_t pass, uint32_t *out) {
+static void plain_pass_run(const scene *s, const uint32_t *in, uint64_t k, uint64_t seed, uint32_t pass,
+                           uint32_t *out) {
   plain_pass pp = {s, s->src[0].w, s->src[0].h, s->p / 2, calloc((size_t)s->src[0].w * s->src[0].h, 4), k};
   uint32_t *start = calloc((size_t)pp.sw * pp.sh, 4);
   assert_non_null(pp.counts);
