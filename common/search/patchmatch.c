@@ -386,12 +386,14 @@ typedef void replay_fn(const sweep *sw, const uint32_t *m, int sign);
 static __attribute__((noinline)) void replay_any(const sweep *sw, const uint32_t *m, int sign) {
   replay_move_fixed(sw, m, sign, 0);
 }
+#ifdef __SSE2__ /* those of the narrow kernels */
 static __attribute__((noinline)) void replay_p3(const sweep *sw, const uint32_t *m, int sign) {
   replay_move_fixed(sw, m, sign, 3);
 }
 static __attribute__((noinline)) void replay_p5(const sweep *sw, const uint32_t *m, int sign) {
   replay_move_fixed(sw, m, sign, 5);
 }
+#endif
 
 void ts_pm_scratch_free(ts_pm_scratch *scr) {
   free(scr->usage);
@@ -568,6 +570,7 @@ static sweep_fn *sweep_variant(const sweep *sw) {
   if (narrow && sw->p == 5) return sweep_narrow5;
   return sweep_sse2;
 #else
+  (void)sw;
   return sweep_scalar;
 #endif
 }
