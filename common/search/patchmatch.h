@@ -72,17 +72,26 @@ typedef struct {
                               result either way */
 } ts_pm_pass;
 
-/* Per-thread scratch of tile sweeps (the tile's own occurrence moves). */
+/* Per-thread scratch of tile sweeps. */
 typedef struct {
-  int32_t *du;  /* change of U_j by the tile's moves, zero between tiles */
-  uint32_t *moves;
+  uint32_t *usage; /* with a penalty: U_j of the pass's input plus the moves
+                      of the tile under way (ublock again between tiles) */
+  size_t usage_cap;
+  uint32_t *moves; /* the tile's moves (anchor from, anchor to) */
   size_t nmoves, cap;
+  uint8_t *query;  /* the target patch a pixel's candidates are compared with */
+  size_t query_cap;
+  uint32_t *area;  /* overlap areas of two patches, (2p - 1)^2 offsets */
+  size_t area_cap;
 } ts_pm_scratch;
 
 int ts_pm_tiles(int tw, int th);
-/* Sweeps tile t: writes the tile's entries of out (a whole field, tw x th
- * entries; the rest untouched) and returns the sum of its pixels' final
- * distances. 0 or TS_ENOMEM in *rc. */
+/* Readies scr for the tiles of pass ps (once per pass and thread, before
+ * its first tile): 0 or TS_ENOMEM. */
+int ts_pm_scratch_begin(ts_pm_scratch *scr, const ts_pm_pass *ps);
+/* Sweeps tile t with scr readied for ps: writes the tile's entries of out
+ * (a whole field, tw x th entries; the rest untouched) and returns the sum
+ * of its pixels' final distances. 0 or TS_ENOMEM in *rc. */
 uint64_t ts_pm_sweep_tile(const ts_pm_pass *ps, int t, ts_pm_scratch *scr, uint32_t *out, int *rc);
 void ts_pm_scratch_free(ts_pm_scratch *scr);
 

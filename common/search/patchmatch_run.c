@@ -63,11 +63,12 @@ typedef struct {
 static void sweep_tiles(void *arg, int worker, int nworkers) {
   (void)nworkers;
   pass_run *pr = arg;
-  for (;;) {
+  ts_pm_scratch *scr = &pr->f->scr[worker];
+  for (int begun = 0;; begun = 1) {
     int i = atomic_fetch_add(&pr->next, 1);
     if (i >= pr->n || atomic_load(&pr->rc) != 0) return;
-    int rc = 0;
-    ts_pm_sweep_tile(pr->ps, pr->tiles != NULL ? (int)pr->tiles[i] : i, &pr->f->scr[worker], pr->out, &rc);
+    int rc = begun ? 0 : ts_pm_scratch_begin(scr, pr->ps);
+    if (rc == 0) ts_pm_sweep_tile(pr->ps, pr->tiles != NULL ? (int)pr->tiles[i] : i, scr, pr->out, &rc);
     if (rc != 0) atomic_store(&pr->rc, rc);
   }
 }

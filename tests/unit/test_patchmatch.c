@@ -1,9 +1,12 @@
 /* test_patchmatch.c - the PatchMatch field (patchmatch.h): a pass gives
  * the same field on 1 or 3 threads, with its tiles swept in two calls, and
- * with the scalar or SSE2 distance; distances, occurrence counts and block
- * sums against plain loops; a target cut from the source is found exactly;
- * the uniformity penalty spreads a field over more of a flat source; a
- * field entry off the source and a target of the wrong size are refused. */
+ * with the scalar or SSE2 distance; a pass against plain loops of its
+ * contract, for every distance kernel (patches 3 and 5 with one 16-byte
+ * chunk per part row, patch 7 with two) with and without the penalty;
+ * distances, occurrence counts and block sums against plain loops; a target
+ * cut from the source is found exactly; the uniformity penalty spreads a
+ * field over more of a flat source; a field entry off the source and a
+ * target of the wrong size are refused. */
 #include "error.h"
 #include "patchmatch.h"
 #include "pool.h"
@@ -11,25 +14,28 @@
 #include "ts_test.h"
 
 enum { P = 5, R = P / 2, NPL = 4 }; /* planes: an RGB part and a grey part */
+enum { MAXP = 7 };                  /* the largest patch a scene takes */
 
 typedef struct {
   ts_plane src[NPL], tgt[NPL];
   ts_window win;
   ts_pm_field f;
-  int tw, th;
+  int p, tw, th;
   uint32_t *in;
 } scene;
 
-static void window_make(ts_window *win) {
-  int16_t dx[P * P], dy[P * P];
-  for (int i = 0; i < P * P; i++) {
-    dx[i] = (int16_t)(i % P);
-    dy[i] = (int16_t)(i / P);
+static const uint32_t kWeight[NPL] = {280, 280, 280, 420}; /* per plane */
+
+static void window_make(ts_window *win, int p) {
+  int16_t dx[MAXP * MAXP], dy[MAXP * MAXP];
+  for (int i = 0; i < p * p; i++) {
+    dx[i] = (int16_t)(i % p);
+    dy[i] = (int16_t)(i / p);
   }
-  ts_window_spec s = {.nplanes = {NPL, 0}, .noff = {P * P, 0}, .dx = {dx, NULL}, .dy = {dy, NULL},
-                      .extent = {{0, 0, P, P}}, .block = P, .nparts = 2};
-  s.part[0] = (ts_part){TS_SRC_FINE, 0, 3, 280};
-  s.part[1] = (ts_part){TS_SRC_FINE, 3, 1, 420};
+  ts_window_spec s = {.nplanes = {NPL, 0}, .noff = {p * p, 0}, .dx = {dx, NULL}, .dy = {dy, NULL},
+                      .extent = {{0, 0, (int16_t)p, (int16_t)p}}, .block = p, .nparts = 2};
+  s.part[0] = (ts_part){TS_SRC_FINE, 0, 3, kWeight[0]};
+  s.part[1] = (ts_part){TS_SRC_FINE, 3, 1, kWeight[3]};
   char err[TS_ERR_LEN];
   assert_int_equal(ts_window_init(win, &s, err), 0);
 }
@@ -46,17 +52,18 @@ static void plane_fill(ts_plane *pl, int w, int h, ts_rng *rng, int noise) {
     }
 }
 
-/* A source sw x sh, a target (tw + P - 1) x (th + P - 1) cut from the
+/* A source sw x sh, a target (tw + p - 1) x (th + p - 1) cut from the
  * source at (ox, oy) when cut, else random; a seeded random field. */
-static void scene_make(scene *s, int sw, int sh, int tw, int th, int cut, uint64_t seed) {
+static void scene_make_p(scene *s, int p, int sw, int sh, int tw, int th, int cut, uint64_t seed) {
   ts_rng rng;
   ts_rng_seed(&rng, seed, 0);
   memset(s, 0, sizeof(*s));
+  s->p = p;
   s->tw = tw;
   s->th = th;
-  window_make(&s->win);
+  window_make(&s->win, p);
   const ts_plane *sp[NPL];
-  int ow = tw + P - 1, oh = th + P - 1, ox = 3, oy = 2;
+  int ow = tw + p - 1, oh = th + p - 1, ox = 3, oy = 2, r = p / 2;
   for (int k = 0; k < NPL; k++) {
     plane_fill(&s->src[k], sw, sh, &rng, 40);
     sp[k] = &s->src[k];
@@ -75,9 +82,13 @@ static void scene_make(scene *s, int sw, int sh, int tw, int th, int cut, uint64
   s->in = malloc(2 * sizeof(uint32_t) * (size_t)tw * (size_t)th);
   assert_non_null(s->in);
   for (int i = 0; i < tw * th; i++) {
-    s->in[2 * i] = R + ts_rng_below(&rng, (uint32_t)(sw - 2 * R));
-    s->in[2 * i + 1] = R + ts_rng_below(&rng, (uint32_t)(sh - 2 * R));
+    s->in[2 * i] = (uint32_t)r + ts_rng_below(&rng, (uint32_t)(sw - 2 * r));
+    s->in[2 * i + 1] = (uint32_t)r + ts_rng_below(&rng, (uint32_t)(sh - 2 * r));
   }
+}
+
+static void scene_make(scene *s, int sw, int sh, int tw, int th, int cut, uint64_t seed) {
+  scene_make_p(s, P, sw, sh, tw, th, cut, seed);
 }
 
 static void scene_free(scene *s) {
@@ -120,17 +131,103 @@ static size_t field_bytes(const scene *s) { return 2 * sizeof(uint32_t) * (size_
 /* ---- plain loops ------------------------------------------------------- */
 
 static uint64_t brute_distance(const scene *s, int x, int y, int cx, int cy) {
+  int p = s->p, r = p / 2;
   uint64_t d = 0;
   for (int k = 0; k < NPL; k++) {
-    uint64_t w = k < 3 ? 280 : 420, sum = 0;
-    for (int dy = 0; dy < P; dy++)
-      for (int dx = 0; dx < P; dx++) {
-        int a = ts_plane_at(&s->tgt[k], x + dx, y + dy), b = ts_plane_at(&s->src[k], cx - R + dx, cy - R + dy);
+    uint64_t sum = 0;
+    for (int dy = 0; dy < p; dy++)
+      for (int dx = 0; dx < p; dx++) {
+        int a = ts_plane_at(&s->tgt[k], x + dx, y + dy), b = ts_plane_at(&s->src[k], cx - r + dx, cy - r + dy);
         sum += (uint64_t)(a > b ? a - b : b - a);
       }
-    d += w * sum;
+    d += kWeight[k] * sum;
   }
   return d;
+}
+
+/* A pass as patchmatch.h words it, in plain loops: tile by tile, the
+ * occurrence counts of the input plus the tile's own moves kept as counts
+ * and summed over a patch for each penalty. */
+typedef struct {
+  const scene *s;
+  int sw, sh, r;
+  uint32_t *counts; /* of the input, then the tile's moves */
+  uint64_t k;
+} plain_pass;
+
+static uint64_t plain_distance(const plain_pass *pp, int x, int y, int cx, int cy) {
+  uint64_t d = brute_distance(pp->s, x, y, cx, cy);
+  if (pp->k == 0) return d;
+  uint32_t u = 0;
+  for (int dy = -pp->r; dy <= pp->r; dy++)
+    for (int dx = -pp->r; dx <= pp->r; dx++) u += pp->counts[(cy + dy) * pp->sw + cx + dx];
+  unsigned __int128 pen = ((unsigned __int128)u * pp->k) >> 32;
+  return d + (pen > UINT32_MAX ? UINT32_MAX : (uint32_t)pen);
+}
+
+static void count_patch(uint32_t *counts, int sw, int r, int cx, int cy, int delta) {
+  for (int dy = -r; dy <= r; dy++)
+    for (int dx = -r; dx <= r; dx++) counts[(cy + dy) * sw + cx + dx] += (uint32_t)delta;
+}
+
+typedef struct {
+  uint64_t d;
+  int cx, cy;
+} plain_best;
+
+static void plain_try(const plain_pass *pp, int x, int y, long cx, long cy, plain_best *b) {
+  if (cx < pp->r || cy < pp->r || cx >= pp->sw - pp->r || cy >= pp->sh - pp->r) return;
+  uint64_t d = plain_distance(pp, x, y, (int)cx, (int)cy);
+  long nx = pp->sw - 2 * pp->r, j = (cy - pp->r) * nx + cx - pp->r, bj = (b->cy - pp->r) * nx + b->cx - pp->r;
+  if (d < b->d || (d == b->d && j < bj)) *b = (plain_best){d, (int)cx, (int)cy};
+}
+
+static long clamp_long(long v, long lo, long hi) { return v < lo ? lo : v > hi ? hi : v; }
+
+static void plain_tile(plain_pass *pp, const uint32_t *in, uint32_t *out, uint64_t seed, uint32_t pass, int t) {
+  const scene *s = pp->s;
+  int ntx = (s->tw + TS_PM_TILE - 1) / TS_PM_TILE, x0 = t % ntx * TS_PM_TILE, y0 = t / ntx * TS_PM_TILE;
+  int x1 = x0 + TS_PM_TILE < s->tw ? x0 + TS_PM_TILE : s->tw, y1 = y0 + TS_PM_TILE < s->th ? y0 + TS_PM_TILE : s->th;
+  int back = pass & 1, step = back ? -1 : 1;
+  ts_rng rng;
+  ts_rng_seed(&rng, seed, ((uint64_t)pass << 32) | (uint32_t)t);
+  for (int i = 0; i < (y1 - y0) * (x1 - x0); i++) {
+    int y = back ? y1 - 1 - i / (x1 - x0) : y0 + i / (x1 - x0), x = back ? x1 - 1 - i % (x1 - x0) : x0 + i % (x1 - x0);
+    const uint32_t *cur = &in[2 * (y * s->tw + x)];
+    plain_best b = {plain_distance(pp, x, y, (int)cur[0], (int)cur[1]), (int)cur[0], (int)cur[1]};
+    int nb[2][2] = {{x - step, y}, {x, y - step}};
+    for (int n = 0; n < 2; n++) {
+      int nx = nb[n][0], ny = nb[n][1];
+      if (nx < 0 || ny < 0 || nx >= s->tw || ny >= s->th) continue;
+      int inside = nx >= x0 && nx < x1 && ny >= y0 && ny < y1;
+      const uint32_t *f = &(inside ? out : in)[2 * (ny * s->tw + nx)];
+      plain_try(pp, x, y, (long)f[0] + (x - nx), (long)f[1] + (y - ny), &b);
+    }
+    for (long radius = pp->sw > pp->sh ? pp->sw : pp->sh; radius >= 1; radius /= 2) {
+      long cx = b.cx + (long)ts_rng_below(&rng, (uint32_t)(2 * radius + 1)) - radius;
+      long cy = b.cy + (long)ts_rng_below(&rng, (uint32_t)(2 * radius + 1)) - radius;
+      plain_try(pp, x, y, clamp_long(cx, pp->r, pp->sw - 1 - pp->r), clamp_long(cy, pp->r, pp->sh - 1 - pp->r), &b);
+    }
+    out[2 * (y * s->tw + x)] = (uint32_t)b.cx;
+    out[2 * (y * s->tw + x) + 1] = (uint32_t)b.cy;
+    count_patch(pp->counts, pp->sw, pp->r, (int)cur[0], (int)cur[1], -1);
+    count_patch(pp->counts, pp->sw, pp->r, b.cx, b.cy, 1);
+  }
+}
+
+static void plain_pass_run(const scene *s, const uint32_t *in, uint64_t k, uint64_t seed, uint32_t pass,
+                           uint32_t *out) {
+  plain_pass pp = {s, s->src[0].w, s->src[0].h, s->p / 2, calloc((size_t)s->src[0].w * s->src[0].h, 4), k};
+  uint32_t *start = calloc((size_t)pp.sw * pp.sh, 4);
+  assert_non_null(pp.counts);
+  assert_non_null(start);
+  for (int i = 0; i < s->tw * s->th; i++) count_patch(start, pp.sw, pp.r, (int)in[2 * i], (int)in[2 * i + 1], 1);
+  for (int t = 0; t < ts_pm_tiles(s->tw, s->th); t++) {
+    memcpy(pp.counts, start, (size_t)pp.sw * pp.sh * 4);
+    plain_tile(&pp, in, out, seed, pass, t);
+  }
+  free(start);
+  free(pp.counts);
 }
 
 /* ---- tests ------------------------------------------------------------- */
@@ -169,6 +266,40 @@ static void threads_tiles_and_variants_agree(void **state) {
   free(three);
   free(scalar);
   scene_free(&s);
+}
+
+/* Two passes (both sweep directions) against plain_pass_run on a small
+ * source, where many moves touch its edges: patches 3 and 5 take the
+ * kernels with one 16-byte chunk per part row, 7 the one with two (21
+ * bytes), TEXSYN_SIMD=scalar the plain one; no penalty, a moderate one and
+ * one that saturates. */
+static void a_pass_follows_its_contract(void **state) {
+  (void)state;
+  static const uint64_t ks[] = {0, 64ull << 32, 1ull << 52};
+  ts_pool *pool;
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_pool_create(&pool, 2), 0);
+  for (int p = 3; p <= MAXP; p += 2)
+    for (size_t ki = 0; ki < sizeof(ks) / sizeof(ks[0]); ki++) {
+      scene s;
+      scene_make_p(&s, p, 40, 30, 70, 65, 0, 40 + (uint64_t)p);
+      uint32_t *in = field_new(&s), *want = field_new(&s), *got = field_new(&s);
+      memcpy(in, s.in, field_bytes(&s));
+      for (uint32_t pass = 0; pass < 2; pass++) {
+        plain_pass_run(&s, in, ks[ki], 5, pass, want);
+        for (int scalar = 0; scalar <= 1; scalar++) {
+          ts_pm_job j = {s.tw, s.th, in, ks[ki], 5, pass, scalar};
+          assert_int_equal(ts_pm_field_pass(&s.f, &j, NULL, 0, pool, got, err), 0);
+          assert_memory_equal(got, want, field_bytes(&s));
+        }
+        memcpy(in, want, field_bytes(&s));
+      }
+      free(in);
+      free(want);
+      free(got);
+      scene_free(&s);
+    }
+  ts_pool_destroy(pool);
 }
 
 /* Every pixel's final match is no worse than where it started: a pass
@@ -296,6 +427,7 @@ static void bad_fields_and_targets_are_refused(void **state) {
 
 static const struct CMUnitTest tests[] = {
     cmocka_unit_test(threads_tiles_and_variants_agree),
+    cmocka_unit_test(a_pass_follows_its_contract),
     cmocka_unit_test(a_pass_never_makes_a_match_worse),
     cmocka_unit_test(a_cut_of_the_source_is_found),
     cmocka_unit_test(occurrences_and_block_sums_match_loops),
