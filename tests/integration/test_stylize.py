@@ -253,7 +253,6 @@ def test_a_sequence_refuses_bad_patterns_and_missing_frames_before_any_work(texs
     assert not list(tmp_path.glob("o_*.png")), "a frame ran before the missing one was found"
 
 
-@pytest.mark.sanitize
 def test_auto_records_the_modes_it_ran_and_that_list_gives_its_bytes_on_a_cluster(texsyn, scene, cluster, tmp_path):
     """Auto decides from the calibrated speed, so its choice depends on the
     pool; the list its report records runs the same job anywhere."""
@@ -313,7 +312,6 @@ def test_energy_on_a_cluster_prints_what_it_prints_in_process(texsyn, scene, clu
     assert p.stdout == embedded[0] and re.search(rf"texsyn: energy \(job \d+ on {addr}\)", p.stderr), p.stderr
 
 
-@pytest.mark.sanitize
 def test_energy_lists_every_mismatch_in_one_error_on_a_cluster_too(texsyn, scene, cluster, tmp_path):
     """A guide source and an image of the wrong size: both in one message,
     exit status 2, in-process and with --server, where nothing is
