@@ -130,3 +130,29 @@ int ts_parse_size(const char *text, int max, int *w, int *h) {
   *h = (int)b;
   return 0;
 }
+
+FILE *ts_file_create(const char *path, char *tmp, char *err) {
+  int n = snprintf(tmp, TS_FILE_TMP_LEN, "%s.tmp-%ld", path, (long)getpid());
+  if (n < 0 || n >= TS_FILE_TMP_LEN) {
+    ts_error(err, TS_EIO, "cannot write %s: path too long", path);
+    return NULL;
+  }
+  FILE *f = fopen(tmp, "wb");
+  if (f == NULL) ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
+  return f;
+}
+
+int ts_file_commit(FILE *f, const char *tmp, const char *path, int ok, char *err) {
+  ok = fclose(f) == 0 && ok;
+  if (ok && rename(tmp, path) == 0) return 0;
+  int e = errno;
+  unlink(tmp);
+  return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(e));
+}
+
+int ts_file_write(const char *path, const void *data, size_t len, char *err) {
+  char tmp[TS_FILE_TMP_LEN];
+  FILE *f = ts_file_create(path, tmp, err);
+  if (f == NULL) return TS_EIO;
+  return ts_file_commit(f, tmp, path, len == 0 || fwrite(data, 1, len, f) == len, err);
+}

@@ -5,6 +5,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <stdio.h>
 #include <time.h>
 
 /* Seconds on the monotonic clock (for durations and deadlines only). */
@@ -21,6 +22,16 @@ struct timespec ts_wait_until(double seconds);
  * regular file), TS_ETOOBIG (*len is then the file's size, for a caller
  * that says why the limit is there), TS_ENOMEM. */
 int ts_file_read(const char *path, size_t max_bytes, uint8_t **buf, size_t *len, char *err);
+
+/* A file written whole or not at all, so a reader never sees half of it:
+ * ts_file_create opens a temporary file beside path (its name in tmp,
+ * TS_FILE_TMP_LEN bytes), ts_file_commit closes it and renames it over
+ * path - or removes it, when ok is 0 or anything fails. NULL / TS_EIO with
+ * a message naming path. ts_file_write does both for bytes in memory. */
+#define TS_FILE_TMP_LEN 4096
+FILE *ts_file_create(const char *path, char *tmp, char *err);
+int ts_file_commit(FILE *f, const char *tmp, const char *path, int ok, char *err);
+int ts_file_write(const char *path, const void *data, size_t len, char *err);
 
 /* Numbers in option values and job specs: the whole text is one decimal
  * number (leading white space and a '+' are taken, as strtol does), else

@@ -194,6 +194,16 @@ static int run_embedded(sequence *s, char *err) {
   return rc;
 }
 
+/* Puts "frame F: " before the message (its end cut if need be). */
+static void frame_error(long f, char *err) {
+  char head[32];
+  int n = snprintf(head, sizeof(head), "frame %ld: ", f);
+  size_t keep = strnlen(err, TS_ERR_LEN - 1 - (size_t)n);
+  memmove(err + n, err, keep);
+  memcpy(err, head, (size_t)n);
+  err[(size_t)n + keep] = '\0';
+}
+
 /* Checks and submits every frame, then follows each to its end in order
  * and fetches it. */
 static int run_remote(sequence *s, char *err) {
@@ -201,7 +211,7 @@ static int run_remote(sequence *s, char *err) {
   long n = s->fr->last - s->fr->first + 1;
   uint64_t *ids = calloc((size_t)n, sizeof(*ids));
   ts_conn c;
-  int rc = ids != NULL ? ts_job_connect(&c, o->server, o->secret_file, err) : ts_error(err, TS_ENOMEM, "out of memory");
+  int rc = ids != NULL ? ts_job_open(&c, o, err) : ts_error(err, TS_ENOMEM, "out of memory");
   int connected = ids != NULL && rc == 0;
   for (long i = 0; rc == 0 && i < n; i++) {
     ts_image in[TS_ENGINE_MAX_INPUTS] = {0};
@@ -213,16 +223,8 @@ static int run_remote(sequence *s, char *err) {
   }
   for (long i = 0; rc == 0 && !o->detach && i < n; i++) {
     long f = s->fr->first + i;
-    ts_job_status st = {0};
     rc = frame_expand(o, s->ninputs, f, s->fj, err);
-    if (rc == 0) rc = ts_job_watch(&c, ids[i], !o->quiet && isatty(STDERR_FILENO), &st, err);
-    if (rc == 0 && st.state != TS_JOB_DONE)
-      rc = ts_error(err, TS_EIO, "frame %ld: job %llu %s%s%s", f, (unsigned long long)ids[i],
-                    ts_job_state_name(st.state), st.text[0] ? ": " : "", st.text);
-    if (rc == 0) rc = ts_job_fetch(&c, ids[i], &s->fj->job.out, err);
-    if (rc == 0 && !o->quiet)
-      fprintf(stderr, "texsyn: %s (frame %ld, job %llu on %s)\n", ts_output_path(&s->fj->job.out, "output"), f,
-              (unsigned long long)ids[i], o->server);
+    if (rc == 0 && (rc = ts_job_finish(&c, &s->fj->job, ids[i], err)) != 0) frame_error(f, err);
   }
   if (connected) ts_conn_close(&c);
   free(ids);

@@ -218,20 +218,6 @@ static int run_embedded(const ts_job_cmd *o, const ts_image *const *in, char *er
 
 /* ---- on a coordinator -------------------------------------------------- */
 
-/* Writes bytes to path atomically. */
-static int write_bytes(const char *path, const uint8_t *data, size_t len, char *err) {
-  char tmp[4096];
-  snprintf(tmp, sizeof(tmp), "%s.tmp-%ld", path, (long)getpid());
-  FILE *f = fopen(tmp, "wb");
-  if (f == NULL) return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
-  size_t n = len ? fwrite(data, 1, len, f) : 0;
-  if (fclose(f) != 0 || n != len || rename(tmp, path) != 0) {
-    unlink(tmp);
-    return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
-  }
-  return 0;
-}
-
 int ts_job_connect(ts_conn *c, const char *addr, const char *path, char *err) {
   if (path == NULL) path = getenv("TEXSYN_SECRET_FILE");
   ts_auth auth = {0};
@@ -253,7 +239,7 @@ int ts_job_fetch(ts_conn *c, uint64_t id, const ts_output_paths *t, char *err) {
   for (uint32_t i = 0; rc == 0 && i < m.n; i++) {
     const char *key = ts_engine_output_key_of_file(m.name[i]);
     const char *path = key != NULL ? ts_output_path(t, key) : NULL;
-    if (path != NULL) rc = write_bytes(path, m.data[i], m.len[i], err);
+    if (path != NULL) rc = ts_file_write(path, m.data[i], m.len[i], err);
   }
   return rc;
 }
@@ -350,29 +336,40 @@ int ts_job_submit(ts_conn *c, const ts_job_cmd *o, uint64_t *id, char *err) {
   return rc;
 }
 
+int ts_job_open(ts_conn *c, const ts_job_cmd *o, char *err) {
+  int rc = ts_job_connect(c, o->server, o->secret_file, err);
+  if (rc != 0) {
+    size_t n = strlen(err);
+    snprintf(err + n, TS_ERR_LEN - n, "\n(no job was submitted: is texsyn-server running at %s%s? --embedded runs here)",
+             o->server, o->server == ts_env_server() ? ", from $TEXSYN_SERVER" : "");
+  }
+  return rc;
+}
+
+int ts_job_finish(ts_conn *c, const ts_job_cmd *o, uint64_t id, char *err) {
+  ts_job_status st = {0};
+  int rc = ts_job_watch(c, id, !o->quiet && isatty(STDERR_FILENO), &st, err);
+  if (rc == 0 && st.state != TS_JOB_DONE)
+    rc = ts_error(err, TS_EIO, "job %llu %s%s%s", (unsigned long long)id, ts_job_state_name(st.state),
+                  st.text[0] ? ": " : "", st.text);
+  if (rc == 0) rc = ts_job_fetch(c, id, &o->out, err);
+  if (rc == 0 && !o->quiet)
+    fprintf(stderr, "texsyn: %s (job %llu on %s)\n", result_name(o), (unsigned long long)id, o->server);
+  return rc;
+}
+
 static int run_remote(const ts_job_cmd *o) {
   char err[TS_ERR_LEN] = "";
   ts_conn c;
   uint64_t id = 0;
-  int rc = ts_job_connect(&c, o->server, o->secret_file, err);
+  int rc = ts_job_open(&c, o, err);
   if (rc != 0) {
-    fprintf(stderr, "texsyn %s: %s\n(no job was submitted: is texsyn-server running at %s%s? --embedded runs here)\n",
-            o->cmd, err, o->server, o->server == ts_env_server() ? ", from $TEXSYN_SERVER" : "");
+    fprintf(stderr, "texsyn %s: %s\n", o->cmd, err);
     return 1;
   }
   rc = ts_job_submit(&c, o, &id, err);
-  ts_job_status st = {0};
-  if (rc == 0 && o->detach) {
-    printf("%llu\n", (unsigned long long)id);
-  } else if (rc == 0) {
-    rc = ts_job_watch(&c, id, !o->quiet && isatty(STDERR_FILENO), &st, err);
-    if (rc == 0 && st.state != TS_JOB_DONE)
-      rc = ts_error(err, TS_EINVAL, "job %llu %s%s%s", (unsigned long long)id, ts_job_state_name(st.state),
-                    st.text[0] ? ": " : "", st.text);
-    if (rc == 0) rc = ts_job_fetch(&c, id, &o->out, err);
-    if (rc == 0 && !o->quiet)
-      fprintf(stderr, "texsyn: %s (job %llu on %s)\n", result_name(o), (unsigned long long)id, o->server);
-  }
+  if (rc == 0 && o->detach) printf("%llu\n", (unsigned long long)id);
+  else if (rc == 0) rc = ts_job_finish(&c, o, id, err);
   if (rc != 0) fprintf(stderr, "texsyn %s: %s\n", o->cmd, err);
   ts_conn_close(&c);
   return rc == 0 ? 0 : 1;

@@ -91,6 +91,13 @@ int ts_job_run(ts_job_cmd *o);
 int ts_job_check_outputs(const ts_job_cmd *o, char *err);
 int ts_job_embedded(const ts_job_cmd *o, const ts_image *const *in, ts_search *search, char *err);
 int ts_job_submit(ts_conn *c, const ts_job_cmd *o, uint64_t *id, char *err);
+/* Connects to o's coordinator; a failure's message says that nothing was
+ * submitted and how to run in-process. */
+int ts_job_open(ts_conn *c, const ts_job_cmd *o, char *err);
+/* Follows a submitted job to its end (a progress bar unless quiet) and
+ * writes its files to o's output paths: 0, or TS_EIO when it failed or
+ * was canceled (its reason in the message), or the connection's error. */
+int ts_job_finish(ts_conn *c, const ts_job_cmd *o, uint64_t id, char *err);
 
 /* The shared parsers (util.h), with the option named in the message. */
 int ts_arg_long(const char *opt, const char *s, long lo, long hi, long *out, char *err);

@@ -6,11 +6,9 @@
  * line, energy.json, which the CLI prints from whichever process measured.
  * The measure is one exact search step: no checkpoints, a job a restart
  * interrupts measures again, with the same numbers. */
-#include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <unistd.h>
 
 #include "engine.h"
 #include "error.h"
@@ -103,18 +101,10 @@ static int energy_run(const void *params, const ts_image *const *in, ts_search *
 }
 
 static int write_json(const ts_stylit_energy *en, const char *path, char *err) {
-  char line[256], tmp[4096];
+  char line[256];
   int n = ts_stylit_energy_json(en, line, sizeof(line));
   if (n < 0) return ts_error(err, n, "the energy's JSON line outgrew %zu bytes", sizeof(line));
-  snprintf(tmp, sizeof(tmp), "%s.tmp-%ld", path, (long)getpid());
-  FILE *f = fopen(tmp, "w");
-  if (f == NULL) return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
-  size_t put = fwrite(line, 1, (size_t)n, f);
-  if (fclose(f) != 0 || put != (size_t)n || rename(tmp, path) != 0) {
-    unlink(tmp);
-    return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
-  }
-  return 0;
+  return ts_file_write(path, line, (size_t)n, err);
 }
 
 static int energy_write_output(const ts_engine_run *r, int k, const char *path, int threads, char *err) {

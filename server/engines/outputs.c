@@ -5,10 +5,10 @@
 #include <stdlib.h>
 #include <string.h>
 #include <strings.h>
-#include <unistd.h>
 
 #include "error.h"
 #include "image.h"
+#include "util.h"
 
 int ts_write_copy_map_image(const char *path, const uint32_t *map, int w, int h, int ref_w,
                             int ref_h, char *err) {
@@ -29,22 +29,16 @@ int ts_write_copy_map_image(const char *path, const uint32_t *map, int w, int h,
 
 /* Writes to a temporary file and renames, like ts_image_write. */
 int ts_write_copy_map_raw(const char *path, const uint32_t *map, int w, int h, char *err) {
-  char tmp[4096];
-  snprintf(tmp, sizeof(tmp), "%s.tmp-%ld", path, (long)getpid());
-  FILE *f = fopen(tmp, "wb");
-  if (f == NULL) return ts_error(err, TS_EIO, "cannot write %s: %m", path);
+  char tmp[TS_FILE_TMP_LEN];
+  FILE *f = ts_file_create(path, tmp, err);
+  if (f == NULL) return TS_EIO;
   uint8_t buf[8];
   int ok = 1;
   for (long i = 0; ok && i < 2L * w * h; i++) {
     for (int b = 0; b < 4; b++) buf[b] = (uint8_t)(map[i] >> (8 * b));
     ok = fwrite(buf, 4, 1, f) == 1;
   }
-  ok = (fclose(f) == 0) && ok;
-  if (!ok || rename(tmp, path) != 0) {
-    unlink(tmp);
-    return ts_error(err, TS_EIO, "cannot write %s: %m", path);
-  }
-  return 0;
+  return ts_file_commit(f, tmp, path, ok, err);
 }
 
 static int has_ext(const char *path, const char *ext) {
@@ -69,10 +63,9 @@ int ts_write_usage_map(const char *path, const uint32_t *usage, int w, int h, ch
 
 int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const ts_search *search,
                     const ts_mrf_result *res, char *err) {
-  char tmp[4096];
-  snprintf(tmp, sizeof(tmp), "%s.tmp-%ld", path, (long)getpid());
-  FILE *f = fopen(tmp, "w");
-  if (f == NULL) return ts_error(err, TS_EIO, "cannot write %s: %m", path);
+  char tmp[TS_FILE_TMP_LEN];
+  FILE *f = ts_file_create(path, tmp, err);
+  if (f == NULL) return TS_EIO;
   fprintf(f, "{\n  \"engine\": \"mrf\",\n  \"search\": {\"mode\": \"exact\", \"lossy\": [], "
              "\"backend\": \"%s\", \"simd\": \"%s\", \"threads\": %d},\n",
           search->ops->name, search->simd->name, threads);
@@ -102,9 +95,5 @@ int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const
             l > p->stop_level ? "," : "");
   }
   fprintf(f, "  ]\n}\n");
-  if (fclose(f) != 0 || rename(tmp, path) != 0) {
-    unlink(tmp);
-    return ts_error(err, TS_EIO, "cannot write %s: %m", path);
-  }
-  return 0;
+  return ts_file_commit(f, tmp, path, 1, err);
 }

@@ -3,11 +3,9 @@
  * energy engine), its own keys, result files and report. No checkpoints
  * yet: a job a coordinator restart interrupts runs again from its start,
  * which gives the same bytes. */
-#include <errno.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <unistd.h>
 
 #include "engine.h"
 #include "error.h"
@@ -146,10 +144,9 @@ static int stylit_run(const void *params, const ts_image *const *in, ts_search *
 static int write_report(const ts_engine_run *r, const char *path, int threads, char *err) {
   const ts_stylit_params *p = r->p;
   const ts_stylit_result *res = &r->res;
-  char tmp[4096];
-  snprintf(tmp, sizeof(tmp), "%s.tmp-%ld", path, (long)getpid());
-  FILE *f = fopen(tmp, "w");
-  if (f == NULL) return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
+  char tmp[TS_FILE_TMP_LEN];
+  FILE *f = ts_file_create(path, tmp, err);
+  if (f == NULL) return TS_EIO;
   int pm_levels = 0;
   ts_stylit_params ran = *p; /* what ran, as a list (coarsest first) */
   ran.search = TS_STYLIT_LIST;
@@ -179,11 +176,7 @@ static int write_report(const ts_engine_run *r, const char *path, int threads, c
             (unsigned long long)s->pairs, s->seconds, l > 0 ? "," : "");
   }
   fprintf(f, "  ]\n}\n");
-  if (fclose(f) != 0 || rename(tmp, path) != 0) {
-    unlink(tmp);
-    return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
-  }
-  return 0;
+  return ts_file_commit(f, tmp, path, 1, err);
 }
 
 /* The NNF: raw (x, y) uint32 pairs for a .raw path, else a 16-bit image

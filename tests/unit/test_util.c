@@ -249,6 +249,56 @@ static void file_read_refuses_a_directory(void **state) {
   assert_non_null(strstr(err, "not a regular file"));
 }
 
+/* --- ts_file_write / ts_file_create / ts_file_commit ------------------------- */
+
+/* The file at path whole, as a string (one at a time). */
+static const char *whole(const char *path) {
+  static char text[256];
+  uint8_t *buf;
+  size_t len;
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_file_read(path, sizeof(text) - 1, &buf, &len, err), 0);
+  memcpy(text, buf, len + 1);
+  free(buf);
+  return text;
+}
+
+static void file_write_replaces_the_file_whole(void **state) {
+  (void)state;
+  char path[] = "/tmp/ts-test-write-XXXXXX", err[TS_ERR_LEN];
+  close(mkstemp(path));
+  assert_int_equal(ts_file_write(path, "old", 3, err), 0);
+  assert_int_equal(ts_file_write(path, "new content", 11, err), 0);
+  assert_string_equal(whole(path), "new content");
+  assert_int_equal(ts_file_write(path, "", 0, err), 0);
+  assert_string_equal(whole(path), "");
+  unlink(path);
+}
+
+static void file_commit_not_ok_keeps_the_old_file_and_no_temporary(void **state) {
+  (void)state;
+  char path[] = "/tmp/ts-test-commit-XXXXXX", tmp[TS_FILE_TMP_LEN], err[TS_ERR_LEN] = "";
+  close(mkstemp(path));
+  assert_int_equal(ts_file_write(path, "kept", 4, err), 0);
+  FILE *f = ts_file_create(path, tmp, err);
+  assert_non_null(f);
+  fputs("half of it", f);
+  assert_int_equal(ts_file_commit(f, tmp, path, 0, err), TS_EIO);
+  assert_non_null(strstr(err, path));
+  assert_string_equal(whole(path), "kept");
+  assert_int_not_equal(access(tmp, F_OK), 0);
+  unlink(path);
+}
+
+static void file_create_names_a_path_it_cannot_write(void **state) {
+  (void)state;
+  char tmp[TS_FILE_TMP_LEN], err[TS_ERR_LEN] = "";
+  const char *path = "/nonexistent-dir/out.json";
+  assert_null(ts_file_create(path, tmp, err));
+  assert_non_null(strstr(err, path));
+  assert_int_equal(ts_file_write(path, "x", 1, err), TS_EIO);
+}
+
 /* --- ts_log ---------------------------------------------------------------------- */
 
 /* What the log wrote to f, from the start. */
@@ -327,6 +377,9 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(file_read_refuses_a_file_over_the_limit),
     cmocka_unit_test(file_read_takes_a_file_at_the_limit),
     cmocka_unit_test(file_read_refuses_a_directory),
+    cmocka_unit_test(file_write_replaces_the_file_whole),
+    cmocka_unit_test(file_commit_not_ok_keeps_the_old_file_and_no_temporary),
+    cmocka_unit_test(file_create_names_a_path_it_cannot_write),
     cmocka_unit_test(log_line_has_the_prefix_and_utc_time),
     cmocka_unit_test(log_quiet_drops_events_not_warnings),
 };
