@@ -62,6 +62,67 @@ int ts_plane_reduce(const ts_plane *src, ts_plane *dst) {
   return 0;
 }
 
+/* Horizontal pass of the masked reduction: per source row and output
+ * column, the weighted sum of the defined taps and their weight. */
+static void masked_rows(const ts_plane *src, const ts_plane *mask, int w, uint32_t *val, uint32_t *wt) {
+  for (int y = 0; y < src->h; y++) {
+    const uint8_t *s = src->px + (long)y * src->w, *m = mask->px + (long)y * src->w;
+    for (int x = 0; x < w; x++) {
+      uint32_t acc = 0, sum = 0;
+      for (int i = -2; i <= 2; i++) {
+        int sx = mirror(2 * x + i, src->w);
+        uint32_t k = m[sx] ? (uint32_t)kTaps[i + 2] : 0;
+        acc += k * s[sx];
+        sum += k;
+      }
+      val[(long)y * w + x] = acc;
+      wt[(long)y * w + x] = sum;
+    }
+  }
+}
+
+int ts_plane_reduce_masked(const ts_plane *src, const ts_plane *mask, int ceil_size, ts_plane *dst) {
+  int w = ceil_size ? (src->w + 1) / 2 : src->w / 2, h = ceil_size ? (src->h + 1) / 2 : src->h / 2;
+  int rc = ts_plane_alloc(dst, w, h);
+  if (rc != 0) return rc;
+  uint32_t *val = malloc(sizeof(uint32_t) * (size_t)w * (size_t)src->h);
+  uint32_t *wt = malloc(sizeof(uint32_t) * (size_t)w * (size_t)src->h);
+  if (val == NULL || wt == NULL) {
+    free(val);
+    free(wt);
+    ts_plane_free(dst);
+    return TS_ENOMEM;
+  }
+  masked_rows(src, mask, w, val, wt);
+  for (int y = 0; y < h; y++)
+    for (int x = 0; x < w; x++) {
+      uint64_t acc = 0, sum = 0;
+      for (int j = -2; j <= 2; j++) {
+        long o = (long)mirror(2 * y + j, src->h) * w + x;
+        acc += (uint64_t)kTaps[j + 2] * val[o];
+        sum += (uint64_t)kTaps[j + 2] * wt[o];
+      }
+      dst->px[(long)y * w + x] = sum ? (uint8_t)((acc + sum / 2) / sum) : 0;
+    }
+  free(val);
+  free(wt);
+  return 0;
+}
+
+int ts_plane_reduce_all(const ts_plane *mask, int ceil_size, ts_plane *dst) {
+  int w = ceil_size ? (mask->w + 1) / 2 : mask->w / 2, h = ceil_size ? (mask->h + 1) / 2 : mask->h / 2;
+  int rc = ts_plane_alloc(dst, w, h);
+  if (rc != 0) return rc;
+  for (int y = 0; y < h; y++)
+    for (int x = 0; x < w; x++) {
+      int all = 1;
+      for (int j = 0; j < 2 && 2 * y + j < mask->h; j++)
+        for (int i = 0; i < 2 && 2 * x + i < mask->w; i++) all &= ts_plane_at(mask, 2 * x + i, 2 * y + j) != 0;
+      dst->px[(long)y * w + x] = (uint8_t)all;
+    }
+  return 0;
+}
+
 int ts_pyramid_build(const ts_plane *base, int nlevels, ts_plane *levels) {
   for (int l = 0; l < nlevels; l++) levels[l].px = NULL;
   int rc = ts_plane_alloc(&levels[0], base->w, base->h);

@@ -36,6 +36,19 @@ static inline uint8_t ts_plane_wrap(const ts_plane *p, int x, int y) {
  * lost, as in the seed). Source must be at least 2x2. */
 int ts_plane_reduce(const ts_plane *src, ts_plane *dst);
 
+/* The masked reduction of seed 002 §3.3.1 (normalised convolution): the
+ * kernel of ts_plane_reduce over the taps where mask is non-zero only,
+ * renormalised by their weight, so an undefined area (a hole, an area not
+ * synthesised yet) neither darkens nor spreads into its edge. dst is
+ * ceil(w/2) x ceil(h/2) with ceil_size, else floor; a pixel without a
+ * defined tap is 0. mask has src's size. */
+int ts_plane_reduce_masked(const ts_plane *src, const ts_plane *mask, int ceil_size, ts_plane *dst);
+
+/* A mask one level down: non-zero where every pixel of the 2 x 2 cell
+ * below (clipped at the edge) is non-zero. dst has the size
+ * ts_plane_reduce_masked gives with ceil_size. */
+int ts_plane_reduce_all(const ts_plane *mask, int ceil_size, ts_plane *dst);
+
 /* levels[0] = a copy of base, levels[l+1] = reduce(levels[l]). */
 int ts_pyramid_build(const ts_plane *base, int nlevels, ts_plane *levels);
 void ts_pyramid_free(ts_plane *levels, int nlevels);

@@ -1,6 +1,8 @@
 /* util.c - see util.h. */
 #include "util.h"
 
+#include <stdarg.h>
+
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
@@ -155,4 +157,15 @@ int ts_file_write(const char *path, const void *data, size_t len, char *err) {
   FILE *f = ts_file_create(path, tmp, err);
   if (f == NULL) return TS_EIO;
   return ts_file_commit(f, tmp, path, len == 0 || fwrite(data, 1, len, f) == len, err);
+}
+
+void ts_problem(char *msg, size_t len, int *count, const char *fmt, ...) {
+  size_t used = strlen(msg);
+  (*count)++;
+  if (used + 4 >= len) return;
+  if (used > 0) msg[used++] = '\n';
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(msg + used, len - used, fmt, ap);
+  va_end(ap);
 }

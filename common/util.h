@@ -15,6 +15,10 @@ double ts_now(void);
  * pthread_cond_timedwait takes it. */
 struct timespec ts_wait_until(double seconds);
 
+/* Appends a problem to a list of them in msg (len bytes), one a line, and
+ * counts it in *count: checks that report every problem at once. */
+void ts_problem(char *msg, size_t len, int *count, const char *fmt, ...) __attribute__((format(printf, 4, 5)));
+
 /* Reads the regular file at path whole into a malloc'd buffer: *buf holds
  * *len bytes and a NUL after them, so text can be used as a string.
  * Files over max_bytes are refused (SIZE_MAX: no limit but memory). 0, or

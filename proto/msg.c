@@ -414,7 +414,8 @@ static void wr_load(ts_wr *w, const ts_replica_desc *d) {
   ts_wr_u8(w, (uint8_t)d->nplanes);
   ts_wr_u32(w, (uint32_t)d->cw);
   ts_wr_u32(w, (uint32_t)d->ch);
-  ts_wr_u8(w, d->done != NULL);
+  ts_wr_u8(w, (uint8_t)((d->done != NULL ? TS_LOAD_DONE : 0) | (d->bounded ? TS_LOAD_BOUNDED : 0) |
+                        (d->block != 0 && d->copy == NULL ? TS_LOAD_NO_COPY : 0)));
   ts_wr_u16(w, (uint16_t)d->block);
   wr_planes(w, d->fine, d->nplanes, d->w, d->h);
   wr_planes(w, d->coarse, d->cw ? d->nplanes : 0, d->cw, d->ch);
@@ -424,7 +425,7 @@ static void wr_load(ts_wr *w, const ts_replica_desc *d) {
   ts_wr_u32(w, (uint32_t)d->rh);
   wr_planes(w, d->ref, d->nplanes, d->rw, d->rh);
   size_t npx = (size_t)d->w * (size_t)d->h;
-  for (size_t i = 0; i < 2 * npx; i++) ts_wr_u32(w, d->copy[i]);
+  for (size_t i = 0; d->copy != NULL && i < 2 * npx; i++) ts_wr_u32(w, d->copy[i]);
 }
 
 static int rd_load(ts_rd *r, ts_msg_image *m, char *err) {
@@ -434,10 +435,14 @@ static int rd_load(ts_rd *r, ts_msg_image *m, char *err) {
   d->nplanes = ts_rd_u8(r);
   d->cw = (int)ts_rd_u32(r);
   d->ch = (int)ts_rd_u32(r);
-  uint8_t has_done = ts_rd_u8(r);
+  uint8_t flags = ts_rd_u8(r);
   d->block = ts_rd_u16(r);
   if (r->failed) return bad(err, 'R', "truncated header");
-  if (d->nplanes < 1 || d->nplanes > TS_WIN_MAX_PLANES || has_done > 1) return bad(err, 'R', "planes or done flag");
+  if (d->nplanes < 1 || d->nplanes > TS_WIN_MAX_PLANES ||
+      (flags & ~(TS_LOAD_DONE | TS_LOAD_BOUNDED | TS_LOAD_NO_COPY)) != 0)
+    return bad(err, 'R', "planes or flags");
+  int has_done = (flags & TS_LOAD_DONE) != 0;
+  d->bounded = (flags & TS_LOAD_BOUNDED) != 0;
   if (rd_planes(r, d->fine, d->nplanes, d->w, d->h) != 0 ||
       rd_planes(r, d->coarse, d->cw ? d->nplanes : 0, d->cw, d->ch) != 0)
     return bad(err, 'R', "image size");
@@ -445,10 +450,11 @@ static int rd_load(ts_rd *r, ts_msg_image *m, char *err) {
   if (d->block == 0) return 0;
   d->rw = (int)ts_rd_u32(r);
   d->rh = (int)ts_rd_u32(r);
-  const uint8_t *copy[8];
-  if (rd_planes(r, d->ref, d->nplanes, d->rw, d->rh) != 0 || rd_planes(r, copy, 8, d->w, d->h) != 0)
+  const uint8_t *copy[8] = {NULL};
+  if (rd_planes(r, d->ref, d->nplanes, d->rw, d->rh) != 0 ||
+      ((flags & TS_LOAD_NO_COPY) == 0 && rd_planes(r, copy, 8, d->w, d->h) != 0))
     return bad(err, 'R', "reference or copy map size");
-  m->copy_le = copy[0]; /* 8 bytes per pixel, contiguous */
+  m->copy_le = copy[0]; /* 8 bytes per pixel, contiguous; NULL: none */
   return 0;
 }
 

@@ -135,6 +135,9 @@ int ts_msg_loaded_read(const ts_frame *f, ts_msg_loaded *m, char *err);
  * reference planes follow), state 0; CLOSE frees it. Reply: R with the
  * image id. */
 enum { TS_IMAGE_LOAD = 1, TS_IMAGE_NEXT = 2, TS_IMAGE_CLOSE = 3 };
+/* Flags of a load: the done map follows; the image is bounded (no torus);
+ * it keeps no copy map (none follows). */
+enum { TS_LOAD_DONE = 1, TS_LOAD_BOUNDED = 2, TS_LOAD_NO_COPY = 4 };
 #define TS_PLACE_BYTES 8
 typedef struct {
   uint32_t image;

@@ -115,7 +115,7 @@ static void describe_slice(cluster_search *cs, cl_set *st, int i, int loading, t
  * the canvas copies from the level the set is made of). */
 static int fine_is_image_ref(const cl_set *st, const ts_replica *r) {
   int n = st->rs.window->spec.nplanes[TS_SRC_FINE];
-  if (r->copy == NULL || n > r->nplanes) return 0;
+  if (r->block == 0 || n > r->nplanes) return 0;
   for (int p = 0; p < n; p++) {
     const ts_plane *a = st->rs.ref->fine[p], *b = &r->ref[p];
     if (a->w != b->w || a->h != b->h || memcmp(a->px, b->px, (size_t)a->w * (size_t)a->h) != 0) return 0;
@@ -407,6 +407,7 @@ void cl_load_message(const cl_image *im, ts_msg_image *m) {
   d->w = r->w;
   d->h = r->h;
   d->nplanes = r->nplanes;
+  d->bounded = r->bounded;
   d->done = r->done;
   d->block = r->block;
   d->copy = r->copy;
@@ -419,7 +420,7 @@ void cl_load_message(const cl_image *im, ts_msg_image *m) {
     d->cw = r->coarse[0].w;
     d->ch = r->coarse[0].h;
   }
-  if (r->copy != NULL) {
+  if (r->block != 0) {
     d->rw = r->ref[0].w;
     d->rh = r->ref[0].h;
   }

@@ -148,7 +148,7 @@ static int place_on(session *s, uint32_t id, ts_replica *r, const uint8_t *place
 static int load_image(ts_replica *r, ts_msg_image *m, char *err) {
   uint32_t *copy = NULL;
   size_t n = 2 * (size_t)m->d.w * (size_t)m->d.h;
-  if (m->d.block != 0) {
+  if (m->d.block != 0 && m->copy_le != NULL) {
     copy = malloc(sizeof(uint32_t) * n);
     if (copy == NULL) return ts_error(err, TS_ENOMEM, "out of memory for a %dx%d copy map", m->d.w, m->d.h);
     for (size_t i = 0; i < n; i++) {

@@ -47,14 +47,19 @@ static int check_desc(const ts_replica_desc *d, char *err) {
     return ts_error(err, TS_EINVAL, "a query image of %dx%d: need 1..%u pixels", d->w, d->h, TS_REPLICA_MAX_PIXELS);
   if ((d->cw || d->ch) && !size_ok(d->cw, d->ch))
     return ts_error(err, TS_EINVAL, "coarse planes of %dx%d: need 1..%u pixels", d->cw, d->ch, TS_REPLICA_MAX_PIXELS);
+  if (d->bounded != 0 && d->bounded != 1) return ts_error(err, TS_EINVAL, "a query image's bounded flag is %d", d->bounded);
+  size_t npx = (size_t)d->w * (size_t)d->h;
+  for (size_t i = 0; d->done != NULL && i < npx; i++)
+    if (d->done[i] > TS_DONE_CLOSED)
+      return ts_error(err, TS_EINVAL, "pixel %zu of a query image has state %u: need 0..%d", i, d->done[i],
+                      TS_DONE_CLOSED);
   if (d->block == 0) return 0;
   if (d->block < 1 || d->block > TS_WIN_MAX_REACH)
     return ts_error(err, TS_EINVAL, "placed blocks of side %d: need 1..%d", d->block, TS_WIN_MAX_REACH);
   if (!size_ok(d->rw, d->rh))
     return ts_error(err, TS_EINVAL, "a reference of %dx%d to copy from: need 1..%u pixels", d->rw, d->rh,
                     TS_REPLICA_MAX_PIXELS);
-  size_t npx = (size_t)d->w * (size_t)d->h;
-  for (size_t i = 0; i < npx; i++)
+  for (size_t i = 0; d->copy != NULL && i < npx; i++)
     if (d->copy[2 * i] >= (uint32_t)d->rw || d->copy[2 * i + 1] >= (uint32_t)d->rh)
       return ts_error(err, TS_EINVAL, "the copy map points outside the %dx%d reference at pixel %zu", d->rw, d->rh,
                       i);
@@ -69,6 +74,7 @@ int ts_replica_init(ts_replica *r, const ts_replica_desc *d, char *err) {
   r->h = d->h;
   r->nplanes = d->nplanes;
   r->block = d->block;
+  r->bounded = d->bounded;
   size_t npx = (size_t)d->w * (size_t)d->h;
   rc = planes_copy(r->fine, d->nplanes, d->w, d->h, d->fine);
   if (rc == 0 && d->cw) rc = planes_copy(r->coarse, d->nplanes, d->cw, d->ch, d->coarse);
@@ -76,8 +82,8 @@ int ts_replica_init(ts_replica *r, const ts_replica_desc *d, char *err) {
   if (rc == 0 && d->done) memcpy(r->done, d->done, npx);
   if (rc == 0 && d->block) {
     rc = planes_copy(r->ref, d->nplanes, d->rw, d->rh, d->ref);
-    if (rc == 0 && (r->copy = malloc(sizeof(uint32_t) * 2 * npx)) == NULL) rc = TS_ENOMEM;
-    if (rc == 0) memcpy(r->copy, d->copy, sizeof(uint32_t) * 2 * npx);
+    if (rc == 0 && d->copy != NULL && (r->copy = malloc(sizeof(uint32_t) * 2 * npx)) == NULL) rc = TS_ENOMEM;
+    if (rc == 0 && d->copy != NULL) memcpy(r->copy, d->copy, sizeof(uint32_t) * 2 * npx);
   }
   if (rc != 0) {
     ts_replica_free(r);
@@ -158,6 +164,8 @@ static int check_place(const ts_replica *r, const ts_place *p, char *err) {
   if (sy + (uint32_t)bh > (uint32_t)ref->h || sx + (uint32_t)bw > (uint32_t)ref->w)
     return ts_error(err, TS_EINVAL, "a %dx%d block copied from (%u, %u) of the %dx%d reference", bw, bh, sx, sy,
                     ref->w, ref->h);
+  if (r->copy == NULL && r->done[p->dst] == TS_DONE_PLACED)
+    return ts_error(err, TS_EINVAL, "a block placed twice at pixel %u of an image that keeps no copy map", p->dst);
   return 0;
 }
 
@@ -165,24 +173,27 @@ static void place_one(ts_replica *r, const ts_place *p, ts_commit *commits, uint
   int x, y, bw, bh;
   block_at(r, p->dst, &x, &y, &bw, &bh);
   int sx = (int)(p->src % (uint32_t)r->ref[0].w), sy = (int)(p->src / (uint32_t)r->ref[0].w);
-  if (r->done[p->dst]) /* a sweep replaces a counted copy */
+  if (r->copy != NULL && r->done[p->dst] == TS_DONE_PLACED) /* a sweep replaces a counted copy */
     commits[(*nc)++] = (ts_commit){(int32_t)r->copy[2 * p->dst], (int32_t)r->copy[2 * p->dst + 1], (uint16_t)bw,
                                    (uint16_t)bh, -1};
   commits[(*nc)++] = (ts_commit){sx, sy, (uint16_t)bw, (uint16_t)bh, 1};
   for (int dy = 0; dy < bh; dy++)
     for (int dx = 0; dx < bw; dx++) {
       size_t o = (size_t)(y + dy) * (size_t)r->w + (size_t)(x + dx);
+      if (r->done[o] >= TS_DONE_FIXED) continue; /* given, or not this one's to fill */
       for (int k = 0; k < r->nplanes; k++) r->fine[k].px[o] = ts_plane_at(&r->ref[k], sx + dx, sy + dy);
-      r->copy[2 * o] = (uint32_t)(sx + dx);
-      r->copy[2 * o + 1] = (uint32_t)(sy + dy);
-      r->done[o] = 1;
+      if (r->copy != NULL) {
+        r->copy[2 * o] = (uint32_t)(sx + dx);
+        r->copy[2 * o + 1] = (uint32_t)(sy + dy);
+      }
+      r->done[o] = TS_DONE_PLACED;
     }
 }
 
 int ts_replica_place(ts_replica *r, const ts_place *p, uint32_t n, ts_commit *commits, uint32_t *ncommits,
                      char *err) {
   *ncommits = 0;
-  if (n > 0 && r->copy == NULL) return ts_error(err, TS_EINVAL, "blocks placed on a query image that takes none");
+  if (n > 0 && r->block == 0) return ts_error(err, TS_EINVAL, "blocks placed on a query image that takes none");
   for (uint32_t i = 0; i < n; i++) {
     int rc = check_place(r, &p[i], err);
     if (rc != 0) return rc;
@@ -204,8 +215,8 @@ int ts_replica_queries(const ts_replica *r, const ts_window *w, const uint32_t *
     if (pos[i] >= npx) return ts_error(err, TS_EINVAL, "query at pixel %u of a %dx%d image", pos[i], r->w, r->h);
   for (uint32_t i = 0; i < n; i++) {
     int x = (int)(pos[i] % (uint32_t)r->w), y = (int)(pos[i] / (uint32_t)r->w);
-    ts_vec_query(w, &r->planes, x, y, vec + (size_t)i * vb);
-    if (masked) ts_vec_mask(w, r->done, r->w, r->h, x, y, mask + (size_t)i * vb);
+    ts_vec_query(w, &r->planes, !r->bounded, x, y, vec + (size_t)i * vb);
+    if (masked) ts_vec_mask(w, r->done, r->w, r->h, !r->bounded, x, y, mask + (size_t)i * vb);
   }
   return 0;
 }
@@ -236,7 +247,7 @@ int ts_query_vectors(ts_query_scratch *s, const ts_replica *r, const ts_window *
 
 int ts_replica_slice_rows(const ts_replica *r, ts_slice_desc *m, char *err) {
   int n = m->win.nplanes[TS_SRC_FINE];
-  if (r == NULL || r->copy == NULL)
+  if (r == NULL || r->block == 0)
     return ts_error(err, TS_EINVAL, "slice %u takes its rows from query image %u, which holds no reference here", m->set,
                     m->image);
   if (r->ref[0].w != m->w || r->ref[0].h != m->h || n > r->nplanes)

@@ -7,10 +7,13 @@
  * sends positions: the worker reads the vectors out of its replica with
  * the code the coordinator would have used (ts_vec_query, ts_vec_mask).
  *
- * The image of a level is `nplanes` fine planes (w x h, read as a torus),
- * optionally coarse planes (the level above, the coarse part of queries)
- * and a `done` map (non-zero where a block has been placed: what masked
- * queries may use). An image that grows by copying (the MRF) also keeps
+ * The image of a level is `nplanes` fine planes (w x h, read as a torus,
+ * or bounded: constrained synthesis fills part of an image that has
+ * edges), optionally coarse planes (the level above, the coarse part of
+ * queries) and a `done` map of pixel states (window.h: FREE, PLACED where
+ * a block has been placed, FIXED where the image was given, CLOSED where it
+ * is not known yet: what masked queries may use, and what placements may
+ * write). An image that grows by copying (the MRF) also keeps
  * the reference planes its blocks come from and a copy map (the source
  * pixel of every pixel), so that it changes by *placements* of 8 bytes - a
  * block's position and its source - and starts a new level by predicting
@@ -18,9 +21,10 @@
  * on the wire.
  *
  * A placement of block b x b (clipped at the canvas edge) copies the
- * reference pixels at src to dst, sets them done and records the copy; if
- * dst was done already (a refinement sweep), the copy it replaces leaves
- * the usage counters. Both changes come back as usage commits (search.h)
+ * reference pixels at src to the FREE and PLACED pixels at dst (FIXED and
+ * CLOSED ones keep theirs), makes them PLACED and records the copy; if dst
+ * was PLACED already (a refinement sweep), the copy it replaces leaves the
+ * usage counters. Both changes come back as usage commits (search.h)
  * for the sets the replica feeds. */
 #ifndef TS_REPLICA_H
 #define TS_REPLICA_H
@@ -35,7 +39,7 @@
 #define TS_REPLICA_MAX_PIXELS (1u << 28)
 
 typedef struct {
-  int w, h, nplanes, block;
+  int w, h, nplanes, block, bounded;
   ts_plane fine[TS_WIN_MAX_PLANES], coarse[TS_WIN_MAX_PLANES];
   ts_levelplanes planes; /* fine and coarse, as windows read them */
   ts_plane ref[TS_WIN_MAX_PLANES];

@@ -63,12 +63,15 @@ typedef struct {
  * during ts_replica_init. */
 typedef struct {
   int w, h, nplanes; /* the level's image */
+  int bounded;       /* 1: not a torus (window.h, ts_vec_query) */
   const uint8_t *fine[TS_WIN_MAX_PLANES];
   int cw, ch; /* coarse planes (nplanes of them), 0 x 0: none */
   const uint8_t *coarse[TS_WIN_MAX_PLANES];
-  const uint8_t *done; /* NULL: nothing placed */
+  const uint8_t *done; /* pixel states TS_DONE_* (window.h); NULL: all FREE */
   /* Placements: the block side, the reference planes blocks copy from and
-   * the copy map, x then y per pixel. block 0: the image takes none. */
+   * the copy map, x then y per pixel (NULL: the image keeps none, so it
+   * has no next level and no block is placed twice). block 0: the image
+   * takes none. */
   int block, rw, rh;
   const uint8_t *ref[TS_WIN_MAX_PLANES];
   const uint32_t *copy;

@@ -146,29 +146,67 @@ void ts_vec_ref(const ts_window *w, const ts_levelplanes *ref, int x, int y, uin
   }
 }
 
-void ts_vec_query(const ts_window *w, const ts_levelplanes *canvas, int x, int y, uint8_t *out) {
+/* The coarse pixel under the block centre of fine (x, y): x/2 for even
+ * sizes, and a consistent torus mapping for any size; clamped to the
+ * coarse plane on a bounded image, whose blocks may overhang its edge. */
+static void coarse_centre(const ts_window *w, const ts_plane *f, const ts_plane *c0, int x, int y, int torus,
+                          int *cx, int *cy) {
+  long fx = x + w->spec.centre, fy = y + w->spec.centre;
+  if (torus) {
+    fx %= f->w;
+    fy %= f->h;
+  } else {
+    fx = fx < f->w ? fx : f->w - 1;
+    fy = fy < f->h ? fy : f->h - 1;
+  }
+  *cx = (int)(fx * c0->w / f->w);
+  *cy = (int)(fy * c0->h / f->h);
+}
+
+/* Part p of a bounded image: offsets outside the planes read 0 (the mask
+ * never counts them), coarse ones the nearest edge pixel. */
+static void put_part_bounded(const ts_window *w, int p, const ts_plane *const *planes, int x, int y, int coarse,
+                             uint8_t *out, uint32_t *n) {
+  const ts_part *pt = &w->spec.part[p];
+  const int16_t *dx = w->spec.dx[pt->source], *dy = w->spec.dy[pt->source];
+  int no = w->spec.noff[pt->source];
+  uint32_t k = *n;
+  for (int q = pt->plane0; q < pt->plane0 + pt->nplanes; q++) {
+    const ts_plane *pl = planes[q];
+    for (int i = 0; i < no; i++) {
+      int px = x + dx[i], py = y + dy[i];
+      int in = px >= 0 && py >= 0 && px < pl->w && py < pl->h;
+      if (coarse) {
+        px = px < 0 ? 0 : px >= pl->w ? pl->w - 1 : px;
+        py = py < 0 ? 0 : py >= pl->h ? pl->h - 1 : py;
+        in = 1;
+      }
+      out[k++] = in ? ts_plane_at(pl, px, py) : 0;
+    }
+  }
+  while (k < w->part_end[p] * TS_L1_CHUNK) out[k++] = 0;
+  *n = k;
+}
+
+void ts_vec_query(const ts_window *w, const ts_levelplanes *canvas, int torus, int x, int y, uint8_t *out) {
   const ts_plane *f = canvas->fine[0];
   const ts_box *e = &w->spec.extent[TS_SRC_FINE];
-  /* Most windows do not wrap: they skip the modulo. */
+  /* Most windows lie inside: they skip the modulo and the bounds. */
   int inside = x + e->dx0 >= 0 && y + e->dy0 >= 0 && x + e->dx1 <= f->w && y + e->dy1 <= f->h;
   int cx = 0, cy = 0;
-  if (ts_window_has_coarse(w)) {
-    /* Block centre scaled to the coarse canvas: x/2 for even sizes, and a
-     * consistent torus mapping for any size. */
-    const ts_plane *c0 = canvas->coarse[0];
-    long fx = (x + w->spec.centre) % f->w, fy = (y + w->spec.centre) % f->h;
-    cx = (int)(fx * c0->w / f->w);
-    cy = (int)(fy * c0->h / f->h);
-  }
+  if (ts_window_has_coarse(w)) coarse_centre(w, f, canvas->coarse[0], x, y, torus, &cx, &cy);
   uint32_t n = 0;
   for (int p = 0; p < w->spec.nparts; p++) {
-    if (w->spec.part[p].source == TS_SRC_COARSE) put_part(w, p, canvas->coarse, cx, cy, 1, out, &n);
+    int coarse = w->spec.part[p].source == TS_SRC_COARSE;
+    if (coarse && torus) put_part(w, p, canvas->coarse, cx, cy, 1, out, &n);
+    else if (coarse) put_part_bounded(w, p, canvas->coarse, cx, cy, 1, out, &n);
     else if (inside) put_part(w, p, canvas->fine, x, y, 0, out, &n);
-    else put_part(w, p, canvas->fine, x, y, 1, out, &n);
+    else if (torus) put_part(w, p, canvas->fine, x, y, 1, out, &n);
+    else put_part_bounded(w, p, canvas->fine, x, y, 0, out, &n);
   }
 }
 
-int ts_vec_mask(const ts_window *w, const uint8_t *done, int cw, int ch, int x, int y, uint8_t *mask) {
+int ts_vec_mask(const ts_window *w, const uint8_t *done, int cw, int ch, int torus, int x, int y, uint8_t *mask) {
   const ts_window_spec *s = &w->spec;
   int nf = s->noff[TS_SRC_FINE], bw = s->block < cw - x ? s->block : cw - x, bh = s->block < ch - y ? s->block : ch - y;
   uint8_t fine[TS_WIN_MAX_OFFSETS];
@@ -176,8 +214,10 @@ int ts_vec_mask(const ts_window *w, const uint8_t *done, int cw, int ch, int x, 
   for (int k = 0; k < nf; k++) {
     int dx = s->dx[TS_SRC_FINE][k], dy = s->dy[TS_SRC_FINE][k];
     int written = dx >= 0 && dx < bw && dy >= 0 && dy < bh;
-    int px = ((x + dx) % cw + cw) % cw, py = ((y + dy) % ch + ch) % ch;
-    int known = s->known[k] || (!written && done[(size_t)py * (size_t)cw + (size_t)px]);
+    int px = x + dx, py = y + dy, state = TS_DONE_CLOSED;
+    if (torus) state = done[(size_t)((py % ch + ch) % ch) * (size_t)cw + (size_t)((px % cw + cw) % cw)];
+    else if (px >= 0 && py >= 0 && px < cw && py < ch) state = done[(size_t)py * (size_t)cw + (size_t)px];
+    int known = s->known[k] || state == TS_DONE_FIXED || (!written && state == TS_DONE_PLACED);
     differs |= known != s->known[k];
     fine[k] = known ? 0xFF : 0x00;
   }

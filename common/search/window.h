@@ -89,13 +89,25 @@ static inline int ts_window_has_coarse(const ts_window *w) {
 /* The window's parts on a set of vectors (ts_l1_set_weigh). */
 int ts_window_weigh(const ts_window *w, ts_l1_set *set, char *err);
 
-/* The mask of a masked query at (x, y) of a w x h canvas (a torus) whose
- * placed pixels are non-zero in `done`: a fine offset counts (0xFF) when
- * the window calls it known, or when it lies on a placed pixel outside the
- * block the query will fill (block x block at (x, y), clipped at the
- * canvas edge); coarse parts always count. Returns whether the mask
- * differs from the known flags alone. The window must have known flags. */
-int ts_vec_mask(const ts_window *w, const uint8_t *done, int cw, int ch, int x, int y, uint8_t *mask);
+/* The states of a query image's pixels (its `done` map, replica.h): what
+ * a masked query may use and what a placement may write. */
+enum {
+  TS_DONE_FREE = 0,   /* not placed yet: masked; a placement writes it */
+  TS_DONE_PLACED = 1, /* placed: counts (outside the block being filled); a
+                         sweep's placement writes it again */
+  TS_DONE_FIXED = 2,  /* given (a constraint): counts, inside the block too;
+                         never written */
+  TS_DONE_CLOSED = 3  /* unknown (a later class's area): masked; never written */
+};
+
+/* The mask of a masked query at (x, y) of a cw x ch canvas whose pixel
+ * states are `done` (a torus if torus, else bounded: offsets outside it
+ * never count): a fine offset counts (0xFF) when the window calls it
+ * known, when its pixel is FIXED, or when it is PLACED outside the block
+ * the query will fill (block x block at (x, y), clipped at the canvas
+ * edge); coarse parts always count. Returns whether the mask differs from
+ * the known flags alone. The window must have known flags. */
+int ts_vec_mask(const ts_window *w, const uint8_t *done, int cw, int ch, int torus, int x, int y, uint8_t *mask);
 
 /* The distance of an error of one grey level in every component: the
  * weighted count of components (the usage penalty's unit, usage.h). */
@@ -109,8 +121,10 @@ typedef struct {
 
 /* Reference vector of the anchor (x, y), whose extents lie in the planes. */
 void ts_vec_ref(const ts_window *w, const ts_levelplanes *ref, int x, int y, uint8_t *out);
-/* Query vector at (x, y) of a canvas read as a torus; the coarse centre is
- * the block centre (x + centre) scaled to the coarse canvas. */
-void ts_vec_query(const ts_window *w, const ts_levelplanes *canvas, int x, int y, uint8_t *out);
+/* Query vector at (x, y) of a canvas, read as a torus (torus = 1) or
+ * bounded (offsets outside the fine planes read 0 - masked queries never
+ * count them - and coarse ones the nearest edge pixel); the coarse centre
+ * is the block centre (x + centre) scaled to the coarse canvas. */
+void ts_vec_query(const ts_window *w, const ts_levelplanes *canvas, int torus, int x, int y, uint8_t *out);
 
 #endif

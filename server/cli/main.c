@@ -29,6 +29,7 @@
 #include "l1.h"
 #include "mbclient.h"
 #include "engine.h"
+#include "fillcmd.h"
 #include "mrf.h"
 #include "outputs.h"
 #include "quality.h"
@@ -39,6 +40,8 @@
 static void usage_synth(FILE *f) {
   fprintf(f,
           "usage: texsyn synth --ref IMG -o OUT --size WxH [options]\n"
+          "       texsyn synth --input IMG --mask MASK -o OUT [options]   (fill a hole:\n"
+          "                    texsyn synth --input IMG --help for its options)\n"
           "\n"
           "Synthesises a WxH texture that looks like IMG (multi-resolution MRF block\n"
           "synthesis after Stahlhut 2004). The output tiles seamlessly and has the\n"
@@ -188,6 +191,7 @@ static int synth_parse(int argc, char **argv, synth_opts *o, char *err) {
 }
 
 static int cmd_synth(int argc, char **argv) {
+  if (ts_fill_wanted(argc, argv)) return ts_cmd_fill(argc, argv);
   char err[TS_ERR_LEN] = "";
   synth_opts o;
   if (synth_parse(argc, argv, &o, err) != 0) {

@@ -381,7 +381,7 @@ static int masked_query(engine *e, const ts_block *b, int refine) {
   /* During the scan, a whole block whose window does not wrap sees exactly
    * its L placed (schedule.h): the plain query, without looking. */
   if (b->w == wb && b->h == wb && b->x >= hn && b->y >= hn && b->x + wb + hn <= w && b->y + wb + hn <= h) return 0;
-  return ts_vec_mask(&e->shape[SHAPE_MASKED], e->done, w, h, b->x, b->y, e->mask);
+  return ts_vec_mask(&e->shape[SHAPE_MASKED], e->done, w, h, 1, b->x, b->y, e->mask);
 }
 
 /* Parity control (seed 002 §3.3.3): a block at (x, y) copies only from

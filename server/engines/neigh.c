@@ -12,7 +12,7 @@ int ts_coarse_width(int wn) {
 }
 
 static int fine_in_shape(ts_shape_kind kind, int dx, int dy, int wb) {
-  if (kind == TS_SHAPE_SQUARE) return 1;
+  if (kind != TS_SHAPE_CAUSAL) return 1;
   return dy < 0 || (dy < wb && dx < 0);
 }
 
@@ -31,7 +31,7 @@ static uint64_t gcd64(uint64_t a, uint64_t b) {
  * integral; lambda quantised to 1/16 of a pixel ratio. Reduced by the gcd
  * so distances stay small. */
 static void set_weights(ts_window_spec *s, ts_shape_kind kind, int wn, int wb, int ncoarse, double coarse_weight) {
-  int nfine = kind == TS_SHAPE_SQUARE ? wn * wn - wb * wb : s->noff[TS_SRC_FINE];
+  int nfine = kind != TS_SHAPE_CAUSAL ? wn * wn - wb * wb : s->noff[TS_SRC_FINE];
   if (ncoarse == 0) {
     s->part[0].weight = 1;
     return;
@@ -62,11 +62,11 @@ int ts_neigh_window(ts_window *w, ts_shape_kind kind, int wn, int wb, int has_co
   for (int y = -h; y < wb + h; y++)
     for (int x = -h; x < wb + h; x++)
       if (fine_in_shape(kind, x, y, wb)) {
-        known[s.noff[0]] = (uint8_t)fine_in_shape(TS_SHAPE_CAUSAL, x, y, wb);
+        known[s.noff[0]] = kind == TS_SHAPE_SQUARE && fine_in_shape(TS_SHAPE_CAUSAL, x, y, wb);
         dx[0][s.noff[0]] = (int16_t)x;
         dy[0][s.noff[0]++] = (int16_t)y;
       }
-  if (kind == TS_SHAPE_SQUARE) s.known = known; /* the L counts in masked queries */
+  if (kind != TS_SHAPE_CAUSAL) s.known = known; /* the L counts in masked queries, FREE none */
   for (int y = -hc; y <= hc && wc > 0; y++)
     for (int x = -hc; x <= hc; x++) {
       dx[1][s.noff[1]] = (int16_t)x;

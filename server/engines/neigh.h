@@ -27,7 +27,11 @@
 #define TS_MAX_PLANES 4 /* the MRF's feature planes: luminance, or RGB */
 #define TS_MAX_WN 41
 
-typedef enum { TS_SHAPE_CAUSAL = 0, TS_SHAPE_SQUARE = 1 } ts_shape_kind;
+/* CAUSAL: the L (full synthesis scans); SQUARE: the whole window, the L
+ * always counting (masked queries of full synthesis); FREE: the whole
+ * window with no offset always counting - constrained synthesis, where the
+ * variable mask of §3.2.6 (the pixel states, window.h) decides every one. */
+typedef enum { TS_SHAPE_CAUSAL = 0, TS_SHAPE_SQUARE = 1, TS_SHAPE_FREE = 2 } ts_shape_kind;
 
 /* Coarse window width for a fine window width (Table 3.1). */
 int ts_coarse_width(int wn);

@@ -333,7 +333,7 @@ static void sliced_set_matches_brute_force(int shortcuts) {
   ts_rng_seed(&rng, 5, 3);
   for (int i = 0; i < NQ; i++) {
     klass[i] = (uint8_t)(i % NCLASS);
-    ts_vec_query(&f.w, &f.lp, (int)ts_rng_below(&rng, W), (int)ts_rng_below(&rng, H), q + (size_t)i * vb);
+    ts_vec_query(&f.w, &f.lp, 1, (int)ts_rng_below(&rng, W), (int)ts_rng_below(&rng, H), q + (size_t)i * vb);
     q[(size_t)i * vb] ^= 0x5A; /* not an exact copy of a reference vector */
   }
   ts_l1_best merged[NQ], part[NQ];
@@ -506,7 +506,7 @@ static void reslice_moves_only_what_changed(void **state) {
   uint8_t *q = malloc((size_t)NQ * vb), klass[NQ];
   for (int i = 0; i < NQ; i++) {
     klass[i] = (uint8_t)(i % NCLASS);
-    ts_vec_query(&f.w, &f.lp, (int)ts_rng_below(&rng, W), (int)ts_rng_below(&rng, H), q + (size_t)i * vb);
+    ts_vec_query(&f.w, &f.lp, 1, (int)ts_rng_below(&rng, W), (int)ts_rng_below(&rng, H), q + (size_t)i * vb);
   }
   const ts_l1_impl *simd;
   assert_int_equal(ts_l1_select(&simd, err), 0);

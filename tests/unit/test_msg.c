@@ -329,6 +329,29 @@ static void image_round_trip(void **state) {
   ts_wr_free(&w);
 }
 
+/* A bounded image whose pixels have every state, keeping no copy map. */
+static void image_load_flags_round_trip(void **state) {
+  (void)state;
+  uint8_t fine[16], done[16], ref[9] = {0};
+  for (int i = 0; i < 16; i++) fine[i] = (uint8_t)i, done[i] = (uint8_t)(i % 4);
+  ts_msg_image m = {.image = 2, .op = TS_IMAGE_LOAD, .seq = 5};
+  m.d = (ts_replica_desc){.w = 4, .h = 4, .nplanes = 1, .bounded = 1, .done = done, .block = 3, .rw = 3, .rh = 3};
+  m.d.fine[0] = fine;
+  m.d.ref[0] = ref;
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_image_write(&w, &m);
+  ts_frame f = frame_of(&w, 'R');
+  ts_msg_image out;
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_msg_image_read(&f, &out, err), 0);
+  assert_int_equal(out.d.bounded, 1);
+  assert_null(out.copy_le);
+  assert_memory_equal(out.d.done, done, sizeof(done));
+  assert_exact(&w, 'R', rd_image, &out);
+  ts_wr_free(&w);
+}
+
 /* Sizes that would read past the payload are refused before reading. */
 static void image_sizes_are_checked(void **state) {
   (void)state;
@@ -339,7 +362,7 @@ static void image_sizes_are_checked(void **state) {
     ts_wr_init(&w);
     ts_wr_u32(&w, 1), ts_wr_u8(&w, k == 3 ? 9 : TS_IMAGE_LOAD), ts_wr_u64(&w, 0);
     ts_wr_u32(&w, k == 0 ? 0x10000 : 4), ts_wr_u32(&w, k == 0 ? 0x10000 : 4); /* w, h */
-    ts_wr_u8(&w, k == 1 ? 0 : 1), ts_wr_u32(&w, 0), ts_wr_u32(&w, 0), ts_wr_u8(&w, k == 2 ? 2 : 0), ts_wr_u16(&w, 0);
+    ts_wr_u8(&w, k == 1 ? 0 : 1), ts_wr_u32(&w, 0), ts_wr_u32(&w, 0), ts_wr_u8(&w, k == 2 ? 8 : 0), ts_wr_u16(&w, 0);
     ts_wr_bytes(&w, "0123456789abcdef", 16);
     ts_frame f = frame_of(&w, 'R');
     assert_int_equal(ts_msg_image_read(&f, &out, err), TS_EPROTO);
@@ -804,6 +827,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(slice_geometry_is_checked),
     cmocka_unit_test(query_round_trip_with_placements),
     cmocka_unit_test(image_round_trip),
+    cmocka_unit_test(image_load_flags_round_trip),
     cmocka_unit_test(image_sizes_are_checked),
     cmocka_unit_test(query_counts_are_bounded),
     cmocka_unit_test(answer_round_trip),

@@ -126,11 +126,11 @@ static void query_reads_torus_and_matches_reference(void **state) {
   ts_levelplanes lp = {{&fine}, {&coarse}};
   uint8_t a[TS_L1_MAX_CHUNKS * 8], b[TS_L1_MAX_CHUNKS * 8];
   /* Inside, a query equals the reference vector of the same position. */
-  ts_vec_query(&s, &lp, 5, 4, a);
+  ts_vec_query(&s, &lp, 1, 5, 4, a);
   ts_vec_ref(&s, &lp, 5, 4, b);
   assert_memory_equal(a, b, ts_window_bytes(&s));
   /* At (0, 0) the window wraps: first fine pixel is (-2, -2) = (14, 10). */
-  ts_vec_query(&s, &lp, 0, 0, a);
+  ts_vec_query(&s, &lp, 1, 0, 0, a);
   assert_int_equal(a[0], fine.px[10 * 16 + 14]);
   /* padding is zero */
   for (uint32_t k = (uint32_t)s.spec.noff[0]; k < s.part_end[0] * 8; k++) assert_int_equal(a[k], 0);
