@@ -51,13 +51,14 @@ static void usage(FILE *f) {
           "  --rgb-search         search on the colour channels instead of luminance\n"
           "  --copy-map F         where every pixel comes from, as an image (red = x,\n"
           "                       green = y; given pixels point at themselves)\n"
+          "  --copy-map-raw F     the same as little-endian uint32 (x, y) per pixel\n"
           "%s",
           TS_FILL_MAX_SOURCES - 1, TS_FILL_MAX_LEVELS, ts_job_options_help);
 }
 
 enum {
   OPT_INPUT = TS_OPT_OWN, OPT_MASK, OPT_REF, OPT_NO_SELF, OPT_LEVELS, OPT_WN, OPT_WB, OPT_ORDER, OPT_THRESHOLD,
-  OPT_PARITY, OPT_USAGE, OPT_COARSE, OPT_SEED, OPT_RGB, OPT_COPY
+  OPT_PARITY, OPT_USAGE, OPT_COARSE, OPT_SEED, OPT_RGB, OPT_COPY, OPT_COPY_RAW
 };
 
 static const struct option longopts[] = {
@@ -68,7 +69,8 @@ static const struct option longopts[] = {
     {"threshold", required_argument, 0, OPT_THRESHOLD}, {"parity", no_argument, 0, OPT_PARITY},
     {"usage-weight", required_argument, 0, OPT_USAGE}, {"coarse-weight", required_argument, 0, OPT_COARSE},
     {"seed", required_argument, 0, OPT_SEED},         {"rgb-search", no_argument, 0, OPT_RGB},
-    {"copy-map", required_argument, 0, OPT_COPY},     TS_JOB_LONGOPTS,
+    {"copy-map", required_argument, 0, OPT_COPY},     {"copy-map-raw", required_argument, 0, OPT_COPY_RAW},
+    TS_JOB_LONGOPTS,
     {0, 0, 0, 0}};
 
 /* Keys of the options that set one spec key from their value as is. */
@@ -101,6 +103,7 @@ static int fill_option(fill_opts *o, int c, const char *arg, char *err) {
   case OPT_PARITY: return set_key(&o->job, "parity", "1", "--parity", err);
   case OPT_RGB: return set_key(&o->job, "rgb_search", "1", "--rgb-search", err);
   case OPT_COPY: ts_output_set(&o->job.out, "copy_map", arg); return 0;
+  case OPT_COPY_RAW: ts_output_set(&o->job.out, "copy_map_raw", arg); return 0;
   default: {
     int rc = ts_job_option(&o->job, c, arg, err);
     return rc == TS_ENOENT ? ts_error(err, TS_EINVAL, "unknown option (see texsyn synth --help)") : rc;

@@ -311,10 +311,8 @@ static void check_class_levels(const ts_fill_params *p, const ts_fill_input *in,
   atlas_free(&a, p->levels);
 }
 
-int ts_fill_check(const ts_fill_params *p, const ts_fill_input *in, const char *const *names, char *msg,
-                  size_t len) {
+void ts_fill_check_params(const ts_fill_params *p, char *msg, size_t len, int *count) {
   int n = 0;
-  msg[0] = '\0';
   if (p->wb < 1 || p->wb % 2 == 0 || p->wb > 15) ts_problem(msg, len, &n, "--wb %d: the block width must be odd, 1..15", p->wb);
   if (p->wn % 2 == 0 || p->wn < 3 || p->wn > TS_MAX_WN)
     ts_problem(msg, len, &n, "--wn %d: the neighbourhood width must be odd, 3..%d", p->wn, TS_MAX_WN);
@@ -329,6 +327,14 @@ int ts_fill_check(const ts_fill_params *p, const ts_fill_input *in, const char *
     ts_problem(msg, len, &n, "fill order %d: need puzzle or threshold", p->order);
   if (!(p->threshold > 0.0 && p->threshold <= 1.0))
     ts_problem(msg, len, &n, "--threshold %g: need a share of the window, more than 0, at most 1", p->threshold);
+  *count += n;
+}
+
+int ts_fill_check(const ts_fill_params *p, const ts_fill_input *in, const char *const *names, char *msg,
+                  size_t len) {
+  int n = 0;
+  msg[0] = '\0';
+  ts_fill_check_params(p, msg, len, &n);
   if (in->nplanes < 1 || in->nplanes > TS_MAX_PLANES) ts_problem(msg, len, &n, "%d feature planes: need 1..%d", in->nplanes, TS_MAX_PLANES);
   if (in->nclass < 1 || in->nclass > TS_FILL_MAX_CLASSES)
     ts_problem(msg, len, &n, "%d classes: need 1..%d", in->nclass, TS_FILL_MAX_CLASSES);

@@ -88,6 +88,9 @@ typedef struct {
   const ts_fill_class *cls; /* cls[c - 1] is class c's reference */
 } ts_fill_input;
 
+/* Appends the parameters' problems to msg (ts_problem), counting them. */
+void ts_fill_check_params(const ts_fill_params *p, char *msg, size_t len, int *count);
+
 /* Checks the parameters and that every class's reference has blocks to
  * copy at every level: 0, or TS_EINVAL with every problem listed in msg,
  * one per line; `names` (may be NULL) names the classes in messages. */

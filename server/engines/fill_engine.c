@@ -30,11 +30,12 @@ typedef struct {
 _Static_assert(sizeof(fill_job) <= TS_ENGINE_PARAMS_MAX, "fill parameters outgrew ts_engine_params");
 _Static_assert(2 + FILL_MAX_REFS <= TS_ENGINE_MAX_INPUTS, "fill inputs outgrew ts_engine_inputs");
 
-enum { OUT_IMAGE, OUT_COPY_MAP, OUT_REPORT, OUT_COUNT };
+enum { OUT_IMAGE, OUT_COPY_MAP, OUT_COPY_MAP_RAW, OUT_REPORT, OUT_COUNT };
 
 static const ts_engine_output fill_outputs[OUT_COUNT] = {
     [OUT_IMAGE] = {"output", "out", TS_OUTPUT_IMAGE},
     [OUT_COPY_MAP] = {"copy_map", "copymap", TS_OUTPUT_IMAGE},
+    [OUT_COPY_MAP_RAW] = {"copy_map_raw", "copymap.raw", TS_OUTPUT_FLAG},
     [OUT_REPORT] = {"report", "report.json", TS_OUTPUT_FLAG},
 };
 
@@ -180,6 +181,7 @@ static int fill_check(const void *params, const ts_image *const *in, char *msg, 
   const ts_image *img = in[0], *mask = in[1];
   int n = 0;
   msg[0] = '\0';
+  ts_fill_check_params(&p->fill, msg, len, &n);
   if ((uint64_t)img->width * (uint64_t)img->height > p->max_pixels)
     ts_problem(msg, len, &n, "--input: %dx%d pixels exceed the limit of %llu (raise --max-pixels)", img->width,
                img->height, (unsigned long long)p->max_pixels);
@@ -217,7 +219,8 @@ static void fill_set_max_pixels(void *params, uint64_t max_pixels) { ((fill_job 
 static uint64_t fill_result_bytes(const void *params, const ts_engine_wants *w, const ts_image_info *in) {
   (void)params;
   uint64_t px = (uint64_t)in[0].width * (uint64_t)in[0].height;
-  return px * ((uint64_t)in[0].channels * ts_pixtype_size(in[0].type) + (w->want[OUT_COPY_MAP][0] ? 8 : 0)) + 4096;
+  return px * ((uint64_t)in[0].channels * ts_pixtype_size(in[0].type) + (w->want[OUT_COPY_MAP][0] ? 8 : 0) +
+               (w->want[OUT_COPY_MAP_RAW][0] ? 8 : 0)) + 4096;
 }
 
 static int fill_levels(const void *params) { return ((const fill_job *)params)->fill.levels; }
@@ -267,19 +270,24 @@ static int write_image(const ts_engine_run *r, const char *path, char *err) {
   return rc;
 }
 
-/* Given pixels point at themselves: the map shows the fill's sources
- * against the identity of the rest. */
-static int write_copy_map(const ts_engine_run *r, const char *path, char *err) {
-  const ts_fill_result *res = &r->res;
+/* Where every pixel comes from: given pixels point at themselves. */
+static uint32_t *whole_copy_map(const ts_fill_result *res) {
   size_t npx = (size_t)res->w * (size_t)res->h;
   uint32_t *map = malloc(sizeof(uint32_t) * 2 * npx);
-  if (map == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
-  for (size_t i = 0; i < npx; i++) {
+  for (size_t i = 0; map != NULL && i < npx; i++) {
     int given = res->source[i] == TS_FILL_NO_SOURCE;
     map[2 * i] = given ? (uint32_t)(i % (size_t)res->w) : res->copy[2 * i];
     map[2 * i + 1] = given ? (uint32_t)(i / (size_t)res->w) : res->copy[2 * i + 1];
   }
-  int rc = ts_write_copy_map_image(path, map, res->w, res->h, res->w, res->h, err);
+  return map;
+}
+
+static int write_copy_map(const ts_engine_run *r, int raw, const char *path, char *err) {
+  const ts_fill_result *res = &r->res;
+  uint32_t *map = whole_copy_map(res);
+  if (map == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+  int rc = raw ? ts_write_copy_map_raw(path, map, res->w, res->h, err)
+               : ts_write_copy_map_image(path, map, res->w, res->h, res->w, res->h, err);
   free(map);
   return rc;
 }
@@ -305,7 +313,8 @@ static int write_report(const ts_engine_run *r, const char *path, int threads, c
 static int fill_write_output(const ts_engine_run *r, int k, const char *path, int threads, char *err) {
   switch (k) {
   case OUT_IMAGE: return write_image(r, path, err);
-  case OUT_COPY_MAP: return write_copy_map(r, path, err);
+  case OUT_COPY_MAP: return write_copy_map(r, 0, path, err);
+  case OUT_COPY_MAP_RAW: return write_copy_map(r, 1, path, err);
   case OUT_REPORT: return write_report(r, path, threads, err);
   default: return ts_error(err, TS_EINVAL, "the fill engine has no output %d", k);
   }
