@@ -662,7 +662,7 @@ int ts_msg_submit_read(const ts_frame *f, ts_msg_submit *m, char *err) {
   ts_rd r;
   ts_rd_init(&r, f->payload, f->len);
   m->spec_len = ts_rd_u32(&r);
-  if (m->spec_len > TS_SPEC_MAX) return bad(err, 'S', "job spec over 4096 bytes");
+  if (m->spec_len > TS_SPEC_MAX) return bad(err, 'S', "job spec over 16384 bytes");
   m->spec = (const char *)ts_rd_bytes(&r, m->spec_len);
   ts_rd_str(&r, m->ref_name, sizeof(m->ref_name));
   m->ref_len = ts_rd_u32(&r);

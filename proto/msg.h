@@ -271,7 +271,7 @@ int ts_msg_error_read(const ts_frame *f, ts_msg_error *m, char *err);
 
 /* ---- S: submit ---------------------------------------------------------- */
 
-#define TS_SPEC_MAX 4096
+#define TS_SPEC_MAX 16384
 /* Input images a job takes: the first (the reference of an MRF job, the
  * style exemplar of a stylization) and up to TS_MSG_MAX_INPUTS - 1 more,
  * each named by the key its engine declares (server/engines/engine.h). */

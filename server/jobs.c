@@ -252,6 +252,7 @@ static void on_progress(void *arg, const ts_progress *p) {
   double elapsed = now - pc->jb->started;
   st->eta_ms = frac > 0.001 ? (uint32_t)(elapsed * (1 - frac) / frac * 1000) : UINT32_MAX;
   st->workers = (uint16_t)ts_cluster_ready(pc->j->o.cluster);
+  snprintf(st->text, sizeof(st->text), "%s", p->stage);
   job_changed(pc->j, pc->jb);
   pthread_mutex_unlock(&pc->j->lock);
 }

@@ -169,8 +169,8 @@ static void progress_draw(void *ctx, const ts_progress *p) {
   int fill = (int)(frac * 30);
   for (int i = 0; i < 30; i++) bar[i] = i < fill ? '#' : '.';
   bar[30] = '\0';
-  fprintf(stderr, "\rlevel %d (%d of %d) %3d%% of blocks [%s] ETA %5.1fs ", p->level,
-          p->levels - p->level, p->levels, pct, bar, eta);
+  fprintf(stderr, "\r%s%slevel %d (%d of %d) %3d%% of blocks [%s] ETA %5.1fs ", p->stage, p->stage[0] ? ": " : "",
+          p->level, p->levels - p->level, p->levels, pct, bar, eta);
   fflush(stderr);
 }
 
@@ -254,8 +254,9 @@ static void remote_progress(const ts_job_status *s, double start) {
   } else {
     char eta[32] = "  ?";
     if (s->eta_ms != UINT32_MAX) snprintf(eta, sizeof(eta), "%5.1fs", s->eta_ms / 1000.0);
-    fprintf(stderr, "\rjob %llu level %d of %d %5.1f%% [%s] ETA %s, %u worker%s ", (unsigned long long)s->id,
-            s->levels - s->level, s->levels, s->permille / 10.0, bar, eta, s->workers, s->workers == 1 ? "" : "s");
+    fprintf(stderr, "\rjob %llu %s%slevel %d of %d %5.1f%% [%s] ETA %s, %u worker%s ", (unsigned long long)s->id,
+            s->text, s->text[0] ? ": " : "", s->levels - s->level, s->levels, s->permille / 10.0, bar, eta, s->workers,
+            s->workers == 1 ? "" : "s");
   }
   fflush(stderr);
 }

@@ -25,7 +25,7 @@
 #include "progress.h"
 #include "search.h"
 
-#define TS_ENGINE_PARAMS_MAX 512 /* bytes of any engine's parameter struct */
+#define TS_ENGINE_PARAMS_MAX 8192 /* bytes of any engine's parameter struct */
 #define TS_ENGINE_MAX_OUTPUTS 8
 #define TS_ENGINE_MAX_INPUTS 34 /* a style, 16 guide pairs and the image energy scores */
 #define TS_ENGINE_KEY_LEN 32    /* an input name's bytes, NUL included */

@@ -559,7 +559,9 @@ static int fill_class(engine *e, int c, char *err) {
   const atlas *a = &e->at[c - 1];
   e->klass = c;
   class_states(e, c);
-  if (e->hooks->stage) e->hooks->stage(e->hooks->progress_ctx, l, c, e->in->nclass);
+  if (e->in->nclass > 1)
+    snprintf(e->prog.stage, sizeof(e->prog.stage), "%.24s, class %d of %d", e->in->names ? e->in->names[c - 1] : "class",
+             c, e->in->nclass);
   ts_rng_seed(&e->rng, p->seed, (uint64_t)l << 8 | (uint64_t)c);
   int rc = level_anchors(a, l, p->levels, p, e->in->nplanes, &e->grid, &e->valid, &e->labels, err);
   if (rc == 0) rc = ts_neigh_window(&e->win, TS_SHAPE_FREE, p->wn, p->wb, coarse, e->in->nplanes, p->coarse_weight, err);

@@ -86,6 +86,7 @@ typedef struct {
   const uint8_t *state;                 /* w*h: 0 given, 1..nclass work areas */
   int nclass;
   const ts_fill_class *cls; /* cls[c - 1] is class c's reference */
+  const char *const *names; /* names[c - 1] names class c in progress; NULL: none */
 } ts_fill_input;
 
 /* Appends the parameters' problems to msg (ts_problem), counting them. */
@@ -121,12 +122,11 @@ typedef struct {
   ts_fill_class_stats cls[TS_FILL_MAX_CLASSES];
 } ts_fill_result;
 
-/* Progress: ts_progress per step; the class being filled (1-based) and its
- * count go to `stage`, when set. */
+/* Progress: ts_progress after every step, its stage naming the class
+ * being filled when there are several. */
 typedef struct {
   ts_progress_fn *progress; /* may be NULL */
   void *progress_ctx;
-  void (*stage)(void *ctx, int level, int klass, int nclass);
 } ts_fill_hooks;
 
 /* Fills in's work areas. hooks may be NULL. On success res owns its

@@ -11,6 +11,9 @@ typedef struct {
   /* Work of all levels in units of the finest level's cost (a block at
    * level l costs about 4^-l of one at level 0), for an ETA. */
   double work_done, work_total;
+  /* What part of the level is under way, for engines whose levels have
+   * parts (an aerial job's classes: "forest, class 1 of 4"); "" if none. */
+  char stage[64];
 } ts_progress;
 
 typedef void ts_progress_fn(void *ctx, const ts_progress *p);
