@@ -87,7 +87,7 @@ BINS = $(BUILD)/texsyn $(BUILD)/texsyn-server $(BUILD)/texsyn-worker
 UNIT_SRC = $(wildcard tests/unit/test_*.c)
 UNIT_BINS = $(UNIT_SRC:tests/unit/%.c=$(BUILD)/tests/%)
 # The libFuzzer targets' inputs replayed by a plain main() (tests/fuzz).
-FUZZ_TARGETS = frame msg jobspec image checkpoint modbus spool
+FUZZ_TARGETS = frame msg jobspec image checkpoint modbus spool catalogue
 REPLAY_BINS = $(FUZZ_TARGETS:%=$(BUILD)/tests/replay_%)
 BENCH_SRC = $(wildcard bench/*.c)
 BENCH_BINS = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
