@@ -87,7 +87,7 @@ BINS = $(BUILD)/texsyn $(BUILD)/texsyn-server $(BUILD)/texsyn-worker
 UNIT_SRC = $(wildcard tests/unit/test_*.c)
 UNIT_BINS = $(UNIT_SRC:tests/unit/%.c=$(BUILD)/tests/%)
 # The libFuzzer targets' inputs replayed by a plain main() (tests/fuzz).
-FUZZ_TARGETS = frame msg jobspec image checkpoint modbus spool
+FUZZ_TARGETS = frame msg jobspec image checkpoint modbus spool catalogue
 REPLAY_BINS = $(FUZZ_TARGETS:%=$(BUILD)/tests/replay_%)
 BENCH_SRC = $(wildcard bench/*.c)
 BENCH_BINS = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
@@ -142,9 +142,15 @@ $(BUILD)/tests/lib%.so: tests/preload/%.c
 	@mkdir -p $(dir $@)
 	$(CC) -std=c11 -D_GNU_SOURCE $(WARN) -O2 -fPIC -shared -o $@ $< -ldl
 
-$(BUILD)/bench/%: $(BUILD)/bench/%.o $(LIB)
+$(BUILD)/bench/%: $(BUILD)/bench/%.o $(LIB) | $(BUILD)/bench/$(notdir $(IMAGE_LIB))
 	@mkdir -p $(dir $@)
 	$(CC) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
+
+# Benchmark programs that write images (bench/mkscene) find the image
+# library next to themselves, as the programs do.
+$(BUILD)/bench/$(notdir $(IMAGE_LIB)): $(IMAGE_LIB)
+	@mkdir -p $(dir $@)
+	ln -sf ../$(notdir $(IMAGE_LIB)) $@
 
 # The library goes to ../lib/texsyn from the programs' directory, where
 # they look for it (common/image_load.c); DESTDIR for staged installs.

@@ -15,7 +15,7 @@
 set -u
 cd "$(dirname "$0")/.."
 mode=${1:-}
-targets="frame msg jobspec image checkpoint modbus spool"
+targets="frame msg jobspec image checkpoint modbus spool catalogue"
 pass=0; fail=0
 inputs() { # the committed inputs of target $1 that exist
   local d

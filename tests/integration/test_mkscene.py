@@ -1,0 +1,143 @@
+"""bench/mkscene, the scene generator for aerial tests and benchmarks, at
+512x512: the class map holds exactly the classes asked for, each over a
+fair share and in many separate regions; the road raster holds roads and
+paths and nothing else; the same seed gives the same bytes, another seed
+other ones; a WxH size is kept; bad options are refused with status 2.
+The images are read back through oiiotool (PGM), not through texsyn."""
+import subprocess
+
+import pytest
+
+from conftest import BUILD
+
+MKSCENE = BUILD / "bench" / "mkscene"
+NAMES = ["forest", "water", "town", "sand", "grassland", "arable", "industrial", "wetland"]
+
+
+def mkscene(*args, check=True):
+    assert MKSCENE.exists(), f"{MKSCENE} is missing: run make first"
+    p = subprocess.run([str(MKSCENE), *map(str, args)], capture_output=True, text=True, timeout=300)
+    if check:
+        assert p.returncode == 0, f"mkscene {' '.join(map(str, args))} failed ({p.returncode}):\n{p.stderr}"
+    return p
+
+
+def read_pgm(png, tmp_path):
+    """(width, height, bytes) of an 8-bit single-channel image, via a PGM
+    that oiiotool writes; any other kind of image fails the test."""
+    pgm = tmp_path / (png.stem + ".pgm")
+    subprocess.run(["oiiotool", str(png), "-o", str(pgm)], check=True, capture_output=True, timeout=120)
+    data = pgm.read_bytes()
+    fields, pos = [], 0
+    while len(fields) < 4:
+        while data[pos:pos + 1].isspace():
+            pos += 1
+        end = pos
+        while not data[end:end + 1].isspace():
+            end += 1
+        fields.append(data[pos:end])
+        pos = end
+    assert fields[0] == b"P5" and fields[3] == b"255", f"{png} is not one 8-bit channel: {fields}"
+    w, h = int(fields[1]), int(fields[2])
+    pixels = data[pos + 1:]
+    assert len(pixels) == w * h
+    return w, h, pixels
+
+
+def regions(w, h, pixels):
+    """The number of 4-connected regions of equal value."""
+    seen = bytearray(w * h)
+    count = 0
+    for start in range(w * h):
+        if seen[start]:
+            continue
+        count += 1
+        value, stack = pixels[start], [start]
+        seen[start] = 1
+        while stack:
+            i = stack.pop()
+            x, y = i % w, i // w
+            for j, ok in ((i - 1, x > 0), (i + 1, x < w - 1), (i - w, y > 0), (i + w, y < h - 1)):
+                if ok and not seen[j] and pixels[j] == value:
+                    seen[j] = 1
+                    stack.append(j)
+    return count
+
+
+@pytest.mark.sanitize
+@pytest.mark.parametrize("classes,seed", [(4, 1), (4, 2), (8, 3), (1, 4)])
+def test_the_map_holds_the_classes_asked_for(tmp_path, classes, seed):
+    p = mkscene("--size", 512, "--seed", seed, "--classes", classes, "-o", tmp_path / "s")
+    w, h, pixels = read_pgm(tmp_path / "s-classes.png", tmp_path)
+    assert (w, h) == (512, 512)
+    counts = {v: pixels.count(v) for v in set(pixels)}
+    assert sorted(counts) == list(range(1, classes + 1))
+    for v, n in counts.items():
+        share = n / (w * h)
+        # Each class a fair share: none swamped, none a speck.
+        assert 0.02 <= share <= (1 if classes == 1 else 0.75), f"class {v} covers {share:.1%}"
+        # The shares it prints are the image's.
+        assert f"class {v} {NAMES[v - 1]:<10s} {100 * share:5.1f}%" in p.stdout
+    if classes > 1:
+        # Irregular regions, not a few big blocks: a Voronoi of ~256 cells
+        # merged by class leaves dozens of separate regions.
+        assert regions(w, h, pixels) >= 30
+
+
+@pytest.mark.sanitize
+def test_the_road_raster_holds_roads_and_paths(tmp_path):
+    mkscene("--size", 512, "--seed", 1, "-o", tmp_path / "s")
+    w, h, pixels = read_pgm(tmp_path / "s-roads.png", tmp_path)
+    assert (w, h) == (512, 512)
+    values = set(pixels)
+    assert values == {0, 128, 255}, f"values {sorted(values)}"
+    roads, paths = pixels.count(255) / (w * h), pixels.count(128) / (w * h)
+    # Three roads 3..9 px wide across 512 px cover about 1..6%; paths less.
+    assert 0.005 <= roads <= 0.1, f"roads cover {roads:.2%}"
+    assert 0 < paths < roads
+    # Roads cross the image: some road pixel on at least two of its edges.
+    rows = [pixels[y * w:(y + 1) * w] for y in range(h)]
+    edges = [rows[0], rows[-1], bytes(r[0] for r in rows), bytes(r[-1] for r in rows)]
+    assert sum(255 in e for e in edges) >= 2
+
+
+@pytest.mark.sanitize
+def test_same_seed_same_bytes_other_seed_other_bytes(tmp_path):
+    mkscene("--size", 512, "--seed", 42, "-o", tmp_path / "a")
+    mkscene("--size", 512, "--seed", 42, "-o", tmp_path / "b")
+    mkscene("--size", 512, "--seed", 43, "-o", tmp_path / "c")
+    for kind in ("classes", "roads"):
+        a, b, c = ((tmp_path / f"{p}-{kind}.png").read_bytes() for p in "abc")
+        assert a == b, f"{kind}: the same seed gave other bytes"
+        assert a != c, f"{kind}: another seed gave the same bytes"
+
+
+def test_a_rectangle_is_kept(tmp_path):
+    mkscene("--size", "320x200", "--seed", 5, "-o", tmp_path / "r")
+    for kind in ("classes", "roads"):
+        w, h, _ = read_pgm(tmp_path / f"r-{kind}.png", tmp_path)
+        assert (w, h) == (320, 200)
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--size", "32"], "--size 32: need N or WxH, 64..16384 a side"),
+    (["--size", "100x20000"], "--size 100x20000: need N or WxH, 64..16384 a side"),
+    (["--classes", "9"], "--classes 9: need 1..8"),
+    (["--classes", "0"], "--classes 0: need 1..8"),
+    (["--seed", "-1"], "--seed -1: need a whole number 0..2^64-1"),
+    (["--colour"], "unknown option or missing value: --colour"),
+    (["extra"], "unexpected argument: extra"),
+])
+def test_bad_options_are_refused(tmp_path, args, message):
+    p = mkscene("-o", tmp_path / "x", *args, check=False)
+    assert p.returncode == 2
+    assert f"mkscene: {message}" in p.stderr
+    assert not list(tmp_path.iterdir()), "a refused run wrote files"
+
+
+def test_output_is_required_and_write_errors_are_named(tmp_path):
+    p = mkscene("--size", 64, check=False)
+    assert p.returncode == 2 and "mkscene: -o PREFIX is required" in p.stderr
+    p = mkscene("--size", 64, "-o", tmp_path / "missing" / "s", check=False)
+    assert p.returncode == 1
+    assert str(tmp_path / "missing") in p.stderr
