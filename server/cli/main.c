@@ -28,6 +28,7 @@
 #include "jobspec.h"
 #include "l1.h"
 #include "mbclient.h"
+#include "aerial.h"
 #include "engine.h"
 #include "fillcmd.h"
 #include "mrf.h"
@@ -486,7 +487,8 @@ static int cmd_job(const char *cmd, int argc, char **argv) {
 static void usage_main(FILE *f) {
   fprintf(f,
           "usage: texsyn COMMAND [options]   (texsyn COMMAND --help for details)\n"
-          "  synth    synthesise a texture from a reference (alias: run)\n"
+          "  synth    synthesise a texture from a reference (alias: run), or fill a hole\n"
+          "  aerial   build an aerial image from a land-use class map and a catalogue\n"
           "  stylize  paint a target in the style of an exemplar, guided by image pairs\n"
           "  energy   score a stylized image: mean exact best guided patch distance, coverage\n"
           "  apply-nnf  vote a stylize --nnf field over another layer of the exemplar\n"
@@ -511,6 +513,7 @@ int main(int argc, char **argv) {
   const char *cmd = argv[1];
   if (strcmp(cmd, "synth") == 0 || strcmp(cmd, "run") == 0) return cmd_synth(argc - 1, argv + 1);
   if (strcmp(cmd, "stylize") == 0) return ts_cmd_stylize(argc - 1, argv + 1);
+  if (strcmp(cmd, "aerial") == 0) return ts_cmd_aerial(argc - 1, argv + 1);
   if (strcmp(cmd, "energy") == 0) return ts_cmd_energy(argc - 1, argv + 1);
   if (strcmp(cmd, "apply-nnf") == 0) return ts_cmd_apply_nnf(argc - 1, argv + 1);
   if (strcmp(cmd, "quality") == 0) return cmd_quality(argc - 1, argv + 1);

@@ -109,6 +109,7 @@ int ts_fill_queue_init(ts_fill_queue *q, const uint8_t *done, const uint8_t *sta
   q->nblocks = (uint32_t)q->bw * (uint32_t)q->bh;
   q->nbuckets = p->wn * p->wn + 1;
   q->order = p->order;
+  q->slack = p->wn;
   q->threshold = (int)(p->threshold * p->wn * p->wn + 0.999999);
   q->next = malloc(sizeof(int32_t) * q->nblocks);
   q->prev = malloc(sizeof(int32_t) * q->nblocks);
@@ -157,9 +158,9 @@ static void top_down(ts_fill_queue *q) {
   while (q->top > 0 && q->head[q->top] < 0) q->top--;
 }
 
-/* The top bucket's independent blocks. At the coarsest level a block with
- * nothing known around it is never searched: when no other is left, the
- * first one is seeded. */
+/* The independent blocks of the top buckets. At the coarsest level a block
+ * with nothing known around it is never searched: when no other is left,
+ * the first one is seeded. */
 static int puzzle_step(ts_fill_queue *q, int coarse_known) {
   top_down(q);
   q->step_id++;
@@ -168,8 +169,11 @@ static int puzzle_step(ts_fill_queue *q, int coarse_known) {
     take(q, (uint32_t)q->head[0]);
     return 0;
   }
-  for (int32_t b = q->head[q->top]; b >= 0 && q->nstep < q->cap; b = q->next[b])
-    if (independent(q, (uint32_t)b)) take(q, (uint32_t)b);
+  int floor = coarse_known ? 0 : 1;
+  int lo = q->top - q->slack < floor ? floor : q->top - q->slack;
+  for (int k = q->top; k >= lo && q->nstep < q->cap; k--)
+    for (int32_t b = q->head[k]; b >= 0 && q->nstep < q->cap; b = q->next[b])
+      if (independent(q, (uint32_t)b)) take(q, (uint32_t)b);
   return 1;
 }
 

@@ -10,10 +10,13 @@
  * = ceil(((W_N - W_B) / 2) / W_B) block rows and columns), by the pixels it
  * placed inside their windows.
  *
- * A step takes the top bucket's blocks (the best described) that are
- * independent - no two within r of each other, so none lies in another's
- * window - and the result of searching them together is the result of
- * placing them one by one. Within a bucket blocks keep the order they came
+ * A step takes the blocks of the top buckets - the best described: those
+ * whose P_def is within W_N (a window's row) of the best - that are
+ * independent: no two within r of each other, so none lies in another's
+ * window, and the result of searching them together is the result of
+ * placing them one by one in that order. (The slack of a row cuts the steps
+ * of a large area fourfold against the top bucket alone - 1148 against 4713
+ * at level 0 of a 512x512 aerial scene - with no difference to be seen.) Within a bucket blocks keep the order they came
  * in (first raster order, then the order they were re-sorted), so steps
  * are a pure function of the states. The threshold order (§3.2.5) instead
  * takes, in rounds, every block whose P_def reached a share of the window
@@ -37,7 +40,7 @@ typedef struct {
   uint32_t step_id;
   int top, nbuckets;
   uint64_t queued, placed;
-  int order, threshold;
+  int order, threshold, slack;
   uint32_t *step, nstep, cap; /* the step's blocks */
   uint32_t *round, nround;    /* threshold order: the round's blocks left */
 } ts_fill_queue;

@@ -148,7 +148,7 @@ static void queue_steps_are_independent_and_complete(void **state) {
     for (uint32_t i = 0; i < q.nblocks; i++)
       if (q.prev[i] != -2 && q.count[i] > top) top = q.count[i];
     for (uint32_t i = 0; i < n; i++) {
-      if (first) assert_int_equal(q.count[b[i]], top);
+      if (first) assert_true(q.count[b[i]] >= top - p.wn);
       for (uint32_t j = i + 1; j < n; j++) {
         int dx = abs((int)(b[i] % (uint32_t)q.bw) - (int)(b[j] % (uint32_t)q.bw));
         int dy = abs((int)(b[i] / (uint32_t)q.bw) - (int)(b[j] / (uint32_t)q.bw));
