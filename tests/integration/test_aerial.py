@@ -1,0 +1,135 @@
+"""texsyn aerial: a synthetic aerial image from a class map (bench/mkscene)
+and a catalogue of references cut from aero1.jpg (bench/aerial_refs.sh).
+Checked: lines are drawn in their colours and every other pixel comes from
+its own class's reference; the same bytes in-process and on a cluster, with
+a worker killed mid-job too; the report's classes in fill order (stochastic
+first); class ids without a catalogue entry named with their pixel counts;
+and a catalogue error reaching the user with its line and column."""
+import json
+import struct
+import subprocess
+import time
+
+import pytest
+
+from conftest import BUILD, REPO, modbus_registers, run
+
+
+def oiiotool(*args):
+    subprocess.run(["oiiotool", *map(str, args)], check=True, capture_output=True, timeout=120)
+
+
+def read_pnm(path):
+    """(width, height, channels, bytes) of a binary PNM written by oiiotool."""
+    data = path.read_bytes()
+    fields, pos = [], 0
+    while len(fields) < 4:
+        while data[pos:pos + 1].isspace():
+            pos += 1
+        end = pos
+        while not data[end:end + 1].isspace():
+            end += 1
+        fields.append(data[pos:end])
+        pos = end
+    return int(fields[1]), int(fields[2]), 3 if fields[0] == b"P6" else 1, data[pos + 1:]
+
+
+def scene(d, size, seed=7):
+    run(BUILD / "bench/mkscene", "--size", size, "--seed", seed, "-o", d / "scene")
+    subprocess.run(["bash", REPO / "bench/aerial_refs.sh", d], check=True, capture_output=True, timeout=120)
+    return d / "scene-classes.png", d / "catalogue.json"
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    return scene(tmp_path_factory.mktemp("aerial"), 256)
+
+
+def aerial(texsyn, classes, cat, out, *extra, check=True):
+    return run(texsyn, "aerial", "--classes", classes, "--catalogue", cat, "-o", out, "--quiet", *extra, check=check)
+
+
+@pytest.mark.sanitize
+def test_lines_keep_their_colours_and_classes_come_from_their_references(texsyn, small, tmp_path):
+    classes, cat = small
+    out, report = tmp_path / "out.png", tmp_path / "r.json"
+    aerial(texsyn, classes, cat, out, "--report", report)
+    for name, img in (("out", out), ("classes", classes), ("roads", classes.parent / "scene-roads.png")):
+        oiiotool(img, "-o", tmp_path / f"{name}.pnm")
+    w, h, _, px = read_pnm(tmp_path / "out.pnm")
+    _, _, _, ids = read_pnm(tmp_path / "classes.pnm")
+    _, _, _, roads = read_pnm(tmp_path / "roads.pnm")
+    c = json.loads(cat.read_text())
+    colours = {int(k): bytes(v) for k, v in c["lines"]["colours"].items()}
+    refs = {}
+    for k in c["classes"]:
+        oiiotool(cat.parent / k["reference"], "-o", tmp_path / f"{k['name']}.pnm")
+        refs[k["id"]] = set()
+        _, _, _, rpx = read_pnm(tmp_path / f"{k['name']}.pnm")
+        refs[k["id"]] = {rpx[i:i + 3] for i in range(0, len(rpx), 3)}
+    for i in range(w * h):
+        rgb = px[3 * i:3 * i + 3]
+        if roads[i] in colours:
+            assert rgb == colours[roads[i]], f"line pixel {i % w},{i // w}"
+        else:
+            assert rgb in refs[ids[i]], f"pixel {i % w},{i // w} of class {ids[i]} is no colour of its reference"
+    r = json.loads(report.read_text())
+    assert r["engine"] == "aerial" and r["search"]["lossy"] == []
+    kinds = [k["kind"] for k in r["classes"]]
+    assert kinds == sorted(kinds, key=lambda k: k != "stochastic"), kinds  # stochastic classes first
+    assert all(k["blocks"] > 0 for k in r["classes"])
+
+
+@pytest.mark.sanitize
+def test_the_same_bytes_on_a_cluster(texsyn, small, cluster, tmp_path):
+    classes, cat = small
+    aerial(texsyn, classes, cat, tmp_path / "e.png", "--threads", "1")
+    cluster.start(3, 1)
+    cluster.texsyn("aerial", "--classes", classes, "--catalogue", cat, "-o", tmp_path / "c.png", "--quiet")
+    assert (tmp_path / "c.png").read_bytes() == (tmp_path / "e.png").read_bytes()
+
+
+def test_a_killed_worker_changes_nothing(texsyn, cluster, tmp_path):
+    """512x512 on 3 workers; one is killed once it holds a slice of level 0
+    (Modbus: its vectors; level 0 has 6600 forest and 15000 town vectors,
+    level 1 at most 3400)."""
+    classes, cat = scene(tmp_path, 512, seed=3)
+    aerial(texsyn, classes, cat, tmp_path / "e.png")
+    for _ in range(3):
+        cluster.worker(1, "--modbus", "0")
+    cluster.start()
+    job = subprocess.Popen([str(texsyn), "aerial", "--classes", str(classes), "--catalogue", str(cat), "-o",
+                            str(tmp_path / "c.png"), "--quiet", "--server", cluster.server.addr],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    victim = cluster.workers[1]
+    deadline = time.time() + 120
+    while int(modbus_registers(victim.modbus)["vectors"]) < 1500:
+        assert time.time() < deadline and job.poll() is None, "the victim never held a level-0 slice"
+        time.sleep(0.005)
+    victim.proc.kill()
+    out, err = job.communicate(timeout=600)
+    assert job.returncode == 0, err
+    assert (tmp_path / "c.png").read_bytes() == (tmp_path / "e.png").read_bytes()
+
+
+def test_class_ids_without_an_entry_are_named(texsyn, small, tmp_path):
+    classes, cat = small
+    c = json.loads(cat.read_text())
+    c["classes"] = [k for k in c["classes"] if k["name"] != "water"]
+    for k in c["classes"]:
+        k["reference"] = str(cat.parent / k["reference"])
+    c["lines"]["raster"] = str(cat.parent / c["lines"]["raster"])
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(c))
+    p = aerial(texsyn, classes, bad, tmp_path / "x.png", check=False)
+    assert p.returncode == 2
+    assert "class ids the catalogue has no entry for: 2 (" in p.stderr, p.stderr
+
+
+def test_a_catalogue_error_names_its_place(texsyn, small, tmp_path):
+    classes, cat = small
+    bad = tmp_path / "typo.json"
+    bad.write_text(cat.read_text().replace('"usage_weight"', '"usage_wieght"', 1))
+    p = aerial(texsyn, classes, bad, tmp_path / "x.png", check=False)
+    assert p.returncode == 2
+    assert "typo.json:2:" in p.stderr and "usage_wieght" in p.stderr, p.stderr
