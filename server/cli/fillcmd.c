@@ -48,7 +48,9 @@ static void usage(FILE *f) {
           "  --coarse-weight W    weight of the coarse-level part, (0, 100] (default 1)\n"
           "  --seed S             seed of the blocks that start areas with nothing known\n"
           "                       around them (default 1)\n"
-          "  --rgb-search         search on the colour channels instead of luminance\n"
+          "  --luma-search        search a colour image on its luminance, as the seed does\n"
+          "                       (default: on its colour channels, which keeps colours\n"
+          "                       from mixing where different colours have one grey)\n"
           "  --copy-map F         where every pixel comes from, as an image (red = x,\n"
           "                       green = y; given pixels point at themselves)\n"
           "  --copy-map-raw F     the same as little-endian uint32 (x, y) per pixel\n"
@@ -58,7 +60,7 @@ static void usage(FILE *f) {
 
 enum {
   OPT_INPUT = TS_OPT_OWN, OPT_MASK, OPT_REF, OPT_NO_SELF, OPT_LEVELS, OPT_WN, OPT_WB, OPT_ORDER, OPT_THRESHOLD,
-  OPT_PARITY, OPT_USAGE, OPT_COARSE, OPT_SEED, OPT_RGB, OPT_COPY, OPT_COPY_RAW
+  OPT_PARITY, OPT_USAGE, OPT_COARSE, OPT_SEED, OPT_LUMA, OPT_COPY, OPT_COPY_RAW
 };
 
 static const struct option longopts[] = {
@@ -68,7 +70,7 @@ static const struct option longopts[] = {
     {"wb", required_argument, 0, OPT_WB},             {"order", required_argument, 0, OPT_ORDER},
     {"threshold", required_argument, 0, OPT_THRESHOLD}, {"parity", no_argument, 0, OPT_PARITY},
     {"usage-weight", required_argument, 0, OPT_USAGE}, {"coarse-weight", required_argument, 0, OPT_COARSE},
-    {"seed", required_argument, 0, OPT_SEED},         {"rgb-search", no_argument, 0, OPT_RGB},
+    {"seed", required_argument, 0, OPT_SEED},         {"luma-search", no_argument, 0, OPT_LUMA},
     {"copy-map", required_argument, 0, OPT_COPY},     {"copy-map-raw", required_argument, 0, OPT_COPY_RAW},
     TS_JOB_LONGOPTS,
     {0, 0, 0, 0}};
@@ -101,7 +103,7 @@ static int fill_option(fill_opts *o, int c, const char *arg, char *err) {
     return 0;
   case OPT_NO_SELF: return set_key(&o->job, "self", "0", "--no-self", err);
   case OPT_PARITY: return set_key(&o->job, "parity", "1", "--parity", err);
-  case OPT_RGB: return set_key(&o->job, "rgb_search", "1", "--rgb-search", err);
+  case OPT_LUMA: return set_key(&o->job, "rgb_search", "0", "--luma-search", err);
   case OPT_COPY: ts_output_set(&o->job.out, "copy_map", arg); return 0;
   case OPT_COPY_RAW: ts_output_set(&o->job.out, "copy_map_raw", arg); return 0;
   default: {

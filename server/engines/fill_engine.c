@@ -4,6 +4,10 @@
  * the image (unless self=0) and any further images (ref0, ref1, ...).
  * Colour is gathered through the copy map (§3.8), so the output has the
  * input's pixel type and channels, and the given pixels keep their bytes.
+ * A colour image is searched on its three colour channels by default, not
+ * on its luminance as the seed does: in a hole of aero1.jpg the luminance
+ * search put blue and orange blotches where roofs and trees of one grey
+ * met (the seed's Fig. 3.35 problem), the colour search did not.
  * No checkpoints: a job a restart interrupts is filled again, with the same
  * bytes. */
 #include <stdio.h>
@@ -44,6 +48,7 @@ static void fill_params_default(void *params) {
   memset(p, 0, sizeof(*p));
   ts_fill_params_default(&p->fill);
   p->self = 1;
+  p->rgb_search = 1; /* colour images: see fill_engine.c's head */
   p->max_pixels = TS_IMAGE_DEFAULT_MAX_PIXELS;
 }
 
