@@ -133,3 +133,63 @@ def test_a_catalogue_error_names_its_place(texsyn, small, tmp_path):
     p = aerial(texsyn, classes, bad, tmp_path / "x.png", check=False)
     assert p.returncode == 2
     assert "typo.json:2:" in p.stderr and "usage_wieght" in p.stderr, p.stderr
+
+
+GEO_TAGS = {33550: (12, [0.5, 0.5, 0.0]),                       # ModelPixelScale (DOUBLE)
+            33922: (12, [0.0, 0.0, 0.0, 500000.0, 5300000.0, 0.0]),  # ModelTiepoint
+            34735: (3, [1, 1, 0, 2, 1024, 0, 1, 1, 3072, 0, 1, 32632])}  # GeoKeyDirectory (SHORT)
+
+
+def write_geotiff(path, w, h, pixels):
+    """A little-endian 8-bit grey TIFF of `pixels` with the GeoTIFF tags
+    above (UTM 32N, 0.5 m pixels), written by hand: no tool here makes one."""
+    tags = {256: (3, [w]), 257: (3, [h]), 258: (3, [8]), 259: (3, [1]), 262: (3, [1]), 273: (4, [0]),
+            277: (3, [1]), 278: (3, [h]), 279: (4, [w * h]), 284: (3, [1]), **GEO_TAGS}
+    fmt = {3: "H", 4: "I", 12: "d"}
+    ifd_at = 8
+    data_at = ifd_at + 2 + 12 * len(tags) + 4
+    long_values = sum(len(struct.pack(f"<{len(v)}{fmt[t]}", *v)) for t, v in tags.values()
+                      if len(struct.pack(f"<{len(v)}{fmt[t]}", *v)) > 4)
+    pix_at = data_at + long_values  # every long value is of doubles or shorts in pairs: even
+    extra, entries = b"", b""
+    for tag, (typ, vals) in sorted(tags.items()):
+        raw = struct.pack(f"<{len(vals)}{fmt[typ]}", *([pix_at] if tag == 273 else vals))
+        if len(raw) <= 4:
+            entries += struct.pack("<HHI", tag, typ, len(vals)) + raw.ljust(4, b"\0")
+        else:
+            entries += struct.pack("<HHII", tag, typ, len(vals), data_at + len(extra))
+            extra += raw
+    path.write_bytes(b"II*\0" + struct.pack("<I", ifd_at) + struct.pack("<H", len(tags)) + entries +
+                     b"\0\0\0\0" + extra + pixels)
+
+
+def read_tiff_tags(path):
+    """{tag: raw value bytes} of a little-endian TIFF's first directory."""
+    data = path.read_bytes()
+    assert data[:4] == b"II*\0", "not a little-endian TIFF"
+    (ifd,) = struct.unpack_from("<I", data, 4)
+    (n,) = struct.unpack_from("<H", data, ifd)
+    out = {}
+    for i in range(n):
+        tag, typ, count, off = struct.unpack_from("<HHII", data, ifd + 2 + 12 * i)
+        size = {1: 1, 2: 1, 3: 2, 4: 4, 12: 8}.get(typ, 1) * count
+        out[tag] = data[ifd + 10 + 12 * i:ifd + 10 + 12 * i + size] if size <= 4 else data[off:off + size]
+    return out
+
+
+def test_a_geotiff_class_map_keeps_its_georeferencing(texsyn, small, tmp_path):
+    classes, cat = small
+    oiiotool(classes, "-o", tmp_path / "c.pnm")
+    w, h, _, ids = read_pnm(tmp_path / "c.pnm")
+    write_geotiff(tmp_path / "map.tif", w, h, ids)
+    c = json.loads(cat.read_text())
+    for k in c["classes"]:
+        k["reference"] = str(cat.parent / k["reference"])
+    del c["lines"]
+    (tmp_path / "cat.json").write_text(json.dumps(c))
+    aerial(texsyn, tmp_path / "map.tif", tmp_path / "cat.json", tmp_path / "out.tif")
+    got = read_tiff_tags(tmp_path / "out.tif")
+    for tag, (typ, vals) in GEO_TAGS.items():
+        fmt = {3: "H", 12: "d"}[typ]
+        assert tag in got, f"GeoTIFF tag {tag} lost"
+        assert list(struct.unpack(f"<{len(vals)}{fmt}", got[tag])) == vals, tag
