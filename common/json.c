@@ -280,7 +280,7 @@ static int read_escape(parser *p, char *out, size_t *n) {
   const char *k = e != '\0' ? strchr(from, e) : NULL;
   if (k == NULL) {
     char what[16];
-    return fail(p, p->pos, TS_EFORMAT, "invalid escape: a backslash followed by %s (valid: \\\" \\\\ \\/ \\b \\f \\n \\r \\t \\uXXXX)",
+    return fail(p, p->pos, TS_EFORMAT, "invalid escape: a backslash followed by %s (valid: \\\" \\\\ \\/ \\b \\f \\n \\r \\t \\uHHHH)",
                 found(p, p->pos + 1, what, sizeof(what)));
   }
   out[0] = to[k - from];

@@ -11,7 +11,7 @@
  * Strict means: one value and white space only (no comments, no trailing
  * commas, no single quotes, no NaN or Infinity, no leading zeros), the text
  * is valid UTF-8 (no overlong forms, no encoded surrogates, nothing above
- * U+10FFFF), control characters in strings are escaped, \uXXXX escapes are
+ * U+10FFFF), control characters in strings are escaped, \u escapes are
  * decoded to UTF-8 with surrogate pairs joined and lone surrogates refused,
  * and the keys of an object are unique. Two things are allowed beyond the
  * grammar, as RFC 8259 permits: a leading UTF-8 byte order mark is skipped,

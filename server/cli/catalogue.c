@@ -47,7 +47,7 @@ __attribute__((format(printf, 4, 5))) static int bad(reader *r, int node, int ke
   return ts_error(r->err, TS_EFORMAT, "%s:%d:%d: %s: %s", r->doc->name, line, col, r->what, msg);
 }
 
-/* ", got VALUE" text for a message about node. */
+/* "got VALUE" for a message about node, VALUE as the file gives it. */
 static const char *got(const reader *r, int node, char *buf, size_t cap) {
   char q[48];
   ts_json_quote(r->doc, node, q, sizeof(q));

@@ -85,17 +85,18 @@ typedef struct {
 
 /* Parses a catalogue's len bytes of text (name: what messages call it;
  * base_dir: the directory relative paths are joined to, "" or NULL for
- * none). Touches no file. 0, or TS_EFORMAT / TS_EINVAL / TS_ELIMIT /
- * TS_ENOMEM with a "NAME:LINE:COL: ..." message; *out is then zeroed. */
+ * none). Touches no file. 0, or TS_EFORMAT (not strict JSON, or not a
+ * catalogue), TS_ELIMIT (nested too deep, too many values) or TS_ENOMEM,
+ * with a "NAME:LINE:COL: ..." message; *out is then zeroed. */
 int ts_catalogue_parse(const char *text, size_t len, const char *name, const char *base_dir,
                        ts_catalogue *out, char *err);
 
 /* Reads the catalogue file at path (at most TS_CAT_MAX_BYTES), parses it
  * with its directory as base_dir, and checks that every reference and the
  * line raster is an existing regular file. 0, or ts_catalogue_parse's
- * errors, TS_ETOOBIG, TS_EIO (unreadable catalogue), TS_ENOENT (a path
- * named in it is missing or not a regular file, with its line and
- * column). */
+ * errors, TS_ETOOBIG, TS_EIO (unreadable catalogue), TS_EINVAL (its path
+ * too long), TS_ENOENT (a path named in it is missing or not a regular
+ * file, with its line and column); *out is then zeroed. */
 int ts_catalogue_load(const char *path, ts_catalogue *out, char *err);
 
 /* "stochastic" or "structured". */

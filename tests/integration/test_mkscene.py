@@ -3,12 +3,16 @@
 fair share and in many separate regions; the road raster holds roads and
 paths and nothing else; the same seed gives the same bytes, another seed
 other ones; a WxH size is kept; bad options are refused with status 2.
-The images are read back through oiiotool (PGM), not through texsyn."""
+The images are read back through oiiotool (PGM), not through texsyn.
+Also bench/aerial_refs.sh, which cuts the references of a catalogue for
+these scenes from aero1.jpg."""
+import json
+import os
 import subprocess
 
 import pytest
 
-from conftest import BUILD
+from conftest import BUILD, REPO
 
 MKSCENE = BUILD / "bench" / "mkscene"
 NAMES = ["forest", "water", "town", "sand", "grassland", "arable", "industrial", "wetland"]
@@ -141,3 +145,23 @@ def test_output_is_required_and_write_errors_are_named(tmp_path):
     p = mkscene("--size", 64, "-o", tmp_path / "missing" / "s", check=False)
     assert p.returncode == 1
     assert str(tmp_path / "missing") in p.stderr
+
+
+def test_aerial_refs_cut_a_catalogue_for_the_scene(tmp_path, data):
+    env = dict(os.environ, TEXSYN_DATA=str(data))
+    script = REPO / "bench" / "aerial_refs.sh"
+    p = subprocess.run(["bash", str(script), str(tmp_path), "--roads", "s-roads.png"], capture_output=True,
+                       text=True, env=env, timeout=120)
+    assert p.returncode == 0, p.stderr
+    cat = json.loads((tmp_path / "catalogue.json").read_text())
+    # mkscene's ids and names, a reference each, and its road raster's values.
+    assert [(c["id"], c["name"]) for c in cat["classes"]] == list(enumerate(NAMES[:4], 1))
+    assert [c["kind"] for c in cat["classes"]] == ["stochastic", "stochastic", "structured", "stochastic"]
+    assert cat["lines"]["raster"] == "s-roads.png"
+    assert sorted(cat["lines"]["colours"]) == ["128", "255"]
+    sizes = {"forest": (112, 68), "water": (80, 32), "town": (160, 104), "sand": (96, 52)}
+    for c in cat["classes"]:
+        info = subprocess.run(["oiiotool", "--info", str(tmp_path / c["reference"])], capture_output=True,
+                              text=True, check=True).stdout
+        w, h = sizes[c["name"]]
+        assert f"{w} x {h:4d}, 3 channel, uint8 png" in info, info

@@ -185,7 +185,7 @@ static void bad_json_is_placed_by_line_and_column(void **state) {
   refused("{\"classes\": [\n  {\"id\": 1 \"name\": \"forest\"}]}", TS_EFORMAT,
           "cat.json:2:12: expected ',' or '}' after a member of the object opened at 2:3, got '\"'");
   refused("{\"classes\": [{\"id\": 1, \"name\": \"a\\xb\"}]}", TS_EFORMAT,
-          "cat.json:1:34: invalid escape: a backslash followed by 'x' (valid: \\\" \\\\ \\/ \\b \\f \\n \\r \\t \\uXXXX)");
+          "cat.json:1:34: invalid escape: a backslash followed by 'x' (valid: \\\" \\\\ \\/ \\b \\f \\n \\r \\t \\uHHHH)");
   refused("{\"classes\": [{\"id\": 1, \"name\": \"\xC3(\"}]}", TS_EFORMAT,
           "cat.json:1:33: invalid UTF-8 in a string (byte 0xc3)");
   refused("{\"classes\": [{\"id\": 1e999}]}", TS_EFORMAT,
