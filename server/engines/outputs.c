@@ -82,6 +82,7 @@ static void report_copy_map(FILE *f, const ts_mrf_params *p, const ts_mrf_result
     if (a->pool_measured > 0)
       fprintf(f, "\"constancy_above\": %.4f, ", (double)a->pool_kept / (double)a->pool_measured);
     else fprintf(f, "\"constancy_above\": null, ");
+    fprintf(f, "\"measured_above\": %llu, ", (unsigned long long)a->pool_measured);
     fprintf(f, "\"copied\": %llu, \"skipped_share\": %.4f, \"searches_saved\": %llu}%s\n",
             (unsigned long long)a->copied, a->blocks ? (double)a->copied / (double)a->blocks : 0.0,
             (unsigned long long)a->searches_saved, l > p->stop_level ? "," : "");
