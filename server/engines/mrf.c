@@ -790,12 +790,11 @@ static int open_image(engine *e, char *err) {
 /* The level's candidates, from the level above's copy map, and whether it
  * copies them: at levels 0 and 1 only, once the candidates measured so far
  * (ACCEL_MIN_MEASURED at least) kept their predicted sources at a rate of
- * at least accel_min - the
- * seed's check of region constancy over successive coarse levels. The
- * rate is pooled over the levels (kept / measured of all of them): the
- * coarsest have few candidates each, too few to judge alone. A level
- * without a prediction (the coarsest, the first made from the fine
- * reference) has none. */
+ * at least accel_min - the seed's check of region constancy over
+ * successive coarse levels. The rate is pooled over the levels (kept /
+ * measured of all of them): the coarsest have few candidates each, too
+ * few to judge alone. A level without a prediction (the coarsest, the
+ * first made from the fine reference) has none. */
 static int accel_begin(engine *e, char *err) {
   const ts_mrf_params *p = e->p;
   int l = e->level;
