@@ -41,7 +41,7 @@ def synth(exe, tmp, name, ref, size, *extra):
 
 
 def mosaic(images, n, out):
-    run(["oiiotool", *images, f"--mosaic:pad=8", f"{n}x1", "-o", out])
+    run(["oiiotool", *images, "--mosaic:pad=8", f"{n}x1", "-o", out])
 
 
 def main():

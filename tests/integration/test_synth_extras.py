@@ -86,17 +86,6 @@ def test_best_of_is_a_plain_run_of_the_chosen_seed(texsyn, data, tmp_path):
     assert rep["usage"] == plain["usage"]
 
 
-def test_best_of_lowers_the_coarse_usage_variance(texsyn, data, tmp_path):
-    """The point of it: over 8 candidates the chosen one's variance at the
-    measured level is below that of the plain run (candidate 0) unless the
-    plain run was the best already."""
-    _, _, rep = embedded(texsyn, brick(data), tmp_path, "best8", *GEOMETRY, "--best-of", "8")
-    runs = rep["best_of"]["runs"]
-    chosen = runs[rep["best_of"]["chosen"]]["usage_variance"]
-    assert chosen == min(r["usage_variance"] for r in runs)
-    assert chosen < runs[0]["usage_variance"] or rep["best_of"]["chosen"] == 0
-
-
 @pytest.mark.sanitize
 def test_best_of_same_bytes_on_two_workers(texsyn, data, cluster, tmp_path):
     extra = [*GEOMETRY, "--best-of", "3", "--best-of-levels", "3", "--parity"]
@@ -217,7 +206,7 @@ def test_copy_accel_changes_few_blocks(texsyn, data, tmp_path):
     a, e = raw_pairs(tmp_path / "accel.raw"), raw_pairs(tmp_path / "exact.raw")
     differ = sum(x != y for x, y in zip(a, e)) / len(e)
     assert 0 < differ < 0.10, differ
-    assert accel[2]["search"]["lossy"] == ["copy-map"]
+    assert accel[2]["search"]["lossy"] == ["copy-map"] and exact[2]["search"]["lossy"] == []
     no_parity_exact = embedded(texsyn, brick(data), tmp_path, "np_exact", "--levels", "4", size=size)
     no_parity = embedded(texsyn, brick(data), tmp_path, "np_accel", "--levels", "4", "--copy-accel", size=size)
     assert no_parity[2]["search"]["mode"] == "exact" and no_parity[2]["search"]["lossy"] == []
