@@ -41,13 +41,14 @@ typedef struct {
   int (*meta_get)(const ts_meta *meta, const char *name, char *out, size_t outlen);
   int (*meta_set)(ts_meta **meta, const char *name, const char *value);
   void (*meta_free)(ts_meta *meta);
+  int (*meta_copy)(const ts_meta *from, ts_meta **to);
 } ts_image_lib;
 
 /* The table's symbol carries a version: change it with any change to
  * ts_image_lib (or to the structs of image.h), so that a library built
  * from other sources fails to load, naming the symbol it lacks, instead
  * of being called through the wrong layout. */
-#define TS_IMAGE_LIB_TABLE ts_image_lib_v1
+#define TS_IMAGE_LIB_TABLE ts_image_lib_v2
 #define TS_IMAGE_LIB_STR_(x) #x
 #define TS_IMAGE_LIB_STR(x) TS_IMAGE_LIB_STR_(x)
 #define TS_IMAGE_LIB_TABLE_NAME TS_IMAGE_LIB_STR(TS_IMAGE_LIB_TABLE)

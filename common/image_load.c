@@ -139,3 +139,8 @@ int ts_meta_set(ts_meta **meta, const char *name, const char *value) {
   int rc = ts_image_lib_load(NULL);
   return rc != 0 ? rc : ts_lib->meta_set(meta, name, value);
 }
+
+int ts_meta_copy(const ts_meta *from, ts_meta **to) {
+  int rc = ts_image_lib_load(NULL);
+  return rc != 0 ? rc : ts_lib->meta_copy(from, to);
+}

@@ -26,6 +26,11 @@ void ts_meta_free(ts_meta *meta);
  * loaded (ts_image_lib_load tells why). */
 int ts_meta_set(ts_meta **meta, const char *name, const char *value);
 
+/* Replaces *to (freed if not NULL) with a copy of from (NULL: empty), to
+ * change without touching from. 0, TS_EINVAL, TS_ENOMEM or TS_ENOTSUP as
+ * ts_meta_set. */
+int ts_meta_copy(const ts_meta *from, ts_meta **to);
+
 #ifdef __cplusplus
 }
 #endif

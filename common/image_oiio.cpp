@@ -627,8 +627,21 @@ extern "C" int ts_meta_set(ts_meta **meta, const char *name, const char *value) 
 
 extern "C" void ts_meta_free(ts_meta *meta) { delete meta; }
 
+extern "C" int ts_meta_copy(const ts_meta *from, ts_meta **to) {
+  if (to == nullptr) return TS_EINVAL;
+  try {
+    std::unique_ptr<ts_meta> copy(new ts_meta);
+    if (from != nullptr) copy->attribs = from->attribs;
+    delete *to;
+    *to = copy.release();
+    return 0;
+  } catch (...) {
+    return TS_ENOMEM;
+  }
+}
+
 /* --- the library's one export -------------------------------------------- */
 
 extern "C" __attribute__((visibility("default"))) const ts_image_lib TS_IMAGE_LIB_TABLE = {
     ts_image_read, ts_image_read_mem, ts_image_probe_mem, ts_image_write,
-    ts_meta_get,   ts_meta_set,       ts_meta_free};
+    ts_meta_get,   ts_meta_set,       ts_meta_free,       ts_meta_copy};

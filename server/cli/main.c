@@ -75,10 +75,26 @@ static void usage_synth(FILE *f) {
           "                       float counts; other formats normalised to the maximum)\n"
           "  --stop-level N       stop after pyramid level N and write its luminance at\n"
           "                       that level's size: a quick preview (default 0 = full)\n"
+          "  --best-of K          passive usage-variance optimisation: K seeds (the first\n"
+          "                       --seed) through the coarse levels, the one whose usage\n"
+          "                       map has the least variance goes on, 1..%d (default 1 = off)\n"
+          "  --best-of-levels N   how many of the coarsest levels the candidates run\n"
+          "                       (default all but the finest two)\n"
+          "  --ref-fine IMG       texture mixing: levels below --mix-level from IMG (a small\n"
+          "                       crop for local structure), the coarser ones from --ref\n"
+          "  --mix-level M        the first level made from --ref, 1..L-1 (with --ref-fine)\n"
+          "  --copy-accel         copy-map shortcut (lossy, off): at levels 1 and 0, blocks\n"
+          "                       inside coherent regions of the level above's copy map are\n"
+          "                       copied without a search, once the levels above kept their\n"
+          "                       regions (the report and the image's metadata say so; the\n"
+          "                       job takes no checkpoints)\n"
+          "  --copy-accel-kernel N  coherence kernel width, odd 1..15 (default the coarse\n"
+          "                       window width W_C): the buffer kept to transitions\n"
+          "  --copy-accel-min R   constancy the levels above must show, 0..1 (default 0.95)\n"
           "%s"
           "\n"
           "TEXSYN_SIMD=scalar|mmx|sse2|avx2|avx512 forces a kernel variant.\n",
-          TS_MRF_MAX_LEVELS, ts_job_options_help);
+          TS_MRF_MAX_LEVELS, TS_MRF_MAX_BEST_OF, ts_job_options_help);
 }
 
 /* ---- synth ------------------------------------------------------------- */
@@ -86,7 +102,8 @@ static void usage_synth(FILE *f) {
 enum {
   OPT_REF = TS_OPT_OWN, OPT_SIZE, OPT_LEVELS, OPT_WN, OPT_WB, OPT_PARITY, OPT_USAGE, OPT_COARSE,
   OPT_SEED, OPT_RGB, OPT_COPY, OPT_COPY_RAW, OPT_USAGE_MAP, OPT_STOP, OPT_REFINE, OPT_IMAGE, OPT_SAMPLES,
-  OPT_BLOCK, OPT_NNF
+  OPT_BLOCK, OPT_NNF, OPT_BEST_OF, OPT_BEST_OF_LEVELS, OPT_REF_FINE, OPT_MIX_LEVEL, OPT_ACCEL, OPT_ACCEL_KERNEL,
+  OPT_ACCEL_MIN
 };
 
 /* The options that name a side output's path, by the output's spec key
@@ -130,12 +147,20 @@ static const struct option synth_longopts[] = {
     {"usage-map", required_argument, 0, OPT_USAGE_MAP},
     {"stop-level", required_argument, 0, OPT_STOP},
     {"refine", required_argument, 0, OPT_REFINE},
+    {"best-of", required_argument, 0, OPT_BEST_OF},
+    {"best-of-levels", required_argument, 0, OPT_BEST_OF_LEVELS},
+    {"ref-fine", required_argument, 0, OPT_REF_FINE},
+    {"mix-level", required_argument, 0, OPT_MIX_LEVEL},
+    {"copy-accel", no_argument, 0, OPT_ACCEL},
+    {"copy-accel-kernel", required_argument, 0, OPT_ACCEL_KERNEL},
+    {"copy-accel-min", required_argument, 0, OPT_ACCEL_MIN},
     TS_JOB_LONGOPTS,
     {0, 0, 0, 0}};
 
 typedef struct {
   ts_job_cmd job;
   int have_size;
+  int have_accel_tuning; /* --copy-accel-kernel or --copy-accel-min */
 } synth_opts;
 
 static int synth_option(synth_opts *o, int c, const char *arg, char *err) {
@@ -155,12 +180,37 @@ static int synth_option(synth_opts *o, int c, const char *arg, char *err) {
   case OPT_RGB: p->rgb_search = 1; break;
   case OPT_STOP: rc = ts_arg_long("--stop-level", arg, -1000, 1000, &v, err); p->stop_level = (int)v; break;
   case OPT_REFINE: rc = ts_arg_long("--refine", arg, -1000, 1000, &v, err); p->refine = (int)v; break;
+  case OPT_BEST_OF: rc = ts_arg_long("--best-of", arg, -1000, 1000, &v, err); p->best_of = (int)v; break;
+  case OPT_BEST_OF_LEVELS:
+    rc = ts_arg_long("--best-of-levels", arg, -1000, 1000, &v, err);
+    p->best_of_levels = (int)v;
+    break;
+  case OPT_REF_FINE: o->job.in[1] = arg; break;
+  case OPT_MIX_LEVEL: rc = ts_arg_long("--mix-level", arg, -1000, 1000, &v, err); p->mix_level = (int)v; break;
+  case OPT_ACCEL: p->copy_accel = 1; break;
+  case OPT_ACCEL_KERNEL:
+    rc = ts_arg_long("--copy-accel-kernel", arg, -1000, 1000, &v, err);
+    p->accel_kernel = (int)v;
+    o->have_accel_tuning = 1;
+    break;
+  case OPT_ACCEL_MIN: rc = ts_arg_double("--copy-accel-min", arg, &p->accel_min, err); o->have_accel_tuning = 1; break;
   default:
     rc = ts_job_option(&o->job, c, arg, err);
     if (rc == TS_ENOENT && output_option(&o->job.out, c, arg)) rc = 0;
     if (rc == TS_ENOENT) rc = ts_error(err, TS_EINVAL, "unknown option (see texsyn synth --help)");
   }
   return rc;
+}
+
+/* Options that mean something only together. */
+static int synth_check_pairs(const synth_opts *o, const ts_mrf_params *p, char *err) {
+  if ((o->job.in[1] != NULL) != (p->mix_level != 0))
+    return ts_error(err, TS_EINVAL, "--ref-fine IMG and --mix-level M go together (texture mixing)");
+  if (p->best_of_levels != 0 && p->best_of == 1)
+    return ts_error(err, TS_EINVAL, "--best-of-levels needs --best-of K with K > 1");
+  if (o->have_accel_tuning && !p->copy_accel)
+    return ts_error(err, TS_EINVAL, "--copy-accel-kernel and --copy-accel-min need --copy-accel");
+  return 0;
 }
 
 static int synth_parse(int argc, char **argv, synth_opts *o, char *err) {
@@ -188,7 +238,7 @@ static int synth_parse(int argc, char **argv, synth_opts *o, char *err) {
   const ts_mrf_params *p = (const ts_mrf_params *)o->job.spec.params.bytes;
   if (o->job.server != NULL && p->stop_level != 0)
     return ts_error(err, TS_EINVAL, "--stop-level previews run embedded only (add --embedded)");
-  return 0;
+  return synth_check_pairs(o, p, err);
 }
 
 static int cmd_synth(int argc, char **argv) {

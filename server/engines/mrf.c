@@ -8,7 +8,12 @@
  * too (masked full window), and refinement sweeps revisit the blocks with
  * their full windows. Each block copies the reference block whose
  * neighbourhood is nearest in weighted L1 (+ the usage penalty, §3.7.2).
- * Colour is gathered through the final copy map (§3.8). */
+ * Colour is gathered through the final copy map (§3.8).
+ *
+ * Beyond the plain method, from the seed: passive usage-variance
+ * optimisation (§3.7.1: best-of candidate seeds through the coarse levels),
+ * texture mixing (§4.3: the finer levels from a second reference) and the
+ * copy-map shortcut (§3.6.6, lossy, mrf_accel.h). */
 #include "mrf.h"
 
 #include <stdarg.h>
@@ -19,6 +24,7 @@
 
 #include "error.h"
 #include "util.h"
+#include "mrf_accel.h"
 #include "plane.h"
 #include "replica.h"
 #include "rng.h"
@@ -57,11 +63,19 @@ static void level_sizes(int w, int h, int levels, int *lw, int *lh, int ceil_mod
   }
 }
 
-static void check_reference_levels(const ts_mrf_params *p, int ref_w, int ref_h,
-                                   char *msg, size_t len, int *count) {
+/* How a reference too small for its levels is named and what fixes it. */
+typedef struct {
+  const char *option, *name, *fix;
+  int value;
+} ref_words;
+
+/* Checks that a ref_w x ref_h reference holds the window (and, but at the
+ * coarsest level, its coarse part one level up) at levels lo..hi. */
+static void check_reference_levels(const ts_mrf_params *p, int ref_w, int ref_h, int lo, int hi,
+                                   const ref_words *words, char *msg, size_t len, int *count) {
   int rw[TS_MRF_MAX_LEVELS], rh[TS_MRF_MAX_LEVELS];
   level_sizes(ref_w, ref_h, p->levels, rw, rh, 0);
-  for (int l = p->levels - 1; l >= 0; l--) {
+  for (int l = hi; l >= lo; l--) {
     ts_window s;
     ts_anchors g;
     char err[TS_ERR_LEN];
@@ -75,13 +89,30 @@ static void check_reference_levels(const ts_mrf_params *p, int ref_w, int ref_h,
     ts_window_free(&s);
     if (bad) {
       problem(msg, len, count,
-              "--levels %d: the reference (%dx%d) is %dx%d at level %d, too small for a %dx%d "
-              "neighbourhood%s; use fewer levels, a smaller --wn or a larger reference",
-              p->levels, ref_w, ref_h, rw[l], rh[l], l, p->wn, p->wn,
-              p->parity ? " in every parity class" : "");
+              "%s %d: %s (%dx%d) is %dx%d at level %d, too small for a %dx%d neighbourhood%s; use %s",
+              words->option, words->value, words->name, ref_w, ref_h, rw[l], rh[l], l, p->wn, p->wn,
+              p->parity ? " in every parity class" : "", words->fix);
       return;
     }
   }
+}
+
+/* The options of best-of, mixing and the copy-map shortcut. */
+static void check_extras(const ts_mrf_params *p, char *msg, size_t len, int *n) {
+  int levels_ok = p->levels >= 1 && p->levels <= TS_MRF_MAX_LEVELS;
+  if (p->best_of < 1 || p->best_of > TS_MRF_MAX_BEST_OF)
+    problem(msg, len, n, "--best-of %d: need 1..%d candidates (1 = off)", p->best_of, TS_MRF_MAX_BEST_OF);
+  if (p->best_of_levels < 0 || (levels_ok && p->best_of_levels > p->levels))
+    problem(msg, len, n, "--best-of-levels %d: need 1..%d (--levels), or 0 for all but the finest two",
+            p->best_of_levels, p->levels);
+  if (p->mix_level < 0 || (levels_ok && p->mix_level >= p->levels))
+    problem(msg, len, n, "--mix-level %d: need 1..%d (below --levels; 0 = no mixing)", p->mix_level,
+            p->levels - 1);
+  if (p->accel_kernel < 0 || p->accel_kernel > 15 || (p->accel_kernel > 0 && p->accel_kernel % 2 == 0))
+    problem(msg, len, n, "--copy-accel-kernel %d: need an odd width 1..15 (0 = the coarse window width)",
+            p->accel_kernel);
+  if (!(p->accel_min >= 0.0 && p->accel_min <= 1.0))
+    problem(msg, len, n, "--copy-accel-min %g: need a share 0..1", p->accel_min);
 }
 
 int ts_mrf_check(const ts_mrf_params *p, int ref_w, int ref_h, int channels,
@@ -113,6 +144,7 @@ int ts_mrf_check(const ts_mrf_params *p, int ref_w, int ref_h, int channels,
     problem(msg, len, &n, "--coarse-weight %g: need more than 0, at most 100", p->coarse_weight);
   if (channels < 1 || channels > 16)
     problem(msg, len, &n, "reference has %d channels: need 1..16", channels);
+  check_extras(p, msg, len, &n);
   if (n > 0) return TS_EINVAL; /* the checks below need sane parameters */
   int cw[TS_MRF_MAX_LEVELS], ch[TS_MRF_MAX_LEVELS];
   level_sizes(p->width, p->height, p->levels, cw, ch, 1);
@@ -125,9 +157,42 @@ int ts_mrf_check(const ts_mrf_params *p, int ref_w, int ref_h, int channels,
   if (ref_w < p->wn || ref_h < p->wn)
     problem(msg, len, &n, "the reference (%dx%d) is smaller than the %dx%d neighbourhood", ref_w,
             ref_h, p->wn, p->wn);
-  else
-    check_reference_levels(p, ref_w, ref_h, msg, len, &n);
+  else {
+    /* With mixing the reference makes only the levels from mix_level up. */
+    ref_words words = {"--levels", "the reference", "fewer levels, a smaller --wn or a larger reference",
+                       p->levels};
+    check_reference_levels(p, ref_w, ref_h, p->mix_level, p->levels - 1, &words, msg, len, &n);
+  }
   return n > 0 ? TS_EINVAL : 0;
+}
+
+/* Whether the parameters the reference checks rest on are sane (ts_mrf_check
+ * names those that are not). */
+static int geometry_sane(const ts_mrf_params *p) {
+  return p->wb >= 1 && p->wb % 2 == 1 && p->wb <= 15 && p->wn % 2 == 1 && p->wn >= p->wb + 2 &&
+         p->wn <= TS_MAX_WN && p->levels >= 1 && p->levels <= TS_MRF_MAX_LEVELS && p->mix_level >= 1 &&
+         p->mix_level < p->levels;
+}
+
+int ts_mrf_check_fine(const ts_mrf_params *p, int fine_w, int fine_h, int fine_channels, int ref_channels,
+                      char *msg, size_t len) {
+  int n = msg[0] != '\0', before = n;
+  if (fine_channels < 1 || fine_channels > 16)
+    problem(msg, len, &n, "--ref-fine has %d channels: need 1..16", fine_channels);
+  else if (nplanes_for(p, fine_channels) != nplanes_for(p, ref_channels))
+    problem(msg, len, &n,
+            "--rgb-search: the reference has %d channels and the --ref-fine image %d; both need 3 or more "
+            "(or drop --rgb-search to search on luminance)", ref_channels, fine_channels);
+  if (geometry_sane(p) && (fine_w < p->wn || fine_h < p->wn))
+    problem(msg, len, &n, "the --ref-fine image (%dx%d) is smaller than the %dx%d neighbourhood", fine_w, fine_h,
+            p->wn, p->wn);
+  else if (geometry_sane(p)) {
+    /* Its levels below mix_level, each with its coarse part one level up. */
+    ref_words words = {"--mix-level", "the --ref-fine image",
+                       "a lower --mix-level, a smaller --wn or a larger --ref-fine image", p->mix_level};
+    check_reference_levels(p, fine_w, fine_h, 0, p->mix_level - 1, &words, msg, len, &n);
+  }
+  return n > before ? TS_EINVAL : 0;
 }
 
 /* ---- engine state ------------------------------------------------------ */
@@ -172,6 +237,17 @@ typedef struct {
   int nplanes;
   int levels;
   ts_plane ref[TS_MAX_PLANES][TS_MRF_MAX_LEVELS];
+  /* Texture mixing (§4.3): the fine reference's pyramid, levels 0..mix
+   * (mix: p->mix_level, 0 without mixing). */
+  int mix;
+  ts_plane fine_ref[TS_MAX_PLANES][TS_MRF_MAX_LEVELS];
+  uint64_t seed;       /* the noise seed of the run under way (a best-of candidate's) */
+  int candidate_phase; /* running best-of candidates, which take no checkpoints */
+  /* The copy-map shortcut: this level's map (empty where it does not
+   * apply), and the candidates measured so far over all levels and how
+   * many of them kept their predicted source. */
+  ts_accel_map accel;
+  uint64_t accel_measured, accel_kept;
   ts_plane canvas[TS_MAX_PLANES][TS_MRF_MAX_LEVELS];
   int cw[TS_MRF_MAX_LEVELS], ch[TS_MRF_MAX_LEVELS];
   /* current level */
@@ -197,6 +273,7 @@ typedef struct {
   /* per-step scratch: one query group per shape */
   uint32_t cap;
   query_group group[2];
+  uint32_t *direct, ndirect; /* blocks of the step copied by the shortcut */
   ts_place *places;
   uint8_t mask[TS_L1_MAX_CHUNKS * TS_L1_CHUNK];
 } engine;
@@ -212,8 +289,10 @@ static void group_free(query_group *g) {
 static int ensure_step_scratch(engine *e, uint32_t n) {
   if (n <= e->cap) return 0;
   free(e->places);
+  free(e->direct);
   e->places = malloc(sizeof(ts_place) * n);
-  int ok = e->places != NULL;
+  e->direct = malloc(sizeof(uint32_t) * n);
+  int ok = e->places != NULL && e->direct != NULL;
   for (int k = 0; k < 2; k++) {
     query_group *g = &e->group[k];
     group_free(g);
@@ -315,7 +394,7 @@ static void plan_walk(const level_plan *pl, uint64_t steps, void (*fn)(void *ctx
  * random positions (noise with the reference histogram, §3.4, seeded). */
 static void init_noise(engine *e) {
   ts_rng rng;
-  ts_rng_seed(&rng, e->p->seed, (uint64_t)e->level);
+  ts_rng_seed(&rng, e->seed, (uint64_t)e->level);
   const ts_plane *r0 = e->ref_lp.fine[0];
   int w = e->cw[e->level], h = e->ch[e->level];
   for (long i = 0; i < (long)w * h; i++) {
@@ -340,6 +419,37 @@ static void init_prediction(engine *e) {
     for (int x = 0; x < w; x++) {
       int sx, sy;
       ts_copy_predict(e->prev_copy, e->cw[l + 1], e->ch[l + 1], w, h, r0->w, r0->h, x, y, &sx, &sy);
+      long o = (long)y * w + x;
+      for (int p = 0; p < e->nplanes; p++) e->canvas[p][l].px[o] = ts_plane_at(e->ref_lp.fine[p], sx, sy);
+      e->copy[2 * o] = (uint32_t)sx;
+      e->copy[2 * o + 1] = (uint32_t)sy;
+    }
+}
+
+/* Whether level l is the first made from the fine reference (§4.3). */
+static int mix_switch(const engine *e, int l) { return e->mix > 0 && l == e->mix - 1; }
+
+/* The pyramid level l is made from: the fine reference's below the mix
+ * level, the reference's from it up. Its level l is the fine part of the
+ * vectors, its level l + 1 the coarse part; the coarse part of the queries
+ * is the canvas above, so at the switch the coarse layout made from the
+ * reference is matched against the fine reference's coarse level. */
+static const ts_plane *level_refs(const engine *e, int k, int l) { return l < e->mix ? e->fine_ref[k] : e->ref[k]; }
+
+/* Fills the first level made from the fine reference with that reference
+ * laid out as tiles. The copy map above points into the other reference,
+ * so there is nothing to predict from; as everywhere, the initial canvas
+ * only stands in for what is not placed yet (what windows read across the
+ * torus seam), where real texture serves better than noise. It needs no
+ * seed: a best-of run's seed is spent at the coarsest level, so a run
+ * resumed after the best-of choice, which does not know the chosen seed,
+ * goes on as the uninterrupted run does. */
+static void init_tiles(engine *e) {
+  int l = e->level, w = e->cw[l], h = e->ch[l];
+  const ts_plane *r0 = e->ref_lp.fine[0];
+  for (int y = 0; y < h; y++)
+    for (int x = 0; x < w; x++) {
+      int sx = x % r0->w, sy = y % r0->h;
       long o = (long)y * w + x;
       for (int p = 0; p < e->nplanes; p++) e->canvas[p][l].px[o] = ts_plane_at(e->ref_lp.fine[p], sx, sy);
       e->copy[2 * o] = (uint32_t)sx;
@@ -396,10 +506,20 @@ static int parity_plane(ts_plane *p, int w, int h) {
   return 0;
 }
 
+/* Sorts the blocks of a step into the two query groups, and the blocks
+ * the copy-map shortcut copies: placed from their prediction in the scan,
+ * left as they are by the sweeps. */
 static void build_queries(engine *e, const ts_block *blocks, uint32_t n, int refine) {
   e->group[SHAPE_PLAIN].n = e->group[SHAPE_MASKED].n = 0;
+  e->ndirect = 0;
   for (uint32_t i = 0; i < n; i++) {
     const ts_block *b = &blocks[i];
+    int sx, sy;
+    if (ts_accel_block(&e->accel, b->x, b->y, TS_ACCEL_COPY, &sx, &sy)) {
+      e->res->accel[e->level].searches_saved++;
+      if (!refine) e->direct[e->ndirect++] = i;
+      continue;
+    }
     query_group *g = &e->group[masked_query(e, b, refine) ? SHAPE_MASKED : SHAPE_PLAIN];
     g->pos[g->n] = (uint32_t)b->y * (uint32_t)e->cw[e->level] + (uint32_t)b->x;
     g->klass[g->n] = e->p->parity ? (uint8_t)parity_class(b->x, b->y) : 0;
@@ -436,23 +556,32 @@ static int search_step(engine *e, const uint64_t d1[2], char *err) {
  * the canvas, which counts the copies in its sets' usage replicas as this
  * does: in a refinement sweep the copy a block replaces leaves the usage
  * counts. */
+static void place_counted(engine *e, const ts_block *b, int sx, int sy, int refine, uint32_t *np) {
+  long o = (long)b->y * e->cw[e->level] + b->x;
+  if (refine) ts_usage_commit(&e->usage, (int)e->copy[2 * o], (int)e->copy[2 * o + 1], b->w, b->h, -1);
+  place_block(e, b, sx, sy);
+  ts_usage_commit(&e->usage, sx, sy, b->w, b->h, 1);
+  e->places[(*np)++] = (ts_place){(uint32_t)o, (uint32_t)sy * (uint32_t)e->grid.w + (uint32_t)sx};
+}
+
 static int place_step(engine *e, const ts_block *blocks, int refine, char *err) {
   uint32_t np = 0;
-  int w = e->cw[e->level];
   for (int k = 0; k < 2; k++) {
     const query_group *g = &e->group[k];
     for (uint32_t i = 0; i < g->n; i++) {
-      const ts_block *b = &blocks[g->block[i]];
       if (g->best[i].index >= e->grid.total)
         return ts_error(err, TS_EPROTO, "search returned no match for a block");
       int sx, sy;
       ts_anchors_pos(&e->grid, g->best[i].index, &sx, &sy);
-      long o = (long)b->y * w + b->x;
-      if (refine) ts_usage_commit(&e->usage, (int)e->copy[2 * o], (int)e->copy[2 * o + 1], b->w, b->h, -1);
-      place_block(e, b, sx, sy);
-      ts_usage_commit(&e->usage, sx, sy, b->w, b->h, 1);
-      e->places[np++] = (ts_place){(uint32_t)o, (uint32_t)sy * (uint32_t)e->grid.w + (uint32_t)sx};
+      place_counted(e, &blocks[g->block[i]], sx, sy, refine, &np);
     }
+  }
+  /* Copied blocks reach the replica like searched ones. */
+  for (uint32_t i = 0; i < e->ndirect; i++) {
+    const ts_block *b = &blocks[e->direct[i]];
+    int sx, sy;
+    ts_accel_block(&e->accel, b->x, b->y, TS_ACCEL_COPY, &sx, &sy);
+    place_counted(e, b, sx, sy, 0, &np);
   }
   return ts_search_place(e->search, e->image, e->places, np, err);
 }
@@ -471,8 +600,8 @@ static void level_stats(const engine *e, ts_mrf_level_stats *ls) {
   const ts_search_stats *s = &e->search->stats, *b = &e->base;
   int l = e->level;
   *ls = e->carried;
-  ls->ref_w = e->ref[0][l].w;
-  ls->ref_h = e->ref[0][l].h;
+  ls->ref_w = level_refs(e, 0, l)[l].w;
+  ls->ref_h = level_refs(e, 0, l)[l].h;
   ls->out_w = e->cw[l];
   ls->out_h = e->ch[l];
   ls->vectors = e->grid.total;
@@ -513,18 +642,20 @@ static int save_checkpoint(engine *e, char *err) {
 }
 
 /* A checkpoint inside the level is due: the interval has passed since the
- * last one, and steps are left (the level's end has its own). */
+ * last one, and steps are left (the level's end has its own). Best-of
+ * candidates take none: their state is not yet the job's. */
 static int checkpoint_due(const engine *e) {
   const ts_mrf_hooks *h = e->hooks;
-  return h->checkpoint != NULL && h->checkpoint_interval > 0 && e->step < e->plan.steps &&
+  return h->checkpoint != NULL && !e->candidate_phase && h->checkpoint_interval > 0 && e->step < e->plan.steps &&
          ts_now() - e->last_checkpoint >= h->checkpoint_interval;
 }
 
 /* The run was asked to stop: it saves a checkpoint after this step and
- * returns (ts_mrf_hooks.stop). Only a run that can save one stops early. */
+ * returns (ts_mrf_hooks.stop). Only a run that can save one stops early
+ * (best-of candidates stop once the choice is made). */
 static int stop_requested(const engine *e) {
   const ts_mrf_hooks *h = e->hooks;
-  return h->checkpoint != NULL && h->stop != NULL && *h->stop;
+  return h->checkpoint != NULL && !e->candidate_phase && h->stop != NULL && *h->stop;
 }
 
 /* Runs steps t0.. of a schedule, every block of a step searched against
@@ -572,7 +703,8 @@ static int run_level(engine *e, char *err) {
   return 0;
 }
 
-static int build_reference(engine *e, const ts_image *ref) {
+/* The first `levels` levels of a reference's pyramid, per feature plane. */
+static int build_reference(engine *e, const ts_image *ref, int levels, ts_plane pyr[][TS_MRF_MAX_LEVELS]) {
   int rw = ref->width, rh = ref->height;
   uint8_t *buf = malloc((size_t)rw * rh);
   if (buf == NULL) return TS_ENOMEM;
@@ -581,7 +713,7 @@ static int build_reference(engine *e, const ts_image *ref) {
     if (e->nplanes == 1) ts_image_luma8(ref, buf);
     else ts_image_channel8(ref, p, buf);
     ts_plane base = {rw, rh, buf};
-    rc = ts_pyramid_build(&base, e->levels, e->ref[p]);
+    rc = ts_pyramid_build(&base, levels, pyr[p]);
   }
   free(buf);
   return rc;
@@ -613,12 +745,18 @@ static int restore_inside(engine *e, const ts_mrf_checkpoint *ck, char *err) {
 /* The backend's replica of the canvas as this level starts: predicted by
  * the backend itself from the level above when it holds that one (nothing
  * but the new reference level travels), else the canvas as it is here
- * (the first level of a run: the coarsest, or a resumed one). */
+ * (the first level of a run: the coarsest, or a resumed one; and the
+ * first made from the fine reference, where a prediction across the two
+ * references would be meaningless: the replica is loaded afresh). */
 static int open_image(engine *e, char *err) {
   int l = e->level;
   const uint8_t *ref[TS_WIN_MAX_PLANES];
   for (int k = 0; k < e->nplanes; k++) ref[k] = e->ref_lp.fine[k]->px;
   const ts_plane *r0 = e->ref_lp.fine[0];
+  if (e->image >= 0 && mix_switch(e, l)) {
+    ts_search_image_close(e->search, e->image);
+    e->image = -1;
+  }
   if (e->image >= 0) return ts_search_image_next(e->search, e->image, e->cw[l], e->ch[l], r0->w, r0->h, ref, err);
   ts_replica_desc d = {.w = e->cw[l], .h = e->ch[l], .nplanes = e->nplanes, .done = e->done, .block = e->p->wb,
                        .rw = r0->w, .rh = r0->h, .copy = e->copy};
@@ -634,6 +772,64 @@ static int open_image(engine *e, char *err) {
   return ts_search_image_open(e->search, &d, &e->image, err);
 }
 
+/* ---- the copy-map shortcut (§3.6.6) ------------------------------------ */
+
+/* The levels it may copy at: the two finest, which hold all but a few per
+ * cent of a job's work (16x per level) and where the seed's Table 3.3 uses
+ * it; the levels above only measure, so at least one measurement comes
+ * before the first copy whenever there are levels enough. */
+#define ACCEL_TOP_LEVEL 1
+/* Where it copies, every ACCEL_SAMPLE-th candidate is searched anyway and
+ * keeps the constancy measured (1/8 of the saving given back). */
+#define ACCEL_SAMPLE 8
+/* Candidates measured before any copy: with 64 all kept, the true rate is
+ * above 0.95 at 95 % confidence (the rule of three, 1 - 3/n); fewer (a
+ * small job's coarse levels) prove nothing. */
+#define ACCEL_MIN_MEASURED 64
+
+/* The level's candidates, from the level above's copy map, and whether it
+ * copies them: at levels 0 and 1 only, once the candidates measured so far
+ * (ACCEL_MIN_MEASURED at least) kept their predicted sources at a rate of
+ * at least accel_min - the seed's check of region constancy over
+ * successive coarse levels. The rate is pooled over the levels (kept /
+ * measured of all of them): the coarsest have few candidates each, too
+ * few to judge alone. A level without a prediction (the coarsest, the
+ * first made from the fine reference) has none. */
+static int accel_begin(engine *e, char *err) {
+  const ts_mrf_params *p = e->p;
+  int l = e->level;
+  ts_mrf_accel_stats *st = &e->res->accel[l];
+  memset(st, 0, sizeof(*st));
+  if (!p->copy_accel || l + 1 >= e->levels || mix_switch(e, l)) return 0;
+  int n = p->accel_kernel ? p->accel_kernel : ts_coarse_width(p->wn);
+  const ts_plane *r0 = e->ref_lp.fine[0];
+  int rc = ts_accel_map_build(&e->accel, e->prev_copy, e->cw[l + 1], e->ch[l + 1], e->cw[l], e->ch[l], p->wb, n,
+                              r0->w, r0->h, &e->grid, p->parity);
+  if (rc != 0) return ts_error(err, rc, "out of memory");
+  int on = l <= ACCEL_TOP_LEVEL && e->accel_measured >= ACCEL_MIN_MEASURED &&
+           (double)e->accel_kept >= p->accel_min * (double)e->accel_measured;
+  if (on) ts_accel_map_enable(&e->accel, ACCEL_SAMPLE);
+  st->role = on ? TS_ACCEL_ON : TS_ACCEL_VALIDATE;
+  st->pool_measured = e->accel_measured;
+  st->pool_kept = e->accel_kept;
+  st->blocks = (uint64_t)e->accel.rows * (uint64_t)e->accel.cols;
+  st->candidates = e->accel.candidates;
+  e->res->lossy |= on;
+  return 0;
+}
+
+/* After the level: how many measured candidates kept their predicted
+ * source, which decides the levels below. */
+static void accel_end(engine *e) {
+  ts_mrf_accel_stats *st = &e->res->accel[e->level];
+  if (st->role == TS_ACCEL_NONE) return;
+  ts_accel_constancy(&e->accel, e->copy, e->cw[e->level], &st->measured, &st->kept);
+  st->copied = st->role == TS_ACCEL_ON ? st->candidates - st->measured : 0;
+  e->accel_measured += st->measured;
+  e->accel_kept += st->kept;
+  ts_accel_map_free(&e->accel);
+}
+
 /* Synthesises level l from its start, or from `inside`, a checkpoint
  * taken inside it. */
 static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, char *err) {
@@ -643,9 +839,10 @@ static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, c
   e->t0 = ts_now();
   e->base = e->search->stats;
   memset(&e->carried, 0, sizeof(e->carried));
+  const ts_plane *refs = level_refs(e, 0, l);
   for (int k = 0; k < e->nplanes; k++) {
-    e->ref_lp.fine[k] = &e->ref[k][l];
-    e->ref_lp.coarse[k] = coarse ? &e->ref[k][l + 1] : NULL;
+    e->ref_lp.fine[k] = &level_refs(e, k, l)[l];
+    e->ref_lp.coarse[k] = coarse ? &level_refs(e, k, l)[l + 1] : NULL;
     e->canvas_lp.fine[k] = &e->canvas[k][l];
     e->canvas_lp.coarse[k] = coarse ? &e->canvas[k][l + 1] : NULL;
     if (ts_plane_alloc(&e->canvas[k][l], e->cw[l], e->ch[l]) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
@@ -663,9 +860,8 @@ static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, c
   e->cap = 0; /* the shapes' sizes changed */
   if (rc == 0 && p->parity && (rc = parity_plane(&e->parity, r0->w, r0->h)) != 0) ts_error(err, rc, "out of memory");
   if (rc == 0)
-    rc = ts_anchors_init(&e->grid, &e->shape[SHAPE_PLAIN], r0->w, r0->h, coarse ? e->ref[0][l + 1].w : 0,
-                         coarse ? e->ref[0][l + 1].h : 0, p->parity ? &e->parity : NULL, p->parity ? 4 : 1, NULL,
-                         err);
+    rc = ts_anchors_init(&e->grid, &e->shape[SHAPE_PLAIN], r0->w, r0->h, coarse ? refs[l + 1].w : 0,
+                         coarse ? refs[l + 1].h : 0, p->parity ? &e->parity : NULL, p->parity ? 4 : 1, NULL, err);
   if (rc == 0 && (rc = ts_usage_init(&e->usage, &e->grid, p->wb, p->usage_weight > 0)) != 0) ts_error(err, rc, "out of memory");
   size_t npx = (size_t)e->cw[l] * e->ch[l];
   e->copy = rc == 0 ? malloc(sizeof(uint32_t) * 2 * npx) : NULL;
@@ -677,9 +873,11 @@ static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, c
   e->prog.done = 0;
   e->prog.total = level_blocks(p, l, e->cw[l], e->ch[l]);
   if (rc == 0 && inside) rc = restore_inside(e, inside, err);
+  else if (rc == 0 && mix_switch(e, l)) init_tiles(e);
   else if (rc == 0 && coarse) init_prediction(e);
   else if (rc == 0) init_noise(e);
   if (rc == 0) rc = open_image(e, err);
+  if (rc == 0) rc = accel_begin(e, err);
   /* The backend's usage replicas start from the counters as they are now:
    * zero, or a resumed level's. */
   for (int k = 0; rc == 0 && k < 2; k++) {
@@ -688,6 +886,7 @@ static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, c
     rc = ts_search_prepare(e->search, &rs, &e->set_ids[k], err);
   }
   if (rc == 0) rc = run_level(e, err);
+  if (rc == 0) accel_end(e);
   for (int k = 0; k < 2; k++)
     if (e->set_ids[k] >= 0) ts_search_release(e->search, e->set_ids[k]);
   return rc;
@@ -696,8 +895,11 @@ static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, c
 static void engine_free(engine *e) {
   for (int p = 0; p < TS_MAX_PLANES; p++) {
     ts_pyramid_free(e->ref[p], e->levels);
+    ts_pyramid_free(e->fine_ref[p], e->levels);
     ts_pyramid_free(e->canvas[p], e->levels);
   }
+  ts_accel_map_free(&e->accel);
+  free(e->direct);
   ts_usage_free(&e->usage);
   ts_anchors_free(&e->grid);
   ts_plane_free(&e->parity);
@@ -731,9 +933,17 @@ static int gather_output(engine *e, const ts_image *ref, ts_mrf_result *res, cha
   e->copy = NULL;
   res->usage = e->usage.count;
   e->usage.count = NULL;
-  res->ref_w = e->ref[0][l].w;
-  res->ref_h = e->ref[0][l].h;
+  res->ref_w = level_refs(e, 0, l)[l].w;
+  res->ref_h = level_refs(e, 0, l)[l].h;
   return 0;
+}
+
+/* The last level the best-of candidates run: the best_of_levels coarsest
+ * (by default all but the finest two), but not below the output's. */
+static int candidate_last_level(const ts_mrf_params *p) {
+  int n = p->best_of_levels > 0 ? p->best_of_levels : p->levels - 2;
+  int last = p->levels - (n > 0 ? n : 1);
+  return last > p->stop_level ? last : p->stop_level;
 }
 
 /* ---- resuming ----------------------------------------------------------- */
@@ -758,7 +968,7 @@ static void mark_block(void *ctx, const ts_block *b) {
  * its pixels, every sweep's replacement takes the old ones away). */
 static int check_inside(const engine *e, const ts_mrf_checkpoint *ck, const level_plan *pl, char *err) {
   int l = ck->level, top = l + 1 == e->levels;
-  int rw = e->ref[0][l].w, rh = e->ref[0][l].h;
+  int rw = level_refs(e, 0, l)[l].w, rh = level_refs(e, 0, l)[l].h;
   if (ck->coarse_width != (top ? 0 : e->cw[l + 1]) || ck->coarse_height != (top ? 0 : e->ch[l + 1]) ||
       ck->ref_width != rw || ck->ref_height != rh)
     return ts_error(err, TS_EINVAL,
@@ -795,8 +1005,15 @@ static int check_resume(const engine *e, const ts_mrf_checkpoint *ck, char *err)
       ck->height != e->ch[l])
     return ts_error(err, TS_EINVAL, "the checkpoint (level %d, %dx%d, %d planes) does not belong to this job", l,
                     ck->width, ck->height, ck->nplanes);
+  if (p->copy_accel)
+    return ts_error(err, TS_EINVAL, "a job with --copy-accel takes no checkpoints: its choices rest on the copy "
+                    "maps and constancy of the levels above, which a checkpoint does not hold");
+  int last = candidate_last_level(p);
+  if (p->best_of > 1 && (l > last || (l == last && inside)))
+    return ts_error(err, TS_EINVAL, "the checkpoint (level %d) lies among the best-of candidates' levels (%d and "
+                    "up), which take none", l, last);
   size_t npx = (size_t)ck->width * ck->height;
-  const ts_plane *r = &e->ref[0][l];
+  const ts_plane *r = &level_refs(e, 0, l)[l];
   for (size_t i = 0; i < npx; i++)
     if (ck->copy[2 * i] >= (uint32_t)r->w || ck->copy[2 * i + 1] >= (uint32_t)r->h)
       return ts_error(err, TS_EINVAL, "the checkpoint's copy map points outside the level-%d reference", l);
@@ -880,14 +1097,130 @@ static void drop_previous_level(engine *e) {
   e->done = NULL;
   for (int k = 0; k < 2; k++) ts_window_free(&e->shape[k]);
   plan_free(&e->plan);
+  ts_accel_map_free(&e->accel);
+}
+
+/* After a level but the output's: its checkpoint (best-of candidates take
+ * none), and a stop if one was asked for. */
+static int level_end(engine *e, int l, char *err) {
+  int rc = e->hooks->checkpoint && !e->candidate_phase ? save_checkpoint(e, err) : 0;
+  if (rc == 0 && stop_requested(e)) rc = ts_error(err, TS_ESTOPPED, "stopped after level %d", l);
+  return rc;
+}
+
+/* Runs levels `from` down to `to`, the first from `inside` when that is a
+ * checkpoint taken inside it. */
+static int run_levels(engine *e, int from, int to, const ts_mrf_checkpoint *inside, char *err) {
+  const ts_mrf_params *p = e->p;
+  int rc = 0;
+  for (int l = from; l >= to && rc == 0; l--) {
+    if (l < p->levels - 1) drop_previous_level(e);
+    rc = synthesize_level(e, l, l == from ? inside : NULL, err);
+    level_stats(e, &e->res->level[l]);
+    /* Level l+2 is no longer needed as anyone's coarse part. */
+    for (int k = 0; k < e->nplanes && l + 2 < p->levels; k++) ts_plane_free(&e->canvas[k][l + 2]);
+    if (rc == 0 && l > p->stop_level) rc = level_end(e, l, err);
+  }
+  return rc;
+}
+
+/* ---- passive usage-variance optimisation (§3.7.1) ----------------------- */
+
+#define BEST_OF_STREAM (0x62657374ull << 32) /* "best": apart from the levels' noise streams */
+
+/* The seed of candidate k: the job's own for the first (so the first
+ * candidate is the plain run), the others drawn from it. */
+static uint64_t candidate_seed(uint64_t seed, int k) {
+  if (k == 0) return seed;
+  ts_rng rng;
+  ts_rng_seed(&rng, seed, BEST_OF_STREAM + (uint64_t)k);
+  return ts_rng_next(&rng);
+}
+
+/* Back to before the coarsest level, for another candidate: every level's
+ * state goes, and so does the backend's replica (each run opens its own). */
+static void reset_run(engine *e) {
+  drop_previous_level(e);
+  free(e->prev_copy);
+  e->prev_copy = NULL;
+  for (int k = 0; k < TS_MAX_PLANES; k++) ts_pyramid_free(e->canvas[k], e->levels);
+  if (e->image >= 0) ts_search_image_close(e->search, e->image);
+  e->image = -1;
+  e->accel_measured = e->accel_kept = 0;
+}
+
+/* Candidate k from noise down to level `last`, its usage variance there
+ * and (unless it is a re-run) its time. */
+static int run_candidate(engine *e, int k, int last, int rerun, char *err) {
+  ts_mrf_candidate *c = &e->res->candidate[k];
+  double t0 = ts_now(), mean;
+  e->seed = c->seed = candidate_seed(e->p->seed, k);
+  int rc = run_levels(e, e->levels - 1, last, NULL, err);
+  if (rc == 0) ts_usage_stats(&e->usage, &mean, &c->variance);
+  if (!rerun) c->seconds = ts_now() - t0;
+  return rc;
+}
+
+/* The work of one candidate, for the progress bar. */
+static double candidate_work(const engine *e, int last) {
+  double w = 0;
+  for (int l = last; l < e->levels; l++) w += (double)level_blocks(e->p, l, e->cw[l], e->ch[l]) * level_cost(l);
+  return w;
+}
+
+/* Runs best_of candidates through the coarse levels and keeps the one
+ * whose usage map has the least variance at the last of them (ties: the
+ * lowest number): the coarse levels fix the layout and the global use of
+ * the reference, and cost a few per cent of a run. The engine is left as
+ * the chosen one left that level, the next level to run in *next. When
+ * the chosen one was not the last run, it is run again: runs are
+ * deterministic, so that gives its state exactly (and a plain run with its
+ * seed the same bytes), for less memory than keeping every candidate's
+ * canvas and replica. */
+static int choose_candidate(engine *e, int *next, char *err) {
+  const ts_mrf_params *p = e->p;
+  ts_mrf_result *res = e->res;
+  int last = candidate_last_level(p), rc = 0;
+  res->best_of_level = last;
+  e->candidate_phase = 1;
+  for (int k = 0; rc == 0 && k < p->best_of; k++) {
+    if (k > 0) reset_run(e);
+    rc = run_candidate(e, k, last, 0, err);
+    res->ncandidates = k + 1;
+    if (rc == 0 && res->candidate[k].variance < res->candidate[res->chosen].variance) res->chosen = k;
+  }
+  if (rc == 0 && res->chosen != p->best_of - 1) {
+    reset_run(e);
+    e->prog.work_total += candidate_work(e, last);
+    rc = run_candidate(e, res->chosen, last, 1, err);
+  }
+  e->candidate_phase = 0;
+  if (rc == 0 && last > p->stop_level) rc = level_end(e, last, err);
+  *next = last - 1;
+  return rc;
+}
+
+/* The inputs' checks, every problem listed. */
+static int check_inputs(const ts_mrf_params *p, const ts_image *ref, const ts_image *fine, char *err) {
+  char msg[2048];
+  if (p->mix_level > 0 && fine == NULL) return ts_error(err, TS_EINVAL, "--mix-level needs a --ref-fine image");
+  if (p->mix_level == 0 && fine != NULL) return ts_error(err, TS_EINVAL, "--ref-fine needs --mix-level");
+  int rc = ts_mrf_check(p, ref->width, ref->height, ref->channels, msg, sizeof(msg));
+  if (fine != NULL && ts_mrf_check_fine(p, fine->width, fine->height, fine->channels, ref->channels, msg,
+                                        sizeof(msg)) != 0)
+    rc = TS_EINVAL;
+  return rc != 0 ? ts_error(err, TS_EINVAL, "%s", msg) : 0;
 }
 
 int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *search,
                       const ts_mrf_hooks *hooks, ts_mrf_result *res, char *err) {
+  return ts_mrf_synthesize_mixed(p, ref, NULL, search, hooks, res, err);
+}
+
+int ts_mrf_synthesize_mixed(const ts_mrf_params *p, const ts_image *ref, const ts_image *ref_fine,
+                            ts_search *search, const ts_mrf_hooks *hooks, ts_mrf_result *res, char *err) {
   memset(res, 0, sizeof(*res));
-  char msg[2048];
-  if (ts_mrf_check(p, ref->width, ref->height, ref->channels, msg, sizeof(msg)) != 0)
-    return ts_error(err, TS_EINVAL, "%s", msg);
+  if (check_inputs(p, ref, ref_fine, err) != 0) return TS_EINVAL;
   static const ts_mrf_hooks none = {0};
   double t_start = ts_now();
   engine e;
@@ -899,28 +1232,26 @@ int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *se
   e.last_checkpoint = t_start;
   e.image = -1;
   e.levels = p->levels;
+  e.mix = p->mix_level;
+  e.seed = p->seed;
   e.nplanes = nplanes_for(p, ref->channels);
   e.prog.levels = p->levels;
   level_sizes(p->width, p->height, p->levels, e.cw, e.ch, 1);
   for (int l = 0; l < p->levels; l++)
     e.prog.work_total += (double)level_blocks(p, l, e.cw[l], e.ch[l]) * level_cost(l);
-  int rc = build_reference(&e, ref);
-  if (rc != 0) rc = ts_error(err, rc, "cannot build the reference pyramid: %s", ts_strerror(rc));
+  if (p->best_of > 1) e.prog.work_total += (p->best_of - 1) * candidate_work(&e, candidate_last_level(p));
+  int rc = build_reference(&e, ref, p->levels, e.ref);
+  if (rc == 0 && e.mix > 0) rc = build_reference(&e, ref_fine, e.mix + 1, e.fine_ref);
+  if (rc != 0) rc = ts_error(err, rc, "cannot build the reference pyramids: %s", ts_strerror(rc));
   int first = p->levels - 1;
   const ts_mrf_checkpoint *inside = NULL;
   if (rc == 0 && e.hooks->resume) rc = take_resume(&e, &first, &inside, err);
-  for (int l = first; l >= p->stop_level && rc == 0; l--) {
-    if (l < p->levels - 1) drop_previous_level(&e);
-    rc = synthesize_level(&e, l, l == first ? inside : NULL, err);
-    level_stats(&e, &res->level[l]);
-    /* Level l+2 is no longer needed as anyone's coarse part. */
-    for (int k = 0; k < e.nplanes && l + 2 < p->levels; k++) ts_plane_free(&e.canvas[k][l + 2]);
-    if (rc == 0 && l > p->stop_level && e.hooks->checkpoint) rc = save_checkpoint(&e, err);
-    if (rc == 0 && l > p->stop_level && stop_requested(&e)) rc = ts_error(err, TS_ESTOPPED, "stopped after level %d", l);
-  }
+  if (rc == 0 && p->best_of > 1 && !res->resumed) rc = choose_candidate(&e, &first, err);
+  if (rc == 0) rc = run_levels(&e, first, p->stop_level, inside, err);
   if (rc == 0) {
     ts_usage_stats(&e.usage, &res->usage_mean, &res->usage_variance);
-    rc = gather_output(&e, ref, res, err);
+    /* Colour from the reference the finest level was made from. */
+    rc = gather_output(&e, e.mix > p->stop_level ? ref_fine : ref, res, err);
   }
   engine_free(&e);
   res->seconds = ts_now() - t_start;

@@ -31,7 +31,24 @@ typedef struct {
                            queries (0 = whole steps); never changes results */
   int stop_level;       /* stop after this level (0 = full synthesis); the
                            output is then that level's luminance, a preview */
+  /* Passive usage-variance optimisation (§3.7.1): best_of candidate seeds
+   * run the best_of_levels coarsest levels (0: all but the finest two, at
+   * least one), and the one whose usage map there has the least variance
+   * goes on. 1 = off. */
+  int best_of, best_of_levels;
+  /* Texture mixing (§4.3): levels >= mix_level from the reference, the
+   * finer ones from a second, fine reference (0 = off). */
+  int mix_level;
+  /* Copy-map acceleration (§3.6.6), lossy: blocks inside coherent regions
+   * of the level above's copy map are copied from their predicted source
+   * without a search, at levels 1 and 0 once the levels above measured a
+   * constancy of at least accel_min. accel_kernel: the n of the n x n
+   * coherence kernel (0: W_C). */
+  int copy_accel, accel_kernel;
+  double accel_min;
 } ts_mrf_params;
+
+#define TS_MRF_MAX_BEST_OF 64
 
 void ts_mrf_params_default(ts_mrf_params *p);
 
@@ -40,6 +57,11 @@ void ts_mrf_params_default(ts_mrf_params *p);
  * (one per line). */
 int ts_mrf_check(const ts_mrf_params *p, int ref_w, int ref_h, int channels,
                  char *msg, size_t msglen);
+/* With mix_level > 0: checks the fine reference (fine_w x fine_h,
+ * fine_channels) against p and the reference's channel count, appending
+ * every problem to msg (which may hold ts_mrf_check's). 0 or TS_EINVAL. */
+int ts_mrf_check_fine(const ts_mrf_params *p, int fine_w, int fine_h, int fine_channels, int ref_channels,
+                      char *msg, size_t msglen);
 
 typedef struct {
   double seconds;
@@ -48,6 +70,28 @@ typedef struct {
   int ref_w, ref_h, out_w, out_h;
   uint32_t vectors; /* reference vectors at this level */
 } ts_mrf_level_stats;
+
+/* The copy-map shortcut at one level (§3.6.6). Candidates are the blocks
+ * whose predicted source lies in a coherent region of the level above's
+ * copy map; `measured` of them were searched and `kept` of those found
+ * their predicted source (the constancy, kept / measured); `copied` were
+ * placed from it without a search (enabled levels only), which saved
+ * `searches_saved` block searches over the scan and the sweeps. The
+ * decision rested on pool_kept of pool_measured candidates of the levels
+ * above. */
+typedef enum { TS_ACCEL_NONE = 0, TS_ACCEL_VALIDATE, TS_ACCEL_ON } ts_accel_role;
+typedef struct {
+  ts_accel_role role; /* NONE: no prediction here (the coarsest or the mix level) */
+  uint64_t blocks, candidates, measured, kept, copied, searches_saved;
+  uint64_t pool_measured, pool_kept;
+} ts_mrf_accel_stats;
+
+/* One candidate of the passive variance optimisation. */
+typedef struct {
+  uint64_t seed;
+  double variance; /* of the usage map at the last candidate level */
+  double seconds;
+} ts_mrf_candidate;
 
 /* Where a resumed synthesis went on, for its log and report. */
 typedef struct {
@@ -73,6 +117,12 @@ typedef struct {
   ts_mrf_level_stats level[TS_MRF_MAX_LEVELS];
   int resumed;         /* went on from a checkpoint: where in `resume` */
   ts_mrf_resume resume;
+  /* best_of > 1: the candidates (none when a resumed run skipped them),
+   * the one chosen, and the level whose usage variance chose it. */
+  int ncandidates, chosen, best_of_level;
+  ts_mrf_candidate candidate[TS_MRF_MAX_BEST_OF];
+  ts_mrf_accel_stats accel[TS_MRF_MAX_LEVELS];
+  int lossy; /* the copy-map shortcut was on at some level */
 } ts_mrf_result;
 
 /* A checkpoint: the state after `step` of the `steps` steps of a level
@@ -141,6 +191,11 @@ typedef struct {
 int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref,
                       ts_search *search, const ts_mrf_hooks *hooks,
                       ts_mrf_result *res, char *err);
+/* The same with texture mixing: with p->mix_level > 0 the levels below it
+ * come from ref_fine, and so do the output's pixels; ref_fine is NULL
+ * otherwise. */
+int ts_mrf_synthesize_mixed(const ts_mrf_params *p, const ts_image *ref, const ts_image *ref_fine,
+                            ts_search *search, const ts_mrf_hooks *hooks, ts_mrf_result *res, char *err);
 void ts_mrf_result_free(ts_mrf_result *res);
 
 #endif

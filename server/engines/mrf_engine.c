@@ -8,6 +8,7 @@
 #include "checkpoint.h"
 #include "engine.h"
 #include "error.h"
+#include "image_meta.h"
 #include "mrf.h"
 #include "outputs.h"
 #include "util.h"
@@ -40,6 +41,12 @@ static int mrf_spec_set(void *params, const char *k, const char *v) {
   if (strcmp(k, "seed") == 0) return ts_parse_u64(v, &p->seed);
   if (strcmp(k, "rgb_search") == 0) return ts_parse_int(v, 0, 1, &p->rgb_search);
   if (strcmp(k, "max_pixels") == 0) return ts_parse_u64(v, &p->max_pixels);
+  if (strcmp(k, "best_of") == 0) return ts_parse_int(v, -1000, 1000, &p->best_of);
+  if (strcmp(k, "best_of_levels") == 0) return ts_parse_int(v, -1000, 1000, &p->best_of_levels);
+  if (strcmp(k, "mix_level") == 0) return ts_parse_int(v, -1000, 1000, &p->mix_level);
+  if (strcmp(k, "copy_accel") == 0) return ts_parse_int(v, 0, 1, &p->copy_accel);
+  if (strcmp(k, "copy_accel_kernel") == 0) return ts_parse_int(v, -1000, 1000, &p->accel_kernel);
+  if (strcmp(k, "copy_accel_min") == 0) return ts_parse_double(v, &p->accel_min);
   return TS_ENOENT;
 }
 
@@ -50,6 +57,20 @@ static int mrf_spec_complete(const void *params, char *err) {
   return p->width == 0 ? ts_error(err, TS_EINVAL, "job spec: size=WxH is required") : 0;
 }
 
+/* The keys of best-of, mixing and the copy-map shortcut, when set: a job
+ * without them keeps the spec text (and so the checkpoint tag) it had
+ * before they existed. */
+static int format_extras(const ts_mrf_params *p, char *buf, size_t cap) {
+  int n = 0;
+  if (p->best_of != 1 || p->best_of_levels != 0)
+    n += snprintf(buf, cap, "best_of=%d\nbest_of_levels=%d\n", p->best_of, p->best_of_levels);
+  if (n >= 0 && (size_t)n < cap && p->mix_level != 0) n += snprintf(buf + n, cap - (size_t)n, "mix_level=%d\n", p->mix_level);
+  if (n >= 0 && (size_t)n < cap && p->copy_accel)
+    n += snprintf(buf + n, cap - (size_t)n, "copy_accel=1\ncopy_accel_kernel=%d\ncopy_accel_min=%.17g\n",
+                  p->accel_kernel, p->accel_min);
+  return n;
+}
+
 /* Doubles with 17 significant digits, so they round-trip. */
 static int mrf_spec_format(const void *params, char *buf, size_t cap) {
   const ts_mrf_params *p = params;
@@ -58,6 +79,7 @@ static int mrf_spec_format(const void *params, char *buf, size_t cap) {
                    "coarse_weight=%.17g\nrefine=%d\nseed=%llu\nrgb_search=%d\nmax_pixels=%llu\n",
                    p->width, p->height, p->levels, p->wn, p->wb, p->parity, p->usage_weight, p->coarse_weight,
                    p->refine, (unsigned long long)p->seed, p->rgb_search, (unsigned long long)p->max_pixels);
+  if (n >= 0 && (size_t)n < cap) n += format_extras(p, buf + n, cap - (size_t)n);
   return n < 0 || (size_t)n >= cap ? TS_ETOOBIG : n;
 }
 
@@ -70,19 +92,27 @@ void ts_mrf_params_default(ts_mrf_params *p) {
   p->refine = 2;
   p->seed = 1;
   p->max_pixels = TS_IMAGE_DEFAULT_MAX_PIXELS;
+  p->best_of = 1;
+  p->accel_min = 0.95;
 }
 
 static void mrf_params_default(void *params) { ts_mrf_params_default(params); }
 
-/* One input: the reference texture. */
+/* The reference texture, and with mixing the fine reference. */
 static void mrf_inputs(const void *params, ts_engine_inputs *out) {
-  (void)params;
-  out->n = 1;
+  const ts_mrf_params *p = params;
+  out->n = p->mix_level > 0 ? 2 : 1;
   snprintf(out->name[0], sizeof(out->name[0]), "ref");
+  snprintf(out->name[1], sizeof(out->name[1]), "ref_fine");
 }
 
 static int mrf_check(const void *params, const ts_image *const *in, char *msg, size_t len) {
-  return ts_mrf_check(params, in[0]->width, in[0]->height, in[0]->channels, msg, len);
+  const ts_mrf_params *p = params;
+  int rc = ts_mrf_check(p, in[0]->width, in[0]->height, in[0]->channels, msg, len);
+  if (p->mix_level > 0 &&
+      ts_mrf_check_fine(p, in[1]->width, in[1]->height, in[1]->channels, in[0]->channels, msg, len) != 0)
+    rc = TS_EINVAL;
+  return rc;
 }
 
 static void mrf_set_max_pixels(void *params, uint64_t max_pixels) {
@@ -111,6 +141,9 @@ struct ts_engine_run {
   const ts_image *ref; /* the caller's, alive until outputs are written */
   const ts_search *search;
   ts_mrf_result res;
+  /* The output's metadata: that of the reference its pixels come from,
+   * marked when a lossy shortcut made it (NULL: none). */
+  ts_meta *meta;
 };
 
 /* The engine hooks behind the MRF hooks. */
@@ -167,6 +200,33 @@ static int decode_resume(const ts_mrf_params *p, const ts_engine_hooks *h, ts_mr
   return 1;
 }
 
+/* The note a lossy result carries in its metadata. */
+static void lossy_note(const ts_mrf_result *res, char *buf, size_t cap) {
+  int n = snprintf(buf, cap, "texsyn: lossy copy-map shortcut (seed 002 section 3.6.6) at level");
+  for (int l = TS_MRF_MAX_LEVELS - 1; l >= 0; l--)
+    if (res->accel[l].role == TS_ACCEL_ON && n > 0 && (size_t)n < cap)
+      n += snprintf(buf + n, cap - (size_t)n, " %d", l);
+  if (n > 0 && (size_t)n < cap)
+    snprintf(buf + n, cap - (size_t)n, "; blocks were copied without a search, so the result can differ from "
+             "exact synthesis");
+}
+
+/* The output image's metadata: the reference's, and on a lossy result the
+ * shortcut named in texsyn:search (PNG and OpenEXR keep it) and in the
+ * ImageDescription (which TIFF keeps too), after any the reference had. */
+static int output_meta(ts_engine_run *r, char *err) {
+  if (!r->res.lossy) return 0;
+  char note[512], old[512], desc[1100];
+  lossy_note(&r->res, note, sizeof(note));
+  int has_old = ts_meta_get(r->ref->meta, "ImageDescription", old, sizeof(old)) == 0 && old[0] != '\0';
+  snprintf(desc, sizeof(desc), "%s%s%s", has_old ? old : "", has_old ? "; " : "", note);
+  int rc = ts_meta_copy(r->ref->meta, &r->meta);
+  if (rc == 0) rc = ts_meta_set(&r->meta, "texsyn:search", "copy-map (lossy)");
+  if (rc == 0) rc = ts_meta_set(&r->meta, "ImageDescription", desc);
+  return rc != 0 ? ts_error(err, rc, "cannot note the lossy shortcut in the output's metadata: %s",
+                            ts_strerror(rc)) : 0;
+}
+
 static int mrf_run(const void *params, const ts_image *const *in, ts_search *search, const ts_engine_hooks *h,
                    ts_engine_run **out, char *err) {
   const ts_image *ref = in[0];
@@ -179,19 +239,28 @@ static int mrf_run(const void *params, const ts_image *const *in, ts_search *sea
   hook_ctx hc = {h, r->p->levels};
   ts_mrf_checkpoint resume;
   int resumed = decode_resume(r->p, h, &resume);
+  /* The copy-map shortcut decides each level from the copy maps and the
+   * constancy of the levels above, which checkpoints do not hold: such a
+   * job saves none, and a restarted coordinator runs it again from its
+   * start (with the same bytes). */
+  int save = h->save != NULL && !r->p->copy_accel;
   /* A checkpoint that does not fit is refused, and the job starts over. */
   ts_mrf_hooks mh = {.progress = h->progress,
                      .progress_ctx = h->progress_ctx,
-                     .checkpoint = h->save ? save_level : NULL,
+                     .checkpoint = save ? save_level : NULL,
                      .checkpoint_ctx = &hc,
                      .checkpoint_interval = h->checkpoint_interval,
                      .resume = resumed ? &resume : NULL,
                      .resumed = on_resumed,
                      .refused = on_refused,
                      .resume_ctx = &hc,
-                     .stop = h->save ? h->stop : NULL};
-  int rc = ts_mrf_synthesize(r->p, ref, search, &mh, &r->res, err);
+                     .stop = save ? h->stop : NULL};
+  const ts_image *fine = r->p->mix_level > 0 ? in[1] : NULL;
+  int rc = ts_mrf_synthesize_mixed(r->p, ref, fine, search, &mh, &r->res, err);
   if (resumed) ts_checkpoint_free(&resume);
+  /* The output's pixels come from the fine reference below the mix level. */
+  if (fine != NULL && r->p->stop_level < r->p->mix_level) r->ref = fine;
+  if (rc == 0) rc = output_meta(r, err);
   return rc;
 }
 
@@ -199,7 +268,7 @@ static int mrf_write_output(const ts_engine_run *r, int k, const char *path, int
   const ts_mrf_result *res = &r->res;
   int w = res->image.width, h = res->image.height;
   switch (k) {
-  case OUT_IMAGE: return ts_image_write(path, &res->image, r->ref->meta, err);
+  case OUT_IMAGE: return ts_image_write(path, &res->image, r->meta != NULL ? r->meta : r->ref->meta, err);
   case OUT_COPY_MAP: return ts_write_copy_map_image(path, res->copy_map, w, h, res->ref_w, res->ref_h, err);
   case OUT_COPY_MAP_RAW: return ts_write_copy_map_raw(path, res->copy_map, w, h, err);
   case OUT_USAGE_MAP: return ts_write_usage_map(path, res->usage, res->ref_w, res->ref_h, err);
@@ -211,6 +280,7 @@ static int mrf_write_output(const ts_engine_run *r, int k, const char *path, int
 static void mrf_run_free(ts_engine_run *r) {
   if (r == NULL) return;
   ts_mrf_result_free(&r->res);
+  ts_meta_free(r->meta);
   free(r);
 }
 

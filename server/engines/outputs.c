@@ -8,6 +8,7 @@
 
 #include "error.h"
 #include "image.h"
+#include "neigh.h"
 #include "util.h"
 
 int ts_write_copy_map_image(const char *path, const uint32_t *map, int w, int h, int ref_w,
@@ -61,20 +62,68 @@ int ts_write_usage_map(const char *path, const uint32_t *usage, int w, int h, ch
   return rc;
 }
 
+/* The copy-map shortcut (§3.6.6), per level from the coarsest: what it
+ * did, and the constancy that decided the levels below. */
+static void report_copy_map(FILE *f, const ts_mrf_params *p, const ts_mrf_result *res) {
+  static const char *const role[] = {"none", "measure", "copy"};
+  fprintf(f, "  \"shortcuts\": {\"copy_map\": {\"used\": %s, \"lossy\": true, \"note\": \"model-specific "
+             "(seed 002 section 3.6.6): blocks inside coherent regions of the level above's copy map are copied "
+             "from their predicted source without a search, which can change the result\", \"kernel\": %d, "
+             "\"min_constancy\": %g, \"levels\": [\n",
+          res->lossy ? "true" : "false", p->accel_kernel ? p->accel_kernel : ts_coarse_width(p->wn), p->accel_min);
+  for (int l = p->levels - 1; l >= p->stop_level; l--) {
+    const ts_mrf_accel_stats *a = &res->accel[l];
+    fprintf(f, "    {\"level\": %d, \"role\": \"%s\", \"blocks\": %llu, \"candidates\": %llu, "
+               "\"measured\": %llu, \"kept\": %llu, ",
+            l, role[a->role], (unsigned long long)a->blocks, (unsigned long long)a->candidates,
+            (unsigned long long)a->measured, (unsigned long long)a->kept);
+    if (a->measured > 0) fprintf(f, "\"constancy\": %.4f, ", (double)a->kept / (double)a->measured);
+    else fprintf(f, "\"constancy\": null, ");
+    if (a->pool_measured > 0)
+      fprintf(f, "\"constancy_above\": %.4f, ", (double)a->pool_kept / (double)a->pool_measured);
+    else fprintf(f, "\"constancy_above\": null, ");
+    fprintf(f, "\"measured_above\": %llu, ", (unsigned long long)a->pool_measured);
+    fprintf(f, "\"copied\": %llu, \"skipped_share\": %.4f, \"searches_saved\": %llu}%s\n",
+            (unsigned long long)a->copied, a->blocks ? (double)a->copied / (double)a->blocks : 0.0,
+            (unsigned long long)a->searches_saved, l > p->stop_level ? "," : "");
+  }
+  fprintf(f, "  ]}},\n");
+}
+
+/* Passive variance optimisation (§3.7.1): every candidate and the choice. */
+static void report_best_of(FILE *f, const ts_mrf_params *p, const ts_mrf_result *res) {
+  fprintf(f, "  \"best_of\": {\"candidates\": %d, \"measured_at_level\": %d, \"runs\": [", p->best_of,
+          res->best_of_level);
+  for (int k = 0; k < res->ncandidates; k++)
+    fprintf(f, "%s\n    {\"candidate\": %d, \"seed\": %llu, \"usage_variance\": %.6f, \"seconds\": %.4f}",
+            k ? "," : "", k, (unsigned long long)res->candidate[k].seed, res->candidate[k].variance,
+            res->candidate[k].seconds);
+  if (res->ncandidates == 0)
+    fprintf(f, "], \"chosen\": null, \"note\": \"chosen before a coordinator restart; the resumed run went on "
+               "from a checkpoint after the choice\"},\n");
+  else
+    fprintf(f, "\n  ], \"chosen\": %d, \"chosen_seed\": %llu},\n", res->chosen,
+            (unsigned long long)res->candidate[res->chosen].seed);
+}
+
 int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const ts_search *search,
                     const ts_mrf_result *res, char *err) {
   char tmp[TS_FILE_TMP_LEN];
   FILE *f = ts_file_create(path, tmp, err);
   if (f == NULL) return TS_EIO;
-  fprintf(f, "{\n  \"engine\": \"mrf\",\n  \"search\": {\"mode\": \"exact\", \"lossy\": [], "
+  fprintf(f, "{\n  \"engine\": \"mrf\",\n  \"search\": {\"mode\": \"%s\", \"lossy\": [%s], "
              "\"backend\": \"%s\", \"simd\": \"%s\", \"threads\": %d},\n",
-          search->ops->name, search->simd->name, threads);
+          res->lossy ? "copy-map" : "exact", res->lossy ? "\"copy-map\"" : "", search->ops->name,
+          search->simd->name, threads);
   fprintf(f, "  \"params\": {\"width\": %d, \"height\": %d, \"levels\": %d, \"wn\": %d, \"wb\": %d, "
              "\"parity\": %s, \"usage_weight\": %g, \"coarse_weight\": %g, \"seed\": %llu, "
-             "\"rgb_search\": %s, \"stop_level\": %d, \"refine\": %d},\n",
+             "\"rgb_search\": %s, \"stop_level\": %d, \"refine\": %d, \"best_of\": %d, "
+             "\"best_of_levels\": %d, \"mix_level\": %d, \"copy_accel\": %s},\n",
           p->width, p->height, p->levels, p->wn, p->wb, p->parity ? "true" : "false", p->usage_weight,
           p->coarse_weight, (unsigned long long)p->seed, p->rgb_search ? "true" : "false",
-          p->stop_level, p->refine);
+          p->stop_level, p->refine, p->best_of, p->best_of_levels, p->mix_level, p->copy_accel ? "true" : "false");
+  if (p->best_of > 1) report_best_of(f, p, res);
+  if (p->copy_accel) report_copy_map(f, p, res);
   fprintf(f, "  \"seconds\": %.4f,\n  \"usage\": {\"mean\": %.6f, \"variance\": %.6f},\n",
           res->seconds, res->usage_mean, res->usage_variance);
   const ts_mrf_resume *rs = &res->resume;
@@ -86,10 +135,10 @@ int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const
   fprintf(f, "  \"levels\": [\n");
   for (int l = p->levels - 1; l >= p->stop_level; l--) {
     const ts_mrf_level_stats *s = &res->level[l];
-    fprintf(f, "    {\"level\": %d, \"ref\": [%d, %d], \"out\": [%d, %d], \"vectors\": %u, "
+    fprintf(f, "    {\"level\": %d, \"from\": \"%s\", \"ref\": [%d, %d], \"out\": [%d, %d], \"vectors\": %u, "
                "\"blocks\": %llu, \"steps\": %llu, \"comparisons\": %llu, \"wire_bytes\": %llu, "
                "\"round_trips\": %llu, \"seconds\": %.4f}%s\n",
-            l, s->ref_w, s->ref_h, s->out_w, s->out_h, s->vectors, (unsigned long long)s->blocks,
+            l, l < p->mix_level ? "ref_fine" : "ref", s->ref_w, s->ref_h, s->out_w, s->out_h, s->vectors, (unsigned long long)s->blocks,
             (unsigned long long)s->steps, (unsigned long long)s->pairs, (unsigned long long)s->wire_bytes,
             (unsigned long long)s->round_trips, s->seconds,
             l > p->stop_level ? "," : "");

@@ -1,7 +1,7 @@
 /* test_mrf.c - the synthesis engine: exactness against an independent
  * brute-force backend, independence from batching and threads, colour
  * gathering, resuming from checkpoints after and inside levels, parameter
- * errors. */
+ * errors; best-of candidates, texture mixing and the copy-map shortcut. */
 #include <stdlib.h>
 
 #include "checkpoint.h"
@@ -591,6 +591,330 @@ static void bad_parameters_are_all_listed(void **state) {
   assert_int_equal(ts_mrf_check(&p, 64, 64, 3, msg, sizeof(msg)), 0);
 }
 
+
+/* ---- best-of, mixing, the copy-map shortcut ------------------------------ */
+
+/* Passive variance optimisation: every candidate's variance is listed, the
+ * chosen one has the least (ties: the lowest number), the first is the
+ * job's own seed, and the result is byte for byte a plain run with the
+ * chosen seed - through the SIMD backend and the brute-force one alike
+ * (each candidate reopens the backend's replica). */
+static void best_of_equals_a_plain_run_of_the_chosen_seed(void **state) {
+  (void)state;
+  ts_image ref;
+  make_reference(&ref, 64, 56, TS_PIX_U8);
+  ts_mrf_params p = small_params();
+  p.levels = 4;
+  p.width = 72;
+  p.height = 56;
+  p.best_of = 4;
+  ts_search *local, *brute = brute_create();
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_search_local_create(&local, 2, NULL, err), 0);
+  ts_mrf_result best, via_brute, plain;
+  run(&p, &ref, local, &best);
+  assert_int_equal(best.ncandidates, 4);
+  assert_int_equal(best.best_of_level, 2); /* all but the finest two */
+  assert_int_equal(best.candidate[0].seed, p.seed);
+  for (int k = 0; k < 4; k++) {
+    assert_true(best.candidate[best.chosen].variance <= best.candidate[k].variance);
+    if (k < best.chosen) assert_true(best.candidate[k].variance > best.candidate[best.chosen].variance);
+    for (int j = 0; j < k; j++) assert_true(best.candidate[j].seed != best.candidate[k].seed);
+  }
+  ts_mrf_params q = p;
+  q.max_batch = 1;
+  run(&q, &ref, brute, &via_brute);
+  assert_same_result(&best, &via_brute);
+  q = p;
+  q.best_of = 1;
+  q.seed = best.candidate[best.chosen].seed;
+  run(&q, &ref, local, &plain);
+  assert_same_result(&best, &plain);
+  assert_int_equal(plain.ncandidates, 0);
+  ts_mrf_result_free(&best);
+  ts_mrf_result_free(&via_brute);
+  ts_mrf_result_free(&plain);
+  ts_search_destroy(local);
+  ts_search_destroy(brute);
+  ts_image_free(&ref);
+}
+
+/* Best-of candidates take no checkpoints; the chosen one's last candidate
+ * level and every level after it do, inside and at their ends, and a run
+ * resumed from any of them gives the uninterrupted run's bytes (without
+ * the candidates, which it did not run). */
+static void best_of_resumes_after_the_choice(void **state) {
+  (void)state;
+  ts_image ref;
+  make_reference(&ref, 96, 80, TS_PIX_U8);
+  ts_mrf_params p = inside_params(2);
+  p.best_of = 3;
+  ts_search *s;
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_search_local_create(&s, 2, NULL, err), 0);
+  ts_mrf_result base;
+  inside_checkpoints ic = {0};
+  run(&p, &ref, s, &base);
+  ic.levels = p.levels;
+  saved_checkpoints sc = {.levels = p.levels};
+  ts_mrf_hooks ends = {.checkpoint = keep_checkpoint, .checkpoint_ctx = &sc};
+  ts_mrf_hooks inside = {.checkpoint = keep_inside, .checkpoint_ctx = &ic, .checkpoint_interval = 1e-12};
+  ts_mrf_result r;
+  assert_int_equal(ts_mrf_synthesize(&p, &ref, s, &ends, &r, err), 0);
+  assert_same_result(&base, &r);
+  ts_mrf_result_free(&r);
+  assert_int_equal(ts_mrf_synthesize(&p, &ref, s, &inside, &r, err), 0);
+  assert_same_result(&base, &r);
+  ts_mrf_result_free(&r);
+  assert_null(sc.bytes[3]); /* a candidate level */
+  assert_true(ic.n >= 4);
+  int nck = 0;
+  ts_mrf_checkpoint cks[MAX_INSIDE + 2];
+  for (int l = 1; l <= 2; l++) {
+    assert_non_null(sc.bytes[l]);
+    assert_int_equal(ts_checkpoint_decode(sc.bytes[l], sc.len[l], 42, 1u << 20, &cks[nck++], err), 0);
+  }
+  for (int k = 0; k < ic.n; k++) {
+    assert_int_equal(ts_checkpoint_decode(ic.bytes[k], ic.len[k], 42, 1u << 20, &cks[nck], err), 0);
+    assert_true(cks[nck++].level < 2);
+  }
+  for (int k = 0; k < nck; k++) {
+    ts_mrf_hooks resume = {.resume = &cks[k]};
+    if (ts_mrf_synthesize(&p, &ref, s, &resume, &r, err) != 0) fail_msg("checkpoint %d: %s", k, err);
+    assert_true(r.resumed);
+    assert_int_equal(r.ncandidates, 0);
+    assert_same_result(&base, &r);
+    ts_mrf_result_free(&r);
+    ts_checkpoint_free(&cks[k]);
+  }
+  inside_free(&ic);
+  for (int l = 0; l < TS_MRF_MAX_LEVELS; l++) free(sc.bytes[l]);
+  ts_mrf_result_free(&base);
+  ts_search_destroy(s);
+  ts_image_free(&ref);
+}
+
+/* A fine reference unlike make_reference's: vertical bars of 4 grey
+ * levels, 16-bit, so its pixels are told apart from the reference's. */
+static void make_fine(ts_image *img, int w, int h) {
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_image_alloc(img, w, h, 3, TS_PIX_U16, err), 0);
+  ts_rng rng;
+  ts_rng_seed(&rng, 9, 0);
+  uint16_t *px = img->pixels;
+  for (int y = 0; y < h; y++)
+    for (int x = 0; x < w; x++)
+      for (int c = 0; c < 3; c++)
+        px[((size_t)y * w + x) * 3 + c] = (uint16_t)(((x / 3) % 4) * 15000 + (int)ts_rng_below(&rng, 3000) + c);
+}
+
+/* Texture mixing: the levels from mix_level up are those of a plain run on
+ * the reference (the preview there is the same), the finer ones copy from
+ * the fine reference, whose pixels the output gathers; the backend's
+ * replica is loaded afresh at the switch (the brute-force backend refuses
+ * an open without a close, and gives the same bytes). */
+static void mixing_takes_the_coarse_levels_from_ref_and_the_rest_from_fine(void **state) {
+  (void)state;
+  ts_image ref, fine;
+  make_reference(&ref, 96, 80, TS_PIX_U8);
+  make_fine(&fine, 40, 36);
+  ts_mrf_params p = small_params();
+  p.levels = 4;
+  p.width = 72;
+  p.height = 56;
+  p.mix_level = 2;
+  ts_search *local, *brute = brute_create();
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_search_local_create(&local, 2, NULL, err), 0);
+  ts_mrf_result mixed, plain, via_brute;
+  ts_mrf_params q = p;
+  q.stop_level = 2;
+  assert_int_equal(ts_mrf_synthesize_mixed(&q, &ref, &fine, local, NULL, &mixed, err), 0);
+  q.mix_level = 0;
+  run(&q, &ref, local, &plain);
+  size_t npx = (size_t)mixed.image.width * mixed.image.height; /* previews: 1 channel, 8 bits */
+  assert_int_equal(npx, 18 * 14);
+  assert_memory_equal(mixed.copy_map, plain.copy_map, npx * 2 * sizeof(uint32_t));
+  assert_memory_equal(mixed.image.pixels, plain.image.pixels, npx);
+  ts_mrf_result_free(&mixed);
+  ts_mrf_result_free(&plain);
+  assert_int_equal(ts_mrf_synthesize_mixed(&p, &ref, &fine, local, NULL, &mixed, err), 0);
+  assert_int_equal(mixed.image.type, TS_PIX_U16);
+  assert_int_equal(mixed.ref_w, 40);
+  assert_int_equal(mixed.level[1].ref_w, 20);
+  assert_int_equal(mixed.level[2].ref_w, 24);
+  const uint16_t *out = mixed.image.pixels, *in = fine.pixels;
+  for (long i = 0; i < (long)p.width * p.height; i++) {
+    uint32_t x = mixed.copy_map[2 * i], y = mixed.copy_map[2 * i + 1];
+    assert_true(x < 40 && y < 36);
+    for (int c = 0; c < 3; c++) assert_int_equal(out[3 * i + c], in[((long)y * 40 + x) * 3 + c]);
+  }
+  q = p;
+  q.max_batch = 1;
+  assert_int_equal(ts_mrf_synthesize_mixed(&q, &ref, &fine, brute, NULL, &via_brute, err), 0);
+  assert_same_result(&mixed, &via_brute);
+  ts_mrf_result_free(&via_brute);
+  ts_mrf_result_free(&mixed);
+  ts_search_destroy(local);
+  ts_search_destroy(brute);
+  ts_image_free(&ref);
+  ts_image_free(&fine);
+}
+
+/* A mixed run resumed inside or after any level - the switch level
+ * included - gives the uninterrupted run's bytes. */
+static void mixing_resumes_anywhere(void **state) {
+  (void)state;
+  ts_image ref, fine;
+  make_reference(&ref, 96, 80, TS_PIX_U8);
+  make_fine(&fine, 48, 40);
+  ts_mrf_params p = inside_params(2);
+  p.mix_level = 2;
+  ts_search *s;
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_search_local_create(&s, 2, NULL, err), 0);
+  ts_mrf_result base, r;
+  assert_int_equal(ts_mrf_synthesize_mixed(&p, &ref, &fine, s, NULL, &base, err), 0);
+  inside_checkpoints ic = {.levels = p.levels};
+  ts_mrf_hooks save = {.checkpoint = keep_inside, .checkpoint_ctx = &ic, .checkpoint_interval = 1e-12};
+  assert_int_equal(ts_mrf_synthesize_mixed(&p, &ref, &fine, s, &save, &r, err), 0);
+  ts_mrf_result_free(&r);
+  saved_checkpoints sc = {.levels = p.levels};
+  ts_mrf_hooks ends = {.checkpoint = keep_checkpoint, .checkpoint_ctx = &sc};
+  assert_int_equal(ts_mrf_synthesize_mixed(&p, &ref, &fine, s, &ends, &r, err), 0);
+  ts_mrf_result_free(&r);
+  int switch_seen = 0;
+  for (int k = 0; k < ic.n + p.levels - 1; k++) {
+    const uint8_t *bytes = k < ic.n ? ic.bytes[k] : sc.bytes[k - ic.n + 1];
+    size_t len = k < ic.n ? ic.len[k] : sc.len[k - ic.n + 1];
+    ts_mrf_checkpoint ck;
+    assert_int_equal(ts_checkpoint_decode(bytes, len, 42, 1u << 20, &ck, err), 0);
+    switch_seen += ck.level == 1 && ck.step < ck.steps;
+    ts_mrf_hooks resume = {.resume = &ck};
+    if (ts_mrf_synthesize_mixed(&p, &ref, &fine, s, &resume, &r, err) != 0) fail_msg("checkpoint %d: %s", k, err);
+    assert_true(r.resumed);
+    assert_same_result(&base, &r);
+    ts_mrf_result_free(&r);
+    ts_checkpoint_free(&ck);
+  }
+  assert_true(switch_seen > 0);
+  inside_free(&ic);
+  for (int l = 0; l < TS_MRF_MAX_LEVELS; l++) free(sc.bytes[l]);
+  ts_mrf_result_free(&base);
+  ts_search_destroy(s);
+  ts_image_free(&ref);
+  ts_image_free(&fine);
+}
+
+/* The copy-map shortcut, forced on (kernel 1, no constancy needed): level
+ * 1 measures (over 64 candidates), level 0 copies blocks, the result is
+ * marked lossy and is the same through the SIMD backend on 2 threads and
+ * the brute-force one fed one query at a time (the copies reach the
+ * replica as placements); every candidate was either copied or measured. */
+static void copy_accel_is_deterministic_and_reported(void **state) {
+  (void)state;
+  ts_image ref;
+  make_reference(&ref, 96, 80, TS_PIX_U8);
+  ts_mrf_params p = inside_params(1); /* parity */
+  p.levels = 3;
+  p.width = 96;
+  p.height = 80;
+  p.copy_accel = 1;
+  p.accel_kernel = 1;
+  p.accel_min = 0;
+  ts_search *local, *brute = brute_create();
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_search_local_create(&local, 2, NULL, err), 0);
+  ts_search_local_set_inline(local, 0);
+  ts_mrf_result a, b;
+  run(&p, &ref, local, &a);
+  p.max_batch = 1;
+  run(&p, &ref, brute, &b);
+  assert_same_result(&a, &b);
+  assert_true(a.lossy);
+  assert_int_equal(a.accel[2].role, TS_ACCEL_NONE);
+  assert_int_equal(a.accel[1].role, TS_ACCEL_VALIDATE);
+  assert_int_equal(a.accel[1].copied, 0);
+  assert_int_equal(a.accel[1].measured, a.accel[1].candidates);
+  assert_true(a.accel[1].measured >= 64);
+  const ts_mrf_accel_stats *st = &a.accel[0];
+  assert_int_equal(st->role, TS_ACCEL_ON);
+  assert_true(st->copied > 0 && st->searches_saved >= st->copied);
+  assert_int_equal(st->copied + st->measured, st->candidates);
+  assert_int_equal(st->pool_measured, a.accel[1].measured);
+  ts_mrf_result_free(&a);
+  ts_mrf_result_free(&b);
+  ts_search_destroy(local);
+  ts_search_destroy(brute);
+  ts_image_free(&ref);
+}
+
+/* Without a level above to measure first, the shortcut never copies: with
+ * two levels the result is the exact one, not marked lossy. A resume of a
+ * --copy-accel job is refused with the reason (such jobs save none). */
+static void copy_accel_needs_a_measured_level_and_takes_no_checkpoints(void **state) {
+  (void)state;
+  ts_image ref;
+  make_reference(&ref, 96, 80, TS_PIX_U8);
+  ts_mrf_params p = inside_params(1);
+  p.levels = 2;
+  ts_search *s;
+  char err[TS_ERR_LEN];
+  assert_int_equal(ts_search_local_create(&s, 2, NULL, err), 0);
+  ts_mrf_result exact, accel;
+  saved_checkpoints sc = {.levels = p.levels};
+  ts_mrf_hooks save = {.checkpoint = keep_checkpoint, .checkpoint_ctx = &sc};
+  assert_int_equal(ts_mrf_synthesize(&p, &ref, s, &save, &exact, err), 0);
+  p.copy_accel = 1;
+  p.accel_min = 0;
+  run(&p, &ref, s, &accel);
+  assert_same_result(&exact, &accel);
+  assert_false(accel.lossy);
+  assert_int_equal(accel.accel[0].role, TS_ACCEL_VALIDATE);
+  ts_mrf_result_free(&accel);
+  ts_mrf_checkpoint ck;
+  assert_int_equal(ts_checkpoint_decode(sc.bytes[1], sc.len[1], 42, 1u << 20, &ck, err), 0);
+  ts_mrf_hooks resume = {.resume = &ck};
+  assert_int_equal(ts_mrf_synthesize(&p, &ref, s, &resume, &accel, err), TS_EINVAL);
+  assert_non_null(strstr(err, "--copy-accel takes no checkpoints"));
+  ts_checkpoint_free(&ck);
+  free(sc.bytes[1]);
+  ts_mrf_result_free(&exact);
+  ts_search_destroy(s);
+  ts_image_free(&ref);
+}
+
+/* The options' ranges, and a fine reference too small for its levels or
+ * of another channel count under --rgb-search, all listed. */
+static void extras_bad_parameters_are_listed(void **state) {
+  (void)state;
+  ts_mrf_params p = small_params();
+  p.best_of = 0;
+  p.best_of_levels = 4;
+  p.mix_level = 3;
+  p.accel_kernel = 4;
+  p.accel_min = 1.5;
+  char msg[2048];
+  assert_int_equal(ts_mrf_check(&p, 64, 64, 3, msg, sizeof(msg)), TS_EINVAL);
+  const char *want[] = {"--best-of 0", "--best-of-levels 4", "--mix-level 3", "--copy-accel-kernel 4",
+                        "--copy-accel-min 1.5"};
+  for (size_t i = 0; i < sizeof(want) / sizeof(want[0]); i++)
+    if (strstr(msg, want[i]) == NULL) fail_msg("'%s' not in '%s'", want[i], msg);
+  p = small_params();
+  p.mix_level = 1;
+  p.rgb_search = 1;
+  assert_int_equal(ts_mrf_check(&p, 64, 64, 3, msg, sizeof(msg)), 0);
+  assert_int_equal(ts_mrf_check_fine(&p, 6, 40, 1, 3, msg, sizeof(msg)), TS_EINVAL);
+  assert_non_null(strstr(msg, "--rgb-search"));
+  assert_non_null(strstr(msg, "the --ref-fine image (6x40) is smaller"));
+  msg[0] = '\0';
+  p.mix_level = 2;
+  assert_int_equal(ts_mrf_check_fine(&p, 12, 12, 3, 3, msg, sizeof(msg)), TS_EINVAL);
+  assert_non_null(strstr(msg, "--mix-level 2: the --ref-fine image (12x12) is 6x6 at level 1"));
+  msg[0] = '\0';
+  assert_int_equal(ts_mrf_check_fine(&p, 40, 40, 3, 3, msg, sizeof(msg)), 0);
+}
+
 static const struct CMUnitTest tests[] = {
     cmocka_unit_test(engine_matches_brute_force),
     cmocka_unit_test(threads_and_variants_give_same_bytes),
@@ -602,6 +926,13 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(resumed_usage_reaches_the_backend),
     cmocka_unit_test(inconsistent_inside_checkpoint_is_refused),
     cmocka_unit_test(bad_parameters_are_all_listed),
+    cmocka_unit_test(best_of_equals_a_plain_run_of_the_chosen_seed),
+    cmocka_unit_test(best_of_resumes_after_the_choice),
+    cmocka_unit_test(mixing_takes_the_coarse_levels_from_ref_and_the_rest_from_fine),
+    cmocka_unit_test(mixing_resumes_anywhere),
+    cmocka_unit_test(copy_accel_is_deterministic_and_reported),
+    cmocka_unit_test(copy_accel_needs_a_measured_level_and_takes_no_checkpoints),
+    cmocka_unit_test(extras_bad_parameters_are_listed),
 };
 
 TS_TEST_MAIN(tests)
