@@ -6,12 +6,14 @@ disjoint crop for the collage. The collage is drawn pixel by pixel from
 shapes (a disk, a triangle, an L, a band: not quadrants), each filled with
 its class's texture (the texture's pixel at the pixel's offset in the
 shape's bounding box, so a small source fills a shape as large as itself),
-and the truth raster is drawn the same way. oiiotool crops, converts to
-grey and writes PNG; the pixels pass through binary PGM, which Python
-reads and writes without numpy.
+and the truth raster is drawn the same way. oiiotool reads each picture
+once (resized, turned grey) and writes every PNG in one run; the pixels
+pass through binary PGM, which Python reads, crops and writes without
+numpy.
 """
+import re
 import subprocess
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 
@@ -20,7 +22,8 @@ def oiiotool(*args):
 
 
 def read_pgm(path):
-    """(width, height, bytes) of a binary 8-bit PGM."""
+    """(width, height, values) of a binary PGM: bytes for 8-bit, a list of
+    ints for 16-bit (big-endian samples, maxval 65535)."""
     data = Path(path).read_bytes()
     fields, pos = [], 0
     while len(fields) < 4:
@@ -31,42 +34,64 @@ def read_pgm(path):
             end += 1
         fields.append(data[pos:end])
         pos = end
-    assert fields[0] == b"P5" and fields[3] == b"255", f"{path}: not an 8-bit binary PGM"
-    w, h = int(fields[1]), int(fields[2])
-    return w, h, data[pos + 1:pos + 1 + w * h]
+    assert fields[0] == b"P5", f"{path}: not a binary PGM"
+    w, h, maxval = int(fields[1]), int(fields[2]), int(fields[3])
+    body = data[pos + 1:]
+    if maxval < 256:
+        return w, h, body[:w * h]
+    return w, h, [body[2 * i] << 8 | body[2 * i + 1] for i in range(w * h)]
 
 
-def write_png(path, w, h, pixels):
-    """An 8-bit grey PNG of w x h bytes (through a PGM beside it)."""
-    pgm = Path(str(path) + ".pgm")
-    pgm.write_bytes(b"P5\n%d %d\n255\n" % (w, h) + bytes(pixels))
-    oiiotool(pgm, "-d", "uint8", "-o", path)
-    pgm.unlink()
+def read_grey(path):
+    """(width, height, values) of a one-channel image file, the values as
+    stored (oiiotool --dumpdata; its PGM writer garbles 16-bit samples)."""
+    out = subprocess.run(["oiiotool", "--dumpdata", path], capture_output=True, text=True, check=True).stdout
+    head = re.search(r":\s+(\d+) x\s+(\d+), 1 channel", out)
+    assert head, f"{path}: not a one-channel image"
+    values = [int(v) for v in re.findall(r"^\s+Pixel \(\d+, \d+\): (\d+)", out, re.M)]
+    return int(head.group(1)), int(head.group(2)), values
+
+
+def write_pngs(images):
+    """8-bit grey PNGs, (path, w, h, bytes) each, in one oiiotool run."""
+    args = []
+    for path, w, h, pixels in images:
+        pgm = Path(str(path) + ".pgm")
+        pgm.write_bytes(b"P5\n%d %d\n255\n" % (w, h) + bytes(pixels))
+        args += [pgm, "-d", "uint8", "-o", path]
+    oiiotool(*args)
+    for path, *_ in images:
+        Path(str(path) + ".pgm").unlink()
 
 
 @dataclass
 class Source:
-    """A picture, optionally resized first (WxH), cut to grey crops."""
+    """A picture, optionally resized first (WxH), in grey."""
     path: Path
     resize: str = None
+    pixels: tuple = field(default=None, repr=False)  # (w, h, bytes), read once
 
-    def grey(self, crop, out):
-        """The crop WxH+X+Y as grey bytes: (w, h, bytes)."""
-        args = [self.path]
-        if self.resize:
-            args += ["--resize", self.resize]
-        args += ["--cut", crop]
-        if self.colour():
-            args += ["--ch", "R,G,B", "--chsum:weight=.299,.587,.114"]
-        pgm = Path(str(out) + ".pgm")
-        oiiotool(*args, "-d", "uint8", "-o", pgm)
-        w, h, px = read_pgm(pgm)
-        pgm.unlink()
-        return w, h, px
+    def grey(self, tmp):
+        if self.pixels is None:
+            info = subprocess.run(["oiiotool", "--info", self.path], capture_output=True, text=True,
+                                  check=True).stdout
+            args = [self.path] + (["--resize", self.resize] if self.resize else [])
+            if " 1 channel" not in info:
+                args += ["--ch", "R,G,B", "--chsum:weight=.299,.587,.114"]
+            pgm = Path(tmp) / f"source-{abs(hash((str(self.path), self.resize)))}.pgm"
+            oiiotool(*args, "-d", "uint8", "-o", pgm)
+            self.pixels = read_pgm(pgm)
+            pgm.unlink()
+        return self.pixels
 
-    def colour(self):
-        out = subprocess.run(["oiiotool", "--info", self.path], capture_output=True, text=True, check=True).stdout
-        return " 1 channel" not in out
+    def crop(self, box, tmp):
+        """The crop WxH+X+Y: (w, h, bytes)."""
+        size, x, y = box.split("+")
+        cw, ch = map(int, size.split("x"))
+        x, y = int(x), int(y)
+        w, h, px = self.grey(tmp)
+        assert x + cw <= w and y + ch <= h, f"{box} is outside {self.path} ({w}x{h})"
+        return cw, ch, b"".join(px[(y + j) * w + x:(y + j) * w + x + cw] for j in range(ch))
 
 
 @dataclass
@@ -111,28 +136,26 @@ def build(classes, layout, size, out):
     Returns the paths: {"train": [...], "labels": [...], "input", "truth"}."""
     out = Path(out)
     paths = {"train": [], "labels": []}
-    textures = []
+    pngs, textures = [], []
     for k, c in enumerate(classes):
-        w, h, px = c.source.grey(c.train, out / f"train{k}")
-        write_png(out / f"train{k}.png", w, h, px)
-        write_png(out / f"labels{k}.png", w, h, bytes([c.label]) * (w * h))
+        w, h, px = c.source.crop(c.train, out)
+        pngs += [(out / f"train{k}.png", w, h, px), (out / f"labels{k}.png", w, h, bytes([c.label]) * (w * h))]
         paths["train"].append(out / f"train{k}.png")
         paths["labels"].append(out / f"labels{k}.png")
-        textures.append(c.source.grey(c.collage, out / f"collage{k}"))
+        textures.append(c.source.crop(c.collage, out))
     background, shapes = layout[0], layout[1:]
     img, truth = bytearray(size * size), bytearray(size * size)
     for y in range(size):
         for x in range(size):
             k, ox, oy = background, x, y
             for cls, (inside, box) in shapes:
-                fx, fy = (x + 0.5) / size, (y + 0.5) / size
-                if inside(fx, fy):
+                if inside((x + 0.5) / size, (y + 0.5) / size):
                     k, ox, oy = cls, x - int(box[0] * size), y - int(box[1] * size)
             tw, th, tpx = textures[k]
             assert 0 <= ox < tw and 0 <= oy < th, f"class {classes[k].name}: its collage crop is too small for its shape"
             img[y * size + x] = tpx[oy * tw + ox]
             truth[y * size + x] = classes[k].label
-    write_png(out / "input.png", size, size, img)
-    write_png(out / "truth.png", size, size, truth)
+    pngs += [(out / "input.png", size, size, img), (out / "truth.png", size, size, truth)]
+    write_pngs(pngs)
     paths["input"], paths["truth"] = out / "input.png", out / "truth.png"
     return paths
