@@ -104,7 +104,8 @@ static uint64_t anchors_of(const run *e, const layer *a) {
   return (uint64_t)(a->planes[0].w - n + 1) * (uint64_t)(a->planes[0].h - n + 1);
 }
 
-/* The reference sets of one query image, prepared for it. */
+/* The reference sets of one query image, prepared for it (set -1: not
+ * prepared). */
 typedef struct {
   int n;
   const layer *ref[TS_SEG_MAX_PAIRS];
@@ -114,7 +115,6 @@ typedef struct {
 } refsets;
 
 static int refsets_open(run *e, refsets *rs, int image, char *err) {
-  for (int j = 0; j < rs->n; j++) rs->set[j] = -1;
   for (int j = 0; j < rs->n; j++) {
     const ts_plane *pl = &rs->ref[j]->planes[0];
     int rc = ts_anchors_init(&rs->grid[j], &e->win, pl->w, pl->h, 0, 0, NULL, 1, NULL, err);
@@ -195,7 +195,10 @@ static int segment_image(run *e, const layer *q, const layer *const *refs, int n
   for (int k = 0; k < e->nplanes; k++) d.fine[k] = pad[k].px;
   if (rc == 0) rc = ts_search_image_open(e->search, &d, &image, err);
   refsets rs = {.n = nref};
-  for (int j = 0; j < nref; j++) rs.ref[j] = refs[j];
+  for (int j = 0; j < nref; j++) {
+    rs.ref[j] = refs[j];
+    rs.set[j] = -1;
+  }
   ts_l1_best *scratch = rc == 0 ? malloc(sizeof(*scratch) * REQS_PER_CALL * BATCH) : NULL;
   if (rc == 0 && scratch == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory for the answers");
   if (rc == 0) rc = refsets_open(e, &rs, image, err);

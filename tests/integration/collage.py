@@ -8,8 +8,8 @@ its class's texture (the texture's pixel at the pixel's offset in the
 shape's bounding box, so a small source fills a shape as large as itself),
 and the truth raster is drawn the same way. oiiotool reads each picture
 once (resized, turned grey) and writes every PNG in one run; the pixels
-pass through binary PGM, which Python reads, crops and writes without
-numpy.
+pass through binary PGM (8-bit: oiiotool garbles 16-bit PGM samples),
+which Python reads, crops and writes without numpy.
 """
 import re
 import subprocess
@@ -21,9 +21,8 @@ def oiiotool(*args):
     subprocess.run(["oiiotool", *map(str, args)], check=True, capture_output=True, timeout=120)
 
 
-def read_pgm(path):
-    """(width, height, values) of a binary PGM: bytes for 8-bit, a list of
-    ints for 16-bit (big-endian samples, maxval 65535)."""
+def read_pnm(path):
+    """(width, height, channels, bytes) of a binary 8-bit PGM or PPM."""
     data = Path(path).read_bytes()
     fields, pos = [], 0
     while len(fields) < 4:
@@ -34,12 +33,9 @@ def read_pgm(path):
             end += 1
         fields.append(data[pos:end])
         pos = end
-    assert fields[0] == b"P5", f"{path}: not a binary PGM"
-    w, h, maxval = int(fields[1]), int(fields[2]), int(fields[3])
-    body = data[pos + 1:]
-    if maxval < 256:
-        return w, h, body[:w * h]
-    return w, h, [body[2 * i] << 8 | body[2 * i + 1] for i in range(w * h)]
+    assert fields[0] in (b"P5", b"P6") and fields[3] == b"255", f"{path}: not an 8-bit binary PGM or PPM"
+    w, h, ch = int(fields[1]), int(fields[2]), 1 if fields[0] == b"P5" else 3
+    return w, h, ch, data[pos + 1:pos + 1 + w * h * ch]
 
 
 def read_grey(path):
@@ -80,7 +76,8 @@ class Source:
                 args += ["--ch", "R,G,B", "--chsum:weight=.299,.587,.114"]
             pgm = Path(tmp) / f"source-{abs(hash((str(self.path), self.resize)))}.pgm"
             oiiotool(*args, "-d", "uint8", "-o", pgm)
-            self.pixels = read_pgm(pgm)
+            w, h, _, px = read_pnm(pgm)
+            self.pixels = (w, h, px)
             pgm.unlink()
         return self.pixels
 

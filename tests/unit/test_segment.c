@@ -355,38 +355,69 @@ static void check_finds_truth_values_that_are_no_class(void **state) {
 
 /* ---- a whole run ------------------------------------------------------------------ */
 
-/* Pixel (x, y) of a grey image, past the edges the edge pixel. */
-static int at_clamped(const ts_image *img, int x, int y) {
-  x = x < 0 ? 0 : x >= img->width ? img->width - 1 : x;
-  y = y < 0 ? 0 : y >= img->height ? img->height - 1 : y;
-  return ((const uint8_t *)img->pixels)[y * img->width + x];
+/* A rectangle of a grey image and of its labels (lbl NULL: an input). */
+typedef struct {
+  const ts_image *img, *lbl;
+  int x0, y0, w, h;
+} region;
+
+static region whole(const ts_image *img, const ts_image *lbl) { return (region){img, lbl, 0, 0, img->width, img->height}; }
+
+/* Pixel (x, y) of a region, past its edges the edge pixel. */
+static int at_clamped(const ts_image *img, const region *r, int x, int y) {
+  x = x < 0 ? 0 : x >= r->w ? r->w - 1 : x;
+  y = y < 0 ? 0 : y >= r->h ? r->h - 1 : y;
+  return ((const uint8_t *)img->pixels)[(r->y0 + y) * img->width + r->x0 + x];
 }
 
-/* The 1-NN class of input pixel (x, y): its n x n window (the input read
- * past its edges as the edge pixel) against every window inside every
- * training image, in order, row-major; the first of the nearest wins. */
-static int brute_class(const ts_image *const *in, int pairs, int n, int x, int y) {
-  int r = n / 2, best_class = -1;
+/* The 1-NN label of pixel (x, y) of q: its n x n window (q read past its
+ * edges as the edge pixel) against every window inside every reference
+ * region, in order, row-major; the first of the nearest wins. */
+static int brute_label(const region *q, int x, int y, const region *refs, int nref, int n) {
+  int r = n / 2, label = -1;
   long best = -1;
-  for (int t = 0; t < pairs; t++) {
-    const ts_image *tr = in[ts_seg_in_train(t)], *lb = in[ts_seg_in_labels(t)];
-    for (int ay = 0; ay + n <= tr->height; ay++)
-      for (int ax = 0; ax + n <= tr->width; ax++) {
+  for (int t = 0; t < nref; t++) {
+    const region *f = &refs[t];
+    for (int ay = 0; ay + n <= f->h; ay++)
+      for (int ax = 0; ax + n <= f->w; ax++) {
         long d = 0;
         for (int j = 0; j < n; j++)
           for (int i = 0; i < n; i++)
-            d += labs((long)at_clamped(in[0], x - r + i, y - r + j) - at_clamped(tr, ax + i, ay + j));
+            d += labs((long)at_clamped(q->img, q, x - r + i, y - r + j) - at_clamped(f->img, f, ax + i, ay + j));
         if (best < 0 || d < best) {
           best = d;
-          best_class = at_clamped(lb, ax + r, ay + r);
+          label = at_clamped(f->lbl, f, ax + r, ay + r);
         }
       }
   }
-  return best_class;
+  return label;
 }
 
-/* Random 4-grey-level images (many equal distances: the ties matter) and
- * labels that change inside the training images. */
+/* Input 0 and two training pairs of random 4-grey-level images (many
+ * equal distances: the ties matter), labels changing inside the training
+ * images (10 + column / 4 and 20 + column / 4). */
+static void random_job(ts_image *img, const int (*size)[2]) {
+  ts_rng rng;
+  ts_rng_seed(&rng, 42, 0);
+  for (int k = 0; k < 5; k++) {
+    fill_u8(&img[k], size[k][0], size[k][1], 1, 0);
+    uint8_t *px = img[k].pixels;
+    for (int i = 0; i < size[k][0] * size[k][1]; i++)
+      px[i] = k == 2 || k == 4 ? (uint8_t)(5 * k + (i % size[k][0]) / 4) : (uint8_t)(64 * ts_rng_below(&rng, 4));
+  }
+}
+
+static void run_job(const ts_seg_params *p, const ts_image *const *in, ts_seg_result *res) {
+  char err[TS_ERR_LEN], msg[4096];
+  const char *names[5] = {"in", "a", "al", "b", "bl"};
+  assert_int_equal(ts_seg_check(p, in, names, msg, sizeof(msg)), 0);
+  ts_search *search;
+  assert_int_equal(ts_search_local_create(&search, 3, NULL, err), 0);
+  ts_search_local_set_inline(search, 0);
+  if (ts_seg_run(p, in, search, NULL, res, err) != 0) fail_msg("%s", err);
+  ts_search_destroy(search);
+}
+
 static void one_level_is_the_brute_force_1nn(void **state) {
   (void)state;
   ts_seg_params p;
@@ -396,30 +427,63 @@ static void one_level_is_the_brute_force_1nn(void **state) {
   p.window = 3;
   const int size[5][2] = {{13, 11}, {10, 9}, {10, 9}, {12, 8}, {12, 8}};
   ts_image img[5];
-  ts_rng rng;
-  ts_rng_seed(&rng, 42, 0);
-  for (int k = 0; k < 5; k++) {
-    fill_u8(&img[k], size[k][0], size[k][1], 1, 0);
-    uint8_t *px = img[k].pixels;
-    for (int i = 0; i < size[k][0] * size[k][1]; i++)
-      px[i] = k == 2 || k == 4 ? (uint8_t)(10 * (k / 2) + (int)(i % size[k][0]) / 4) : (uint8_t)(64 * ts_rng_below(&rng, 4));
-  }
+  random_job(img, size);
   const ts_image *in[5] = {&img[0], &img[1], &img[2], &img[3], &img[4]};
-  char err[TS_ERR_LEN], msg[4096];
-  const char *names[5] = {"in", "a", "al", "b", "bl"};
-  assert_int_equal(ts_seg_check(&p, in, names, msg, sizeof(msg)), 0);
-  ts_search *search;
-  assert_int_equal(ts_search_local_create(&search, 3, NULL, err), 0);
-  ts_search_local_set_inline(search, 0);
   ts_seg_result res;
-  assert_int_equal(ts_seg_run(&p, in, search, NULL, &res, err), 0);
+  run_job(&p, in, &res);
   assert_int_equal(res.labels.width, 13);
   assert_int_equal(res.labels.type, TS_PIX_U8);
   const uint8_t *got = res.labels.pixels;
+  region q = whole(in[0], NULL), refs[2] = {whole(in[1], in[2]), whole(in[3], in[4])};
   for (int y = 0; y < 11; y++)
-    for (int x = 0; x < 13; x++) assert_int_equal(got[y * 13 + x], brute_class(in, 2, 3, x, y));
+    for (int x = 0; x < 13; x++) assert_int_equal(got[y * 13 + x], brute_label(&q, x, y, refs, 2, 3));
   ts_seg_result_free(&res);
-  ts_search_destroy(search);
+  for (int k = 0; k < 5; k++) ts_image_free(&img[k]);
+}
+
+static int class_of(const ts_seg_result *res, int value) {
+  for (int k = 0; k < res->classes.n; k++)
+    if (res->classes.value[k] == value) return k;
+  fail_msg("label %d is no class", value);
+  return -1;
+}
+
+/* At level 0 the self-segmentation's counts are those of the brute force:
+ * each half of a training image (cut across its longer side) against the
+ * other half, then the other training image. */
+static void self_segmentation_is_the_brute_force_1nn(void **state) {
+  (void)state;
+  ts_seg_params p;
+  ts_seg_params_default(&p);
+  p.pairs = 2;
+  p.levels = 2;
+  p.window = 3;
+  const int size[5][2] = {{9, 9}, {14, 10}, {14, 10}, {12, 16}, {12, 16}};
+  ts_image img[5];
+  random_job(img, size);
+  const ts_image *in[5] = {&img[0], &img[1], &img[2], &img[3], &img[4]};
+  ts_seg_result res;
+  run_job(&p, in, &res);
+  /* The halves: 14x10 cut into 7x10 twice; 12x16 into 12x8 twice. */
+  const region half[2][2] = {{{in[1], in[2], 0, 0, 7, 10}, {in[1], in[2], 7, 0, 7, 10}},
+                             {{in[3], in[4], 0, 0, 12, 8}, {in[3], in[4], 0, 8, 12, 8}}};
+  uint64_t total[TS_SEG_MAX_CLASSES] = {0}, correct[TS_SEG_MAX_CLASSES] = {0};
+  for (int t = 0; t < 2; t++)
+    for (int s = 0; s < 2; s++) {
+      const region *q = &half[t][s];
+      region refs[2] = {half[t][1 - s], whole(in[3 - 2 * t], in[4 - 2 * t])};
+      for (int y = 0; y < q->h; y++)
+        for (int x = 0; x < q->w; x++) {
+          int k = class_of(&res, at_clamped(q->lbl, q, x, y));
+          total[k]++;
+          correct[k] += class_of(&res, brute_label(q, x, y, refs, 2, 3)) == k;
+        }
+    }
+  for (int k = 0; k < res.classes.n; k++) {
+    assert_int_equal(res.self_total[k], total[k]);
+    assert_int_equal(res.self_correct[k], correct[k]);
+  }
+  ts_seg_result_free(&res);
   for (int k = 0; k < 5; k++) ts_image_free(&img[k]);
 }
 
@@ -440,6 +504,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(header_check_lists_every_problem_with_its_file),
     cmocka_unit_test(check_finds_truth_values_that_are_no_class),
     cmocka_unit_test(one_level_is_the_brute_force_1nn),
+    cmocka_unit_test(self_segmentation_is_the_brute_force_1nn),
 };
 
 TS_TEST_MAIN(tests)
