@@ -181,12 +181,14 @@ def main():
     load_before = os.getloadavg()[0]
     k = 1 if a.quick else 2
     cases = []
-    p = collage(work, k)
+    (work / "collage").mkdir(exist_ok=True)
+    (work / "texbynum").mkdir(exist_ok=True)
+    p = collage(work / "collage", k)
     c = run_case("collage", p, build_dir, work, 300 * k * k)
     c["about"] = (f"{256 * k}x{256 * k}: grass around a brick disk, a forest triangle and a town L; training "
                   "crops brick 192x192, grass 384x384, forest 160x112, town 256x128 (at x2).")
     cases.append(c)
-    t = texbynum(work)
+    t = texbynum(work / "texbynum")
     for extra, tag in (((), "texbynum"), (("--rgb-search",), "texbynum-rgb")):
         c = run_case("texbynum", t, build_dir, work, 200, extra, tag)
         c["about"] = ("source_photo.png's left half (160x462) trained with source_segment.png's strongest channel "
