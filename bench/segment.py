@@ -27,6 +27,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -41,10 +42,13 @@ NAMES = {"collage": ["brick", "grass", "forest", "town"], "texbynum": ["sea", "r
 
 
 def cpu():
+    """The model name, with the family and model numbers (a cloud CPU's
+    name can hide its generation)."""
+    info = {}
     for line in Path("/proc/cpuinfo").read_text().splitlines():
-        if line.startswith("model name"):
-            return line.split(":", 1)[1].strip()
-    return "unknown"
+        key, _, value = line.partition(":")
+        info.setdefault(key.strip(), value.strip())
+    return f"{info.get('model name', 'unknown')} (family {info.get('cpu family', '?')}, model {info.get('model', '?')})"
 
 
 def scaled(box, k):
@@ -176,17 +180,23 @@ def main():
     a = ap.parse_args()
     build_dir, out = Path(a.build).resolve(), Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    work = out / "segment-work"
-    work.mkdir(exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="texsyn-segment-") as tmp:
+        measure(build_dir, out, Path(tmp), 1 if a.quick else 2)
+    print((out / "segment.md").read_text())
+
+
+def measure(build_dir, out, work, k):
+    """Both cases in work (a temporary directory); results and pictures
+    into out."""
     load_before = os.getloadavg()[0]
-    k = 1 if a.quick else 2
     cases = []
     (work / "collage").mkdir(exist_ok=True)
     (work / "texbynum").mkdir(exist_ok=True)
     p = collage(work / "collage", k)
     c = run_case("collage", p, build_dir, work, 300 * k * k)
     c["about"] = (f"{256 * k}x{256 * k}: grass around a brick disk, a forest triangle and a town L; training "
-                  "crops brick 192x192, grass 384x384, forest 160x112, town 256x128 (at x2).")
+                  f"crops brick {96 * k}x{96 * k}, grass {192 * k}x{192 * k}, forest {80 * k}x{56 * k}, town "
+                  f"{128 * k}x{64 * k}.")
     cases.append(c)
     t = texbynum(work / "texbynum")
     for extra, tag in (((), "texbynum"), (("--rgb-search",), "texbynum-rgb")):
@@ -209,7 +219,6 @@ def main():
     for c in cases:
         for levels in LEVELS:
             picture(work / f"segment-{c['case']}-L{levels}.png", out / f"segment-{c['case']}-L{levels}.png")
-    print((out / "segment.md").read_text())
 
 
 if __name__ == "__main__":

@@ -488,7 +488,7 @@ static void usage_main(FILE *f) {
           "  stylize  paint a target in the style of an exemplar, guided by image pairs\n"
           "  energy   score a stylized image: mean exact best guided patch distance, coverage\n"
           "  apply-nnf  vote a stylize --nnf field over another layer of the exemplar\n"
-          "  segment  label every pixel of an image with the class of the closest training texture\n"
+          "  segment  label an image's pixels with the classes of training textures\n"
           "  quality  neighbourhood error of an image against a reference\n"
           "  shuffle  random block shuffle of a reference (a baseline)\n"
           "  simd     list the L1 kernel variants this CPU supports\n"
