@@ -128,7 +128,7 @@ static int seg_parse(int argc, char **argv, seg_opts *o, char *err) {
   int c;
   while ((c = getopt_long(argc, argv, "o:h", longopts, NULL)) != -1) {
     if (c == TS_OPT_HELP || c == 'h') {
-      printf(kUsage, TS_SEG_MAX_PAIRS, TS_SEG_MAX_LEVELS, TS_SEG_MAX_WINDOW, ts_job_options_help);
+      printf(kUsage, TS_SEG_MAX_PAIRS, TS_SEG_MAX_LEVELS, TS_SEG_MAX_WINDOW, TS_JOB_RUN_HELP);
       exit(0);
     }
     if (c == '?' || c == ':')
