@@ -6,6 +6,7 @@
  *   texsyn stylize ...   paint a target in an exemplar's style (stylize.c)
  *   texsyn energy ...    score a stylized image (stylize.c)
  *   texsyn apply-nnf ... vote a saved NNF over another layer (stylize.c)
+ *   texsyn segment ...   label an image's pixels by training textures (segment.c)
  *   texsyn status|watch|fetch|cancel|workers   manage jobs on a coordinator
  *   texsyn quality ...   neighbourhood error of an image against a reference
  *   texsyn shuffle ...   random block shuffle baseline
@@ -34,6 +35,7 @@
 #include "mrf.h"
 #include "outputs.h"
 #include "quality.h"
+#include "segment.h"
 #include "stylize.h"
 #include "search.h"
 
@@ -542,6 +544,7 @@ static void usage_main(FILE *f) {
           "  stylize  paint a target in the style of an exemplar, guided by image pairs\n"
           "  energy   score a stylized image: mean exact best guided patch distance, coverage\n"
           "  apply-nnf  vote a stylize --nnf field over another layer of the exemplar\n"
+          "  segment  label an image's pixels with the classes of training textures\n"
           "  quality  neighbourhood error of an image against a reference\n"
           "  shuffle  random block shuffle of a reference (a baseline)\n"
           "  simd     list the L1 kernel variants this CPU supports\n"
@@ -566,6 +569,7 @@ int main(int argc, char **argv) {
   if (strcmp(cmd, "aerial") == 0) return ts_cmd_aerial(argc - 1, argv + 1);
   if (strcmp(cmd, "energy") == 0) return ts_cmd_energy(argc - 1, argv + 1);
   if (strcmp(cmd, "apply-nnf") == 0) return ts_cmd_apply_nnf(argc - 1, argv + 1);
+  if (strcmp(cmd, "segment") == 0) return ts_cmd_segment(argc - 1, argv + 1);
   if (strcmp(cmd, "quality") == 0) return cmd_quality(argc - 1, argv + 1);
   if (strcmp(cmd, "shuffle") == 0) return cmd_shuffle(argc - 1, argv + 1);
   if (strcmp(cmd, "simd") == 0) return cmd_simd();

@@ -5,10 +5,11 @@
 #include <stdio.h>
 #include <string.h>
 
-extern const ts_engine ts_engine_mrf, ts_engine_stylize, ts_engine_energy, ts_engine_fill, ts_engine_aerial;
+extern const ts_engine ts_engine_mrf, ts_engine_stylize, ts_engine_energy, ts_engine_fill, ts_engine_aerial,
+    ts_engine_segment;
 
-static const ts_engine *const registry[] = {&ts_engine_mrf, &ts_engine_stylize, &ts_engine_energy, &ts_engine_fill,
-                                             &ts_engine_aerial};
+static const ts_engine *const registry[] = {&ts_engine_mrf,  &ts_engine_stylize, &ts_engine_energy,
+                                             &ts_engine_fill, &ts_engine_aerial,  &ts_engine_segment};
 
 const ts_engine *ts_engine_find(const char *name) {
   for (size_t i = 0; i < sizeof(registry) / sizeof(registry[0]); i++)
