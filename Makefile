@@ -7,8 +7,9 @@
 #                   image library into PREFIX/lib/texsyn
 #   make test       install missing packages, build, run every test
 #   make test-valgrind  the unit tests under valgrind
-#   make test-faults    fault injection (TRIALS random trials, default 20), the load test
-#                       and a coordinator killed half-way through level 0 of a 20 s job
+#   make test-faults    fault injection (TRIALS random trials, default 20), the load test,
+#                       a coordinator killed half-way through level 0 of a 20 s job, and the
+#                       rebalancing measurements (slow worker, slow link, load over Modbus)
 #   make fuzz       run each libFuzzer target for FUZZ_SECONDS (default 30)
 #   make bench      run benchmarks, write bench/results/ (with TEXSYN_EBSYNTH=PATH to
 #                   the peer, also texsyn stylize against Ebsynth: bench/stylize.py)
@@ -189,7 +190,9 @@ test-faults: all
 	TEXSYN_DATA=$$(bash tests/test-data.sh) && export TEXSYN_DATA && \
 	TEXSYN_BUILD=$(abspath $(BUILD)) TEXSYN_FAULT_TRIALS=$(TRIALS) TEXSYN_LONG_TESTS=1 /usr/bin/python3 -m pytest -q \
 	  -p no:cacheprovider --durations=5 tests/integration/test_faults.py tests/integration/test_load.py \
-	  tests/integration/test_resume.py
+	  tests/integration/test_resume.py && \
+	TEXSYN_BUILD=$(abspath $(BUILD)) TEXSYN_LONG_TESTS=1 /usr/bin/python3 -m pytest -q -p no:cacheprovider \
+	  --durations=5 -m long tests/integration/test_cluster.py tests/integration/test_modbus.py
 
 # Every unit test under valgrind memcheck (about 4 minutes; not in `test`).
 test-valgrind: deps all

@@ -159,6 +159,7 @@ def run_slowed(cluster, data, tmp_path, slow_seconds, running, size=(2048, 1536)
     return time.time() - t0
 
 
+@pytest.mark.long  # 25 s of measured slowdown: make test-faults
 def test_sustained_slowdown_rebalances(data, cluster, tmp_path):
     cluster.start(2, 1, "--rebalance-after", "2")
     # At a quarter of its speed the worker's scans measure well below the
@@ -197,6 +198,7 @@ class DelayProxy(LoopbackProxy):
         shutdown_all(src, dst)
 
 
+@pytest.mark.long  # 25 s behind a throttled link: make test-faults
 def test_worker_behind_a_slow_link_keeps_its_share(texsyn, data, cluster, tmp_path):
     """Rates come from the workers' own scan times: 5 ms more per round trip
     does not make a worker slower at scanning, so no rebalance may shrink

@@ -8,6 +8,7 @@ import socket
 import struct
 import threading
 import time
+\nimport pytest
 
 from conftest import BUILD, run, FRAME_START
 
@@ -125,6 +126,7 @@ def embedded_references(texsyn_exe, data, tmp):
     return refs
 
 
+@pytest.mark.long  # 30 s of load: make test-faults
 def test_fifty_jobs_five_clients_one_worker_killed(texsyn, data, cluster, tmp_path):
     want = embedded_references(texsyn, data, tmp_path)
     cluster.start(3, 1, *SERVER_ARGS)

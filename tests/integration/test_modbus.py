@@ -199,6 +199,7 @@ class Hog:
             p.wait()
 
 
+@pytest.mark.long  # 25 s of measured load: make test-faults
 @pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="needs two CPUs")
 def test_load_read_over_modbus_rebalances(data, cluster, tmp_path):
     """Each worker pinned to its own CPU; mid-job the second one's CPU gets
