@@ -8,7 +8,8 @@ import socket
 import struct
 import threading
 import time
-\nimport pytest
+
+import pytest
 
 from conftest import BUILD, run, FRAME_START
 
