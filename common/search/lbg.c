@@ -19,9 +19,6 @@
 /* Vectors the kernel takes per call in an assignment: a batch whose
  * lane states stay in cache. */
 #define ASSIGN_CHUNK 256
-/* Coarse histogram bins of a median: 16 bins of 16 grey levels, so a
- * median is found in at most 32 steps instead of 256. */
-#define COARSE_BINS 16
 
 void ts_lbg_free(ts_lbg_codebook *cb) {
   free(cb->own);
@@ -189,7 +186,11 @@ typedef struct {
   ts_l1_best *near; /* per vector */
   uint32_t *start;  /* k + 1: members of centroid i are order[start[i] .. start[i+1]) */
   uint32_t *order;
-  uint32_t *hist;   /* per thread: vbytes x (256 + COARSE_BINS) */
+  uint32_t *was;     /* per vector: its centroid in the iteration before */
+  uint32_t nruns;    /* the bytes parts hold: [run[2i], run[2i + 1]); the rest is padding, 0 in every vector */
+  uint32_t run[2 * TS_L1_MAX_PARTS];
+  uint8_t *changed;  /* per centroid: its members changed (its median must be taken again) */
+  uint32_t *hist;   /* per thread: vbytes x 256 */
   int nthreads;
 } lbg_class;
 
@@ -236,35 +237,52 @@ static int assign_all(lbg_class *lc, char *err) {
   memcpy(fill, lc->start, sizeof(uint32_t) * lc->k);
   for (uint32_t i = 0; i < lc->n; i++) lc->order[fill[lc->near[i].index]++] = i;
   free(fill);
+  /* A centroid whose members are those it had keeps its median: only the
+   * clusters a vector left or joined are taken again (in late iterations
+   * few are). */
+  memset(lc->changed, 0, lc->k);
+  for (uint32_t i = 0; i < lc->n; i++) {
+    uint32_t k = lc->near[i].index;
+    if (k == lc->was[i]) continue;
+    lc->changed[k] = 1;
+    if (lc->was[i] != UINT32_MAX) lc->changed[lc->was[i]] = 1;
+    lc->was[i] = k;
+  }
   return 0;
 }
 
-/* The lower median, byte by byte, of centroid i's members into out. The
- * histograms are left zero (emptied by walking the members again). */
+/* The lower median, byte by byte, of centroid i's members into out, from
+ * one histogram of 256 counters per byte (the scattered increments are
+ * most of a build's time: one per member byte, nothing else). */
 static void median_of(const lbg_class *lc, uint32_t i, uint32_t *hist, uint8_t *out) {
   uint32_t vb = lc->vbytes, s0 = lc->start[i], n = lc->start[i + 1] - s0;
-  uint32_t *fine = hist, *coarse = hist + (size_t)vb * 256;
+  memset(hist, 0, sizeof(uint32_t) * 256 * vb);
   for (uint32_t m = s0; m < s0 + n; m++) {
     const uint8_t *v = lc->vecs + (size_t)lc->order[m] * vb;
-    for (uint32_t b = 0; b < vb; b++) {
-      fine[b * 256 + v[b]]++;
-      coarse[b * COARSE_BINS + (v[b] >> 4)]++;
-    }
+    for (uint32_t r = 0; r < lc->nruns; r++)
+      for (uint32_t b = lc->run[2 * r]; b < lc->run[2 * r + 1]; b++) hist[b * 256 + v[b]]++;
   }
-  uint32_t rank = (n - 1) / 2; /* the lower median's rank */
-  for (uint32_t b = 0; b < vb; b++) {
-    uint32_t seen = 0, bin = 0;
-    while (seen + coarse[b * COARSE_BINS + bin] <= rank) seen += coarse[b * COARSE_BINS + bin++];
-    uint32_t v = bin * 16;
-    while (seen + fine[b * 256 + v] <= rank) seen += fine[b * 256 + v++];
-    out[b] = (uint8_t)v;
-  }
-  for (uint32_t m = s0; m < s0 + n; m++) {
-    const uint8_t *v = lc->vecs + (size_t)lc->order[m] * vb;
-    for (uint32_t b = 0; b < vb; b++) {
-      fine[b * 256 + v[b]] = 0;
-      coarse[b * COARSE_BINS + (v[b] >> 4)] = 0;
+  uint32_t rank = (n - 1) / 2; /* the lower median's */
+  memset(out, 0, vb); /* padding */
+  for (uint32_t r = 0; r < lc->nruns; r++)
+    for (uint32_t b = lc->run[2 * r]; b < lc->run[2 * r + 1]; b++) {
+      const uint32_t *h = hist + b * 256;
+      uint32_t seen = 0, v = 0;
+      while (seen + h[v] <= rank) seen += h[v++];
+      out[b] = (uint8_t)v;
     }
+}
+
+/* The byte runs the window's parts fill (window.h: a part's planes at its
+ * source's offsets, then zeros to the next chunk). */
+static void part_runs(lbg_class *lc) {
+  const ts_window_spec *sp = &lc->win->spec;
+  lc->nruns = 0;
+  for (int p = 0, k = 0; p < sp->nparts; k = (int)lc->win->part_end[p++]) {
+    uint32_t b0 = (uint32_t)k * TS_L1_CHUNK;
+    lc->run[2 * lc->nruns] = b0;
+    lc->run[2 * lc->nruns + 1] = b0 + (uint32_t)(sp->part[p].nplanes * sp->noff[sp->part[p].source]);
+    lc->nruns++;
   }
 }
 
@@ -278,11 +296,11 @@ static void median_range(void *arg, int w, int nw) {
   const lbg_class *lc = j->lc;
   uint32_t k0 = (uint32_t)((uint64_t)lc->k * (uint64_t)w / (uint64_t)nw);
   uint32_t k1 = (uint32_t)((uint64_t)lc->k * (uint64_t)(w + 1) / (uint64_t)nw);
-  uint32_t *hist = lc->hist + (size_t)w * lc->vbytes * (256 + COARSE_BINS);
+  uint32_t *hist = lc->hist + (size_t)w * lc->vbytes * 256;
   for (uint32_t i = k0; i < k1; i++) {
     uint8_t *out = j->next + (size_t)i * lc->vbytes;
-    if (lc->start[i + 1] > lc->start[i]) median_of(lc, i, hist, out);
-    else memcpy(out, lc->cent + (size_t)i * lc->vbytes, lc->vbytes); /* empty: stays */
+    if (lc->changed[i] && lc->start[i + 1] > lc->start[i]) median_of(lc, i, hist, out);
+    else memcpy(out, lc->cent + (size_t)i * lc->vbytes, lc->vbytes); /* the same members, or empty: stays */
   }
 }
 
@@ -343,6 +361,8 @@ static void class_free(lbg_class *lc) {
   free(lc->near);
   free(lc->start);
   free(lc->order);
+  free(lc->was);
+  free(lc->changed);
 }
 
 /* Runs class c's LBG; its kept centroids are appended at cb->own from
@@ -358,10 +378,16 @@ static int build_class(lbg_class *lc, ts_lbg_codebook *cb, const ts_anchors *a, 
   lc->near = malloc(sizeof(ts_l1_best) * lc->n);
   lc->start = malloc(sizeof(uint32_t) * (lc->k + 1));
   lc->order = malloc(sizeof(uint32_t) * lc->n);
+  lc->was = malloc(sizeof(uint32_t) * lc->n);
+  lc->changed = malloc(lc->k);
   int rc = 0;
-  if (lc->vecs == NULL || lc->cent == NULL || lc->near == NULL || lc->start == NULL || lc->order == NULL)
+  if (lc->vecs == NULL || lc->cent == NULL || lc->near == NULL || lc->start == NULL || lc->order == NULL ||
+      lc->was == NULL || lc->changed == NULL)
     rc = ts_error(err, TS_ENOMEM, "out of memory for the %u vectors of class %d", lc->n, c);
-  if (rc == 0) class_vectors(lc, a, ref, c);
+  if (rc == 0) {
+    class_vectors(lc, a, ref, c);
+    memset(lc->was, 0xFF, sizeof(uint32_t) * lc->n); /* no centroid yet */
+  }
   if (rc == 0 && draw_seeds(lc, p->seed, c) != 0) rc = ts_error(err, TS_ENOMEM, "out of memory");
   uint32_t iters = 0;
   int converged = 0;
@@ -408,9 +434,10 @@ int ts_lbg_build(ts_lbg_codebook *cb, const ts_window *win, const ts_anchors *a,
   uint64_t most = 0; /* centroids at most, over all classes */
   for (int c = 0; c < a->nclass; c++) most += a->count[c] < p->partitions ? a->count[c] : p->partitions;
   lbg_class lc = {.win = win, .pool = pool, .simd = simd, .vbytes = cb->vbytes, .nthreads = pool ? ts_pool_size(pool) : 1};
+  part_runs(&lc);
   cb->own = malloc(most * cb->vbytes + 1);
   uint32_t *sizes = malloc(sizeof(uint32_t) * most + 1);
-  lc.hist = calloc((size_t)lc.nthreads * cb->vbytes * (256 + COARSE_BINS), sizeof(uint32_t));
+  lc.hist = malloc((size_t)lc.nthreads * cb->vbytes * 256 * sizeof(uint32_t));
   int rc = cb->own && sizes && lc.hist ? 0 : ts_error(err, TS_ENOMEM, "out of memory for a codebook");
   for (int c = 0; rc == 0 && c < a->nclass; c++) {
     rc = build_class(&lc, cb, a, ref, p, c, sizes, rep, err);

@@ -84,6 +84,21 @@ static void check_reference_levels(const ts_mrf_params *p, int ref_w, int ref_h,
   }
 }
 
+/* The partitioning options: a count of partitions, a probe of at most as
+ * many, levels the job has; none of them without --lbg. */
+static void check_lbg(const ts_mrf_params *p, char *msg, size_t len, int *count) {
+  if (p->lbg < 0 || p->lbg > TS_LBG_MAX_PARTITIONS)
+    problem(msg, len, count, "--lbg %d: need 0 (off) to %d partitions", p->lbg, TS_LBG_MAX_PARTITIONS);
+  else if (p->lbg == 0 && (p->lbg_probe != 1 || p->lbg_exact || p->lbg_levels != 1))
+    problem(msg, len, count, "--lbg-probe, --lbg-levels and --lbg-exact need --lbg P (the partitions)");
+  else if (p->lbg > 0 && (p->lbg_probe < 1 || p->lbg_probe > p->lbg))
+    problem(msg, len, count, "--lbg-probe %d: need 1..%d (at most the --lbg partitions)", p->lbg_probe, p->lbg);
+  if (p->lbg > 0 && p->lbg_levels != TS_MRF_LBG_ALL && p->levels >= 1 && p->levels <= TS_MRF_MAX_LEVELS &&
+      (p->lbg_levels >> p->levels) != 0)
+    problem(msg, len, count, "--lbg-levels names level %d, but --levels %d has levels 0..%d",
+            31 - __builtin_clz(p->lbg_levels), p->levels, p->levels - 1);
+}
+
 int ts_mrf_check(const ts_mrf_params *p, int ref_w, int ref_h, int channels,
                  char *msg, size_t len) {
   int n = 0;
@@ -113,6 +128,7 @@ int ts_mrf_check(const ts_mrf_params *p, int ref_w, int ref_h, int channels,
     problem(msg, len, &n, "--coarse-weight %g: need more than 0, at most 100", p->coarse_weight);
   if (channels < 1 || channels > 16)
     problem(msg, len, &n, "reference has %d channels: need 1..16", channels);
+  check_lbg(p, msg, len, &n);
   if (n > 0) return TS_EINVAL; /* the checks below need sane parameters */
   int cw[TS_MRF_MAX_LEVELS], ch[TS_MRF_MAX_LEVELS];
   level_sizes(p->width, p->height, p->levels, cw, ch, 1);
@@ -634,6 +650,16 @@ static int open_image(engine *e, char *err) {
   return ts_search_image_open(e->search, &d, &e->image, err);
 }
 
+/* The partitioning of level l's set k (lossy search, §3.6.5), into *out,
+ * or NULL: exhaustive search. Each set's codebook is drawn with a seed of
+ * its own, a function of the job's. */
+static const ts_lbg_params *lbg_params(const ts_mrf_params *p, int l, int k, ts_lbg_params *out) {
+  if (p->lbg == 0 || !(p->lbg_levels >> l & 1)) return NULL;
+  *out = (ts_lbg_params){(uint32_t)p->lbg, (uint32_t)p->lbg_probe, p->lbg_exact,
+                         p->seed + 0x9E3779B97F4A7C15ull * (uint64_t)(2 * l + k + 1), 0};
+  return out;
+}
+
 /* Synthesises level l from its start, or from `inside`, a checkpoint
  * taken inside it. */
 static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, char *err) {
@@ -682,12 +708,19 @@ static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, c
   if (rc == 0) rc = open_image(e, err);
   /* The backend's usage replicas start from the counters as they are now:
    * zero, or a resumed level's. */
+  ts_lbg_params lbg[2];
   for (int k = 0; rc == 0 && k < 2; k++) {
     ts_refset rs = {e->image, &e->shape[k], &e->grid, &e->ref_lp, p->parity ? &e->parity : NULL, NULL,
-                    p->usage_weight > 0, &e->usage};
+                    p->usage_weight > 0, &e->usage, 0, lbg_params(p, l, k, &lbg[k]), &e->res->lbg[l].set[k]};
     rc = ts_search_prepare(e->search, &rs, &e->set_ids[k], err);
   }
   if (rc == 0) rc = run_level(e, err);
+  if (rc == 0 && lbg_params(p, l, 0, &lbg[0]) != NULL) {
+    ts_mrf_lbg_stats *ls = &e->res->lbg[l];
+    ls->on = 1;
+    ls->pairs = e->search->stats.pairs - e->base.pairs;
+    ls->full_pairs = e->search->stats.full_pairs - e->base.full_pairs;
+  }
   for (int k = 0; k < 2; k++)
     if (e->set_ids[k] >= 0) ts_search_release(e->search, e->set_ids[k]);
   return rc;

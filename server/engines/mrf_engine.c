@@ -40,7 +40,44 @@ static int mrf_spec_set(void *params, const char *k, const char *v) {
   if (strcmp(k, "seed") == 0) return ts_parse_u64(v, &p->seed);
   if (strcmp(k, "rgb_search") == 0) return ts_parse_int(v, 0, 1, &p->rgb_search);
   if (strcmp(k, "max_pixels") == 0) return ts_parse_u64(v, &p->max_pixels);
+  if (strcmp(k, "lbg") == 0) return ts_parse_int(v, -1, TS_LBG_MAX_PARTITIONS + 1, &p->lbg);
+  if (strcmp(k, "lbg_levels") == 0) return ts_mrf_lbg_levels_parse(v, &p->lbg_levels);
+  if (strcmp(k, "lbg_probe") == 0) return ts_parse_int(v, -1, TS_LBG_MAX_PARTITIONS + 1, &p->lbg_probe);
+  if (strcmp(k, "lbg_exact") == 0) return ts_parse_int(v, 0, 1, &p->lbg_exact);
   return TS_ENOENT;
+}
+
+int ts_mrf_lbg_levels_parse(const char *spec, uint32_t *mask) {
+  if (strcmp(spec, "all") == 0) {
+    *mask = TS_MRF_LBG_ALL;
+    return 0;
+  }
+  uint32_t m = 0;
+  for (const char *s = spec;; s++) {
+    int level = 0, digits = 0;
+    for (; *s >= '0' && *s <= '9' && digits < 3; s++, digits++) level = 10 * level + (*s - '0');
+    if (digits == 0 || level >= TS_MRF_MAX_LEVELS) return TS_EINVAL;
+    m |= 1u << level;
+    if (*s == '\0') break;
+    if (*s != ',') return TS_EINVAL;
+  }
+  *mask = m;
+  return 0;
+}
+
+void ts_mrf_lbg_levels_format(uint32_t mask, char *buf, size_t cap) {
+  size_t at = 0;
+  buf[0] = '\0';
+  if (mask == TS_MRF_LBG_ALL) {
+    snprintf(buf, cap, "all");
+    return;
+  }
+  for (int l = 0; l < 32 && at < cap; l++)
+    if (mask >> l & 1) {
+      int n = snprintf(buf + at, cap - at, "%s%d", at ? "," : "", l);
+      if (n < 0) break;
+      at += (size_t)n;
+    }
 }
 
 /* Without it the spec would format as size=0x0, which no parse takes
@@ -58,7 +95,15 @@ static int mrf_spec_format(const void *params, char *buf, size_t cap) {
                    "coarse_weight=%.17g\nrefine=%d\nseed=%llu\nrgb_search=%d\nmax_pixels=%llu\n",
                    p->width, p->height, p->levels, p->wn, p->wb, p->parity, p->usage_weight, p->coarse_weight,
                    p->refine, (unsigned long long)p->seed, p->rgb_search, (unsigned long long)p->max_pixels);
-  return n < 0 || (size_t)n >= cap ? TS_ETOOBIG : n;
+  if (n < 0 || (size_t)n >= cap) return TS_ETOOBIG;
+  /* The partitioning keys only when set: a spec without them reads and
+   * writes as before (its checkpoints' tag unchanged). */
+  if (p->lbg == 0 && p->lbg_probe == 1 && !p->lbg_exact && p->lbg_levels == 1) return n;
+  char levels[64];
+  ts_mrf_lbg_levels_format(p->lbg_levels, levels, sizeof(levels));
+  int more = snprintf(buf + n, cap - (size_t)n, "lbg=%d\nlbg_levels=%s\nlbg_probe=%d\nlbg_exact=%d\n", p->lbg, levels,
+                      p->lbg_probe, p->lbg_exact);
+  return more < 0 || (size_t)more >= cap - (size_t)n ? TS_ETOOBIG : n + more;
 }
 
 void ts_mrf_params_default(ts_mrf_params *p) {
@@ -70,6 +115,8 @@ void ts_mrf_params_default(ts_mrf_params *p) {
   p->refine = 2;
   p->seed = 1;
   p->max_pixels = TS_IMAGE_DEFAULT_MAX_PIXELS;
+  p->lbg_levels = 1; /* level 0, as the seed does */
+  p->lbg_probe = 1;
 }
 
 static void mrf_params_default(void *params) { ts_mrf_params_default(params); }
@@ -199,7 +246,7 @@ static int mrf_write_output(const ts_engine_run *r, int k, const char *path, int
   const ts_mrf_result *res = &r->res;
   int w = res->image.width, h = res->image.height;
   switch (k) {
-  case OUT_IMAGE: return ts_image_write(path, &res->image, r->ref->meta, err);
+  case OUT_IMAGE: return ts_write_synth_image(path, &res->image, r->ref, r->p, err);
   case OUT_COPY_MAP: return ts_write_copy_map_image(path, res->copy_map, w, h, res->ref_w, res->ref_h, err);
   case OUT_COPY_MAP_RAW: return ts_write_copy_map_raw(path, res->copy_map, w, h, err);
   case OUT_USAGE_MAP: return ts_write_usage_map(path, res->usage, res->ref_w, res->ref_h, err);

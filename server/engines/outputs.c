@@ -8,6 +8,7 @@
 
 #include "error.h"
 #include "image.h"
+#include "image_meta.h"
 #include "util.h"
 
 int ts_write_copy_map_image(const char *path, const uint32_t *map, int w, int h, int ref_w,
@@ -61,14 +62,49 @@ int ts_write_usage_map(const char *path, const uint32_t *usage, int w, int h, ch
   return rc;
 }
 
+const char *ts_mrf_search_mode(const ts_mrf_params *p) {
+  return p->lbg == 0 ? "exact" : p->lbg_exact ? "lbg-exact" : "lbg";
+}
+
+/* The search: its mode, "lbg" among the lossy shortcuts when the search
+ * was partitioned and not exact, and the partitioning's parameters. */
+static void report_search(FILE *f, const ts_mrf_params *p, int threads, const ts_search *search) {
+  int lossy = p->lbg > 0 && !p->lbg_exact;
+  fprintf(f, "  \"search\": {\"mode\": \"%s\", \"lossy\": [%s], ", ts_mrf_search_mode(p), lossy ? "\"lbg\"" : "");
+  if (p->lbg > 0) {
+    fprintf(f, "\"lbg\": {\"partitions\": %d, \"probe\": %d, \"exact\": %s, \"levels\": [", p->lbg, p->lbg_probe,
+            p->lbg_exact ? "true" : "false");
+    for (int l = 0, n = 0; l < p->levels; l++)
+      if (p->lbg_levels >> l & 1) fprintf(f, "%s%d", n++ ? ", " : "", l);
+    fprintf(f, "]}, ");
+  }
+  fprintf(f, "\"backend\": \"%s\", \"simd\": \"%s\", \"threads\": %d},\n", search->ops->name, search->simd->name,
+          threads);
+}
+
+/* A partitioned level: the share of the reference vectors its queries
+ * compared, and each set's codebook (the causal L's, the full window's). */
+static void report_lbg_level(FILE *f, const ts_mrf_lbg_stats *s) {
+  static const char *const window[2] = {"causal", "full"};
+  fprintf(f, ", \"lbg\": {\"scanned_fraction\": %.6f, \"codebooks\": [",
+          s->full_pairs ? (double)s->pairs / (double)s->full_pairs : 0.0);
+  for (int k = 0; k < 2; k++) {
+    const ts_lbg_report *r = &s->set[k];
+    fprintf(f, "%s{\"window\": \"%s\", \"partitions\": %u, \"iterations\": %u, \"converged\": %s, "
+               "\"seconds\": %.4f, \"sizes\": {\"min\": %u, \"median\": %u, \"max\": %u}}",
+            k ? ", " : "", window[k], r->partitions, r->iterations, r->converged ? "true" : "false", r->seconds,
+            r->size_min, r->size_median, r->size_max);
+  }
+  fprintf(f, "]}");
+}
+
 int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const ts_search *search,
                     const ts_mrf_result *res, char *err) {
   char tmp[TS_FILE_TMP_LEN];
   FILE *f = ts_file_create(path, tmp, err);
   if (f == NULL) return TS_EIO;
-  fprintf(f, "{\n  \"engine\": \"mrf\",\n  \"search\": {\"mode\": \"exact\", \"lossy\": [], "
-             "\"backend\": \"%s\", \"simd\": \"%s\", \"threads\": %d},\n",
-          search->ops->name, search->simd->name, threads);
+  fprintf(f, "{\n  \"engine\": \"mrf\",\n");
+  report_search(f, p, threads, search);
   fprintf(f, "  \"params\": {\"width\": %d, \"height\": %d, \"levels\": %d, \"wn\": %d, \"wb\": %d, "
              "\"parity\": %s, \"usage_weight\": %g, \"coarse_weight\": %g, \"seed\": %llu, "
              "\"rgb_search\": %s, \"stop_level\": %d, \"refine\": %d},\n",
@@ -88,12 +124,42 @@ int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const
     const ts_mrf_level_stats *s = &res->level[l];
     fprintf(f, "    {\"level\": %d, \"ref\": [%d, %d], \"out\": [%d, %d], \"vectors\": %u, "
                "\"blocks\": %llu, \"steps\": %llu, \"comparisons\": %llu, \"wire_bytes\": %llu, "
-               "\"round_trips\": %llu, \"seconds\": %.4f}%s\n",
+               "\"round_trips\": %llu, \"seconds\": %.4f",
             l, s->ref_w, s->ref_h, s->out_w, s->out_h, s->vectors, (unsigned long long)s->blocks,
             (unsigned long long)s->steps, (unsigned long long)s->pairs, (unsigned long long)s->wire_bytes,
-            (unsigned long long)s->round_trips, s->seconds,
-            l > p->stop_level ? "," : "");
+            (unsigned long long)s->round_trips, s->seconds);
+    if (res->lbg[l].on) report_lbg_level(f, &res->lbg[l]);
+    fprintf(f, "}%s\n", l > p->stop_level ? "," : "");
   }
   fprintf(f, "  ]\n}\n");
   return ts_file_commit(f, tmp, path, 1, err);
+}
+
+/* The lossy search in words, or "" for an exact one. */
+static void search_note(const ts_mrf_params *p, char *buf, size_t cap) {
+  buf[0] = '\0';
+  if (p->lbg == 0 || p->lbg_exact) return;
+  char levels[64];
+  ts_mrf_lbg_levels_format(p->lbg_levels, levels, sizeof(levels));
+  snprintf(buf, cap, "lossy LBG search (seed 002 3.6.5): partitions=%d probe=%d levels=%s", p->lbg, p->lbg_probe,
+           levels);
+}
+
+int ts_write_synth_image(const char *path, const ts_image *img, const ts_image *ref, const ts_mrf_params *p,
+                         char *err) {
+  char note[160];
+  search_note(p, note, sizeof(note));
+  if (note[0] == '\0') return ts_image_write(path, img, ref->meta, err);
+  ts_image with = *ref; /* its metadata object is ref's, or a new one */
+  char desc[1024] = "";
+  int had = ts_meta_get(with.meta, "ImageDescription", desc, sizeof(desc) - sizeof(note) - 8) == 0 && desc[0];
+  if (strstr(desc, note) == NULL) /* a second write notes it once */
+    snprintf(desc + strlen(desc), sizeof(desc) - strlen(desc), "%s%s", had ? "\n" : "", note);
+  int rc = ts_meta_set(&with.meta, TS_META_SEARCH, note);
+  if (rc == 0) rc = ts_meta_set(&with.meta, "ImageDescription", desc);
+  if (rc != 0) rc = ts_error(err, rc, "%s: cannot note the lossy search in the image's metadata: %s", path,
+                             ts_strerror(rc));
+  if (rc == 0) rc = ts_image_write(path, img, with.meta, err);
+  if (with.meta != ref->meta) ts_meta_free(with.meta);
+  return rc;
 }

@@ -19,5 +19,14 @@ int ts_write_copy_map_raw(const char *path, const uint32_t *map, int w, int h, c
 int ts_write_usage_map(const char *path, const uint32_t *usage, int w, int h, char *err);
 int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const ts_search *search,
                     const ts_mrf_result *res, char *err);
+/* The search mode the report names: "exact", "lbg" or "lbg-exact". */
+const char *ts_mrf_search_mode(const ts_mrf_params *p);
+/* The output image with the reference's metadata; a lossy search is noted
+ * in it too (TS_META_SEARCH, and a line of ImageDescription), so the file
+ * itself says it is not the exact synthesis. The note is added to ref's
+ * metadata, which the outputs are written from. */
+#define TS_META_SEARCH "texsyn:search"
+int ts_write_synth_image(const char *path, const ts_image *img, const ts_image *ref, const ts_mrf_params *p,
+                         char *err);
 
 #endif
