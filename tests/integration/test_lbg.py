@@ -1,0 +1,119 @@
+"""Partitioned (LBG) search, seed 002 §3.6.5: --lbg is lossy but
+deterministic (the same bytes embedded and on a cluster), --lbg-exact gives
+the exact search's bytes, the report and the output image say which search
+ran, and bad values are refused with the option named."""
+import json
+import struct
+
+import pytest
+
+from conftest import SANITIZED, run, synth
+
+# Small: the partitioned level is level 0 of a 3-level job.
+SIZE = (96, 80) if SANITIZED else (128, 112)
+BASE = ("--levels", "3", "--parity", "--refine", "1")
+
+
+def ref_of(data):
+    return data / "textures" / "brick.png"
+
+
+def embedded(texsyn, data, tmp_path, *extra, name="embedded"):
+    out, raw = tmp_path / f"{name}.png", tmp_path / f"{name}.raw"
+    rep = synth(texsyn, ref_of(data), out, SIZE, *BASE, "--copy-map-raw", raw, *extra)
+    return out.read_bytes(), raw.read_bytes(), rep
+
+
+def png_text(data):
+    """The tEXt chunks of a PNG file's bytes, as a dict."""
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    out, i = {}, 8
+    while i < len(data):
+        n, kind = struct.unpack(">I4s", data[i:i + 8])
+        if kind == b"tEXt":
+            key, _, value = data[i + 8:i + 8 + n].partition(b"\0")
+            out[key.decode("latin-1")] = value.decode("latin-1")
+        i += 12 + n
+    return out
+
+
+@pytest.mark.sanitize
+def test_lbg_is_the_same_embedded_and_on_two_workers(texsyn, data, cluster, tmp_path):
+    extra = ("--lbg", "16", "--lbg-levels", "0,1", "--usage-weight", "1")
+    image, raw, rep = embedded(texsyn, data, tmp_path, *extra)
+    exact, exact_raw, _ = embedded(texsyn, data, tmp_path, name="exact")
+    assert raw != exact_raw, "16 partitions changed no block: the search was not partitioned"
+    cluster.start(2, 1)
+    w, h = SIZE
+    out, craw, crep = tmp_path / "remote.png", tmp_path / "remote.raw", tmp_path / "remote.json"
+    cluster.texsyn("synth", "--ref", ref_of(data), "-o", out, "--size", f"{w}x{h}", "--quiet", *BASE,
+                   "--copy-map-raw", craw, "--report", crep, *extra)
+    assert craw.read_bytes() == raw, "the cluster's copy map differs from the embedded run's"
+    assert out.read_bytes() == image, "the cluster's image differs from the embedded run's"
+    assert all(wk["batches"] > 0 for wk in cluster.pool()), "a worker never answered"
+    got = json.loads(crep.read_text())
+    assert got["search"]["mode"] == "lbg"
+    for l in (0, 1):  # the same codebooks, and the same vectors compared
+        a = next(x for x in rep["levels"] if x["level"] == l)
+        b = next(x for x in got["levels"] if x["level"] == l)
+        assert a["comparisons"] == b["comparisons"]
+        for ca, cb in zip(a["lbg"]["codebooks"], b["lbg"]["codebooks"]):
+            assert (ca["partitions"], ca["iterations"], ca["sizes"]) == (cb["partitions"], cb["iterations"],
+                                                                          cb["sizes"])
+
+
+@pytest.mark.sanitize
+def test_lbg_exact_gives_the_exact_bytes(texsyn, data, tmp_path):
+    exact, exact_raw, exact_rep = embedded(texsyn, data, tmp_path, name="exact")
+    for probe in ("1", "3"):
+        image, raw, rep = embedded(texsyn, data, tmp_path, "--lbg", "24", "--lbg-exact", "--lbg-probe", probe,
+                                   "--lbg-levels", "all", name=f"pruned{probe}")
+        assert image == exact and raw == exact_raw, f"--lbg-exact --lbg-probe {probe} changed the output"
+        assert rep["search"]["mode"] == "lbg-exact" and rep["search"]["lossy"] == []
+        assert rep["search"]["lbg"] == {"partitions": 24, "probe": int(probe), "exact": True, "levels": [0, 1, 2]}
+        assert "texsyn:search" not in png_text(image)
+    l0 = next(x for x in rep["levels"] if x["level"] == 0)
+    assert 0 < l0["lbg"]["scanned_fraction"] <= 1
+
+
+def test_report_and_image_say_lossy_lbg(texsyn, data, tmp_path):
+    exact, _, exact_rep = embedded(texsyn, data, tmp_path, name="exact")
+    assert exact_rep["search"]["mode"] == "exact" and "lbg" not in exact_rep["search"]
+    assert all("lbg" not in l for l in exact_rep["levels"])
+    assert "texsyn:search" not in png_text(exact)
+    image, _, rep = embedded(texsyn, data, tmp_path, "--lbg", "32", "--lbg-probe", "2")
+    s = rep["search"]
+    assert s["mode"] == "lbg" and s["lossy"] == ["lbg"]
+    assert s["lbg"] == {"partitions": 32, "probe": 2, "exact": False, "levels": [0]}
+    levels = {l["level"]: l for l in rep["levels"]}
+    assert "lbg" not in levels[1] and "lbg" not in levels[2]
+    lbg = levels[0]["lbg"]
+    assert 0 < lbg["scanned_fraction"] < 0.5
+    for cb, window in zip(lbg["codebooks"], ("causal", "full")):
+        assert cb["window"] == window
+        assert 4 <= cb["partitions"] <= 4 * 32  # up to 32 in each parity class
+        assert 1 <= cb["sizes"]["min"] <= cb["sizes"]["median"] <= cb["sizes"]["max"]
+        assert cb["iterations"] >= 1 and cb["seconds"] >= 0
+    text = png_text(image)
+    assert "partitions=32 probe=2 levels=0" in text["texsyn:search"]
+    assert "lossy LBG search" in text["Description"]  # ImageDescription, as PNG names it
+
+
+@pytest.mark.sanitize
+@pytest.mark.parametrize("args, needle", [
+    (["--lbg", "-1"], "--lbg -1: need a whole number in 0..65536"),
+    (["--lbg", "70000"], "--lbg 70000: need a whole number in 0..65536"),
+    (["--lbg", "8", "--lbg-probe", "9"], "--lbg-probe 9: need 1..8"),
+    (["--lbg", "8", "--lbg-probe", "0"], "--lbg-probe 0: need a whole number in 1..65536"),
+    (["--lbg-exact"], "need --lbg P"),
+    (["--lbg-probe", "2"], "need --lbg P"),
+    (["--lbg", "8", "--lbg-levels", "0,x"], "--lbg-levels 0,x: need \"all\" or level numbers"),
+    (["--lbg", "8", "--lbg-levels", "3"], "--lbg-levels names level 3, but --levels 3 has levels 0..2"),
+])
+def test_bad_lbg_values_are_refused(texsyn, data, tmp_path, args, needle):
+    w, h = SIZE
+    p = run(texsyn, "synth", "--embedded", "--ref", ref_of(data), "-o", tmp_path / "o.png", "--size", f"{w}x{h}",
+            *BASE, *args, check=False)
+    assert p.returncode == 2, p.stderr
+    assert needle in p.stderr
+    assert not (tmp_path / "o.png").exists()
