@@ -19,6 +19,12 @@
 /* Vectors the kernel takes per call in an assignment: a batch whose
  * lane states stay in cache. */
 #define ASSIGN_CHUNK 256
+/* Vectors gathered for a scan of the centroids at a time. */
+#define GATHER_CHUNK 1024
+/* Bytes a class's centroids may keep their members' histograms in (P x
+ * vector bytes x 1 KB: 18 MB for 256 partitions of 72-byte vectors);
+ * above, each changed cluster counts its members again. */
+#define KEPT_HIST_BUDGET (64u << 20)
 
 void ts_lbg_free(ts_lbg_codebook *cb) {
   free(cb->own);
@@ -191,7 +197,16 @@ typedef struct {
   uint32_t run[2 * TS_L1_MAX_PARTS];
   uint8_t *changed;  /* per centroid: its members changed (its median must be taken again) */
   uint32_t *hist;   /* per thread: vbytes x 256 */
+  uint32_t *kept;   /* per centroid: its members' histograms (vbytes x 256), kept up to date; NULL: over budget */
   int nthreads;
+  ts_l1_set parts;  /* no vectors: the window's weighted parts, for weighted() */
+  /* The bounds that spare most scans (assign_bounded): per vector an upper
+   * bound of its distance to its centroid, per centroid its movement in
+   * the last move and its distance to the nearest other one; the vectors
+   * to scan, gathered. */
+  uint64_t *ub, *shift, *sep;
+  uint32_t *list;
+  uint8_t *gather;
 } lbg_class;
 
 /* The class's vectors, by their rank in the class. */
@@ -221,14 +236,100 @@ static int draw_seeds(lbg_class *lc, uint64_t seed, int c) {
   return 0;
 }
 
-/* Every vector to its nearest centroid; members grouped by centroid
- * (a counting sort, ranks ascending within a centroid). */
-static int assign_all(lbg_class *lc, char *err) {
+/* Scans vectors list[0..n) against every centroid (gathered a chunk at a
+ * time, the kernel on the pool): their nearest and its distance, exact. */
+static int scan_listed(lbg_class *lc, uint32_t n, char *err) {
   ts_l1_set set;
   int rc = ts_lbg_centroid_set(&set, lc->win, lc->cent, lc->k, err);
   if (rc != 0) return rc;
-  ts_lbg_assign(&set, lc->vecs, lc->n, lc->pool, lc->simd, lc->near);
+  ts_l1_best best[GATHER_CHUNK];
+  for (uint32_t i = 0; i < n; i += GATHER_CHUNK) {
+    uint32_t m = n - i < GATHER_CHUNK ? n - i : GATHER_CHUNK;
+    for (uint32_t j = 0; j < m; j++)
+      memcpy(lc->gather + (size_t)j * lc->vbytes, lc->vecs + (size_t)lc->list[i + j] * lc->vbytes, lc->vbytes);
+    ts_lbg_assign(&set, lc->gather, m, lc->pool, lc->simd, best);
+    for (uint32_t j = 0; j < m; j++) {
+      lc->near[lc->list[i + j]] = best[j];
+      lc->ub[lc->list[i + j]] = best[j].dist;
+    }
+  }
   ts_l1_set_free(&set);
+  return 0;
+}
+
+/* Each centroid's distance to its nearest other centroid (UINT64_MAX for
+ * a lone one). */
+static void separations(lbg_class *lc) {
+  for (uint32_t a = 0; a < lc->k; a++) lc->sep[a] = UINT64_MAX;
+  for (uint32_t a = 0; a < lc->k; a++)
+    for (uint32_t b = a + 1; b < lc->k; b++) {
+      uint64_t d = weighted(&lc->parts, lc->cent + (size_t)a * lc->vbytes, lc->cent + (size_t)b * lc->vbytes, NULL);
+      if (d < lc->sep[a]) lc->sep[a] = d;
+      if (d < lc->sep[b]) lc->sep[b] = d;
+    }
+}
+
+/* Whether a vector within distance u of centroid a is nearer to a than to
+ * any other centroid, strictly (no tie: the lowest-index rule cannot
+ * pick another): 2u < sep(a) (Elkan 2003, by the triangle inequality). */
+static int surely_nearest(uint64_t u, uint64_t sep) { return u < sep && 2 * u < sep; }
+
+/* Pool job: thread w's share of the vectors whose centroid moved: the
+ * bound grown by the move; kept if it proves the centroid still nearest,
+ * else tightened to the exact distance and tried again; marked to scan
+ * otherwise. */
+static void bound_range(void *arg, int w, int nw) {
+  lbg_class *lc = arg;
+  uint32_t i0 = (uint32_t)((uint64_t)lc->n * (uint64_t)w / (uint64_t)nw);
+  uint32_t i1 = (uint32_t)((uint64_t)lc->n * (uint64_t)(w + 1) / (uint64_t)nw);
+  for (uint32_t i = i0; i < i1; i++) {
+    uint32_t a = lc->near[i].index;
+    uint64_t u = lc->ub[i] + lc->shift[a];
+    if (u < lc->ub[i]) u = UINT64_MAX; /* saturate */
+    if (!surely_nearest(u, lc->sep[a])) {
+      u = weighted(&lc->parts, lc->vecs + (size_t)i * lc->vbytes, lc->cent + (size_t)a * lc->vbytes, NULL);
+      lc->near[i].dist = u;
+    }
+    lc->ub[i] = u;
+    lc->list[i] = surely_nearest(u, lc->sep[a]) ? 0 : 1;
+  }
+}
+
+/* Every vector to its nearest centroid, as a scan of all of them would
+ * find it, ties to the lowest: the first time by scanning; then only the
+ * vectors no bound keeps at their centroid. */
+static int assign_bounded(lbg_class *lc, int first, char *err) {
+  uint32_t n = 0;
+  if (first) {
+    for (uint32_t i = 0; i < lc->n; i++) lc->list[i] = i;
+    n = lc->n;
+  } else {
+    separations(lc);
+    if (lc->pool != NULL && lc->nthreads > 1) ts_pool_run(lc->pool, bound_range, lc);
+    else bound_range(lc, 0, 1);
+    for (uint32_t i = 0; i < lc->n; i++) /* compacts the marks in place: n <= i */
+      if (lc->list[i]) lc->list[n++] = i;
+  }
+  return scan_listed(lc, n, err);
+}
+
+/* Vector i's bytes move from centroid from's histograms (UINT32_MAX:
+ * none) to to's. */
+static void move_counts(lbg_class *lc, uint32_t i, uint32_t from, uint32_t to) {
+  const uint8_t *v = lc->vecs + (size_t)i * lc->vbytes;
+  size_t per = (size_t)lc->vbytes * 256;
+  uint32_t *hf = from != UINT32_MAX ? lc->kept + from * per : NULL, *ht = lc->kept + to * per;
+  for (uint32_t r = 0; r < lc->nruns; r++)
+    for (uint32_t b = lc->run[2 * r]; b < lc->run[2 * r + 1]; b++) {
+      if (hf != NULL) hf[b * 256 + v[b]]--;
+      ht[b * 256 + v[b]]++;
+    }
+}
+
+/* Members grouped by centroid (a counting sort, ranks ascending within a
+ * centroid), and the centroids whose members changed; their histograms
+ * follow the moves. */
+static int group_members(lbg_class *lc, char *err) {
   memset(lc->start, 0, sizeof(uint32_t) * (lc->k + 1));
   for (uint32_t i = 0; i < lc->n; i++) lc->start[lc->near[i].index + 1]++;
   for (uint32_t i = 0; i < lc->k; i++) lc->start[i + 1] += lc->start[i];
@@ -245,22 +346,34 @@ static int assign_all(lbg_class *lc, char *err) {
     uint32_t k = lc->near[i].index;
     if (k == lc->was[i]) continue;
     lc->changed[k] = 1;
+    if (lc->kept != NULL) move_counts(lc, i, lc->was[i], k);
     if (lc->was[i] != UINT32_MAX) lc->changed[lc->was[i]] = 1;
     lc->was[i] = k;
   }
   return 0;
 }
 
+static int assign_all(lbg_class *lc, int first, char *err) {
+  int rc = assign_bounded(lc, first, err);
+  return rc != 0 ? rc : group_members(lc, err);
+}
+
 /* The lower median, byte by byte, of centroid i's members into out, from
- * one histogram of 256 counters per byte (the scattered increments are
- * most of a build's time: one per member byte, nothing else). */
+ * 256 counters per byte: the centroid's kept histograms, or (over the
+ * budget) hist filled from its members. The scattered increments are most
+ * of a build's time when every member is counted: that is why the
+ * histograms are kept, and moved vector by vector. */
 static void median_of(const lbg_class *lc, uint32_t i, uint32_t *hist, uint8_t *out) {
   uint32_t vb = lc->vbytes, s0 = lc->start[i], n = lc->start[i + 1] - s0;
-  memset(hist, 0, sizeof(uint32_t) * 256 * vb);
-  for (uint32_t m = s0; m < s0 + n; m++) {
-    const uint8_t *v = lc->vecs + (size_t)lc->order[m] * vb;
-    for (uint32_t r = 0; r < lc->nruns; r++)
-      for (uint32_t b = lc->run[2 * r]; b < lc->run[2 * r + 1]; b++) hist[b * 256 + v[b]]++;
+  if (lc->kept != NULL) {
+    hist = lc->kept + (size_t)i * vb * 256;
+  } else {
+    memset(hist, 0, sizeof(uint32_t) * 256 * vb);
+    for (uint32_t m = s0; m < s0 + n; m++) {
+      const uint8_t *v = lc->vecs + (size_t)lc->order[m] * vb;
+      for (uint32_t r = 0; r < lc->nruns; r++)
+        for (uint32_t b = lc->run[2 * r]; b < lc->run[2 * r + 1]; b++) hist[b * 256 + v[b]]++;
+    }
   }
   uint32_t rank = (n - 1) / 2; /* the lower median's */
   memset(out, 0, vb); /* padding */
@@ -304,14 +417,17 @@ static void median_range(void *arg, int w, int nw) {
   }
 }
 
-/* Moves every centroid to its members' median; the summed movement. */
-static double move_centroids(lbg_class *lc, uint8_t *next, const ts_l1_set *parts) {
+/* Moves every centroid to its members' median; each one's movement, and
+ * their sum. */
+static double move_centroids(lbg_class *lc, uint8_t *next) {
   median_job j = {lc, next};
   if (lc->pool != NULL && lc->nthreads > 1) ts_pool_run(lc->pool, median_range, &j);
   else median_range(&j, 0, 1);
   double moved = 0;
-  for (uint32_t i = 0; i < lc->k; i++)
-    moved += (double)weighted(parts, lc->cent + (size_t)i * lc->vbytes, next + (size_t)i * lc->vbytes, NULL);
+  for (uint32_t i = 0; i < lc->k; i++) {
+    lc->shift[i] = weighted(&lc->parts, lc->cent + (size_t)i * lc->vbytes, next + (size_t)i * lc->vbytes, NULL);
+    moved += (double)lc->shift[i];
+  }
   memcpy(lc->cent, next, (size_t)lc->k * lc->vbytes);
   return moved;
 }
@@ -321,24 +437,20 @@ static double move_centroids(lbg_class *lc, uint8_t *next, const ts_l1_set *part
  * movements are summed in doubles (in a fixed order: the same sum
  * everywhere), which no weight can overflow. */
 static int iterate(lbg_class *lc, uint32_t max_iter, uint32_t *iters, int *converged, char *err) {
-  ts_l1_set parts; /* the window's parts, for movements */
-  int rc = ts_l1_set_init(&parts, 0, lc->win->nchunks);
-  if (rc != 0) return ts_error(err, rc, "out of memory");
   uint8_t *next = malloc((size_t)lc->k * lc->vbytes);
-  rc = next != NULL ? ts_window_weigh(lc->win, &parts, err) : ts_error(err, TS_ENOMEM, "out of memory");
+  int rc = next != NULL ? 0 : ts_error(err, TS_ENOMEM, "out of memory for the centroids");
   double before_move = 0;
   *converged = 0;
   *iters = 0;
   while (rc == 0 && !*converged && *iters < max_iter) {
-    if ((rc = assign_all(lc, err)) != 0) break;
-    double moved = move_centroids(lc, next, &parts);
+    if ((rc = assign_all(lc, *iters == 0, err)) != 0) break;
+    double moved = move_centroids(lc, next);
     ++*iters;
     *converged = moved == 0 || (*iters > 1 && fabs(moved - before_move) < 0.02 * before_move);
     before_move = moved;
   }
-  if (rc == 0) rc = assign_all(lc, err);
+  if (rc == 0) rc = assign_all(lc, 0, err);
   free(next);
-  ts_l1_set_free(&parts);
   return rc;
 }
 
@@ -356,6 +468,16 @@ static uint32_t keep_used(const lbg_class *lc, uint8_t *all, uint32_t *sizes) {
 }
 
 static void class_free(lbg_class *lc) {
+  free(lc->kept);
+  lc->kept = NULL;
+  free(lc->ub);
+  free(lc->shift);
+  free(lc->sep);
+  free(lc->list);
+  free(lc->gather);
+  lc->ub = lc->shift = lc->sep = NULL;
+  lc->list = NULL;
+  lc->gather = NULL;
   free(lc->vecs);
   free(lc->cent);
   free(lc->near);
@@ -380,9 +502,17 @@ static int build_class(lbg_class *lc, ts_lbg_codebook *cb, const ts_anchors *a, 
   lc->order = malloc(sizeof(uint32_t) * lc->n);
   lc->was = malloc(sizeof(uint32_t) * lc->n);
   lc->changed = malloc(lc->k);
+  lc->ub = malloc(sizeof(uint64_t) * lc->n);
+  lc->shift = malloc(sizeof(uint64_t) * lc->k);
+  lc->sep = malloc(sizeof(uint64_t) * lc->k);
+  lc->list = malloc(sizeof(uint32_t) * lc->n);
+  lc->gather = malloc((size_t)GATHER_CHUNK * lc->vbytes);
+  uint64_t kept = (uint64_t)lc->k * lc->vbytes * 256 * sizeof(uint32_t);
+  lc->kept = kept <= KEPT_HIST_BUDGET ? calloc((size_t)kept, 1) : NULL; /* NULL: counted each time */
   int rc = 0;
   if (lc->vecs == NULL || lc->cent == NULL || lc->near == NULL || lc->start == NULL || lc->order == NULL ||
-      lc->was == NULL || lc->changed == NULL)
+      lc->was == NULL || lc->changed == NULL || lc->ub == NULL || lc->shift == NULL || lc->sep == NULL ||
+      lc->list == NULL || lc->gather == NULL)
     rc = ts_error(err, TS_ENOMEM, "out of memory for the %u vectors of class %d", lc->n, c);
   if (rc == 0) {
     class_vectors(lc, a, ref, c);
@@ -435,10 +565,13 @@ int ts_lbg_build(ts_lbg_codebook *cb, const ts_window *win, const ts_anchors *a,
   for (int c = 0; c < a->nclass; c++) most += a->count[c] < p->partitions ? a->count[c] : p->partitions;
   lbg_class lc = {.win = win, .pool = pool, .simd = simd, .vbytes = cb->vbytes, .nthreads = pool ? ts_pool_size(pool) : 1};
   part_runs(&lc);
+  if (ts_l1_set_init(&lc.parts, 0, win->nchunks) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
+  int rc = ts_window_weigh(win, &lc.parts, err);
+  if (rc != 0) return rc;
   cb->own = malloc(most * cb->vbytes + 1);
   uint32_t *sizes = malloc(sizeof(uint32_t) * most + 1);
   lc.hist = malloc((size_t)lc.nthreads * cb->vbytes * 256 * sizeof(uint32_t));
-  int rc = cb->own && sizes && lc.hist ? 0 : ts_error(err, TS_ENOMEM, "out of memory for a codebook");
+  rc = cb->own && sizes && lc.hist ? 0 : ts_error(err, TS_ENOMEM, "out of memory for a codebook");
   for (int c = 0; rc == 0 && c < a->nclass; c++) {
     rc = build_class(&lc, cb, a, ref, p, c, sizes, rep, err);
     cb->first[c + 1] = cb->first[c] + cb->npart[c];
@@ -446,6 +579,7 @@ int ts_lbg_build(ts_lbg_codebook *cb, const ts_window *win, const ts_anchors *a,
   if (rc == 0) size_figures(rep, sizes, cb->first[a->nclass]);
   free(sizes);
   free(lc.hist);
+  ts_l1_set_free(&lc.parts);
   if (rc != 0) ts_lbg_free(cb);
   cb->cent = cb->own;
   rep->seconds = ts_now() - t0;
