@@ -5,6 +5,7 @@
  * ones; and the two-stage search, lossy and exact, over sets with
  * classes, a validity plane, masked queries, usage penalties and ties,
  * whole and in three slices sent through the wire format. */
+#include <math.h>
 #include <stdlib.h>
 
 #include "anchors.h"
@@ -144,6 +145,86 @@ static void build(const fset *f, ts_lbg_codebook *cb, uint32_t p, uint32_t probe
 
 /* ---- the codebook --------------------------------------------------------- */
 
+static int byte_cmp(const void *a, const void *b) { return *(const uint8_t *)a - *(const uint8_t *)b; }
+
+/* LBG as lbg.h states it, in plain loops: seeds drawn like the build's,
+ * every vector to its nearest centroid, each centroid to its members'
+ * lower median byte by byte (empty: stays), until the summed movement is
+ * 0 or changes by less than 2 %; then the centroids some vector is
+ * nearest to. Class c of f into cent (room for p), their count. */
+static uint32_t plain_lbg(const fset *f, int c, uint32_t p, uint64_t seed, uint8_t *cent, uint32_t *iters) {
+  uint32_t n = f->a.count[c], k = p < n ? p : n, vb = f->vb;
+  uint8_t *v = malloc((size_t)n * vb), *col = malloc(n), *next = malloc((size_t)k * vb), *all = malloc((size_t)k * vb);
+  uint32_t *idx = malloc(sizeof(uint32_t) * n), *near = malloc(sizeof(uint32_t) * n);
+  for (uint32_t i = 0; i < n; i++) vec_of(f, f->a.base[c] + i, v + (size_t)i * vb), idx[i] = i;
+  ts_rng rng;
+  ts_rng_seed(&rng, seed, (uint64_t)c);
+  for (uint32_t i = 0; i < k; i++) {
+    uint32_t j = i + ts_rng_below(&rng, n - i), t = idx[i];
+    idx[i] = idx[j], idx[j] = t;
+    memcpy(all + (size_t)i * vb, v + (size_t)idx[i] * vb, vb);
+  }
+  ts_lbg_codebook cb = {.npart = {k}, .first = {0, k}, .cent = all};
+  double before = 0;
+  int converged = 0;
+  for (*iters = 0; !converged && *iters < TS_LBG_MAX_ITER;) {
+    for (uint32_t i = 0; i < n; i++) near[i] = nearest_def(f, &cb, 0, v + (size_t)i * vb, NULL, NULL);
+    double moved = 0;
+    for (uint32_t j = 0; j < k; j++) {
+      uint32_t m = 0;
+      for (uint32_t b = 0; b < vb; b++) {
+        m = 0;
+        for (uint32_t i = 0; i < n; i++)
+          if (near[i] == j) col[m++] = v[(size_t)i * vb + b];
+        qsort(col, m, 1, byte_cmp);
+        next[(size_t)j * vb + b] = m ? col[(m - 1) / 2] : all[(size_t)j * vb + b];
+      }
+      moved += (double)dist_def(f, all + (size_t)j * vb, next + (size_t)j * vb, NULL);
+    }
+    memcpy(all, next, (size_t)k * vb);
+    ++*iters;
+    converged = moved == 0 || (*iters > 1 && fabs(moved - before) < 0.02 * before);
+    before = moved;
+  }
+  uint32_t kept = 0;
+  for (uint32_t j = 0; j < k; j++) {
+    int used = 0;
+    for (uint32_t i = 0; i < n && !used; i++) used = nearest_def(f, &cb, 0, v + (size_t)i * vb, NULL, NULL) == j;
+    if (used) memcpy(cent + (size_t)kept++ * vb, all + (size_t)j * vb, vb);
+  }
+  free(v), free(col), free(next), free(all), free(idx), free(near);
+  return kept;
+}
+
+/* The build (bounds that skip scans, histograms kept between iterations,
+ * threads) makes exactly the codebook of plain LBG. */
+static void codebook_is_plain_lbg(void **state) {
+  (void)state;
+  fset f;
+  set_up(&f, 23, 1);
+  ts_pool *pool;
+  assert_int_equal(ts_pool_create(&pool, 2), 0);
+  for (int t = 0; t < 2; t++) {
+    uint32_t p = t ? 20 : 7;
+    ts_lbg_codebook cb;
+    ts_lbg_report rep;
+    build(&f, &cb, p, 1, 0, 5 + (uint64_t)t, pool, &rep);
+    uint32_t most = 0;
+    for (int c = 0; c < NCLASS; c++) {
+      uint8_t *want = malloc((size_t)p * f.vb);
+      uint32_t iters, kept = plain_lbg(&f, c, p, 5 + (uint64_t)t, want, &iters);
+      assert_int_equal(cb.npart[c], kept);
+      assert_memory_equal(cb.cent + (size_t)cb.first[c] * f.vb, want, (size_t)kept * f.vb);
+      most = iters > most ? iters : most;
+      free(want);
+    }
+    assert_int_equal(rep.iterations, most);
+    ts_lbg_free(&cb);
+  }
+  ts_pool_destroy(pool);
+  tear_down(&f);
+}
+
 /* The build converges on clustered data, gives the same codebook on 1 or
  * 3 threads, keeps only centroids some vector is nearest to, and reports
  * partition sizes that add up to the set. */
@@ -194,7 +275,6 @@ static void lbg_converges_and_is_deterministic(void **state) {
   tear_down(&f);
 }
 
-static int byte_cmp(const void *a, const void *b) { return *(const uint8_t *)a - *(const uint8_t *)b; }
 
 /* One partition: its centroid is the lower median of all the vectors,
  * byte by byte (the seeds move there, then stay: converged). */
@@ -541,6 +621,7 @@ static void bad_codebooks_are_refused(void **state) {
 static const struct CMUnitTest tests[] = {
     cmocka_unit_test(lbg_converges_and_is_deterministic),
     cmocka_unit_test(one_partition_is_the_median),
+    cmocka_unit_test(codebook_is_plain_lbg),
     cmocka_unit_test(assignment_and_order_match_brute_force),
     cmocka_unit_test(bound_is_strict),
     cmocka_unit_test(exact_pruning_matches_brute_force),
