@@ -563,7 +563,8 @@ int ts_lbg_build(ts_lbg_codebook *cb, const ts_window *win, const ts_anchors *a,
   cb->nclass = a->nclass;
   uint64_t most = 0; /* centroids at most, over all classes */
   for (int c = 0; c < a->nclass; c++) most += a->count[c] < p->partitions ? a->count[c] : p->partitions;
-  lbg_class lc = {.win = win, .pool = pool, .simd = simd, .vbytes = cb->vbytes, .nthreads = pool ? ts_pool_size(pool) : 1};
+  lbg_class lc = {.win = win, .pool = pool, .simd = simd, .vbytes = cb->vbytes,
+                  .nthreads = pool ? ts_pool_size(pool) : 1};
   part_runs(&lc);
   if (ts_l1_set_init(&lc.parts, 0, win->nchunks) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
   int rc = ts_window_weigh(win, &lc.parts, err);

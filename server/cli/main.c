@@ -163,7 +163,10 @@ static int synth_option(synth_opts *o, int c, const char *arg, char *err) {
   case OPT_STOP: rc = ts_arg_long("--stop-level", arg, -1000, 1000, &v, err); p->stop_level = (int)v; break;
   case OPT_REFINE: rc = ts_arg_long("--refine", arg, -1000, 1000, &v, err); p->refine = (int)v; break;
   case OPT_LBG: rc = ts_arg_long("--lbg", arg, 0, TS_LBG_MAX_PARTITIONS, &v, err); p->lbg = (int)v; break;
-  case OPT_LBG_PROBE: rc = ts_arg_long("--lbg-probe", arg, 1, TS_LBG_MAX_PARTITIONS, &v, err); p->lbg_probe = (int)v; break;
+  case OPT_LBG_PROBE:
+    rc = ts_arg_long("--lbg-probe", arg, 1, TS_LBG_MAX_PARTITIONS, &v, err);
+    p->lbg_probe = (int)v;
+    break;
   case OPT_LBG_EXACT: p->lbg_exact = 1; break;
   case OPT_LBG_LEVELS:
     if (ts_mrf_lbg_levels_parse(arg, &p->lbg_levels) != 0)

@@ -61,7 +61,8 @@ static void set_up(fset *f, uint64_t seed, int labelled) {
   ts_window_spec *s = &f->spec;
   s->nplanes[TS_SRC_FINE] = 3, s->nplanes[TS_SRC_COARSE] = 1;
   s->noff[TS_SRC_FINE] = 9, s->noff[TS_SRC_COARSE] = 4;
-  s->dx[TS_SRC_FINE] = f->fdx, s->dy[TS_SRC_FINE] = f->fdy, s->dx[TS_SRC_COARSE] = f->cdx, s->dy[TS_SRC_COARSE] = f->cdy;
+  s->dx[TS_SRC_FINE] = f->fdx, s->dy[TS_SRC_FINE] = f->fdy;
+  s->dx[TS_SRC_COARSE] = f->cdx, s->dy[TS_SRC_COARSE] = f->cdy;
   s->extent[TS_SRC_FINE] = (ts_box){-1, -1, 2, 2};
   s->extent[TS_SRC_COARSE] = (ts_box){0, 0, 2, 2};
   s->centre = 1, s->block = 1, s->nparts = 4; /* usage: the anchor pixel, inside every slice's rows */
@@ -431,7 +432,8 @@ static ts_l1_best best_def(const fset *f, const batch *b, int i, const ts_usage 
 static void count_copies(ts_usage *u, uint64_t seed) {
   ts_rng rng;
   ts_rng_seed(&rng, seed, 9);
-  for (int i = 0; i < 150; i++) ts_usage_commit(u, (int)ts_rng_below(&rng, W - 3), (int)ts_rng_below(&rng, H - 3), 3, 3, 1);
+  for (int i = 0; i < 150; i++)
+    ts_usage_commit(u, (int)ts_rng_below(&rng, W - 3), (int)ts_rng_below(&rng, H - 3), 3, 3, 1);
 }
 
 /* Slice k of n of the partitioned set (with u's usage counters when u is
