@@ -51,7 +51,12 @@
 #include "window.h"
 
 #define TS_LBG_MAX_PARTITIONS 65536 /* per class */
-#define TS_LBG_MAX_ITER 30          /* default iteration limit */
+/* Default iteration limit. On the Table 3.3 job's level 0 (63504 vectors
+ * a parity class, 256 partitions) the movement rule had not stopped by 30
+ * iterations (the movement wavers by 5-10 % from one to the next), while
+ * the summed distortion was within 0.6 % of its 24th iteration's by the
+ * 12th; an iteration costs about 1 % of the level's exhaustive search. */
+#define TS_LBG_MAX_ITER 12
 
 enum { TS_LBG_OFF = 0, TS_LBG_PROBE = 1, TS_LBG_EXACT = 2 };
 
