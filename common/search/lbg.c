@@ -19,10 +19,7 @@
 /* Vectors the kernel takes per call in an assignment: a batch whose
  * lane states stay in cache. */
 #define ASSIGN_CHUNK 256
-/* Bytes a class's centroids may keep their members' histograms in (P x
- * vector bytes x 1 KB: 18 MB for 256 partitions of 72-byte vectors);
- * above, each changed cluster counts its members again. */
-#define KEPT_HIST_BUDGET (64u << 20)
+
 
 void ts_lbg_free(ts_lbg_codebook *cb) {
   free(cb->own);
@@ -195,7 +192,6 @@ typedef struct {
   uint32_t run[2 * TS_L1_MAX_PARTS];
   uint8_t *changed;  /* per centroid: its members changed (its median must be taken again) */
   uint32_t *hist;   /* per thread: vbytes x 256 */
-  uint32_t *kept;   /* per centroid: its members' histograms (vbytes x 256), kept up to date; NULL: over budget */
   int nthreads;
   ts_l1_set parts;  /* no vectors: the window's weighted parts, for weighted() */
 } lbg_class;
@@ -241,22 +237,8 @@ static int scan_all(lbg_class *lc, char *err) {
   return 0;
 }
 
-/* Vector i's bytes move from centroid from's histograms (UINT32_MAX:
- * none) to to's. */
-static void move_counts(lbg_class *lc, uint32_t i, uint32_t from, uint32_t to) {
-  const uint8_t *v = lc->vecs + (size_t)i * lc->vbytes;
-  size_t per = (size_t)lc->vbytes * 256;
-  uint32_t *hf = from != UINT32_MAX ? lc->kept + from * per : NULL, *ht = lc->kept + to * per;
-  for (uint32_t r = 0; r < lc->nruns; r++)
-    for (uint32_t b = lc->run[2 * r]; b < lc->run[2 * r + 1]; b++) {
-      if (hf != NULL) hf[b * 256 + v[b]]--;
-      ht[b * 256 + v[b]]++;
-    }
-}
-
 /* Members grouped by centroid (a counting sort, ranks ascending within a
- * centroid), and the centroids whose members changed; their histograms
- * follow the moves. */
+ * centroid), and the centroids whose members changed. */
 static int group_members(lbg_class *lc, char *err) {
   memset(lc->start, 0, sizeof(uint32_t) * (lc->k + 1));
   for (uint32_t i = 0; i < lc->n; i++) lc->start[lc->near[i].index + 1]++;
@@ -274,7 +256,6 @@ static int group_members(lbg_class *lc, char *err) {
     uint32_t k = lc->near[i].index;
     if (k == lc->was[i]) continue;
     lc->changed[k] = 1;
-    if (lc->kept != NULL) move_counts(lc, i, lc->was[i], k);
     if (lc->was[i] != UINT32_MAX) lc->changed[lc->was[i]] = 1;
     lc->was[i] = k;
   }
@@ -287,21 +268,17 @@ static int assign_all(lbg_class *lc, char *err) {
 }
 
 /* The lower median, byte by byte, of centroid i's members into out, from
- * 256 counters per byte: the centroid's kept histograms, or (over the
- * budget) hist filled from its members. The scattered increments are most
- * of a build's time when every member is counted: that is why the
- * histograms are kept, and moved vector by vector. */
+ * 256 counters per byte (a thread's histograms: in cache, unlike
+ * histograms kept per centroid and moved with each vector that changes
+ * cluster, which on the Table 3.3 job cost more in cache misses than
+ * counting again). */
 static void median_of(const lbg_class *lc, uint32_t i, uint32_t *hist, uint8_t *out) {
   uint32_t vb = lc->vbytes, s0 = lc->start[i], n = lc->start[i + 1] - s0;
-  if (lc->kept != NULL) {
-    hist = lc->kept + (size_t)i * vb * 256;
-  } else {
-    memset(hist, 0, sizeof(uint32_t) * 256 * vb);
-    for (uint32_t m = s0; m < s0 + n; m++) {
-      const uint8_t *v = lc->vecs + (size_t)lc->order[m] * vb;
-      for (uint32_t r = 0; r < lc->nruns; r++)
-        for (uint32_t b = lc->run[2 * r]; b < lc->run[2 * r + 1]; b++) hist[b * 256 + v[b]]++;
-    }
+  memset(hist, 0, sizeof(uint32_t) * 256 * vb);
+  for (uint32_t m = s0; m < s0 + n; m++) {
+    const uint8_t *v = lc->vecs + (size_t)lc->order[m] * vb;
+    for (uint32_t r = 0; r < lc->nruns; r++)
+      for (uint32_t b = lc->run[2 * r]; b < lc->run[2 * r + 1]; b++) hist[b * 256 + v[b]]++;
   }
   uint32_t rank = (n - 1) / 2; /* the lower median's */
   memset(out, 0, vb); /* padding */
@@ -393,8 +370,6 @@ static uint32_t keep_used(const lbg_class *lc, uint8_t *all, uint32_t *sizes) {
 }
 
 static void class_free(lbg_class *lc) {
-  free(lc->kept);
-  lc->kept = NULL;
   free(lc->vecs);
   free(lc->cent);
   free(lc->near);
@@ -419,8 +394,6 @@ static int build_class(lbg_class *lc, ts_lbg_codebook *cb, const ts_anchors *a, 
   lc->order = malloc(sizeof(uint32_t) * lc->n);
   lc->was = malloc(sizeof(uint32_t) * lc->n);
   lc->changed = malloc(lc->k);
-  uint64_t kept = (uint64_t)lc->k * lc->vbytes * 256 * sizeof(uint32_t);
-  lc->kept = kept <= KEPT_HIST_BUDGET ? calloc((size_t)kept, 1) : NULL; /* NULL: counted each time */
   int rc = 0;
   if (lc->vecs == NULL || lc->cent == NULL || lc->near == NULL || lc->start == NULL || lc->order == NULL ||
       lc->was == NULL || lc->changed == NULL)
