@@ -651,12 +651,16 @@ static int open_image(engine *e, char *err) {
 }
 
 /* The partitioning of level l's set k (lossy search, §3.6.5), into *out,
- * or NULL: exhaustive search. Each set's codebook is drawn with a seed of
- * its own, a function of the job's. */
+ * or NULL: exhaustive search. Only the scan's set, the causal L the seed
+ * partitions, is: the full window's queries (where a window wraps onto
+ * placed blocks, and the sweeps) are few at the finest level, and
+ * exhaustive search answered them in a twentieth of the time its
+ * codebook took to build on the Table 3.3 job. The codebook is drawn with
+ * a seed of its own, a function of the job's. */
 static const ts_lbg_params *lbg_params(const ts_mrf_params *p, int l, int k, ts_lbg_params *out) {
-  if (p->lbg == 0 || !(p->lbg_levels >> l & 1)) return NULL;
+  if (p->lbg == 0 || !(p->lbg_levels >> l & 1) || k != SHAPE_PLAIN) return NULL;
   *out = (ts_lbg_params){(uint32_t)p->lbg, (uint32_t)p->lbg_probe, p->lbg_exact,
-                         p->seed + 0x9E3779B97F4A7C15ull * (uint64_t)(2 * l + k + 1), 0};
+                         p->seed + 0x9E3779B97F4A7C15ull * (uint64_t)(l + 1), 0};
   return out;
 }
 
@@ -708,14 +712,14 @@ static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, c
   if (rc == 0) rc = open_image(e, err);
   /* The backend's usage replicas start from the counters as they are now:
    * zero, or a resumed level's. */
-  ts_lbg_params lbg[2];
+  ts_lbg_params lbg;
   for (int k = 0; rc == 0 && k < 2; k++) {
     ts_refset rs = {e->image, &e->shape[k], &e->grid, &e->ref_lp, p->parity ? &e->parity : NULL, NULL,
-                    p->usage_weight > 0, &e->usage, 0, lbg_params(p, l, k, &lbg[k]), &e->res->lbg[l].set[k]};
+                    p->usage_weight > 0, &e->usage, 0, lbg_params(p, l, k, &lbg), &e->res->lbg[l].codebook};
     rc = ts_search_prepare(e->search, &rs, &e->set_ids[k], err);
   }
   if (rc == 0) rc = run_level(e, err);
-  if (rc == 0 && lbg_params(p, l, 0, &lbg[0]) != NULL) {
+  if (rc == 0 && lbg_params(p, l, SHAPE_PLAIN, &lbg) != NULL) {
     ts_mrf_lbg_stats *ls = &e->res->lbg[l];
     ls->on = 1;
     ls->pairs = e->search->stats.pairs - e->base.pairs;

@@ -62,20 +62,32 @@ int ts_write_usage_map(const char *path, const uint32_t *usage, int w, int h, ch
   return rc;
 }
 
+/* Whether level l was searched in partitions (a level below --stop-level
+ * never runs). */
+static int lbg_ran(const ts_mrf_params *p, int l) {
+  return p->lbg > 0 && l >= p->stop_level && l < p->levels && (p->lbg_levels >> l & 1);
+}
+
+static int lbg_ran_any(const ts_mrf_params *p) {
+  int any = 0;
+  for (int l = 0; l < p->levels; l++) any |= lbg_ran(p, l);
+  return any;
+}
+
 const char *ts_mrf_search_mode(const ts_mrf_params *p) {
-  return p->lbg == 0 ? "exact" : p->lbg_exact ? "lbg-exact" : "lbg";
+  return !lbg_ran_any(p) ? "exact" : p->lbg_exact ? "lbg-exact" : "lbg";
 }
 
 /* The search: its mode, "lbg" among the lossy shortcuts when the search
  * was partitioned and not exact, and the partitioning's parameters. */
 static void report_search(FILE *f, const ts_mrf_params *p, int threads, const ts_search *search) {
-  int lossy = p->lbg > 0 && !p->lbg_exact;
+  int ran = lbg_ran_any(p), lossy = ran && !p->lbg_exact;
   fprintf(f, "  \"search\": {\"mode\": \"%s\", \"lossy\": [%s], ", ts_mrf_search_mode(p), lossy ? "\"lbg\"" : "");
-  if (p->lbg > 0) {
+  if (ran) {
     fprintf(f, "\"lbg\": {\"partitions\": %d, \"probe\": %d, \"exact\": %s, \"levels\": [", p->lbg, p->lbg_probe,
             p->lbg_exact ? "true" : "false");
     for (int l = 0, n = 0; l < p->levels; l++)
-      if (p->lbg_levels >> l & 1) fprintf(f, "%s%d", n++ ? ", " : "", l);
+      if (lbg_ran(p, l)) fprintf(f, "%s%d", n++ ? ", " : "", l);
     fprintf(f, "]}, ");
   }
   fprintf(f, "\"backend\": \"%s\", \"simd\": \"%s\", \"threads\": %d},\n", search->ops->name, search->simd->name,
@@ -83,19 +95,14 @@ static void report_search(FILE *f, const ts_mrf_params *p, int threads, const ts
 }
 
 /* A partitioned level: the share of the reference vectors its queries
- * compared, and each set's codebook (the causal L's, the full window's). */
+ * compared (the full window's, exhaustive, included), and the codebook of
+ * its scan's set (the causal L). */
 static void report_lbg_level(FILE *f, const ts_mrf_lbg_stats *s) {
-  static const char *const window[2] = {"causal", "full"};
-  fprintf(f, ", \"lbg\": {\"scanned_fraction\": %.6f, \"codebooks\": [",
-          s->full_pairs ? (double)s->pairs / (double)s->full_pairs : 0.0);
-  for (int k = 0; k < 2; k++) {
-    const ts_lbg_report *r = &s->set[k];
-    fprintf(f, "%s{\"window\": \"%s\", \"partitions\": %u, \"iterations\": %u, \"converged\": %s, "
-               "\"seconds\": %.4f, \"sizes\": {\"min\": %u, \"median\": %u, \"max\": %u}}",
-            k ? ", " : "", window[k], r->partitions, r->iterations, r->converged ? "true" : "false", r->seconds,
-            r->size_min, r->size_median, r->size_max);
-  }
-  fprintf(f, "]}");
+  const ts_lbg_report *r = &s->codebook;
+  fprintf(f, ", \"lbg\": {\"scanned_fraction\": %.6f, \"partitions\": %u, \"iterations\": %u, "
+             "\"converged\": %s, \"seconds\": %.4f, \"sizes\": {\"min\": %u, \"median\": %u, \"max\": %u}}",
+          s->full_pairs ? (double)s->pairs / (double)s->full_pairs : 0.0, r->partitions, r->iterations,
+          r->converged ? "true" : "false", r->seconds, r->size_min, r->size_median, r->size_max);
 }
 
 int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const ts_search *search,
@@ -138,9 +145,11 @@ int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const
 /* The lossy search in words, or "" for an exact one. */
 static void search_note(const ts_mrf_params *p, char *buf, size_t cap) {
   buf[0] = '\0';
-  if (p->lbg == 0 || p->lbg_exact) return;
+  if (!lbg_ran_any(p) || p->lbg_exact) return;
+  uint32_t ran = 0;
+  for (int l = 0; l < p->levels; l++) ran |= (uint32_t)lbg_ran(p, l) << l;
   char levels[64];
-  ts_mrf_lbg_levels_format(p->lbg_levels, levels, sizeof(levels));
+  ts_mrf_lbg_levels_format(ran, levels, sizeof(levels));
   snprintf(buf, cap, "lossy LBG search (seed 002 3.6.5): partitions=%d probe=%d levels=%s", p->lbg, p->lbg_probe,
            levels);
 }

@@ -19,7 +19,8 @@ int ts_write_copy_map_raw(const char *path, const uint32_t *map, int w, int h, c
 int ts_write_usage_map(const char *path, const uint32_t *usage, int w, int h, char *err);
 int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const ts_search *search,
                     const ts_mrf_result *res, char *err);
-/* The search mode the report names: "exact", "lbg" or "lbg-exact". */
+/* The search mode the report names: "exact", or "lbg" or "lbg-exact" when
+ * some level that ran was partitioned. */
 const char *ts_mrf_search_mode(const ts_mrf_params *p);
 /* The output image with the reference's metadata; a lossy search is noted
  * in it too (TS_META_SEARCH, and a line of ImageDescription), so the file
