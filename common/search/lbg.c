@@ -20,7 +20,6 @@
  * lane states stay in cache. */
 #define ASSIGN_CHUNK 256
 
-
 void ts_lbg_free(ts_lbg_codebook *cb) {
   free(cb->own);
   memset(cb, 0, sizeof(*cb));
@@ -249,8 +248,7 @@ static int group_members(lbg_class *lc, char *err) {
   for (uint32_t i = 0; i < lc->n; i++) lc->order[fill[lc->near[i].index]++] = i;
   free(fill);
   /* A centroid whose members are those it had keeps its median: only the
-   * clusters a vector left or joined are taken again (in late iterations
-   * few are). */
+   * clusters a vector left or joined are taken again. */
   memset(lc->changed, 0, lc->k);
   for (uint32_t i = 0; i < lc->n; i++) {
     uint32_t k = lc->near[i].index;
