@@ -65,14 +65,13 @@ typedef struct {
   uint32_t vectors; /* reference vectors at this level */
 } ts_mrf_level_stats;
 
-/* A level searched in partitions (ts_mrf_params.lbg): the codebook of its
- * scan's set (the causal L; the full window's queries stay exhaustive),
- * and the reference vectors all its queries compared against what
- * exhaustive search would have compared (of this run, when it resumed
- * inside the level). */
+/* A level searched in partitions (ts_mrf_params.lbg): the codebooks of
+ * its two sets (the causal L's, the full window's), and the reference
+ * vectors compared against what exhaustive search would have compared (of
+ * this run, when it resumed inside the level). */
 typedef struct {
   int on;
-  ts_lbg_report codebook;
+  ts_lbg_report set[2];
   uint64_t pairs, full_pairs;
 } ts_mrf_lbg_stats;
 

@@ -95,14 +95,19 @@ static void report_search(FILE *f, const ts_mrf_params *p, int threads, const ts
 }
 
 /* A partitioned level: the share of the reference vectors its queries
- * compared (the full window's, exhaustive, included), and the codebook of
- * its scan's set (the causal L). */
+ * compared, and each set's codebook (the causal L's, the full window's). */
 static void report_lbg_level(FILE *f, const ts_mrf_lbg_stats *s) {
-  const ts_lbg_report *r = &s->codebook;
-  fprintf(f, ", \"lbg\": {\"scanned_fraction\": %.6f, \"partitions\": %u, \"iterations\": %u, "
-             "\"converged\": %s, \"seconds\": %.4f, \"sizes\": {\"min\": %u, \"median\": %u, \"max\": %u}}",
-          s->full_pairs ? (double)s->pairs / (double)s->full_pairs : 0.0, r->partitions, r->iterations,
-          r->converged ? "true" : "false", r->seconds, r->size_min, r->size_median, r->size_max);
+  static const char *const window[2] = {"causal", "full"};
+  fprintf(f, ", \"lbg\": {\"scanned_fraction\": %.6f, \"codebooks\": [",
+          s->full_pairs ? (double)s->pairs / (double)s->full_pairs : 0.0);
+  for (int k = 0; k < 2; k++) {
+    const ts_lbg_report *r = &s->set[k];
+    fprintf(f, "%s{\"window\": \"%s\", \"partitions\": %u, \"iterations\": %u, \"converged\": %s, "
+               "\"seconds\": %.4f, \"sizes\": {\"min\": %u, \"median\": %u, \"max\": %u}}",
+            k ? ", " : "", window[k], r->partitions, r->iterations, r->converged ? "true" : "false", r->seconds,
+            r->size_min, r->size_median, r->size_max);
+  }
+  fprintf(f, "]}");
 }
 
 int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const ts_search *search,
