@@ -650,17 +650,65 @@ static int open_image(engine *e, char *err) {
   return ts_search_image_open(e->search, &d, &e->image, err);
 }
 
-/* The partitioning of level l's set k (lossy search, §3.6.5), into *out,
- * or NULL: exhaustive search. Both sets of a level are partitioned, the
- * scan's causal L (which the seed partitions) and the full window (where
- * a window wraps onto placed blocks, and the sweeps): on the Table 3.3
- * job with 64 partitions, leaving the full window's queries exhaustive
- * made level 0 faster by 0.1 s with the scan alone but slower by 0.18 s
- * with the default sweeps of the seam band, and on coarser levels every
- * sweep is the full window's. Each codebook is drawn with a seed of its
- * own, a function of the job's. */
-static const ts_lbg_params *lbg_params(const ts_mrf_params *p, int l, int k, ts_lbg_params *out) {
-  if (p->lbg == 0 || !(p->lbg_levels >> l & 1)) return NULL;
+/* The queries plan pl of a w x h level makes of each set: a sweep's
+ * blocks all search the full window; a scan block the causal L unless it
+ * is clipped or its window wraps past the last row or column
+ * (masked_query: where it may meet the first ones, placed). */
+static void plan_queries(const level_plan *pl, const ts_mrf_params *p, int w, int h, uint64_t q[2]) {
+  int wb = p->wb, hn = (p->wn - wb) / 2;
+  q[SHAPE_PLAIN] = q[SHAPE_MASKED] = 0;
+  for (int i = 0; i < pl->n; i++) {
+    const level_phase *ph = &pl->phase[i];
+    for (uint32_t j = 0; j < ph->sched.nblocks; j++) {
+      const ts_block *b = &ph->sched.blocks[j];
+      int plain = !ph->refine && b->w == wb && b->h == wb && b->x + wb + hn <= w && b->y + wb + hn <= h;
+      q[plain ? SHAPE_PLAIN : SHAPE_MASKED] += (uint64_t)ph->reps;
+    }
+  }
+}
+
+/* A codebook pays when its set is queried more than this many times per
+ * partition and iteration: building it compares every vector with every
+ * centroid once an iteration and takes the medians, which cost about as
+ * much as this many exhaustive queries (measured on the Table 3.3 job:
+ * 64 partitions of each parity class, 12 iterations, 0.40 s for the full
+ * window's codebook against 61 us a query of it). */
+#define LBG_QUERIES_PER_PARTITION_ITERATION 2
+
+/* Which sets of the chosen levels are partitioned (lossy search, §3.6.5):
+ * those queried often enough for their codebook to pay (the seed: "it is
+ * worthwhile only when the codebook is used often") - on the Table 3.3
+ * job the scan's causal L always, the full window's (windows wrapping
+ * onto placed blocks, the sweeps) with 64 partitions and the default
+ * sweeps, not with 256 or with the scan alone. Decided from the levels'
+ * plans before synthesis starts, a function of the parameters alone, so
+ * that a run resumed past a level knows it too: the report and the
+ * image's metadata say what ran whatever the run's history. (P partitions
+ * of every class: fewer when a class has fewer vectors, which only errs
+ * towards exhaustive search.) */
+static int lbg_decide(engine *e) {
+  const ts_mrf_params *p = e->p;
+  uint64_t parts = (uint64_t)p->lbg * (p->parity ? 4 : 1);
+  for (int l = p->stop_level; l < p->levels && p->lbg > 0; l++) {
+    if (!(p->lbg_levels >> l & 1)) continue;
+    level_plan pl;
+    if (plan_level(&pl, p, l, e->cw[l], e->ch[l]) != 0) return TS_ENOMEM;
+    ts_mrf_lbg_stats *ls = &e->res->lbg[l];
+    plan_queries(&pl, p, e->cw[l], e->ch[l], ls->queries);
+    plan_free(&pl);
+    for (int k = 0; k < 2; k++) {
+      ls->partitioned[k] = ls->queries[k] > LBG_QUERIES_PER_PARTITION_ITERATION * TS_LBG_MAX_ITER * parts;
+      ls->on |= ls->partitioned[k];
+    }
+  }
+  return 0;
+}
+
+/* Level l's set k's partitioning into *out, or NULL: exhaustive search.
+ * Each codebook is drawn with a seed of its own, a function of the job's. */
+static const ts_lbg_params *lbg_params(const engine *e, int l, int k, ts_lbg_params *out) {
+  const ts_mrf_params *p = e->p;
+  if (!e->res->lbg[l].partitioned[k]) return NULL;
   *out = (ts_lbg_params){(uint32_t)p->lbg, (uint32_t)p->lbg_probe, p->lbg_exact,
                          p->seed + 0x9E3779B97F4A7C15ull * (uint64_t)(2 * l + k + 1), 0};
   return out;
@@ -715,15 +763,15 @@ static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, c
   /* The backend's usage replicas start from the counters as they are now:
    * zero, or a resumed level's. */
   ts_lbg_params lbg;
+  ts_mrf_lbg_stats *ls = &e->res->lbg[l];
   for (int k = 0; rc == 0 && k < 2; k++) {
     ts_refset rs = {e->image, &e->shape[k], &e->grid, &e->ref_lp, p->parity ? &e->parity : NULL, NULL,
-                    p->usage_weight > 0, &e->usage, 0, lbg_params(p, l, k, &lbg), &e->res->lbg[l].set[k]};
+                    p->usage_weight > 0, &e->usage, 0, lbg_params(e, l, k, &lbg), &ls->set[k]};
     rc = ts_search_prepare(e->search, &rs, &e->set_ids[k], err);
   }
   if (rc == 0) rc = run_level(e, err);
-  if (rc == 0 && lbg_params(p, l, SHAPE_PLAIN, &lbg) != NULL) {
-    ts_mrf_lbg_stats *ls = &e->res->lbg[l];
-    ls->on = 1;
+  if (rc == 0 && ls->on) {
+    ls->ran = 1;
     ls->pairs = e->search->stats.pairs - e->base.pairs;
     ls->full_pairs = e->search->stats.full_pairs - e->base.full_pairs;
   }
@@ -945,6 +993,7 @@ int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *se
     e.prog.work_total += (double)level_blocks(p, l, e.cw[l], e.ch[l]) * level_cost(l);
   int rc = build_reference(&e, ref);
   if (rc != 0) rc = ts_error(err, rc, "cannot build the reference pyramid: %s", ts_strerror(rc));
+  if (rc == 0 && (rc = lbg_decide(&e)) != 0) ts_error(err, rc, "out of memory");
   int first = p->levels - 1;
   const ts_mrf_checkpoint *inside = NULL;
   if (rc == 0 && e.hooks->resume) rc = take_resume(&e, &first, &inside, err);

@@ -65,12 +65,18 @@ typedef struct {
   uint32_t vectors; /* reference vectors at this level */
 } ts_mrf_level_stats;
 
-/* A level searched in partitions (ts_mrf_params.lbg): the codebooks of
- * its two sets (the causal L's, the full window's), and the reference
- * vectors compared against what exhaustive search would have compared (of
- * this run, when it resumed inside the level). */
+/* A chosen level of a partitioned search (ts_mrf_params.lbg): the
+ * queries its plan makes of each of its two sets (the causal L's, the
+ * full window's) and whether each is partitioned or, queried too seldom
+ * for a codebook to pay, searched exhaustively (decided before synthesis,
+ * from the parameters: on = either); and if this run synthesised the
+ * level (ran), each partitioned set's codebook and the reference vectors
+ * compared against what exhaustive search would have compared (of this
+ * run, when it resumed inside the level). */
 typedef struct {
-  int on;
+  int on, ran;
+  int partitioned[2];
+  uint64_t queries[2];
   ts_lbg_report set[2];
   uint64_t pairs, full_pairs;
 } ts_mrf_lbg_stats;

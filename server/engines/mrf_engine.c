@@ -246,7 +246,7 @@ static int mrf_write_output(const ts_engine_run *r, int k, const char *path, int
   const ts_mrf_result *res = &r->res;
   int w = res->image.width, h = res->image.height;
   switch (k) {
-  case OUT_IMAGE: return ts_write_synth_image(path, &res->image, r->ref, r->p, err);
+  case OUT_IMAGE: return ts_write_synth_image(path, res, r->ref, r->p, err);
   case OUT_COPY_MAP: return ts_write_copy_map_image(path, res->copy_map, w, h, res->ref_w, res->ref_h, err);
   case OUT_COPY_MAP_RAW: return ts_write_copy_map_raw(path, res->copy_map, w, h, err);
   case OUT_USAGE_MAP: return ts_write_usage_map(path, res->usage, res->ref_w, res->ref_h, err);

@@ -62,50 +62,56 @@ int ts_write_usage_map(const char *path, const uint32_t *usage, int w, int h, ch
   return rc;
 }
 
-/* Whether level l was searched in partitions (a level below --stop-level
- * never runs). */
-static int lbg_ran(const ts_mrf_params *p, int l) {
-  return p->lbg > 0 && l >= p->stop_level && l < p->levels && (p->lbg_levels >> l & 1);
+/* The levels some of whose queries were searched in partitions (bit l). */
+static uint32_t lbg_levels_ran(const ts_mrf_params *p, const ts_mrf_result *res) {
+  uint32_t ran = 0;
+  for (int l = 0; l < p->levels; l++) ran |= (uint32_t)(res->lbg[l].on != 0) << l;
+  return ran;
 }
 
-static int lbg_ran_any(const ts_mrf_params *p) {
-  int any = 0;
-  for (int l = 0; l < p->levels; l++) any |= lbg_ran(p, l);
-  return any;
+const char *ts_mrf_search_mode(const ts_mrf_params *p, const ts_mrf_result *res) {
+  return lbg_levels_ran(p, res) == 0 ? "exact" : p->lbg_exact ? "lbg-exact" : "lbg";
 }
 
-const char *ts_mrf_search_mode(const ts_mrf_params *p) {
-  return !lbg_ran_any(p) ? "exact" : p->lbg_exact ? "lbg-exact" : "lbg";
-}
-
-/* The search: its mode, "lbg" among the lossy shortcuts when the search
+/* The search: its mode, "lbg" among the lossy shortcuts when some of it
  * was partitioned and not exact, and the partitioning's parameters. */
-static void report_search(FILE *f, const ts_mrf_params *p, int threads, const ts_search *search) {
-  int ran = lbg_ran_any(p), lossy = ran && !p->lbg_exact;
-  fprintf(f, "  \"search\": {\"mode\": \"%s\", \"lossy\": [%s], ", ts_mrf_search_mode(p), lossy ? "\"lbg\"" : "");
-  if (ran) {
+static void report_search(FILE *f, const ts_mrf_params *p, const ts_mrf_result *res, int threads,
+                          const ts_search *search) {
+  uint32_t ran = lbg_levels_ran(p, res);
+  int lossy = ran != 0 && !p->lbg_exact;
+  fprintf(f, "  \"search\": {\"mode\": \"%s\", \"lossy\": [%s], ", ts_mrf_search_mode(p, res),
+          lossy ? "\"lbg\"" : "");
+  if (ran != 0) {
     fprintf(f, "\"lbg\": {\"partitions\": %d, \"probe\": %d, \"exact\": %s, \"levels\": [", p->lbg, p->lbg_probe,
             p->lbg_exact ? "true" : "false");
     for (int l = 0, n = 0; l < p->levels; l++)
-      if (lbg_ran(p, l)) fprintf(f, "%s%d", n++ ? ", " : "", l);
+      if (ran >> l & 1) fprintf(f, "%s%d", n++ ? ", " : "", l);
     fprintf(f, "]}, ");
   }
   fprintf(f, "\"backend\": \"%s\", \"simd\": \"%s\", \"threads\": %d},\n", search->ops->name, search->simd->name,
           threads);
 }
 
-/* A partitioned level: the share of the reference vectors its queries
- * compared, and each set's codebook (the causal L's, the full window's). */
+/* A partitioned level: per set (the causal L's, the full window's) the
+ * queries the level makes of it and whether it was partitioned - with,
+ * when this run built it, its codebook - and, when this run synthesised
+ * the level, the share of the reference vectors its queries compared. */
 static void report_lbg_level(FILE *f, const ts_mrf_lbg_stats *s) {
   static const char *const window[2] = {"causal", "full"};
-  fprintf(f, ", \"lbg\": {\"scanned_fraction\": %.6f, \"codebooks\": [",
-          s->full_pairs ? (double)s->pairs / (double)s->full_pairs : 0.0);
+  fprintf(f, ", \"lbg\": {");
+  if (s->ran)
+    fprintf(f, "\"scanned_fraction\": %.6f, ", s->full_pairs ? (double)s->pairs / (double)s->full_pairs : 0.0);
+  fprintf(f, "\"sets\": [");
   for (int k = 0; k < 2; k++) {
     const ts_lbg_report *r = &s->set[k];
-    fprintf(f, "%s{\"window\": \"%s\", \"partitions\": %u, \"iterations\": %u, \"converged\": %s, "
-               "\"seconds\": %.4f, \"sizes\": {\"min\": %u, \"median\": %u, \"max\": %u}}",
-            k ? ", " : "", window[k], r->partitions, r->iterations, r->converged ? "true" : "false", r->seconds,
-            r->size_min, r->size_median, r->size_max);
+    fprintf(f, "%s{\"window\": \"%s\", \"queries\": %llu, \"partitioned\": %s", k ? ", " : "", window[k],
+            (unsigned long long)s->queries[k], s->partitioned[k] ? "true" : "false");
+    if (s->partitioned[k] && s->ran)
+      fprintf(f, ", \"partitions\": %u, \"iterations\": %u, \"converged\": %s, \"seconds\": %.4f, "
+                 "\"sizes\": {\"min\": %u, \"median\": %u, \"max\": %u}",
+              r->partitions, r->iterations, r->converged ? "true" : "false", r->seconds, r->size_min,
+              r->size_median, r->size_max);
+    fprintf(f, "}");
   }
   fprintf(f, "]}");
 }
@@ -116,7 +122,7 @@ int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const
   FILE *f = ts_file_create(path, tmp, err);
   if (f == NULL) return TS_EIO;
   fprintf(f, "{\n  \"engine\": \"mrf\",\n");
-  report_search(f, p, threads, search);
+  report_search(f, p, res, threads, search);
   fprintf(f, "  \"params\": {\"width\": %d, \"height\": %d, \"levels\": %d, \"wn\": %d, \"wb\": %d, "
              "\"parity\": %s, \"usage_weight\": %g, \"coarse_weight\": %g, \"seed\": %llu, "
              "\"rgb_search\": %s, \"stop_level\": %d, \"refine\": %d},\n",
@@ -148,21 +154,21 @@ int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const
 }
 
 /* The lossy search in words, or "" for an exact one. */
-static void search_note(const ts_mrf_params *p, char *buf, size_t cap) {
+static void search_note(const ts_mrf_params *p, const ts_mrf_result *res, char *buf, size_t cap) {
   buf[0] = '\0';
-  if (!lbg_ran_any(p) || p->lbg_exact) return;
-  uint32_t ran = 0;
-  for (int l = 0; l < p->levels; l++) ran |= (uint32_t)lbg_ran(p, l) << l;
+  uint32_t ran = lbg_levels_ran(p, res);
+  if (ran == 0 || p->lbg_exact) return;
   char levels[64];
   ts_mrf_lbg_levels_format(ran, levels, sizeof(levels));
   snprintf(buf, cap, "lossy LBG search (seed 002 3.6.5): partitions=%d probe=%d levels=%s", p->lbg, p->lbg_probe,
            levels);
 }
 
-int ts_write_synth_image(const char *path, const ts_image *img, const ts_image *ref, const ts_mrf_params *p,
+int ts_write_synth_image(const char *path, const ts_mrf_result *res, const ts_image *ref, const ts_mrf_params *p,
                          char *err) {
+  const ts_image *img = &res->image;
   char note[160];
-  search_note(p, note, sizeof(note));
+  search_note(p, res, note, sizeof(note));
   if (note[0] == '\0') return ts_image_write(path, img, ref->meta, err);
   ts_image with = *ref; /* its metadata object is ref's, or a new one */
   char desc[1024] = "";

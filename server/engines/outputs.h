@@ -20,14 +20,15 @@ int ts_write_usage_map(const char *path, const uint32_t *usage, int w, int h, ch
 int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const ts_search *search,
                     const ts_mrf_result *res, char *err);
 /* The search mode the report names: "exact", or "lbg" or "lbg-exact" when
- * some level that ran was partitioned. */
-const char *ts_mrf_search_mode(const ts_mrf_params *p);
-/* The output image with the reference's metadata; a lossy search is noted
- * in it too (TS_META_SEARCH, and a line of ImageDescription), so the file
- * itself says it is not the exact synthesis. The note is added to ref's
- * metadata, which the outputs are written from. */
+ * some of a level's queries were searched in partitions. */
+const char *ts_mrf_search_mode(const ts_mrf_params *p, const ts_mrf_result *res);
+/* The output image (res->image) with the reference's metadata; a lossy
+ * search is noted in it too (TS_META_SEARCH, and a line of
+ * ImageDescription), so the file itself says it is not the exact
+ * synthesis. The note is added to ref's metadata, which the outputs are
+ * written from. */
 #define TS_META_SEARCH "texsyn:search"
-int ts_write_synth_image(const char *path, const ts_image *img, const ts_image *ref, const ts_mrf_params *p,
+int ts_write_synth_image(const char *path, const ts_mrf_result *res, const ts_image *ref, const ts_mrf_params *p,
                          char *err);
 
 #endif
