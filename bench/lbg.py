@@ -9,8 +9,9 @@ side with the exact search in alternating runs:
   lbg-exact P        --lbg P --lbg-exact: exact pruning, the exact bytes
 
 Per configuration: median seconds of level 0 and of the whole job, the
-codebook builds (level 0's two sets: the scan's causal L and the full
-window), level 0 without them, the speed-ups over exact, the share
+codebook builds (level 0's sets that are partitioned: the scan's causal
+L; the full window only when queried often enough), level 0 without
+them, the speed-ups over exact, the share
 of reference vectors compared per query and the seed's ideal
 f_B = |V| / (P + |V| / P) for the class size |V|; against the exact run's
 copy map (--copy-map-raw): the fraction of W_B x W_B blocks and of pixels
@@ -59,7 +60,7 @@ def one_run(exe, tmp, name, extra):
               "--report", rep, "--copy-map-raw", raw, *extra])
     r = json.loads(rep.read_text())
     l0 = next(l for l in r["levels"] if l["level"] == 0)
-    build = sum(c["seconds"] for c in l0["lbg"]["codebooks"]) if "lbg" in l0 else 0.0
+    build = sum(c.get("seconds", 0.0) for c in l0["lbg"]["sets"]) if "lbg" in l0 else 0.0
     return {"total": r["seconds"], "level0": l0["seconds"], "build": build, "report": r}, raw, img
 
 
@@ -134,7 +135,7 @@ def summarise(exe, cs, runs, files):
             row["scanned_fraction"] = lbg["scanned_fraction"]
             row["seed_fb"] = vc / (p + vc / p)
             row["measured_fb"] = 1 / (lbg["scanned_fraction"] + p / vc)
-            row["codebooks"] = lbg["codebooks"]
+            row["sets"] = lbg["sets"]
         blocks, pixels = changed(exact_raw, files[name][0])
         row["changed_blocks"], row["changed_pixels"] = blocks, pixels
         q = json.loads(run(exe, ["quality", "--ref", DATA / "textures" / "brick.png", "--image", files[name][1],
@@ -163,15 +164,18 @@ def markdown(rows, machine, others, busy):
                      f"{r['total_s']:.3f} | {r['speedup_level0']:.2f}x ({r['speedup_level0_search']:.2f}x) | "
                      f"{r['speedup_total']:.2f}x | {frac} | {fb} | {mfb} | {100 * r['changed_blocks']:.1f} % | "
                      f"{100 * r['changed_pixels']:.1f} % | {r['quality_inner']:.2f} / {r['quality_seam']:.2f} |")
-    lines += ["", "Codebooks of level 0 (the scan's causal L set, the full window's set): partitions kept over "
-              "the 4 parity classes, iterations (the most of any class), partition sizes min / median / max (of "
-              "the last run):", ""]
+    lines += ["", "Level 0's sets (the scan's causal L, the full window): its queries, and partitioned (partitions "
+              "kept over the 4 parity classes, iterations, the most of any class, partition sizes min / median / "
+              "max, of the last run) or exhaustive (queried too seldom for a codebook to pay):", ""]
     for r in rows:
-        for c in r.get("codebooks", []):
+        for c in r.get("sets", []):
+            if not c["partitioned"]:
+                lines.append(f"* {r['config']}, {c['window']}: {c['queries']} queries, exhaustive")
+                continue
             s = c["sizes"]
-            lines.append(f"* {r['config']}, {c['window']}: {c['partitions']} partitions, {c['iterations']} "
-                         f"iterations{'' if c['converged'] else ' (the limit)'}, {c['seconds']:.3f} s, sizes "
-                         f"{s['min']} / {s['median']} / {s['max']}")
+            lines.append(f"* {r['config']}, {c['window']}: {c['queries']} queries, {c['partitions']} partitions, "
+                         f"{c['iterations']} iterations{'' if c['converged'] else ' (the limit)'}, "
+                         f"{c['seconds']:.3f} s, sizes {s['min']} / {s['median']} / {s['max']}")
     lines += ["", "Measured f_B: exhaustive comparisons over those made per query, the centroids included "
               "(1 / (vectors compared share + P / |V|)). The seed: f_B max = sqrt(|V|)/2, 15-50 measured at "
               f"P=100; its level 0 took {SEED['lbg_level0']} s with LBG against {SEED['mmx_level0']} s MMX "
