@@ -238,6 +238,44 @@ static int rd_tile(ts_rd *r, ts_slice_desc *m, char *err) {
   return 0;
 }
 
+/* A partitioned set's codebook (lbg.h): its mode, then for a partitioned
+ * set the probe, the vector size, the partitions of every class and the
+ * centroids, class after class. */
+static void wr_lbg(ts_wr *w, const ts_lbg_codebook *cb, int nclass) {
+  ts_wr_u8(w, cb->mode);
+  if (cb->mode == TS_LBG_OFF) return;
+  ts_wr_u32(w, cb->probe);
+  ts_wr_u32(w, cb->vbytes);
+  uint64_t n = 0;
+  for (int c = 0; c < nclass; c++) {
+    ts_wr_u32(w, cb->npart[c]);
+    n += cb->npart[c];
+  }
+  ts_wr_bytes(w, cb->cent, (size_t)n * cb->vbytes);
+}
+
+/* Sizes bounded here so the centroids lie in the payload; whether the
+ * codebook fits the set is ts_slice_load's to check (ts_lbg_check). */
+static int rd_lbg(ts_rd *r, ts_lbg_codebook *cb, int nclass, char *err) {
+  cb->mode = ts_rd_u8(r);
+  if (cb->mode == TS_LBG_OFF) return 0;
+  if (cb->mode > TS_LBG_EXACT) return bad(err, 'N', "partitioning mode");
+  cb->probe = ts_rd_u32(r);
+  cb->vbytes = ts_rd_u32(r);
+  cb->nclass = nclass;
+  if (cb->vbytes == 0 || cb->vbytes % TS_L1_CHUNK != 0 || cb->vbytes > TS_L1_MAX_CHUNKS * TS_L1_CHUNK)
+    return bad(err, 'N', "codebook vector size");
+  uint64_t n = 0;
+  for (int c = 0; c < nclass; c++) {
+    cb->npart[c] = ts_rd_u32(r);
+    if (cb->npart[c] > TS_LBG_MAX_PARTITIONS) return bad(err, 'N', "partitions of a class");
+    n += cb->npart[c];
+  }
+  if (r->failed || n * cb->vbytes > r->len - r->off) return bad(err, 'N', "truncated codebook");
+  cb->cent = ts_rd_bytes(r, (size_t)n * cb->vbytes);
+  return 0;
+}
+
 void ts_msg_slice_write(ts_wr *w, const ts_slice_desc *m) {
   ts_wr_u32(w, m->set);
   ts_wr_u32(w, m->gen);
@@ -281,6 +319,7 @@ void ts_msg_slice_write(ts_wr *w, const ts_slice_desc *m) {
   if (m->masked) wr_rows(w, m->valid, w1, m->ay0, m->ay1, m->kay0, m->kay1);
   ts_wr_u8(w, m->usage);
   if (m->usage == TS_SLICE_USAGE_COUNTS) wr_rows(w, m->counts, 4 * w1, m->fy0, m->fy1, m->kfy0, m->kfy1);
+  wr_lbg(w, &m->lbg, m->nclass);
 }
 
 /* What the row reads below need: sizes and row ranges within the levels
@@ -352,6 +391,7 @@ int ts_msg_slice_read(const ts_frame *f, ts_slice_desc *m, char *err) {
   if (m->masked) m->valid = rd_rows(&r, w, m->ay0, m->ay1, m->kay0, m->kay1);
   m->usage = ts_rd_u8(&r);
   if (m->usage == TS_SLICE_USAGE_COUNTS) m->counts = rd_rows(&r, 4 * w, m->fy0, m->fy1, m->kfy0, m->kfy1);
+  if ((rc = rd_lbg(&r, &m->lbg, m->nclass, err)) != 0) return rc;
   if (finish(&r, err, 'N') != 0) return TS_EPROTO;
   if (m->usage > TS_SLICE_USAGE_COUNTS) return bad(err, 'N', "usage mode");
   return 0;

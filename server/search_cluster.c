@@ -97,6 +97,7 @@ static void describe_slice(cluster_search *cs, cl_set *st, int i, int loading, t
   cl_slice *sl = &st->slices[i];
   cl_image *im = &cs->images[st->rs.image];
   ts_slice_describe(m, &st->rs, &st->usage, st->gid, st->gen, st->image, sl->i0, sl->i1, held_rows(cs, st, sl->w));
+  if (st->lbg.mode != TS_LBG_OFF) ts_slice_describe_lbg(m, &st->lbg);
   sl->rows = ts_slice_held_by(m);
   if (st->tile_w > 0) {
     m->labelled = TS_SLICE_LABELS_TILE;
@@ -214,6 +215,7 @@ static int load_local(ts_cluster *c, cl_set *st, char *err) {
   static const uint32_t i0[TS_MAX_CLASSES] = {0};
   ts_slice_desc m;
   ts_slice_describe(&m, &st->rs, &st->usage, st->gid, st->gen, st->image, i0, st->grid->count, NULL);
+  if (st->lbg.mode != TS_LBG_OFF) ts_slice_describe_lbg(&m, &st->lbg);
   st->nheld = 0;
   return ts_slice_load(&st->local, &m, NULL, c->local_pool, err);
 }
@@ -273,6 +275,30 @@ static int ensure_slices(cluster_search *cs, cl_set *st, char *err) {
   return 0;
 }
 
+/* Frees what a set holds on the coordinator, and clears it. */
+static void set_free(cl_set *st) {
+  ts_slice_free(st->local);
+  ts_usage_free(&st->usage);
+  ts_lbg_free(&st->lbg);
+  free(st->slices);
+  free(st->ranges);
+  free(st->held);
+  memset(st, 0, sizeof(*st));
+}
+
+/* A partitioned set's codebook, on threads of its own (as many as the
+ * local pool, which other jobs may be scanning on), outside the lock:
+ * the coordinator holds every level plane, so it builds the whole set's. */
+static int build_codebook(ts_cluster *c, cl_set *st, char *err) {
+  ts_pool *pool;
+  if (ts_pool_create(&pool, ts_pool_size(c->local_pool)) != 0)
+    return ts_error(err, TS_ENOMEM, "cannot start threads to build a codebook");
+  int rc = ts_lbg_build(&st->lbg, st->rs.window, st->rs.anchors, st->rs.ref, st->rs.lbg, pool, c->simd,
+                        st->rs.lbg_report, err);
+  ts_pool_destroy(pool);
+  return rc;
+}
+
 static int cluster_prepare(ts_search *s, const ts_refset *rs, int *id, char *err) {
   cluster_search *cs = (cluster_search *)s;
   int slot = 0;
@@ -298,12 +324,7 @@ static int cluster_prepare(ts_search *s, const ts_refset *rs, int *id, char *err
   st->held = calloc(slots, sizeof(*st->held));
   if (st->slices == NULL || st->ranges == NULL || st->held == NULL ||
       (rs->usage && ts_usage_init(&st->usage, rs->anchors, rs->window->spec.block, 0) != 0)) {
-    free(st->slices);
-    free(st->ranges);
-    free(st->held);
-    st->slices = NULL;
-    st->ranges = NULL;
-    st->held = NULL;
+    set_free(st);
     return ts_error(err, TS_ENOMEM, "out of memory for a reference set");
   }
   for (size_t i = 0; i < slots; i++) {
@@ -311,11 +332,16 @@ static int cluster_prepare(ts_search *s, const ts_refset *rs, int *id, char *err
     st->slices[i].i1 = st->slices[i].i0 + nclass;
   }
   if (rs->usage && rs->counts != NULL) ts_usage_load(&st->usage, rs->counts->count);
+  int rc = rs->lbg != NULL ? build_codebook(cs->c, st, err) : 0;
+  if (rc != 0) {
+    set_free(st);
+    return rc;
+  }
   find_shortcuts(cs, st);
   pthread_mutex_lock(&cs->c->lock);
   st->gid = ++cs->c->next_set;
   st->used = 1;
-  int rc = ensure_slices(cs, st, err);
+  rc = ensure_slices(cs, st, err);
   pthread_mutex_unlock(&cs->c->lock);
   *id = slot;
   return rc;
@@ -527,6 +553,7 @@ typedef struct {
   uint32_t nreq;
   ts_l1_best *best;
   uint32_t seq;
+  uint64_t lbg_pairs; /* vectors the answers of partitioned sets report compared */
 } batch_ctx;
 
 static void merge_best(ts_l1_best *into, const ts_l1_best *b) {
@@ -604,6 +631,7 @@ static int answer_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
     merge_best(&b->best[q0 + i], &res);
   }
   fs->answered = 1;
+  if (st->lbg.mode != TS_LBG_OFF) b->lbg_pairs += a.pairs;
   w->answered_bytes += a.pairs * ts_window_bytes(st->rs.window);
   w->answered_nanos += a.scan_nanos;
   w->expect--;
@@ -802,6 +830,7 @@ static int exchange_batch(cluster_search *cs, batch_ctx *bc, const ts_search_req
     return TS_ESTALE;
   }
   bc->seq = ++c->next_frame;
+  bc->lbg_pairs = 0;
   ts_l1_best_reset(bc->best, bc->q0[bc->nreq]);
   int rc = queue_frames(cs, bc, req, ws, n, err);
   if (rc != 0) {
@@ -877,14 +906,20 @@ static int cluster_query_many(ts_search *s, const ts_search_req *req, uint32_t n
   } while (rc == TS_ECONN || rc == TS_ESTALE);
   pthread_mutex_unlock(&c->lock);
   if (rc != 0) return rc;
+  /* Pairs: what the scans compared (an exhaustive set's every vector of
+   * the class, a partitioned one's as its workers report); full pairs:
+   * what exhaustive search compares. */
   for (uint32_t r = 0; r < nreq; r++) {
     const ts_query_batch *b = &req[r].b;
+    uint64_t full = 0;
+    for (uint32_t i = 0; i < b->nq; i++) full += bc.st[r]->grid->count[b->klass ? b->klass[i] : 0];
     if (!local) memcpy(req[r].out, bc.best + bc.q0[r], sizeof(ts_l1_best) * b->nq);
-    for (uint32_t i = 0; i < b->nq && !local; i++) s->stats.pairs += bc.st[r]->grid->count[b->klass ? b->klass[i] : 0];
+    if (!local && bc.st[r]->lbg.mode == TS_LBG_OFF) s->stats.pairs += full;
+    s->stats.full_pairs += full;
     s->stats.batches++;
     s->stats.queries += b->nq;
   }
-  s->stats.pairs += local_pairs;
+  s->stats.pairs += local ? local_pairs : bc.lbg_pairs;
   s->stats.round_trips++;
   pthread_mutex_lock(&c->lock);
   c->batches += nreq;
@@ -910,12 +945,7 @@ static void set_clear(cluster_search *cs, cl_set *st) {
     n = cl_ready_workers(c, ws);
   cl_unload_set(c, ws, n, st->gid);
   pthread_mutex_unlock(&c->lock);
-  ts_slice_free(st->local);
-  ts_usage_free(&st->usage);
-  free(st->slices);
-  free(st->ranges);
-  free(st->held);
-  memset(st, 0, sizeof(*st));
+  set_free(st);
 }
 
 static void cluster_release(ts_search *s, int id) {

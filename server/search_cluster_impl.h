@@ -41,6 +41,9 @@ typedef struct {
   cl_held *held; /* the workers that loaded the last slicing (o.max_workers slots) */
   int nheld;
   ts_slice *local; /* in-process slice when no worker is ready */
+  /* A partitioned set's codebook (rs.lbg), built once when the set is
+   * prepared; every slice of the set carries it. */
+  ts_lbg_codebook lbg;
   /* What need not travel in its 'N' messages: the fine rows, when they
    * are the reference planes of its query image at image level
    * `image_level` (a worker holding the image has them); the labels,

@@ -20,6 +20,7 @@
 #include "anchors.h"
 #include "error.h"
 #include "l1.h"
+#include "lbg.h"
 #include "usage.h"
 #include "window.h"
 
@@ -42,6 +43,13 @@ typedef struct {
    * holder, asked only field passes (the window a square over fine
    * planes; anchors, labels and usage unused). */
   int field;
+  /* NULL: exhaustive search. Else the set is partitioned (lbg.h): the
+   * backend builds the codebook from these parameters when it prepares
+   * the set (a function of the set and p->seed, wherever it runs) and
+   * answers each query from its probed partitions, or exactly with
+   * p->exact. lbg_report (may be NULL) gets the build's figures. */
+  const ts_lbg_params *lbg;
+  ts_lbg_report *lbg_report;
 } ts_refset;
 
 /* A usage change: the w x h reference pixels at (x, y) were copied (+1),
@@ -88,6 +96,9 @@ typedef struct {
 typedef struct {
   uint64_t batches, queries;
   uint64_t pairs; /* query-vector comparisons */
+  /* The comparisons exhaustive search would have made: pairs but for
+   * partitioned sets, which compare fewer (their centroids not counted). */
+  uint64_t full_pairs;
   double scan_seconds;
   /* Remote backends: payload bytes sent and received, and round trips
    * (one per query or query_many call, however many workers answer). */

@@ -121,9 +121,18 @@ static int local_prepare(ts_search *s, const ts_refset *rs, int *id, char *err) 
   }
   static const uint32_t i0[TS_MAX_CLASSES] = {0};
   if (image_get(ls, rs->image) == NULL) return ts_error(err, TS_EINVAL, "unknown query image %d", rs->image);
+  /* A partitioned set: the codebook, then a slice of every vector loaded
+   * with it as a worker's would be (the slice keeps a copy). */
+  ts_lbg_codebook cb = {0};
+  int rc = rs->lbg == NULL ? 0
+                           : ts_lbg_build(&cb, rs->window, rs->anchors, rs->ref, rs->lbg, ls->pool, s->simd,
+                                          rs->lbg_report, err);
+  if (rc != 0) return rc;
   ts_slice_desc m;
   ts_slice_describe(&m, rs, rs->counts, (uint32_t)slot, 0, (uint32_t)rs->image, i0, rs->anchors->count, NULL);
-  int rc = ts_slice_load(&ls->sets[slot], &m, NULL, ls->pool, err);
+  if (rs->lbg != NULL) ts_slice_describe_lbg(&m, &cb);
+  rc = ts_slice_load(&ls->sets[slot], &m, NULL, ls->pool, err);
+  ts_lbg_free(&cb);
   if (rc != 0) return rc;
   memcpy(ls->count[slot], rs->anchors->count, sizeof(ls->count[slot]));
   *id = slot;
@@ -140,8 +149,12 @@ static int local_query(ts_search *s, int id, const ts_query_batch *b, ts_l1_best
   if (sl == NULL) return ts_error(err, TS_EINVAL, "unknown reference set %d", id);
   if (b->nq == 0) return 0;
   /* A small batch costs less than waking the pool: scan it on this thread. */
-  uint64_t expect = 0;
-  for (uint32_t i = 0; i < b->nq; i++) expect += ls->count[id][b->klass ? b->klass[i] : 0];
+  uint64_t expect = 0, full = 0;
+  for (uint32_t i = 0; i < b->nq; i++) {
+    int c = b->klass ? b->klass[i] : 0;
+    full += ls->count[id][c];
+    expect += ts_slice_query_cost(sl, c);
+  }
   uint64_t limit = ls->inline_small ? inline_threshold(s->simd, ts_slice_vbytes(sl)) : 0;
   uint64_t pairs;
   double t0 = ts_now();
@@ -153,6 +166,7 @@ static int local_query(ts_search *s, int id, const ts_query_batch *b, ts_l1_best
   s->stats.scan_seconds += ts_now() - t0;
   if (rc != 0) return rc;
   s->stats.pairs += pairs;
+  s->stats.full_pairs += full;
   s->stats.batches++;
   s->stats.queries += b->nq;
   return 0;

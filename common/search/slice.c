@@ -10,38 +10,7 @@
 #include <string.h>
 
 #include "error.h"
-
-struct ts_slice {
-  uint32_t set, gen, image;
-  ts_window window;
-  ts_anchors anchors;
-  int nclass;
-  uint32_t i0[TS_MAX_CLASSES], i1[TS_MAX_CLASSES];
-  ts_plane fine[TS_WIN_MAX_PLANES], coarse[TS_WIN_MAX_PLANES]; /* while building */
-  /* The rows it read, kept for the next slice of the set (a re-slice
-   * sends only the rows it lacks): fine rows [fy0, fy1) and coarse rows
-   * [cy0, cy1) of every plane, label and validity rows [ay0, ay1). */
-  ts_slice_held held;
-  int cw;
-  uint8_t *rows_fine[TS_WIN_MAX_PLANES], *rows_coarse[TS_WIN_MAX_PLANES];
-  uint8_t *rows_labels, *rows_valid;
-  ts_l1_set *cls;      /* nclass vector sets */
-  uint32_t **penalty;  /* per class, indexed like the class set */
-  int with_usage;
-  ts_usage usage;
-  /* Per-batch scratch, grown on demand. */
-  uint32_t cap_q;
-  size_t cap_bytes;
-  uint8_t *qbuf, *mbuf;
-  uint32_t *order;
-  ts_l1_best *tbest; /* threads x cap_q */
-  int cap_threads;
-  /* The batch being scanned (read by the pool threads). */
-  const ts_l1_impl *simd;
-  uint32_t nq, qstart[TS_MAX_CLASSES + 1], vbytes;
-  uint64_t usage_k;
-  int masked;
-};
+#include "slice_impl.h"
 
 /* Anchor rows holding vectors [i0[c], i1[c]) of every class; one row of
  * the box when the slice is empty. */
@@ -115,6 +84,11 @@ void ts_slice_describe(ts_slice_desc *m, const ts_refset *rs, const ts_usage *co
     m->counts = rows_of((const uint8_t *)counts->count, 4 * (size_t)a->w, m->fy0, m->kfy1);
 }
 
+void ts_slice_describe_lbg(ts_slice_desc *m, const ts_lbg_codebook *cb) {
+  m->lbg = *cb;
+  m->lbg.own = NULL; /* the message only points at the centroids */
+}
+
 uint64_t ts_slice_row_bytes(const ts_slice_desc *m, int kept) {
   uint64_t f = (uint64_t)(m->kfy1 - m->kfy0), c = (uint64_t)(m->kcy1 - m->kcy0), a = (uint64_t)(m->kay1 - m->kay0);
   if (!kept) {
@@ -181,6 +155,7 @@ ts_slice_held ts_slice_held_by(const ts_slice_desc *m) {
 
 void ts_slice_free(ts_slice *s) {
   if (s == NULL) return;
+  ts__slice_lbg_free(s);
   for (int c = 0; c < s->nclass; c++) {
     if (s->cls != NULL && s->cls[c].data != NULL) ts_l1_set_free(&s->cls[c]);
     if (s->penalty != NULL) free(s->penalty[c]);
@@ -209,6 +184,14 @@ uint32_t ts_slice_set(const ts_slice *s) { return s->set; }
 uint32_t ts_slice_gen(const ts_slice *s) { return s->gen; }
 uint32_t ts_slice_image(const ts_slice *s) { return s->image; }
 uint32_t ts_slice_vbytes(const ts_slice *s) { return ts_window_bytes(&s->window); }
+int ts_slice_lbg(const ts_slice *s) { return s->lbg.mode; }
+
+uint64_t ts_slice_query_cost(const ts_slice *s, int c) {
+  uint64_t held = s->i1[c] - s->i0[c];
+  if (s->lbg.mode == TS_LBG_OFF) return held;
+  uint64_t np = s->part[c].npart, probe = s->lbg.probe < np ? s->lbg.probe : np;
+  return np + (np ? held * probe / np : 0);
+}
 const ts_window *ts_slice_window(const ts_slice *s) { return &s->window; }
 
 uint64_t ts_slice_vectors(const ts_slice *s) {
@@ -260,7 +243,7 @@ static int check_base(const ts_slice *b, const ts_slice_desc *m, char *err) {
   const ts_anchors *a = &b->anchors;
   int same = a->w == m->w && a->h == m->h && b->cw == m->cw && b->nclass == m->nclass &&
              memcmp(a->count, m->count, sizeof(uint32_t) * (size_t)m->nclass) == 0 &&
-             b->with_usage == (m->usage != TS_SLICE_USAGE_NONE);
+             b->with_usage == (m->usage != TS_SLICE_USAGE_NONE) && b->lbg.mode == m->lbg.mode;
   if (!same) return ts_error(err, TS_EINVAL, "slice %u generation %u is of another level than its base", m->set, m->gen);
   const ts_slice_held *h = &b->held;
   if ((m->kfy1 > m->kfy0 && (m->kfy0 < h->fy0 || m->kfy1 > h->fy1)) ||
@@ -444,6 +427,7 @@ static int build(ts_slice *s, const ts_slice_desc *m, const ts_slice *base, ts_p
   if (rc != 0) return rc;
   s->nclass = m->nclass;
   if ((rc = check_ranges(s, m, err)) != 0) return rc;
+  if (m->lbg.mode != TS_LBG_OFF && (rc = ts__slice_lbg_take(s, m, err)) != 0) return rc;
   memcpy(s->i0, m->i0, sizeof(uint32_t) * (size_t)s->nclass);
   memcpy(s->i1, m->i1, sizeof(uint32_t) * (size_t)s->nclass);
   s->with_usage = m->usage != TS_SLICE_USAGE_NONE;
@@ -451,9 +435,12 @@ static int build(ts_slice *s, const ts_slice_desc *m, const ts_slice *base, ts_p
     return ts_error(err, TS_ENOMEM, "out of memory for the usage replica");
   if (s->with_usage) load_usage(s, m, base);
   if ((rc = alloc_sets(s, err)) != 0) return rc;
-  fill_job job = {s, base, &planes, m->ay0, m->ay1};
+  /* A partitioned base holds its vectors by partition, not by rank: they
+   * are built again. */
+  fill_job job = {s, m->lbg.mode == TS_LBG_OFF ? base : NULL, &planes, m->ay0, m->ay1};
   if (pool != NULL) ts_pool_run(pool, fill_band, &job);
   else fill_band(&job, 0, 1);
+  if (m->lbg.mode != TS_LBG_OFF && (rc = ts__slice_partition(s, pool, err)) != 0) return rc;
   /* The vectors hold what the scans need, the rows what a re-slice keeps:
    * the full-size planes can go. */
   for (int p = 0; p < TS_WIN_MAX_PLANES; p++) {
@@ -577,6 +564,11 @@ int ts_slice_scan(ts_slice *s, ts_pool *pool, int threads, const ts_l1_impl *sim
   s->nq = b->nq;
   s->usage_k = b->usage_k;
   s->masked = b->masks != NULL;
+  if (s->lbg.mode != TS_LBG_OFF) {
+    if ((rc = ts__slice_scan_lbg(s, pool, threads, pairs, err)) != 0) return rc;
+    for (uint32_t r = 0; r < b->nq; r++) out[s->order[r]] = s->lx.best[r];
+    return 0;
+  }
   if (threads == 1) scan_runs(s, 0, 1);
   else ts_pool_run(pool, scan_runs, s);
   for (int c = 0; c < s->nclass; c++) {

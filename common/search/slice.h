@@ -13,6 +13,7 @@
 
 #include "anchors.h"
 #include "l1.h"
+#include "lbg.h"
 #include "pool.h"
 #include "search.h"
 #include "usage.h"
@@ -79,6 +80,10 @@ typedef struct {
   ts_slice_rows labels, valid; /* anchor rows [ay0, ay1), w bytes a row */
   uint8_t usage;          /* TS_SLICE_USAGE_* */
   ts_slice_rows counts;   /* COUNTS: u32 LE per pixel of the fine rows, 4 w bytes a row */
+  /* A partitioned set (lbg.h): the codebook (its centroids the
+   * coordinator's, or the message's); mode TS_LBG_OFF: exhaustive. The
+   * worker finds each vector's partition itself. */
+  ts_lbg_codebook lbg;
   int16_t offbuf[2 * TS_NSRC * TS_WIN_MAX_OFFSETS]; /* decoded offsets */
   uint8_t knownbuf[TS_WIN_MAX_OFFSETS];              /* decoded known flags */
 } ts_slice_desc;
@@ -103,6 +108,8 @@ typedef struct {
 void ts_slice_describe(ts_slice_desc *m, const ts_refset *rs, const ts_usage *counts, uint32_t set,
                        uint32_t gen, uint32_t image, const uint32_t *i0, const uint32_t *i1,
                        const ts_slice_held *held);
+/* The set is partitioned by cb (kept alive while m is): m carries it. */
+void ts_slice_describe_lbg(ts_slice_desc *m, const ts_lbg_codebook *cb);
 /* A checksum of the fine rows m sends (FNV-1a over 8-byte words, plane
  * by plane). */
 uint64_t ts_slice_fine_sum(const ts_slice_desc *m);
@@ -122,8 +129,9 @@ uint64_t ts_slice_row_bytes(const ts_slice_desc *m, int kept);
  * the same set the worker holds (or NULL): kept rows, and vectors both
  * ranges hold, come from it; it is left as it was. Geometry the vectors
  * can't be built from - rows missing from the region, ranges past a class
- * or its anchor rows, a base that is not the one named - is refused with a
- * message. */
+ * or its anchor rows, a base that is not the one named, a codebook that
+ * does not fit the set - is refused with a message. A partitioned slice
+ * (m->lbg) keeps its vectors sorted by partition (slice_lbg.c). */
 int ts_slice_load(ts_slice **out, const ts_slice_desc *m, const ts_slice *base, ts_pool *pool, char *err);
 void ts_slice_free(ts_slice *s);
 
@@ -132,6 +140,12 @@ uint32_t ts_slice_gen(const ts_slice *s);
 uint64_t ts_slice_vectors(const ts_slice *s);
 uint32_t ts_slice_image(const ts_slice *s);
 uint32_t ts_slice_vbytes(const ts_slice *s);
+/* TS_LBG_OFF, or how the partitioned slice is searched. */
+int ts_slice_lbg(const ts_slice *s);
+/* About how many comparisons a query of class c costs (exhaustive: the
+ * class's vectors held; partitioned: the centroids and the probed
+ * partitions' share of them). */
+uint64_t ts_slice_query_cost(const ts_slice *s, int c);
 const ts_window *ts_slice_window(const ts_slice *s);
 
 /* Records copies in the usage replica (a no-op without usage). */
@@ -140,7 +154,9 @@ int ts_slice_commit(ts_slice *s, const ts_commit *c, uint32_t n, char *err);
 /* Scans a batch with `threads` threads of pool (1 = the calling thread
  * alone): out[i] = best match of query i in this slice, as a global index
  * (UINT32_MAX if the slice holds no vector of its class). *pairs =
- * comparisons made. */
+ * reference vectors compared (a partitioned slice's comparisons with its
+ * centroids are not counted). A partitioned slice answers the best of the
+ * query's probed partitions, or with TS_LBG_EXACT the exact best (lbg.h). */
 int ts_slice_scan(ts_slice *s, ts_pool *pool, int threads, const ts_l1_impl *simd,
                   const ts_vec_batch *b, ts_l1_best *out, uint64_t *pairs, char *err);
 

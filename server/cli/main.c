@@ -93,10 +93,17 @@ static void usage_synth(FILE *f) {
           "  --copy-accel-kernel N  coherence kernel width, odd 1..15 (default the coarse\n"
           "                       window width W_C): the buffer kept to transitions\n"
           "  --copy-accel-min R   constancy the levels above must show, 0..1 (default 0.95)\n"
+          "  --lbg P              LOSSY: search in P LBG partitions per class (seed 002\n"
+          "                       §3.6.5): each block only in its nearest partition(s);\n"
+          "                       0..%d, default 0 = off (exact search)\n"
+          "  --lbg-levels SPEC    levels searched so: \"all\" or a list like 0,1 (default 0)\n"
+          "  --lbg-probe N        partitions scanned per block, 1..P (default 1)\n"
+          "  --lbg-exact          exact pruning instead: skip only partitions that cannot\n"
+          "                       hold a better block (the exact search's bytes)\n"
           "%s"
           "\n"
           "TEXSYN_SIMD=scalar|mmx|sse2|avx2|avx512 forces a kernel variant.\n",
-          TS_MRF_MAX_LEVELS, TS_MRF_MAX_BEST_OF, ts_job_options_help);
+          TS_MRF_MAX_LEVELS, TS_MRF_MAX_BEST_OF, TS_LBG_MAX_PARTITIONS, ts_job_options_help);
 }
 
 /* ---- synth ------------------------------------------------------------- */
@@ -105,7 +112,7 @@ enum {
   OPT_REF = TS_OPT_OWN, OPT_SIZE, OPT_LEVELS, OPT_WN, OPT_WB, OPT_PARITY, OPT_USAGE, OPT_COARSE,
   OPT_SEED, OPT_RGB, OPT_COPY, OPT_COPY_RAW, OPT_USAGE_MAP, OPT_STOP, OPT_REFINE, OPT_IMAGE, OPT_SAMPLES,
   OPT_BLOCK, OPT_NNF, OPT_BEST_OF, OPT_BEST_OF_LEVELS, OPT_REF_FINE, OPT_MIX_LEVEL, OPT_ACCEL, OPT_ACCEL_KERNEL,
-  OPT_ACCEL_MIN
+  OPT_ACCEL_MIN, OPT_LBG, OPT_LBG_LEVELS, OPT_LBG_PROBE, OPT_LBG_EXACT
 };
 
 /* The options that name a side output's path, by the output's spec key
@@ -156,6 +163,10 @@ static const struct option synth_longopts[] = {
     {"copy-accel", no_argument, 0, OPT_ACCEL},
     {"copy-accel-kernel", required_argument, 0, OPT_ACCEL_KERNEL},
     {"copy-accel-min", required_argument, 0, OPT_ACCEL_MIN},
+    {"lbg", required_argument, 0, OPT_LBG},
+    {"lbg-levels", required_argument, 0, OPT_LBG_LEVELS},
+    {"lbg-probe", required_argument, 0, OPT_LBG_PROBE},
+    {"lbg-exact", no_argument, 0, OPT_LBG_EXACT},
     TS_JOB_LONGOPTS,
     {0, 0, 0, 0}};
 
@@ -196,6 +207,17 @@ static int synth_option(synth_opts *o, int c, const char *arg, char *err) {
     o->have_accel_tuning = 1;
     break;
   case OPT_ACCEL_MIN: rc = ts_arg_double("--copy-accel-min", arg, &p->accel_min, err); o->have_accel_tuning = 1; break;
+  case OPT_LBG: rc = ts_arg_long("--lbg", arg, 0, TS_LBG_MAX_PARTITIONS, &v, err); p->lbg = (int)v; break;
+  case OPT_LBG_PROBE:
+    rc = ts_arg_long("--lbg-probe", arg, 1, TS_LBG_MAX_PARTITIONS, &v, err);
+    p->lbg_probe = (int)v;
+    break;
+  case OPT_LBG_EXACT: p->lbg_exact = 1; break;
+  case OPT_LBG_LEVELS:
+    if (ts_mrf_lbg_levels_parse(arg, &p->lbg_levels) != 0)
+      rc = ts_error(err, TS_EINVAL, "--lbg-levels %s: need \"all\" or level numbers 0..%d separated by commas, "
+                    "e.g. 0,1", arg, TS_MRF_MAX_LEVELS - 1);
+    break;
   default:
     rc = ts_job_option(&o->job, c, arg, err);
     if (rc == TS_ENOENT && output_option(&o->job.out, c, arg)) rc = 0;

@@ -115,6 +115,21 @@ static void check_extras(const ts_mrf_params *p, char *msg, size_t len, int *n) 
     problem(msg, len, n, "--copy-accel-min %g: need a share 0..1", p->accel_min);
 }
 
+/* The partitioning options: a count of partitions, a probe of at most as
+ * many, levels the job has; none of them without --lbg. */
+static void check_lbg(const ts_mrf_params *p, char *msg, size_t len, int *count) {
+  if (p->lbg < 0 || p->lbg > TS_LBG_MAX_PARTITIONS)
+    problem(msg, len, count, "--lbg %d: need 0 (off) to %d partitions", p->lbg, TS_LBG_MAX_PARTITIONS);
+  else if (p->lbg == 0 && (p->lbg_probe != 1 || p->lbg_exact || p->lbg_levels != 1))
+    problem(msg, len, count, "--lbg-probe, --lbg-levels and --lbg-exact need --lbg P (the partitions)");
+  else if (p->lbg > 0 && (p->lbg_probe < 1 || p->lbg_probe > p->lbg))
+    problem(msg, len, count, "--lbg-probe %d: need 1..%d (at most the --lbg partitions)", p->lbg_probe, p->lbg);
+  if (p->lbg > 0 && p->lbg_levels != TS_MRF_LBG_ALL && p->levels >= 1 && p->levels <= TS_MRF_MAX_LEVELS &&
+      (p->lbg_levels >> p->levels) != 0)
+    problem(msg, len, count, "--lbg-levels names level %d, but --levels %d has levels 0..%d",
+            31 - __builtin_clz(p->lbg_levels), p->levels, p->levels - 1);
+}
+
 int ts_mrf_check(const ts_mrf_params *p, int ref_w, int ref_h, int channels,
                  char *msg, size_t len) {
   int n = 0;
@@ -145,6 +160,7 @@ int ts_mrf_check(const ts_mrf_params *p, int ref_w, int ref_h, int channels,
   if (channels < 1 || channels > 16)
     problem(msg, len, &n, "reference has %d channels: need 1..16", channels);
   check_extras(p, msg, len, &n);
+  check_lbg(p, msg, len, &n);
   if (n > 0) return TS_EINVAL; /* the checks below need sane parameters */
   int cw[TS_MRF_MAX_LEVELS], ch[TS_MRF_MAX_LEVELS];
   level_sizes(p->width, p->height, p->levels, cw, ch, 1);
@@ -830,6 +846,70 @@ static void accel_end(engine *e) {
   ts_accel_map_free(&e->accel);
 }
 
+/* The queries plan pl of a w x h level makes of each set: a sweep's
+ * blocks all search the full window; a scan block the causal L unless it
+ * is clipped or its window wraps past the last row or column
+ * (masked_query: where it may meet the first ones, placed). */
+static void plan_queries(const level_plan *pl, const ts_mrf_params *p, int w, int h, uint64_t q[2]) {
+  int wb = p->wb, hn = (p->wn - wb) / 2;
+  q[SHAPE_PLAIN] = q[SHAPE_MASKED] = 0;
+  for (int i = 0; i < pl->n; i++) {
+    const level_phase *ph = &pl->phase[i];
+    for (uint32_t j = 0; j < ph->sched.nblocks; j++) {
+      const ts_block *b = &ph->sched.blocks[j];
+      int plain = !ph->refine && b->w == wb && b->h == wb && b->x + wb + hn <= w && b->y + wb + hn <= h;
+      q[plain ? SHAPE_PLAIN : SHAPE_MASKED] += (uint64_t)ph->reps;
+    }
+  }
+}
+
+/* A codebook pays when its set is queried more than this many times per
+ * partition and iteration: building it compares every vector with every
+ * centroid once an iteration and takes the medians, which cost about as
+ * much as this many exhaustive queries (measured on the Table 3.3 job:
+ * 64 partitions of each parity class, 12 iterations, 0.40 s for the full
+ * window's codebook against 61 us a query of it). */
+#define LBG_QUERIES_PER_PARTITION_ITERATION 2
+
+/* Which sets of the chosen levels are partitioned (lossy search, §3.6.5):
+ * those queried often enough for their codebook to pay (the seed: "it is
+ * worthwhile only when the codebook is used often") - on the Table 3.3
+ * job the scan's causal L always, the full window's (windows wrapping
+ * onto placed blocks, the sweeps) with 64 partitions and the default
+ * sweeps, not with 256 or with the scan alone. Decided from the levels'
+ * plans before synthesis starts, a function of the parameters alone, so
+ * that a run resumed past a level knows it too: the report and the
+ * image's metadata say what ran whatever the run's history. (P partitions
+ * of every class: fewer when a class has fewer vectors, which only errs
+ * towards exhaustive search.) */
+static int lbg_decide(engine *e) {
+  const ts_mrf_params *p = e->p;
+  uint64_t parts = (uint64_t)p->lbg * (p->parity ? 4 : 1);
+  for (int l = p->stop_level; l < p->levels && p->lbg > 0; l++) {
+    if (!(p->lbg_levels >> l & 1)) continue;
+    level_plan pl;
+    if (plan_level(&pl, p, l, e->cw[l], e->ch[l]) != 0) return TS_ENOMEM;
+    ts_mrf_lbg_stats *ls = &e->res->lbg[l];
+    plan_queries(&pl, p, e->cw[l], e->ch[l], ls->queries);
+    plan_free(&pl);
+    for (int k = 0; k < 2; k++) {
+      ls->partitioned[k] = ls->queries[k] > LBG_QUERIES_PER_PARTITION_ITERATION * TS_LBG_MAX_ITER * parts;
+      ls->on |= ls->partitioned[k];
+    }
+  }
+  return 0;
+}
+
+/* Level l's set k's partitioning into *out, or NULL: exhaustive search.
+ * Each codebook is drawn with a seed of its own, a function of the job's. */
+static const ts_lbg_params *lbg_params(const engine *e, int l, int k, ts_lbg_params *out) {
+  const ts_mrf_params *p = e->p;
+  if (!e->res->lbg[l].partitioned[k]) return NULL;
+  *out = (ts_lbg_params){(uint32_t)p->lbg, (uint32_t)p->lbg_probe, p->lbg_exact,
+                         p->seed + 0x9E3779B97F4A7C15ull * (uint64_t)(2 * l + k + 1), 0};
+  return out;
+}
+
 /* Synthesises level l from its start, or from `inside`, a checkpoint
  * taken inside it. */
 static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, char *err) {
@@ -880,13 +960,20 @@ static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, c
   if (rc == 0) rc = accel_begin(e, err);
   /* The backend's usage replicas start from the counters as they are now:
    * zero, or a resumed level's. */
+  ts_lbg_params lbg;
+  ts_mrf_lbg_stats *ls = &e->res->lbg[l];
   for (int k = 0; rc == 0 && k < 2; k++) {
     ts_refset rs = {e->image, &e->shape[k], &e->grid, &e->ref_lp, p->parity ? &e->parity : NULL, NULL,
-                    p->usage_weight > 0, &e->usage};
+                    p->usage_weight > 0, &e->usage, 0, lbg_params(e, l, k, &lbg), &ls->set[k]};
     rc = ts_search_prepare(e->search, &rs, &e->set_ids[k], err);
   }
   if (rc == 0) rc = run_level(e, err);
   if (rc == 0) accel_end(e);
+  if (rc == 0 && ls->on) {
+    ls->ran = 1;
+    ls->pairs = e->search->stats.pairs - e->base.pairs;
+    ls->full_pairs = e->search->stats.full_pairs - e->base.full_pairs;
+  }
   for (int k = 0; k < 2; k++)
     if (e->set_ids[k] >= 0) ts_search_release(e->search, e->set_ids[k]);
   return rc;
@@ -1243,6 +1330,7 @@ int ts_mrf_synthesize_mixed(const ts_mrf_params *p, const ts_image *ref, const t
   int rc = build_reference(&e, ref, p->levels, e.ref);
   if (rc == 0 && e.mix > 0) rc = build_reference(&e, ref_fine, e.mix + 1, e.fine_ref);
   if (rc != 0) rc = ts_error(err, rc, "cannot build the reference pyramids: %s", ts_strerror(rc));
+  if (rc == 0 && (rc = lbg_decide(&e)) != 0) ts_error(err, rc, "out of memory");
   int first = p->levels - 1;
   const ts_mrf_checkpoint *inside = NULL;
   if (rc == 0 && e.hooks->resume) rc = take_resume(&e, &first, &inside, err);

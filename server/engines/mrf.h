@@ -46,9 +46,24 @@ typedef struct {
    * coherence kernel (0: W_C). */
   int copy_accel, accel_kernel;
   double accel_min;
+  /* Opt-in vector-space partitioning (seed 002 §3.6.5, lbg.h): LBG
+   * partitions per class (0: off, exhaustive search), the levels searched
+   * so (bit l: level l; TS_MRF_LBG_ALL: every level), the partitions a
+   * query scans, and exact pruning (the exhaustive results) instead of the
+   * lossy probe. */
+  int lbg;
+  uint32_t lbg_levels;
+  int lbg_probe;
+  int lbg_exact;
 } ts_mrf_params;
 
 #define TS_MRF_MAX_BEST_OF 64
+#define TS_MRF_LBG_ALL UINT32_MAX
+/* Parses a --lbg-levels SPEC: "all", or level numbers separated by commas
+ * ("0,1"), each below TS_MRF_MAX_LEVELS. 0 or TS_EINVAL. */
+int ts_mrf_lbg_levels_parse(const char *spec, uint32_t *mask);
+/* Formats a level mask as such a SPEC. */
+void ts_mrf_lbg_levels_format(uint32_t mask, char *buf, size_t cap);
 
 void ts_mrf_params_default(ts_mrf_params *p);
 
@@ -92,6 +107,21 @@ typedef struct {
   double variance; /* of the usage map at the last candidate level */
   double seconds;
 } ts_mrf_candidate;
+/* A chosen level of a partitioned search (ts_mrf_params.lbg): the
+ * queries its plan makes of each of its two sets (the causal L's, the
+ * full window's) and whether each is partitioned or, queried too seldom
+ * for a codebook to pay, searched exhaustively (decided before synthesis,
+ * from the parameters: on = either); and if this run synthesised the
+ * level (ran), each partitioned set's codebook and the reference vectors
+ * compared against what exhaustive search would have compared (of this
+ * run, when it resumed inside the level). */
+typedef struct {
+  int on, ran;
+  int partitioned[2];
+  uint64_t queries[2];
+  ts_lbg_report set[2];
+  uint64_t pairs, full_pairs;
+} ts_mrf_lbg_stats;
 
 /* Where a resumed synthesis went on, for its log and report. */
 typedef struct {
@@ -115,6 +145,7 @@ typedef struct {
   double usage_mean, usage_variance; /* over the usable reference pixels */
   double seconds;
   ts_mrf_level_stats level[TS_MRF_MAX_LEVELS];
+  ts_mrf_lbg_stats lbg[TS_MRF_MAX_LEVELS];
   int resumed;         /* went on from a checkpoint: where in `resume` */
   ts_mrf_resume resume;
   /* best_of > 1: the candidates (none when a resumed run skipped them),

@@ -47,7 +47,44 @@ static int mrf_spec_set(void *params, const char *k, const char *v) {
   if (strcmp(k, "copy_accel") == 0) return ts_parse_int(v, 0, 1, &p->copy_accel);
   if (strcmp(k, "copy_accel_kernel") == 0) return ts_parse_int(v, -1000, 1000, &p->accel_kernel);
   if (strcmp(k, "copy_accel_min") == 0) return ts_parse_double(v, &p->accel_min);
+  if (strcmp(k, "lbg") == 0) return ts_parse_int(v, -1, TS_LBG_MAX_PARTITIONS + 1, &p->lbg);
+  if (strcmp(k, "lbg_levels") == 0) return ts_mrf_lbg_levels_parse(v, &p->lbg_levels);
+  if (strcmp(k, "lbg_probe") == 0) return ts_parse_int(v, -1, TS_LBG_MAX_PARTITIONS + 1, &p->lbg_probe);
+  if (strcmp(k, "lbg_exact") == 0) return ts_parse_int(v, 0, 1, &p->lbg_exact);
   return TS_ENOENT;
+}
+
+int ts_mrf_lbg_levels_parse(const char *spec, uint32_t *mask) {
+  if (strcmp(spec, "all") == 0) {
+    *mask = TS_MRF_LBG_ALL;
+    return 0;
+  }
+  uint32_t m = 0;
+  for (const char *s = spec;; s++) {
+    int level = 0, digits = 0;
+    for (; *s >= '0' && *s <= '9' && digits < 3; s++, digits++) level = 10 * level + (*s - '0');
+    if (digits == 0 || level >= TS_MRF_MAX_LEVELS) return TS_EINVAL;
+    m |= 1u << level;
+    if (*s == '\0') break;
+    if (*s != ',') return TS_EINVAL;
+  }
+  *mask = m;
+  return 0;
+}
+
+void ts_mrf_lbg_levels_format(uint32_t mask, char *buf, size_t cap) {
+  size_t at = 0;
+  buf[0] = '\0';
+  if (mask == TS_MRF_LBG_ALL) {
+    snprintf(buf, cap, "all");
+    return;
+  }
+  for (int l = 0; l < 32 && at < cap; l++)
+    if (mask >> l & 1) {
+      int n = snprintf(buf + at, cap - at, "%s%d", at ? "," : "", l);
+      if (n < 0) break;
+      at += (size_t)n;
+    }
 }
 
 /* Without it the spec would format as size=0x0, which no parse takes
@@ -80,7 +117,15 @@ static int mrf_spec_format(const void *params, char *buf, size_t cap) {
                    p->width, p->height, p->levels, p->wn, p->wb, p->parity, p->usage_weight, p->coarse_weight,
                    p->refine, (unsigned long long)p->seed, p->rgb_search, (unsigned long long)p->max_pixels);
   if (n >= 0 && (size_t)n < cap) n += format_extras(p, buf + n, cap - (size_t)n);
-  return n < 0 || (size_t)n >= cap ? TS_ETOOBIG : n;
+  if (n < 0 || (size_t)n >= cap) return TS_ETOOBIG;
+  /* The partitioning keys only when set: a spec without them reads and
+   * writes as before (its checkpoints' tag unchanged). */
+  if (p->lbg == 0 && p->lbg_probe == 1 && !p->lbg_exact && p->lbg_levels == 1) return n;
+  char levels[64];
+  ts_mrf_lbg_levels_format(p->lbg_levels, levels, sizeof(levels));
+  int more = snprintf(buf + n, cap - (size_t)n, "lbg=%d\nlbg_levels=%s\nlbg_probe=%d\nlbg_exact=%d\n", p->lbg, levels,
+                      p->lbg_probe, p->lbg_exact);
+  return more < 0 || (size_t)more >= cap - (size_t)n ? TS_ETOOBIG : n + more;
 }
 
 void ts_mrf_params_default(ts_mrf_params *p) {
@@ -94,6 +139,8 @@ void ts_mrf_params_default(ts_mrf_params *p) {
   p->max_pixels = TS_IMAGE_DEFAULT_MAX_PIXELS;
   p->best_of = 1;
   p->accel_min = 0.95;
+  p->lbg_levels = 1; /* level 0, as the seed does */
+  p->lbg_probe = 1;
 }
 
 static void mrf_params_default(void *params) { ts_mrf_params_default(params); }
@@ -212,19 +259,27 @@ static void lossy_note(const ts_mrf_result *res, char *buf, size_t cap) {
 }
 
 /* The output image's metadata: the reference's, and on a lossy result the
- * shortcut named in texsyn:search (PNG and OpenEXR keep it) and in the
+ * shortcuts named in texsyn:search (PNG and OpenEXR keep it) and in the
  * ImageDescription (which TIFF keeps too), after any the reference had. */
 static int output_meta(ts_engine_run *r, char *err) {
-  if (!r->res.lossy) return 0;
-  char note[512], old[512], desc[1100];
-  lossy_note(&r->res, note, sizeof(note));
+  char lbg[160], note[700] = "", search[200] = "", old[512], desc[1300];
+  ts_mrf_lbg_note(r->p, &r->res, lbg, sizeof(lbg));
+  if (r->res.lossy) {
+    lossy_note(&r->res, note, sizeof(note));
+    snprintf(search, sizeof(search), "copy-map (lossy)");
+  }
+  if (lbg[0] != '\0') {
+    snprintf(note + strlen(note), sizeof(note) - strlen(note), "%s%s", note[0] ? "; " : "", lbg);
+    snprintf(search + strlen(search), sizeof(search) - strlen(search), "%s%s", search[0] ? "; " : "", lbg);
+  }
+  if (note[0] == '\0') return 0;
   int has_old = ts_meta_get(r->ref->meta, "ImageDescription", old, sizeof(old)) == 0 && old[0] != '\0';
   snprintf(desc, sizeof(desc), "%s%s%s", has_old ? old : "", has_old ? "; " : "", note);
   int rc = ts_meta_copy(r->ref->meta, &r->meta);
-  if (rc == 0) rc = ts_meta_set(&r->meta, "texsyn:search", "copy-map (lossy)");
+  if (rc == 0) rc = ts_meta_set(&r->meta, "texsyn:search", search);
   if (rc == 0) rc = ts_meta_set(&r->meta, "ImageDescription", desc);
-  return rc != 0 ? ts_error(err, rc, "cannot note the lossy shortcut in the output's metadata: %s",
-                            ts_strerror(rc)) : 0;
+  return rc != 0 ? ts_error(err, rc, "cannot note the lossy search in the output's metadata: %s", ts_strerror(rc))
+                 : 0;
 }
 
 static int mrf_run(const void *params, const ts_image *const *in, ts_search *search, const ts_engine_hooks *h,

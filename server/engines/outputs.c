@@ -106,15 +106,68 @@ static void report_best_of(FILE *f, const ts_mrf_params *p, const ts_mrf_result 
             (unsigned long long)res->candidate[res->chosen].seed);
 }
 
+/* The levels some of whose queries were searched in partitions (bit l). */
+static uint32_t lbg_levels_ran(const ts_mrf_params *p, const ts_mrf_result *res) {
+  uint32_t ran = 0;
+  for (int l = 0; l < p->levels; l++) ran |= (uint32_t)(res->lbg[l].on != 0) << l;
+  return ran;
+}
+
+const char *ts_mrf_search_mode(const ts_mrf_params *p, const ts_mrf_result *res) {
+  if (lbg_levels_ran(p, res) != 0) return p->lbg_exact ? "lbg-exact" : "lbg";
+  return res->lossy ? "copy-map" : "exact";
+}
+
+/* The search: its mode, "lbg" among the lossy shortcuts when some of it
+ * was partitioned and not exact, and the partitioning's parameters. */
+static void report_search(FILE *f, const ts_mrf_params *p, const ts_mrf_result *res, int threads,
+                          const ts_search *search) {
+  uint32_t ran = lbg_levels_ran(p, res);
+  int lossy = ran != 0 && !p->lbg_exact;
+  fprintf(f, "  \"search\": {\"mode\": \"%s\", \"lossy\": [%s%s%s], ", ts_mrf_search_mode(p, res),
+          res->lossy ? "\"copy-map\"" : "", res->lossy && lossy ? ", " : "", lossy ? "\"lbg\"" : "");
+  if (ran != 0) {
+    fprintf(f, "\"lbg\": {\"partitions\": %d, \"probe\": %d, \"exact\": %s, \"levels\": [", p->lbg, p->lbg_probe,
+            p->lbg_exact ? "true" : "false");
+    for (int l = 0, n = 0; l < p->levels; l++)
+      if (ran >> l & 1) fprintf(f, "%s%d", n++ ? ", " : "", l);
+    fprintf(f, "]}, ");
+  }
+  fprintf(f, "\"backend\": \"%s\", \"simd\": \"%s\", \"threads\": %d},\n", search->ops->name, search->simd->name,
+          threads);
+}
+
+/* A partitioned level: per set (the causal L's, the full window's) the
+ * queries the level makes of it and whether it was partitioned - with,
+ * when this run built it, its codebook - and, when this run synthesised
+ * the level, the share of the reference vectors its queries compared. */
+static void report_lbg_level(FILE *f, const ts_mrf_lbg_stats *s) {
+  static const char *const window[2] = {"causal", "full"};
+  fprintf(f, ", \"lbg\": {");
+  if (s->ran)
+    fprintf(f, "\"scanned_fraction\": %.6f, ", s->full_pairs ? (double)s->pairs / (double)s->full_pairs : 0.0);
+  fprintf(f, "\"sets\": [");
+  for (int k = 0; k < 2; k++) {
+    const ts_lbg_report *r = &s->set[k];
+    fprintf(f, "%s{\"window\": \"%s\", \"queries\": %llu, \"partitioned\": %s", k ? ", " : "", window[k],
+            (unsigned long long)s->queries[k], s->partitioned[k] ? "true" : "false");
+    if (s->partitioned[k] && s->ran)
+      fprintf(f, ", \"partitions\": %u, \"iterations\": %u, \"converged\": %s, \"seconds\": %.4f, "
+                 "\"sizes\": {\"min\": %u, \"median\": %u, \"max\": %u}",
+              r->partitions, r->iterations, r->converged ? "true" : "false", r->seconds, r->size_min,
+              r->size_median, r->size_max);
+    fprintf(f, "}");
+  }
+  fprintf(f, "]}");
+}
+
 int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const ts_search *search,
                     const ts_mrf_result *res, char *err) {
   char tmp[TS_FILE_TMP_LEN];
   FILE *f = ts_file_create(path, tmp, err);
   if (f == NULL) return TS_EIO;
-  fprintf(f, "{\n  \"engine\": \"mrf\",\n  \"search\": {\"mode\": \"%s\", \"lossy\": [%s], "
-             "\"backend\": \"%s\", \"simd\": \"%s\", \"threads\": %d},\n",
-          res->lossy ? "copy-map" : "exact", res->lossy ? "\"copy-map\"" : "", search->ops->name,
-          search->simd->name, threads);
+  fprintf(f, "{\n  \"engine\": \"mrf\",\n");
+  report_search(f, p, res, threads, search);
   fprintf(f, "  \"params\": {\"width\": %d, \"height\": %d, \"levels\": %d, \"wn\": %d, \"wb\": %d, "
              "\"parity\": %s, \"usage_weight\": %g, \"coarse_weight\": %g, \"seed\": %llu, "
              "\"rgb_search\": %s, \"stop_level\": %d, \"refine\": %d, \"best_of\": %d, "
@@ -137,12 +190,26 @@ int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const
     const ts_mrf_level_stats *s = &res->level[l];
     fprintf(f, "    {\"level\": %d, \"from\": \"%s\", \"ref\": [%d, %d], \"out\": [%d, %d], \"vectors\": %u, "
                "\"blocks\": %llu, \"steps\": %llu, \"comparisons\": %llu, \"wire_bytes\": %llu, "
-               "\"round_trips\": %llu, \"seconds\": %.4f}%s\n",
-            l, l < p->mix_level ? "ref_fine" : "ref", s->ref_w, s->ref_h, s->out_w, s->out_h, s->vectors, (unsigned long long)s->blocks,
+               "\"round_trips\": %llu, \"seconds\": %.4f",
+            l, l < p->mix_level ? "ref_fine" : "ref", s->ref_w, s->ref_h, s->out_w, s->out_h, s->vectors,
+            (unsigned long long)s->blocks,
             (unsigned long long)s->steps, (unsigned long long)s->pairs, (unsigned long long)s->wire_bytes,
-            (unsigned long long)s->round_trips, s->seconds,
-            l > p->stop_level ? "," : "");
+            (unsigned long long)s->round_trips, s->seconds);
+    if (res->lbg[l].on) report_lbg_level(f, &res->lbg[l]);
+    fprintf(f, "}%s\n", l > p->stop_level ? "," : "");
   }
   fprintf(f, "  ]\n}\n");
   return ts_file_commit(f, tmp, path, 1, err);
 }
+
+/* The lossy search in words, or "" for an exact one. */
+void ts_mrf_lbg_note(const ts_mrf_params *p, const ts_mrf_result *res, char *buf, size_t cap) {
+  buf[0] = '\0';
+  uint32_t ran = lbg_levels_ran(p, res);
+  if (ran == 0 || p->lbg_exact) return;
+  char levels[64];
+  ts_mrf_lbg_levels_format(ran, levels, sizeof(levels));
+  snprintf(buf, cap, "lossy LBG search (seed 002 3.6.5): partitions=%d probe=%d levels=%s", p->lbg, p->lbg_probe,
+           levels);
+}
+

@@ -46,6 +46,9 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
       if (m.labelled == TS_SLICE_LABELS_ROWS) check_rows(&f, m.labels, w, m.ay0, m.ay1, m.kay0, m.kay1);
       if (m.masked) check_rows(&f, m.valid, w, m.ay0, m.ay1, m.kay0, m.kay1);
       if (m.usage == TS_SLICE_USAGE_COUNTS) check_rows(&f, m.counts, 4 * w, m.fy0, m.fy1, m.kfy0, m.kfy1);
+      uint64_t ncent = 0;
+      for (int c = 0; c < m.nclass && m.lbg.mode != TS_LBG_OFF; c++) ncent += m.lbg.npart[c];
+      check_inside(m.lbg.cent, (size_t)(ncent * m.lbg.vbytes), f.payload, f.len);
     }
     break;
   }

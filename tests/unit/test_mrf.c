@@ -418,6 +418,10 @@ static ts_mrf_params inside_params(int variant) {
   p.parity = variant & 1;
   p.usage_weight = variant & 2 ? 1.0 : 0.0;
   p.rgb_search = variant == 3;
+  if (variant >= 4) { /* partitioned (lbg.h): every level, or level 1 alone */
+    p.lbg = 2;
+    p.lbg_levels = variant == 4 ? TS_MRF_LBG_ALL : 2u;
+  }
   return p;
 }
 
@@ -442,19 +446,22 @@ static void note_resumed(void *ctx, const ts_mrf_resume *r) { *(ts_mrf_resume *)
  * goes on at that step and gives the uninterrupted run's bytes (image,
  * copy map and usage map), its steps and its blocks: with and without
  * parity and the usage penalty (whose counters the backend's replicas
- * must start from), on luminance and on colour. */
+ * must start from), on luminance and on colour, and with partitioned
+ * (LBG) sets, whose codebooks are built again. */
 static void resuming_inside_a_level_gives_same_bytes(void **state) {
   (void)state;
   ts_image ref;
   make_reference(&ref, 96, 80, TS_PIX_U8);
   char err[TS_ERR_LEN];
-  for (int variant = 0; variant < 4; variant++) {
+  for (int variant = 0; variant < 6; variant++) {
     ts_mrf_params p = inside_params(variant);
     ts_search *s;
     assert_int_equal(ts_search_local_create(&s, 2, NULL, err), 0);
     ts_mrf_result base;
     inside_checkpoints ic = {0};
     run_with_inside_checkpoints(&p, &ref, s, &base, &ic);
+    if (variant >= 4) /* some set was partitioned: the finest level's, or level 1's full window */
+      assert_true(variant == 4 ? base.lbg[0].partitioned[0] : base.lbg[1].partitioned[1]);
     for (int k = 0; k < ic.n; k++) {
       ts_mrf_checkpoint ck;
       assert_int_equal(ts_checkpoint_decode(ic.bytes[k], ic.len[k], 42, 1u << 20, &ck, err), 0);
@@ -470,6 +477,8 @@ static void resuming_inside_a_level_gives_same_bytes(void **state) {
       for (int l = 0; l < p.levels; l++) {
         assert_int_equal(r.level[l].steps, base.level[l].steps);
         assert_int_equal(r.level[l].blocks, base.level[l].blocks);
+        /* what was partitioned is known past the resume too */
+        assert_memory_equal(r.lbg[l].partitioned, base.lbg[l].partitioned, sizeof(r.lbg[l].partitioned));
       }
       ts_mrf_result_free(&r);
       ts_checkpoint_free(&ck);
