@@ -99,8 +99,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
       size_t npx = (size_t)m.d.w * (size_t)m.d.h;
       for (int p = 0; p < m.d.nplanes; p++) check_inside(m.d.fine[p], npx, f.payload, f.len);
       check_inside(m.d.done, npx, f.payload, f.len);
-      check_inside(m.copy_le, m.d.block ? 8 * npx : 0, f.payload, f.len);
-      uint32_t *copy = m.d.block ? malloc(8 * npx) : NULL;
+      check_inside(m.copy_le, m.copy_le != NULL ? 8 * npx : 0, f.payload, f.len);
+      uint32_t *copy = m.copy_le != NULL ? malloc(8 * npx) : NULL; /* none: the image keeps no copy map */
       if (copy != NULL) memcpy(copy, m.copy_le, 8 * npx);
       m.d.copy = copy;
       ts_replica r;
