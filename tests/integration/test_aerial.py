@@ -49,7 +49,6 @@ def aerial(texsyn, classes, cat, out, *extra, check=True):
     return run(texsyn, "aerial", "--classes", classes, "--catalogue", cat, "-o", out, "--quiet", *extra, check=check)
 
 
-@pytest.mark.sanitize
 def test_lines_keep_their_colours_and_classes_come_from_their_references(texsyn, small, tmp_path):
     classes, cat = small
     out, report = tmp_path / "out.png", tmp_path / "r.json"

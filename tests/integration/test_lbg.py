@@ -76,7 +76,6 @@ def test_lbg_is_the_same_embedded_and_on_two_workers(texsyn, data, cluster, tmp_
             assert sa == sb
 
 
-@pytest.mark.sanitize
 def test_lbg_keeps_its_bytes_when_a_worker_dies_and_the_coordinator_restarts(texsyn, data, cluster, tmp_path):
     """The codebooks are a function of the set and the seed: built again
     by a restarted coordinator, and over the survivors' new slicing, they
@@ -106,7 +105,6 @@ def test_lbg_keeps_its_bytes_when_a_worker_dies_and_the_coordinator_restarts(tex
     assert out.read_bytes() == want.read_bytes(), "the disturbed job's bytes differ from the embedded run"
 
 
-@pytest.mark.sanitize
 def test_lbg_exact_gives_the_exact_bytes(texsyn, data, tmp_path):
     exact, exact_raw, exact_rep = embedded(texsyn, data, tmp_path, name="exact")
     for probe in ("1", "3"):

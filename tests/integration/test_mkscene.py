@@ -68,7 +68,6 @@ def regions(w, h, pixels):
     return count
 
 
-@pytest.mark.sanitize
 @pytest.mark.parametrize("classes,seed", [(4, 1), (4, 2), (8, 3), (1, 4)])
 def test_the_map_holds_the_classes_asked_for(tmp_path, classes, seed):
     p = mkscene("--size", 512, "--seed", seed, "--classes", classes, "-o", tmp_path / "s")

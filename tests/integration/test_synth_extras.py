@@ -66,7 +66,6 @@ def oiio_attributes(path):
 
 # ---- --best-of -----------------------------------------------------------------
 
-@pytest.mark.sanitize
 def test_best_of_is_a_plain_run_of_the_chosen_seed(texsyn, data, tmp_path):
     """The report lists every candidate's seed and usage variance; the chosen
     one has the least (ties: the lowest number), the first is --seed, and the
@@ -101,7 +100,6 @@ def test_best_of_same_bytes_on_two_workers(texsyn, data, cluster, tmp_path):
 
 # ---- --ref-fine / --mix-level ------------------------------------------------------
 
-@pytest.mark.sanitize
 def test_mixing_takes_levels_from_both_references(texsyn, data, tmp_path):
     """Levels >= M are those of a plain run on --ref (the preview at M is the
     same image), the finer ones come from the crop: the report says which,
@@ -169,7 +167,6 @@ def test_mixing_errors_are_clear(texsyn, data, tmp_path):
 ACCEL = ["--levels", "4", "--parity", "--copy-accel"]
 
 
-@pytest.mark.sanitize
 def test_copy_accel_is_reported_and_marked_lossy(texsyn, data, tmp_path):
     """With parity (which keeps the coarse regions constant) the levels above
     measure a constancy over 0.95 - once 64 candidates at least have been
