@@ -68,10 +68,7 @@ static const struct option longopts[] = {
     TS_JOB_LONGOPTS,
     {0, 0, 0, 0}};
 
-static const struct {
-  int opt;
-  const char *key, *name;
-} value_keys[] = {{OPT_LEVELS, "levels", "--levels"},          {OPT_WN, "wn", "--wn"},
+static const ts_key_option value_keys[] = {{OPT_LEVELS, "levels", "--levels"},          {OPT_WN, "wn", "--wn"},
                   {OPT_WB, "wb", "--wb"},                      {OPT_ORDER, "order", "--order"},
                   {OPT_THRESHOLD, "threshold", "--threshold"}, {OPT_COARSE, "coarse_weight", "--coarse-weight"},
                   {OPT_SEED, "seed", "--seed"}};
@@ -82,22 +79,16 @@ typedef struct {
   ts_catalogue *cat;
 } aerial_opts;
 
-static int set_key(ts_job_cmd *o, const char *key, const char *value, const char *what, char *err) {
-  int rc = o->spec.engine->spec_set(o->spec.params.bytes, key, value);
-  return rc != 0 ? ts_error(err, TS_EINVAL, "%s %s: not a valid value (see texsyn aerial --help)", what, value) : 0;
-}
-
 static int option(aerial_opts *o, int c, const char *arg, char *err) {
-  for (size_t i = 0; i < sizeof(value_keys) / sizeof(value_keys[0]); i++)
-    if (value_keys[i].opt == c) return set_key(&o->job, value_keys[i].key, arg, value_keys[i].name, err);
+  int rc = ts_job_key_option(&o->job, value_keys, sizeof(value_keys) / sizeof(value_keys[0]), c, arg, err);
+  if (rc != TS_ENOENT) return rc;
   switch (c) {
   case OPT_CLASSES: o->job.in[0] = arg; return 0;
   case OPT_CATALOGUE: o->catalogue = arg; return 0;
-  case OPT_PARITY: return set_key(&o->job, "parity", "1", "--parity", err);
-  default: {
-    int rc = ts_job_option(&o->job, c, arg, err);
+  case OPT_PARITY: return ts_job_set_key(&o->job, "parity", "1", "--parity", err);
+  default:
+    rc = ts_job_option(&o->job, c, arg, err);
     return rc == TS_ENOENT ? ts_error(err, TS_EINVAL, "unknown option (see texsyn aerial --help)") : rc;
-  }
   }
 }
 
@@ -110,23 +101,23 @@ static int take_catalogue(aerial_opts *o, char *err) {
     return ts_error(err, TS_EINVAL, "%s: %d classes; texsyn aerial takes at most %d", o->catalogue, cat->nclass, max);
   char key[32], value[160];
   snprintf(value, sizeof(value), "%d", cat->nclass);
-  int rc = set_key(&o->job, "classes", value, "classes", err);
+  int rc = ts_job_set_key(&o->job, "classes", value, "classes", err);
   for (int k = 0; rc == 0 && k < cat->nclass; k++) {
     const ts_cat_class *c = &cat->cls[k];
     snprintf(key, sizeof(key), "class%d", k + 1);
     snprintf(value, sizeof(value), "%d %s %.17g %s", c->id, ts_cat_kind_name(c->kind), c->usage_weight, c->name);
-    rc = set_key(&o->job, key, value, "class", err);
+    rc = ts_job_set_key(&o->job, key, value, "class", err);
     o->job.in[1 + k] = c->reference;
   }
   if (rc != 0 || !cat->has_lines) return rc;
   snprintf(value, sizeof(value), "%d", cat->ncolours);
-  rc = set_key(&o->job, "lines", "1", "lines", err);
-  if (rc == 0) rc = set_key(&o->job, "colours", value, "colours", err);
+  rc = ts_job_set_key(&o->job, "lines", "1", "lines", err);
+  if (rc == 0) rc = ts_job_set_key(&o->job, "colours", value, "colours", err);
   for (int k = 0; rc == 0 && k < cat->ncolours; k++) {
     const ts_cat_colour *c = &cat->colour[k];
     snprintf(key, sizeof(key), "colour%d", k + 1);
     snprintf(value, sizeof(value), "%u %u %u %u", c->value, c->rgb[0], c->rgb[1], c->rgb[2]);
-    rc = set_key(&o->job, key, value, "colour", err);
+    rc = ts_job_set_key(&o->job, key, value, "colour", err);
   }
   o->job.in[1 + cat->nclass] = cat->line_raster;
   return rc;

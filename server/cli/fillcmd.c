@@ -12,12 +12,6 @@
 #include "jobcmd.h"
 #include "util.h"
 
-/* The fill engine's parameters (fill_engine.c's spec keys). */
-static int set_key(ts_job_cmd *o, const char *key, const char *value, const char *opt, char *err) {
-  int rc = o->spec.engine->spec_set(o->spec.params.bytes, key, value);
-  return rc != 0 ? ts_error(err, TS_EINVAL, "%s %s: not a valid value (see texsyn synth --help)", opt, value) : 0;
-}
-
 static void usage(FILE *f) {
   fprintf(f,
           "usage: texsyn synth --input IMG --mask MASK -o OUT [options]\n"
@@ -76,10 +70,7 @@ static const struct option longopts[] = {
     {0, 0, 0, 0}};
 
 /* Keys of the options that set one spec key from their value as is. */
-static const struct {
-  int opt;
-  const char *key, *name;
-} value_keys[] = {{OPT_LEVELS, "levels", "--levels"},          {OPT_WN, "wn", "--wn"},
+static const ts_key_option value_keys[] = {{OPT_LEVELS, "levels", "--levels"},          {OPT_WN, "wn", "--wn"},
                   {OPT_WB, "wb", "--wb"},                      {OPT_ORDER, "order", "--order"},
                   {OPT_THRESHOLD, "threshold", "--threshold"}, {OPT_USAGE, "usage_weight", "--usage-weight"},
                   {OPT_COARSE, "coarse_weight", "--coarse-weight"}, {OPT_SEED, "seed", "--seed"}};
@@ -91,8 +82,8 @@ typedef struct {
 } fill_opts;
 
 static int fill_option(fill_opts *o, int c, const char *arg, char *err) {
-  for (size_t i = 0; i < sizeof(value_keys) / sizeof(value_keys[0]); i++)
-    if (value_keys[i].opt == c) return set_key(&o->job, value_keys[i].key, arg, value_keys[i].name, err);
+  int rc = ts_job_key_option(&o->job, value_keys, sizeof(value_keys) / sizeof(value_keys[0]), c, arg, err);
+  if (rc != TS_ENOENT) return rc;
   switch (c) {
   case OPT_INPUT: o->job.in[0] = arg; return 0;
   case OPT_MASK: o->job.in[1] = arg; return 0;
@@ -101,15 +92,14 @@ static int fill_option(fill_opts *o, int c, const char *arg, char *err) {
       return ts_error(err, TS_EINVAL, "--ref: at most %d further references", TS_FILL_MAX_SOURCES - 1);
     o->ref[o->refs++] = arg;
     return 0;
-  case OPT_NO_SELF: return set_key(&o->job, "self", "0", "--no-self", err);
-  case OPT_PARITY: return set_key(&o->job, "parity", "1", "--parity", err);
-  case OPT_LUMA: return set_key(&o->job, "rgb_search", "0", "--luma-search", err);
+  case OPT_NO_SELF: return ts_job_set_key(&o->job, "self", "0", "--no-self", err);
+  case OPT_PARITY: return ts_job_set_key(&o->job, "parity", "1", "--parity", err);
+  case OPT_LUMA: return ts_job_set_key(&o->job, "rgb_search", "0", "--luma-search", err);
   case OPT_COPY: ts_output_set(&o->job.out, "copy_map", arg); return 0;
   case OPT_COPY_RAW: ts_output_set(&o->job.out, "copy_map_raw", arg); return 0;
-  default: {
-    int rc = ts_job_option(&o->job, c, arg, err);
+  default:
+    rc = ts_job_option(&o->job, c, arg, err);
     return rc == TS_ENOENT ? ts_error(err, TS_EINVAL, "unknown option (see texsyn synth --help)") : rc;
-  }
   }
 }
 
@@ -135,7 +125,7 @@ static int parse(int argc, char **argv, fill_opts *o, char *err) {
     return ts_error(err, TS_EINVAL, "--input IMG and --mask MASK are both required (see texsyn synth --help)");
   char n[16];
   snprintf(n, sizeof(n), "%d", o->refs);
-  int rc = set_key(&o->job, "refs", n, "--ref", err);
+  int rc = ts_job_set_key(&o->job, "refs", n, "--ref", err);
   for (int i = 0; i < o->refs; i++) o->job.in[2 + i] = o->ref[i];
   if (rc == 0) rc = o->job.spec.engine->spec_complete(o->job.spec.params.bytes, err);
   if (rc != 0) return ts_error(err, TS_EINVAL, "--no-self needs at least one --ref");

@@ -409,3 +409,14 @@ int ts_job_run(ts_job_cmd *o) {
   for (int k = 0; k < names.n; k++) ts_image_free(&in[k]);
   return status != 0 || o->server == NULL ? status : run_remote(o);
 }
+
+int ts_job_set_key(ts_job_cmd *o, const char *key, const char *value, const char *what, char *err) {
+  int rc = o->spec.engine->spec_set(o->spec.params.bytes, key, value);
+  return rc != 0 ? ts_error(err, TS_EINVAL, "%s %s: not a valid value (see texsyn %s --help)", what, value, o->cmd) : 0;
+}
+
+int ts_job_key_option(ts_job_cmd *o, const ts_key_option *t, size_t n, int c, const char *arg, char *err) {
+  for (size_t i = 0; i < n; i++)
+    if (t[i].opt == c) return ts_job_set_key(o, t[i].key, arg, t[i].name, err);
+  return TS_ENOENT;
+}

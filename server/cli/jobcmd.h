@@ -99,6 +99,19 @@ int ts_job_open(ts_conn *c, const ts_job_cmd *o, char *err);
  * was canceled (its reason in the message), or the connection's error. */
 int ts_job_finish(ts_conn *c, const ts_job_cmd *o, uint64_t id, char *err);
 
+/* Sets spec key `key` of o's engine to value; a value the engine refuses
+ * is TS_EINVAL naming `what` (the option) and o's --help. */
+int ts_job_set_key(ts_job_cmd *o, const char *key, const char *value, const char *what, char *err);
+
+/* An option that sets one spec key to its value as given. */
+typedef struct {
+  int opt;
+  const char *key, *name;
+} ts_key_option;
+/* Takes option c if the table (n entries) has it: 0 or TS_EINVAL as
+ * ts_job_set_key; TS_ENOENT when c is not in the table. */
+int ts_job_key_option(ts_job_cmd *o, const ts_key_option *t, size_t n, int c, const char *arg, char *err);
+
 /* The shared parsers (util.h), with the option named in the message. */
 int ts_arg_long(const char *opt, const char *s, long lo, long hi, long *out, char *err);
 int ts_arg_u64(const char *opt, const char *s, uint64_t *out, char *err);

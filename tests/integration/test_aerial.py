@@ -13,25 +13,7 @@ import time
 import pytest
 
 from conftest import BUILD, REPO, modbus_registers, run
-
-
-def oiiotool(*args):
-    subprocess.run(["oiiotool", *map(str, args)], check=True, capture_output=True, timeout=120)
-
-
-def read_pnm(path):
-    """(width, height, channels, bytes) of a binary PNM written by oiiotool."""
-    data = path.read_bytes()
-    fields, pos = [], 0
-    while len(fields) < 4:
-        while data[pos:pos + 1].isspace():
-            pos += 1
-        end = pos
-        while not data[end:end + 1].isspace():
-            end += 1
-        fields.append(data[pos:end])
-        pos = end
-    return int(fields[1]), int(fields[2]), 3 if fields[0] == b"P6" else 1, data[pos + 1:]
+from pnm import oiiotool, read_pnm
 
 
 def scene(d, size, seed=7):

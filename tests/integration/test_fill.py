@@ -12,25 +12,7 @@ import time
 import pytest
 
 from conftest import modbus_registers, run
-
-
-def oiiotool(*args):
-    subprocess.run(["oiiotool", *map(str, args)], check=True, capture_output=True, timeout=120)
-
-
-def read_pgm(path):
-    """(width, height, bytes) of a binary PGM written by oiiotool."""
-    data = path.read_bytes()
-    fields, pos = [], 0
-    while len(fields) < 4:
-        while data[pos:pos + 1].isspace():
-            pos += 1
-        end = pos
-        while not data[end:end + 1].isspace():
-            end += 1
-        fields.append(data[pos:end])
-        pos = end
-    return int(fields[1]), int(fields[2]), data[pos + 1:]
+from pnm import oiiotool, pixels_of
 
 
 @pytest.fixture(scope="module")
@@ -50,20 +32,14 @@ def fill(texsyn, scene, mask, out, *extra, check=True):
                "--levels", "3", *extra, check=check)
 
 
-def pixels(path, tmp):
-    pgm = tmp / (path.stem + ".pgm")
-    oiiotool(path, "-o", pgm)
-    return read_pgm(pgm)
-
-
 @pytest.mark.sanitize
 @pytest.mark.parametrize("mask", ["rect.png", "stroke.png"])
 def test_given_pixels_keep_their_bytes_and_holes_come_from_the_rest(texsyn, scene, tmp_path, mask):
     out, cm = tmp_path / "out.png", tmp_path / "copy.raw"
     fill(texsyn, scene, mask, out, "--copy-map-raw", cm)
-    w, h, src = pixels(scene / "brick.png", tmp_path)
-    _, _, got = pixels(out, tmp_path)
-    _, _, m = pixels(scene / mask, tmp_path)
+    w, h, _, src = pixels_of(scene / "brick.png", tmp_path)
+    _, _, _, got = pixels_of(out, tmp_path)
+    _, _, _, m = pixels_of(scene / mask, tmp_path)
     xy = struct.unpack(f"<{2 * w * h}I", cm.read_bytes())
     holes = 0
     for i in range(w * h):

@@ -13,6 +13,7 @@ import subprocess
 import pytest
 
 from conftest import BUILD, REPO
+from pnm import pixels_of
 
 MKSCENE = BUILD / "bench" / "mkscene"
 NAMES = ["forest", "water", "town", "sand", "grassland", "arable", "industrial", "wetland"]
@@ -24,28 +25,6 @@ def mkscene(*args, check=True):
     if check:
         assert p.returncode == 0, f"mkscene {' '.join(map(str, args))} failed ({p.returncode}):\n{p.stderr}"
     return p
-
-
-def read_pgm(png, tmp_path):
-    """(width, height, bytes) of an 8-bit single-channel image, via a PGM
-    that oiiotool writes; any other kind of image fails the test."""
-    pgm = tmp_path / (png.stem + ".pgm")
-    subprocess.run(["oiiotool", str(png), "-o", str(pgm)], check=True, capture_output=True, timeout=120)
-    data = pgm.read_bytes()
-    fields, pos = [], 0
-    while len(fields) < 4:
-        while data[pos:pos + 1].isspace():
-            pos += 1
-        end = pos
-        while not data[end:end + 1].isspace():
-            end += 1
-        fields.append(data[pos:end])
-        pos = end
-    assert fields[0] == b"P5" and fields[3] == b"255", f"{png} is not one 8-bit channel: {fields}"
-    w, h = int(fields[1]), int(fields[2])
-    pixels = data[pos + 1:]
-    assert len(pixels) == w * h
-    return w, h, pixels
 
 
 def regions(w, h, pixels):
@@ -71,7 +50,7 @@ def regions(w, h, pixels):
 @pytest.mark.parametrize("classes,seed", [(4, 1), (4, 2), (8, 3), (1, 4)])
 def test_the_map_holds_the_classes_asked_for(tmp_path, classes, seed):
     p = mkscene("--size", 512, "--seed", seed, "--classes", classes, "-o", tmp_path / "s")
-    w, h, pixels = read_pgm(tmp_path / "s-classes.png", tmp_path)
+    w, h, _, pixels = pixels_of(tmp_path / "s-classes.png", tmp_path)
     assert (w, h) == (512, 512)
     counts = {v: pixels.count(v) for v in set(pixels)}
     assert sorted(counts) == list(range(1, classes + 1))
@@ -90,7 +69,7 @@ def test_the_map_holds_the_classes_asked_for(tmp_path, classes, seed):
 @pytest.mark.sanitize
 def test_the_road_raster_holds_roads_and_paths(tmp_path):
     mkscene("--size", 512, "--seed", 1, "-o", tmp_path / "s")
-    w, h, pixels = read_pgm(tmp_path / "s-roads.png", tmp_path)
+    w, h, _, pixels = pixels_of(tmp_path / "s-roads.png", tmp_path)
     assert (w, h) == (512, 512)
     values = set(pixels)
     assert values == {0, 128, 255}, f"values {sorted(values)}"
@@ -118,7 +97,7 @@ def test_same_seed_same_bytes_other_seed_other_bytes(tmp_path):
 def test_a_rectangle_is_kept(tmp_path):
     mkscene("--size", "320x200", "--seed", 5, "-o", tmp_path / "r")
     for kind in ("classes", "roads"):
-        w, h, _ = read_pgm(tmp_path / f"r-{kind}.png", tmp_path)
+        w, h, _, _ = pixels_of(tmp_path / f"r-{kind}.png", tmp_path)
         assert (w, h) == (320, 200)
 
 

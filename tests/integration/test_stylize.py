@@ -15,28 +15,9 @@ import subprocess
 import pytest
 
 from conftest import BUILD, modbus_registers, run
+from pnm import oiiotool, read_pnm
 
 PATCH = 5
-
-
-def oiiotool(*args):
-    subprocess.run(["oiiotool", *map(str, args)], check=True, capture_output=True, timeout=120)
-
-
-def read_ppm(path):
-    """(width, height, channels, bytes) of a binary PNM written by oiiotool."""
-    data = path.read_bytes()
-    fields, pos = [], 0
-    while len(fields) < 4:
-        while data[pos:pos + 1].isspace():
-            pos += 1
-        end = pos
-        while not data[end:end + 1].isspace():
-            end += 1
-        fields.append(data[pos:end])
-        pos = end
-    magic, w, h = fields[0], int(fields[1]), int(fields[2])
-    return w, h, 3 if magic == b"P6" else 1, data[pos + 1:]
 
 
 @pytest.fixture(scope="module")
@@ -58,8 +39,8 @@ def test_output_is_the_vote_of_its_nnf(texsyn, scene, tmp_path):
     out, nnf = tmp_path / "out.png", tmp_path / "nnf.raw"
     stylize(texsyn, scene, out, "--nnf", nnf)
     oiiotool(out, "-o", tmp_path / "out.ppm")
-    sw, sh, ch, style = read_ppm(scene / "style.ppm")
-    tw, th, och, got = read_ppm(tmp_path / "out.ppm")
+    sw, sh, ch, style = read_pnm(scene / "style.ppm")
+    tw, th, och, got = read_pnm(tmp_path / "out.ppm")
     assert (tw, th, och) == (64, 48, ch)
     pairs = struct.unpack(f"<{2 * tw * th}I", nnf.read_bytes())
     r = PATCH // 2
