@@ -16,7 +16,6 @@
  * copy-map shortcut (§3.6.6, lossy, mrf_accel.h). */
 #include "mrf.h"
 
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -32,20 +31,6 @@
 #include "usage.h"
 
 
-
-/* Appends one problem line to msg. */
-static void problem(char *msg, size_t len, int *count, const char *fmt, ...)
-    __attribute__((format(printf, 4, 5)));
-static void problem(char *msg, size_t len, int *count, const char *fmt, ...) {
-  size_t used = strlen(msg);
-  if (used + 4 >= len) return;
-  if (*count > 0) msg[used++] = '\n';
-  va_list ap;
-  va_start(ap, fmt);
-  vsnprintf(msg + used, len - used, fmt, ap);
-  va_end(ap);
-  (*count)++;
-}
 
 static int nplanes_for(const ts_mrf_params *p, int channels) {
   if (!p->rgb_search || channels < 3) return 1;
@@ -88,7 +73,7 @@ static void check_reference_levels(const ts_mrf_params *p, int ref_w, int ref_h,
               (p->parity && (g.nx < 2 || g.ny < 2));
     ts_window_free(&s);
     if (bad) {
-      problem(msg, len, count,
+      ts_problem(msg, len, count,
               "%s %d: %s (%dx%d) is %dx%d at level %d, too small for a %dx%d neighbourhood%s; use %s",
               words->option, words->value, words->name, ref_w, ref_h, rw[l], rh[l], l, p->wn, p->wn,
               p->parity ? " in every parity class" : "", words->fix);
@@ -101,32 +86,32 @@ static void check_reference_levels(const ts_mrf_params *p, int ref_w, int ref_h,
 static void check_extras(const ts_mrf_params *p, char *msg, size_t len, int *n) {
   int levels_ok = p->levels >= 1 && p->levels <= TS_MRF_MAX_LEVELS;
   if (p->best_of < 1 || p->best_of > TS_MRF_MAX_BEST_OF)
-    problem(msg, len, n, "--best-of %d: need 1..%d candidates (1 = off)", p->best_of, TS_MRF_MAX_BEST_OF);
+    ts_problem(msg, len, n, "--best-of %d: need 1..%d candidates (1 = off)", p->best_of, TS_MRF_MAX_BEST_OF);
   if (p->best_of_levels < 0 || (levels_ok && p->best_of_levels > p->levels))
-    problem(msg, len, n, "--best-of-levels %d: need 1..%d (--levels), or 0 for all but the finest two",
+    ts_problem(msg, len, n, "--best-of-levels %d: need 1..%d (--levels), or 0 for all but the finest two",
             p->best_of_levels, p->levels);
   if (p->mix_level < 0 || (levels_ok && p->mix_level >= p->levels))
-    problem(msg, len, n, "--mix-level %d: need 1..%d (below --levels; 0 = no mixing)", p->mix_level,
+    ts_problem(msg, len, n, "--mix-level %d: need 1..%d (below --levels; 0 = no mixing)", p->mix_level,
             p->levels - 1);
   if (p->accel_kernel < 0 || p->accel_kernel > 15 || (p->accel_kernel > 0 && p->accel_kernel % 2 == 0))
-    problem(msg, len, n, "--copy-accel-kernel %d: need an odd width 1..15 (0 = the coarse window width)",
+    ts_problem(msg, len, n, "--copy-accel-kernel %d: need an odd width 1..15 (0 = the coarse window width)",
             p->accel_kernel);
   if (!(p->accel_min >= 0.0 && p->accel_min <= 1.0))
-    problem(msg, len, n, "--copy-accel-min %g: need a share 0..1", p->accel_min);
+    ts_problem(msg, len, n, "--copy-accel-min %g: need a share 0..1", p->accel_min);
 }
 
 /* The partitioning options: a count of partitions, a probe of at most as
  * many, levels the job has; none of them without --lbg. */
 static void check_lbg(const ts_mrf_params *p, char *msg, size_t len, int *count) {
   if (p->lbg < 0 || p->lbg > TS_LBG_MAX_PARTITIONS)
-    problem(msg, len, count, "--lbg %d: need 0 (off) to %d partitions", p->lbg, TS_LBG_MAX_PARTITIONS);
+    ts_problem(msg, len, count, "--lbg %d: need 0 (off) to %d partitions", p->lbg, TS_LBG_MAX_PARTITIONS);
   else if (p->lbg == 0 && (p->lbg_probe != 1 || p->lbg_exact || p->lbg_levels != 1))
-    problem(msg, len, count, "--lbg-probe, --lbg-levels and --lbg-exact need --lbg P (the partitions)");
+    ts_problem(msg, len, count, "--lbg-probe, --lbg-levels and --lbg-exact need --lbg P (the partitions)");
   else if (p->lbg > 0 && (p->lbg_probe < 1 || p->lbg_probe > p->lbg))
-    problem(msg, len, count, "--lbg-probe %d: need 1..%d (at most the --lbg partitions)", p->lbg_probe, p->lbg);
+    ts_problem(msg, len, count, "--lbg-probe %d: need 1..%d (at most the --lbg partitions)", p->lbg_probe, p->lbg);
   if (p->lbg > 0 && p->lbg_levels != TS_MRF_LBG_ALL && p->levels >= 1 && p->levels <= TS_MRF_MAX_LEVELS &&
       (p->lbg_levels >> p->levels) != 0)
-    problem(msg, len, count, "--lbg-levels names level %d, but --levels %d has levels 0..%d",
+    ts_problem(msg, len, count, "--lbg-levels names level %d, but --levels %d has levels 0..%d",
             31 - __builtin_clz(p->lbg_levels), p->levels, p->levels - 1);
 }
 
@@ -135,30 +120,30 @@ int ts_mrf_check(const ts_mrf_params *p, int ref_w, int ref_h, int channels,
   int n = 0;
   msg[0] = '\0';
   if (p->width < 1 || p->height < 1)
-    problem(msg, len, &n, "--size %dx%d: width and height must be at least 1", p->width, p->height);
+    ts_problem(msg, len, &n, "--size %dx%d: width and height must be at least 1", p->width, p->height);
   else if ((uint64_t)p->width * (uint64_t)p->height > p->max_pixels)
-    problem(msg, len, &n, "--size %dx%d: %llu pixels exceed the limit of %llu (raise --max-pixels)",
+    ts_problem(msg, len, &n, "--size %dx%d: %llu pixels exceed the limit of %llu (raise --max-pixels)",
             p->width, p->height, (unsigned long long)p->width * p->height,
             (unsigned long long)p->max_pixels);
   if (p->wb < 1 || p->wb % 2 == 0 || p->wb > 15)
-    problem(msg, len, &n, "--wb %d: the block width must be odd, 1..15", p->wb);
+    ts_problem(msg, len, &n, "--wb %d: the block width must be odd, 1..15", p->wb);
   if (p->wn % 2 == 0 || p->wn < 3 || p->wn > TS_MAX_WN)
-    problem(msg, len, &n, "--wn %d: the neighbourhood width must be odd, 3..%d", p->wn, TS_MAX_WN);
+    ts_problem(msg, len, &n, "--wn %d: the neighbourhood width must be odd, 3..%d", p->wn, TS_MAX_WN);
   else if (p->wn < p->wb + 2)
-    problem(msg, len, &n, "--wn %d: the neighbourhood must be wider than the block (--wb %d), at least %d",
+    ts_problem(msg, len, &n, "--wn %d: the neighbourhood must be wider than the block (--wb %d), at least %d",
             p->wn, p->wb, p->wb + 2);
   if (p->levels < 1 || p->levels > TS_MRF_MAX_LEVELS)
-    problem(msg, len, &n, "--levels %d: need 1..%d", p->levels, TS_MRF_MAX_LEVELS);
+    ts_problem(msg, len, &n, "--levels %d: need 1..%d", p->levels, TS_MRF_MAX_LEVELS);
   else if (p->stop_level < 0 || p->stop_level >= p->levels)
-    problem(msg, len, &n, "--stop-level %d: need 0..%d (below --levels)", p->stop_level, p->levels - 1);
+    ts_problem(msg, len, &n, "--stop-level %d: need 0..%d (below --levels)", p->stop_level, p->levels - 1);
   if (!(p->usage_weight >= 0.0 && p->usage_weight <= 100.0))
-    problem(msg, len, &n, "--usage-weight %g: need 0..100 (0 = off)", p->usage_weight);
+    ts_problem(msg, len, &n, "--usage-weight %g: need 0..100 (0 = off)", p->usage_weight);
   if (p->refine < 0 || p->refine > 20)
-    problem(msg, len, &n, "--refine %d: need 0..20 sweeps", p->refine);
+    ts_problem(msg, len, &n, "--refine %d: need 0..20 sweeps", p->refine);
   if (!(p->coarse_weight > 0.0 && p->coarse_weight <= 100.0))
-    problem(msg, len, &n, "--coarse-weight %g: need more than 0, at most 100", p->coarse_weight);
+    ts_problem(msg, len, &n, "--coarse-weight %g: need more than 0, at most 100", p->coarse_weight);
   if (channels < 1 || channels > 16)
-    problem(msg, len, &n, "reference has %d channels: need 1..16", channels);
+    ts_problem(msg, len, &n, "reference has %d channels: need 1..16", channels);
   check_extras(p, msg, len, &n);
   check_lbg(p, msg, len, &n);
   if (n > 0) return TS_EINVAL; /* the checks below need sane parameters */
@@ -166,12 +151,12 @@ int ts_mrf_check(const ts_mrf_params *p, int ref_w, int ref_h, int channels,
   level_sizes(p->width, p->height, p->levels, cw, ch, 1);
   int top = p->levels - 1;
   if (cw[top] < p->wn || ch[top] < p->wn)
-    problem(msg, len, &n,
+    ts_problem(msg, len, &n,
             "--levels %d: the output is only %dx%d at the coarsest level, smaller than the "
             "%dx%d neighbourhood; use fewer levels or a larger --size",
             p->levels, cw[top], ch[top], p->wn, p->wn);
   if (ref_w < p->wn || ref_h < p->wn)
-    problem(msg, len, &n, "the reference (%dx%d) is smaller than the %dx%d neighbourhood", ref_w,
+    ts_problem(msg, len, &n, "the reference (%dx%d) is smaller than the %dx%d neighbourhood", ref_w,
             ref_h, p->wn, p->wn);
   else {
     /* With mixing the reference makes only the levels from mix_level up. */
@@ -194,13 +179,13 @@ int ts_mrf_check_fine(const ts_mrf_params *p, int fine_w, int fine_h, int fine_c
                       char *msg, size_t len) {
   int n = msg[0] != '\0', before = n;
   if (fine_channels < 1 || fine_channels > 16)
-    problem(msg, len, &n, "--ref-fine has %d channels: need 1..16", fine_channels);
+    ts_problem(msg, len, &n, "--ref-fine has %d channels: need 1..16", fine_channels);
   else if (nplanes_for(p, fine_channels) != nplanes_for(p, ref_channels))
-    problem(msg, len, &n,
+    ts_problem(msg, len, &n,
             "--rgb-search: the reference has %d channels and the --ref-fine image %d; both need 3 or more "
             "(or drop --rgb-search to search on luminance)", ref_channels, fine_channels);
   if (geometry_sane(p) && (fine_w < p->wn || fine_h < p->wn))
-    problem(msg, len, &n, "the --ref-fine image (%dx%d) is smaller than the %dx%d neighbourhood", fine_w, fine_h,
+    ts_problem(msg, len, &n, "the --ref-fine image (%dx%d) is smaller than the %dx%d neighbourhood", fine_w, fine_h,
             p->wn, p->wn);
   else if (geometry_sane(p)) {
     /* Its levels below mix_level, each with its coarse part one level up. */
