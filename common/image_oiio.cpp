@@ -405,7 +405,7 @@ static void ts_out_channel_names(ImageSpec &spec) {
   }
 }
 
-/* Lossless defaults, JPEG at quality 95. Alpha keeps its meaning: samples
+/* Lossless defaults (PNG at zlib level 1), JPEG at quality 95. Alpha keeps its meaning: samples
  * of a source with associated (premultiplied) alpha, e.g. a TIFF with
  * ExtraSamples=1, are written as associated - TIFF and EXR keep samples
  * and label, a format that stores straight alpha only (PNG) gets them
@@ -417,6 +417,11 @@ static void ts_out_defaults(const std::string &fmt, ImageSpec &spec, const ts_me
   spec.attribute("oiio:UnassociatedAlpha", assoc ? 0 : 1);
   if (fmt == "jpeg") spec.attribute("compression", "jpeg:95");
   if (fmt == "tiff" || fmt == "openexr") spec.attribute("compression", "zip");
+  /* zlib's fastest level, OpenCV's default too: an 8192^2 result encodes
+   * ~3x faster than at OpenImageIO's level 6, for a file ~20% larger. The
+   * coordinator writes every result on its own, while the workers wait for
+   * the next job, so the encoding is serial time in every scaling figure. */
+  if (fmt == "png") spec.attribute("png:compressionLevel", 1);
 }
 
 /* Removes the temporary file unless the write was committed. */

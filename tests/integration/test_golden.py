@@ -1,8 +1,10 @@
 """Golden outputs: the bytes of four jobs recorded before the search service
-was rebuilt for every engine (commit c8cebdc), checked embedded and on 1, 2,
-3 and 16 workers (16 worker processes on loopback, 1 scan thread each). The
-Table 3.3 job, a third of the suite's golden time on its own, runs embedded
-and on 16 workers (many thin slices); the three small ones run everywhere.
+was rebuilt for every engine (commit c8cebdc; the PNG hashes recorded again
+when results moved to zlib level 1, with the copy maps, hence the pixels,
+unchanged), checked embedded and on 1, 3 and 16 workers (16 worker
+processes on loopback, 1 scan thread each). The Table 3.3 job, a third of
+the suite's golden time on its own, runs embedded and on 16 workers (many
+thin slices); the three small ones run everywhere.
 
 Any change to the search service, the protocol or the engines must keep these
 bytes: the engine decides what is searched and in which order, and the backend
@@ -22,19 +24,19 @@ GOLDEN = {
     # The seed's Table 3.3 job: brick 512^2 -> 1024^2, L=5, W_N=7, W_B=3, parity.
     "table33": ("textures/brick.png",
                 ["--size", "1024x1024", "--levels", "5", "--wn", "7", "--wb", "3", "--parity"],
-                "161e520cab1f0329412766d4d60cbfce98406452b570d36e3ae4f1d7d8a567bb",
+                "6182d71bf941713a56d806030bcc975fa3e6595ce1c72baf91f7e94e89a7a2dd",
                 "798f4938134f488eb34f591d3ac0b07ad129df80e7635e24aa0094c209b65e80"),
     # A wide colour window: 11x11, three planes.
     "grass-rgb-wn11": ("textures/grass.png", ["--size", "256x192", "--rgb-search", "--wn", "11"],
-                       "872f066e092b966828e358980c8c2a2c73affb0b1166079e536492a132576e85",
+                       "15fbef3eba7b864e4db980849251a9c38563b3a0b473fc85dd51bdf3d0abc9d2",
                        "9b086381d809fb8ccd17eed92c7eecb79d8383e92c7f1fbebb968f4ff8917df7"),
     # A colour photograph searched on its colour channels.
     "aero-rgb": ("aerial/aero1.jpg", ["--size", "256x192", "--rgb-search"],
-                 "f43178c3d8b620e598f722e870bfc45442338912acd49383fb8c42d0a481a916",
+                 "8fb7a425e9498185a5402d4f89868f89dc73a93a40b1b1b1eaaa342fa4ca0df6",
                  "a3e8298093806a104c150e0d0f87a7d862157aed15a2e526ece7465e0765ce19"),
     # The usage penalty: replicas of the usage counters on every worker.
     "usage4": ("textures/brick.png", ["--size", "256x256", "--usage-weight", "4"],
-               "9a61c5099815c9c067c9385103e344225007857e9ec7f1abb108dcf3b127576f",
+               "576a9a1dab12bf89c4362264d859bb80b47a4d92e03852b007b59e166363c073",
                "0f2b26b1d1bc26b19cc9adc9e675ed581df03ade972d95177bf57e0b9a6af8c5"),
 }
 
@@ -64,7 +66,7 @@ def test_golden_embedded(texsyn, data, tmp_path):
     assert_golden(texsyn, data, tmp_path, ["--embedded"], "embedded")
 
 
-@pytest.mark.parametrize("workers", [1, 2, 3, 16])
+@pytest.mark.parametrize("workers", [1, 3, 16])
 def test_golden_on_workers(texsyn, data, cluster, tmp_path, workers):
     cluster.start(workers, 1)
     names = [n for n in GOLDEN if n != "table33" or workers == 16]
