@@ -92,12 +92,17 @@ static int index_rows(ts_anchors *a, int ay0, int ay1, const uint8_t *labels, co
     int rc = set_bases(a, err);
     if (rc != 0) return rc;
   }
-  /* Pass 2: ranks become global indices. */
+  /* Pass 2: ranks become global indices (and, holding them all, the cell
+   * of each global index). */
+  if (counting && (a->cell = malloc(sizeof(uint32_t) * ((size_t)a->total + 1))) == NULL)
+    return ts_error(err, TS_ENOMEM, "out of memory for the anchors' index");
   for (size_t r = 0; r < rows; r++) {
     size_t off = r * (size_t)a->w + (size_t)a->x0;
     for (int i = 0; i < a->nx; i++) {
-      uint32_t *slot = &a->index[r * (size_t)a->nx + (size_t)i];
-      if (*slot != TS_NOT_ANCHOR) *slot += a->base[labels != NULL ? labels[off + (size_t)i] : 0];
+      size_t k = r * (size_t)a->nx + (size_t)i;
+      if (a->index[k] == TS_NOT_ANCHOR) continue;
+      a->index[k] += a->base[labels != NULL ? labels[off + (size_t)i] : 0];
+      if (a->cell != NULL) a->cell[a->index[k]] = (uint32_t)k;
     }
   }
   return 0;
@@ -161,7 +166,8 @@ int ts_anchors_init_rows(ts_anchors *a, const ts_window *win, int w, int h, int 
 void ts_anchors_free(ts_anchors *a) {
   free(a->index);
   free(a->before);
-  a->index = a->before = NULL;
+  free(a->cell);
+  a->index = a->before = a->cell = NULL;
 }
 
 int64_t ts_anchors_index(const ts_anchors *a, int x, int y) {
@@ -193,6 +199,12 @@ void ts_anchors_pos(const ts_anchors *a, uint32_t global, int *x, int *y) {
   if (!a->indexed) {
     *x = a->x0 + (int)(global % (uint32_t)a->nx);
     *y = a->y0 + (int)(global / (uint32_t)a->nx);
+    return;
+  }
+  if (a->cell != NULL) {
+    uint32_t k = a->cell[global];
+    *x = a->x0 + (int)(k % (uint32_t)a->nx);
+    *y = a->ay0 + (int)(k / (uint32_t)a->nx);
     return;
   }
   int c = ts_anchors_class(a, global);

@@ -40,6 +40,9 @@ typedef struct {
   int ay0, ay1;     /* anchor rows held, [ay0, ay1) within the box */
   uint32_t *index;  /* (ay1 - ay0) x nx, TS_NOT_ANCHOR where there is none */
   uint32_t *before; /* (ay1 - ay0) x nclass: class-c anchors above each held row */
+  uint32_t *cell;   /* ts_anchors_init only: the index cell of every global
+                       index, so an engine finds a result's position at once;
+                       NULL in a worker's rows (they search the row) */
 } ts_anchors;
 
 /* All anchors of a level (w x h; coarser level cw x ch, 0 x 0 without a

@@ -47,21 +47,27 @@ void ts_usage_free(ts_usage *u) {
   u->u = NULL;
 }
 
-/* Adds delta uses of pixel (px, py) to every valid block containing it. */
-static void add_pixel(ts_usage *u, int px, int py, int delta) {
-  u->count[(long)py * u->grid.w + px] += (uint32_t)delta;
-  u->total += (uint64_t)(int64_t)delta;
-  if (u->u == NULL) return;
-  for (int by = py - u->wb + 1; by <= py; by++)
-    for (int bx = px - u->wb + 1; bx <= px; bx++) {
-      int64_t j = ts_anchors_index(&u->grid, bx, by);
-      if (j >= 0) u->u[j] += (uint32_t)delta;
-    }
+/* Pixels [a0, a0 + an) and [b0, b0 + bn) have in common. */
+static int overlap(int a0, int an, int b0, int bn) {
+  int lo = a0 > b0 ? a0 : b0, hi = a0 + an < b0 + bn ? a0 + an : b0 + bn;
+  return hi > lo ? hi - lo : 0;
 }
 
+/* Every valid block overlapping the copied rectangle gains delta uses per
+ * pixel in common: (w + wb - 1) x (h + wb - 1) block sums for a w x h copy,
+ * instead of wb^2 per copied pixel. */
 void ts_usage_commit(ts_usage *u, int x, int y, int w, int h, int delta) {
   for (int dy = 0; dy < h; dy++)
-    for (int dx = 0; dx < w; dx++) add_pixel(u, x + dx, y + dy, delta);
+    for (int dx = 0; dx < w; dx++) u->count[(long)(y + dy) * u->grid.w + x + dx] += (uint32_t)delta;
+  u->total += (uint64_t)((int64_t)delta * w * h);
+  if (u->u == NULL) return;
+  for (int by = y - u->wb + 1; by < y + h; by++) {
+    int oy = overlap(by, u->wb, y, h);
+    for (int bx = x - u->wb + 1; bx < x + w; bx++) {
+      int64_t j = ts_anchors_index(&u->grid, bx, by);
+      if (j >= 0) u->u[j] += (uint32_t)(delta * oy * overlap(bx, u->wb, x, w));
+    }
+  }
 }
 
 void ts_usage_load(ts_usage *u, const uint32_t *count) {
