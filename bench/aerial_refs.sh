@@ -16,20 +16,37 @@
 # enlarged, that holds one land-use class only. The photograph is hazy, so
 # every colour is lifted towards grey; that is the catalogue's look, as the
 # seed notes for its own references (colour casts are reproduced).
-# Usage: bench/aerial_refs.sh OUTDIR [--roads NAME]
+#
+# --grow N grows every crop into an N x N reference with texsyn synth (3
+# levels, colour search, the usage penalty against repeats): a catalogue of
+# the size one cut from a real orthophoto would have - a forest stand at
+# 1 m/pixel is hundreds of pixels across, while the photograph's clean
+# rectangles are 32 to 104 pixels high. The scan per query grows with the
+# reference, so this is the catalogue of the scaling benchmark's large
+# aerial job (bench/scaling.py). --texsyn PATH names the binary (default
+# build/texsyn).
+# Usage: bench/aerial_refs.sh OUTDIR [--roads NAME] [--grow N [--texsyn PATH]]
 set -euo pipefail
-usage() { echo "usage: $0 OUTDIR [--roads NAME]  (NAME: the line raster, relative to OUTDIR)" >&2; exit 2; }
+usage() {
+  echo "usage: $0 OUTDIR [--roads NAME] [--grow N [--texsyn PATH]]  (NAME: the line raster, relative to OUTDIR)" >&2
+  exit 2
+}
 [ $# -ge 1 ] || usage
 out=$1; shift
 roads=scene-roads.png
+grow=0
+here=$(cd "$(dirname "$0")/.." && pwd)
+texsyn=$here/build/texsyn
 while [ $# -gt 0 ]; do
   case "$1" in
   --roads) [ $# -ge 2 ] || usage; roads=$2; shift 2 ;;
+  --grow) [ $# -ge 2 ] && [[ $2 =~ ^[1-9][0-9]{1,3}$ ]] || usage; grow=$2; shift 2 ;;
+  --texsyn) [ $# -ge 2 ] || usage; texsyn=$2; shift 2 ;;
   *) usage ;;
   esac
 done
 case "$roads" in *'"'* | *'\'*) echo "$0: --roads $roads: no quotes or backslashes in the name" >&2; exit 2 ;; esac
-here=$(cd "$(dirname "$0")/.." && pwd)
+[ "$grow" -eq 0 ] || [ -x "$texsyn" ] || { echo "$0: --grow needs texsyn: $texsyn is missing (make, or --texsyn PATH)" >&2; exit 1; }
 data=$(bash "$here/tests/test-data.sh" aerial/aero1.jpg)
 photo=$data/aerial/aero1.jpg
 command -v oiiotool >/dev/null || { echo "$0: oiiotool is missing (apt-get install openimageio-tools)" >&2; exit 1; }
@@ -54,6 +71,11 @@ crops=(
 for c in "${crops[@]}"; do
   read -r name box <<<"$c"
   oiiotool "$photo" --cut "$box" -o "$out/$name.png"
+  if [ "$grow" -gt 0 ]; then
+    mv "$out/$name.png" "$out/$name-crop.png"
+    "$texsyn" synth --ref "$out/$name-crop.png" --size "${grow}x$grow" --levels 3 --rgb-search --usage-weight 1 \
+      --seed 7 --quiet -o "$out/$name.png"
+  fi
 done
 
 # Roads: the main road's surface in the middle of the photograph averages
