@@ -1,0 +1,100 @@
+#!/usr/bin/env bash
+# The deployment files checked on this machine (`make test-deploy`; root, a
+# minute or two, not part of `make test`):
+#   slurm    a single-node Slurm (munged, slurmctld, slurmd) started in a
+#            temporary directory runs deploy/slurm/texsyn.sbatch with
+#            several worker tasks; its output must be byte-identical (cmp)
+#            to the embedded run of the same job
+#   systemd  `systemd-analyze verify` of deploy/systemd/*, with the build's
+#            binaries in ExecStart; any message fails it
+#   k8s      deploy/k8s/*.yaml: every field known to its Kubernetes type
+#            (tests/deploy/k8s_fields.py) and every object valid against the
+#            Kubernetes JSON schema (tests/deploy/k8s_schema.mjs, npm's
+#            kubernetes-models, installed into the temporary directory)
+# Prints PASS or FAIL per check, exits 1 if any failed. Everything it starts
+# is stopped on exit, failure or not; it writes nothing outside its
+# temporary directory but the packages deploy/install-deps.sh --deploy
+# installs. Usage: tests/deploy/run.sh BUILD_DIR (default build)
+set -uo pipefail
+
+here=$(cd "$(dirname "$0")" && pwd)
+root=$(cd "$here/../.." && pwd)
+build=$(cd "${1:-build}" && pwd) || exit 1
+data=$(bash "$root/tests/test-data.sh") || exit 1
+# The job: a 512² texture made 256² at 4 levels, a few seconds of work.
+job=(--ref "$data/textures/brick.png" --size 256x256 --levels 4 --seed 7)
+workers=4
+# Pinned: its validators are generated from a recent Kubernetes OpenAPI schema.
+k8s_models=kubernetes-models@5.1.0
+
+tmp=$(mktemp -d /tmp/texsyn-deploy.XXXXXX)
+# shellcheck source=tests/deploy/slurm.sh
+source "$here/slurm.sh"
+cleanup() {
+  slurm_stop
+  rm -rf "$tmp"
+}
+trap cleanup EXIT
+trap 'exit 143' TERM INT
+
+failed=0
+result() {
+  if [ "$2" -eq 0 ]; then echo "PASS $1"; else echo "FAIL $1"; failed=1; fi
+}
+
+check_slurm() {
+  slurm_start "$tmp/slurm" || return 1
+  mkdir -p "$tmp/job"
+  "$build/texsyn" synth --embedded --quiet "${job[@]}" -o "$tmp/embedded.png" || return 1
+  # --wait: sbatch returns when the job has ended, with its exit status.
+  # --overcommit: more worker tasks than the node's CPUs.
+  (cd "$tmp/job" && TEXSYN_BIN=$build TEXSYN_WAIT=60 sbatch --wait --quiet --time=5 \
+    --ntasks=$workers --overcommit --output=slurm-%j.out \
+    "$root/deploy/slurm/texsyn.sbatch" "${job[@]}" -o slurm.png)
+  local rc=$?
+  echo "--- the Slurm job's output:"
+  cat "$tmp"/job/slurm-*.out
+  [ $rc -eq 0 ] || { echo "slurm: the batch job failed (exit status $rc)"; return 1; }
+  # Every worker task took part: each was in the pool before the job began.
+  local joined
+  joined=$(grep -c ' ready: scans ' "$tmp"/job/texsyn-job-*/server.log)
+  [ "$joined" -eq $workers ] || { echo "slurm: $joined of $workers workers joined"; return 1; }
+  cmp "$tmp/embedded.png" "$tmp/job/slurm.png" || return 1
+  echo "slurm: $workers workers, output byte-identical to the embedded run ($(stat -c %s "$tmp/job/slurm.png") bytes)"
+}
+
+# systemd-analyze verify needs every ExecStart binary to exist: it checks
+# copies of the units with /usr/local/bin/ replaced by the build directory.
+# A template is verified as instance "i". It exits 0 on unknown keys or bad
+# values (it only logs them), so any output is a failure.
+check_systemd() {
+  local dir=$tmp/systemd out
+  mkdir -p "$dir"
+  for unit in "$root"/deploy/systemd/*; do
+    sed "s|/usr/local/bin/|$build/|g" "$unit" > "$dir/$(basename "$unit")"
+  done
+  out=$(cd "$dir" && systemd-analyze verify --man=no ./* 2>&1)
+  local rc=$?
+  [ -n "$out" ] && echo "$out"
+  [ $rc -eq 0 ] && [ -z "$out" ] || return 1
+  echo "systemd: $(cd "$dir" && echo ./*) verified"
+}
+
+check_k8s() {
+  local npm=$tmp/npm
+  mkdir -p "$npm"
+  # The npm cache in the temporary directory too.
+  npm_config_cache=$tmp/npm-cache npm install --prefix "$npm" --no-audit --no-fund \
+    --no-update-notifier --loglevel=error "$k8s_models" > "$tmp/npm.log" 2>&1 ||
+    { cat "$tmp/npm.log"; echo "k8s: npm install $k8s_models failed"; return 1; }
+  /usr/bin/python3 "$here/k8s_fields.py" "$tmp/k8s.json" "$root"/deploy/k8s/*.yaml || return 1
+  node "$here/k8s_schema.mjs" "$npm/node_modules" "$tmp/k8s.json" || return 1
+}
+
+bash "$root/deploy/install-deps.sh" --deploy || exit 1
+for check in slurm systemd k8s; do
+  echo "=== $check"
+  "check_$check"
+  result "$check" $?
+done
+exit $failed
