@@ -11,6 +11,7 @@
 #            (tests/deploy/k8s_fields.py) and every object valid against the
 #            Kubernetes JSON schema (tests/deploy/k8s_schema.mjs, npm's
 #            kubernetes-models, installed into the temporary directory)
+#   negatives  the systemd and k8s checks fail on broken copies of the files
 # Prints PASS or FAIL per check, exits 1 if any failed. Everything it starts
 # is stopped on exit, failure or not; it writes nothing outside its
 # temporary directory but the packages deploy/install-deps.sh --deploy
@@ -64,35 +65,60 @@ check_slurm() {
 }
 
 # systemd-analyze verify needs every ExecStart binary to exist: it checks
-# copies of the units with /usr/local/bin/ replaced by the build directory.
-# A template is verified as instance "i". It exits 0 on unknown keys or bad
-# values (it only logs them), so any output is a failure.
+# copies of the units (of directory $1, default deploy/systemd) with
+# /usr/local/bin/ replaced by the build directory. A template is verified as
+# instance "i". It exits 0 on unknown keys or bad values (it only logs
+# them), so any output is a failure.
 check_systemd() {
-  local dir=$tmp/systemd out
-  mkdir -p "$dir"
-  for unit in "$root"/deploy/systemd/*; do
+  local src=${1:-$root/deploy/systemd} dir out rc
+  dir=$(mktemp -d "$tmp/systemd.XXXX")
+  for unit in "$src"/*; do
     sed "s|/usr/local/bin/|$build/|g" "$unit" > "$dir/$(basename "$unit")"
   done
   out=$(cd "$dir" && systemd-analyze verify --man=no ./* 2>&1)
-  local rc=$?
+  rc=$?
   [ -n "$out" ] && echo "$out"
   [ $rc -eq 0 ] && [ -z "$out" ] || return 1
   echo "systemd: $(cd "$dir" && echo ./*) verified"
 }
 
+# The manifests given (default deploy/k8s/*.yaml): fields, then schema.
 check_k8s() {
   local npm=$tmp/npm
-  mkdir -p "$npm"
-  # The npm cache in the temporary directory too.
-  npm_config_cache=$tmp/npm-cache npm install --prefix "$npm" --no-audit --no-fund \
-    --no-update-notifier --loglevel=error "$k8s_models" > "$tmp/npm.log" 2>&1 ||
-    { cat "$tmp/npm.log"; echo "k8s: npm install $k8s_models failed"; return 1; }
-  /usr/bin/python3 "$here/k8s_fields.py" "$tmp/k8s.json" "$root"/deploy/k8s/*.yaml || return 1
+  [ $# -gt 0 ] || set -- "$root"/deploy/k8s/*.yaml
+  if [ ! -d "$npm/node_modules/kubernetes-models" ]; then
+    mkdir -p "$npm"
+    # The npm cache in the temporary directory too.
+    npm_config_cache=$tmp/npm-cache npm install --prefix "$npm" --no-audit --no-fund \
+      --no-update-notifier --loglevel=error "$k8s_models" > "$tmp/npm.log" 2>&1 ||
+      { cat "$tmp/npm.log"; echo "k8s: npm install $k8s_models failed"; return 1; }
+  fi
+  /usr/bin/python3 "$here/k8s_fields.py" "$tmp/k8s.json" "$@" || return 1
   node "$here/k8s_schema.mjs" "$npm/node_modules" "$tmp/k8s.json" || return 1
 }
 
+# The two checks above fail on a broken copy of what they passed: a
+# misspelt unit key; a misspelt field (the field check's); a value the
+# schema forbids (the schema check's: a field check cannot see it).
+check_negatives() {
+  local bad=$tmp/bad ok=0
+  mkdir -p "$bad/systemd"
+  cp "$root"/deploy/systemd/* "$bad/systemd/"
+  sed -i 's/^Restart=always/Restrat=always/' "$bad/systemd/texsyn-worker@.service"
+  sed 's/readinessProbe:/readinesProbe:/' "$root/deploy/k8s/server.yaml" > "$bad/field.yaml"
+  sed 's/type: Recreate/type: Recreated/' "$root/deploy/k8s/server.yaml" > "$bad/schema.yaml"
+  check_systemd "$bad/systemd" > "$bad/out" 2>&1 && { echo "systemd check passed a misspelt key"; ok=1; }
+  check_k8s "$bad/field.yaml" > "$bad/out" 2>&1 && { echo "k8s check passed a misspelt field"; ok=1; }
+  grep -q 'readinesProbe: unknown field' "$bad/out" || { echo "k8s field check: no line for the misspelt field"; ok=1; }
+  check_k8s "$bad/schema.yaml" > "$bad/out" 2>&1 && { echo "k8s check passed a strategy type of no such kind"; ok=1; }
+  grep -q 'FAIL .*strategy/type must be equal to one of the allowed values' "$bad/out" ||
+    { echo "k8s schema check: no line for the strategy type"; ok=1; }
+  [ $ok -eq 0 ] && echo "negatives: each check failed its broken copy"
+  return $ok
+}
+
 bash "$root/deploy/install-deps.sh" --deploy || exit 1
-for check in slurm systemd k8s; do
+for check in slurm systemd k8s negatives; do
   echo "=== $check"
   "check_$check"
   result "$check" $?
