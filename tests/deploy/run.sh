@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# shellcheck disable=SC2317  # the check_* functions are called by name
 # The deployment files checked on this machine (`make test-deploy`; root, a
 # minute or two, not part of `make test`):
 #   slurm    a single-node Slurm (munged, slurmctld, slurmd) started in a
@@ -50,16 +51,16 @@ check_slurm() {
   # --wait: sbatch returns when the job has ended, with its exit status.
   # --overcommit: more worker tasks than the node's CPUs.
   (cd "$tmp/job" && TEXSYN_BIN=$build TEXSYN_WAIT=60 sbatch --wait --quiet --time=5 \
-    --ntasks=$workers --overcommit --output=slurm-%j.out \
+    --ntasks="$workers" --overcommit --output=slurm-%j.out \
     "$root/deploy/slurm/texsyn.sbatch" "${job[@]}" -o slurm.png)
   local rc=$?
   echo "--- the Slurm job's output:"
   cat "$tmp"/job/slurm-*.out
-  [ $rc -eq 0 ] || { echo "slurm: the batch job failed (exit status $rc)"; return 1; }
+  [ "$rc" -eq 0 ] || { echo "slurm: the batch job failed (exit status $rc)"; return 1; }
   # Every worker task took part: each was in the pool before the job began.
   local joined
   joined=$(grep -c ' ready: scans ' "$tmp"/job/texsyn-job-*/server.log)
-  [ "$joined" -eq $workers ] || { echo "slurm: $joined of $workers workers joined"; return 1; }
+  [ "$joined" -eq "$workers" ] || { echo "slurm: $joined of $workers workers joined"; return 1; }
   cmp "$tmp/embedded.png" "$tmp/job/slurm.png" || return 1
   echo "slurm: $workers workers, output byte-identical to the embedded run ($(stat -c %s "$tmp/job/slurm.png") bytes)"
 }
@@ -78,7 +79,7 @@ check_systemd() {
   out=$(cd "$dir" && systemd-analyze verify --man=no ./* 2>&1)
   rc=$?
   [ -n "$out" ] && echo "$out"
-  [ $rc -eq 0 ] && [ -z "$out" ] || return 1
+  [ "$rc" -eq 0 ] && [ -z "$out" ] || return 1
   echo "systemd: $(cd "$dir" && echo ./*) verified"
 }
 
@@ -113,8 +114,8 @@ check_negatives() {
   check_k8s "$bad/schema.yaml" > "$bad/out" 2>&1 && { echo "k8s check passed a strategy type of no such kind"; ok=1; }
   grep -q 'FAIL .*strategy/type must be equal to one of the allowed values' "$bad/out" ||
     { echo "k8s schema check: no line for the strategy type"; ok=1; }
-  [ $ok -eq 0 ] && echo "negatives: each check failed its broken copy"
-  return $ok
+  [ "$ok" -eq 0 ] && echo "negatives: each check failed its broken copy"
+  return "$ok"
 }
 
 bash "$root/deploy/install-deps.sh" --deploy || exit 1

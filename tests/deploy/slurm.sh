@@ -1,3 +1,4 @@
+# shellcheck shell=bash
 # A single-node Slurm (munged, slurmctld, slurmd from Debian) in one
 # directory, for tests/deploy/run.sh; sourced, not run.
 #
