@@ -12,7 +12,10 @@
 #            (tests/deploy/k8s_fields.py) and every object valid against the
 #            Kubernetes JSON schema (tests/deploy/k8s_schema.mjs, npm's
 #            kubernetes-models, installed into the temporary directory)
-#   negatives  the systemd and k8s checks fail on broken copies of the files
+#   flags    the coordinator and worker command lines of the units and of
+#            the manifests run with the build's programs (tests/deploy/flags.py):
+#            the worker joins, with the threads and name the file gives it
+#   negatives  the systemd, k8s and flags checks fail on broken copies
 # Prints PASS or FAIL per check, exits 1 if any failed. Everything it starts
 # is stopped on exit, failure or not; it writes nothing outside its
 # temporary directory but the packages deploy/install-deps.sh --deploy
@@ -63,6 +66,32 @@ check_slurm() {
   [ "$joined" -eq "$workers" ] || { echo "slurm: $joined of $workers workers joined"; return 1; }
   cmp "$tmp/embedded.png" "$tmp/job/slurm.png" || return 1
   echo "slurm: $workers workers, output byte-identical to the embedded run ($(stat -c %s "$tmp/job/slurm.png") bytes)"
+  slurm_job_cleaned "$tmp/job" || return 1
+  # A job that fails (a reference that does not exist) fails the batch job,
+  # and is cleaned up the same way.
+  mkdir -p "$tmp/failing"
+  if (cd "$tmp/failing" && TEXSYN_BIN=$build TEXSYN_WAIT=60 sbatch --wait --quiet --time=5 \
+    --ntasks=2 --overcommit --output=slurm-%j.out \
+    "$root/deploy/slurm/texsyn.sbatch" --ref no-such.png --size 64x64 -o failing.png); then
+    echo "slurm: a job on a missing reference succeeded"
+    return 1
+  fi
+  grep -q 'no-such.png' "$tmp"/failing/slurm-*.out ||
+    { cat "$tmp"/failing/slurm-*.out; echo "slurm: the failed job's output does not name the missing file"; return 1; }
+  slurm_job_cleaned "$tmp/failing" || return 1
+  echo "slurm: a failing job exits non-zero, names the missing reference, leaves nothing running"
+}
+
+# After a job run in directory $1: no process of it left (each has its job
+# directory on its command line), the secret and the spool removed.
+slurm_job_cleaned() {
+  local left
+  left=$(pgrep -af "$1/texsyn-job-" || true)
+  [ -z "$left" ] || { echo "slurm: left running after the job: $left"; return 1; }
+  if compgen -G "$1/texsyn-job-*/secret" > /dev/null || compgen -G "$1/texsyn-job-*/spool" > /dev/null; then
+    echo "slurm: the job's secret or spool was not removed"
+    return 1
+  fi
 }
 
 # systemd-analyze verify needs every ExecStart binary to exist: it checks
@@ -98,14 +127,24 @@ check_k8s() {
   node "$here/k8s_schema.mjs" "$npm/node_modules" "$tmp/k8s.json" || return 1
 }
 
-# The two checks above fail on a broken copy of what they passed: a
+# The coordinator and worker command lines of the units and manifests, run
+# (tests/deploy/flags.py; ROOT $1, default this tree).
+check_flags() {
+  /usr/bin/python3 "$here/flags.py" "${1:-$root}" "$build" "$(mktemp -d "$tmp/flags.XXXX")"
+}
+
+# The checks above fail on a broken copy of what they passed: a
 # misspelt unit key; a misspelt field (the field check's); a value the
-# schema forbids (the schema check's: a field check cannot see it).
+# schema forbids (the schema check's: a field check cannot see it); an
+# option the worker does not have, in the unit and in the manifest.
 check_negatives() {
   local bad=$tmp/bad ok=0
-  mkdir -p "$bad/systemd"
+  mkdir -p "$bad/systemd" "$bad/root/deploy"
   cp "$root"/deploy/systemd/* "$bad/systemd/"
   sed -i 's/^Restart=always/Restrat=always/' "$bad/systemd/texsyn-worker@.service"
+  cp -r "$root/deploy/systemd" "$root/deploy/k8s" "$bad/root/deploy/"
+  sed -i 's/--join /--joint /' "$bad/root/deploy/systemd/texsyn-worker@.service"
+  sed -i 's/--threads=/--treads=/' "$bad/root/deploy/k8s/worker.yaml"
   sed 's/readinessProbe:/readinesProbe:/' "$root/deploy/k8s/server.yaml" > "$bad/field.yaml"
   sed 's/type: Recreate/type: Recreated/' "$root/deploy/k8s/server.yaml" > "$bad/schema.yaml"
   check_systemd "$bad/systemd" > "$bad/out" 2>&1 && { echo "systemd check passed a misspelt key"; ok=1; }
@@ -114,12 +153,14 @@ check_negatives() {
   check_k8s "$bad/schema.yaml" > "$bad/out" 2>&1 && { echo "k8s check passed a strategy type of no such kind"; ok=1; }
   grep -q 'FAIL .*strategy/type must be equal to one of the allowed values' "$bad/out" ||
     { echo "k8s schema check: no line for the strategy type"; ok=1; }
+  check_flags "$bad/root" > "$bad/out" 2>&1 && { echo "flags check passed options the worker lacks"; ok=1; }
+  [ "$(grep -c '^FAIL' "$bad/out")" -eq 2 ] || { cat "$bad/out"; echo "flags check: not both files failed"; ok=1; }
   [ "$ok" -eq 0 ] && echo "negatives: each check failed its broken copy"
   return "$ok"
 }
 
 bash "$root/deploy/install-deps.sh" --deploy || exit 1
-for check in slurm systemd k8s negatives; do
+for check in slurm systemd k8s flags negatives; do
   echo "=== $check"
   "check_$check"
   result "$check" $?
