@@ -19,7 +19,8 @@
 # Prints PASS or FAIL per check, exits 1 if any failed. Everything it starts
 # is stopped on exit, failure or not; it writes nothing outside its
 # temporary directory but the packages deploy/install-deps.sh --deploy
-# installs. Usage: tests/deploy/run.sh BUILD_DIR (default build)
+# installs. Usage: tests/deploy/run.sh BUILD_DIR [CHECK...] (default: build,
+# all five)
 set -uo pipefail
 
 here=$(cd "$(dirname "$0")" && pwd)
@@ -60,10 +61,13 @@ check_slurm() {
   echo "--- the Slurm job's output:"
   cat "$tmp"/job/slurm-*.out
   [ "$rc" -eq 0 ] || { echo "slurm: the batch job failed (exit status $rc)"; return 1; }
-  # Every worker task took part: each was in the pool before the job began.
-  local joined
+  # Every worker task took part: each was in the pool before the job began,
+  # and answered batches of it (the last column of the pool after the job).
+  local joined busy
   joined=$(grep -c ' ready: scans ' "$tmp"/job/texsyn-job-*/server.log)
   [ "$joined" -eq "$workers" ] || { echo "slurm: $joined of $workers workers joined"; return 1; }
+  busy=$(sed -n '/the pool after the job/,$p' "$tmp"/job/slurm-*.out | awk '/ ready / && $NF > 0' | wc -l)
+  [ "$busy" -eq "$workers" ] || { echo "slurm: $busy of $workers workers answered batches"; return 1; }
   cmp "$tmp/embedded.png" "$tmp/job/slurm.png" || return 1
   echo "slurm: $workers workers, output byte-identical to the embedded run ($(stat -c %s "$tmp/job/slurm.png") bytes)"
   slurm_job_cleaned "$tmp/job" || return 1
@@ -160,7 +164,10 @@ check_negatives() {
 }
 
 bash "$root/deploy/install-deps.sh" --deploy || exit 1
-for check in slurm systemd k8s flags negatives; do
+checks=("${@:2}")
+[ ${#checks[@]} -gt 0 ] || checks=(slurm systemd k8s flags negatives)
+for check in "${checks[@]}"; do
+  declare -F "check_$check" > /dev/null || { echo "FAIL $check: no such check"; failed=1; continue; }
   echo "=== $check"
   "check_$check"
   result "$check" $?
