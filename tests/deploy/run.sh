@@ -53,8 +53,10 @@ check_slurm() {
   mkdir -p "$tmp/job"
   "$build/texsyn" synth --embedded --quiet "${job[@]}" -o "$tmp/embedded.png" || return 1
   # --wait: sbatch returns when the job has ended, with its exit status.
-  # --overcommit: more worker tasks than the node's CPUs.
-  (cd "$tmp/job" && TEXSYN_BIN=$build TEXSYN_WAIT=60 sbatch --wait --quiet --time=5 \
+  # --overcommit: more worker tasks than the node's CPUs. The daemons'
+  # extra options reach them: each starts its Modbus plane.
+  (cd "$tmp/job" && TEXSYN_BIN=$build TEXSYN_WAIT=60 TEXSYN_SERVER_OPTS="--modbus 127.0.0.1:0" \
+    TEXSYN_WORKER_OPTS="--modbus 127.0.0.1:0" sbatch --wait --quiet --time=5 \
     --ntasks="$workers" --overcommit --output=slurm-%j.out \
     "$root/deploy/slurm/texsyn.sbatch" "${job[@]}" -o slurm.png)
   local rc=$?
@@ -68,6 +70,9 @@ check_slurm() {
   [ "$joined" -eq "$workers" ] || { echo "slurm: $joined of $workers workers joined"; return 1; }
   busy=$(sed -n '/the pool after the job/,$p' "$tmp"/job/slurm-*.out | awk '/ ready / && $NF > 0' | wc -l)
   [ "$busy" -eq "$workers" ] || { echo "slurm: $busy of $workers workers answered batches"; return 1; }
+  local planes
+  planes=$(cat "$tmp"/job/texsyn-job-*/{server,worker-*}.log | grep -c 'modbus plane on')
+  [ "$planes" -eq $((workers + 1)) ] || { echo "slurm: $planes of $((workers + 1)) daemons got their extra options"; return 1; }
   cmp "$tmp/embedded.png" "$tmp/job/slurm.png" || return 1
   echo "slurm: $workers workers, output byte-identical to the embedded run ($(stat -c %s "$tmp/job/slurm.png") bytes)"
   slurm_job_cleaned "$tmp/job" || return 1
