@@ -52,11 +52,10 @@ check_slurm() {
   slurm_start "$tmp/slurm" || return 1
   mkdir -p "$tmp/job"
   "$build/texsyn" synth --embedded --quiet "${job[@]}" -o "$tmp/embedded.png" || return 1
-  # --wait: sbatch returns when the job has ended, with its exit status.
   # --overcommit: more worker tasks than the node's CPUs. The daemons'
   # extra options reach them: each starts its Modbus plane.
   (cd "$tmp/job" && TEXSYN_BIN=$build TEXSYN_WAIT=60 TEXSYN_SERVER_OPTS="--modbus 127.0.0.1:0" \
-    TEXSYN_WORKER_OPTS="--modbus 127.0.0.1:0" sbatch --wait --quiet --time=5 \
+    TEXSYN_WORKER_OPTS="--modbus 127.0.0.1:0" slurm_run_job --time=5 \
     --ntasks="$workers" --overcommit --output=slurm-%j.out \
     "$root/deploy/slurm/texsyn.sbatch" "${job[@]}" -o slurm.png)
   local rc=$?
@@ -79,7 +78,7 @@ check_slurm() {
   # A job that fails (a reference that does not exist) fails the batch job,
   # and is cleaned up the same way.
   mkdir -p "$tmp/failing"
-  if (cd "$tmp/failing" && TEXSYN_BIN=$build TEXSYN_WAIT=60 sbatch --wait --quiet --time=5 \
+  if (cd "$tmp/failing" && TEXSYN_BIN=$build TEXSYN_WAIT=60 slurm_run_job --time=5 \
     --ntasks=2 --overcommit --output=slurm-%j.out \
     "$root/deploy/slurm/texsyn.sbatch" --ref no-such.png --size 64x64 -o failing.png); then
     echo "slurm: a job on a missing reference succeeded"

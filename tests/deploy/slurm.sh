@@ -5,6 +5,7 @@
 #   slurm_start DIR    write DIR/slurm.conf, start the three daemons with all
 #                      their state, sockets, pids and logs in DIR, wait until
 #                      this host's node is idle; exports SLURM_CONF
+#   slurm_run_job ARGS...  sbatch ARGS, wait for the job, return its status
 #   slurm_stop         stop what slurm_start started (safe to call twice)
 #
 # What works in this sandbox (a VM without systemd as PID 1, no delegated
@@ -108,10 +109,43 @@ slurm_start() {
   slurm_wait_idle "$node" 60 || { tail -n 20 "$dir"/slurm*.log "$dir"/slurm*.err >&2; return 1; }
 }
 
-# slurmd first (it ends its job steps' processes), then the controller,
-# then munged; each gets 10 s after SIGTERM before SIGKILL.
+# sbatch ARGS..., then waits (up to 5 min) for the job to end; returns its
+# exit status, 1 if it ended otherwise (cancelled, timed out). sbatch --wait
+# polls at growing intervals, which added up to 30 s per job here.
+slurm_run_job() {
+  local id line state code
+  id=$(sbatch --parsable "$@") || return 1
+  id=${id%%;*}
+  for _ in $(seq 1 1200); do
+    line=$(scontrol -o show job "$id" 2>/dev/null)
+    state=$(sed -n 's/.* JobState=\([A-Z_]*\).*/\1/p' <<< "$line")
+    case $state in
+      PENDING | CONFIGURING | RUNNING | COMPLETING | "") sleep 0.25 ;;
+      *)
+        code=$(sed -n 's/.* ExitCode=\([0-9]*\):.*/\1/p' <<< "$line")
+        [ "$state" = COMPLETED ] && return "${code:-1}"
+        echo "slurm: job $id ended $state (exit status ${code:-?})" >&2
+        [ "${code:-0}" -ne 0 ] && return "$code"
+        return 1 ;;
+    esac
+  done
+  echo "slurm: job $id still '$state' after 5 min" >&2
+  return 1
+}
+
+# Jobs still there (a check that failed half-way) are cancelled first and
+# given 30 s to end: Slurm ends their processes, which stopping slurmd
+# would not. Then slurmd, the controller, munged; each gets 10 s after
+# SIGTERM before SIGKILL.
 slurm_stop() {
   local i pid
+  if [ ${#slurm_pids[@]} -gt 0 ] && [ -n "$(squeue -h -o %i 2>/dev/null)" ]; then
+    scancel --user="$(id -un)" 2>/dev/null
+    for _ in $(seq 1 120); do
+      [ -z "$(squeue -h -o %i 2>/dev/null)" ] && break
+      sleep 0.25
+    done
+  fi
   for ((i = ${#slurm_pids[@]} - 1; i >= 0; i--)); do
     pid=${slurm_pids[$i]}
     kill "$pid" 2>/dev/null || continue
