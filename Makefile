@@ -265,7 +265,7 @@ soak: $(BINS) $(IMAGE_LIB)
 # Not in `make test`: it installs Slurm and starts its daemons (as root),
 # and takes a minute or two. tests/deploy/run.sh says what each check does.
 .PHONY: test-deploy
-test-deploy: $(BINS) $(IMAGE_LIB)
+test-deploy: deps $(BINS) $(IMAGE_LIB)
 	bash tests/deploy/run.sh $(BUILD)
 
 demo: deps all
