@@ -263,7 +263,7 @@ soak: $(BINS) $(IMAGE_LIB)
 	/usr/bin/python3 bench/soak.py --build $(BUILD) --minutes $(SOAK_MINUTES)
 
 # Not in `make test`: it installs Slurm and starts its daemons (as root),
-# and takes a minute or two. tests/deploy/run.sh says what each check does.
+# and takes under a minute here. tests/deploy/run.sh says what each check does.
 .PHONY: test-deploy
 test-deploy: deps $(BINS) $(IMAGE_LIB)
 	bash tests/deploy/run.sh $(BUILD)
