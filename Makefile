@@ -15,6 +15,9 @@
 #                   the peer, also texsyn stylize against Ebsynth: bench/stylize.py)
 #   make soak       SOAK_MINUTES (default 10) of small jobs on 3 workers that are killed,
 #                   stalled and replaced; writes bench/results/soak.{json,txt}
+#   make test-deploy  (root) deploy/: the Slurm batch script on a single-node Slurm,
+#                   byte-identical to the embedded run; systemd-analyze verify of the
+#                   units; the Kubernetes manifests against the API's fields and schema
 #   make demo       install missing packages, run an embedded synthesis
 #   make clean
 #
@@ -258,6 +261,12 @@ SOAK_MINUTES ?= 10
 .PHONY: soak
 soak: $(BINS) $(IMAGE_LIB)
 	/usr/bin/python3 bench/soak.py --build $(BUILD) --minutes $(SOAK_MINUTES)
+
+# Not in `make test`: it installs Slurm and starts its daemons (as root),
+# and takes under a minute here. tests/deploy/run.sh says what each check does.
+.PHONY: test-deploy
+test-deploy: deps $(BINS) $(IMAGE_LIB)
+	bash tests/deploy/run.sh $(BUILD)
 
 demo: deps all
 	bash deploy/demo.sh $(BUILD)

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Installs the Debian packages texsyn needs, only those that are missing.
-# Called by `make test`, `make demo`, `make bench` and .ci/run; safe to rerun.
+# Called by `make test`, `make demo`, `make bench`, `make test-deploy` and
+# .ci/run; safe to rerun.
 set -euo pipefail
 
 PACKAGES=(
@@ -15,6 +16,15 @@ PACKAGES=(
 )
 # Plots for `make bench` only.
 [ "${1:-}" = "--bench" ] && PACKAGES+=(python3-matplotlib)
+# `make test-deploy` only: a single-node Slurm, systemd-analyze, the
+# manifests' checks (python3-kubernetes' models; npm for kubernetes-models).
+# Node and npm from Debian unless there already are (NodeSource's nodejs
+# holds npm and conflicts with Debian's).
+if [ "${1:-}" = "--deploy" ]; then
+  PACKAGES+=(slurmctld slurmd slurm-client munge systemd python3-yaml python3-kubernetes)
+  command -v node > /dev/null || PACKAGES+=(nodejs)
+  command -v npm > /dev/null || PACKAGES+=(npm)
+fi
 
 missing=()
 for p in "${PACKAGES[@]}"; do
