@@ -478,6 +478,18 @@ static void *serve_thread(void *arg) {
   return NULL;
 }
 
+/* A join address is retried for ever, so a malformed one is refused at
+ * start instead of in the retry loop's log. */
+static int check_join(const char *addr, char *err) {
+  char host[TS_NET_ADDR_LEN];
+  int port;
+  int rc = ts_net_split(addr, host, sizeof(host), &port, err);
+  if (rc != 0) return rc;
+  if (host[0] == '\0' || port == 0)
+    return ts_error(err, TS_EINVAL, "needs the coordinator's host and port (1..65535), e.g. coord:7070");
+  return 0;
+}
+
 static void *join_thread(void *arg) {
   const char *addr = arg;
   double backoff = 0.2;
@@ -596,6 +608,10 @@ int main(int argc, char **argv) {
   }
   ts_log_init("texsyn-worker", stderr, quiet);
   char err[TS_ERR_LEN];
+  if (join_addr != NULL && check_join(join_addr, err) != 0) {
+    fprintf(stderr, "texsyn-worker: --join %s: %s\n", join_addr, err);
+    return 2;
+  }
   if (ts_auth_init(err) != 0 || (secret_file != NULL && ts_auth_load(&g_w.auth, secret_file, err) != 0)) {
     fprintf(stderr, "texsyn-worker: %s\n", err);
     return 2;

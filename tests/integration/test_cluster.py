@@ -475,3 +475,10 @@ def test_idle_worker_that_dies_leaves_the_pool_and_comes_back(texsyn, data, clus
     cluster.wait_ready(2)
     assert remote(cluster, data, tmp_path) == want
     assert all(w["batches"] > 0 for w in cluster.pool())
+
+
+@pytest.mark.parametrize("addr", ["127.0.0.1:", ":7070", "127.0.0.1:0", "nohost"])
+def test_worker_refuses_a_join_address_it_could_never_reach(addr):
+    p = subprocess.run([str(BUILD / "texsyn-worker"), "--join", addr], capture_output=True, text=True, timeout=30)
+    assert p.returncode == 2
+    assert f"--join {addr}" in p.stderr and ("port" in p.stderr or "HOST:PORT" in p.stderr)
