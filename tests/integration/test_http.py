@@ -168,6 +168,7 @@ def basic(password, user="ops"):
     return "Basic " + base64.b64encode(f"{user}:{password}".encode()).decode()
 
 
+@pytest.mark.sanitize
 def test_secret_guards_every_page(data, cluster, tmp_path):
     key, text = secret(tmp_path)
     cluster.server = Daemon([BUILD / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", tmp_path / "spool",
