@@ -149,7 +149,9 @@ static void html_job(ts_text *t, const ts_job_status *j, const char *engine) {
               "</td><td class=state>%s</td><td><progress max=\"1000\" value=\"%u\">%u&permil;</progress> "
               "<span class=permille>%u</span>&permil;</td><td>",
               state, j->permille, j->permille, j->permille);
-  if (j->state == TS_JOB_RUNNING && j->levels > 0) ts_text_add(t, "level %u of %u", j->level, j->levels);
+  /* Counted up, as `texsyn status` shows it: the status's level counts down to 0. */
+  if (j->state == TS_JOB_RUNNING && j->levels > 0)
+    ts_text_add(t, "level %d of %u", j->levels - j->level, j->levels);
   if (j->text[0] != '\0') {
     ts_text_add(t, j->state == TS_JOB_RUNNING && j->levels > 0 ? ": " : "");
     add_html(t, j->text);
