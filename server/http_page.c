@@ -304,10 +304,17 @@ static double worker_value(const ts_worker_info *w, worker_figure f) {
   return 0;
 }
 
+/* A failed worker stays in the pool until no exchange holds it, and the
+ * same worker may meanwhile join again from the same address: its series
+ * would then appear twice, which Prometheus refuses. Failed workers are
+ * left out of /metrics (the page and status.json show them). */
+static int in_metrics(const ts_worker_info *w) { return w->state != TS_WORKER_FAILED; }
+
 static void metric_workers(ts_text *t, const ts_http_snapshot *s, const char *name, const char *type,
                            const char *help, worker_figure f) {
   metric_head(t, name, type, help);
   for (uint32_t i = 0; i < s->nworkers; i++) {
+    if (!in_metrics(&s->workers[i])) continue;
     ts_text_add(t, "%s{worker=\"", name);
     add_label(t, s->workers[i].addr);
     ts_text_add(t, "\"} %.17g\n", worker_value(&s->workers[i], f));
@@ -324,8 +331,9 @@ static void metrics_workers(ts_text *t, const ts_http_snapshot *s) {
   metric_workers(t, s, "texsyn_worker_batches_total", "counter",
                  "Batches a worker answered (from 0 when it joins again).", W_BATCHES);
   metric_workers(t, s, "texsyn_worker_threads", "gauge", "A worker's scan threads.", W_THREADS);
-  metric_head(t, "texsyn_worker_state", "gauge", "1 for a worker's state (calibrating, ready, failed, draining).");
+  metric_head(t, "texsyn_worker_state", "gauge", "1 for a worker's state (calibrating, ready, draining).");
   for (uint32_t i = 0; i < s->nworkers; i++) {
+    if (!in_metrics(&s->workers[i])) continue;
     ts_text_add(t, "texsyn_worker_state{worker=\"");
     add_label(t, s->workers[i].addr);
     ts_text_add(t, "\",state=\"%s\"} 1\n", ts_worker_state_name(s->workers[i].state));

@@ -193,8 +193,19 @@ static void metrics_are_prometheus_text(void **state) {
   for (size_t i = 0; i < sizeof(want) / sizeof(want[0]); i++) {
     if (strstr(t.buf, want[i]) == NULL) fail_msg("missing %s in:\n%s", want[i], t.buf);
   }
-  /* Every sample line follows its family's HELP and TYPE. */
   assert_null(strstr(t.buf, "\n\n"));
+  ts_text_free(&t);
+  /* A failed entry of the same address (it joined again) gives no second series. */
+  ts_worker_info two[2] = {w, w};
+  two[0].state = 2; /* failed */
+  s.workers = two;
+  s.nworkers = 2;
+  ts_http_render_metrics(&t, &s);
+  const char *series = "texsyn_worker_batches_total{worker=";
+  const char *first = strstr(t.buf, series);
+  assert_non_null(first);
+  assert_null(strstr(first + 1, series));
+  assert_null(strstr(t.buf, "\",state=\"failed\""));
   s.cur.eta_ms = UINT32_MAX;
   ts_text_free(&t);
   ts_http_render_metrics(&t, &s);
