@@ -522,7 +522,8 @@ static int start_http(const server_opts *o, char *at, char *err) {
   if (rc == 0)
     rc = ts_http_start(addr, &g_server.auth, g_server.jobs, g_server.cluster, o->co.local_threads, &port, err);
   if (rc != 0) return rc;
-  snprintf(at, TS_NET_ADDR_LEN, "%s:%d", host, port);
+  /* An IPv6 host in brackets: the address is a URL's authority. */
+  snprintf(at, TS_NET_ADDR_LEN, strchr(host, ':') ? "[%s]:%d" : "%s:%d", host, port);
   ts_log("http page on %s%s", at, g_server.auth.enabled ? ", pages need the secret" : ", loopback peers only");
   return 0;
 }
