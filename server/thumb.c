@@ -29,7 +29,9 @@ int ts_thumb_scale(const ts_image *src, int max_side, ts_image *dst, char *err) 
   int long_src = src->width > src->height ? src->width : src->height;
   int long_dst = long_src < max_side ? long_src : max_side;
   int w = scaled(src->width, long_src, long_dst), h = scaled(src->height, long_src, long_dst);
-  int rc = ts_image_alloc(dst, w, h, src->channels, TS_PIX_U8, err);
+  /* PNG holds grey, grey+alpha, RGB or RGBA: more channels keep the first four. */
+  int channels = src->channels < 4 ? src->channels : 4;
+  int rc = ts_image_alloc(dst, w, h, channels, TS_PIX_U8, err);
   if (rc != 0) return rc;
   uint8_t *out = dst->pixels;
   for (int y = 0; y < h; y++) {
@@ -38,7 +40,7 @@ int ts_thumb_scale(const ts_image *src, int max_side, ts_image *dst, char *err) 
     for (int x = 0; x < w; x++) {
       int x0 = (int)((int64_t)x * src->width / w), x1 = (int)((int64_t)(x + 1) * src->width / w);
       if (x1 <= x0) x1 = x0 + 1;
-      for (int c = 0; c < src->channels; c++) {
+      for (int c = 0; c < channels; c++) {
         double sum = 0;
         for (int sy = y0; sy < y1; sy++)
           for (int sx = x0; sx < x1; sx++) sum += ts_image_sample(src, sx, sy, c);

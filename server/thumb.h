@@ -11,7 +11,8 @@
 
 #define TS_THUMB_SIDE 160 /* pixels on the long side, at most */
 
-/* A box-filtered copy of src, 8-bit, same channels, whose long side is
+/* A box-filtered copy of src, 8-bit, with src's channels (the first four
+ * of more, as PNG holds no more), whose long side is
  * max_side (or src's own when smaller: never enlarged), the aspect ratio
  * kept (each side at least 1 pixel). 0, TS_EINVAL or TS_ENOMEM. */
 int ts_thumb_scale(const ts_image *src, int max_side, ts_image *dst, char *err);

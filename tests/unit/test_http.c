@@ -301,6 +301,21 @@ static void thumb_of_a_strip_keeps_a_pixel_and_channels(void **state) {
   ts_image_free(&src);
 }
 
+static void thumb_keeps_the_first_four_of_more_channels(void **state) {
+  (void)state;
+  char err[TS_ERR_LEN];
+  ts_image src, dst;
+  assert_int_equal(ts_image_alloc(&src, 2, 2, 6, TS_PIX_U16, err), 0);
+  uint16_t *p = src.pixels;
+  for (int i = 0; i < 2 * 2 * 6; i++) p[i] = (uint16_t)(i % 6 * 257 * 40);
+  assert_int_equal(ts_thumb_scale(&src, 1, &dst, err), 0);
+  assert_int_equal(dst.width, 1);
+  assert_int_equal(dst.channels, 4);
+  assert_memory_equal(dst.pixels, ((const uint8_t[]){0, 40, 80, 120}), 4);
+  ts_image_free(&dst);
+  ts_image_free(&src);
+}
+
 static const struct CMUnitTest tests[] = {
     cmocka_unit_test(route_names_the_pages),
     cmocka_unit_test(route_refuses_bad_paths_and_ids),
@@ -313,6 +328,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(text_grows_past_its_first_block),
     cmocka_unit_test(thumb_averages_boxes_and_keeps_the_aspect),
     cmocka_unit_test(thumb_of_a_strip_keeps_a_pixel_and_channels),
+    cmocka_unit_test(thumb_keeps_the_first_four_of_more_channels),
 };
 
 TS_TEST_MAIN(tests)
