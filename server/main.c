@@ -352,14 +352,14 @@ static void usage(FILE *f) {
           "  --modbus [ADDR:]PORT      serve the monitoring register map over Modbus TCP\n"
           "                            (off by default; a bare port listens on loopback)\n"
           "  --modbus-control          accept coil writes (pause) on the Modbus plane\n"
-          "  --http [ADDR:]PORT        serve the read-only operations page (jobs, pool,\n"
-          "                            /metrics for Prometheus); off by default; PORT or\n"
-          "                            :PORT listens on loopback; same secret rules\n"
           "  --modbus-poll S           read each worker's Modbus registers this often:\n"
           "                            drain, liveness, load, 0..3600 (default 1; 0 = off)\n"
           "  --rebalance-from WHAT     what may resize slices: batches (rates timed on the\n"
           "                            data plane), modbus (changes of the workers' CPU\n"
           "                            shares) or both (default both)\n"
+          "  --http [ADDR:]PORT        serve the read-only operations page (jobs, pool,\n"
+          "                            /metrics for Prometheus); off by default; PORT or\n"
+          "                            :PORT listens on loopback; same secret rules\n"
           "  --quiet                   no startup line\n",
           TS_FRAME_DEFAULT_MAX, (unsigned long long)TS_IMAGE_DEFAULT_MAX_PIXELS);
 }
