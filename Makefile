@@ -50,7 +50,7 @@ INC_common/search = $(INC_common) -Icommon/search
 INC_proto = $(INC_common/search) -Iproto
 INC_worker = $(INC_proto) -Iworker
 INC_server/engines = $(INC_common/search) -Iserver/engines
-INC_server = $(INC_proto) -Iserver/engines -Iserver
+INC_server = $(INC_proto) -Iserver/engines -Iserver $(MHD_CFLAGS)
 INC_server/cli = $(INC_server) -Iserver/cli
 # Tests, fuzz targets and benchmarks may reach any layer.
 INC_ALL = $(INC_server/cli) -Iworker
@@ -68,6 +68,10 @@ CXXFLAGS_ALL = -std=c++17 -Wall -Wextra -Werror $(OPT) -g $(SANFLAGS) -Icommon $
 # the image library (below) on their first image call.
 LIBS = -lmodbus -lsodium -lpthread -lm -ldl $(LDLIBS)
 LDFLAGS_ALL = $(SANFLAGS) $(LDFLAGS)
+# libmicrohttpd for the operations page (server/http.c): only
+# texsyn-server links it, the CLI and the worker start without it.
+MHD_CFLAGS := $(shell pkg-config --cflags libmicrohttpd 2>/dev/null)
+MHD_LIBS := $(or $(shell pkg-config --libs libmicrohttpd 2>/dev/null),-lmicrohttpd)
 
 # Mains: everything else in these folders goes into the library.
 MAINS = server/cli/main.c server/main.c worker/main.c
@@ -126,7 +130,7 @@ $(BUILD)/texsyn: $(BUILD)/server/cli/main.o $(LIB)
 	$(CC) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
 
 $(BUILD)/texsyn-server: $(BUILD)/server/main.o $(LIB)
-	$(CC) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
+	$(CC) $(LDFLAGS_ALL) -o $@ $^ $(LIBS) $(MHD_LIBS)
 
 $(BUILD)/texsyn-worker: $(BUILD)/worker/main.o $(LIB)
 	$(CC) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)

@@ -42,6 +42,8 @@ echo "== a stylization sequence against separate jobs"
 /usr/bin/python3 bench/sequence.py --build "$build" --out "$out" "$@"
 echo "== texture segmentation: accuracy and time"
 /usr/bin/python3 bench/segment.py --build "$build" --out "$out" "$@"
+echo "== the operations page: screenshot during a job, answer times"
+/usr/bin/python3 bench/ops_page.py --build "$build" --out "$out" "$@"
 echo "== stylize against Ebsynth"
 if [ -n "${TEXSYN_EBSYNTH:-}" ] && [ -x "$TEXSYN_EBSYNTH" ]; then
   /usr/bin/python3 bench/stylize.py --build "$build" --out "$out" --ebsynth "$TEXSYN_EBSYNTH" "$@"

@@ -9,6 +9,8 @@ PACKAGES=(
   libopenimageio-dev openimageio-tools # image I/O (OpenImageIO) + oiiotool for tests
   libmodbus-dev mbpoll                 # Modbus TCP monitoring plane; mbpoll reads it in tests
   libsodium-dev                        # HMAC-SHA-256 connection authentication
+  libmicrohttpd-dev                    # the operations page (texsyn-server --http)
+  chromium python3-prometheus-client   # its tests: a headless browser, Prometheus' parser
   libcmocka-dev                        # unit tests
   python3-pytest                       # integration tests
   valgrind                             # make test-valgrind

@@ -844,6 +844,23 @@ uint32_t ts_jobs_list(ts_jobs *j, ts_job_status *out, uint32_t cap) {
   return n;
 }
 
+uint32_t ts_jobs_list_recent(ts_jobs *j, ts_job_status *out, const char **engines, uint32_t cap) {
+  pthread_mutex_lock(&j->lock);
+  uint64_t total = 0;
+  for (const job *jb = j->head; jb != NULL; jb = jb->next) total++;
+  uint64_t skip = total > cap ? total - cap : 0;
+  uint32_t n = 0;
+  uint64_t i = 0;
+  for (const job *jb = j->head; jb != NULL; jb = jb->next, i++)
+    if (i >= skip) {
+      out[n] = jb->st;
+      /* A job reloaded without its spec (a damaged spool) has no engine. */
+      engines[n++] = jb->spec.engine != NULL ? jb->spec.engine->name : "unknown";
+    }
+  pthread_mutex_unlock(&j->lock);
+  return n;
+}
+
 int ts_jobs_cancel(ts_jobs *j, uint64_t id, char *err) {
   pthread_mutex_lock(&j->lock);
   job *jb = job_find(j, id);

@@ -21,6 +21,8 @@
 #include "cluster.h"
 #include "connset.h"
 #include "error.h"
+#include "http.h"
+#include "http_page.h"
 #include "image.h"
 #include "jobs.h"
 #include "log.h"
@@ -355,12 +357,15 @@ static void usage(FILE *f) {
           "  --rebalance-from WHAT     what may resize slices: batches (rates timed on the\n"
           "                            data plane), modbus (changes of the workers' CPU\n"
           "                            shares) or both (default both)\n"
+          "  --http [ADDR:]PORT        serve the read-only operations page (jobs, pool,\n"
+          "                            /metrics for Prometheus); off by default; PORT or\n"
+          "                            :PORT listens on loopback; same secret rules\n"
           "  --quiet                   no startup line\n",
           TS_FRAME_DEFAULT_MAX, (unsigned long long)TS_IMAGE_DEFAULT_MAX_PIXELS);
 }
 
 typedef struct {
-  const char *listen, *workers, *spool, *secret_file, *modbus;
+  const char *listen, *workers, *spool, *secret_file, *modbus, *http;
   int jobs, quiet, modbus_control;
   uint64_t max_pixels, max_spool;
   uint32_t max_client_jobs;
@@ -406,7 +411,7 @@ static int rebalance_from(const char *s, int *out) {
 }
 
 static int parse_opts(int argc, char **argv, server_opts *o) {
-  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_MAX_WORKERS, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_CKPT, O_GRACE, O_SECRET, O_MODBUS, O_MB_CONTROL, O_MB_POLL, O_REBAL_FROM, O_QUIET, O_HELP };
+  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_MAX_WORKERS, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_CKPT, O_GRACE, O_SECRET, O_MODBUS, O_MB_CONTROL, O_MB_POLL, O_REBAL_FROM, O_HTTP, O_QUIET, O_HELP };
   static const struct option longopts[] = {
       {"listen", required_argument, 0, O_LISTEN}, {"workers", required_argument, 0, O_WORKERS},
       {"spool", required_argument, 0, O_SPOOL}, {"jobs", required_argument, 0, O_JOBS},
@@ -422,6 +427,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
       {"secret-file", required_argument, 0, O_SECRET},
       {"modbus", required_argument, 0, O_MODBUS}, {"modbus-control", no_argument, 0, O_MB_CONTROL},
       {"modbus-poll", required_argument, 0, O_MB_POLL}, {"rebalance-from", required_argument, 0, O_REBAL_FROM},
+      {"http", required_argument, 0, O_HTTP},
       {"quiet", no_argument, 0, O_QUIET}, {"help", no_argument, 0, O_HELP}, {0, 0, 0, 0}};
   memset(o, 0, sizeof(*o));
   o->listen = "127.0.0.1:7070";
@@ -466,6 +472,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
     case O_MB_CONTROL: o->modbus_control = 1; break;
     case O_MB_POLL: rc = num("--modbus-poll", optarg, 0, 3600, &o->co.modbus_poll); break;
     case O_REBAL_FROM: rc = rebalance_from(optarg, &o->co.rebalance_from); break;
+    case O_HTTP: o->http = optarg; break;
     case O_QUIET: o->quiet = 1; break;
     case O_HELP: case 'h': usage(stdout); exit(0);
     default:
@@ -504,6 +511,20 @@ static int start_modbus(const server_opts *o, char *at, char *err) {
   if (rc != 0) return rc;
   snprintf(at, TS_NET_ADDR_LEN, "%s:%d", host, port);
   ts_log("modbus plane on %s%s", at, o->modbus_control ? ", coil writes accepted" : "");
+  return 0;
+}
+
+/* Starts the operations page; at gets HOST:PORT for the ready line. */
+static int start_http(const server_opts *o, char *at, char *err) {
+  char addr[TS_NET_ADDR_LEN], host[TS_NET_ADDR_LEN - 8];
+  int port;
+  int rc = ts_http_listen_addr(o->http, addr, sizeof(addr), host, sizeof(host), err);
+  if (rc == 0)
+    rc = ts_http_start(addr, &g_server.auth, g_server.jobs, g_server.cluster, o->co.local_threads, &port, err);
+  if (rc != 0) return rc;
+  /* An IPv6 host in brackets: the address is a URL's authority. */
+  snprintf(at, TS_NET_ADDR_LEN, strchr(host, ':') ? "[%s]:%d" : "%s:%d", host, port);
+  ts_log("http page on %s%s", at, g_server.auth.enabled ? ", pages need the secret" : ", loopback peers only");
   return 0;
 }
 
@@ -559,6 +580,11 @@ int main(int argc, char **argv) {
     fprintf(stderr, "texsyn-server: --modbus %s: %s\n", o.modbus, err);
     return 1;
   }
+  char http_at[TS_NET_ADDR_LEN] = "";
+  if (o.http != NULL && start_http(&o, http_at, err) != 0) {
+    fprintf(stderr, "texsyn-server: --http %s: %s\n", o.http, err);
+    return 1;
+  }
   char host[TS_NET_ADDR_LEN];
   int p0;
   ts_net_split(o.listen, host, sizeof(host), &p0, err);
@@ -566,8 +592,8 @@ int main(int argc, char **argv) {
         g_server.auth.enabled ? "peers must prove the shared secret" : "no secret: loopback peers only");
   if (ts_auth_listen_warning(&g_server.auth, lfd, err)) ts_log("%s", err);
   if (!o.quiet) { /* last: whoever waits for this line finds the log written */
-    printf("texsyn-server listening on %s:%d%s%s%s\n", host, port, modbus_at[0] ? " (modbus " : "", modbus_at,
-           modbus_at[0] ? ")" : "");
+    printf("texsyn-server listening on %s:%d%s%s%s%s%s%s\n", host, port, modbus_at[0] ? " (modbus " : "", modbus_at,
+           modbus_at[0] ? ")" : "", http_at[0] ? " (http " : "", http_at, http_at[0] ? ")" : "");
     fflush(stdout);
   }
   while (!g_stop) {
@@ -596,6 +622,7 @@ int main(int argc, char **argv) {
   close(lfd);
   ts_connset_close_all(&g_conns);
   if (o.modbus != NULL) ts_smon_stop();
+  ts_http_stop(); /* before the jobs and the pool its threads read */
   ts_jobs_destroy(g_server.jobs);
   ts_cluster_destroy(g_server.cluster);
   ts_auth_clear(&g_server.auth);

@@ -1,0 +1,225 @@
+/* http.c - see http.h. Rendering is in http_page.c, the secret check in
+ * http_auth.c, thumbnails in thumb.c; this file is the libmicrohttpd
+ * glue: who asks, for what, and the response. */
+#include "http.h"
+
+#include <microhttpd.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "error.h"
+#include "http_auth.h"
+#include "http_page.h"
+#include "l1.h"
+#include "log.h"
+#include "net.h"
+#include "thumb.h"
+#include "util.h"
+
+#define HTTP_MAX_JOBS 100    /* the newest jobs listed; the spool may hold thousands */
+#define HTTP_REFRESH_S 2     /* the page reloads itself this often */
+#define HTTP_CONNECTIONS 32  /* at once; a page load takes a few */
+#define HTTP_TIMEOUT_S 10    /* an idle connection is closed after this */
+
+static struct {
+  struct MHD_Daemon *daemon;
+  const ts_auth *auth;
+  ts_jobs *jobs;
+  ts_cluster *cluster;
+  int threads, simd;
+  double started;
+} g_http;
+
+/* ---- responses ----------------------------------------------------------------- */
+
+/* Queues body (malloc'ed; libmicrohttpd frees it) with status and type. */
+static enum MHD_Result respond(struct MHD_Connection *c, unsigned status, const char *type, void *body, size_t len) {
+  struct MHD_Response *r = MHD_create_response_from_buffer(len, body, MHD_RESPMEM_MUST_FREE);
+  if (r == NULL) {
+    free(body);
+    return MHD_NO;
+  }
+  MHD_add_response_header(r, MHD_HTTP_HEADER_CONTENT_TYPE, type);
+  MHD_add_response_header(r, MHD_HTTP_HEADER_CACHE_CONTROL, "no-store");
+  if (status == MHD_HTTP_UNAUTHORIZED)
+    MHD_add_response_header(r, MHD_HTTP_HEADER_WWW_AUTHENTICATE, "Basic realm=\"texsyn\", charset=\"UTF-8\"");
+  if (status == MHD_HTTP_METHOD_NOT_ALLOWED) MHD_add_response_header(r, MHD_HTTP_HEADER_ALLOW, "GET, HEAD");
+  enum MHD_Result rc = MHD_queue_response(c, status, r);
+  MHD_destroy_response(r);
+  return rc;
+}
+
+/* A plain-text error naming the problem. */
+static enum MHD_Result respond_error(struct MHD_Connection *c, unsigned status, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+static enum MHD_Result respond_error(struct MHD_Connection *c, unsigned status, const char *fmt, ...) {
+  char msg[TS_ERR_LEN + 64];
+  va_list ap;
+  va_start(ap, fmt);
+  int n = vsnprintf(msg, sizeof(msg), fmt, ap);
+  va_end(ap);
+  size_t len = n < 0 ? 0 : (size_t)n < sizeof(msg) - 1 ? (size_t)n : sizeof(msg) - 2;
+  msg[len++] = '\n';
+  char *body = malloc(len);
+  if (body == NULL) return MHD_NO;
+  memcpy(body, msg, len);
+  return respond(c, status, "text/plain; charset=utf-8", body, len);
+}
+
+static enum MHD_Result respond_text(struct MHD_Connection *c, ts_text *t, const char *type) {
+  if (t->failed) {
+    ts_text_free(t);
+    return respond_error(c, MHD_HTTP_INTERNAL_SERVER_ERROR, "out of memory");
+  }
+  return respond(c, MHD_HTTP_OK, type, t->buf, t->len); /* the buffer goes to the response */
+}
+
+/* ---- pages ------------------------------------------------------------------------ */
+
+/* Fills s from the snapshots; its arrays are malloc'ed (snapshot_free). */
+static int snapshot_take(ts_http_snapshot *s) {
+  memset(s, 0, sizeof(*s));
+  ts_job_status *jobs = malloc(sizeof(*jobs) * HTTP_MAX_JOBS);
+  const char **engines = malloc(sizeof(*engines) * HTTP_MAX_JOBS);
+  ts_worker_info *workers = malloc(sizeof(*workers) * TS_POOL_MAX_REPORT);
+  if (jobs == NULL || engines == NULL || workers == NULL) {
+    free(jobs);
+    free(engines);
+    free(workers);
+    return TS_ENOMEM;
+  }
+  s->uptime = ts_now() - g_http.started;
+  s->threads = g_http.threads;
+  s->simd = g_http.simd;
+  ts_cluster_stats_get(g_http.cluster, &s->stats);
+  ts_jobs_counts(g_http.jobs, s->counts);
+  s->have_current = ts_jobs_current(g_http.jobs, &s->cur) == 0;
+  s->paused = ts_jobs_paused(g_http.jobs);
+  s->njobs = ts_jobs_list_recent(g_http.jobs, jobs, engines, HTTP_MAX_JOBS);
+  s->nworkers = ts_cluster_info(g_http.cluster, workers, TS_POOL_MAX_REPORT);
+  s->jobs = jobs;
+  s->engines = engines;
+  s->workers = workers;
+  return 0;
+}
+
+static void snapshot_free(ts_http_snapshot *s) {
+  free((void *)s->jobs);
+  free((void *)s->engines);
+  free((void *)s->workers);
+}
+
+static enum MHD_Result serve_page(struct MHD_Connection *c, ts_http_route_kind page) {
+  ts_http_snapshot s;
+  if (snapshot_take(&s) != 0) return respond_error(c, MHD_HTTP_INTERNAL_SERVER_ERROR, "out of memory");
+  ts_text t;
+  ts_text_init(&t);
+  const char *type;
+  if (page == TS_HTTP_INDEX) {
+    ts_http_render_html(&t, &s, HTTP_REFRESH_S);
+    type = "text/html; charset=utf-8";
+  } else if (page == TS_HTTP_STATUS) {
+    ts_http_render_json(&t, &s);
+    type = "application/json";
+  } else {
+    ts_http_render_metrics(&t, &s);
+    type = "text/plain; version=0.0.4; charset=utf-8";
+  }
+  snapshot_free(&s);
+  return respond_text(c, &t, type);
+}
+
+static enum MHD_Result serve_thumb(struct MHD_Connection *c, uint64_t id) {
+  uint8_t *png;
+  size_t len;
+  char err[TS_ERR_LEN];
+  int rc = ts_thumb_get(g_http.jobs, id, &png, &len, err);
+  if (rc == TS_ENOENT || rc == TS_EINVAL) return respond_error(c, MHD_HTTP_NOT_FOUND, "%s", err);
+  if (rc != 0) {
+    ts_log("http: thumbnail of job %llu: %s", (unsigned long long)id, err);
+    return respond_error(c, MHD_HTTP_INTERNAL_SERVER_ERROR, "%s", err);
+  }
+  return respond(c, MHD_HTTP_OK, "image/png", png, len);
+}
+
+/* ---- requests ----------------------------------------------------------------------- */
+
+/* 0 if the peer may see pages: protected mode (no secret) lets loopback
+ * peers in; with a secret, anyone who proves it. *status and err say why
+ * not. */
+static int allowed(struct MHD_Connection *c, unsigned *status, char *err) {
+  const union MHD_ConnectionInfo *ci = MHD_get_connection_info(c, MHD_CONNECTION_INFO_CLIENT_ADDRESS);
+  *status = MHD_HTTP_FORBIDDEN;
+  if (ci == NULL || ci->client_addr == NULL) return ts_error(err, TS_EAUTH, "peer address unknown");
+  int rc = ts_auth_peer_allowed(g_http.auth, ci->client_addr, err);
+  if (rc != 0 || !g_http.auth->enabled) return rc;
+  *status = MHD_HTTP_UNAUTHORIZED;
+  const char *h = MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_AUTHORIZATION);
+  return ts_http_auth_check(g_http.auth, h, err);
+}
+
+static enum MHD_Result on_request(void *cls, struct MHD_Connection *c, const char *url, const char *method,
+                                  const char *version, const char *upload, size_t *upload_len, void **state) {
+  (void)cls, (void)version, (void)upload, (void)upload_len, (void)state;
+  if (strcmp(method, MHD_HTTP_METHOD_GET) != 0 && strcmp(method, MHD_HTTP_METHOD_HEAD) != 0)
+    return respond_error(c, MHD_HTTP_METHOD_NOT_ALLOWED, "%s: this server is read-only (GET and HEAD)", method);
+  char err[TS_ERR_LEN];
+  unsigned status;
+  if (allowed(c, &status, err) != 0) return respond_error(c, status, "%s", err);
+  uint64_t job = 0;
+  ts_http_route_kind page = ts_http_route(url, &job);
+  switch (page) {
+  case TS_HTTP_NOT_FOUND:
+    return respond_error(c, MHD_HTTP_NOT_FOUND, "no page %s (there are /, /status.json, /metrics and "
+                                                "/jobs/ID/thumb.png)", url);
+  case TS_HTTP_THUMB: return serve_thumb(c, job);
+  default: return serve_page(c, page);
+  }
+}
+
+static void on_mhd_log(void *cls, const char *fmt, va_list ap) {
+  (void)cls;
+  char msg[TS_ERR_LEN];
+  vsnprintf(msg, sizeof(msg), fmt, ap);
+  size_t n = strlen(msg);
+  if (n > 0 && msg[n - 1] == '\n') msg[n - 1] = '\0';
+  ts_log("http: %s", msg);
+}
+
+int ts_http_start(const char *listen, const ts_auth *auth, ts_jobs *jobs, ts_cluster *cluster, int threads,
+                  int *port, char *err) {
+  const ts_l1_impl *simd;
+  int rc = ts_l1_select(&simd, err);
+  if (rc != 0) return rc;
+  int lfd;
+  rc = ts_net_listen(listen, &lfd, port, err);
+  if (rc != 0) return rc;
+  char warning[TS_ERR_LEN];
+  if (ts_auth_listen_warning(auth, lfd, warning)) ts_log("http: %s", warning);
+  g_http.auth = auth;
+  g_http.jobs = jobs;
+  g_http.cluster = cluster;
+  g_http.threads = threads;
+  g_http.simd = simd->id;
+  g_http.started = ts_now();
+  /* A thread per connection: a thumbnail being made holds up no page. */
+  g_http.daemon = MHD_start_daemon(
+      MHD_USE_POLL_INTERNAL_THREAD | MHD_USE_THREAD_PER_CONNECTION | MHD_USE_ERROR_LOG, 0, NULL, NULL, on_request,
+      NULL, MHD_OPTION_EXTERNAL_LOGGER, on_mhd_log, NULL, MHD_OPTION_LISTEN_SOCKET, lfd,
+      MHD_OPTION_CONNECTION_LIMIT, (unsigned)HTTP_CONNECTIONS, MHD_OPTION_CONNECTION_TIMEOUT,
+      (unsigned)HTTP_TIMEOUT_S, MHD_OPTION_END);
+  if (g_http.daemon == NULL) {
+    close(lfd);
+    return ts_error(err, TS_EIO, "libmicrohttpd could not start on %s (see the log above)", listen);
+  }
+  return 0;
+}
+
+void ts_http_stop(void) {
+  if (g_http.daemon == NULL) return;
+  MHD_stop_daemon(g_http.daemon); /* joins its threads, closes the socket */
+  g_http.daemon = NULL;
+}

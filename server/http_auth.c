@@ -1,0 +1,48 @@
+/* http_auth.c - see http_auth.h. */
+#include "http_auth.h"
+
+#include <sodium.h>
+#include <string.h>
+#include <strings.h>
+
+#include "error.h"
+
+/* Compares HMACs of both under the secret itself rather than the bytes:
+ * equal-size values, so neither the time taken nor an early exit on
+ * length says how long the secret is. */
+static int same_secret(const ts_auth *a, const char *given, size_t n) {
+  uint8_t want[TS_AUTH_MAC], got[TS_AUTH_MAC];
+  ts_auth_hmac(a, a->secret, a->len, want);
+  ts_auth_hmac(a, given, n, got);
+  int same = sodium_memcmp(want, got, sizeof(want)) == 0;
+  sodium_memzero(want, sizeof(want));
+  return same;
+}
+
+/* Basic auth: base64("user:password"); the password is the secret. */
+static int check_basic(const ts_auth *a, const char *b64, char *err) {
+  size_t n;
+  char buf[TS_HTTP_AUTH_HEADER_MAX];
+  if (sodium_base642bin((unsigned char *)buf, sizeof(buf) - 1, b64, strlen(b64), NULL, &n, NULL,
+                        sodium_base64_VARIANT_ORIGINAL) != 0)
+    return ts_error(err, TS_EAUTH, "Authorization: Basic credentials are not valid base64");
+  const char *colon = memchr(buf, ':', n);
+  if (colon == NULL) {
+    sodium_memzero(buf, sizeof(buf));
+    return ts_error(err, TS_EAUTH, "Authorization: Basic credentials lack the ':' before the password");
+  }
+  size_t off = (size_t)(colon + 1 - buf);
+  int ok = same_secret(a, colon + 1, n - off);
+  sodium_memzero(buf, sizeof(buf));
+  return ok ? 0 : ts_error(err, TS_EAUTH, "wrong secret");
+}
+
+int ts_http_auth_check(const ts_auth *a, const char *header, char *err) {
+  if (header == NULL)
+    return ts_error(err, TS_EAUTH, "this page needs the server's secret (Basic auth password or Bearer token)");
+  if (strlen(header) >= TS_HTTP_AUTH_HEADER_MAX) return ts_error(err, TS_EAUTH, "Authorization header too long");
+  if (strncasecmp(header, "Basic ", 6) == 0) return check_basic(a, header + 6, err);
+  if (strncasecmp(header, "Bearer ", 7) == 0)
+    return same_secret(a, header + 7, strlen(header + 7)) ? 0 : ts_error(err, TS_EAUTH, "wrong secret");
+  return ts_error(err, TS_EAUTH, "Authorization: need the Basic or Bearer scheme");
+}

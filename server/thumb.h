@@ -1,0 +1,27 @@
+/* thumb.h - small PNG previews of finished jobs' results for the
+ * operations page (http.c). */
+#ifndef TS_THUMB_H
+#define TS_THUMB_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "image.h"
+#include "jobs.h"
+
+#define TS_THUMB_SIDE 160 /* pixels on the long side, at most */
+
+/* A box-filtered copy of src, 8-bit, with src's channels (the first four
+ * of more, as PNG holds no more), whose long side is
+ * max_side (or src's own when smaller: never enlarged), the aspect ratio
+ * kept (each side at least 1 pixel). 0, TS_EINVAL or TS_ENOMEM. */
+int ts_thumb_scale(const ts_image *src, int max_side, ts_image *dst, char *err);
+
+/* The PNG bytes (malloc'ed into *png) of job id's thumbnail: thumb.png in
+ * the job's spool directory, made from its result image (out.EXT) the
+ * first time it is asked for, then served from there. TS_ENOENT when there
+ * is no such job or it has no image result, TS_EINVAL when it is not done,
+ * else the image library's error. */
+int ts_thumb_get(ts_jobs *j, uint64_t id, uint8_t **png, size_t *len, char *err);
+
+#endif
