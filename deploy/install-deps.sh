@@ -15,6 +15,8 @@ PACKAGES=(
 )
 # Plots for `make bench` only.
 [ "${1:-}" = "--bench" ] && PACKAGES+=(python3-matplotlib)
+# bench/netem.py: its plot, the namespaces and the RTT check.
+[ "${1:-}" = "--bench" ] && PACKAGES+=(gnuplot-nox iproute2 iputils-ping)
 
 missing=()
 for p in "${PACKAGES[@]}"; do
