@@ -257,13 +257,13 @@ static int conn_flush(conn *c, int s) {
       queue_pop(q);
       continue;
     }
-    if (k->off == 0) stats_note(t - k->arrived, k->len);
     ssize_t n = write(dst, k->data + k->off, k->len - k->off);
     if (n < 0) {
       if (errno != EAGAIN && errno != EINTR) return -1;
       q->blocked = errno == EAGAIN;
       return 0;
     }
+    if (k->off == 0) stats_note(t - k->arrived, k->len); /* its first bytes left */
     k->off += (uint32_t)n;
     if (k->off < k->len) {
       q->blocked = 1; /* the socket took part: it is full */

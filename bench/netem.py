@@ -42,8 +42,9 @@ Predictions for 16 and 64 workers (one core each) and for an unbatched
 engine (one round trip per query).
 
 Needs root (namespaces, tc, SCHED_FIFO). Removes its namespaces on exit,
-also on failure or SIGTERM. Writes netem.json, netem.md, netem.gp and
-netem.png into --out.
+also on failure or SIGTERM. Writes netem-runs.json (every run), then
+netem.json, netem.md, netem.gp and netem.png into --out; --analyse
+netem-runs.json redoes the second part without measuring.
 """
 import argparse
 import atexit
@@ -527,21 +528,25 @@ def plot(out, rows, curves, rtts):
     (solid, points), the model's (dashed) for them and for 16 and 64
     workers. Kept in one function for bench/gnuplot.py to take over."""
     grid = [rtts[0] + (rtts[-1] - rtts[0]) * i / 50 for i in range(51)]
+    colour = {1: "#1f77b4", 2: "#d62728", 16: "#2ca02c", 64: "#9467bd"}
     blocks, cmds = [], []
-    for i, key in enumerate(dict.fromkeys(r["config"] for r in rows)):
+    for key in dict.fromkeys(r["config"] for r in rows):
         rs = [r for r in rows if r["config"] == key]
-        blocks.append("\n".join(f"{r['achieved_rtt_us']} {r['efficiency']}" for r in rs))
-        cmds.append(f"$d{i} using 1:2 with linespoints lw 2 pt 7 lc {i + 1} title '{rs[0]['label']} (measured)'")
-    for j, (n, eng) in enumerate([(1, "batched"), (2, "batched"), (16, "batched"), (64, "batched"),
-                                  (64, "unbatched")]):
+        base = rs[0]["median_s"]  # the 0 us row: efficiency spread from its median over each run's time
+        blocks.append("\n".join(f"{r['achieved_rtt_us']} {r['efficiency']} {base / r['max_s']} {base / r['min_s']}"
+                                for r in rs))
+        style = "pt 7" if rs[0]["batching"] == "default" else "pt 4 dt 3"
+        cmds.append(f"$d{len(blocks) - 1} using 1:2:3:4 with yerrorlines lw 2 {style} "
+                    f"lc rgb '{colour[rs[0]['workers']]}' title '{rs[0]['label']} (measured)'")
+    for n, eng in [(1, "batched"), (2, "batched"), (16, "batched"), (64, "batched"), (64, "unbatched")]:
         eff = curves[(n, eng)]
         blocks.append("\n".join(f"{x} {eff(x)}" for x in grid))
-        cmds.append(f"$d{len(blocks) - 1} using 1:2 with lines dt 2 lw 2 lc {j + 5} "
-                    f"title 'model: {n} worker{'s' if n > 1 else ''}, {eng}'")
-    gp = ["set terminal pngcairo size 900,560 font ',10'", f"set output '{out / 'netem.png'}'",
+        cmds.append(f"$d{len(blocks) - 1} using 1:2 with lines dt {2 if eng == 'batched' else 4} lw 2 "
+                    f"lc rgb '{colour[n]}' title 'model: {n} worker{'s' if n > 1 else ''}, {eng}'")
+    gp = ["set terminal pngcairo size 1100,560 font ',10'", f"set output '{out / 'netem.png'}'",
           "set title 'Table 3.3 job: efficiency against added round-trip time'",
           "set xlabel 'added RTT (us)'", "set ylabel 'throughput / throughput at 0 us'",
-          "set yrange [0:1.1]", "set key bottom left", "set grid"]
+          "set yrange [0:*]", f"set xrange [0:{rtts[-1] * 1.1}]", "set key outside right", "set grid"]
     for i, b in enumerate(blocks):
         gp += [f"$d{i} << EOD", b, "EOD"]
     gp.append("plot " + ", \\\n     ".join(cmds))
@@ -558,11 +563,12 @@ def curve(p, rows, n, unbatched):
     return lambda rtt_us: t0 / predict(p, lv, n, rtt_us * 1e-6)
 
 
-def markdown(a, info, method, why, verified, rows, full, held, preds, emb_report):
-    job = "512x512" if a.quick else "1024x1024"
-    L = [f"# Cluster efficiency under network latency ({'quick, ' if a.quick else ''}{job} output)", "",
+def markdown(raw, verified, rows, full, held, preds):
+    info, method, why = raw["machine"], raw["method"], raw["why"]
+    job = "512x512" if raw["quick"] else "1024x1024"
+    L = [f"# Cluster efficiency under network latency ({'quick, ' if raw['quick'] else ''}{job} output)", "",
          f"Machine: {info['cpu']} (family {info['family']}, model {info['model']}), {info['cores']} cores, "
-         f"kernel {info['kernel']}; load average {info['load_start']} at the start, {info['load_end']} at the end "
+         f"kernel {info['kernel']}; load average {info['load_start']:.1f} at the start, {info['load_end']:.1f} at the end "
          "(other work shared the machine when it was above ~0.5).", "",
          "## Method", "",
          "Coordinator and workers in two network namespaces joined by a veth pair (10.77.0.1, 10.77.0.2): "
@@ -578,7 +584,7 @@ def markdown(a, info, method, why, verified, rows, full, held, preds, emb_report
     L += ["", f"Job: `texsyn synth --ref brick.png --size {job} {' '.join(map(str, JOB[:-1]))}` (the seed's "
           "Table 3.3 job), on 1 or 2 `texsyn-worker --threads 1`. Batching `default`: the coordinator's "
           f"`--pipeline-queries {BATCHING['default']}`; `small`: `--pipeline-queries {BATCHING['small']}`. "
-          f"Time: the engine's seconds (the report's levels), median of {a.reps} runs interleaved over "
+          f"Time: the engine's seconds (the report's levels), median of {raw['reps']} runs interleaved over "
           "every RTT and configuration (spread: min-max). Throughput: queries (blocks searched) per second. "
           "Efficiency: throughput over the same configuration's at 0 us.", "",
           "### The added RTT, verified", "",
@@ -605,7 +611,9 @@ def markdown(a, info, method, why, verified, rows, full, held, preds, emb_report
     L += ["", "Efficiency at 200 us: " + ", ".join(f"{r['label']} {r['efficiency']:.3f}" for r in at200) +
           f" (target: at least 0.8 with default batching: "
           f"{'met' if all(r['efficiency'] >= 0.8 for r in at200 if r['batching'] == 'default') else 'NOT met'}).",
-          "", "## Model", "",
+          ""]
+    L += level_diagnosis(rows)
+    L += ["", "## Model", "",
           "Per pyramid level l:", "",
           "    T_l = s*Q_l + c*P_l/N + R_l*(RTT + t_rt) + b*B_l", "",
           "Q_l queries, P_l comparisons, R_l round trips (one per engine batch: a wavefront step), B_l wire "
@@ -649,9 +657,31 @@ def markdown(a, info, method, why, verified, rows, full, held, preds, emb_report
                  f"{t['bytes']:.3f} |")
     L += ["", "### What dominates, and where the model breaks", ""]
     L += dominance(full, rows, preds)
-    L += ["", f"Embedded reference run: {emb_report['seconds']:.3f} s engine time, 2 threads.",
+    L += ["", f"Embedded reference run: {raw['embedded_s']:.3f} s engine time, 2 threads.",
           "Plot: `netem.png` (script `netem.gp`); data: `netem.json`."]
     return "\n".join(L) + "\n"
+
+
+def level_diagnosis(rows):
+    """Where the added RTT's time goes, per level: the 2-worker default
+    configuration at 0 us and at the validation RTT. A level whose
+    batches are small (few queries per round trip) loses most."""
+    pick = lambda rtt: next((r for r in rows if r["workers"] == max(WORKERS) and r["batching"] == "default"
+                             and r["rtt_us"] == rtt), None)
+    base, slow = pick(0), pick(VALIDATE_RTT)
+    if base is None or slow is None:
+        return []
+    L = [f"Per level, {base['label']}, 0 us against {VALIDATE_RTT} us (achieved {slow['achieved_rtt_us']:.0f} us): "
+         "the time the RTT added per round trip, against the RTT itself, says whether the round trips are "
+         "what costs (queries per round trip: the engine's mean batch).", "",
+         "| level | queries | round trips | queries per round trip | s at 0 us | s at 200 us | added s | "
+         "added per round trip (us) | efficiency |", "|---|---|---|---|---|---|---|---|---|"]
+    for a, b in zip(base["levels"], slow["levels"]):
+        added = b["T"] - a["T"]
+        L.append(f"| {a['level']} | {a['Q']} | {a['R']} | {a['Q'] / max(a['R'], 1):.0f} | {a['T']:.3f} | "
+                 f"{b['T']:.3f} | {added:+.3f} | {1e6 * added / max(a['R'], 1):.0f} | "
+                 f"{a['T'] / b['T'] if b['T'] > 0 else 0:.3f} |")
+    return L
 
 
 def dominance(p, rows, preds):
@@ -675,26 +705,9 @@ def dominance(p, rows, preds):
     return out
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--build", default="build")
-    ap.add_argument("--out", default="bench/results")
-    ap.add_argument("--reps", type=int, default=3)
-    ap.add_argument("--quick", action="store_true", help="a 512x512 output instead of 1024x1024")
-    ap.add_argument("--rtts", default=",".join(map(str, RTTS_US)), help="RTTs in us, the first the baseline")
-    ap.add_argument("--method", choices=["auto", "relay"], default="auto",
-                    help="relay: the user-space relay even where netem exists")
-    a = ap.parse_args()
-    a.rtts = [int(x) for x in a.rtts.split(",")]
-    if os.geteuid() != 0:
-        sys.exit("netem: needs root (network namespaces, tc, SCHED_FIFO)")
-    if a.reps < 1 or not a.rtts or a.rtts[0] != 0:
-        sys.exit("netem: --reps >= 1 and --rtts starting with 0 (the baseline)")
-    build, out = Path(a.build).resolve(), Path(a.out).resolve()
-    for exe in ("texsyn", "texsyn-server", "texsyn-worker", "bench/delay_relay"):
-        if not (build / exe).exists():
-            sys.exit(f"netem: {build / exe} is missing: run make first")
-    out.mkdir(parents=True, exist_ok=True)
+def measure(a, build, out):
+    """Runs the series; returns and saves (netem-runs.json) everything
+    measured, for analyse() or a later --analyse."""
     topo, procs = Topology(), Procs()
 
     def cleanup():
@@ -715,21 +728,63 @@ def main():
         finally:
             cleanup()
     info["load_end"] = os.getloadavg()[0]
-    rows = summarise(configs, runs, a.rtts, verified, method)
-    full, held = model(rows, a.rtts)
-    preds = predictions(full, rows, a.rtts)
+    raw = {"machine": info, "method": method, "why": why, "quick": a.quick, "reps": a.reps, "rtts": a.rtts,
+           "embedded_s": emb_report["seconds"], "verified_rtt": {str(k): v for k, v in verified.items()},
+           "configs": [[c.n, c.batching] for c in configs],
+           "runs": {f"{k} {rtt}": v for (k, rtt), v in runs.items()}}
+    (out / "netem-runs.json").write_text(json.dumps(raw, indent=1))
+    return raw
+
+
+def analyse(raw, out):
+    rtts = raw["rtts"]
+    verified = {int(k): v for k, v in raw["verified_rtt"].items()}
+    configs = [Config(n, b) for n, b in raw["configs"]]
+    runs = {(c.key, rtt): raw["runs"][f"{c.key} {rtt}"] for c in configs for rtt in rtts}
+    rows = summarise(configs, runs, rtts, verified, raw["method"])
+    full, held = model(rows, rtts)
+    preds = predictions(full, rows, rtts)
     curves = {(n, eng): curve(full, rows, n, eng == "unbatched") for n in [1, 2, *PREDICT_N]
               for eng in ("batched", "unbatched")}
     (out / "netem.json").write_text(json.dumps(
-        {"machine": info, "method": method, "why": why, "job": "512x512" if a.quick else "1024x1024",
-         "reps": a.reps, "verified_rtt": verified, "rows": rows, "model": full, "model_without_200us": held,
-         "predictions": preds}, indent=1))
-    md = markdown(a, info, method, why, verified, rows, full, held, preds, emb_report)
+        {"machine": raw["machine"], "method": raw["method"], "why": raw["why"],
+         "job": "512x512" if raw["quick"] else "1024x1024", "reps": raw["reps"], "verified_rtt": verified,
+         "rows": rows, "model": full, "model_without_200us": held, "predictions": preds}, indent=1))
+    md = markdown(raw, verified, rows, full, held, preds)
     (out / "netem.md").write_text(md)
-    plot(out, rows, curves, a.rtts)
+    plot(out, rows, curves, rtts)
     print(md)
     if not all(r["identical"] for r in rows):
         sys.exit("netem: an output differs from the embedded run's")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--build", default="build")
+    ap.add_argument("--out", default="bench/results")
+    ap.add_argument("--reps", type=int, default=3)
+    ap.add_argument("--quick", action="store_true", help="a 512x512 output instead of 1024x1024")
+    ap.add_argument("--rtts", default=",".join(map(str, RTTS_US)), help="RTTs in us, the first the baseline")
+    ap.add_argument("--method", choices=["auto", "relay"], default="auto",
+                    help="relay: the user-space relay even where netem exists")
+    ap.add_argument("--analyse", metavar="RUNS_JSON",
+                    help="no measurement: the model, tables and plot again from a netem-runs.json")
+    a = ap.parse_args()
+    out = Path(a.out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    if a.analyse:
+        analyse(json.loads(Path(a.analyse).read_text()), out)
+        return
+    a.rtts = [int(x) for x in a.rtts.split(",")]
+    if os.geteuid() != 0:
+        sys.exit("netem: needs root (network namespaces, tc, SCHED_FIFO)")
+    if a.reps < 1 or not a.rtts or a.rtts[0] != 0:
+        sys.exit("netem: --reps >= 1 and --rtts starting with 0 (the baseline)")
+    build = Path(a.build).resolve()
+    for exe in ("texsyn", "texsyn-server", "texsyn-worker", "bench/delay_relay"):
+        if not (build / exe).exists():
+            sys.exit(f"netem: {build / exe} is missing: run make first")
+    analyse(measure(a, build, out), out)
 
 
 if __name__ == "__main__":
