@@ -258,7 +258,7 @@ def levels_of(report):
 
 # ---- RTT verification ----------------------------------------------------------------
 
-def probe_rtts(tmp, procs, target_ip, port, n=200):
+def probe_rtts(target_ip, port, n=200):
     """Median and p99 (us) of small round trips from the worker namespace."""
     p = sh(*in_ns(NS_W, sys.executable, "-c", PROBE, target_ip, port, n))
     rtts = sorted(json.loads(p.stdout))
@@ -289,7 +289,7 @@ def verify(build, tmp, procs, rtts, relay_mode, topo):
             relay.stdout.readline()
         else:
             topo.set_netem(rtt)
-        out[rtt] = probe_rtts(tmp, procs, COORD_IP, port)
+        out[rtt] = probe_rtts(COORD_IP, port)
         if not relay_mode:
             out[rtt]["ping"] = ping_rtt()
     base = out[rtts[0]]["median_us"]
@@ -339,20 +339,24 @@ def solve(a, y, weight):
 
 def fit_bytes(rows):
     """The coordinator's CPU seconds per run against its wire bytes:
-    cpu = a + b*B (least squares over every configuration and RTT; the
-    queries and round trips are the same in every run, so a holds their
-    part). b is what a byte on the wire costs the coordinator, which
-    handles every worker's frames in turn."""
-    pts = [(r["wire_bytes"], c) for r in rows for c in r["cpu_coordinator_s"]]
+    cpu = a + b*B, least squares over the default-batching runs of every
+    worker count and RTT (the queries and round trips are the same in
+    every run, so a holds their part; small frames would fold their extra
+    system calls into b). b is what a byte on the wire costs the
+    coordinator, which handles every worker's frames in turn. CPU time,
+    unlike wall time, hardly moves with other load on the machine."""
+    pts = [(r["wire_bytes"], c) for r in rows if r["batching"] == "default" for c in r["cpu_coordinator_s"]]
     a, b = solve([[1.0, x] for x, _ in pts], [y for _, y in pts], [1.0] * len(pts))
-    return {"a": a, "b": b}
+    return {"a": a, "b": max(b, 0.0)}
 
 
 def fit(points, b):
     """points: (levels, n, rtt_s) per measured configuration and RTT.
     Residuals weighted by 1/sqrt(T): a level's noise grows with its
     length, and the short coarse levels still count (they carry the round
-    trips: few queries per step)."""
+    trips: few queries per step). No parameter may be negative (a time
+    per query, comparison or round trip): one that comes out negative is
+    set to 0 and the others fitted again, the most negative first."""
     rows, ys, ws = [], [], []
     for levels, n, rtt_s in points:
         for lv in levels:
@@ -362,7 +366,17 @@ def fit(points, b):
             rows.append(cols)
             ys.append(y)
             ws.append(1.0 / lv["T"])
-    return dict(zip(TERMS, solve(rows, ys, ws)), b=b)
+    free = list(range(len(TERMS)))
+    while True:
+        x = solve([[r[i] for i in free] for r in rows], ys, ws)
+        if min(x) >= 0:
+            break
+        free.pop(x.index(min(x)))
+    p = dict.fromkeys(TERMS, 0.0)
+    p.update({TERMS[i]: v for i, v in zip(free, x)})
+    p["clamped"] = [t for i, t in enumerate(TERMS) if i not in free]
+    p["b"] = b
+    return p
 
 
 def predict(p, levels, n, rtt_s):
@@ -543,7 +557,7 @@ def plot(out, rows, curves, rtts):
         blocks.append("\n".join(f"{x} {eff(x)}" for x in grid))
         cmds.append(f"$d{len(blocks) - 1} using 1:2 with lines dt {2 if eng == 'batched' else 4} lw 2 "
                     f"lc rgb '{colour[n]}' title 'model: {n} worker{'s' if n > 1 else ''}, {eng}'")
-    gp = ["set terminal pngcairo size 1100,560 font ',10'", f"set output '{out / 'netem.png'}'",
+    gp = ["set terminal pngcairo size 1100,560 font ',10'", "set output 'netem.png'",
           "set title 'Table 3.3 job: efficiency against added round-trip time'",
           "set xlabel 'added RTT (us)'", "set ylabel 'throughput / throughput at 0 us'",
           "set yrange [0:*]", f"set xrange [0:{rtts[-1] * 1.1}]", "set key outside right", "set grid"]
@@ -551,7 +565,7 @@ def plot(out, rows, curves, rtts):
         gp += [f"$d{i} << EOD", b, "EOD"]
     gp.append("plot " + ", \\\n     ".join(cmds))
     (out / "netem.gp").write_text("\n".join(gp) + "\n")
-    p = subprocess.run(["gnuplot", str(out / "netem.gp")], capture_output=True, text=True)
+    p = subprocess.run(["gnuplot", "netem.gp"], cwd=out, capture_output=True, text=True)
     if p.returncode != 0:
         print(f"netem: gnuplot failed, no plot: {p.stderr.strip()}")
 
@@ -629,6 +643,8 @@ def markdown(raw, verified, rows, full, held, preds):
     for k in [*TERMS, "b"]:
         name, f, unit = names[k]
         L.append(f"| {name} | {full[k] * f:.4g} {unit} | " + (f"{held[k] * f:.4g} {unit}" if held else "-") + " |")
+    if full["clamped"]:
+        L += ["", f"Fitted negative and set to 0 (the points cannot support them): {', '.join(full['clamped'])}."]
     cpu_c = statistics.median(r["worker_cpu_per_comparison_ns"] for r in rows)
     relay = [r["cpu_relay_median_s"] / r["median_s"] for r in rows if r["cpu_relay_median_s"]]
     L += ["", f"1/b = {1 / full['b'] / 1e6 if full['b'] > 0 else float('inf'):.0f} MB/s: the rate at which the "
