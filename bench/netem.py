@@ -582,8 +582,14 @@ def markdown(raw, verified, rows, full, held, preds):
     job = "512x512" if raw["quick"] else "1024x1024"
     L = [f"# Cluster efficiency under network latency ({'quick, ' if raw['quick'] else ''}{job} output)", "",
          f"Machine: {info['cpu']} (family {info['family']}, model {info['model']}), {info['cores']} cores, "
-         f"kernel {info['kernel']}; load average {info['load_start']:.1f} at the start, {info['load_end']:.1f} at the end "
-         "(other work shared the machine when it was above ~0.5).", "",
+         f"kernel {info['kernel']}; load average {info['load_start']:.1f} at the start, {info['load_end']:.1f} at the "
+         "end.", ""]
+    busy = max(info["load_start"], info["load_end"]) > 0.5 * info["cores"] + 2  # ours: ~2 busy processes
+    if busy:
+        L += ["**Measured while other work kept the machine busy**: the wall times, hence the efficiencies "
+              "and the wall-time fit, carry that load's noise (see the min-max spreads); the CPU times "
+              "(coordinator, workers, relay) hardly move with it. Rerun on a quiet machine for final figures.", ""]
+    L += [
          "## Method", "",
          "Coordinator and workers in two network namespaces joined by a veth pair (10.77.0.1, 10.77.0.2): "
          "every byte between them crosses an interface."]
@@ -626,6 +632,7 @@ def markdown(raw, verified, rows, full, held, preds):
           f" (target: at least 0.8 with default batching: "
           f"{'met' if all(r['efficiency'] >= 0.8 for r in at200 if r['batching'] == 'default') else 'NOT met'}).",
           ""]
+    L += frames_note(rows)
     L += level_diagnosis(rows)
     L += ["", "## Model", "",
           "Per pyramid level l:", "",
@@ -676,6 +683,24 @@ def markdown(raw, verified, rows, full, held, preds):
     L += ["", f"Embedded reference run: {raw['embedded_s']:.3f} s engine time, 2 threads.",
           "Plot: `netem.png` (script `netem.gp`); data: `netem.json`."]
     return "\n".join(L) + "\n"
+
+
+def frames_note(rows):
+    """What the small-frame setting changes, from the rows themselves."""
+    pick = lambda b: next(r for r in rows if r["batching"] == b and r["workers"] == max(WORKERS) and r["rtt_us"] == 0)
+    d, sm = pick("default"), pick("small")
+    if d["round_trips"] != sm["round_trips"]:
+        return []
+    return [f"Small frames do not add round trips ({d['round_trips']} in both settings): the coordinator queues "
+            "all of a step's frames before it reads the answers (pipelining), so `--pipeline-queries` sets how a "
+            "round trip's queries are cut into frames, not how many round trips there are. They cost frames "
+            f"instead: {sm['wire_bytes'] / d['wire_bytes']:.2f}x the wire bytes, "
+            f"{statistics.median(sm['cpu_coordinator_s']) / statistics.median(d['cpu_coordinator_s']):.2f}x the "
+            "coordinator's CPU time and "
+            f"{sm['cpu_relay_median_s'] / max(d['cpu_relay_median_s'], 1e-9):.1f}x the relay's at 0 us. What "
+            "keeps the efficiency is the engine's batch: one round trip per wavefront step, its queries all in "
+            "it; the `unbatched` lines of the predictions (one round trip per query) show what it would be "
+            "without.", ""]
 
 
 def level_diagnosis(rows):
