@@ -200,9 +200,10 @@ static int conn_open(int cfd) {
     struct epoll_event ev = {.events = 0, .data.ptr = &c->ep[s]};
     if (epoll_ctl(R.epfd, EPOLL_CTL_ADD, c->fd[s], &ev) != 0) goto fail;
   }
+  if (conn_watch(c, 0) != 0 || conn_watch(c, 1) != 0) goto fail;
   c->next = R.conns;
   R.conns = c;
-  return conn_watch(c, 0) || conn_watch(c, 1) ? -1 : 0;
+  return 0;
 fail:
   close(cfd); /* closing leaves the epoll set too */
   if (ufd >= 0) close(ufd);
