@@ -640,8 +640,8 @@ def markdown(raw, verified, rows, full, held, preds):
           "Q_l queries, P_l comparisons, R_l round trips (one per engine batch: a wavefront step), B_l wire "
           "bytes, all from the level's report; N workers; the RTT's coefficient is 1 (a round trip waits one "
           "RTT); a run's time is the sum over its levels. b comes from the coordinator's CPU time (read from "
-          "/proc per run): cpu = a + b*B by least squares over every run, B varying with the worker count and "
-          "the frame size; wall time cannot tell a byte's cost from the 2-worker runs' sharing of 2 cores. "
+          "/proc per run): cpu = a + b*B by least squares over the default-batching runs, B varying with the "
+          "worker count; wall time cannot tell a byte's cost from the 2-worker runs' sharing of 2 cores. "
           "s, c and t_rt: weighted least squares (residuals over sqrt(T_l)) over every measured level of "
           "every configuration and RTT.", "",
           "| parameter | fitted on all points | fitted without 200 us |", "|---|---|---|"]
