@@ -443,17 +443,23 @@ def run_series(a, build, tmp, topo, procs):
     return method, why, verified, configs, runs, emb_report
 
 
-def added_rtt_us(runs, rtt, verified, method):
-    """The RTT the job's traffic actually got: under the relay, twice the
-    median one-way delay it achieved over the runs; under netem, the
-    probes' added median."""
-    if method == "relay":
-        ones = [r["relay"]["median_us"] for r in runs if r["relay"] and r["relay"]["chunks"]]
-        return 2 * statistics.median(ones) if ones else float(rtt)
+def added_rtt_us(rtt, verified):
+    """The RTT a round trip of the job actually gained: the probes' added
+    median (request/response across the veth, through a relay in relay
+    mode). Under the relay it exceeds twice the relay's own hold time by
+    the wake-ups of peers that went idle while waiting, as the job's
+    round trips do (the per-level table shows it)."""
     return verified[rtt]["added_us"] if rtt else 0.0
 
 
-def summarise(configs, runs, rtts, verified, method):
+def relay_hold_rtt_us(runs):
+    """Twice the median one-way hold time the relay achieved on the runs'
+    own traffic (None under netem)."""
+    ones = [r["relay"]["median_us"] for r in runs if r["relay"] and r["relay"]["chunks"]]
+    return 2 * statistics.median(ones) if ones else None
+
+
+def summarise(configs, runs, rtts, verified):
     rows = []
     for c in configs:
         base = statistics.median(r["engine_s"] for r in runs[(c.key, rtts[0])])
@@ -465,7 +471,8 @@ def summarise(configs, runs, rtts, verified, method):
             rows.append({
                 "config": c.key, "label": c.label, "workers": c.n, "batching": c.batching,
                 "pipeline_queries": BATCHING[c.batching], "rtt_us": rtt,
-                "achieved_rtt_us": added_rtt_us(rs, rtt, verified, method),
+                "achieved_rtt_us": added_rtt_us(rtt, verified),
+                "relay_hold_rtt_us": relay_hold_rtt_us(rs),
                 "relay_p99_one_way_us": max((r["relay"]["p99_us"] for r in rs if r["relay"]), default=None),
                 "median_s": med, "min_s": min(secs), "max_s": max(secs), "runs_s": secs,
                 "wall_median_s": statistics.median(r["wall_s"] for r in rs),
@@ -599,8 +606,9 @@ def markdown(raw, verified, rows, full, held, preds):
         L += [f"The kernel has no netem qdisc (`tc qdisc add ... netem` said: \"{why}\"), so the delay is "
               "added by `bench/delay_relay`: one relay per coordinator in the coordinator's namespace, the "
               "workers `--join` it, and it holds every chunk RTT/2 in each direction (epoll_pwait2 timeouts, "
-              "1 ns timer slack, SCHED_FIFO, no busy-waiting). The RTT used below is the one it achieved on "
-              "each run's traffic: twice its median one-way hold time (the timer's overshoot included)."]
+              "1 ns timer slack, SCHED_FIFO, no busy-waiting). The RTT used below (model, plot) is "
+              "the probes' added RTT below (it includes the wake-ups of peers idle while they wait, 0-80 us more "
+              "than twice the relay's own hold time, which the tables give too)."]
     L += ["", f"Job: `texsyn synth --ref brick.png --size {job} {' '.join(map(str, JOB[:-1]))}` (the seed's "
           "Table 3.3 job), on 1 or 2 `texsyn-worker --threads 1`. Batching `default`: the coordinator's "
           f"`--pipeline-queries {BATCHING['default']}`; `small`: `--pipeline-queries {BATCHING['small']}`. "
@@ -618,19 +626,27 @@ def markdown(raw, verified, rows, full, held, preds):
         ping = f" {v['ping']['avg_us']:.0f} |" if method == "netem" and v.get("ping") else ""
         L.append(f"| {rtt} | {v['median_us']:.0f} | {v['p99_us']:.0f} | {v['added_us']:.0f} |{ping}")
     L += ["", "## Results", "",
-          "| configuration | RTT asked (us) | RTT achieved (us) | median s (min-max) | queries/s | efficiency | "
-          "round trips | wire bytes | model s (residual) | model without 200 us (error) | output = embedded |",
-          "|---|---|---|---|---|---|---|---|---|---|---|"]
+          "RTT added: the probes' (above); relay hold: twice the relay's median one-way hold on the run's own "
+          "traffic.", "",
+          "| configuration | RTT asked (us) | RTT added (us) | relay hold (us) | median s (min-max) | queries/s | "
+          "efficiency | round trips | wire bytes | model s (residual) | model without 200 us (error) | "
+          "output = embedded |",
+          "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         ho = f"{r['heldout_model_s']:.3f} ({100 * r['heldout_error']:+.1f} %)" if "heldout_model_s" in r else "-"
-        L.append(f"| {r['label']} | {r['rtt_us']} | {r['achieved_rtt_us']:.0f} | {r['median_s']:.3f} "
+        hold = "-" if r["relay_hold_rtt_us"] is None else f"{r['relay_hold_rtt_us']:.0f}"
+        L.append(f"| {r['label']} | {r['rtt_us']} | {r['achieved_rtt_us']:.0f} | {hold} | {r['median_s']:.3f} "
                  f"({r['min_s']:.3f}-{r['max_s']:.3f}) | {r['throughput_qps']:.0f} | **{r['efficiency']:.3f}** | "
                  f"{r['round_trips']} | {r['wire_bytes']} | {r['model_s']:.3f} ({100 * r['residual']:+.1f} %) | "
                  f"{ho} | {r['identical']} |")
     at200 = [r for r in rows if r["rtt_us"] == VALIDATE_RTT]
     L += ["", "Efficiency at 200 us: " + ", ".join(f"{r['label']} {r['efficiency']:.3f}" for r in at200) +
           f" (target: at least 0.8 with default batching: "
-          f"{'met' if all(r['efficiency'] >= 0.8 for r in at200 if r['batching'] == 'default') else 'NOT met'}).",
+          f"{'met' if all(r['efficiency'] >= 0.8 for r in at200 if r['batching'] == 'default') else 'NOT met'}, "
+          f"at the {statistics.median(r['achieved_rtt_us'] for r in at200):.0f} us the probes measured). "
+          "The model at exactly 200 us: " + ", ".join(
+              f"{p['workers']} worker{'s' if p['workers'] > 1 else ''} {p['efficiency']:.3f}" for p in preds
+              if p["engine"] == "batched" and p["rtt_us"] == VALIDATE_RTT) + ".",
           ""]
     L += frames_note(rows)
     L += level_diagnosis(rows)
@@ -782,7 +798,7 @@ def analyse(raw, out):
     verified = {int(k): v for k, v in raw["verified_rtt"].items()}
     configs = [Config(n, b) for n, b in raw["configs"]]
     runs = {(c.key, rtt): raw["runs"][f"{c.key} {rtt}"] for c in configs for rtt in rtts}
-    rows = summarise(configs, runs, rtts, verified, raw["method"])
+    rows = summarise(configs, runs, rtts, verified)
     full, held = model(rows, rtts)
     preds = predictions(full, rows, rtts)
     curves = {(n, eng): curve(full, rows, n, eng == "unbatched") for n in [1, 2, *PREDICT_N]
