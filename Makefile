@@ -13,6 +13,9 @@
 #   make fuzz       run each libFuzzer target for FUZZ_SECONDS (default 30)
 #   make bench      run benchmarks, write bench/results/ (with TEXSYN_EBSYNTH=PATH to
 #                   the peer, also texsyn stylize against Ebsynth: bench/stylize.py)
+#   make bench-netem  the cluster under added network latency (root: namespaces, netem or
+#                   bench/delay_relay) and a fitted performance model; writes
+#                   bench/results/netem.{json,md,png}
 #   make soak       SOAK_MINUTES (default 10) of small jobs on 3 workers that are killed,
 #                   stalled and replaced; writes bench/results/soak.{json,txt}
 #   make test-deploy  (root) deploy/: the Slurm batch script on a single-node Slurm,
@@ -255,6 +258,15 @@ fuzz: deps fuzz-build
 
 bench: deps all
 	bash bench/run.sh $(BUILD)
+
+# Cluster efficiency under 0-1000 us of added round-trip time between the
+# coordinator and its workers, in network namespaces (not in `make test`:
+# a few minutes, needs root); bench/netem.py says how. NETEM_ARGS=--quick
+# for a smaller job.
+.PHONY: bench-netem
+bench-netem: $(BINS) $(IMAGE_LIB) $(BUILD)/bench/delay_relay
+	bash deploy/install-deps.sh --bench
+	/usr/bin/python3 bench/netem.py --build $(BUILD) --out bench/results $(NETEM_ARGS)
 
 # Soak (not in `make test`): 4 clients submit small jobs for SOAK_MINUTES to
 # a coordinator whose 3 workers are SIGKILLed, SIGSTOPped and replaced at

@@ -18,6 +18,8 @@ PACKAGES=(
 )
 # Plots for `make bench` only.
 [ "${1:-}" = "--bench" ] && PACKAGES+=(python3-matplotlib)
+# bench/netem.py: its plot, the namespaces and the RTT check.
+[ "${1:-}" = "--bench" ] && PACKAGES+=(gnuplot-nox iproute2 iputils-ping)
 # `make test-deploy` only: a single-node Slurm, systemd-analyze, the
 # manifests' checks (python3-kubernetes' models; npm for kubernetes-models).
 # Node and npm from Debian unless there already are (NodeSource's nodejs
