@@ -13,8 +13,8 @@ PACKAGES=(
   valgrind                             # make test-valgrind
   clang                                # libFuzzer targets (make fuzz; 20 s each in make test)
 )
-# Plots for `make bench` only.
-[ "${1:-}" = "--bench" ] && PACKAGES+=(python3-matplotlib)
+# Plots for `make bench` only (bench/gnuplot.py).
+[ "${1:-}" = "--bench" ] && PACKAGES+=(gnuplot-nox)
 
 missing=()
 for p in "${PACKAGES[@]}"; do
