@@ -214,11 +214,13 @@ def plot(out, res):
     """table33.png: seconds per level, ours (solid, bars min-max) and the
     seed's (dotted); table33-totals.png: the totals column by column."""
     series = []
-    for c in SEED_COLUMNS[:-1]:
-        series.append(gnuplot.Series(f"texsyn {c}", [(l, v["seconds"], *v["spread"]) for l, v in res[c].items()]))
-    for c in SEED_COLUMNS[:-1]:
+    for k, c in enumerate(SEED_COLUMNS[:-1]):  # the same colour for a column and the seed's
+        series.append(gnuplot.Series(f"texsyn {c}", [(l, v["seconds"], *v["spread"]) for l, v in res[c].items()],
+                                     options=f"lc {k + 1} pt 7"))
+    for k, c in enumerate(SEED_COLUMNS[:-1]):
         pts = [(l, v) for l, v in SEED_TABLE[c].items() if v is not None]
-        series.append(gnuplot.Series(f"2004 {c}", pts, "linespoints" if len(pts) > 1 else "points", "dt 3"))
+        series.append(gnuplot.Series(f"2004 {c}", pts, "linespoints" if len(pts) > 1 else "points",
+                                     f"dt 3 lc {k + 1} pt 6"))
     gnuplot.lines(out / "table33.png", series, "Table 3.3 job per level: texsyn (solid) and the seed, 2004 (dotted)",
                   "pyramid level", "seconds", logy=True, xtics=list(LEVELS), size=(900, 600),
                   extra=["set xrange [4.3:-0.3]", "set key outside right top"])
