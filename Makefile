@@ -11,8 +11,9 @@
 #                       a coordinator killed half-way through level 0 of a 20 s job, and the
 #                       rebalancing measurements (slow worker, slow link, load over Modbus)
 #   make fuzz       run each libFuzzer target for FUZZ_SECONDS (default 30)
-#   make bench      run benchmarks, write bench/results/ (with TEXSYN_EBSYNTH=PATH to
-#                   the peer, also texsyn stylize against Ebsynth: bench/stylize.py)
+#   make bench      quick benchmarks (< 10 min), write bench/results/ and its RESULTS.md
+#                   (with TEXSYN_EBSYNTH=PATH to the peer, also texsyn stylize against
+#                   Ebsynth: bench/stylize.py); make bench-full: all of them, full size
 #   make soak       SOAK_MINUTES (default 10) of small jobs on 3 workers that are killed,
 #                   stalled and replaced; writes bench/results/soak.{json,txt}
 #   make demo       install missing packages, run an embedded synthesis
@@ -247,7 +248,11 @@ fuzz: deps fuzz-build
 	bash tests/run-fuzz.sh fuzz $(FUZZ_SECONDS)
 
 bench: deps all
-	bash bench/run.sh $(BUILD)
+	bash bench/run.sh $(BUILD) --quick
+
+.PHONY: bench-full
+bench-full: deps all
+	bash bench/run.sh $(BUILD) --full
 
 # Soak (not in `make test`): 4 clients submit small jobs for SOAK_MINUTES to
 # a coordinator whose 3 workers are SIGKILLed, SIGSTOPped and replaced at
