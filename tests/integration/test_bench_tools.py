@@ -119,3 +119,19 @@ def test_results_md_missing_stamped_and_unstamped_sections(tmp_path):
     p = subprocess.run([PY, BENCH / "results_md.py", "--out", tmp_path, "--stamp", "nosuch"],
                        capture_output=True, text=True)
     assert p.returncode != 0 and "unknown section 'nosuch'" in p.stderr
+
+
+def test_table33_extrapolates_the_scalar_levels_from_the_exhaustive_count():
+    import table33
+
+    def lv(seconds, blocks, vectors, comparisons=None):
+        return {"seconds": seconds, "spread": [seconds, seconds], "blocks": blocks, "vectors": vectors,
+                "comparisons": blocks * vectors if comparisons is None else comparisons, "measured": True}
+    basis = {4: lv(0.01, 10, 10), 3: lv(0.1, 40, 40), 2: lv(1.0, 100, 1000)}
+    simd = {**{l: lv(0.001, 100, 1000) for l in (4, 3, 2)}, 1: lv(0.01, 400, 4000), 0: lv(0.1, 1600, 16000)}
+    rate = table33.extrapolate(basis, table33.exhaustive(basis, simd))
+    assert rate == 100000.0  # level 2: 100 x 1000 comparisons in 1 s
+    assert basis[1] == {"seconds": 16.0, "spread": [16.0, 16.0], "comparisons": 1600000, "measured": False}
+    assert basis[0]["seconds"] == 256.0 and basis[2]["measured"]
+    with pytest.raises(SystemExit, match="not blocks x vectors"):
+        table33.exhaustive({2: lv(1.0, 100, 1000, comparisons=25000)}, simd)
