@@ -9,8 +9,9 @@ Jobs:
            W_B=3, parity, the scan alone (--refine 0), exact;
   aerial   a class map with roads (bench/mkscene, seed 7) at --aerial-size
            with references cut from aero1.jpg (bench/aerial_refs.sh);
-  stylit   the StyLit scene, 1200x912, 4 render-pass guides at weight 0.5,
-           --search patchmatch (the same bytes on any pool).
+  stylit   the StyLit scene, 1200x912 (--quick: resized to 600x456), 4
+           render-pass guides at weight 0.5, --search patchmatch (the same
+           bytes on any pool).
 
 Per job all configurations are up at once (one coordinator each, its
 workers joined and calibrated) and the runs are interleaved: every
@@ -26,6 +27,7 @@ speed-up cannot grow, and efficiency falls as C/N at best.
 Writes bench/results/scaling.{md,json} and scaling.png.
 Usage: bench/scaling.py --build BUILD [--out DIR] [--quick] [--reps R]
        [--workers 1,2,4] [--jobs table33,aerial,stylit] [--aerial-size N]
+       [--stylit-size WxH]
 """
 import argparse
 import json
@@ -69,8 +71,16 @@ def aerial_args(build, tmp, size):
     return ["aerial", "--classes", d / "scene-classes.png", "--catalogue", d / "catalogue.json"]
 
 
-def stylit_args():
+def stylit_args(tmp, size):
+    """The StyLit scene at full size (size None) or every image resized to
+    size (WxH) with oiiotool."""
     s = DATA / "stylit"
+    names = ["source_style.png", *(f"{side}_{g}.png" for g in GUIDES for side in ("source", "target"))]
+    if size:
+        for n in names:
+            subprocess.run(["oiiotool", str(s / n), "--resize", size, "-o", str(tmp / n)], check=True,
+                           capture_output=True)
+        s = tmp
     args = ["stylize", "--style", s / "source_style.png", "--search", "patchmatch"]
     for g in GUIDES:
         args += ["--guide", s / f"source_{g}.png", s / f"target_{g}.png", "--weight", 0.5]
@@ -216,11 +226,12 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--build", default="build")
     ap.add_argument("--out", default="bench/results")
-    ap.add_argument("--quick", action="store_true", help="workers 1,2,4,16, 2 runs, aerial 2048^2")
+    ap.add_argument("--quick", action="store_true", help="workers 1,2,4,16, 2 runs, aerial 2048^2, StyLit 600x456")
     ap.add_argument("--reps", type=int)
     ap.add_argument("--workers")
     ap.add_argument("--jobs", default="table33,aerial,stylit")
     ap.add_argument("--aerial-size", type=int)
+    ap.add_argument("--stylit-size", help="WxH: the StyLit scene resized (default: full size, --quick 600x456)")
     a = ap.parse_args()
     build, out = Path(a.build).resolve(), Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -229,6 +240,7 @@ def main():
         sys.exit("bench: --workers must start with 1 (the speed-up's base)")
     reps = a.reps or (2 if a.quick else 5)
     size = a.aerial_size or (2048 if a.quick else 4096)
+    stylit_size = a.stylit_size or ("600x456" if a.quick else None)
     res = {"cpu": cpu(), "cores": os.cpu_count(), "loadavg": loadavg(), "busy": loadavg() > 0.5, "reps": reps,
            "counts": counts, "quick": a.quick, "jobs": []}
     with tempfile.TemporaryDirectory() as td:
@@ -237,7 +249,8 @@ def main():
                             table33_args),
                 "aerial": (f"aerial scene {size}^2 (mkscene seed 7, references from aero1.jpg, defaults)",
                            lambda: aerial_args(build, tmp, size)),
-                "stylit": ("StyLit scene 1200x912, 4 guides at weight 0.5, --search patchmatch", stylit_args)}
+                "stylit": (f"StyLit scene {stylit_size or '1200x912'}, 4 guides at weight 0.5, --search patchmatch",
+                           lambda: stylit_args(tmp, stylit_size))}
         for name in a.jobs.split(","):
             if name not in jobs:
                 sys.exit(f"bench: unknown job {name!r}; the jobs are {', '.join(jobs)}")
