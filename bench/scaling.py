@@ -219,7 +219,8 @@ def plot(res, out):
     return gnuplot.lines(out / "scaling.png", series, f"Speed-up over 1 worker ({cores} cores; bars: min-max)",
                          "workers (texsyn-worker --threads 1)", "speed-up T(1)/T(N)", logx=True, logy=True,
                          marks=[("x", cores, f"{cores} cores")], xtics=res["counts"],
-                         extra=[f"set xrange [0.9:{top * 1.1}]", f"set yrange [0.25:{top * 1.1}]", "set key bottom left"])
+                         extra=[f"set xrange [0.9:{top * 1.1}]", f"set yrange [0.25:{top * 1.1}]",
+                                "set key bottom left"])
 
 
 def main():
