@@ -1,8 +1,9 @@
 #!/usr/bin/python3
 """The benchmarks' one plotting helper: writes a gnuplot script and its
-data file next to the picture (OUT/gnuplot/NAME.gp, NAME.dat, so a plot
-can be restyled and redrawn with `gnuplot NAME.gp` without rerunning the
-benchmark) and runs gnuplot (Debian gnuplot-nox, pngcairo terminal).
+data file beside the picture (OUT/gnuplot/NAME.gp, NAME.dat, with paths
+relative to OUT, so a plot can be restyled and redrawn with
+`cd OUT && gnuplot gnuplot/NAME.gp` without rerunning the benchmark) and
+runs gnuplot there (Debian gnuplot-nox, pngcairo terminal).
 
 Two kinds of chart:
   lines(png, series, ...)  lines/points over numeric x, optional log axes,
@@ -44,8 +45,13 @@ def _files(png):
     return png, d / (png.stem + ".gp"), d / (png.stem + ".dat")
 
 
+def _rel(path):
+    """A file's path as the script names it: relative to the picture's folder."""
+    return f"gnuplot/{path.name}"
+
+
 def _header(png, title, xlabel, ylabel, size, logx, logy):
-    out = [TERMINAL.format(w=size[0], h=size[1]), f"set output {quoted(png.resolve())}",
+    out = [TERMINAL.format(w=size[0], h=size[1]), f"set output {quoted(png.name)}",
            f"set title {quoted(title)}", f"set xlabel {quoted(xlabel)}", f"set ylabel {quoted(ylabel)}",
            "set grid", "set key top left box opaque", "set datafile separator '\\t'"]
     if logx:
@@ -74,7 +80,7 @@ def _run(script, gp, name):
     if shutil.which("gnuplot") is None:
         print(f"bench: gnuplot missing, no plot {name} (deploy/install-deps.sh --bench installs gnuplot-nox)")
         return False
-    p = subprocess.run(["gnuplot", str(gp)], capture_output=True, text=True)
+    p = subprocess.run(["gnuplot", _rel(gp)], capture_output=True, text=True, cwd=gp.parent.parent)
     if p.returncode != 0:
         print(f"bench: gnuplot failed on {gp}, no plot {name}:\n{p.stderr}")
         return False
@@ -99,9 +105,10 @@ def lines(png, series, title, xlabel, ylabel, logx=False, logy=False, marks=(), 
     for i, s in enumerate(series):
         if s.has_spread():
             style = "yerrorlines" if "lines" in s.style else "yerrorbars"
-            parts.append(f"{quoted(dat)} index {i} using 1:2:3:4 with {style} {s.options} title {quoted(s.title)}")
+            parts.append(f"{quoted(_rel(dat))} index {i} using 1:2:3:4 with {style} {s.options} "
+                         f"title {quoted(s.title)}")
         else:
-            parts.append(f"{quoted(dat)} index {i} using 1:2 with {s.style} {s.options} title {quoted(s.title)}")
+            parts.append(f"{quoted(_rel(dat))} index {i} using 1:2 with {s.style} {s.options} title {quoted(s.title)}")
     script.append("plot " + ", \\\n     ".join(parts))
     return _run(script, gp, png.name)
 
@@ -125,7 +132,7 @@ def bars(png, categories, groups, title, ylabel, spreads=None, logy=False, size=
     script += ["set style data histogram", "set style histogram errorbars gap 1 lw 1",
                "set style fill solid 0.7 border -1", "set boxwidth 0.9", "set xtics nomirror",
                "set key top left", "set yrange [0:*]" if not logy else "set yrange [*:*]", *extra]
-    parts = [f"{quoted(dat)} using {2 + 3 * k}:{3 + 3 * k}:{4 + 3 * k}:xtic(1) title {quoted(n)}"
+    parts = [f"{quoted(_rel(dat))} using {2 + 3 * k}:{3 + 3 * k}:{4 + 3 * k}:xtic(1) title {quoted(n)}"
              for k, n in enumerate(names)]
     script.append("plot " + ", \\\n     ".join(parts))
     return _run(script, gp, png.name)
