@@ -13,10 +13,11 @@ bench_kernels reports. The memory roof is bandwidth x intensity (the 1- and
 thread, so the 1-thread roof is theirs. Points: W_N=7 vectors (7 chunks),
 reference set in L2 ("cache", 256 KB) and streamed from DRAM ("mem", 256 MB).
 
-A variant is called memory-bound when its single-query scan slows down by
-more than 15% once the set streams from DRAM and it then runs at 60% or
-more of the 1-thread read bandwidth; otherwise compute-bound (the same
-speed in cache and from DRAM).
+A variant is called memory-bound on a single query when its scan slows
+down by more than 15% once the set streams from DRAM and it then runs at
+60% or more of the 1-thread read bandwidth; otherwise compute-bound. A
+batch of nq queries is memory-bound when its DRAM traffic (compared bytes
+per second / nq) reaches 60% of the bandwidth.
 Writes bench/results/roofline.{md,json} and roofline.png.
 Usage: bench/roofline.py [--out DIR]
 """
@@ -51,9 +52,15 @@ def classify(bw, kern):
         cache, mem = get[("single", "cache", "1")], get[("single", "mem", "1")]
         bound = "memory" if mem < SLOWDOWN * cache and mem >= NEAR_ROOF * bw["memread-1t"] else "compute"
         batch = max((k for k in get if k[0] == "batch" and k[1] == "mem"), key=lambda k: int(k[2]), default=None)
+        bmem = get[batch] if batch else None
+        bcache = get.get(("batch", "cache", batch[2])) if batch else None
         out[v] = {"single_cache_gbps": cache, "single_mem_gbps": mem, "bound": bound,
-                  "share_of_bandwidth": mem / bw["memread-1t"],
-                  "batch_mem_gbps": get[batch] if batch else None, "batch_nq": int(batch[2]) if batch else None}
+                  "share_of_bandwidth": mem / bw["memread-1t"], "batch_nq": int(batch[2]) if batch else None,
+                  "batch_cache_gbps": bcache, "batch_mem_gbps": bmem,
+                  # a batch's roof is the bandwidth times nq: its DRAM traffic is bmem / nq
+                  "batch_bound": None if not (bmem and bcache) else
+                  "memory" if bmem >= NEAR_ROOF * bw["memread-1t"] * int(batch[2]) else "compute",
+                  "batch_dram_loss": None if not (bmem and bcache) else 1 - bmem / bcache}
     return out
 
 
@@ -83,18 +90,26 @@ def markdown(out, bw, cls):
              f"Memory-bound: the single-query scan loses more than {100 - SLOWDOWN * 100:.0f}% from L2 to DRAM and "
              f"then runs at {NEAR_ROOF * 100:.0f}% or more of the 1-thread bandwidth.", "",
              "| variant | single query, set in L2 GB/s | single query, set in DRAM GB/s | share of 1-thread bandwidth | "
-             "bound (single query) | largest batch, DRAM GB/s |", "|---|---|---|---|---|---|"]
+             "bound (single query) | largest batch: L2 / DRAM GB/s | bound (batch) |", "|---|---|---|---|---|---|---|"]
     for v, c in cls.items():
-        b = f"{c['batch_mem_gbps']:.1f} (nq {c['batch_nq']})" if c["batch_mem_gbps"] is not None else "-"
+        b = (f"{c['batch_cache_gbps']:.1f} / {c['batch_mem_gbps']:.1f} (nq {c['batch_nq']})"
+             if c["batch_bound"] else "-")
         lines.append(f"| {v} | {c['single_cache_gbps']:.1f} | {c['single_mem_gbps']:.1f} | "
-                     f"{c['share_of_bandwidth']:.2f} | {c['bound']} | {b} |")
+                     f"{c['share_of_bandwidth']:.2f} | {c['bound']} | {b} | {c['batch_bound'] or '-'} |")
     mem = [v for v, c in cls.items() if c["bound"] == "memory"]
     comp = [v for v, c in cls.items() if c["bound"] == "compute"]
-    lines += ["", f"Compute-bound on a single query: {', '.join(comp) or 'none'} (as fast from DRAM as from L2: the "
-              "kernel, not the data's path, limits them). Memory-bound: " + (', '.join(mem) or 'none') +
-              " (they reach the DRAM roof: streaming a set larger than the caches, a single query cannot go faster "
-              "than the memory delivers). Batching queries raises the intensity nq-fold, which moves every variant "
-              "off the memory roof: batched, each runs at its compute ceiling from DRAM as from L2.", ""]
+    bcomp = [v for v, c in cls.items() if c["batch_bound"] == "compute"]
+    bmem = [v for v, c in cls.items() if c["batch_bound"] == "memory"]
+    slower = [f"{v} ({100 * c['batch_dram_loss']:.0f}%)" for v, c in cls.items()
+              if c["batch_bound"] == "compute" and c["batch_dram_loss"] > 1 - SLOWDOWN]
+    lines += ["", f"Compute-bound on a single query: {', '.join(comp) or 'none'} (nearly as fast from DRAM as from "
+              "L2, or far below the roof: the kernel, not the data's path, limits them). Memory-bound: " +
+              (', '.join(mem) or 'none') + " (near the DRAM roof: streaming a set larger than the caches, a single "
+              "query cannot go faster than the memory delivers). Batching queries raises the intensity nq-fold: "
+              f"batched, {', '.join(bcomp) or 'none'} are compute-bound (their DRAM traffic, GB/s / nq, is far "
+              "below the bandwidth)" + (f"; {', '.join(bmem)} stay at the roof" if bmem else "") +
+              (f"; slower from DRAM than from L2 all the same, not for lack of bandwidth: {', '.join(slower)}"
+               if slower else "") + ".", ""]
     (out / "roofline.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -135,3 +135,10 @@ def test_table33_extrapolates_the_scalar_levels_from_the_exhaustive_count():
     assert basis[0]["seconds"] == 256.0 and basis[2]["measured"]
     with pytest.raises(SystemExit, match="not blocks x vectors"):
         table33.exhaustive({2: lv(1.0, 100, 1000, comparisons=25000)}, simd)
+
+
+def test_roofline_calls_a_batch_compute_bound_below_its_roof(tmp_path):
+    kernels_csv(tmp_path / "kernels.csv")
+    cls = roofline.classify(*roofline.load(tmp_path / "kernels.csv"))
+    # fast's batch of 32: 60 GB/s compared is 1.9 GB/s read, far below 20 GB/s
+    assert cls["fast"]["batch_bound"] == "compute" and cls["fast"]["batch_dram_loss"] == 0
