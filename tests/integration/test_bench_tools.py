@@ -59,7 +59,8 @@ def kernels_csv(path, memread=True):
         rows.append("fast,memread-1t,mem,0,0,20.0,0,5")
     for v, cache, mem in (("slow", 5.0, 5.0), ("fast", 60.0, 18.0)):
         rows += [f"{v},single,cache,1,7,{cache},0,0", f"{v},single,mem,1,7,{mem},0,0",
-                 f"{v},batch,mem,32,7,{cache},0,0", f"{v},single,cache,1,12,1.0,0,0"]
+                 f"{v},batch,cache,32,7,{cache},0,0", f"{v},batch,mem,32,7,{cache},0,0",
+                 f"{v},single,cache,1,12,1.0,0,0"]
     path.write_text("\n".join(rows) + "\n")
 
 
