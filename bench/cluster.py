@@ -118,7 +118,7 @@ def main():
     ap.add_argument("--build", default="build")
     ap.add_argument("--out", default="bench/results")
     ap.add_argument("--reps", type=int, default=5)
-    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--quick", action="store_true", help="2 runs, parity only")
     a = ap.parse_args()
     build, out = Path(a.build).resolve(), Path(a.out)
     reps = 2 if a.quick else a.reps
@@ -127,7 +127,8 @@ def main():
     results = {}
     with tempfile.TemporaryDirectory() as td:
         tmp = Path(td)
-        for mode, extra in (("parity", ["--parity"]), ("no parity", [])):
+        modes = (("parity", ["--parity"]),) if a.quick else (("parity", ["--parity"]), ("no parity", []))
+        for mode, extra in modes:  # --quick: parity only (without, 3x the time, the same overhead)
             for c in configs:
                 c.procs = []
                 c.up(build, tmp)
