@@ -34,7 +34,8 @@ SECTIONS = [
      ["table33.png", "table33-totals.png"], RUN.format("table33.py")),
     ("scaling", "Scaling over 1..16 workers: Table 3.3 job, aerial scene, StyLit scene", ["scaling.md", "scaling.json"],
      ["scaling.png"], RUN.format("scaling.py")),
-    ("stylize", "Stylization: texsyn stylize against Ebsynth", ["stylize.md", "stylize.json"], [],
+    ("stylize", "Stylization: texsyn stylize against Ebsynth", ["stylize.md", "stylize.json"],
+     ["stylize-stylit-texsyn.png", "stylize-stylit-ebsynth.png"],
      "/usr/bin/python3 bench/stylize.py --build build --out bench/results --ebsynth PATH (build the peer with "
      "../shared/peers/build-ebsynth.sh DIR; `TEXSYN_EBSYNTH=DIR/ebsynth make bench` runs it)"),
     ("copy_accel", "The copy-map shortcut on the Table 3.3 job", ["copy-accel.md", "copy-accel.json"], [],
