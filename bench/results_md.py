@@ -36,8 +36,7 @@ SECTIONS = [
      ["scaling.png"], RUN.format("scaling.py")),
     ("stylize", "Stylization: texsyn stylize against Ebsynth", ["stylize.md", "stylize.json"],
      ["stylize-stylit-texsyn.png", "stylize-stylit-ebsynth.png"],
-     "/usr/bin/python3 bench/stylize.py --build build --out bench/results --ebsynth PATH (build the peer with "
-     "../shared/peers/build-ebsynth.sh DIR; `TEXSYN_EBSYNTH=DIR/ebsynth make bench` runs it)"),
+     "/usr/bin/python3 bench/stylize.py --build build --out bench/results --ebsynth PATH [--quick]"),
     ("copy_accel", "The copy-map shortcut on the Table 3.3 job", ["copy-accel.md", "copy-accel.json"], [],
      RUN.format("copy_accel.py")),
     ("lbg", "LBG partitioning against the exact search", ["lbg.md", "lbg.json"], [], RUN.format("lbg.py")),
@@ -46,15 +45,23 @@ SECTIONS = [
     ("wire", "Bytes on the wire per query", ["wire.md", "wire.json"], [], RUN.format("wire.py")),
     ("latency", "Answer times under load", ["latency.md", "latency.json"], [], RUN.format("latency.py")),
     ("netem", "Emulated networks (netem)", ["netem.md", "netem.json"], [],
-     "/usr/bin/python3 bench/netem.py --build build --out bench/results (make bench-full)"),
+     "/usr/bin/python3 bench/netem.py --build build --out bench/results"),
     ("sequence", "A stylization sequence against separate jobs", ["sequence.md", "sequence.json"], [],
      RUN.format("sequence.py")),
     ("segment", "Texture segmentation: accuracy and time", ["segment.md", "segment.json"], [],
      RUN.format("segment.py")),
     ("aerial", "Hole filling and aerial scenes", ["aerial.md", "aerial.json"], ["aerial-2048.png"],
-     RUN.format("aerial.py") + " (make bench-full)"),
+     RUN.format("aerial.py")),
     ("mix", "Texture mixing", ["mix.md"], ["mix-brick.png", "mix-aerial.png"], RUN.format("mix.py")),
 ]
+
+# What the command line cannot say: where a section's prerequisites come from.
+NOTES = {
+    "stylize": "PATH: the Ebsynth peer, built by `../shared/peers/build-ebsynth.sh DIR` as DIR/ebsynth; "
+               "`TEXSYN_EBSYNTH=DIR/ebsynth make bench` runs it.",
+    "netem": "`make bench-full` runs it.",
+    "aerial": "`make bench-full` runs it.",
+}
 
 
 def git(*args):
@@ -92,7 +99,7 @@ def demote(md):
 
 
 def section(out, stamps, head, name, title, files, plots, command):
-    lines = [f"## {title}", "", f"Regenerate: `{command}`", ""]
+    lines = [f"## {title}", "", f"Regenerate: `{command}`" + (f" ({NOTES[name]})" if name in NOTES else ""), ""]
     missing = [f for f in files if not (out / f).exists()]
     if missing:
         return lines + [f"**Not measured**: {', '.join(missing)} missing. Run the command above "
