@@ -11,8 +11,9 @@
 #                       a coordinator killed half-way through level 0 of a 20 s job, and the
 #                       rebalancing measurements (slow worker, slow link, load over Modbus)
 #   make fuzz       run each libFuzzer target for FUZZ_SECONDS (default 30)
-#   make bench      run benchmarks, write bench/results/ (with TEXSYN_EBSYNTH=PATH to
-#                   the peer, also texsyn stylize against Ebsynth: bench/stylize.py)
+#   make bench      quick benchmarks (< 10 min), write bench/results/ and its RESULTS.md
+#                   (with TEXSYN_EBSYNTH=PATH to the peer, also texsyn stylize against
+#                   Ebsynth: bench/stylize.py); make bench-full: all of them, full size
 #   make bench-netem  the cluster under added network latency (root: namespaces, netem or
 #                   bench/delay_relay) and a fitted performance model; writes
 #                   bench/results/netem.{json,md,png}
@@ -257,7 +258,11 @@ fuzz: deps fuzz-build
 	bash tests/run-fuzz.sh fuzz $(FUZZ_SECONDS)
 
 bench: deps all
-	bash bench/run.sh $(BUILD)
+	bash bench/run.sh $(BUILD) --quick
+
+.PHONY: bench-full
+bench-full: deps all
+	bash bench/run.sh $(BUILD) --full
 
 # Cluster efficiency under 0-1000 us of added round-trip time between the
 # coordinator and its workers, in network namespaces (not in `make test`:

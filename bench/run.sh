@@ -1,53 +1,75 @@
 #!/usr/bin/env bash
-# `make bench`: writes bench/results/ - kernel throughput per SIMD variant
-# next to the measured memory bandwidth, the seed's Table 3.3 job, quality
-# figures and example pictures. Every figure of one run is measured side by
-# side on the same machine; medians of repeated runs.
-# texsyn stylize against Ebsynth runs only when TEXSYN_EBSYNTH names the peer's
-# binary (../shared/peers/build-ebsynth.sh DIR builds DIR/ebsynth).
-# Usage: [TEXSYN_EBSYNTH=PATH] bench/run.sh BUILD_DIR [--quick]
+# `make bench` (quick, under 10 minutes on 2 cores) and `make bench-full`
+# (everything, full sizes and repetitions): runs the benchmark scripts, each
+# writing its tables (.md/.json) and plots (.png, gnuplot) into
+# bench/results/, stamps each one's date and commit, and assembles
+# bench/results/RESULTS.md (bench/results_md.py).
+#   quick: kernels + roofline, Table 3.3 column by column, scaling over
+#          1, 2, 4 and 16 workers (aerial 2048^2), cluster overhead, the
+#          copy-map shortcut, LBG; the rest keep the figures of their
+#          last run, marked with its date and commit in RESULTS.md;
+#   full:  all of it at full size, plus the cluster under added network
+#          latency (bench/netem.py, root; also `make bench-netem`), wire,
+#          latency, sequence, segmentation, aerial scenes, mixing pictures
+#          and the operations page.
+# texsyn stylize against Ebsynth runs (in both modes) only when
+# TEXSYN_EBSYNTH names the peer's binary (../shared/peers/build-ebsynth.sh DIR
+# builds DIR/ebsynth).
+# Usage: [TEXSYN_EBSYNTH=PATH] bench/run.sh BUILD_DIR [--quick|--full]
 set -euo pipefail
 build=${1:-build}; shift || true
+mode=quick
+case "${1:-}" in
+--quick) mode=quick; shift ;;
+--full) mode=full; shift ;;
+"") ;;
+*) echo "usage: $0 BUILD_DIR [--quick|--full]" >&2; exit 2 ;;
+esac
+quick=()
+[ "$mode" = quick ] && quick=(--quick)
 cd "$(dirname "$0")/.."
 out=bench/results
 mkdir -p "$out"
 bash deploy/install-deps.sh --bench
-{
-  echo "machine: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2- | sed 's/^ //'), $(nproc) cores"
-  # The model name of a cloud CPU can hide its generation (AMD EPYC: family
-  # 25 is Zen 3/4, which splits 512-bit ops in two; family 26 is Zen 5).
-  echo "cpu: family $(grep -m1 '^cpu family' /proc/cpuinfo | cut -d: -f2 | tr -d ' ')," \
-    "model $(grep -m1 '^model[[:space:]]*:' /proc/cpuinfo | cut -d: -f2 | tr -d ' ')," \
-    "flags: $(grep -m1 '^flags' /proc/cpuinfo | grep -oE 'avx512bw|avx512_vnni|avx2' | sort -u | tr '\n' ' ')"
-  echo "date: $(date -u +%Y-%m-%dT%H:%MZ)"
-  echo "commit: $(git rev-parse --short HEAD 2>/dev/null || echo unknown)"
-} > "$out/machine.txt"
-echo "== kernels"
-"$build"/bench/bench_kernels --csv "$out/kernels.csv" "$@" | tee "$out/kernels.txt"
-echo "== Table 3.3 job and quality"
-/usr/bin/python3 bench/table33.py --build "$build" --out "$out" "$@"
-echo "== the copy-map shortcut on the Table 3.3 job"
-/usr/bin/python3 bench/copy_accel.py --build "$build" --out "$out" "$@"
-echo "== texture mixing pictures"
-/usr/bin/python3 bench/mix.py --build "$build" --out "$out" "$@"
-echo "== lossy LBG partitioning against the exact search"
-/usr/bin/python3 bench/lbg.py --build "$build" --out "$out" "$@"
-echo "== cluster overhead"
-/usr/bin/python3 bench/cluster.py --build "$build" --out "$out" "$@"
-echo "== bytes on the wire per query"
-/usr/bin/python3 bench/wire.py --build "$build" --out "$out" "$@"
-echo "== answer times under load"
-/usr/bin/python3 bench/latency.py --build "$build" --out "$out" "$@"
-echo "== a stylization sequence against separate jobs"
-/usr/bin/python3 bench/sequence.py --build "$build" --out "$out" "$@"
-echo "== texture segmentation: accuracy and time"
-/usr/bin/python3 bench/segment.py --build "$build" --out "$out" "$@"
-echo "== the operations page: screenshot during a job, answer times"
-/usr/bin/python3 bench/ops_page.py --build "$build" --out "$out" "$@"
-echo "== stylize against Ebsynth"
-if [ -n "${TEXSYN_EBSYNTH:-}" ] && [ -x "$TEXSYN_EBSYNTH" ]; then
-  /usr/bin/python3 bench/stylize.py --build "$build" --out "$out" --ebsynth "$TEXSYN_EBSYNTH" "$@"
-else
-  echo "skipped: no Ebsynth binary; build it with ../shared/peers/build-ebsynth.sh DIR and run" \
-    "TEXSYN_EBSYNTH=DIR/ebsynth make bench"
+start=$SECONDS
+
+# step NAME CMD...: runs one benchmark, then stamps NAME's results as made now.
+step() {
+  local name=$1; shift
+  local t0=$SECONDS
+  echo "== $name"
+  "$@"
+  /usr/bin/python3 bench/results_md.py --out "$out" --stamp "$name" --mode "$mode"
+  echo "== $name: $((SECONDS - t0)) s"
+}
+py() { /usr/bin/python3 "bench/$1" --build "$build" --out "$out" "${quick[@]}"; }
+kernels() {
+  "$build"/bench/bench_kernels --csv "$out/kernels.csv" "${quick[@]}" | tee "$out/kernels.txt"
+  /usr/bin/python3 bench/roofline.py --out "$out"
+}
+
+step roofline kernels
+step table33 py table33.py
+step scaling py scaling.py
+step cluster py cluster.py
+step copy_accel py copy_accel.py
+step lbg py lbg.py
+if [ "$mode" = full ]; then
+  step netem /usr/bin/python3 bench/netem.py --build "$build" --out "$out"
+  step wire py wire.py
+  step latency py latency.py
+  step sequence py sequence.py
+  step segment py segment.py
+  step aerial py aerial.py
+  step mix py mix.py
+  step ops_page py ops_page.py
 fi
+if [ -n "${TEXSYN_EBSYNTH:-}" ] && [ -x "$TEXSYN_EBSYNTH" ]; then
+  step stylize /usr/bin/python3 bench/stylize.py --build "$build" --out "$out" --ebsynth "$TEXSYN_EBSYNTH" \
+    "${quick[@]}"
+else
+  echo "== stylize against Ebsynth skipped: no Ebsynth binary; build it with ../shared/peers/build-ebsynth.sh DIR" \
+    "and run TEXSYN_EBSYNTH=DIR/ebsynth make bench"
+fi
+/usr/bin/python3 bench/results_md.py --out "$out"
+echo "== bench ($mode): $((SECONDS - start)) s"

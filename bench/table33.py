@@ -1,14 +1,29 @@
 #!/usr/bin/python3
-"""The seed's Table 3.3 job (brick.png 512x512 -> 1024x1024, L=5, W_N=7,
-W_B=3) per level and in total, with and without parity, for the best SIMD
-variant and for scalar; plus quality figures and example pictures.
+"""The seed's Table 3.3 (Stahlhut 2004: brick.png 512x512 -> 1024x1024,
+L=5, W_N=7, W_B=3) column by column, each column next to the seed's own:
 
-The job runs the seed's algorithm: the scan alone (--refine 0); the
-default refinement sweeps are timed in an extra column.
+  basis      scalar kernel, no parity          (TEXSYN_SIMD=scalar)
+  +parity    scalar kernel, parity             (--parity)
+  +SIMD      the best SIMD variant, parity     (the seed: +MMX)
+  +copy map  + the copy-map shortcut           (--copy-accel, lossy, levels 1/0)
+  +cluster   + 4 one-thread workers on loopback (texsyn-worker --join), which
+             share this machine's cores with the coordinator (the seed: 4 CPUs)
+  +LBG       + --lbg 64 at levels 1 and 0, embedded (the seed's policy for
+             l = 0, 1: "LBG + copy maps"; the seed gives only level 0)
+  opt.       the per-level minimum over the columns, as the seed's
 
-Scalar is measured on the coarse levels 4..2 only (a full scalar run takes
-minutes) and levels 1 and 0 are extrapolated from the comparisons counted in
-the SIMD run at the scalar rate measured on level 2: the report says so.
+Every column runs the seed's algorithm: the scan alone (--refine 0), 2 scan
+threads. Columns are measured side by side in one run, interleaved (every
+repetition runs every column once); medians, spread min-max. Factors are
+the basis total over the column's, as the seed's factor row.
+
+The scalar columns are measured on the coarse levels 4..2 only (a full
+scalar run takes many minutes); levels 1 and 0 are extrapolated from their
+comparisons (with parity: counted in the +SIMD run; without: blocks x
+vectors, the exhaustive scan) at the scalar rate measured on level 2 of the
+same column: marked * in the table.
+Also the quality figures and example pictures of the job.
+Writes bench/results/table33.{md,json}, table33.png, table33-totals.png.
 """
 import argparse
 import json
@@ -16,14 +31,35 @@ import os
 import statistics
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import gnuplot  # noqa: E402
+from scaling import Pool  # noqa: E402
+from stylize import cpu, loadavg  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("TEXSYN_DATA", REPO.parent / "shared" / "data"))
-SEED_TABLE = {  # Stahlhut 2004, Table 3.3, seconds per level (+MMX column, +Cluster, opt.)
-    "mmx_parity": {4: 0.02, 3: 0.12, 2: 2.04, 1: 35.03, 0: 569.13},
-    "cluster4": {4: 0.02, 3: 0.74, 2: 3.45, 1: 13.26, 0: 89.94},
+LEVELS = range(4, -1, -1)
+# Stahlhut 2004, Table 3.3 (verbatim, ../shared/digests/002 §3.6.7), seconds
+# per level; None: the seed gives no figure. Totals and factors as printed.
+SEED_COLUMNS = ["basis", "+parity", "+SIMD", "+copy map", "+cluster", "+LBG", "opt."]
+SEED_TABLE = {
+    "basis": {4: 0.05, 3: 2.01, 2: 37.51, 1: 642.26, 0: 10914.00},
+    "+parity": {4: 0.05, 3: 0.51, 2: 9.40, 1: 161.44, 0: 2740.46},
+    "+SIMD": {4: 0.02, 3: 0.12, 2: 2.04, 1: 35.03, 0: 569.13},
+    "+copy map": {4: 0.02, 3: 0.12, 2: 2.04, 1: 22.94, 0: 259.26},
+    "+cluster": {4: 0.02, 3: 0.74, 2: 3.45, 1: 13.26, 0: 89.94},
+    "+LBG": {4: None, 3: None, 2: None, 1: None, 0: 4.86},
+    "opt.": {4: 0.02, 3: 0.12, 2: 2.04, 1: 13.26, 0: 4.86},
 }
+SEED_TOTAL = {"basis": 11595.83, "+parity": 2911.86, "+SIMD": 606.34, "+copy map": 284.38, "+cluster": 107.41,
+              "+LBG": None, "opt.": 20.30}
+SEED_FACTOR = {"basis": 1, "+parity": 4, "+SIMD": 19, "+copy map": 41, "+cluster": 108, "+LBG": None, "opt.": 571}
+JOB = ["--size", "1024x1024", "--levels", 5, "--wn", 7, "--wb", 3, "--refine", 0, "--quiet"]
+CLUSTER_WORKERS = 4
+LBG = ["--lbg", 64, "--lbg-levels", "1,0"]
 
 
 def run(exe, args, env=None):
@@ -35,40 +71,75 @@ def run(exe, args, env=None):
     return p
 
 
-def job(exe, tmp, name, extra, env=None, reps=1):
-    reports = []
-    for i in range(reps):
-        rep = tmp / f"{name}-{i}.json"
-        run(exe, ["synth", "--ref", DATA / "textures" / "brick.png", "-o", tmp / f"{name}.png",
-                  "--size", "1024x1024", "--levels", 5, "--wn", 7, "--wb", 3, "--quiet",
-                  "--report", rep, *extra], env)
-        reports.append(json.loads(rep.read_text()))
-    return reports
+class Column:
+    """One column of the table: extra options, an environment, and where it
+    runs (None: embedded with 2 threads; a Pool: on that cluster)."""
+
+    def __init__(self, name, extra, env=None, stop_level=None):
+        self.name, self.extra, self.env, self.stop_level = name, extra, env or {}, stop_level
+        self.pool, self.reports = None, []
+
+    def run(self, exe, tmp, i):
+        rep = tmp / f"{self.name}-{i}.json".replace("+", "plus-").replace(" ", "-")
+        where = ["--server", self.pool.addr] if self.pool else ["--threads", 2]
+        stop = ["--stop-level", self.stop_level] if self.stop_level is not None else []
+        run(exe, ["synth", "--ref", DATA / "textures" / "brick.png", "-o", tmp / f"t33-{i}.png", *JOB,
+                  "--report", rep, *self.extra, *stop, *where], self.env)
+        self.reports.append(json.loads(rep.read_text()))
+
+    def levels(self):
+        """Per level: median seconds, min-max and the counted comparisons."""
+        out = {}
+        for lv in self.reports[0]["levels"]:
+            times = [next(x for x in r["levels"] if x["level"] == lv["level"])["seconds"] for r in self.reports]
+            out[lv["level"]] = {"seconds": statistics.median(times), "spread": [min(times), max(times)],
+                                "comparisons": lv["comparisons"], "blocks": lv["blocks"], "vectors": lv["vectors"],
+                                "measured": True}
+        return out
 
 
-def median_levels(reports):
-    levels = {}
-    for lv in reports[0]["levels"]:
-        l = lv["level"]
-        times = [next(x for x in r["levels"] if x["level"] == l)["seconds"] for r in reports]
-        levels[l] = {"seconds": statistics.median(times), "comparisons": lv["comparisons"],
-                     "vectors": lv["vectors"], "steps": lv["steps"], "blocks": lv["blocks"]}
-    total = statistics.median(r["seconds"] for r in reports)
-    return levels, total
+def extrapolate(scalar, comparisons):
+    """Scalar levels below the measured ones at the scalar rate of level 2,
+    from the comparisons those levels take (comparisons: level -> count)."""
+    rate = scalar[2]["comparisons"] / scalar[2]["seconds"]
+    for l in LEVELS:
+        if l not in scalar:
+            t = comparisons[l] / rate
+            scalar[l] = {"seconds": t, "spread": [t, t], "comparisons": comparisons[l], "measured": False}
+    return rate
 
 
-def scalar_levels(exe, tmp, parity, simd_levels):
-    rep = job(exe, tmp, f"scalar-{parity}", (["--parity"] if parity else []) + ["--stop-level", 2, "--threads", 2, "--refine", 0],
-              env={"TEXSYN_SIMD": "scalar"})[0]
-    measured = {lv["level"]: lv for lv in rep["levels"]}
-    rate = measured[2]["comparisons"] / measured[2]["seconds"]
-    out = {}
-    for l in range(5):
-        if l in measured:
-            out[l] = {"seconds": measured[l]["seconds"], "measured": True}
-        else:
-            out[l] = {"seconds": simd_levels[l]["comparisons"] / rate, "measured": False}
-    return out, rate
+def exhaustive(basis, simd):
+    """The comparisons of the basis (no parity, every block against every
+    vector) at every level: blocks x vectors, from the SIMD run's geometry.
+    Checked on the levels the basis measured, so a change in how the search
+    counts cannot pass silently."""
+    for l, v in basis.items():
+        if v["comparisons"] != v["blocks"] * v["vectors"]:
+            sys.exit(f"bench: level {l} of the basis counted {v['comparisons']} comparisons, not blocks x vectors "
+                     f"({v['blocks']} x {v['vectors']}): the extrapolation of levels 1 and 0 no longer holds")
+    return {l: simd[l]["blocks"] * simd[l]["vectors"] for l in LEVELS}
+
+
+def measure(exe, build, tmp, reps):
+    scalar = {"TEXSYN_SIMD": "scalar"}
+    cols = [Column("basis", [], scalar, stop_level=2), Column("+parity", ["--parity"], scalar, stop_level=2),
+            Column("+SIMD", ["--parity"]), Column("+copy map", ["--parity", "--copy-accel"]),
+            Column("+cluster", ["--parity", "--copy-accel"]), Column("+LBG", ["--parity", "--copy-accel", *LBG])]
+    cols[4].pool = Pool(build, tmp, CLUSTER_WORKERS)
+    try:
+        for i in range(reps):  # interleaved: every repetition runs every column once
+            for c in cols:
+                c.run(exe, tmp, i)
+                print(f"table33 {c.name}: {c.reports[-1]['seconds']:.2f} s", flush=True)
+    finally:
+        cols[4].pool.down()
+    res = {c.name: c.levels() for c in cols}
+    rates = {"basis": extrapolate(res["basis"], exhaustive(res["basis"], res["+SIMD"])),
+             "+parity": extrapolate(res["+parity"], {l: v["comparisons"] for l, v in res["+SIMD"].items()})}
+    res["opt."] = {l: min((res[c][l] for c in res), key=lambda v: v["seconds"]) for l in LEVELS}
+    lossy = {c.name: c.reports[0]["search"].get("lossy", []) for c in cols}
+    return res, rates, lossy
 
 
 def quality_figures(exe, tmp, out):
@@ -90,115 +161,115 @@ def quality_figures(exe, tmp, out):
     return rows
 
 
-def write_markdown(out, best, sys_levels, scalar, quality, refined):
-    lines = ["# Table 3.3 job: brick.png 512x512 -> 1024x1024, L=5, W_N=7, W_B=3", "",
-             f"Best SIMD variant: `{best}`, 2 threads, embedded (local backend); exact search;",
-             "the seed's algorithm (scan only, --refine 0); the last column adds texsyn's default",
-             "2 refinement sweeps (parity).",
-             "Medians of repeated runs; scalar levels 1 and 0 extrapolated from the counted",
-             "comparisons at the scalar rate measured on level 2 (marked *).", "",
-             "| level | vectors | comparisons (parity) | " + f"{best} parity (s) | {best} no parity (s) | "
-             "scalar parity (s) | scalar no parity (s) | 2004 MMX+parity (s) | 2004 4-CPU cluster (s) | "
-             f"{best} parity + 2 sweeps (s) |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
-    for l in range(4, -1, -1):
-        sp, sn = scalar[True][0][l], scalar[False][0][l]
-        fmt = lambda v: f"{v['seconds']:.3f}{'' if v['measured'] else '*'}"
-        lines.append(f"| {l} | {sys_levels[True][0][l]['vectors']} | {sys_levels[True][0][l]['comparisons']:.3g} | "
-                     f"{sys_levels[True][0][l]['seconds']:.3f} | {sys_levels[False][0][l]['seconds']:.3f} | "
-                     f"{fmt(sp)} | {fmt(sn)} | {SEED_TABLE['mmx_parity'][l]} | {SEED_TABLE['cluster4'][l]} | "
-                     f"{refined[0][l]['seconds']:.3f} |")
-    tot = lambda d: sum(v["seconds"] for v in d.values())
-    lines.append(f"| total | | | {sys_levels[True][1]:.3f} | {sys_levels[False][1]:.3f} | "
-                 f"{tot(scalar[True][0]):.1f}* | {tot(scalar[False][0]):.1f}* | 606.34 | 107.41 | {refined[1]:.3f} |")
-    lines += ["", f"Scalar rate measured on level 2: {scalar[True][1]:.3g} (parity) and "
-              f"{scalar[False][1]:.3g} (no parity) comparisons/s on 2 threads.", "",
+def fmt(v):
+    if v is None:
+        return "-"
+    return f"{v['seconds']:.3f}{'' if v['measured'] else '*'}"
+
+
+def total(levels):
+    return sum(v["seconds"] for v in levels.values())
+
+
+def factors(res):
+    base = total(res["basis"])
+    return {c: base / total(res[c]) for c in res}
+
+
+def write_markdown(out, info, res, rates, lossy, quality):
+    f = factors(res)
+    head = " | ".join(f"{c} | seed {c}" for c in SEED_COLUMNS)
+    lines = ["# Table 3.3 column by column: brick.png 512x512 -> 1024x1024, L=5, W_N=7, W_B=3", "",
+             f"CPU: {info['cpu']}; {info['cores']} cores (nproc). Load average at the start {info['loadavg']:.2f}"
+             f"{' (machine busy: figures under load)' if info['busy'] else ''}. Best SIMD variant `{info['best']}`.",
+             f"The scan alone (--refine 0), 2 scan threads, exact unless named; median of {info['reps']} interleaved "
+             "runs per column (spread in table33.json). Columns cumulative as the seed's: basis = scalar, no parity; "
+             f"+parity = scalar, parity; +SIMD = `{info['best']}`, parity (the seed: +MMX); +copy map = "
+             "`--copy-accel` (lossy); +cluster = +copy map on "
+             f"{CLUSTER_WORKERS} one-thread workers on loopback, sharing the {info['cores']} cores with the "
+             "coordinator (the seed: 4 CPUs); +LBG = +copy map with `" + " ".join(map(str, LBG)) + "`, embedded "
+             "(the seed gives level 0 only); opt. = per-level minimum over the columns. "
+             "Seed: 2.53 GHz CPU, 2004.",
+             "* = extrapolated: scalar levels 1 and 0 from their comparisons (with parity: counted in the +SIMD run; "
+             "without: blocks x vectors, the exhaustive scan, checked on the measured levels) at the scalar rate "
+             f"measured on level 2 ({rates['basis']:.3g} comparisons/s without parity, {rates['+parity']:.3g} with).",
+             "", f"| level | {head} |", "|---" * (1 + 2 * len(SEED_COLUMNS)) + "|"]
+    for l in LEVELS:
+        cells = []
+        for c in SEED_COLUMNS:
+            seed = SEED_TABLE[c][l]
+            cells += [fmt(res[c].get(l)), "-" if seed is None else f"{seed:.2f}"]
+        lines.append(f"| {l} | " + " | ".join(cells) + " |")
+    cells = []
+    for c in SEED_COLUMNS:
+        extrap = any(not v["measured"] for v in res[c].values())
+        cells += [f"{total(res[c]):.3f}{'*' if extrap else ''}",
+                  "-" if SEED_TOTAL[c] is None else f"{SEED_TOTAL[c]:.2f}"]
+    lines.append("| total | " + " | ".join(cells) + " |")
+    cells = []
+    for c in SEED_COLUMNS:
+        cells += [f"{f[c]:.0f}", "-" if SEED_FACTOR[c] is None else str(SEED_FACTOR[c])]
+    lines.append("| factor | " + " | ".join(cells) + " |")
+    lines += ["", "Lossy shortcuts each column's report names: " +
+              "; ".join(f"{c}: {', '.join(v) if v else 'none (exact)'}" for c, v in lossy.items()) + ".",
+              f"Parity on the measured scalar level 2: {res['basis'][2]['seconds'] / res['+parity'][2]['seconds']:.2f}x "
+              "faster (a quarter of the comparisons; the seed: 4x).", "",
               "# Quality (exact best-match error of 7x7 windows, grey levels per pixel)", "",
-              "| texture | synthesis inner | synthesis seam | 16x16 block shuffle inner | usage variance off | usage variance weight 4 |",
-              "|---|---|---|---|---|---|"]
+              "| texture | synthesis inner | synthesis seam | 16x16 block shuffle inner | usage variance off | "
+              "usage variance weight 4 |", "|---|---|---|---|---|---|"]
     for tex, q, qs, uoff, uon in quality:
-        lines.append(f"| {tex} | {q['inner_mean']:.2f} | {q['seam_mean']:.2f} | {qs['inner_mean']:.2f} | {uoff:.2f} | {uon:.2f} |")
+        lines.append(f"| {tex} | {q['inner_mean']:.2f} | {q['seam_mean']:.2f} | {qs['inner_mean']:.2f} | "
+                     f"{uoff:.2f} | {uon:.2f} |")
     (out / "table33.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
-def plot(out, best, sys_levels, scalar):
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        print("bench: matplotlib missing, no plot")
-        return
-    levels = list(range(4, -1, -1))
-    fig, ax = plt.subplots(figsize=(7, 4))
-    ax.semilogy(levels, [sys_levels[True][0][l]["seconds"] for l in levels], "o-", label=f"{best} parity")
-    ax.semilogy(levels, [sys_levels[False][0][l]["seconds"] for l in levels], "o-", label=f"{best} no parity")
-    ax.semilogy(levels, [scalar[True][0][l]["seconds"] for l in levels], "s--", label="scalar parity (L1,L0 extrap.)")
-    ax.semilogy(levels, [SEED_TABLE["mmx_parity"][l] for l in levels], "x:", label="2004 MMX+parity")
-    ax.semilogy(levels, [SEED_TABLE["cluster4"][l] for l in levels], "x:", label="2004 4-CPU cluster")
-    ax.set_xlabel("pyramid level")
-    ax.set_ylabel("seconds")
-    ax.invert_xaxis()
-    ax.set_title("Table 3.3 job: brick 512² → 1024², L=5, W_N=7, W_B=3")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / "table33.png", dpi=110)
-    plot_kernels(plt, out)
-
-
-def plot_kernels(plt, out):
-    """Bytes per cycle of every variant, single and batched, cache and memory."""
-    import csv
-    path = out / "kernels.csv"
-    if not path.exists():
-        return
-    rows = [r for r in csv.DictReader(path.open()) if r["nchunks"] == "7" and r["kind"] in ("single", "batch")
-            and r["nq"] in ("1", "128")]
-    variants = list(dict.fromkeys(r["variant"] for r in rows))
-    fig, ax = plt.subplots(figsize=(7, 4))
-    width = 0.2
-    for i, (kind, where) in enumerate([("single", "cache"), ("batch", "cache"), ("single", "mem"), ("batch", "mem")]):
-        vals = [next((float(r["bytes_per_cycle"]) for r in rows if r["variant"] == v and r["kind"] == kind
-                      and r["where"] == where), 0.0) for v in variants]
-        ax.bar([k + (i - 1.5) * width for k in range(len(variants))], vals, width, label=f"{kind}, {where}")
-    ax.axhline(64, color="grey", linestyle=":", label="64 B/cycle")
-    ax.set_xticks(range(len(variants)))
-    ax.set_xticklabels(variants)
-    ax.set_ylabel("reference bytes per cycle per core")
-    ax.set_title("L1 scan throughput, W_N=7 vectors (56 B), 1 core")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / "kernels.png", dpi=110)
+def plot(out, res):
+    """table33.png: seconds per level, ours (solid, bars min-max) and the
+    seed's (dotted); table33-totals.png: the totals column by column."""
+    series = []
+    for k, c in enumerate(SEED_COLUMNS[:-1]):  # the same colour for a column and the seed's
+        series.append(gnuplot.Series(f"texsyn {c}", [(l, v["seconds"], *v["spread"]) for l, v in res[c].items()],
+                                     options=f"lc {k + 1} pt 7"))
+    for k, c in enumerate(SEED_COLUMNS[:-1]):
+        pts = [(l, v) for l, v in SEED_TABLE[c].items() if v is not None]
+        series.append(gnuplot.Series(f"2004 {c}", pts, "linespoints" if len(pts) > 1 else "points",
+                                     f"dt 3 lc {k + 1} pt 6"))
+    gnuplot.lines(out / "table33.png", series, "Table 3.3 job per level: texsyn (solid) and the seed, 2004 (dotted)",
+                  "pyramid level", "seconds", logy=True, xtics=list(LEVELS), size=(900, 600),
+                  extra=["set xrange [4.3:-0.3]", "set key outside right top"])
+    cols = SEED_COLUMNS
+    gnuplot.bars(out / "table33-totals.png", cols,
+                 {"texsyn": [total(res[c]) for c in cols],
+                  "2004 (seed)": [SEED_TOTAL[c] if SEED_TOTAL[c] is not None else SEED_TABLE[c][0] for c in cols]},
+                 "Table 3.3 job, total seconds per column (seed's +LBG: level 0 only)", "seconds", logy=True)
 
 
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--build", default="build")
     ap.add_argument("--out", default="bench/results")
-    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--quick", action="store_true", help="2 runs per column")
+    ap.add_argument("--reps", type=int)
     a = ap.parse_args()
-    exe = Path(a.build) / "texsyn"
-    out = Path(a.out)
-    tmp = out / "tmp"
-    tmp.mkdir(parents=True, exist_ok=True)
-    best = run(exe, ["simd"]).stdout.split("(selected)")[0].split()[-1]
-    reps = 1 if a.quick else 3
-    sys_levels = {}
-    for parity in (True, False):
-        reports = job(exe, tmp, f"best-{parity}", (["--parity"] if parity else []) + ["--threads", 2, "--refine", 0],
-                      reps=reps if parity else max(1, reps - 1))
-        sys_levels[parity] = median_levels(reports)
-    refined = median_levels(job(exe, tmp, "best-refined", ["--parity", "--threads", 2], reps=reps))
-    os.replace(tmp / "best-True.png", out / "table33-brick-1024-parity.png")
-    os.replace(tmp / "best-False.png", out / "table33-brick-1024.png")
-    scalar = {p: scalar_levels(exe, tmp, p, sys_levels[p][0]) for p in (True, False)}
-    quality = quality_figures(exe, tmp, out)
-    write_markdown(out, best, sys_levels, scalar, quality, refined)
-    (out / "table33.json").write_text(json.dumps({"best": best, "refined_parity": refined,
-                                                  "system": {str(k): v for k, v in sys_levels.items()},
-                                                  "scalar": {str(k): v for k, v in scalar.items()}}, indent=1))
-    plot(out, best, sys_levels, scalar)
+    build, out = Path(a.build).resolve(), Path(a.out)
+    exe = build / "texsyn"
+    out.mkdir(parents=True, exist_ok=True)
+    reps = a.reps or (2 if a.quick else 5)
+    info = {"cpu": cpu(), "cores": os.cpu_count(), "loadavg": loadavg(), "busy": loadavg() > 0.5, "reps": reps,
+            "best": run(exe, ["simd"]).stdout.split("(selected)")[0].split()[-1]}
+    with tempfile.TemporaryDirectory() as td:
+        tmp = Path(td)
+        res, rates, lossy = measure(exe, build, tmp, reps)
+        quality = quality_figures(exe, tmp, out)
+    write_markdown(out, info, res, rates, lossy, quality)
+    (out / "table33.json").write_text(json.dumps({
+        **info, "columns": {c: {str(l): v for l, v in res[c].items()} for c in SEED_COLUMNS},
+        "totals": {c: total(res[c]) for c in SEED_COLUMNS}, "factors": factors(res), "scalar_rates": rates,
+        "lossy": lossy,
+        "seed": {c: {str(l): v for l, v in SEED_TABLE[c].items()} for c in SEED_COLUMNS},
+        "seed_totals": SEED_TOTAL, "seed_factors": SEED_FACTOR}, indent=1) + "\n")
+    plot(out, res)
 
 
 if __name__ == "__main__":

@@ -16,9 +16,8 @@ PACKAGES=(
   valgrind                             # make test-valgrind
   clang                                # libFuzzer targets (make fuzz; 20 s each in make test)
 )
-# Plots for `make bench` only.
-[ "${1:-}" = "--bench" ] && PACKAGES+=(python3-matplotlib)
-# bench/netem.py: its plot, the namespaces and the RTT check.
+# Plots for `make bench` (bench/gnuplot.py); bench/netem.py's namespaces and
+# RTT check.
 [ "${1:-}" = "--bench" ] && PACKAGES+=(gnuplot-nox iproute2 iputils-ping)
 # `make test-deploy` only: a single-node Slurm, systemd-analyze, the
 # manifests' checks (python3-kubernetes' models; npm for kubernetes-models).
