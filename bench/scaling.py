@@ -8,7 +8,12 @@ Jobs:
   table33  the seed's Table 3.3 job: brick.png 512^2 -> 1024^2, L=5, W_N=7,
            W_B=3, parity, the scan alone (--refine 0), exact;
   aerial   a class map with roads (bench/mkscene, seed 7) at --aerial-size
-           with references cut from aero1.jpg (bench/aerial_refs.sh);
+           (2048^2; --quick 1024^2) with a catalogue of 448^2 references
+           grown from the aero1.jpg crops (bench/aerial_refs.sh --grow 448):
+           the size of references cut from a real orthophoto. The photograph's
+           own crops (32 to 104 px high) give so little scan per query that
+           the coordinator's per-block work dominates (--aerial-grow 0 runs
+           them: see README, Benchmarks);
   stylit   the StyLit scene, 1200x912 (--quick: resized to 600x456), 4
            render-pass guides at weight 0.5, --search patchmatch (the same
            bytes on any pool).
@@ -62,12 +67,13 @@ def table33_args():
             "--wb", 3, "--parity", "--refine", 0]
 
 
-def aerial_args(build, tmp, size):
+def aerial_args(build, tmp, size, grow):
     d = tmp / f"aerial{size}"
     d.mkdir(exist_ok=True)
     subprocess.run([str(build / "bench" / "mkscene"), "--size", str(size), "--seed", "7", "-o", str(d / "scene")],
                    check=True, capture_output=True)
-    subprocess.run(["bash", str(REPO / "bench" / "aerial_refs.sh"), str(d)], check=True, capture_output=True)
+    extra = ["--grow", str(grow), "--texsyn", str(build / "texsyn")] if grow else []
+    subprocess.run(["bash", str(REPO / "bench" / "aerial_refs.sh"), str(d), *extra], check=True, capture_output=True)
     return ["aerial", "--classes", d / "scene-classes.png", "--catalogue", d / "catalogue.json"]
 
 
@@ -227,11 +233,13 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--build", default="build")
     ap.add_argument("--out", default="bench/results")
-    ap.add_argument("--quick", action="store_true", help="workers 1,2,4,16, 2 runs, aerial 2048^2, StyLit 600x456")
+    ap.add_argument("--quick", action="store_true", help="workers 1,2,4,16, 2 runs, aerial 1024^2, StyLit 600x456")
     ap.add_argument("--reps", type=int)
     ap.add_argument("--workers")
     ap.add_argument("--jobs", default="table33,aerial,stylit")
     ap.add_argument("--aerial-size", type=int)
+    ap.add_argument("--aerial-grow", type=int, default=448,
+                    help="catalogue references grown to N x N (0: the photograph's crops)")
     ap.add_argument("--stylit-size", help="WxH: the StyLit scene resized (default: full size, --quick 600x456)")
     a = ap.parse_args()
     build, out = Path(a.build).resolve(), Path(a.out)
@@ -239,8 +247,8 @@ def main():
     counts = [int(v) for v in (a.workers or ("1,2,4,16" if a.quick else "1,2,3,4,8,16")).split(",")]
     if counts[0] != 1:
         sys.exit("bench: --workers must start with 1 (the speed-up's base)")
-    reps = a.reps or (2 if a.quick else 5)
-    size = a.aerial_size or (2048 if a.quick else 4096)
+    reps = a.reps or (2 if a.quick else 3)
+    size = a.aerial_size or (1024 if a.quick else 2048)
     stylit_size = a.stylit_size or ("600x456" if a.quick else None)
     res = {"cpu": cpu(), "cores": os.cpu_count(), "loadavg": loadavg(), "busy": loadavg() > 0.5, "reps": reps,
            "counts": counts, "quick": a.quick, "jobs": []}
@@ -248,8 +256,9 @@ def main():
         tmp = Path(td)
         jobs = {"table33": ("brick 512^2 -> 1024^2, L=5, W_N=7, W_B=3, parity, scan only (the seed's Table 3.3 job)",
                             table33_args),
-                "aerial": (f"aerial scene {size}^2 (mkscene seed 7, references from aero1.jpg, defaults)",
-                           lambda: aerial_args(build, tmp, size)),
+                "aerial": (f"aerial scene {size}^2 (mkscene seed 7, defaults), references "
+                           + (f"grown to {a.aerial_grow}^2 from" if a.aerial_grow else "cut from") + " aero1.jpg",
+                           lambda: aerial_args(build, tmp, size, a.aerial_grow)),
                 "stylit": (f"StyLit scene {stylit_size or '1200x912'}, 4 guides at weight 0.5, --search patchmatch",
                            lambda: stylit_args(tmp, stylit_size))}
         for name in a.jobs.split(","):
