@@ -14,5 +14,4 @@ set xtics nomirror
 set key top left
 set yrange [0:*]
 set xtics font ',8'
-plot 'gnuplot/cluster.dat' using 2:3:4:xtic(1) title 'parity', \
-     'gnuplot/cluster.dat' using 5:6:7:xtic(1) title 'no parity'
+plot 'gnuplot/cluster.dat' using 2:3:4:xtic(1) title 'parity'

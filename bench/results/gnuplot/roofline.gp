@@ -11,8 +11,8 @@ set logscale y
 set xtics ('3' 3, '96' 96, '384' 384)
 set xrange [0.8:768]
 set key outside right top
-plot 'gnuplot/roofline.dat' index 0 using 1:2 with lines lw 2 dt 1 lc rgb 'black' title 'DRAM roof, 1t (9.7 GB/s)', \
-     'gnuplot/roofline.dat' index 1 using 1:2 with lines lw 2 dt 2 lc rgb 'black' title 'DRAM roof, 2t (7.2 GB/s)', \
+plot 'gnuplot/roofline.dat' index 0 using 1:2 with lines lw 2 dt 1 lc rgb 'black' title 'DRAM roof, 1t (13.1 GB/s)', \
+     'gnuplot/roofline.dat' index 1 using 1:2 with lines lw 2 dt 2 lc rgb 'black' title 'DRAM roof, 2t (13.3 GB/s)', \
      'gnuplot/roofline.dat' index 2 using 1:2 with linespoints lc 1 pt 7 ps 1.3 dt 1 title 'scalar, set in L2', \
      'gnuplot/roofline.dat' index 3 using 1:2 with linespoints lc 1 pt 6 ps 1.3 dt 3 title 'scalar, set in DRAM', \
      'gnuplot/roofline.dat' index 4 using 1:2 with linespoints lc 2 pt 7 ps 1.3 dt 1 title 'mmx, set in L2', \
