@@ -29,7 +29,9 @@ the workers are recorded, and the job report's per-level seconds.
 
 On a machine with C cores, N > C workers oversubscribe it: beyond C the
 speed-up cannot grow, and efficiency falls as C/N at best.
-Writes bench/results/scaling.{md,json} and scaling.png.
+Writes bench/results/scaling.{md,json} and scaling.png (--name NAME: NAME.*;
+scaling-aerial holds the large aerial job alone on 1 and 2 workers, the
+issue's 2-core efficiency figure).
 Usage: bench/scaling.py --build BUILD [--out DIR] [--quick] [--reps R]
        [--workers 1,2,4] [--jobs table33,aerial,stylit] [--aerial-size N]
        [--stylit-size WxH]
@@ -213,7 +215,7 @@ def markdown(res):
     return "\n".join(lines) + "\n"
 
 
-def plot(res, out):
+def plot(res, out, name="scaling"):
     series, top = [], max(res["counts"])
     series.append(gnuplot.Series("ideal (speed-up = N)", [(n, n) for n in res["counts"]], "lines", "dt 3 lc rgb 'gray'"))
     cores = res["cores"]
@@ -222,7 +224,7 @@ def plot(res, out):
     for job in res["jobs"]:
         pts = [(r["workers"], r["speedup"], *r["speedup_spread"]) for r in job["rows"] if r["workers"]]
         series.append(gnuplot.Series(job["name"], pts))
-    return gnuplot.lines(out / "scaling.png", series, f"Speed-up over 1 worker ({cores} cores; bars: min-max)",
+    return gnuplot.lines(out / f"{name}.png", series, f"Speed-up over 1 worker ({cores} cores; bars: min-max)",
                          "workers (texsyn-worker --threads 1)", "speed-up T(1)/T(N)", logx=True, logy=True,
                          marks=[("x", cores, f"{cores} cores")], xtics=res["counts"],
                          extra=[f"set xrange [0.9:{top * 1.1}]", f"set yrange [0.25:{top * 1.1}]",
@@ -237,6 +239,7 @@ def main():
     ap.add_argument("--reps", type=int)
     ap.add_argument("--workers")
     ap.add_argument("--jobs", default="table33,aerial,stylit")
+    ap.add_argument("--name", default="scaling", help="results NAME.md/.json/.png (default scaling)")
     ap.add_argument("--aerial-size", type=int)
     ap.add_argument("--aerial-grow", type=int, default=448,
                     help="catalogue references grown to N x N (0: the photograph's crops)")
@@ -270,10 +273,10 @@ def main():
             res["jobs"].append({"name": name, "title": title, "rows": rows,
                                 "command": " ".join(str(v) for v in args).replace(str(tmp), "TMP")})
     res["date"] = time.strftime("%Y-%m-%dT%H:%MZ", time.gmtime())
-    (out / "scaling.json").write_text(json.dumps(res, indent=1) + "\n")
+    (out / f"{a.name}.json").write_text(json.dumps(res, indent=1) + "\n")
     md = markdown(res)
-    (out / "scaling.md").write_text(md)
-    plot(res, out)
+    (out / f"{a.name}.md").write_text(md)
+    plot(res, out, a.name)
     print(md)
     if not all(r["identical"] for job in res["jobs"] for r in job["rows"]):
         sys.exit("bench: a cluster output differs from the embedded one")
