@@ -4,6 +4,7 @@
  * backend over the pool in search_cluster.c; cluster_impl.h says how they
  * share the lock. */
 #include <errno.h>
+#include <math.h>
 #include <poll.h>
 #include <pthread.h>
 #include <stdio.h>
@@ -52,28 +53,85 @@ static cl_msg *queue_slot(cl_worker *w) {
   return &w->queue[w->nqueue];
 }
 
-/* Queues the message whose arguments fill slot e, if w can take it. */
-static int queue_push(cl_worker *w, cl_msg *e, uint8_t type, uint32_t id, ts_payload_fn *fn, char *err) {
+/* ---- a worker's requests outstanding ----------------------------------- */
+
+static cl_request *req_at(const cl_worker *w, uint32_t k) { return &w->reqs[(w->req_head + k) % w->cap_reqs]; }
+
+/* Appends a request to w's ring; NULL when out of memory. */
+static cl_request *req_push(cl_worker *w) {
+  if (w->nreqs == w->cap_reqs) {
+    uint32_t cap = w->cap_reqs ? 2 * w->cap_reqs : 64;
+    cl_request *r = malloc(sizeof(*r) * cap);
+    if (r == NULL) return NULL;
+    for (uint32_t k = 0; k < w->nreqs; k++) r[k] = *req_at(w, k);
+    free(w->reqs);
+    w->reqs = r;
+    w->cap_reqs = cap;
+    w->req_head = 0;
+  }
+  return req_at(w, w->nreqs++);
+}
+
+static void req_pop(cl_worker *w) {
+  w->req_head = (w->req_head + 1) % w->cap_reqs;
+  w->nreqs--;
+}
+
+/* The request with frame id `id` among the newest ones, or NULL. */
+static cl_request *req_by_id(cl_worker *w, uint32_t id) {
+  for (uint32_t k = w->nreqs; k-- > 0;)
+    if (req_at(w, k)->id == id) return req_at(w, k);
+  return NULL;
+}
+
+/* Matches a frame w sent to the oldest request outstanding on its
+ * connection (which it then leaves): 0 and *rq, or TS_EPROTO naming what
+ * is wrong. */
+static int req_match(cl_worker *w, const ts_frame *f, cl_request *rq, char *err) {
+  if (w->nreqs == 0)
+    return ts_error(err, TS_EPROTO, "protocol: unsolicited '%c' frame id %u (no request outstanding)", f->type, f->id);
+  const cl_request *r = req_at(w, 0);
+  if (f->id != r->id || (f->type != r->type && f->type != TS_MSG_ERROR))
+    return ts_error(err, TS_EPROTO,
+                    "protocol: '%c' frame id %u does not answer the oldest request outstanding ('%c' frame id %u)",
+                    f->type, f->id, r->type, r->id);
+  if (w->sent < r->end)
+    return ts_error(err, TS_EPROTO, "protocol: '%c' frame id %u answers a request not sent whole yet", f->type, f->id);
+  *rq = *r;
+  req_pop(w);
+  return 0;
+}
+
+/* Queues the message whose arguments fill slot e, if w can take it, as
+ * the next request on w's connection. */
+static int queue_push(cl_worker *w, cl_msg *e, uint8_t type, uint32_t tag, ts_payload_fn *fn, char *err) {
+  if (w->next_id == UINT32_MAX) /* never reuse an id on a connection: a new one starts at 1 */
+    return ts_error(err, TS_ELIMIT, "2^32 requests on one connection: it is dialled again");
   e->write = fn;
-  int rc = ts_outmsg_init(&e->m, type, id, fn, &e->arg, w->max_payload, w->pieces, err);
+  int rc = ts_outmsg_init(&e->m, type, w->next_id, fn, &e->arg, w->max_payload, w->pieces, err);
   if (rc == 0 && !cl_worker_takes(w, e->m.total))
     rc = ts_error(err, TS_ETOOBIG, "a '%c' message of %llu bytes is over what the worker takes (%llu bytes%s)",
                   type, (unsigned long long)e->m.total,
                   (unsigned long long)(w->pieces ? w->max_message : w->max_payload),
                   w->pieces ? ", texsyn-worker --max-message" : " in one frame; it is too old to take pieces");
-  if (rc == 0) w->nqueue++;
-  return rc;
+  cl_request *r = rc == 0 ? req_push(w) : NULL;
+  if (rc == 0 && r == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory for a request to a worker");
+  if (rc != 0) return rc;
+  *r = (cl_request){w->next_id++, type, 0, tag, UINT64_MAX};
+  w->nqueue++;
+  w->expect++;
+  return 0;
 }
 
 #define NO_SLOT(err) ts_error(err, TS_ENOMEM, "out of memory for a message to a worker")
 
 static void write_slice(ts_wr *w, const void *arg) { ts_msg_slice_write(w, arg); }
 
-int cl_queue_slice(cl_worker *w, uint32_t id, const ts_slice_desc *m, char *err) {
+int cl_queue_slice(cl_worker *w, uint32_t tag, const ts_slice_desc *m, char *err) {
   cl_msg *e = queue_slot(w);
   if (e == NULL) return NO_SLOT(err);
   e->arg.slice = *m;
-  return queue_push(w, e, TS_MSG_SLICE, id, write_slice, err);
+  return queue_push(w, e, TS_MSG_SLICE, tag, write_slice, err);
 }
 
 uint64_t cl_slice_bytes(const ts_slice_desc *m) { return ts_payload_size(write_slice, m); }
@@ -83,66 +141,67 @@ static void write_query(ts_wr *w, const void *arg) {
   ts_msg_query_write(w, q->set, q->gen, q->image, q->seq, q->place, q->nplace, q->b, q->q0, q->q1);
 }
 
-int cl_queue_query(cl_worker *w, uint32_t id, const cl_query_frame *q, char *err) {
+int cl_queue_query(cl_worker *w, uint32_t tag, const cl_query_frame *q, char *err) {
   cl_msg *e = queue_slot(w);
   if (e == NULL) return NO_SLOT(err);
   e->arg.query = *q;
-  return queue_push(w, e, TS_MSG_QUERY, id, write_query, err);
+  return queue_push(w, e, TS_MSG_QUERY, tag, write_query, err);
 }
 
 static void write_image(ts_wr *w, const void *arg) { ts_msg_image_write(w, arg); }
 
-int cl_queue_image(cl_worker *w, uint32_t id, const ts_msg_image *m, char *err) {
+int cl_queue_image(cl_worker *w, uint32_t tag, const ts_msg_image *m, char *err) {
   cl_msg *e = queue_slot(w);
   if (e == NULL) return NO_SLOT(err);
   e->arg.image = *m;
-  return queue_push(w, e, TS_MSG_IMAGE, id, write_image, err);
+  return queue_push(w, e, TS_MSG_IMAGE, tag, write_image, err);
 }
 
 static void write_field(ts_wr *w, const void *arg) { ts_msg_field_write(w, arg); }
 
-int cl_queue_field(cl_worker *w, uint32_t id, const ts_msg_field *m, char *err) {
+int cl_queue_field(cl_worker *w, uint32_t tag, const ts_msg_field *m, char *err) {
   cl_msg *e = queue_slot(w);
   if (e == NULL) return NO_SLOT(err);
   e->arg.field = *m;
-  return queue_push(w, e, TS_MSG_FIELD, id, write_field, err);
+  return queue_push(w, e, TS_MSG_FIELD, tag, write_field, err);
 }
 
 static void write_pass(ts_wr *w, const void *arg) { ts_msg_pass_write(w, arg); }
 
-int cl_queue_pass(cl_worker *w, uint32_t id, const ts_msg_pass *m, char *err) {
+int cl_queue_pass(cl_worker *w, uint32_t tag, const ts_msg_pass *m, char *err) {
   cl_msg *e = queue_slot(w);
   if (e == NULL) return NO_SLOT(err);
   e->arg.pass = *m;
-  return queue_push(w, e, TS_MSG_PASS, id, write_pass, err);
+  return queue_push(w, e, TS_MSG_PASS, tag, write_pass, err);
 }
 
 uint64_t cl_image_bytes(const ts_msg_image *m) { return ts_payload_size(write_image, m); }
 
 static void write_unload(ts_wr *w, const void *arg) { ts_msg_unload_write(w, arg); }
 
-/* Queues a 'Q' to w (leased) and expects its answer (none if it could
- * not be queued). */
+/* Queues a 'Q' to w (leased); a worker it cannot be queued to is failed. */
 static void cl_queue_unload(ts_cluster *c, cl_worker *w, uint32_t set) {
-  char err[TS_ERR_LEN];
+  char err[TS_ERR_LEN] = "out of memory for a message to a worker";
   cl_msg *e = queue_slot(w);
   if (e != NULL) e->arg.unload.set = set;
   w->unloads++; /* a re-slice keeps nothing from a slice it may have freed */
   if (set == TS_UNLOAD_ALL) w->wipes++;
-  w->expect = e != NULL && queue_push(w, e, TS_MSG_UNLOAD, ++c->next_frame, write_unload, err) == 0;
+  if (e == NULL || queue_push(w, e, TS_MSG_UNLOAD, set, write_unload, err) != 0) cl_worker_fail(c, w, err);
 }
 
 /* A heartbeat: an empty payload. */
 static void queue_heartbeat(ts_cluster *c, cl_worker *w) {
-  char err[TS_ERR_LEN];
+  char err[TS_ERR_LEN] = "out of memory for a message to a worker";
   cl_msg *e = queue_slot(w);
-  w->expect = e != NULL && queue_push(w, e, TS_MSG_HEARTBEAT, ++c->next_frame, NULL, err) == 0;
+  if (e == NULL || queue_push(w, e, TS_MSG_HEARTBEAT, 0, NULL, err) != 0) cl_worker_fail(c, w, err);
 }
 
 void cl_out_reset(cl_worker *w) {
   w->nqueue = w->qhead = 0;
+  w->sent += w->out.len - w->out_off; /* dropped unsent: nothing waits on it */
   w->out.len = w->out_off = 0;
   w->expect = 0;
+  while (w->nreqs > 0 && !req_at(w, w->nreqs - 1)->abandoned) w->nreqs--;
 }
 
 /* Produces w's queued messages into its output buffer until CL_OUT_HIGH
@@ -156,9 +215,15 @@ static int fill_out(cl_worker *w, char *err) {
   }
   while (w->qhead < w->nqueue && w->out.len < CL_OUT_HIGH) {
     cl_msg *e = &w->queue[w->qhead];
+    size_t len0 = w->out.len;
     int rc = ts_outmsg_produce(&e->m, e->write, &e->arg, &w->out, CL_OUT_CHUNK, err);
     if (rc < 0) return rc;
-    if (rc == 1) w->qhead++;
+    w->produced += w->out.len - len0;
+    if (rc == 1) {
+      cl_request *r = req_by_id(w, e->m.id);
+      if (r != NULL) r->end = w->produced;
+      w->qhead++;
+    }
   }
   return 0;
 }
@@ -170,6 +235,7 @@ static void worker_free(cl_worker *w) {
   ts_wr_free(&w->out);
   free(w->queue);
   free(w->frames);
+  free(w->reqs);
   free(w);
 }
 
@@ -266,6 +332,7 @@ static int admit(ts_cluster *c, ts_conn *conn, const ts_msg_ident *ident, int ad
   w->ident = *ident;
   w->cpu_share = w->share_sized = -1;
   w->state = TS_WORKER_CALIBRATING;
+  w->next_id = 2; /* 1 is the calibration's */
   ts_wr_init(&w->out);
   /* A slot first: a full pool refuses before spending a calibration. */
   pthread_mutex_lock(&c->lock);
@@ -319,13 +386,6 @@ static int dial(ts_cluster *c, const char *addr, ts_conn *conn, ts_msg_ident *id
 }
 
 
-static int heartbeat_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
-  (void)ctx;
-  (void)err;
-  if (f->type == TS_MSG_HEARTBEAT) w->expect--;
-  return 0; /* anything else is a stale answer of an abandoned batch */
-}
-
 /* Pings the workers that have been silent for a heartbeat interval, so a
  * worker that died or hung between jobs leaves the pool (and is dialled
  * again) before the next batch waits on it (lock held). */
@@ -344,7 +404,7 @@ static void heartbeat_idle(ts_cluster *c) {
   cl_lease(c, ws, n); /* none is leased: no wait */
   for (int i = 0; i < n; i++) queue_heartbeat(c, ws[i]);
   cl_traffic tr = {0, 0};
-  if (n > 0) cl_exchange(c, ws, n, 2 * c->o.heartbeat + 1.0, NULL, heartbeat_reply, NULL, &tr);
+  if (n > 0) cl_exchange(c, ws, n, 2 * c->o.heartbeat + 1.0, NULL, 0, NULL, NULL, &tr);
   cl_release(c, ws, n);
   free(ws);
 }
@@ -522,44 +582,133 @@ static void fail_unlocked(ts_cluster *c, cl_worker *w, const char *why) {
   pthread_mutex_unlock(&c->lock);
 }
 
-/* Sends every leased worker's queued messages, produced as its socket
- * drains, and feeds each reply to fn until every worker has answered its
- * `expect` frames. A worker that fails
- * (connection, protocol, fn's error, deadline) is marked failed and the
- * others carry on, so their streams stay in step. Returns 0, or TS_ECONN if
- * any worker failed. Called with the lock held; bytes travel without it.
- * Whether a worker is gone is tracked here, not read from its state: a
+/* One exchange's view of its workers: who is gone, each one's deadline. */
+typedef struct {
+  ts_cluster *c;
+  cl_worker **ws;
+  int n;
+  char *gone;
+  double *due;
+  int failed, canceled;
+  unsigned flags;
+} xchg;
+
+static void x_fail(xchg *x, int i, const char *why) {
+  fail_unlocked(x->c, x->ws[i], why);
+  x->gone[i] = 1;
+  x->failed = 1;
+}
+
+/* The job was canceled: w's requests not begun are dropped (but with
+ * CL_X_SEND_ALL), those under way are sent whole and their answers
+ * abandoned, due by its deadline. */
+static void x_abandon(xchg *x, int i) {
+  cl_worker *w = x->ws[i];
+  uint32_t begun = w->qhead + (w->qhead < w->nqueue && w->queue[w->qhead].m.done > 0);
+  if (!(x->flags & CL_X_SEND_ALL)) {
+    w->nreqs -= w->nqueue - begun; /* the newest requests: unsent */
+    w->nqueue = begun;
+  }
+  for (uint32_t k = 0; k < w->nreqs; k++) req_at(w, k)->abandoned = 1;
+  w->expect = 0;
+  if (w->nreqs > 0) w->abandoned_due = fmax(w->abandoned_due, x->due[i]);
+}
+
+/* Every frame w has sent so far (no lock held): each must answer its
+ * oldest request outstanding; the answers to this exchange's go to fn,
+ * those to abandoned ones are dropped. Reads no further than w's deadline. */
+static void x_read(xchg *x, int i, cl_reply_fn *fn, void *ctx, cl_traffic *tr) {
+  cl_worker *w = x->ws[i];
+  char err[TS_ERR_LEN];
+  ts_frame f;
+  cl_request rq;
+  int rc;
+  while (!x->gone[i] && ts_now() < x->due[i] && (rc = ts_conn_pump(&w->conn, &f, err)) != 0) {
+    if (rc > 0) rc = req_match(w, &f, &rq, err);
+    if (rc == 0 && rq.abandoned && f.type == TS_MSG_ERROR)
+      cl_log(x->c, "worker %d (%s) refused a request of a canceled job ('%c' frame id %u)", w->id, w->conn.peer,
+             rq.type, rq.id);
+    if (rc == 0 && !rq.abandoned) {
+      w->expect--;
+      rc = fn != NULL ? fn(ctx, w, &f, &rq, err) : f.type == TS_MSG_ERROR ? cl_reply_error(&f, err) : 0;
+    }
+    if (rc < 0) {
+      x_fail(x, i, err);
+      return;
+    }
+    tr->bytes_in += TS_FRAME_HEADER + f.len;
+    w->io_heard_at = ts_now();
+  }
+}
+
+/* Sends what w's socket takes of its output. */
+static void x_send(xchg *x, int i, cl_traffic *tr) {
+  cl_worker *w = x->ws[i];
+  ssize_t s = send(w->conn.fd, w->out.buf + w->out_off, w->out.len - w->out_off, MSG_DONTWAIT | MSG_NOSIGNAL);
+  if (s > 0) {
+    w->out_off += (size_t)s;
+    w->sent += (uint64_t)s;
+    tr->bytes_out += (uint64_t)s;
+  } else if (s < 0 && errno != EAGAIN && errno != EINTR) {
+    char err[TS_ERR_LEN];
+    snprintf(err, sizeof(err), "send: %s", strerror(errno));
+    x_fail(x, i, err);
+  }
+}
+
+/* Whether worker i still has bytes to send or answers to await. */
+static int x_pending(const xchg *x, int i) {
+  const cl_worker *w = x->ws[i];
+  return !x->gone[i] && (w->expect > 0 || w->out_off < w->out.len || w->qhead < w->nqueue);
+}
+
+/* Sends every leased worker's queued requests, produced as its socket
+ * drains, and feeds each answer to fn until every request is answered. A
+ * worker that fails (connection, protocol, fn's error, deadline) is marked
+ * failed and the others carry on, so their streams stay in step. Each
+ * worker's deadline is `timeout` from now, later by what its abandoned
+ * requests may still take. Called with the lock held; bytes travel without
+ * it. Whether a worker is gone is tracked here, not read from its state: a
  * failure seen elsewhere (Modbus, heartbeat) shuts its socket, which this
  * loop then sees. */
-int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, const volatile int *cancel, cl_reply_fn *fn,
-                void *ctx, cl_traffic *tr) {
-  double deadline = ts_now() + timeout;
-  char late[96] = "no answer before the batch deadline";
-  int failed = 0;
+int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, const atomic_int *cancel, unsigned flags,
+                cl_reply_fn *fn, void *ctx, cl_traffic *tr) {
+  double now = ts_now();
+  xchg x = {c, ws, n, calloc((size_t)n, 1), malloc(sizeof(double) * (size_t)n), 0, 0, flags};
   struct pollfd *pf = malloc(sizeof(*pf) * (size_t)n);
   int *pi = malloc(sizeof(*pi) * (size_t)n); /* worker of each pollfd */
-  char *gone = calloc((size_t)n, 1);
   int polled = n; /* workers the loop below looks at */
-  if (pf == NULL || pi == NULL || gone == NULL) {
+  if (pf == NULL || pi == NULL || x.gone == NULL || x.due == NULL) {
     for (int i = 0; i < n; i++) cl_worker_fail(c, ws[i], "the coordinator is out of memory");
-    failed = 1;
+    x.failed = 1;
     polled = 0;
   }
   for (int i = 0; i < polled; i++) {
-    gone[i] = ws[i]->state == TS_WORKER_FAILED;
+    x.gone[i] = ws[i]->state == TS_WORKER_FAILED;
+    x.due[i] = now + timeout + (ws[i]->nreqs > ws[i]->nqueue ? fmax(0, ws[i]->abandoned_due - now) : 0);
     ws[i]->io_heard_at = ws[i]->heard_at;
   }
   pthread_mutex_unlock(&c->lock);
   for (;;) {
+    if (!x.canceled && cancel != NULL && atomic_load(cancel)) {
+      x.canceled = 1;
+      for (int i = 0; i < polled; i++)
+        if (!x.gone[i]) x_abandon(&x, i);
+    }
     int np = 0;
+    double left = 1e9;
+    now = ts_now();
     for (int i = 0; i < polled; i++) {
       cl_worker *w = ws[i];
       char err[TS_ERR_LEN];
-      if (!gone[i] && fill_out(w, err) != 0) {
-        fail_unlocked(c, w, err);
-        gone[i] = failed = 1;
+      if (!x.gone[i] && fill_out(w, err) != 0) x_fail(&x, i, err);
+      if (!x_pending(&x, i)) continue;
+      if (now >= x.due[i]) {
+        x_fail(&x, i, x.canceled ? "its requests under way were not taken before their deadline (a job's cancel)"
+                                 : "no answer before the batch deadline");
+        continue;
       }
-      if (gone[i] || (w->expect == 0 && w->out_off == w->out.len && w->qhead == w->nqueue)) continue;
+      left = fmin(left, x.due[i] - now);
       pi[np] = i;
       pf[np].fd = w->conn.fd;
       pf[np].events = (short)(POLLIN | (w->out_off < w->out.len ? POLLOUT : 0));
@@ -567,16 +716,6 @@ int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, const vola
       np++;
     }
     if (np == 0) break;
-    if (cancel != NULL && *cancel && deadline > ts_now() + CL_CANCEL_WAIT) {
-      deadline = ts_now() + CL_CANCEL_WAIT;
-      snprintf(late, sizeof(late), "no answer within %g s of the job's cancel (a stalled worker)", CL_CANCEL_WAIT);
-    }
-    double left = deadline - ts_now();
-    if (left <= 0) {
-      for (int i = 0; i < np; i++) fail_unlocked(c, ws[pi[i]], late);
-      failed = 1;
-      break;
-    }
     if (cancel != NULL && left > CL_CANCEL_POLL) left = CL_CANCEL_POLL; /* to see *cancel */
     int k = poll(pf, (nfds_t)np, (int)(left * 1000) + 1);
     if (k < 0 && errno != EINTR) {
@@ -585,38 +724,13 @@ int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, const vola
        * all had answered would merge a partial answer: a wrong result. */
       char why[TS_ERR_LEN];
       snprintf(why, sizeof(why), "poll: %s (the batch is asked again)", strerror(errno));
-      for (int i = 0; i < np; i++) fail_unlocked(c, ws[pi[i]], why);
-      failed = 1;
+      for (int p = 0; p < np; p++) x_fail(&x, pi[p], why);
       break;
     }
     for (int p = 0; p < np && k > 0; p++) {
       int i = pi[p];
-      cl_worker *w = ws[i];
-      char err[TS_ERR_LEN];
-      if (pf[p].revents & POLLOUT) {
-        ssize_t s = send(w->conn.fd, w->out.buf + w->out_off, w->out.len - w->out_off, MSG_DONTWAIT | MSG_NOSIGNAL);
-        if (s > 0) {
-          w->out_off += (size_t)s;
-          tr->bytes_out += (uint64_t)s;
-        } else if (s < 0 && errno != EAGAIN && errno != EINTR) {
-          snprintf(err, sizeof(err), "send: %s", strerror(errno));
-          fail_unlocked(c, w, err);
-          gone[i] = failed = 1;
-          continue;
-        }
-      }
-      if (!(pf[p].revents & (POLLIN | POLLERR | POLLHUP))) continue;
-      ts_frame f;
-      int rc;
-      while (!gone[i] && (rc = ts_conn_pump(&w->conn, &f, err)) != 0) {
-        if (rc < 0 || (rc = fn(ctx, w, &f, err)) < 0) {
-          fail_unlocked(c, w, err);
-          gone[i] = failed = 1;
-          break;
-        }
-        tr->bytes_in += TS_FRAME_HEADER + f.len;
-        w->io_heard_at = ts_now();
-      }
+      if (pf[p].revents & POLLOUT) x_send(&x, i, tr);
+      if (!x.gone[i] && (pf[p].revents & (POLLIN | POLLERR | POLLHUP))) x_read(&x, i, fn, ctx, tr);
     }
   }
   pthread_mutex_lock(&c->lock);
@@ -626,8 +740,9 @@ int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, const vola
   }
   free(pf);
   free(pi);
-  free(gone);
-  return failed ? TS_ECONN : 0;
+  free(x.gone);
+  free(x.due);
+  return x.failed ? TS_ECONN : x.canceled ? TS_ECANCELED : 0;
 }
 
 void cl_lease(ts_cluster *c, cl_worker **ws, int n) {
@@ -656,17 +771,10 @@ int cl_reply_error(const ts_frame *f, char *err) {
   return ts_error(err, e.code, "worker error: %s", e.text);
 }
 
-static int cl_unloaded_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
-  (void)ctx;
-  (void)err;
-  if (f->type == TS_MSG_UNLOAD) w->expect--;
-  return 0;
-}
-
-void cl_unload_set(ts_cluster *c, cl_worker **ws, int n, uint32_t set) {
+void cl_unload_set(ts_cluster *c, cl_worker **ws, int n, uint32_t set, const atomic_int *cancel) {
   cl_lease(c, ws, n);
   for (int i = 0; i < n; i++) cl_queue_unload(c, ws[i], set);
   cl_traffic tr = {0, 0};
-  if (n > 0) cl_exchange(c, ws, n, c->o.batch_timeout, NULL, cl_unloaded_reply, NULL, &tr);
+  if (n > 0) cl_exchange(c, ws, n, c->o.batch_timeout, cancel, CL_X_SEND_ALL, NULL, NULL, &tr);
   cl_release(c, ws, n);
 }

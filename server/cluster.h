@@ -27,6 +27,7 @@
 #ifndef TS_CLUSTER_H
 #define TS_CLUSTER_H
 
+#include <stdatomic.h>
 #include <stdint.h>
 
 #include "auth.h"
@@ -92,7 +93,7 @@ void ts_cluster_stats_get(ts_cluster *c, ts_cluster_stats *out);
 
 /* A search backend over the pool for one job. cancel (may be NULL) is
  * polled before each batch: non-zero fails the batch with TS_ECANCELED. */
-int ts_search_cluster_create(ts_search **out, ts_cluster *c, const volatile int *cancel,
+int ts_search_cluster_create(ts_search **out, ts_cluster *c, const atomic_int *cancel,
                              char *err);
 
 #endif

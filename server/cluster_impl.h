@@ -19,6 +19,7 @@
 #define TS_CLUSTER_IMPL_H
 
 #include <pthread.h>
+#include <stdatomic.h>
 #include <stdint.h>
 
 #include "cluster.h"
@@ -39,11 +40,9 @@
 /* A batch may take this many times its expected scan time before the
  * workers still owing answers are dropped (see batch_deadline). */
 #define CL_DEADLINE_SLACK 8.0
-/* A job canceled (or its daemon stopping) mid-exchange waits at most this
- * long for the answers under way, so the workers' streams stay in step; a
- * worker that owes answers after it is dropped (it is stalled). The flag
- * is looked at every CL_CANCEL_POLL seconds. */
-#define CL_CANCEL_WAIT 1.0
+/* A job canceled (or its daemon stopping) mid-exchange abandons the
+ * answers it awaits (cl_exchange): the flag is looked at every
+ * CL_CANCEL_POLL seconds. */
 #define CL_CANCEL_POLL 0.1
 
 /* A worker's output is produced as its socket drains (cl_exchange): when
@@ -56,8 +55,22 @@
 
 typedef struct {
   uint32_t q0, nq; /* first query (over the whole batch) and count */
-  int answered;
+  int slice;       /* the worker's slice of the request's set */
 } cl_frame_sent;
+
+/* A request sent on a worker's connection and not answered yet. The
+ * worker answers in request order (PROTOCOL.md), so every reply must
+ * answer the oldest request outstanding, with its id and type (or 'E'):
+ * anything else - stray, duplicate, out of order, unsolicited, an answer
+ * to a request not sent whole - fails the worker. Ids count the
+ * connection's requests and never repeat on it. */
+typedef struct {
+  uint32_t id;
+  uint8_t type;
+  uint8_t abandoned; /* its exchange was canceled: the answer is dropped */
+  uint32_t tag;      /* the exchange's: what the request asked (see its reply fn) */
+  uint64_t end;      /* where its bytes end in the connection's output stream */
+} cl_request;
 
 /* The arguments of one V frame's writer (ts_msg_query_write). */
 typedef struct {
@@ -110,7 +123,17 @@ typedef struct {
   uint32_t nqueue, qhead, cap_queue;
   ts_wr out;
   size_t out_off;
-  int expect;
+  int expect; /* requests of the lease holder's exchange not answered yet */
+  /* The connection's requests outstanding, oldest first (a ring), and
+   * its output stream's counters. Abandoned requests stay until their
+   * answers come, whichever exchange reads them: `abandoned_due` is when
+   * the last of them must have been answered. */
+  cl_request *reqs;
+  uint32_t req_head, nreqs, cap_reqs;
+  uint32_t next_id;  /* the next request's frame id (1 was the calibration) */
+  uint64_t produced; /* bytes put into out since the connection began */
+  uint64_t sent;     /* bytes sent of those */
+  double abandoned_due;
   uint32_t unloads;        /* times it was told to free slices ('Q') */
   uint32_t wipes;          /* times it was told to free everything ('Q' of all sets) */
   uint32_t images_sent;    /* query images (bits) whose frames it was sent */
@@ -173,7 +196,7 @@ struct ts_cluster {
                      than the pool holds may be listed, as spares) */
   int naddrs;
   int next_worker_id;
-  uint32_t next_set, next_frame;
+  uint32_t next_set;
   uint64_t epoch; /* bumped when the slicing must change */
   double deviating_since; /* start of the current rate deviation, or 0 */
   double load_deviating_since; /* the same for CPU-share changes */
@@ -193,17 +216,19 @@ struct ts_cluster {
 /* The cluster's lines go to the daemon's log (log.h). */
 #define cl_log(c, ...) ((void)(c), ts_log(__VA_ARGS__))
 
-/* Queue a message to w (leased) for the next cl_exchange, which sends it
- * whole, or in pieces when it exceeds w's frame limit: an 'N' (slice) or a
- * 'V' (query frame). 0, or TS_ENOMEM / TS_ETOOBIG (w cannot take it) with
- * a message. The caller counts the answers it expects. */
-int cl_queue_slice(cl_worker *w, uint32_t id, const ts_slice_desc *m, char *err);
-int cl_queue_query(cl_worker *w, uint32_t id, const cl_query_frame *q, char *err);
+/* Queue a request to w (leased) for the next cl_exchange, which sends it
+ * whole, or in pieces when it exceeds w's frame limit, under the next id of
+ * w's connection, and awaits its answer: an 'N' (slice) or a 'V' (query
+ * frame). tag is the exchange's note of what it asked, handed back with
+ * the answer (cl_reply_fn). 0, or TS_ENOMEM / TS_ETOOBIG (w cannot take
+ * it) with a message. */
+int cl_queue_slice(cl_worker *w, uint32_t tag, const ts_slice_desc *m, char *err);
+int cl_queue_query(cl_worker *w, uint32_t tag, const cl_query_frame *q, char *err);
 /* An 'R' (query image). */
-int cl_queue_image(cl_worker *w, uint32_t id, const ts_msg_image *m, char *err);
+int cl_queue_image(cl_worker *w, uint32_t tag, const ts_msg_image *m, char *err);
 /* A 'G' (PatchMatch source) and a 'T' (PatchMatch pass). */
-int cl_queue_field(cl_worker *w, uint32_t id, const ts_msg_field *m, char *err);
-int cl_queue_pass(cl_worker *w, uint32_t id, const ts_msg_pass *m, char *err);
+int cl_queue_field(cl_worker *w, uint32_t tag, const ts_msg_field *m, char *err);
+int cl_queue_pass(cl_worker *w, uint32_t tag, const ts_msg_pass *m, char *err);
 /* Payload bytes of an 'R' message. */
 uint64_t cl_image_bytes(const ts_msg_image *m);
 /* Payload bytes of a slice's 'N' message. */
@@ -211,7 +236,8 @@ uint64_t cl_slice_bytes(const ts_slice_desc *m);
 /* Whether w takes a message of that many payload bytes: under its frame
  * limit whole, or under its message limit in pieces. */
 int cl_worker_takes(const cl_worker *w, uint64_t bytes);
-/* Drops what the exchange of w left unsent (queue and output). */
+/* Drops what the exchange of w left unsent (queue and output) and the
+ * requests it awaits, but for abandoned ones. */
 void cl_out_reset(cl_worker *w);
 
 /* Marks a worker failed (lock held): it leaves every slicing. */
@@ -230,25 +256,35 @@ void cl_lease(ts_cluster *c, cl_worker **ws, int n);
 /* Ends a lease (lock held). */
 void cl_release(ts_cluster *c, cl_worker **ws, int n);
 
-/* Called for every frame a worker sends during an exchange; a negative
- * return fails that worker. */
-typedef int cl_reply_fn(void *ctx, cl_worker *w, const ts_frame *f, char *err);
+/* Called with every answer of a worker to a request of the exchange (rq:
+ * the request it answers, matched by cl_exchange), an 'E' too; it checks
+ * the answer against what rq asked. A negative return fails that worker. */
+typedef int cl_reply_fn(void *ctx, cl_worker *w, const ts_frame *f, const cl_request *rq, char *err);
 typedef struct {
   uint64_t bytes_out, bytes_in;
 } cl_traffic;
-/* Sends every leased worker's queued messages and feeds each reply to fn
- * until every worker has answered its `expect` frames. Called with the lock
- * held and returns with it held; the lock is released while bytes travel,
- * so fn runs without it and may touch only the caller's context and the
- * leased workers' exchange state. Once *cancel (may be NULL) is set, the
- * workers get CL_CANCEL_WAIT more seconds at most. See cluster.c. */
-int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, const volatile int *cancel, cl_reply_fn *fn,
-                void *ctx, cl_traffic *tr);
+/* Flags of cl_exchange. CL_X_SEND_ALL: once canceled, still send every
+ * queued request (a clean-up: the workers must free what it names). */
+enum { CL_X_SEND_ALL = 1 };
+/* Sends every leased worker's queued requests and feeds each answer to fn
+ * (NULL: any well-matched answer will do) until every request is answered
+ * or its worker has failed; a worker still owing answers `timeout` seconds
+ * after the start (plus the time its abandoned requests may still take)
+ * fails. Called with the lock held and returns with it held; the lock is
+ * released while bytes travel, so fn runs without it and may touch only
+ * the caller's context and the leased workers' exchange state. Returns 0,
+ * TS_ECONN when a worker failed, or TS_ECANCELED once *cancel (may be
+ * NULL) is set: then the requests already under way are sent whole, the
+ * others dropped (but with CL_X_SEND_ALL), and every answer awaited is
+ * abandoned - the workers stay ready. See cluster.c. */
+int cl_exchange(ts_cluster *c, cl_worker **ws, int n, double timeout, const atomic_int *cancel, unsigned flags,
+                cl_reply_fn *fn, void *ctx, cl_traffic *tr);
 /* An 'E' reply as an error. */
 int cl_reply_error(const ts_frame *f, char *err);
 /* Tells ws[0..n) to free a set (lock held): leases them, sends each a
- * 'Q' and awaits the answers. */
-void cl_unload_set(ts_cluster *c, cl_worker **ws, int n, uint32_t set);
+ * 'Q' and awaits the answers - unless *cancel (may be NULL) is set: the
+ * job is over, and they need not be awaited. */
+void cl_unload_set(ts_cluster *c, cl_worker **ws, int n, uint32_t set, const atomic_int *cancel);
 
 /* The Modbus supervisor's thread (supervise.c). */
 void *cl_supervisor_thread(void *arg);

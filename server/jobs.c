@@ -6,6 +6,7 @@
 #include <fcntl.h>
 #include <inttypes.h>
 #include <pthread.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -38,7 +39,7 @@ typedef struct job {
   ts_jobspec spec;
   ts_job_status st;
   uint64_t version;
-  volatile int cancel;
+  atomic_int cancel; /* set by a client's thread or the stop path, read by the job's */
   double started;
   uint64_t bytes; /* on disk, or reserved for results not written yet */
   struct job *next; /* all jobs, oldest first */
@@ -61,7 +62,7 @@ struct ts_jobs {
   uint64_t next_id;
   uint64_t spool_bytes; /* sum of the jobs' bytes */
   int stop;
-  volatile int stopping; /* read by the engines: stop at a checkpoint */
+  atomic_int stopping; /* read by the engines: stop at a checkpoint */
   int running; /* jobs in run_job */
   int paused; /* no queued job starts */
   uint64_t last_ended; /* id of the job that ended last */

@@ -53,28 +53,27 @@ static void cut_ranges(const ts_anchors *g, cl_worker **ws, int n, cl_slice *out
   }
 }
 
-/* Answers to a slicing: the 'N' of every worker, and the 'R' of those
- * loaded with the set's image first. */
-typedef struct {
-  const cl_set *st;
-  int slot;       /* the image's: bit in images_sent */
-  uint32_t image; /* its id on the wire */
-} load_ctx;
+int cl_image_ack(const ts_frame *f, const cl_request *rq, char *err) {
+  uint32_t image;
+  if (ts_msg_image_ack_read(f, &image, err) != 0) return TS_EPROTO;
+  if (image != rq->tag)
+    return ts_error(err, TS_EPROTO, "protocol: 'R' frame id %u acknowledges query image %u; it was sent image %u",
+                    f->id, image, rq->tag);
+  return 0;
+}
 
-static int loaded_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
-  const load_ctx *x = ctx;
-  const cl_set *st = x->st;
+/* Answers to a slicing (ctx: the set): the 'N' of every worker, and the
+ * 'R' of those loaded with the set's image first. */
+static int loaded_reply(void *ctx, cl_worker *w, const ts_frame *f, const cl_request *rq, char *err) {
+  const cl_set *st = ctx;
   ts_msg_loaded m;
+  (void)w;
   if (f->type == TS_MSG_ERROR) return cl_reply_error(f, err);
-  if (f->type == TS_MSG_IMAGE) {
-    uint32_t image;
-    if (ts_msg_image_ack_read(f, &image, err) != 0) return TS_EPROTO;
-    if (image == x->image && w->images_sent & 1u << x->slot) w->expect--;
-    return 0;
-  }
-  if (f->type != TS_MSG_SLICE) return 0; /* a stale answer of an abandoned batch */
+  if (f->type == TS_MSG_IMAGE) return cl_image_ack(f, rq, err);
   if (ts_msg_loaded_read(f, &m, err) != 0) return TS_EPROTO;
-  if (m.set == st->gid && m.gen == st->gen) w->expect--;
+  if (m.set != st->gid || m.gen != st->gen)
+    return ts_error(err, TS_EPROTO, "protocol: 'N' frame id %u loaded set %u generation %u; it was sent set %u "
+                    "generation %u", f->id, m.set, m.gen, st->gid, st->gen);
   return 0;
 }
 
@@ -137,7 +136,7 @@ static void record_held(cl_set *st, int n) {
   st->nheld = 0;
   for (int i = 0; i < n; i++) {
     const cl_worker *w = st->slices[i].w;
-    if (w->state != TS_WORKER_FAILED && w->expect == 0)
+    if (w->state != TS_WORKER_FAILED)
       st->held[st->nheld++] = (cl_held){w->id, w->unloads, st->slices[i].rows};
   }
 }
@@ -208,11 +207,14 @@ static int loads_image_first(cluster_search *cs, const cl_set *st, const cl_work
 static int queue_image_load(ts_cluster *c, const cl_image *im, cl_worker *w, char *err) {
   ts_msg_image m;
   cl_load_message(im, &m);
-  return cl_queue_image(w, ++c->next_frame, &m, err);
+  (void)c;
+  return cl_queue_image(w, im->gid, &m, err);
 }
 
-static int load_local(ts_cluster *c, cl_set *st, char *err) {
+static int load_local(cluster_search *cs, cl_set *st, char *err) {
   static const uint32_t i0[TS_MAX_CLASSES] = {0};
+  ts_cluster *c = cs->c;
+  if (cl_canceled(cs)) return ts_error(err, TS_ECANCELED, "job canceled"); /* nothing in-process for it */
   ts_slice_desc m;
   ts_slice_describe(&m, &st->rs, &st->usage, st->gid, st->gen, st->image, i0, st->grid->count, NULL);
   if (st->lbg.mode != TS_LBG_OFF) ts_slice_describe_lbg(&m, &st->lbg);
@@ -222,10 +224,13 @@ static int load_local(ts_cluster *c, cl_set *st, char *err) {
 
 /* Makes the set's slicing match the current pool (lock held): every ready
  * worker gets a fresh slice (new generation) with the replica's counts; with
- * none, the coordinator loads the whole set itself. */
-static int ensure_slices(cluster_search *cs, cl_set *st, char *err) {
+ * none, the coordinator loads the whole set itself. A load that loses
+ * workers counts in *lost, as a batch's does (--max-redispatch): a worker
+ * killed by every load of a set it rejoins for would be fed it forever. */
+static int ensure_slices(cluster_search *cs, cl_set *st, int *lost, char *err) {
   ts_cluster *c = cs->c;
   while (!st->sliced || st->epoch != c->epoch) {
+    if (cl_canceled(cs)) return ts_error(err, TS_ECANCELED, "job canceled");
     cl_worker **ws = cs->ws;
     int n = cl_ready_workers(c, ws);
     st->epoch = c->epoch;
@@ -235,7 +240,7 @@ static int ensure_slices(cluster_search *cs, cl_set *st, char *err) {
     st->nslices = 0;
     st->sliced = 1;
     if (n > 0) n = cut_fitting(cs, st, ws, n);
-    if (n == 0) return load_local(c, st, err);
+    if (n == 0) return load_local(cs, st, err);
     cl_lease(c, ws, n);
     cl_traffic tr = {0, 0};
     double total = 0;
@@ -252,24 +257,26 @@ static int ensure_slices(cluster_search *cs, cl_set *st, char *err) {
       kept += ts_slice_row_bytes(&m, 1);
       /* The rows stay in the level planes: each chunk of the message is
        * copied from there as the worker's socket drains. */
-      if (cl_queue_slice(ws[i], ++c->next_frame, &m, why) != 0)
+      if (cl_queue_slice(ws[i], st->gid, &m, why) != 0)
         cl_worker_fail(c, ws[i], why); /* moves the epoch: sliced again without it */
-      ws[i]->expect = 1 + first;
       ws[i]->share = (uint32_t)llround(1000.0 * ws[i]->slice_rate / total);
     }
     st->nslices = n;
     if (kept > 0)
       cl_log(c, "set %u generation %u over %d workers: %llu bytes of rows sent, %llu kept from their slices", st->gid,
              st->gen, n, (unsigned long long)sent, (unsigned long long)kept);
-    load_ctx x = {st, st->rs.image, cs->images[st->rs.image].gid};
-    cl_exchange(c, ws, n, load_deadline(c, st, n), cs->cancel, loaded_reply, &x, &tr);
-    for (int i = 0; i < n; i++)
+    int rc = cl_exchange(c, ws, n, load_deadline(c, st, n), cs->cancel, 0, loaded_reply, st, &tr);
+    for (int i = 0; rc != TS_ECANCELED && i < n; i++)
       if (ws[i]->images_sent != 0 && ws[i]->state != TS_WORKER_FAILED)
         cl_mark_synced(c, &cs->images[st->rs.image], ws[i], cs->images[st->rs.image].rep.seq);
-    record_held(st, n);
+    if (rc != TS_ECANCELED) record_held(st, n);
     cl_release(c, ws, n);
     cs->base.stats.bytes_out += tr.bytes_out;
     cs->base.stats.bytes_in += tr.bytes_in;
+    if (rc == TS_ECANCELED) return ts_error(err, TS_ECANCELED, "job canceled");
+    if (rc == TS_ECONN && ++*lost >= (int)c->o.max_redispatch)
+      return ts_error(err, TS_ECONN, "loading set %u lost workers %d times in a row; giving up on this job to protect "
+                      "the pool (texsyn-server --max-redispatch)", st->gid, *lost);
     /* A failure bumped the epoch: loop and slice again without it. */
   }
   return 0;
@@ -341,7 +348,8 @@ static int cluster_prepare(ts_search *s, const ts_refset *rs, int *id, char *err
   pthread_mutex_lock(&cs->c->lock);
   st->gid = ++cs->c->next_set;
   st->used = 1;
-  rc = ensure_slices(cs, st, err);
+  int lost = 0;
+  rc = ensure_slices(cs, st, &lost, err);
   pthread_mutex_unlock(&cs->c->lock);
   *id = slot;
   return rc;
@@ -458,16 +466,12 @@ typedef struct {
   int nacked;
 } image_ctx;
 
-static int image_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
+static int image_reply(void *ctx, cl_worker *w, const ts_frame *f, const cl_request *rq, char *err) {
   image_ctx *x = ctx;
   if (f->type == TS_MSG_ERROR) return cl_reply_error(f, err);
-  if (f->type != TS_MSG_IMAGE) return 0; /* a stale answer of an abandoned batch */
-  uint32_t image;
-  if (ts_msg_image_ack_read(f, &image, err) != 0) return TS_EPROTO;
-  if (image != x->im->gid) return 0;
-  w->expect--;
-  if (x->acked != NULL) x->acked[x->nacked++] = w->id;
-  return 0;
+  int rc = cl_image_ack(f, rq, err);
+  if (rc == 0 && x->acked != NULL) x->acked[x->nacked++] = w->id;
+  return rc;
 }
 
 /* The next level: the workers holding the replica get the last step's
@@ -495,11 +499,10 @@ static int cluster_image_next(ts_search *s, int id, int w, int h, int rw, int rh
   cl_lease(c, ws, n);
   for (int i = 0; i < n; i++) {
     char why[TS_ERR_LEN];
-    ws[i]->expect = 1;
-    if (cl_queue_image(ws[i], ++c->next_frame, &m, why) != 0) cl_worker_fail(c, ws[i], why);
+    if (cl_queue_image(ws[i], im->gid, &m, why) != 0) cl_worker_fail(c, ws[i], why);
   }
   cl_traffic tr = {0, 0};
-  if (n > 0) cl_exchange(c, ws, n, c->o.batch_timeout + 30.0, cs->cancel, image_reply, &x, &tr);
+  if (n > 0) cl_exchange(c, ws, n, c->o.batch_timeout + 30.0, cs->cancel, 0, image_reply, &x, &tr);
   cl_release(c, ws, n);
   cs->base.stats.bytes_out += tr.bytes_out;
   cs->base.stats.bytes_in += tr.bytes_in;
@@ -527,10 +530,10 @@ static void cluster_image_close(ts_search *s, int id) {
   cl_lease(c, ws, n);
   for (int i = 0; i < n; i++) {
     char why[TS_ERR_LEN];
-    ws[i]->expect = cl_queue_image(ws[i], ++c->next_frame, &m, why) == 0;
+    if (cl_queue_image(ws[i], im->gid, &m, why) != 0) cl_worker_fail(c, ws[i], why);
   }
   cl_traffic tr = {0, 0};
-  if (n > 0) cl_exchange(c, ws, n, c->o.batch_timeout, cs->cancel, image_reply, &x, &tr);
+  if (n > 0) cl_exchange(c, ws, n, c->o.batch_timeout, cs->cancel, CL_X_SEND_ALL, image_reply, &x, &tr);
   cl_release(c, ws, n);
   pthread_mutex_unlock(&c->lock);
   ts_replica_free(&im->rep);
@@ -540,19 +543,17 @@ static void cluster_image_close(ts_search *s, int id) {
   memset(im, 0, sizeof(*im));
 }
 
-/* V frame ids: the exchange's sequence number in the top byte (a stale
- * answer never matches) and the frame's first query below, counted over
- * the concatenated queries of every request of the exchange. */
-#define CL_ID_QUERY_BITS 24
-#define CL_ID_QUERY_MASK ((1u << CL_ID_QUERY_BITS) - 1)
+/* The queries of one exchange are counted over the concatenated queries
+ * of all its requests. */
+#define CL_MAX_QUERIES (1u << 24)
 #define CL_MAX_REQS 64
 
 typedef struct {
   cl_set *st[CL_MAX_REQS];
   uint32_t q0[CL_MAX_REQS + 1]; /* request r holds queries q0[r]..q0[r+1]-1 */
   uint32_t nreq;
+  const ts_search_req *req;
   ts_l1_best *best;
-  uint32_t seq;
   uint64_t lbg_pairs; /* vectors the answers of partitioned sets report compared */
 } batch_ctx;
 
@@ -580,61 +581,58 @@ static void track_rate(cl_worker *w) {
   w->ewma_weight += dt;
 }
 
-/* The frame of w's batch that starts at query q0, or NULL. */
-static cl_frame_sent *frame_sent(cl_worker *w, uint32_t q0) {
-  uint32_t lo = 0, hi = w->nframes; /* sent in increasing q0 */
-  while (lo < hi) {
-    uint32_t mid = lo + (hi - lo) / 2;
-    if (w->frames[mid].q0 < q0) lo = mid + 1;
-    else hi = mid;
+/* Whether every result of an answer lies in the answering worker's slice
+ * of the queries' classes: a result from elsewhere (a forged or confused
+ * answer) could beat the true best and change the output. An exhaustive
+ * slice holding vectors of a class always has a best one. */
+static int check_results(const batch_ctx *b, uint32_t r, const cl_frame_sent *fs, const ts_msg_answer *a,
+                         char *err) {
+  const cl_set *st = b->st[r];
+  const cl_slice *sl = &st->slices[fs->slice];
+  const ts_query_batch *qb = &b->req[r].b;
+  for (uint32_t i = 0; i < a->nq; i++) {
+    ts_l1_best res;
+    ts_msg_result_at(a, i, &res);
+    int cls = qb->klass ? qb->klass[fs->q0 - b->q0[r] + i] : 0;
+    uint32_t lo = st->grid->base[cls] + sl->i0[cls], hi = st->grid->base[cls] + sl->i1[cls];
+    if (res.index == UINT32_MAX ? st->lbg.mode == TS_LBG_OFF && hi > lo : res.index < lo || res.index >= hi)
+      return ts_error(err, TS_EPROTO, "protocol: answer index %d to query %u (class %d) outside the worker's slice "
+                      "[%u, %u) of set %u", res.index == UINT32_MAX ? -1 : (int)res.index, fs->q0 + i, cls, lo, hi,
+                      st->gid);
   }
-  return lo < w->nframes && w->frames[lo].q0 == q0 ? &w->frames[lo] : NULL;
+  return 0;
 }
 
-/* One answer frame. A short, extra, duplicate or misaddressed answer
- * fails the worker, so the batch is asked again: merging it would leave
- * queries with another worker's best only, a wrong result. */
-static int answer_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
+/* One answer frame (rq: the 'V' or 'R' it answers). A short, extra or
+ * misaddressed answer fails the worker, so the batch is asked again:
+ * merging it would leave queries with another worker's best only, a wrong
+ * result. */
+static int answer_reply(void *ctx, cl_worker *w, const ts_frame *f, const cl_request *rq, char *err) {
   batch_ctx *b = ctx;
   if (f->type == TS_MSG_ERROR) return cl_reply_error(f, err);
-  if (f->type != TS_MSG_QUERY && f->type != TS_MSG_IMAGE) return 0; /* stale reply of an abandoned exchange */
-  if (f->id >> CL_ID_QUERY_BITS != (b->seq & 0xFF)) return 0;
-  if (f->type == TS_MSG_IMAGE) { /* a query image loaded ahead of the queries */
-    uint32_t image;
-    if (ts_msg_image_ack_read(f, &image, err) != 0) return TS_EPROTO;
-    w->expect--;
-    return 0;
-  }
+  if (f->type == TS_MSG_IMAGE) return cl_image_ack(f, rq, err); /* a query image loaded ahead of the queries */
   ts_msg_answer a;
   if (ts_msg_answer_read(f, &a, err) != 0) return TS_EPROTO;
-  uint32_t q0 = f->id & CL_ID_QUERY_MASK, r = 0;
-  cl_frame_sent *fs = frame_sent(w, q0);
-  if (fs == NULL) return ts_error(err, TS_EPROTO, "answer to a query frame that was not sent (first query %u)", q0);
-  if (fs->answered) return ts_error(err, TS_EPROTO, "second answer to the query frame of first query %u", q0);
+  const cl_frame_sent *fs = &w->frames[rq->tag];
+  uint32_t r = 0;
   if (a.nq != fs->nq)
-    return ts_error(err, TS_EPROTO, "answer with %u results to the query frame of first query %u, which asked %u",
-                    a.nq, q0, fs->nq);
-  while (r < b->nreq && q0 >= b->q0[r + 1]) r++;
+    return ts_error(err, TS_EPROTO, "protocol: answer with %u results to the query frame of first query %u, which "
+                    "asked %u", a.nq, fs->q0, fs->nq);
+  while (r < b->nreq && fs->q0 >= b->q0[r + 1]) r++;
   const cl_set *st = b->st[r];
   if (a.set != st->gid || a.gen != st->gen)
-    return ts_error(err, TS_EPROTO, "answer for set %u generation %u to a query of set %u generation %u", a.set,
-                    a.gen, st->gid, st->gen);
+    return ts_error(err, TS_EPROTO, "protocol: answer for set %u generation %u to a query of set %u generation %u",
+                    a.set, a.gen, st->gid, st->gen);
+  int rc = check_results(b, r, fs, &a, err);
+  if (rc != 0) return rc;
   for (uint32_t i = 0; i < a.nq; i++) {
     ts_l1_best res;
     ts_msg_result_at(&a, i, &res);
-    if (res.index != UINT32_MAX && res.index >= st->grid->total)
-      return ts_error(err, TS_EPROTO, "answer index %u outside the set", res.index);
+    merge_best(&b->best[fs->q0 + i], &res);
   }
-  for (uint32_t i = 0; i < a.nq; i++) {
-    ts_l1_best res;
-    ts_msg_result_at(&a, i, &res);
-    merge_best(&b->best[q0 + i], &res);
-  }
-  fs->answered = 1;
   if (st->lbg.mode != TS_LBG_OFF) b->lbg_pairs += a.pairs;
   w->answered_bytes += a.pairs * ts_window_bytes(st->rs.window);
   w->answered_nanos += a.scan_nanos;
-  w->expect--;
   return 0;
 }
 
@@ -695,10 +693,10 @@ static int query_local(cluster_search *cs, cl_set *st, const ts_query_batch *b, 
 
 /* Slices every request's set over the current pool; all of them must end
  * up cut for the same epoch (a failed load moves it: start again). */
-static int slice_all(cluster_search *cs, batch_ctx *bc, char *err) {
+static int slice_all(cluster_search *cs, batch_ctx *bc, int *lost, char *err) {
   for (;;) {
     for (uint32_t r = 0; r < bc->nreq; r++) {
-      int rc = ensure_slices(cs, bc->st[r], err);
+      int rc = ensure_slices(cs, bc->st[r], lost, err);
       if (rc != 0) return rc;
     }
     uint32_t r = 0;
@@ -707,8 +705,9 @@ static int slice_all(cluster_search *cs, batch_ctx *bc, char *err) {
   }
 }
 
-/* Remembers a query frame sent to w, to match its answer. */
-static int note_frame(cl_worker *w, uint32_t q0, uint32_t nq) {
+/* Remembers a query frame sent to w (of its slice i of the set), to check
+ * its answer. */
+static int note_frame(cl_worker *w, uint32_t q0, uint32_t nq, int slice) {
   if (w->nframes == w->cap_frames) {
     uint32_t cap = w->cap_frames ? 2 * w->cap_frames : 64;
     cl_frame_sent *f = realloc(w->frames, sizeof(*f) * cap);
@@ -716,7 +715,7 @@ static int note_frame(cl_worker *w, uint32_t q0, uint32_t nq) {
     w->frames = f;
     w->cap_frames = cap;
   }
-  w->frames[w->nframes++] = (cl_frame_sent){q0, nq, 0};
+  w->frames[w->nframes++] = (cl_frame_sent){q0, nq, slice};
   return 0;
 }
 
@@ -746,9 +745,8 @@ static int image_frame(cluster_search *cs, const batch_ctx *bc, cl_worker *w, in
   if (y != NULL && y->seq == im->rep.seq) return 0;
   ts_msg_image m;
   cl_load_message(im, &m);
-  int rc = cl_queue_image(w, (bc->seq & 0xFF) << CL_ID_QUERY_BITS | CL_ID_QUERY_MASK, &m, err);
-  if (rc == 0) w->expect++;
-  return rc;
+  (void)bc;
+  return cl_queue_image(w, im->gid, &m, err);
 }
 
 /* Queues every request's V frames to the leased workers holding its
@@ -778,10 +776,9 @@ static int queue_frames(cluster_search *cs, const batch_ctx *bc, const ts_search
         int rc = image_frame(cs, bc, w, st->rs.image, &np, err);
         if (rc != 0) return rc;
         cl_query_frame qf = {st->gid, st->gen, im->gid, seq, im->pending, np, b, q0, q1};
-        rc = cl_queue_query(w, (bc->seq & 0xFF) << CL_ID_QUERY_BITS | (bc->q0[r] + q0), &qf, err);
+        if (note_frame(w, bc->q0[r] + q0, q1 - q0, i) != 0) return ts_error(err, TS_ENOMEM, "out of memory for a batch");
+        rc = cl_queue_query(w, w->nframes - 1, &qf, err);
         if (rc != 0) return rc;
-        w->expect++;
-        if (note_frame(w, bc->q0[r] + q0, q1 - q0) != 0) return ts_error(err, TS_ENOMEM, "out of memory for a batch");
       }
     }
   }
@@ -829,7 +826,6 @@ static int exchange_batch(cluster_search *cs, batch_ctx *bc, const ts_search_req
     cl_release(c, ws, n);
     return TS_ESTALE;
   }
-  bc->seq = ++c->next_frame;
   bc->lbg_pairs = 0;
   ts_l1_best_reset(bc->best, bc->q0[bc->nreq]);
   int rc = queue_frames(cs, bc, req, ws, n, err);
@@ -839,12 +835,15 @@ static int exchange_batch(cluster_search *cs, batch_ctx *bc, const ts_search_req
     return rc;
   }
   cl_traffic tr = {0, 0};
-  rc = cl_exchange(c, ws, n, batch_deadline(c, ws, n), cs->cancel, answer_reply, bc, &tr);
+  rc = cl_exchange(c, ws, n, batch_deadline(c, ws, n), cs->cancel, 0, answer_reply, bc, &tr);
   cl_release(c, ws, n);
-  char why[TS_ERR_LEN];
-  if (settle_images(cs, bc, ws, n, why) != 0) return ts_error(err, TS_EINVAL, "%s", why);
   cs->base.stats.bytes_out += tr.bytes_out;
   cs->base.stats.bytes_in += tr.bytes_in;
+  /* Canceled: which frames went out is not known, nor which workers hold
+   * the image's new state - and the job is over. */
+  if (rc == TS_ECANCELED) return ts_error(err, TS_ECANCELED, "job canceled");
+  char why[TS_ERR_LEN];
+  if (settle_images(cs, bc, ws, n, why) != 0) return ts_error(err, TS_EINVAL, "%s", why);
   if (rc == 0) {
     for (int i = 0; i < n; i++) track_rate(ws[i]);
     check_balance(c, ws, n);
@@ -865,16 +864,16 @@ static int cluster_query_many(ts_search *s, const ts_search_req *req, uint32_t n
   cluster_search *cs = (cluster_search *)s;
   ts_cluster *c = cs->c;
   if (nreq > CL_MAX_REQS) return ts_error(err, TS_ETOOBIG, "%u requests at once (at most %d)", nreq, CL_MAX_REQS);
-  batch_ctx bc = {.nreq = nreq};
+  batch_ctx bc = {.nreq = nreq, .req = req};
   for (uint32_t r = 0; r < nreq; r++) {
     int rc = check_req(cs, &req[r], &bc.st[r], err);
     if (rc != 0) return rc;
-    if (req[r].b.nq > CL_ID_QUERY_MASK - bc.q0[r]) return ts_error(err, TS_ETOOBIG, "too many queries at once");
+    if (req[r].b.nq > CL_MAX_QUERIES - bc.q0[r]) return ts_error(err, TS_ETOOBIG, "too many queries at once");
     bc.q0[r + 1] = bc.q0[r] + req[r].b.nq;
   }
   uint32_t nq = bc.q0[nreq];
   if (nq == 0) return 0;
-  if (cs->cancel != NULL && *cs->cancel) return ts_error(err, TS_ECANCELED, "job canceled");
+  if (cl_canceled(cs)) return ts_error(err, TS_ECANCELED, "job canceled");
   if (ensure_best(cs, nq) != 0) return ts_error(err, TS_ENOMEM, "out of memory for a batch of %u queries", nq);
   bc.best = cs->best;
   double t0 = ts_now();
@@ -882,7 +881,7 @@ static int cluster_query_many(ts_search *s, const ts_search_req *req, uint32_t n
   int local = 0, rc, lost = 0;
   pthread_mutex_lock(&c->lock);
   do {
-    rc = slice_all(cs, &bc, err);
+    rc = slice_all(cs, &bc, &lost, err);
     if (rc != 0) break;
     local = bc.st[0]->local != NULL; /* no worker: every set is local */
     if (local) {
@@ -943,7 +942,7 @@ static void set_clear(cluster_search *cs, cl_set *st) {
     for (int i = 0; i < st->nslices; i++) ws[n++] = st->slices[i].w;
   else /* slices may be on any worker that is still with us */
     n = cl_ready_workers(c, ws);
-  cl_unload_set(c, ws, n, st->gid);
+  cl_unload_set(c, ws, n, st->gid, cs->cancel);
   pthread_mutex_unlock(&c->lock);
   set_free(st);
 }
@@ -997,7 +996,7 @@ static const ts_search_ops cluster_ops = {
     .destroy = cluster_destroy,
 };
 
-int ts_search_cluster_create(ts_search **out, ts_cluster *c, const volatile int *cancel, char *err) {
+int ts_search_cluster_create(ts_search **out, ts_cluster *c, const atomic_int *cancel, char *err) {
   cluster_search *cs = calloc(1, sizeof(*cs));
   if (cs == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
   cs->ws = cl_worker_list(c);

@@ -91,7 +91,7 @@ typedef struct {
 typedef struct {
   ts_search base;
   ts_cluster *c;
-  const volatile int *cancel;
+  const atomic_int *cancel; /* the job's: set by another thread */
   cl_set sets[CL_MAX_SETS];
   cl_image images[CL_MAX_IMAGES];
   ts_query_scratch scratch; /* query vectors when no worker is ready */
@@ -99,6 +99,12 @@ typedef struct {
   ts_l1_best *best;
   uint32_t cap_best;
 } cluster_search;
+
+static inline int cl_canceled(const cluster_search *cs) { return cs->cancel != NULL && atomic_load(cs->cancel); }
+
+/* Checks an 'R' acknowledgement against the request it answers (whose
+ * tag is the image's id on the wire): 0, or TS_EPROTO. */
+int cl_image_ack(const ts_frame *f, const cl_request *rq, char *err);
 
 /* What worker w holds of the image: its record, or NULL (lock held). */
 cl_synced *cl_synced_of(cl_image *im, const cl_worker *w);

@@ -64,7 +64,7 @@ static void source_evict(cluster_search *cs, cl_source *e) {
     for (int h = 0; h < e->nheld; h++)
       if (e->held[h].worker == ws[i]->id && e->held[h].wipes == ws[i]->wipes) ws[n++] = ws[i];
   cl_log(c, "patchmatch source %u: freed on %d worker%s to make room", e->gid, n, n == 1 ? "" : "s");
-  cl_unload_set(c, ws, n, e->gid);
+  cl_unload_set(c, ws, n, e->gid, cs->cancel);
   e->used = 0;
   e->nheld = 0;
 }
@@ -254,39 +254,33 @@ static int take_answer(pass_ctx *x, part *pt, const ts_msg_pass_answer *a, char 
   return 0;
 }
 
-static int pass_reply(void *ctx, cl_worker *w, const ts_frame *f, char *err) {
+/* An answer of a worker of the pass (rq: the 'G', 'R' or 'T' it answers). */
+static int pass_reply(void *ctx, cl_worker *w, const ts_frame *f, const cl_request *rq, char *err) {
   pass_ctx *x = ctx;
   part *pt = part_of(x, w);
-  if (pt == NULL) return 0;
   if (f->type == TS_MSG_ERROR) return cl_reply_error(f, err);
   if (f->type == TS_MSG_FIELD) {
     uint32_t set;
     if (ts_msg_field_ack_read(f, &set, err) != 0) return TS_EPROTO;
-    if (set == x->st->gid && pt->sent_field && !pt->field_acked) {
-      pt->field_acked = 1;
-      w->expect--;
-    }
+    if (set != rq->tag)
+      return ts_error(err, TS_EPROTO, "protocol: 'G' frame id %u loaded source %u; it was sent source %u", f->id, set,
+                      rq->tag);
+    pt->field_acked = 1;
     return 0;
   }
   if (f->type == TS_MSG_IMAGE) {
-    uint32_t image;
-    if (ts_msg_image_ack_read(f, &image, err) != 0) return TS_EPROTO;
-    if (image == x->im->gid && pt->sent_image && !pt->image_acked) {
-      pt->image_acked = 1;
-      w->expect--;
-    }
-    return 0;
+    int rc = cl_image_ack(f, rq, err);
+    pt->image_acked = rc == 0;
+    return rc;
   }
-  if (f->type != TS_MSG_PASS) return 0; /* a stale answer of an abandoned exchange */
   ts_msg_pass_answer a;
   if (ts_msg_pass_answer_read(f, &a, err) != 0) return TS_EPROTO;
-  if (a.set != x->st->gid || a.pass != x->fp->pass) return 0;
-  if (pt->answered) return ts_error(err, TS_EPROTO, "a second answer to a patchmatch pass");
+  if (a.set != x->st->gid || a.pass != x->fp->pass)
+    return ts_error(err, TS_EPROTO, "protocol: a patchmatch answer for set %u pass %u to set %u pass %u", a.set,
+                    a.pass, x->st->gid, x->fp->pass);
   int rc = take_answer(x, pt, &a, err);
-  if (rc != 0) return rc;
-  pt->answered = 1;
-  w->expect--;
-  return 0;
+  pt->answered = rc == 0;
+  return rc;
 }
 
 /* The tiles left, cut in order among the parts by the workers' rates. */
@@ -321,28 +315,23 @@ static double pass_deadline(const ts_cluster *c, const pass_ctx *x) {
 static int queue_part(pass_ctx *x, part *pt, const ts_msg_field *src, char *err) {
   ts_cluster *c = x->cs->c;
   cl_worker *w = pt->w;
-  w->expect = 0;
   if (!holds(c, x->st, w)) {
-    int rc = cl_queue_field(w, ++c->next_frame, src, err);
+    int rc = cl_queue_field(w, src->set, src, err);
     if (rc != 0) return rc;
     pt->sent_field = 1;
-    w->expect++;
   }
   cl_synced *y = cl_synced_of(x->im, w);
   if (y == NULL || y->seq != x->im->rep.seq) {
     ts_msg_image m;
     cl_load_message(x->im, &m);
-    int rc = cl_queue_image(w, ++c->next_frame, &m, err);
+    int rc = cl_queue_image(w, x->im->gid, &m, err);
     if (rc != 0) return rc;
     pt->sent_image = 1;
-    w->expect++;
   }
   const ts_field_pass *fp = x->fp;
   ts_msg_pass m = {x->st->gid, x->im->gid, x->im->rep.seq, (uint32_t)fp->tw, (uint32_t)fp->th, fp->usage_k,
                    fp->seed, fp->pass, pt->ntiles, pt->tiles, fp->in, NULL, NULL};
-  int rc = cl_queue_pass(w, ++c->next_frame, &m, err);
-  if (rc == 0) w->expect++;
-  return rc;
+  return cl_queue_pass(w, 0, &m, err);
 }
 
 /* One exchange over the ready workers ws[0..n) (lock held) for the tiles
@@ -371,9 +360,9 @@ static int exchange_pass(pass_ctx *x, cl_worker **ws, int n, const uint32_t *lef
     }
   }
   cl_traffic tr = {0, 0};
-  int rc = cl_exchange(c, ws, n, pass_deadline(c, x), x->cs->cancel, pass_reply, x, &tr);
+  int rc = cl_exchange(c, ws, n, pass_deadline(c, x), x->cs->cancel, 0, pass_reply, x, &tr);
   for (int i = 0; i < n; i++) {
-    if (ws[i]->state == TS_WORKER_FAILED) continue;
+    if (ws[i]->state == TS_WORKER_FAILED || rc == TS_ECANCELED) continue; /* canceled: what they took is unknown */
     if (parts[i].field_acked) note_holder(c, x->st, ws[i]);
     if (parts[i].image_acked || (!parts[i].sent_image && parts[i].answered))
       cl_mark_synced(c, x->im, ws[i], x->im->rep.seq);
@@ -413,7 +402,7 @@ int cl_field_pass(ts_search *s, const ts_field_pass *fp, char *err) {
   cl_image *im = NULL;
   int rc = check_pass(cs, fp, &st, &im, err);
   if (rc != 0) return rc;
-  if (cs->cancel != NULL && *cs->cancel) return ts_error(err, TS_ECANCELED, "job canceled");
+  if (cl_canceled(cs)) return ts_error(err, TS_ECANCELED, "job canceled");
   uint32_t ntiles = (uint32_t)ts_pm_tiles(fp->tw, fp->th);
   uint8_t *done = calloc(ntiles, 1);
   uint32_t *left = malloc(sizeof(uint32_t) * ntiles);
@@ -423,7 +412,7 @@ int cl_field_pass(ts_search *s, const ts_field_pass *fp, char *err) {
   pthread_mutex_lock(&c->lock);
   if (rc == 0) rc = cl_flush_image(cs, fp->image, err);
   for (int lost = 0; rc == 0;) {
-    if (cs->cancel != NULL && *cs->cancel) {
+    if (cl_canceled(cs)) {
       rc = ts_error(err, TS_ECANCELED, "job canceled");
       break;
     }
@@ -437,7 +426,10 @@ int cl_field_pass(ts_search *s, const ts_field_pass *fp, char *err) {
       break;
     }
     rc = exchange_pass(&x, ws, n, left, nleft, err);
-    if (rc == TS_ECANCELED) break;
+    if (rc == TS_ECANCELED) {
+      rc = ts_error(err, TS_ECANCELED, "job canceled");
+      break;
+    }
     /* Workers that failed left their tiles undone: sweep them again
      * elsewhere - unless passes keep killing workers. */
     if (tiles_left(done, ntiles, left) > 0 && ++lost >= (int)c->o.max_redispatch) {

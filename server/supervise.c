@@ -63,7 +63,7 @@ static int mb_read(const mb_target *t, uint16_t *regs) {
 static void begin_drain(ts_cluster *c, cl_worker *w) {
   w->state = TS_WORKER_DRAINING;
   c->epoch++;
-  cl_unload_set(c, &w, 1, TS_UNLOAD_ALL); /* leased after the batch it may be serving */
+  cl_unload_set(c, &w, 1, TS_UNLOAD_ALL, NULL); /* leased after the batch it may be serving */
   cl_log(c, "worker %d (%s) draining: its slices are handed back and it gets no new ones", w->id, w->conn.peer);
 }
 
