@@ -224,10 +224,11 @@ static int load_local(cluster_search *cs, cl_set *st, char *err) {
 
 /* Makes the set's slicing match the current pool (lock held): every ready
  * worker gets a fresh slice (new generation) with the replica's counts; with
- * none, the coordinator loads the whole set itself. A load that loses
- * workers counts in *lost, as a batch's does (--max-redispatch): a worker
- * killed by every load of a set it rejoins for would be fed it forever. */
-static int ensure_slices(cluster_search *cs, cl_set *st, int *lost, char *err) {
+ * none, the coordinator loads the whole set itself. The set's loads may
+ * lose workers --max-redispatch times: a worker that dies loading it (out
+ * of memory, say) and rejoins would otherwise be fed it again and again -
+ * and a slicing without it loads fine, so the count is not reset. */
+static int ensure_slices(cluster_search *cs, cl_set *st, char *err) {
   ts_cluster *c = cs->c;
   while (!st->sliced || st->epoch != c->epoch) {
     if (cl_canceled(cs)) return ts_error(err, TS_ECANCELED, "job canceled");
@@ -274,9 +275,10 @@ static int ensure_slices(cluster_search *cs, cl_set *st, int *lost, char *err) {
     cs->base.stats.bytes_out += tr.bytes_out;
     cs->base.stats.bytes_in += tr.bytes_in;
     if (rc == TS_ECANCELED) return ts_error(err, TS_ECANCELED, "job canceled");
-    if (rc == TS_ECONN && ++*lost >= (int)c->o.max_redispatch)
-      return ts_error(err, TS_ECONN, "loading set %u lost workers %d times in a row; giving up on this job to protect "
-                      "the pool (texsyn-server --max-redispatch)", st->gid, *lost);
+    if (rc == TS_ECONN && ++st->load_losses >= (int)c->o.max_redispatch)
+      return ts_error(err, TS_ECONN, "loading set %u lost workers %d times (does a worker die loading it, out of "
+                      "memory?); giving up on this job to protect the pool (texsyn-server --max-redispatch)", st->gid,
+                      st->load_losses);
     /* A failure bumped the epoch: loop and slice again without it. */
   }
   return 0;
@@ -348,8 +350,7 @@ static int cluster_prepare(ts_search *s, const ts_refset *rs, int *id, char *err
   pthread_mutex_lock(&cs->c->lock);
   st->gid = ++cs->c->next_set;
   st->used = 1;
-  int lost = 0;
-  rc = ensure_slices(cs, st, &lost, err);
+  rc = ensure_slices(cs, st, err);
   pthread_mutex_unlock(&cs->c->lock);
   *id = slot;
   return rc;
@@ -693,10 +694,10 @@ static int query_local(cluster_search *cs, cl_set *st, const ts_query_batch *b, 
 
 /* Slices every request's set over the current pool; all of them must end
  * up cut for the same epoch (a failed load moves it: start again). */
-static int slice_all(cluster_search *cs, batch_ctx *bc, int *lost, char *err) {
+static int slice_all(cluster_search *cs, batch_ctx *bc, char *err) {
   for (;;) {
     for (uint32_t r = 0; r < bc->nreq; r++) {
-      int rc = ensure_slices(cs, bc->st[r], lost, err);
+      int rc = ensure_slices(cs, bc->st[r], err);
       if (rc != 0) return rc;
     }
     uint32_t r = 0;
@@ -881,7 +882,7 @@ static int cluster_query_many(ts_search *s, const ts_search_req *req, uint32_t n
   int local = 0, rc, lost = 0;
   pthread_mutex_lock(&c->lock);
   do {
-    rc = slice_all(cs, &bc, &lost, err);
+    rc = slice_all(cs, &bc, err);
     if (rc != 0) break;
     local = bc.st[0]->local != NULL; /* no worker: every set is local */
     if (local) {

@@ -131,3 +131,40 @@ def test_batch_that_keeps_killing_workers_fails_its_job_not_the_pool(texsyn, dat
     finally:
         for p in proxies:
             p.close()
+
+
+class DiesLoading(FrameProxy):
+    """A worker that dies (its connections reset) whenever it is sent a
+    slice ('N'), as one the kernel kills for memory while it builds the
+    vectors; the coordinator dials it again, and it rejoins."""
+
+    def dies_on(self, frame):
+        if frame[3:4] == b"N":
+            with self.poison.lock:
+                self.poison.killed.append(self.index)
+            return True
+        return False
+
+
+def test_a_worker_dying_at_every_slice_load_fails_the_job_not_forever(texsyn, data, cluster, tmp_path):
+    healthy = cluster.worker(1)
+    doomed = cluster.worker(1)
+    poison = Poison(kills=0)
+    proxy = DiesLoading(1, doomed.addr, poison)
+    try:
+        args = [BUILD / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", tmp_path / "spool",
+                "--workers", f"{healthy.addr},{proxy.addr}", "--max-redispatch", "3", "--calibrate-ms", "20"]
+        cluster.server = Daemon(args, tmp_path / "server.log")
+        cluster.wait_ready(2)
+        # Long enough at one level for the worker to rejoin, and die, 3 times.
+        bad = cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "bad.png", "--size", "768x768",
+                             "--levels", "2", "--quiet", check=False)
+        log = cluster.server.read_log()
+        assert bad.returncode != 0, f"the job went on feeding the dying worker:\n{log}"
+        assert "lost workers 3 times (does a worker die loading it" in bad.stderr, bad.stderr
+        # Each set's loads count (a level has several sets): the set that
+        # failed the job lost it 3 times.
+        assert len(poison.killed) >= 3, poison.killed
+        assert cluster.server.alive()
+    finally:
+        proxy.close()
