@@ -392,12 +392,14 @@ static double exact_pairs(const run *e, int l) {
 /* Auto's rate when the backend knows none: slower than any machine. */
 #define AUTO_UNKNOWN_RATE 1e8
 
-/* Every level's mode, before any runs: auto's are exact where the level's
- * comparisons at the backend's calibrated rate (bytes of vectors a
+/* Every level's mode, before any runs: size's and auto's are exact where
+ * the level's comparisons at the rate (comparisons a second: size's fixed
+ * one, or auto's from the backend's calibrated rate in bytes of vectors a
  * second, over this window's bytes) fit the budget. Returns the rate. */
 static double plan_levels(run *e) {
   const ts_stylit_params *p = e->p;
   double rate = 0;
+  if (p->search == TS_STYLIT_SIZE) rate = TS_STYLIT_SIZE_RATE;
   if (p->search == TS_STYLIT_AUTO) {
     rate = ts_search_rate(e->search) / ts_window_bytes(&e->win);
     if (!(rate > 0)) rate = AUTO_UNKNOWN_RATE;
@@ -405,7 +407,7 @@ static double plan_levels(run *e) {
   for (int l = 0; l < e->levels; l++) {
     e->estimate[l] = rate > 0 ? exact_pairs(e, l) / rate : 0;
     if (p->search == TS_STYLIT_LIST) e->mode[l] = p->level_mode[e->levels - 1 - l];
-    else if (p->search == TS_STYLIT_AUTO) e->mode[l] = e->estimate[l] <= p->budget ? TS_STYLIT_EXACT : TS_STYLIT_PATCHMATCH;
+    else if (rate > 0) e->mode[l] = e->estimate[l] <= p->budget ? TS_STYLIT_EXACT : TS_STYLIT_PATCHMATCH;
     else e->mode[l] = p->search;
   }
   return rate;

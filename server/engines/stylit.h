@@ -73,13 +73,20 @@
 
 /* How a level's search step runs: exact (every source patch compared),
  * patchmatch (patchmatch.h: passes of propagation and random search over
- * fixed seeded tiles), auto: exact where the level's estimated exact time
- * fits the budget, else patchmatch, or a list: the mode of each level,
- * coarsest first (what an auto run's report records, to run the same job
- * again anywhere). Auto decides every level before the first runs, from
- * the search backend's calibrated rate (search.h: the pool's, on a
- * cluster), so its bytes depend on the pool; the other modes' do not. */
-enum { TS_STYLIT_EXACT = 0, TS_STYLIT_PATCHMATCH = 1, TS_STYLIT_AUTO = 2, TS_STYLIT_LIST = 3 };
+ * fixed seeded tiles), size (the default): exact where the level's exact
+ * comparisons would take at most the budget at a fixed reference speed
+ * (TS_STYLIT_SIZE_RATE), else patchmatch - a rule of the job alone; auto:
+ * the same at the search backend's calibrated rate (search.h: the pool's,
+ * on a cluster), so its bytes depend on the pool and it is opt-in; or a
+ * list: the mode of each level, coarsest first (what a run's report
+ * records, to run the same job again anywhere). size and auto decide every
+ * level before the first runs. */
+enum { TS_STYLIT_EXACT = 0, TS_STYLIT_PATCHMATCH = 1, TS_STYLIT_AUTO = 2, TS_STYLIT_SIZE = 3, TS_STYLIT_LIST = 4 };
+/* size's reference speed, in patch comparisons a second: about what the
+ * exact search does on 2 cores with AVX-512 (1.1e9 measured on the StyLit
+ * scene's 4 guides, Xeon and EPYC of 2026), so a level of at most --budget
+ * seconds there runs exact. A constant: never the machine's. */
+#define TS_STYLIT_SIZE_RATE 1e9
 /* The longest search value: a list of TS_STYLIT_MAX_LEVELS modes. */
 #define TS_STYLIT_SEARCH_LEN (TS_STYLIT_MAX_LEVELS * 11)
 

@@ -159,7 +159,7 @@ static int write_report(const ts_engine_run *r, const char *path, int threads, c
   ts_stylit_search_format(p, mode, sizeof(mode));
   ts_stylit_search_format(&ran, levels, sizeof(levels));
   fprintf(f, "{\n  \"engine\": \"stylize\",\n  \"search\": {\"mode\": \"%s\", \"levels\": \"%s\", \"lossy\": [%s], "
-             "\"pm_iters\": %d, \"budget\": %g, \"auto_rate\": %.4g, \"backend\": \"%s\", \"simd\": \"%s\", "
+             "\"pm_iters\": %d, \"budget\": %g, \"plan_rate\": %.4g, \"backend\": \"%s\", \"simd\": \"%s\", "
              "\"threads\": %d},\n",
           mode, levels, pm_levels ? "\"patchmatch\"" : "", p->pm_iters, p->budget, res->rate, r->search->ops->name,
           r->search->simd->name, threads);

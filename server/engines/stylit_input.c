@@ -18,15 +18,15 @@ void ts_stylit_params_default(ts_stylit_params *p) {
   p->guides = 1;
   p->style_weight = 1.0;
   for (int k = 0; k < TS_STYLIT_MAX_GUIDES; k++) p->weight[k] = -1.0;
-  p->search = TS_STYLIT_AUTO;
+  p->search = TS_STYLIT_SIZE;
   p->pm_iters = 4;
   p->budget = 1.0;
 }
 
-static const char *const kSearchNames[] = {"exact", "patchmatch", "auto"};
+static const char *const kSearchNames[] = {"exact", "patchmatch", "auto", "size"};
 
 const char *ts_stylit_search_name(int mode) {
-  return mode >= TS_STYLIT_EXACT && mode <= TS_STYLIT_AUTO ? kSearchNames[mode] : "unknown";
+  return mode >= TS_STYLIT_EXACT && mode <= TS_STYLIT_SIZE ? kSearchNames[mode] : "unknown";
 }
 
 static int mode_of(const char *name, size_t len, int last) {
@@ -36,7 +36,7 @@ static int mode_of(const char *name, size_t len, int last) {
 }
 
 int ts_stylit_search_parse(const char *text, ts_stylit_params *p, char *err) {
-  int m = mode_of(text, strlen(text), TS_STYLIT_AUTO);
+  int m = mode_of(text, strlen(text), TS_STYLIT_SIZE);
   if (m >= 0) {
     p->search = m;
     p->nlevel_modes = 0;
@@ -48,7 +48,7 @@ int ts_stylit_search_parse(const char *text, ts_stylit_params *p, char *err) {
     size_t len = comma != NULL ? (size_t)(comma - s) : strlen(s);
     int lm = n < TS_STYLIT_MAX_LEVELS ? mode_of(s, len, TS_STYLIT_PATCHMATCH) : -1;
     if (lm < 0)
-      return ts_error(err, TS_EINVAL, "--search %s: need exact, patchmatch, auto, or a list of exact and patchmatch "
+      return ts_error(err, TS_EINVAL, "--search %s: need exact, patchmatch, size, auto, or a list of exact and patchmatch "
                       "with one per level, coarsest first (at most %d)", text, TS_STYLIT_MAX_LEVELS);
     p->level_mode[n] = (uint8_t)lm;
     if (comma == NULL) break;
@@ -105,7 +105,7 @@ static void check_params(const ts_stylit_params *p, problems *pr) {
   if (p->levels < 0 || p->levels > TS_STYLIT_MAX_LEVELS)
     problem(pr, "--levels %d: need 1..%d (or 0: as many as fit)", p->levels, TS_STYLIT_MAX_LEVELS);
   if (p->iters < 1 || p->iters > 100) problem(pr, "--iters %d: need 1..100", p->iters);
-  if (p->search < TS_STYLIT_EXACT || p->search > TS_STYLIT_LIST) problem(pr, "search mode %d: need exact, patchmatch or auto", p->search);
+  if (p->search < TS_STYLIT_EXACT || p->search > TS_STYLIT_LIST) problem(pr, "search mode %d: need exact, patchmatch, size or auto", p->search);
   if (p->pm_iters < 1 || p->pm_iters > 100) problem(pr, "--pm-iters %d: need 1..100", p->pm_iters);
   if (!(p->budget >= 0 && p->budget <= 1e6)) problem(pr, "--budget %g: need 0..1000000 seconds", p->budget);
   if (!(p->uniformity >= 0.0 && p->uniformity <= 1000.0))

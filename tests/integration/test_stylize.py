@@ -234,14 +234,36 @@ def test_a_sequence_refuses_bad_patterns_and_missing_frames_before_any_work(texs
     assert not list(tmp_path.glob("o_*.png")), "a frame ran before the missing one was found"
 
 
+def test_the_default_search_gives_the_same_bytes_embedded_and_on_a_pool(texsyn, scene, cluster, tmp_path):
+    """The default (size) picks each level's mode from the job alone: a
+    budget that makes the finest level PatchMatch and the coarser ones exact
+    gives the embedded bytes on 3 workers, whose summed speed is not the
+    embedded threads'."""
+    report = tmp_path / "e.json"
+    stylize(texsyn, scene, tmp_path / "e.png", "--nnf", tmp_path / "e.raw", "--report", report, "--budget", "0.005",
+            "--embedded")
+    search = json.loads(report.read_text())["search"]
+    assert search["mode"] == "size" and search["plan_rate"] == 1e9, search
+    levels = search["levels"].split(",")
+    assert levels[0] == "exact" and levels[-1] == "patchmatch", levels
+    cluster.start(3, 1)
+    stylize(texsyn, scene, tmp_path / "c.png", "--nnf", tmp_path / "c.raw", "--budget", "0.005", "--report",
+            tmp_path / "c.json", "--server", cluster.server.addr)
+    assert json.loads((tmp_path / "c.json").read_text())["search"]["levels"] == search["levels"]
+    assert (tmp_path / "c.png").read_bytes() == (tmp_path / "e.png").read_bytes()
+    assert (tmp_path / "c.raw").read_bytes() == (tmp_path / "e.raw").read_bytes()
+
+
 def test_auto_records_the_modes_it_ran_and_that_list_gives_its_bytes_on_a_cluster(texsyn, scene, cluster, tmp_path):
-    """Auto decides from the calibrated speed, so its choice depends on the
-    pool; the list its report records runs the same job anywhere."""
+    """Auto (opt-in) decides from the calibrated speed, so its choice
+    depends on the pool; the list its report records runs the same job
+    anywhere."""
     report = tmp_path / "a.json"
-    stylize(texsyn, scene, tmp_path / "a.png", "--nnf", tmp_path / "a.raw", "--report", report, "--budget", "0.0005")
+    stylize(texsyn, scene, tmp_path / "a.png", "--nnf", tmp_path / "a.raw", "--report", report, "--budget", "0.0005",
+            "--search", "auto")
     search = json.loads(report.read_text())["search"]
     levels = search["levels"].split(",")
-    assert search["mode"] == "auto" and search["auto_rate"] > 0
+    assert search["mode"] == "auto" and search["plan_rate"] > 0
     assert set(levels) <= {"exact", "patchmatch"} and len(levels) == len(json.loads(report.read_text())["levels"])
     assert search["lossy"] == (["patchmatch"] if "patchmatch" in levels else [])
     cluster.start(2, 1)
