@@ -268,10 +268,13 @@ static int send_frame(ts_conn *conn, uint8_t type, uint32_t id, const ts_wr *w, 
   return ts_net_send(conn->fd, type, id, w->buf, w->len, err);
 }
 
-/* Waits for the reply of the given type to a request (no lock held). */
-static int await_reply(ts_conn *conn, uint8_t type, int timeout_ms, ts_frame *f, char *err) {
+/* Waits for the reply of the given type to request `id` (no lock held). */
+static int await_reply(ts_conn *conn, uint8_t type, uint32_t id, int timeout_ms, ts_frame *f, char *err) {
   int rc = ts_conn_recv(conn, f, timeout_ms, err);
   if (rc < 0) return rc;
+  if (f->id != id)
+    return ts_error(err, TS_EPROTO, "%s: protocol: '%c' frame id %u answers no request (awaiting '%c' frame id %u)",
+                    conn->peer, f->type, f->id, type, id);
   if (f->type == TS_MSG_ERROR) {
     ts_msg_error e;
     if (ts_msg_error_read(f, &e, err) != 0) return TS_EPROTO;
@@ -308,7 +311,7 @@ static int calibrate(ts_cluster *c, cl_worker *w, char *err) {
   ts_wr_free(&wr);
   ts_frame f;
   ts_msg_calib cal;
-  if (rc == 0) rc = await_reply(&w->conn, TS_MSG_CALIBRATE, (int)c->o.calib_millis * 10 + 5000, &f, err);
+  if (rc == 0) rc = await_reply(&w->conn, TS_MSG_CALIBRATE, 1, (int)c->o.calib_millis * 10 + 5000, &f, err);
   if (rc == 0) rc = ts_msg_calib_read(&f, &cal, err);
   if (rc != 0) return rc;
   /* A worker that says nothing of its limits is an older one: the default
