@@ -21,8 +21,8 @@ reply), delay (hold the stream `ms`), drop (optionally cut the link
 `cut_after` seconds later), truncate (`how`="payload": a shorter body with
 a consistent header; "half": half the frame's bytes, then the link is cut,
 or the worker killed with then="kill"), forge (inject a frame built by a
-Forge before, after or instead of the reply; `hold` seconds before the
-real one follows), cut (close the link), kill / stop (SIGKILL or SIGSTOP
+Forge `place`d before, after or instead of the reply; `hold` seconds before
+the real one follows), cut (close the link), kill / stop (SIGKILL or SIGSTOP
 the worker, SIGCONT after `seconds`), signal (any signal to any process:
 `target`, `sig`, `resume_after`), call (a function of the link and frame).
 On requests: kill, stop, signal, cut, call.
@@ -549,13 +549,13 @@ class HostileProxy:
         elif a == "forge":
             forged = p["forge"].build(link, f)
             r.note = f"{p['forge']} id {struct.unpack_from('<I', forged, 8)[0]:#x}"
-            where = p.get("where", "before")
-            if where == "before":
+            place = p.get("place", "before")
+            if place == "before":
                 send(forged)
                 if p.get("hold"):
                     time.sleep(p["hold"])
                 send(f.raw)
-            elif where == "after":
+            elif place == "after":
                 send(f.raw + forged)
             else:  # instead
                 send(forged)
