@@ -213,6 +213,7 @@ class Batch:
         self.nworker = 0
         self.honest = self.worker()
         self.hostile = self.worker()
+        self.hostiles = [self.hostile]
         self.proxy = HostileProxy(self.hostile.addr, self.hostile)
         self.server = Daemon([build / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", self.dir / "spool",
                               "--workers", f"{self.honest.addr},{self.proxy.addr}", *SERVER_ARGS],
@@ -232,6 +233,7 @@ class Batch:
         if not self.hostile.alive():
             self.hostile.stop()
             self.hostile = self.worker()
+            self.hostiles.append(self.hostile)
             self.proxy.retarget(self.hostile.addr, self.hostile)
 
     def ready(self, timeout=15):
@@ -323,13 +325,17 @@ class Batch:
         return rec
 
     def close(self):
+        # Disarmed first: a rule firing late would stop a worker after its
+        # SIGCONT below, and it would not exit on SIGTERM.
+        self.proxy.arm([])
         self.proxy.close()
-        for d in (self.server, self.honest, self.hostile):
-            d.proc.send_signal(signal.SIGCONT)
+        for d in (self.server, self.honest, *self.hostiles):
+            if d.alive():
+                d.proc.send_signal(signal.SIGCONT)
             d.stop()
 
     def faults(self):
-        return self.server.faults() + self.honest.faults()
+        return [f for d in (self.server, self.honest, *self.hostiles) for f in d.faults()]
 
 
 def _dropped(log):
@@ -345,14 +351,15 @@ def cpu_model():
 
 # ---- the run ----------------------------------------------------------------------
 
-def run_schedules(n, seed, engines, build, data, batch_size=50, only=None, progress=print):
+def run_schedules(n, seed, engines, build, data, batch_size=50, only=None, progress=print, workdir=None):
     """Runs n schedules spread over the engines (schedule k on engine k mod
-    len(engines)); returns the result dict."""
+    len(engines)); returns the result dict. The daemons' logs and files go
+    to workdir, kept, or to a temporary directory removed at the end."""
     plan = [(k, engines[k % len(engines)]) for k in range(n)]
     if only is not None:
         plan = [plan[only]]
     engines = [e for e in engines if any(pe == e for _, pe in plan)]
-    root = Path(tempfile.mkdtemp(prefix="texsyn-hostile-"))
+    root = Path(workdir) if workdir is not None else Path(tempfile.mkdtemp(prefix="texsyn-hostile-"))
     t0 = time.time()
     records, problems = [], []
     want, counts, base_seconds = {}, {}, {}
@@ -398,7 +405,8 @@ def run_schedules(n, seed, engines, build, data, batch_size=50, only=None, progr
                         problems.append({"engine": e, "outcome": "lost", "why": f})
                         progress(f)
     finally:
-        shutil.rmtree(root, ignore_errors=True)
+        if workdir is None:
+            shutil.rmtree(root, ignore_errors=True)
     elapsed = time.time() - t0
     model, cores = cpu_model()
     spent = sum(r["seconds"] for r in records)

@@ -311,6 +311,8 @@ class Link:
         self.last_id = 0
         self.slices = {}  # set id -> its classes in the worker's slice ('N')
         self.closed = False
+        self.unanswered_start = False  # the coordinator's first frame answers the worker's 'I'
+        self.peer = None  # the worker's address as the coordinator names it
 
     def close(self):
         self.closed = True
@@ -318,6 +320,9 @@ class Link:
 
     def note_request(self, f):
         f.info = parse_request(f)
+        if self.unanswered_start:
+            self.unanswered_start = False
+            return
         if f.type == "N" and "classes" in f.info:
             self.slices[f.info["set"]] = f.info["classes"]
         if f.type == "V":
@@ -355,9 +360,12 @@ class HostileProxy:
     the worker process (kill/stop actions); both may be changed between
     schedules (retarget)."""
 
-    def __init__(self, target, victim=None, rules=()):
+    def __init__(self, target, victim=None, rules=(), joining=False):
         self.target, self.victim = target, Victim(victim) if victim is not None else None
+        self.joining = joining  # the worker connects (--join), the proxy dials the coordinator
         self.lock = threading.Lock()
+        self.idle = threading.Condition(self.lock)
+        self.acting = 0  # frames whose rules are being applied
         self.rules = list(rules)
         self.events = []  # what the proxy did, in order
         self.links = []
@@ -372,8 +380,11 @@ class HostileProxy:
     # -- control
 
     def arm(self, rules):
-        """A new schedule: counting starts again from here."""
-        with self.lock:
+        """A new schedule: counting starts again from here, once the
+        actions under way have ended (none of the last schedule's can land
+        in this one)."""
+        with self.idle:
+            self.idle.wait_for(lambda: self.acting == 0, timeout=30)
             self.rules = list(rules)
             self.counts.clear()
             self.events = []
@@ -416,7 +427,9 @@ class HostileProxy:
             for s in (a, b):
                 s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             n += 1
-            link = Link(self, a, b, n)
+            link = Link(self, b, a, n) if self.joining else Link(self, a, b, n)
+            link.unanswered_start = self.joining
+            link.peer = "%s:%d" % b.getsockname() if self.joining else self.addr
             self.links = [k for k in self.links if not k.closed] + [link]
             threading.Thread(target=self.pump_requests, args=(link,), daemon=True).start()
             threading.Thread(target=self.pump_replies, args=(link,), daemon=True).start()
@@ -432,7 +445,13 @@ class HostileProxy:
                 r.seen += 1
                 if r.seen == r.nth:
                     out.append(r)
+            self.acting += bool(out)
         return out
+
+    def acted(self):
+        with self.idle:
+            self.acting -= 1
+            self.idle.notify_all()
 
     def pump_requests(self, link):
         """Coordinator -> worker: bytes forwarded as they come; frames read
@@ -447,8 +466,13 @@ class HostileProxy:
                 frames = reader.frames()
                 for f in frames:
                     link.note_request(f)
-                    for r in self.due("request", f):
-                        self.act_on_request(link, r, f)
+                    rules = self.due("request", f)
+                    try:
+                        for r in rules:
+                            self.act_on_request(link, r, f)
+                    finally:
+                        if rules:
+                            self.acted()
                 link.worker.sendall(data)
         except (OSError, ProtocolViolation):
             pass
@@ -505,10 +529,11 @@ class HostileProxy:
                     if not rules:
                         link.coord.sendall(f.raw)
                         continue
-                    try:
+                    try:  # one action a frame: a rule due with another is not applied
                         held = self.act_on_reply(link, rules[0], f)
                     finally:  # also when the coordinator is gone
                         rules[0].done.set()
+                        self.acted()
                     if link.closed:
                         return
         except (OSError, ProtocolViolation):

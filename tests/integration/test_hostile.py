@@ -12,8 +12,14 @@
   bytes.
 
 And the harness itself: a schedule of no faults, and one of delays only,
-give the embedded bytes with no worker dropped.
+give the embedded bytes with no worker dropped; and a few of the seeded
+random schedules of tests/hostile_run.py (5 here, 20 in `make
+test-faults`, 2,000 in `make test-hostile`): the seed is printed and in
+any failure; TEXSYN_HOSTILE_SEED=S replays it.
 """
+import importlib.util
+import os
+import random
 import re
 import struct
 import time
@@ -21,7 +27,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import BUILD, Daemon, run
+from conftest import BUILD, DATA, REPO, Daemon, run
 from hostile import Forge, HostileProxy, Rule, dropped_lines, ready_lines
 
 SIZE = "192x144"  # 27,648 copy-map entries, as in the issue
@@ -171,3 +177,32 @@ def test_the_harness_alone_changes_nothing(data, cluster, tmp_path, want, schedu
     if schedule == "delays":
         assert all(p.fired() for p in proxies), "no delay was applied"
     assert all(p.counts["reply", "V"] > 0 for p in proxies), "a worker never answered through its proxy"
+
+
+def run_schedules(n, tmp_path):
+    spec = importlib.util.spec_from_file_location("hostile_run", REPO / "tests" / "hostile_run.py")
+    runner = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(runner)
+    seed = int(os.environ.get("TEXSYN_HOSTILE_SEED") or random.SystemRandom().randrange(1 << 32))
+    print(f"hostile schedules: seed {seed}")
+    result = runner.run_schedules(n, seed, runner.ENGINES, BUILD, DATA, progress=lambda line: None,
+                                   workdir=tmp_path)
+    replay = f"seed {seed} (replay: TEXSYN_HOSTILE_SEED={seed}, or tests/hostile_run.py --schedules {n} --seed {seed})"
+    assert not result["problems"], f"{replay}: " + "\n".join(
+        f"schedule {p.get('schedule', '-')} ({p['engine']}): {p['outcome']}: {p.get('why', '')} rules "
+        f"{p.get('rules', '')} proxy {p.get('events', '')}" for p in result["problems"])
+    assert result["schedules"] == n, f"{replay}: {result['schedules']} of {n} schedules ran"
+    assert set(result["outcomes"]) <= {"identical", "failed"}, f"{replay}: {result['outcomes']}"
+    return result
+
+
+def test_a_few_seeded_schedules(data, tmp_path):
+    """5 schedules, one on each of 5 engines: every job identical to the
+    embedded run or failed with a reason."""
+    run_schedules(5, tmp_path)
+
+
+@pytest.mark.long
+def test_seeded_schedules(data, tmp_path):
+    """20 schedules over the six engines."""
+    run_schedules(20, tmp_path)
