@@ -410,7 +410,10 @@ def run_schedules(n, seed, engines, build, data, batch_size=50, only=None, progr
     elapsed = time.time() - t0
     model, cores = cpu_model()
     spent = sum(r["seconds"] for r in records)
-    return {"seed": seed, "cpu": model, "cores": cores, "schedules": len(records), "seconds": round(elapsed, 1),
+    commit = subprocess.run(["git", "-C", str(REPO), "describe", "--always", "--dirty"], capture_output=True,
+                            text=True).stdout.strip()
+    return {"seed": seed, "commit": commit, "cpu": model, "cores": cores, "schedules": len(records),
+            "seconds": round(elapsed, 1),
             "seconds_per_schedule": round(elapsed / max(1, len(records)), 3),
             "median_schedule_seconds": sorted(r["seconds"] for r in records)[len(records) // 2] if records else 0,
             "schedule_seconds": round(spent, 1), "fault_free_job_seconds": base_seconds,
@@ -434,7 +437,7 @@ def table(result):
     actions = sorted(actions)
     out = ["# Hostile-peer schedules (issue 25)", "",
            f"{result['schedules']} seeded schedules, seed {result['seed']} (replay: `tests/hostile_run.py --seed "
-           f"{result['seed']}`), {result['seconds']} s in all (setup included), {result['seconds_per_schedule']} s per "
+           f"{result['seed']}`) on {result['commit']}, {result['seconds']} s in all (setup included), {result['seconds_per_schedule']} s per "
            f"schedule (median {result['median_schedule_seconds']} s); "
            f"CPU: {result['cpu']}, {result['cores']} cores.", "",
            "Outcomes: " + ", ".join(f"{k} {v}" for k, v in sorted(result["outcomes"].items())) + ".", "",
