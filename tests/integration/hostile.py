@@ -27,6 +27,10 @@ the worker, SIGCONT after `seconds`), signal (any signal to any process:
 `target`, `sig`, `resume_after`), call (a function of the link and frame).
 On requests: kill, stop, signal, cut, call.
 
+With joining=True the roles turn: a worker started with --join connects to
+the proxy, which dials the coordinator (its `target`); Link.peer is then
+the address the coordinator names that worker by.
+
 Stdlib only (/usr/bin/python3), threads and blocking sockets: each link
 has a pump per direction, and a delay holds its direction's stream, as a
 slow worker would.
@@ -40,14 +44,11 @@ import socket
 import struct
 import threading
 import time
-from pathlib import Path
 
 HEADER = struct.Struct("<2sBcII")  # magic, version, type, payload length, id
 MAGIC, VERSION = b"TS", 5
 PIECE = struct.Struct("<cQQ")  # an 'M' piece: the message's type, total, offset
 
-# Frame types a worker sends the coordinator (replies), and their names.
-REPLY_TYPES = "ICNRVGTQHE"
 NO_INDEX = 0xFFFFFFFF
 
 
@@ -155,7 +156,8 @@ def parse_request(f):
             info["set"] = struct.unpack_from("<I", p)[0]
         elif f.type == "T":
             (info["set"], info["image"], info["seq"], info["tw"], info["th"], _, _, info["pass"],
-             info["ntiles"]) = struct.unpack_from("<IIQIIQQII", p)
+             ntiles) = struct.unpack_from("<IIQIIQQII", p)
+            info["tiles"] = struct.unpack_from(f"<{ntiles}I", p, 48)
         elif f.type == "C":
             info["millis"] = struct.unpack_from("<I", p)[0]
     except struct.error:
@@ -168,8 +170,10 @@ def parse_request(f):
 def reply_payload(rtype, req, rng, body="plausible"):
     """The payload of a reply of type rtype to request req (a Frame, or None
     for an unsolicited one), plausible or damaged as `body` says:
-    plausible, wrong-set, wrong-gen, wrong-nq, out-of-slice, out-of-set,
-    garbage."""
+    plausible, wrong-set, wrong-gen, wrong-nq (a 'V' or 'T' answer's count
+    off by one), out-of-slice, out-of-set ('V': an index outside the
+    worker's slice, or past the set; 'T': an entry that is no patch
+    centre), garbage (random bytes)."""
     info = req.info if req is not None and req.type == rtype else {}
     if body == "garbage":
         return rng.randbytes(rng.choice([0, 1, 3, 7, 16, 40]))
@@ -192,8 +196,14 @@ def reply_payload(rtype, req, rng, body="plausible"):
         text = b"a hostile peer's error"
         return struct.pack("<iH", -5, len(text)) + text
     if rtype == "T":
-        n = info.get("ntiles", 1) * 64 * 64
-        return struct.pack("<IIQI", set_id, info.get("pass", 0), 1000, n) + b"\x02\x00\x02\x00" * n
+        n = pass_entries(info) if "tiles" in info else 64 * 64
+        if body == "wrong-nq":
+            n += rng.choice([-1, 1])
+        # (2, 2) is a patch centre of any source (5x5 patches: the tests');
+        # (0, 0) is none.
+        entry = b"\0\0\0\0" if body in ("out-of-slice", "out-of-set") else b"\2\0\2\0"
+        pass_no = info.get("pass", 0) + (body == "wrong-gen")  # a pass has no generation: another pass
+        return struct.pack("<IIQI", set_id, pass_no, 1000, n) + entry * n
     if rtype == "V":
         nq = info.get("nq", rng.randrange(1, 64))
         if body == "wrong-nq":
@@ -202,6 +212,17 @@ def reply_payload(rtype, req, rng, body="plausible"):
         results = b"".join(struct.pack("<IQ", index, 0) for _ in range(nq))
         return struct.pack("<IIIQQ", set_id, gen, nq, 1000, nq) + results
     return rng.randbytes(8)
+
+
+def pass_entries(info):
+    """The field entries a 'T' request's tiles hold: 64x64 tiles, row-major
+    over its tw x th field, cut at the edges (PROTOCOL.md, `T`)."""
+    ntx = (info["tw"] + 63) // 64
+    n = 0
+    for t in info["tiles"]:
+        x0, y0 = t % ntx * 64, t // ntx * 64
+        n += (min(x0 + 64, info["tw"]) - x0) * (min(y0 + 64, info["th"]) - y0)
+    return n
 
 
 def forged_index(req, rng, body):
@@ -615,7 +636,3 @@ def ready_lines(log):
     """The `worker N (PEER, ...) ready` lines as (id, peer) tuples."""
     import re
     return [(int(m.group(1)), m.group(2)) for m in re.finditer(r"worker (\d+) \(([^,\s)]+), [^)\n]*\) ready", log)]
-
-
-def read_outputs(paths):
-    return tuple(Path(p).read_bytes() for p in paths)

@@ -206,3 +206,30 @@ def test_a_few_seeded_schedules(data, tmp_path):
 def test_seeded_schedules(data, tmp_path):
     """20 schedules over the six engines."""
     run_schedules(20, tmp_path)
+
+
+def test_the_proxy_reads_frames_cut_anywhere_and_joins_pieces():
+    """The harness's own reader: frames fed a byte at a time, a message in
+    'M' pieces coming out whole, a bad start refused; and forged indices
+    landing where they are meant to."""
+    from hostile import PIECE, Frame, FrameReader, ProtocolViolation, forged_index, frame_bytes
+    body = bytes(range(200))
+    pieces = b"".join(frame_bytes("M", 7, PIECE.pack(b"N", len(body), off) + body[off:off + 64])
+                      for off in range(0, len(body), 64))
+    stream = frame_bytes("V", 1, b"abc") + pieces + frame_bytes("Q", 9)
+    reader, got = FrameReader(), []
+    for i in range(len(stream)):
+        reader.feed(stream[i:i + 1])
+        got += reader.frames()
+    assert [(f.type, f.id, f.payload) for f in got] == [("V", 1, b"abc"), ("N", 7, body), ("Q", 9, b"")]
+    reader.feed(b"XX" + stream[2:12])
+    with pytest.raises(ProtocolViolation):
+        reader.frames()
+    req = Frame("V", 3, b"")
+    req.info = {"slice": [(100, 10, 20), (50, 0, 50)]}  # class 0: vectors 10..19 of 100; class 1: all 50
+    rng = random.Random(1)
+    for _ in range(50):
+        assert forged_index(req, rng, "plausible") in (10, 19, 100, 149)
+        i = forged_index(req, rng, "out-of-slice")
+        assert i < 150 and not (10 <= i < 20 or 100 <= i < 150)
+        assert forged_index(req, rng, "out-of-set") >= 150
