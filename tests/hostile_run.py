@@ -31,8 +31,13 @@ one schedule of it (its rules are in the JSON with the seed). Writes
 OUT/hostile.json and OUT/hostile.md: the outcomes per engine and action,
 the CPU, the seed and the time per schedule.
 
+Two engines run at once (--parallel), each with its own coordinator and
+workers: much of a schedule is waiting (a deadline, a worker dialled again
+every 0.5 s), so the two cores stay busy.
+
 Usage: tests/hostile_run.py [--schedules 2000] [--seed S] [--engines a,b]
-       [--batch 50] [--build build] [--out bench/results] [--only K]
+       [--batch 50] [--parallel 2] [--build build] [--out bench/results]
+       [--only K]
 """
 import argparse
 import json
@@ -44,6 +49,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections import Counter, defaultdict
 from pathlib import Path
@@ -214,6 +220,7 @@ class Batch:
         self.honest = self.worker()
         self.hostile = self.worker()
         self.hostiles = [self.hostile]
+        self.hung = []
         self.proxy = HostileProxy(self.hostile.addr, self.hostile)
         self.server = Daemon([build / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", self.dir / "spool",
                               "--workers", f"{self.honest.addr},{self.proxy.addr}", *SERVER_ARGS],
@@ -329,18 +336,37 @@ class Batch:
         # SIGCONT below, and it would not exit on SIGTERM.
         self.proxy.arm([])
         self.proxy.close()
+        self.hung = []
         for d in (self.server, self.honest, *self.hostiles):
             if d.alive():
                 d.proc.send_signal(signal.SIGCONT)
+                d.proc.send_signal(signal.SIGTERM)
+                try:
+                    d.proc.wait(timeout=20)
+                except subprocess.TimeoutExpired:  # what its threads are doing, for the report
+                    self.hung.append(f"{d.name} (pid {d.proc.pid}) ignored SIGTERM: {threads_of(d.proc.pid)}")
             d.stop()
 
     def faults(self):
-        return [f for d in (self.server, self.honest, *self.hostiles) for f in d.faults()]
+        return [f for d in (self.server, self.honest, *self.hostiles) for f in d.faults()] + self.hung
 
 
 def _dropped(log):
     from hostile import dropped_lines
     return dropped_lines(log)
+
+
+def threads_of(pid):
+    """Each thread's state and kernel stack's top (/proc, as root)."""
+    out = []
+    for task in sorted(Path(f"/proc/{pid}/task").iterdir()):
+        try:
+            state = (task / "stat").read_text().rsplit(")", 1)[1].split()[0]
+            stack = [line.split()[-1] for line in (task / "stack").read_text().splitlines()[:4]]
+            out.append(f"{task.name} {state} {(task / 'wchan').read_text()} {'<'.join(stack)}")
+        except OSError as e:
+            out.append(f"{task.name} ({e.strerror})")
+    return "; ".join(out)
 
 
 def cpu_model():
@@ -351,17 +377,57 @@ def cpu_model():
 
 # ---- the run ----------------------------------------------------------------------
 
-def run_schedules(n, seed, engines, build, data, batch_size=50, only=None, progress=print, workdir=None):
+def run_engine(e, ks, seed, want, counts, base_seconds, root, build, scenes, batch_size, out, progress):
+    """Engine e's schedules ks, batch_size to a coordinator; records go to
+    out["records"], the ones that must never happen also to out["problems"]."""
+    nbatch = 0
+    while ks:
+        b = Batch(e, root, build, scenes, pieces=nbatch % 2 == 1)
+        nbatch += 1
+        try:
+            if e not in counts:  # the frames of a fault-free job through the proxy
+                rec = b.run([], want, None)
+                assert rec["outcome"] == "identical", f"{e}: the fault-free job through the proxy: {rec}"
+                counts[e], base_seconds[e] = Counter(b.proxy.counts), rec["seconds"]
+            for _ in range(batch_size):
+                if not ks:
+                    break
+                k = ks.pop(0)
+                specs = draw_schedule(random.Random(f"{seed}:{k}"), counts[e])
+                rec = b.run(specs, want, counts[e])
+                rec["schedule"], rec["pieces"] = k, b.pieces
+                if rec["outcome"] == "identical":
+                    rec.pop("events", None)  # what the proxy did, kept where it matters
+                out["records"].append(rec)
+                if rec["outcome"] in ("different", "lost"):
+                    out["problems"].append(rec)
+                    progress(f"schedule {k} ({e}): {rec['outcome']}: {rec.get('why', '')} rules {specs}")
+                done = len(out["records"])
+                if done % 50 == 0:
+                    progress(f"{done}/{out['planned']} schedules, {time.time() - out['t0']:.0f} s, "
+                             f"{dict(Counter(r['outcome'] for r in out['records']))}")
+                if not b.server.alive():
+                    break  # a new coordinator for the rest
+        finally:
+            b.close()
+            for f in b.faults():
+                out["problems"].append({"engine": e, "outcome": "lost", "why": f})
+                progress(f)
+
+
+def run_schedules(n, seed, engines, build, data, batch_size=50, only=None, progress=print, workdir=None,
+                  parallel=1):
     """Runs n schedules spread over the engines (schedule k on engine k mod
-    len(engines)); returns the result dict. The daemons' logs and files go
-    to workdir, kept, or to a temporary directory removed at the end."""
+    len(engines)), `parallel` engines at a time; returns the result dict.
+    The daemons' logs and files go to workdir, kept, or to a temporary
+    directory removed at the end."""
     plan = [(k, engines[k % len(engines)]) for k in range(n)]
     if only is not None:
         plan = [plan[only]]
     engines = [e for e in engines if any(pe == e for _, pe in plan)]
     root = Path(workdir) if workdir is not None else Path(tempfile.mkdtemp(prefix="texsyn-hostile-"))
     t0 = time.time()
-    records, problems = [], []
+    out = {"records": [], "problems": [], "planned": len(plan), "t0": t0}
     want, counts, base_seconds = {}, {}, {}
     try:
         scenes = root / "scenes"
@@ -372,95 +438,123 @@ def run_schedules(n, seed, engines, build, data, batch_size=50, only=None, progr
             p = cli(build, *args, "--embedded")
             assert p.returncode == 0, f"{e}: the embedded run failed: {p.stderr}"
             want[e] = tuple(Path(o).read_bytes() for o in outputs)
-        for e in engines:
-            todo = [k for k, pe in plan if pe == e]
-            nbatch = 0
+        todo = list(engines)
+        failures = []
+
+        def drain():
             while todo:
-                b = Batch(e, root, build, scenes, pieces=nbatch % 2 == 1)
-                nbatch += 1
+                e = todo.pop(0)
                 try:
-                    if e not in counts:  # the frames of a fault-free job through the proxy
-                        rec = b.run([], want[e], None)
-                        assert rec["outcome"] == "identical", f"{e}: the fault-free job through the proxy: {rec}"
-                        counts[e], base_seconds[e] = Counter(b.proxy.counts), rec["seconds"]
-                    for _ in range(batch_size):
-                        if not todo:
-                            break
-                        k = todo.pop(0)
-                        specs = draw_schedule(random.Random(f"{seed}:{k}"), counts[e])
-                        rec = b.run(specs, want[e], counts[e])
-                        rec["schedule"], rec["pieces"] = k, b.pieces
-                        records.append(rec)
-                        if rec["outcome"] in ("different", "lost"):
-                            problems.append(rec)
-                            progress(f"schedule {k} ({e}): {rec['outcome']}: {rec.get('why', '')} rules {specs}")
-                        if len(records) % 50 == 0:
-                            progress(f"{len(records)}/{len(plan)} schedules, {time.time() - t0:.0f} s, "
-                                     f"{dict(Counter(r['outcome'] for r in records))}")
-                        if not b.server.alive():
-                            break  # a new coordinator for the rest
-                finally:
-                    b.close()
-                    for f in b.faults():
-                        problems.append({"engine": e, "outcome": "lost", "why": f})
-                        progress(f)
+                    run_engine(e, [k for k, pe in plan if pe == e], seed, want[e], counts, base_seconds, root,
+                               build, scenes, batch_size, out, progress)
+                except Exception as x:  # reported after the others end
+                    failures.append(x)
+
+        threads = [threading.Thread(target=drain) for _ in range(max(1, parallel))]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        if failures:
+            raise failures[0]
     finally:
         if workdir is None:
             shutil.rmtree(root, ignore_errors=True)
     elapsed = time.time() - t0
+    records = sorted(out["records"], key=lambda r: r["schedule"])
     model, cores = cpu_model()
     spent = sum(r["seconds"] for r in records)
     commit = subprocess.run(["git", "-C", str(REPO), "describe", "--always", "--dirty"], capture_output=True,
                             text=True).stdout.strip()
-    return {"seed": seed, "commit": commit, "cpu": model, "cores": cores, "schedules": len(records),
-            "seconds": round(elapsed, 1),
+    return {"seed": seed, "commit": commit, "cpu": model, "cores": cores, "parallel": parallel,
+            "schedules": len(records), "seconds": round(elapsed, 1),
             "seconds_per_schedule": round(elapsed / max(1, len(records)), 3),
             "median_schedule_seconds": sorted(r["seconds"] for r in records)[len(records) // 2] if records else 0,
             "schedule_seconds": round(spent, 1), "fault_free_job_seconds": base_seconds,
             "frames_per_job": {e: {f"{s} {t}": c for (s, t), c in sorted(counts[e].items())} for e in counts},
-            "outcomes": dict(Counter(r["outcome"] for r in records)), "problems": problems, "records": records}
+            "outcomes": dict(Counter(r["outcome"] for r in records)), "problems": out["problems"],
+            "records": records}
 
 
-def table(result):
-    """The markdown report: outcomes per engine and action."""
-    cells = defaultdict(Counter)
-    actions = set()
-    for r in result["records"]:
-        a = label(r["rules"][0]) if r["rules"] else "none"
-        actions.add(a)
-        c = cells[r["engine"], a]
-        c[r["outcome"]] += 1
-        c["n"] += 1
-        c["fired"] += bool(r.get("fired") and r["fired"][0])
-        c["dropped"] += bool(r.get("dropped"))
-    engines = [e for e in ENGINES if any(k[0] == e for k in cells)]
-    actions = sorted(actions)
-    out = ["# Hostile-peer schedules (issue 25)", "",
-           f"{result['schedules']} seeded schedules, seed {result['seed']} (replay: `tests/hostile_run.py --seed "
-           f"{result['seed']}`) on {result['commit']}, {result['seconds']} s in all (setup included), {result['seconds_per_schedule']} s per "
-           f"schedule (median {result['median_schedule_seconds']} s); "
-           f"CPU: {result['cpu']}, {result['cores']} cores.", "",
-           "Outcomes: " + ", ".join(f"{k} {v}" for k, v in sorted(result["outcomes"].items())) + ".", "",
-           "Each cell: identical / failed with a reason / different / lost (of n; the trigger fired in f; the "
-           "hostile worker dropped in d). Columns: the schedule's first rule.", "",
-           "| engine | " + " | ".join(actions) + " |", "|---|" + "---|" * len(actions)]
-    for e in engines:
-        row = []
-        for a in actions:
-            c = cells[e, a]
-            row.append(f"{c['identical']}/{c['failed']}/{c['different']}/{c['lost']} (n {c['n']}, f {c['fired']}, "
-                       f"d {c['dropped']})" if c["n"] else "")
-        out.append(f"| {e} | " + " | ".join(row) + " |")
+def rule_text(rule):
+    """A rule in a few words, for the report."""
+    what = label(rule)
+    if "forge" in rule:
+        f = rule["forge"]
+        what += f" '{f['type']}' ({f['ident']} id, {f['body']})"
+    return f"{what} on {rule['side']} '{rule['on']}' #{rule['nth']}"
+
+
+def drop_reasons(records):
+    """Why the hostile worker was dropped, addresses and numbers elided: counts."""
     reasons = Counter()
-    for r in result["records"]:
+    for r in records:
         for why in r.get("dropped", []):
             why = re.sub(r"\d+\.\d+\.\d+\.\d+:\d+", "PEER", why)
             reasons[re.sub(r"\d+", "N", why)[:70]] += 1
-    out += ["", "Why the hostile worker was dropped (reason's start, numbers as N):", ""]
-    out += [f"* {n} x {why}" for why, n in reasons.most_common(15)]
+    return dict(reasons.most_common())
+
+
+def compact(result):
+    """The result as written: one short line per schedule (its rules are
+    drawn again from the seed), the problems and the slow schedules whole."""
+    out = {k: v for k, v in result.items() if k != "records"}
+    out["drop_reasons"] = drop_reasons(result["records"])
+    out["slow"] = [r for r in result["records"] if r["seconds"] > 5][:50]
+    out["per_schedule"] = [{"k": r["schedule"], "engine": r["engine"],
+                            "action": label(r["rules"][0]) if r["rules"] else "none", "outcome": r["outcome"],
+                            "s": r["seconds"], "fired": bool(r.get("fired") and r["fired"][0]),
+                            "dropped": bool(r.get("dropped"))} for r in result["records"]]
+    return out
+
+
+def to_json(c):
+    """compact(result) as text: a schedule a line."""
+    head = {k: v for k, v in c.items() if k != "per_schedule"}
+    lines = ",\n".join("  " + json.dumps(r, separators=(",", ":")) for r in c["per_schedule"])
+    return json.dumps(head, indent=1)[:-2] + ',\n "per_schedule": [\n' + lines + "\n ]\n}\n"
+
+
+def table(c):
+    """The markdown report of compact(result): outcomes per action and engine."""
+    cells = defaultdict(Counter)
+    for r in c["per_schedule"]:
+        for key in ((r["action"], r["engine"]), (r["action"], "all")):
+            x = cells[key]
+            x[r["outcome"]] += 1
+            x["n"] += 1
+            x["fired"] += r["fired"]
+            x["dropped"] += r["dropped"]
+            x["slow"] += r["s"] > 5
+    result = c
+    engines = [e for e in ENGINES if any(k[1] == e for k in cells)]
+    actions = sorted({a for a, _ in cells})
+    out = ["# Hostile-peer schedules (issue 25)", "",
+           f"{result['schedules']} seeded schedules, seed {result['seed']} (replay: `tests/hostile_run.py --seed "
+           f"{result['seed']}`), texsyn at {result['commit']}, {result['parallel']} engine(s) at a time: "
+           f"{result['seconds']} s in all (setup included), {result['seconds_per_schedule']} s per schedule "
+           f"(median {result['median_schedule_seconds']} s). CPU: {result['cpu']}, {result['cores']} cores.", "",
+           "Outcomes: " + ", ".join(f"{k} {v}" for k, v in sorted(result["outcomes"].items())) + ".", "",
+           "Each cell: identical / failed with a reason / **different** / **lost**. Rows: the schedule's first "
+           "rule (a fifth of the schedules have a second). The last columns, over every engine: schedules, "
+           "those whose trigger came, those where the hostile worker was dropped, those that took over 5 s.", "",
+           "| action | " + " | ".join(engines) + " | all | n | fired | dropped | > 5 s |",
+           "|---|" + "---|" * (len(engines) + 5)]
+    for a in actions:
+        row = []
+        for e in engines + ["all"]:
+            x = cells[a, e]
+            row.append(f"{x['identical']}/{x['failed']}/{x['different']}/{x['lost']}" if x["n"] else "")
+        t = cells[a, "all"]
+        out.append(f"| {a} | " + " | ".join(row) + f" | {t['n']} | {t['fired']} | {t['dropped']} | {t['slow']} |")
+    out += ["", "Why the hostile worker was dropped (numbers as N):", ""]
+    out += [f"* {n} x {why}" for why, n in list(result["drop_reasons"].items())[:15]]
     if result["problems"]:
-        out += ["", "Problems:", ""] + [f"* {p.get('schedule', '-')} {p['engine']}: {p['outcome']}: "
-                                        f"{p.get('why', '')} {p.get('rules', '')}" for p in result["problems"][:40]]
+        out += ["", "Problems (different or lost):", ""]
+        for p in result["problems"][:40]:
+            rules = "; ".join(rule_text(r) for r in p.get("rules", []))
+            out.append(f"* schedule {p.get('schedule', '-')} ({p['engine']}): {p['outcome']}"
+                       + (f": {p['why']}" if p.get("why") else "") + (f" - {rules}" if rules else ""))
     return "\n".join(out) + "\n"
 
 
@@ -470,10 +564,19 @@ def main():
     ap.add_argument("--seed", type=int, default=None)
     ap.add_argument("--engines", default=",".join(ENGINES))
     ap.add_argument("--batch", type=int, default=50, help="schedules per coordinator")
+    ap.add_argument("--parallel", type=int, default=2, help="engines run at once, each with its coordinator")
     ap.add_argument("--only", type=int, default=None, help="replay schedule K of the seed's run only")
+    ap.add_argument("--table", default=None, help="only write the report of this results JSON again")
     ap.add_argument("--build", default="build")
     ap.add_argument("--out", default=str(REPO / "bench" / "results"))
     a = ap.parse_args()
+    if a.table is not None:
+        c = json.loads(Path(a.table).read_text())
+        if "records" in c:  # a whole result, as run_schedules returns it
+            c = compact(c)
+            Path(a.table).write_text(to_json(c))
+        (Path(a.table).parent / "hostile.md").write_text(table(c))
+        return 0
     build = Path(a.build).resolve()
     os.environ["TEXSYN_BUILD"] = str(build)
     data = Path(os.environ.get("TEXSYN_DATA") or subprocess.run(["bash", str(REPO / "tests/test-data.sh")],
@@ -482,13 +585,14 @@ def main():
     print(f"hostile schedules: seed {seed} (replay with --seed {seed})", flush=True)
     engines = a.engines.split(",")
     result = run_schedules(a.schedules, seed, engines, build, data, a.batch, a.only,
-                           progress=lambda s: print(s, flush=True))
+                           progress=lambda s: print(s, flush=True), parallel=a.parallel)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
+    c = compact(result)
     if a.only is None:
-        (out / "hostile.json").write_text(json.dumps(result, indent=1) + "\n")
-        (out / "hostile.md").write_text(table(result))
-    print(table(result))
+        (out / "hostile.json").write_text(to_json(c))
+        (out / "hostile.md").write_text(table(c))
+    print(table(c))
     bad = result["outcomes"].get("different", 0) + result["outcomes"].get("lost", 0) + \
         sum(1 for p in result["problems"] if "schedule" not in p)
     print(f"seed {seed}: {result['outcomes']}; {bad} problem(s)")
