@@ -42,9 +42,9 @@ def outputs(out):
     return Path(out).read_bytes(), Path(str(out) + ".raw").read_bytes()
 
 
-@pytest.fixture
-def want(texsyn, data, tmp_path):
-    out = tmp_path / "embedded.png"
+@pytest.fixture(scope="module")
+def want(texsyn, data, tmp_path_factory):
+    out = tmp_path_factory.mktemp("embedded") / "embedded.png"
     run(texsyn, *job(data, out), "--embedded")
     return outputs(out)
 
