@@ -17,6 +17,8 @@
 #   make bench-netem  the cluster under added network latency (root: namespaces, netem or
 #                   bench/delay_relay) and a fitted performance model; writes
 #                   bench/results/netem.{json,md,png}
+#   make test-hostile  SCHEDULES (2000) seeded schedules of a hostile worker over every engine;
+#                   writes bench/results/hostile.{json,md}
 #   make soak       SOAK_MINUTES (default 10) of small jobs on 3 workers that are killed,
 #                   stalled and replaced; writes bench/results/soak.{json,txt}
 #   make test-deploy  (root) deploy/: the Slurm batch script on a single-node Slurm,
@@ -204,6 +206,18 @@ test-faults: all
 	  tests/integration/test_resume.py && \
 	TEXSYN_BUILD=$(abspath $(BUILD)) TEXSYN_LONG_TESTS=1 /usr/bin/python3 -m pytest -q -p no:cacheprovider \
 	  --durations=5 -m long tests/integration/test_cluster.py tests/integration/test_modbus.py
+	TEXSYN_DATA=$$(bash tests/test-data.sh) TEXSYN_BUILD=$(abspath $(BUILD)) TEXSYN_LONG_TESTS=1 /usr/bin/python3 -m pytest \
+	  -q -p no:cacheprovider --durations=5 -m long tests/integration/test_hostile.py tests/integration/test_phases.py
+
+# Seeded random schedules of a hostile worker (issue 25) over every engine:
+# SCHEDULES (default 2000, about 35 minutes on 2 cores), the seed printed and
+# new per run, SEED=S to replay one; writes bench/results/hostile.{json,md}.
+# tests/hostile_run.py says what a schedule is and what it checks.
+SCHEDULES ?= 2000
+.PHONY: test-hostile
+test-hostile: $(BINS) $(IMAGE_LIB) $(BUILD)/bench/mkscene
+	TEXSYN_DATA=$$(bash tests/test-data.sh) /usr/bin/python3 tests/hostile_run.py --build $(BUILD) \
+	  --schedules $(SCHEDULES) $(if $(SEED),--seed $(SEED))
 
 # Every unit test under valgrind memcheck (about 4 minutes; not in `test`).
 test-valgrind: deps all

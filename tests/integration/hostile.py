@@ -21,11 +21,15 @@ reply), delay (hold the stream `ms`), drop (optionally cut the link
 `cut_after` seconds later), truncate (`how`="payload": a shorter body with
 a consistent header; "half": half the frame's bytes, then the link is cut,
 or the worker killed with then="kill"), forge (inject a frame built by a
-Forge before, after or instead of the reply; `hold` seconds before the
-real one follows), cut (close the link), kill / stop (SIGKILL or SIGSTOP
+Forge `place`d before, after or instead of the reply; `hold` seconds before
+the real one follows), cut (close the link), kill / stop (SIGKILL or SIGSTOP
 the worker, SIGCONT after `seconds`), signal (any signal to any process:
 `target`, `sig`, `resume_after`), call (a function of the link and frame).
 On requests: kill, stop, signal, cut, call.
+
+With joining=True the roles turn: a worker started with --join connects to
+the proxy, which dials the coordinator (its `target`); Link.peer is then
+the address the coordinator names that worker by.
 
 Stdlib only (/usr/bin/python3), threads and blocking sockets: each link
 has a pump per direction, and a delay holds its direction's stream, as a
@@ -40,14 +44,11 @@ import socket
 import struct
 import threading
 import time
-from pathlib import Path
 
 HEADER = struct.Struct("<2sBcII")  # magic, version, type, payload length, id
 MAGIC, VERSION = b"TS", 5
 PIECE = struct.Struct("<cQQ")  # an 'M' piece: the message's type, total, offset
 
-# Frame types a worker sends the coordinator (replies), and their names.
-REPLY_TYPES = "ICNRVGTQHE"
 NO_INDEX = 0xFFFFFFFF
 
 
@@ -155,7 +156,8 @@ def parse_request(f):
             info["set"] = struct.unpack_from("<I", p)[0]
         elif f.type == "T":
             (info["set"], info["image"], info["seq"], info["tw"], info["th"], _, _, info["pass"],
-             info["ntiles"]) = struct.unpack_from("<IIQIIQQII", p)
+             ntiles) = struct.unpack_from("<IIQIIQQII", p)
+            info["tiles"] = struct.unpack_from(f"<{ntiles}I", p, 48)
         elif f.type == "C":
             info["millis"] = struct.unpack_from("<I", p)[0]
     except struct.error:
@@ -168,8 +170,10 @@ def parse_request(f):
 def reply_payload(rtype, req, rng, body="plausible"):
     """The payload of a reply of type rtype to request req (a Frame, or None
     for an unsolicited one), plausible or damaged as `body` says:
-    plausible, wrong-set, wrong-gen, wrong-nq, out-of-slice, out-of-set,
-    garbage."""
+    plausible, wrong-set, wrong-gen, wrong-nq (a 'V' or 'T' answer's count
+    off by one), out-of-slice, out-of-set ('V': an index outside the
+    worker's slice, or past the set; 'T': an entry that is no patch
+    centre), garbage (random bytes)."""
     info = req.info if req is not None and req.type == rtype else {}
     if body == "garbage":
         return rng.randbytes(rng.choice([0, 1, 3, 7, 16, 40]))
@@ -192,8 +196,14 @@ def reply_payload(rtype, req, rng, body="plausible"):
         text = b"a hostile peer's error"
         return struct.pack("<iH", -5, len(text)) + text
     if rtype == "T":
-        n = info.get("ntiles", 1) * 64 * 64
-        return struct.pack("<IIQI", set_id, info.get("pass", 0), 1000, n) + b"\x02\x00\x02\x00" * n
+        n = pass_entries(info) if "tiles" in info else 64 * 64
+        if body == "wrong-nq":
+            n += rng.choice([-1, 1])
+        # (2, 2) is a patch centre of any source (5x5 patches: the tests');
+        # (0, 0) is none.
+        entry = b"\0\0\0\0" if body in ("out-of-slice", "out-of-set") else b"\2\0\2\0"
+        pass_no = info.get("pass", 0) + (body == "wrong-gen")  # a pass has no generation: another pass
+        return struct.pack("<IIQI", set_id, pass_no, 1000, n) + entry * n
     if rtype == "V":
         nq = info.get("nq", rng.randrange(1, 64))
         if body == "wrong-nq":
@@ -202,6 +212,17 @@ def reply_payload(rtype, req, rng, body="plausible"):
         results = b"".join(struct.pack("<IQ", index, 0) for _ in range(nq))
         return struct.pack("<IIIQQ", set_id, gen, nq, 1000, nq) + results
     return rng.randbytes(8)
+
+
+def pass_entries(info):
+    """The field entries a 'T' request's tiles hold: 64x64 tiles, row-major
+    over its tw x th field, cut at the edges (PROTOCOL.md, `T`)."""
+    ntx = (info["tw"] + 63) // 64
+    n = 0
+    for t in info["tiles"]:
+        x0, y0 = t % ntx * 64, t // ntx * 64
+        n += (min(x0 + 64, info["tw"]) - x0) * (min(y0 + 64, info["th"]) - y0)
+    return n
 
 
 def forged_index(req, rng, body):
@@ -311,6 +332,8 @@ class Link:
         self.last_id = 0
         self.slices = {}  # set id -> its classes in the worker's slice ('N')
         self.closed = False
+        self.unanswered_start = False  # the coordinator's first frame answers the worker's 'I'
+        self.peer = None  # the worker's address as the coordinator names it
 
     def close(self):
         self.closed = True
@@ -318,6 +341,9 @@ class Link:
 
     def note_request(self, f):
         f.info = parse_request(f)
+        if self.unanswered_start:
+            self.unanswered_start = False
+            return
         if f.type == "N" and "classes" in f.info:
             self.slices[f.info["set"]] = f.info["classes"]
         if f.type == "V":
@@ -355,9 +381,12 @@ class HostileProxy:
     the worker process (kill/stop actions); both may be changed between
     schedules (retarget)."""
 
-    def __init__(self, target, victim=None, rules=()):
+    def __init__(self, target, victim=None, rules=(), joining=False):
         self.target, self.victim = target, Victim(victim) if victim is not None else None
+        self.joining = joining  # the worker connects (--join), the proxy dials the coordinator
         self.lock = threading.Lock()
+        self.idle = threading.Condition(self.lock)
+        self.acting = 0  # frames whose rules are being applied
         self.rules = list(rules)
         self.events = []  # what the proxy did, in order
         self.links = []
@@ -372,8 +401,11 @@ class HostileProxy:
     # -- control
 
     def arm(self, rules):
-        """A new schedule: counting starts again from here."""
-        with self.lock:
+        """A new schedule: counting starts again from here, once the
+        actions under way have ended (none of the last schedule's can land
+        in this one)."""
+        with self.idle:
+            self.idle.wait_for(lambda: self.acting == 0, timeout=30)
             self.rules = list(rules)
             self.counts.clear()
             self.events = []
@@ -416,7 +448,9 @@ class HostileProxy:
             for s in (a, b):
                 s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             n += 1
-            link = Link(self, a, b, n)
+            link = Link(self, b, a, n) if self.joining else Link(self, a, b, n)
+            link.unanswered_start = self.joining
+            link.peer = "%s:%d" % b.getsockname() if self.joining else self.addr
             self.links = [k for k in self.links if not k.closed] + [link]
             threading.Thread(target=self.pump_requests, args=(link,), daemon=True).start()
             threading.Thread(target=self.pump_replies, args=(link,), daemon=True).start()
@@ -432,7 +466,13 @@ class HostileProxy:
                 r.seen += 1
                 if r.seen == r.nth:
                     out.append(r)
+            self.acting += bool(out)
         return out
+
+    def acted(self):
+        with self.idle:
+            self.acting -= 1
+            self.idle.notify_all()
 
     def pump_requests(self, link):
         """Coordinator -> worker: bytes forwarded as they come; frames read
@@ -447,8 +487,13 @@ class HostileProxy:
                 frames = reader.frames()
                 for f in frames:
                     link.note_request(f)
-                    for r in self.due("request", f):
-                        self.act_on_request(link, r, f)
+                    rules = self.due("request", f)
+                    try:
+                        for r in rules:
+                            self.act_on_request(link, r, f)
+                    finally:
+                        if rules:
+                            self.acted()
                 link.worker.sendall(data)
         except (OSError, ProtocolViolation):
             pass
@@ -505,10 +550,11 @@ class HostileProxy:
                     if not rules:
                         link.coord.sendall(f.raw)
                         continue
-                    try:
+                    try:  # one action a frame: a rule due with another is not applied
                         held = self.act_on_reply(link, rules[0], f)
                     finally:  # also when the coordinator is gone
                         rules[0].done.set()
+                        self.acted()
                     if link.closed:
                         return
         except (OSError, ProtocolViolation):
@@ -549,13 +595,13 @@ class HostileProxy:
         elif a == "forge":
             forged = p["forge"].build(link, f)
             r.note = f"{p['forge']} id {struct.unpack_from('<I', forged, 8)[0]:#x}"
-            where = p.get("where", "before")
-            if where == "before":
+            place = p.get("place", "before")
+            if place == "before":
                 send(forged)
                 if p.get("hold"):
                     time.sleep(p["hold"])
                 send(f.raw)
-            elif where == "after":
+            elif place == "after":
                 send(f.raw + forged)
             else:  # instead
                 send(forged)
@@ -590,7 +636,3 @@ def ready_lines(log):
     """The `worker N (PEER, ...) ready` lines as (id, peer) tuples."""
     import re
     return [(int(m.group(1)), m.group(2)) for m in re.finditer(r"worker (\d+) \(([^,\s)]+), [^)\n]*\) ready", log)]
-
-
-def read_outputs(paths):
-    return tuple(Path(p).read_bytes() for p in paths)

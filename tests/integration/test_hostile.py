@@ -12,8 +12,14 @@
   bytes.
 
 And the harness itself: a schedule of no faults, and one of delays only,
-give the embedded bytes with no worker dropped.
+give the embedded bytes with no worker dropped; and a few of the seeded
+random schedules of tests/hostile_run.py (5 here, 20 in `make
+test-faults`, 2,000 in `make test-hostile`): the seed is printed and in
+any failure; TEXSYN_HOSTILE_SEED=S replays it.
 """
+import importlib.util
+import os
+import random
 import re
 import struct
 import time
@@ -21,7 +27,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import BUILD, Daemon, run
+from conftest import BUILD, DATA, REPO, Daemon, run
 from hostile import Forge, HostileProxy, Rule, dropped_lines, ready_lines
 
 SIZE = "192x144"  # 27,648 copy-map entries, as in the issue
@@ -36,9 +42,9 @@ def outputs(out):
     return Path(out).read_bytes(), Path(str(out) + ".raw").read_bytes()
 
 
-@pytest.fixture
-def want(texsyn, data, tmp_path):
-    out = tmp_path / "embedded.png"
+@pytest.fixture(scope="module")
+def want(texsyn, data, tmp_path_factory):
+    out = tmp_path_factory.mktemp("embedded") / "embedded.png"
     run(texsyn, *job(data, out), "--embedded")
     return outputs(out)
 
@@ -171,3 +177,59 @@ def test_the_harness_alone_changes_nothing(data, cluster, tmp_path, want, schedu
     if schedule == "delays":
         assert all(p.fired() for p in proxies), "no delay was applied"
     assert all(p.counts["reply", "V"] > 0 for p in proxies), "a worker never answered through its proxy"
+
+
+def run_schedules(n, tmp_path):
+    spec = importlib.util.spec_from_file_location("hostile_run", REPO / "tests" / "hostile_run.py")
+    runner = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(runner)
+    seed = int(os.environ.get("TEXSYN_HOSTILE_SEED") or random.SystemRandom().randrange(1 << 32))
+    print(f"hostile schedules: seed {seed}")
+    result = runner.run_schedules(n, seed, runner.ENGINES, BUILD, DATA, progress=lambda line: None,
+                                   workdir=tmp_path)
+    replay = f"seed {seed} (replay: TEXSYN_HOSTILE_SEED={seed}, or tests/hostile_run.py --schedules {n} --seed {seed})"
+    assert not result["problems"], f"{replay}: " + "\n".join(
+        f"schedule {p.get('schedule', '-')} ({p['engine']}): {p['outcome']}: {p.get('why', '')} rules "
+        f"{p.get('rules', '')} proxy {p.get('events', '')}" for p in result["problems"])
+    assert result["schedules"] == n, f"{replay}: {result['schedules']} of {n} schedules ran"
+    assert set(result["outcomes"]) <= {"identical", "failed"}, f"{replay}: {result['outcomes']}"
+    return result
+
+
+def test_a_few_seeded_schedules(data, tmp_path):
+    """5 schedules, one on each of 5 engines: every job identical to the
+    embedded run or failed with a reason."""
+    run_schedules(5, tmp_path)
+
+
+@pytest.mark.long
+def test_seeded_schedules(data, tmp_path):
+    """20 schedules over the six engines."""
+    run_schedules(20, tmp_path)
+
+
+def test_the_proxy_reads_frames_cut_anywhere_and_joins_pieces():
+    """The harness's own reader: frames fed a byte at a time, a message in
+    'M' pieces coming out whole, a bad start refused; and forged indices
+    landing where they are meant to."""
+    from hostile import PIECE, Frame, FrameReader, ProtocolViolation, forged_index, frame_bytes
+    body = bytes(range(200))
+    pieces = b"".join(frame_bytes("M", 7, PIECE.pack(b"N", len(body), off) + body[off:off + 64])
+                      for off in range(0, len(body), 64))
+    stream = frame_bytes("V", 1, b"abc") + pieces + frame_bytes("Q", 9)
+    reader, got = FrameReader(), []
+    for i in range(len(stream)):
+        reader.feed(stream[i:i + 1])
+        got += reader.frames()
+    assert [(f.type, f.id, f.payload) for f in got] == [("V", 1, b"abc"), ("N", 7, body), ("Q", 9, b"")]
+    reader.feed(b"XX" + stream[2:12])
+    with pytest.raises(ProtocolViolation):
+        reader.frames()
+    req = Frame("V", 3, b"")
+    req.info = {"slice": [(100, 10, 20), (50, 0, 50)]}  # class 0: vectors 10..19 of 100; class 1: all 50
+    rng = random.Random(1)
+    for _ in range(50):
+        assert forged_index(req, rng, "plausible") in (10, 19, 100, 149)
+        i = forged_index(req, rng, "out-of-slice")
+        assert i < 150 and not (10 <= i < 20 or 100 <= i < 150)
+        assert forged_index(req, rng, "out-of-set") >= 150
