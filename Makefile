@@ -206,7 +206,8 @@ test-faults: all
 	  tests/integration/test_resume.py && \
 	TEXSYN_BUILD=$(abspath $(BUILD)) TEXSYN_LONG_TESTS=1 /usr/bin/python3 -m pytest -q -p no:cacheprovider \
 	  --durations=5 -m long tests/integration/test_cluster.py tests/integration/test_modbus.py \
-	  tests/integration/test_crashpoints.py
+	  tests/integration/test_crashpoints.py \
+	  tests/integration/test_disk_faults.py
 
 # Every unit test under valgrind memcheck (about 4 minutes; not in `test`).
 test-valgrind: deps all

@@ -177,24 +177,33 @@ static void remove_temporaries(const char *dir) {
   closedir(d);
 }
 
-/* Removes a job's directory and the files in it. */
+/* Removes a job's directory and the files in it: 0, or -1 with errno
+ * telling the first failure (the other files are removed all the same). */
 static int remove_dir(const char *dir) {
   DIR *d = opendir(dir);
   if (d == NULL) return errno == ENOENT ? 0 : -1;
+  int first = 0;
   struct dirent *e;
   while ((e = readdir(d)) != NULL)
-    if (strcmp(e->d_name, ".") != 0 && strcmp(e->d_name, "..") != 0) unlinkat(dirfd(d), e->d_name, 0);
+    if (strcmp(e->d_name, ".") != 0 && strcmp(e->d_name, "..") != 0 && unlinkat(dirfd(d), e->d_name, 0) != 0 &&
+        first == 0)
+      first = errno;
   closedir(d);
-  return rmdir(dir);
+  if (rmdir(dir) != 0 && first == 0) first = errno;
+  errno = first;
+  return first != 0 ? -1 : 0;
 }
 
 /* The state after a job's last checkpoint (see on_checkpoint). */
 #define JOBS_CHECKPOINT "checkpoint"
 
-static void drop_job_checkpoint(job *jb) {
+/* A checkpoint left behind only takes room: the job is final. */
+static void drop_job_checkpoint(ts_jobs *j, job *jb) {
   char path[JOBS_PATH + 32];
   job_path(jb, JOBS_CHECKPOINT, path, sizeof(path));
-  unlink(path);
+  if (unlink(path) != 0 && errno != ENOENT)
+    jobs_log(j, "job %" PRIu64 ": cannot remove its checkpoint %s: %s; it stays until the job is deleted", jb->id,
+             path, strerror(errno));
 }
 
 /* ---- status ------------------------------------------------------------ */
@@ -242,14 +251,14 @@ static void job_finish(ts_jobs *j, job *jb, int state, const char *text) {
   if (write_atomic(path, buf, (size_t)n, err) != 0) {
     jobs_log(j, "job %" PRIu64 ": %s", jb->id, err);
     if (state == TS_JOB_DONE) {
-      snprintf(why, sizeof(why), "%.400s (its results are written; a restart runs the job again)", err);
+      snprintf(why, sizeof(why), "%.400s; its results are written: a restart of the coordinator brings it back", err);
       state = TS_JOB_FAILED;
       text = why;
     }
   }
   if (state == TS_JOB_DONE) jobs_log(j, "job %" PRIu64 " done in %.2fs", jb->id, ts_now() - jb->started);
   else jobs_log(j, "job %" PRIu64 " %s%s%s", jb->id, ts_job_state_name((uint8_t)state), text[0] ? ": " : "", text);
-  drop_job_checkpoint(jb);
+  drop_job_checkpoint(j, jb);
   uint64_t bytes = dir_bytes(jb->dir); /* the reserve becomes what was written */
   pthread_mutex_lock(&j->lock);
   j->spool_bytes = j->spool_bytes - jb->bytes + bytes;
@@ -486,8 +495,8 @@ static void *runner(void *arg) {
 /* ---- spool ------------------------------------------------------------- */
 
 /* Makes path and the directories above it that are missing, each one
- * made durably (its parent synced). 0, or -1 with errno set. */
-static int mkdir_p(const char *path) {
+ * made durably (make_dir). */
+static int mkdir_p(const char *path, char *err) {
   char buf[JOBS_PATH + 16];
   snprintf(buf, sizeof(buf), "%s", path);
   size_t n = strlen(buf);
@@ -495,8 +504,8 @@ static int mkdir_p(const char *path) {
     if (buf[i] != '/' && buf[i] != '\0') continue;
     char c = buf[i];
     buf[i] = '\0';
-    int made = mkdir(buf, 0755) == 0;
-    if ((!made && errno != EEXIST) || (made && ts_parent_sync(buf) != 0)) return -1;
+    struct stat st;
+    if (stat(buf, &st) != 0 && make_dir(buf, err) != 0) return TS_EIO;
     buf[i] = c;
   }
   return 0;
@@ -701,7 +710,8 @@ static int lock_spool(ts_jobs *j, char *err) {
 static int open_spool(ts_jobs *j, char *err) {
   char path[JOBS_PATH + 16];
   snprintf(path, sizeof(path), "%s/jobs", j->spool);
-  if (mkdir_p(path) != 0) return ts_error(err, TS_EIO, "cannot create the spool %s: %s", path, strerror(errno));
+  char why[TS_ERR_LEN];
+  if (mkdir_p(path, why) != 0) return ts_error(err, TS_EIO, "cannot create the spool %s: %s", path, why);
   return lock_spool(j, err);
 }
 
@@ -907,7 +917,9 @@ int ts_jobs_submit(ts_jobs *j, const char *client, const ts_msg_submit *m, uint6
   snprintf(jb->dir, sizeof(jb->dir), "%s/jobs/%" PRIu64, j->spool, jb->id);
   rc = write_job_files(jb, client, m, &names, err);
   if (rc != 0) {
-    remove_dir(jb->dir);
+    if (remove_dir(jb->dir) != 0)
+      jobs_log(j, "cannot remove %s, a submission refused: %s; remove it by hand before a restart, which would "
+               "run the job if its job.spec is there", jb->dir, strerror(errno));
     unadmit(j, jb);
     free(jb);
     return rc;

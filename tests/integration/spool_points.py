@@ -134,11 +134,19 @@ class Client:
             self.errors.append((f"{what} {name}", p.stderr.strip()))
         return p.returncode == 0
 
+    STEPS = [("submit", "A"), ("watch", "A"), ("fetch", "A"), ("submit", "B"), ("watch", "B"), ("delete", "A"),
+             ("fetch", "B")]
+
     def lifecycle(self, expected):
         """The lifecycle's steps until one fails; whether all were made."""
-        steps = [("submit", "A"), ("watch", "A"), ("fetch", "A"), ("submit", "B"), ("watch", "B"),
-                 ("delete", "A"), ("fetch", "B")]
-        return all(self.step(what, name, expected) for what, name in steps)
+        return all(self.step(what, name, expected) for what, name in self.STEPS)
+
+    def every_step(self, expected):
+        """The lifecycle's steps, going on past a failed one: each step of
+        a job whose submission was acknowledged."""
+        for what, name in self.STEPS:
+            if what == "submit" or name in self.ids:
+                self.step(what, name, expected)
 
 
 def listing(server):
@@ -156,3 +164,27 @@ def job_of(point, spool):
     """The job id a point's path is in (jobs/N/... or jobs/N.deleted), or None."""
     m = re.match(r"jobs/(\d+)(?:\.deleted)?(?:/|$)", point.where(spool))
     return m.group(1) if m else None
+
+
+def counted_lifecycle(texsyn, data, tmp):
+    """The embedded bytes of the lifecycle's jobs, and the spool and the
+    points of an undisturbed lifecycle run in tmp (every step
+    acknowledged): (expected, spool, points)."""
+    expected = expected_outputs(texsyn, data, tmp)
+    spool = tmp / "spool"
+    server = start_server(tmp, spool, "server.log", tmp / "points.log")
+    client = Client(server, tmp, data)
+    assert client.lifecycle(expected), client.errors
+    # Checked here: a module-scoped fixture runs this, out of the sight of
+    # conftest's per-test daemon check.
+    assert server.stop() == 0 and server.faults() == [], server.read_log()
+    points = read_points(tmp / "points.log")
+    assert [p.n for p in points] == list(range(1, len(points) + 1)), "the shim's log has gaps"
+    return expected, spool, points
+
+
+def pick(points, spool, call, where):
+    """The first point of call on a path (in the spool) matching where."""
+    found = [p.n for p in points if p.call == call and re.fullmatch(where, p.where(spool))]
+    assert found, f"no {call} of {where} in the lifecycle:\n" + "\n".join(map(repr, points))
+    return found[0]

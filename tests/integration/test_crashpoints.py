@@ -26,23 +26,9 @@ import signal
 import pytest
 
 from conftest import BUILD, run
-from spool_points import JOBS, Client, expected_outputs, job_of, listing, read_points, ref_of, start_server
+from spool_points import JOBS, Client, counted_lifecycle, job_of, listing, pick, read_points, ref_of, start_server
 
 COMMITS = re.compile(r"(^|/)(job\.spec|state)$|\.deleted$")
-
-
-def lifecycle_points(data, expected, tmp_path):
-    """The points of an undisturbed lifecycle (every step acknowledged)."""
-    tmp = tmp_path
-    spool = tmp / "spool"
-    server = start_server(tmp, spool, "server.log", tmp / "points.log")
-    client = Client(server, tmp, data)
-    assert client.lifecycle(expected), client.errors
-    # Module-scoped: the per-test daemon check does not see this one.
-    assert server.stop() == 0 and server.faults() == [], server.read_log()
-    points = read_points(tmp / "points.log")
-    assert [p.n for p in points] == list(range(1, len(points) + 1)), "the shim's log has gaps"
-    return spool, points
 
 
 def durability_faults(points, spool):
@@ -136,10 +122,7 @@ def crash_at(k, count_points, count_spool, data, expected, tmp_path):
 
 @pytest.fixture(scope="module")
 def counted(texsyn, data, tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("count")
-    expected = expected_outputs(texsyn, data, tmp)
-    spool, points = lifecycle_points(data, expected, tmp)
-    return expected, spool, points
+    return counted_lifecycle(texsyn, data, tmp_path_factory.mktemp("count"))
 
 
 def test_the_lifecycle_keeps_the_durability_order(counted):
@@ -147,13 +130,6 @@ def test_the_lifecycle_keeps_the_durability_order(counted):
     assert durability_faults(points, spool) == []
     calls = {p.call for p in points}
     assert {"open", "write", "fflush", "fsync", "rename", "mkdir", "unlink", "rmdir"} <= calls, calls
-
-
-def pick(points, spool, call, where):
-    """The first point of call on a path (in the spool) matching where."""
-    found = [p.n for p in points if p.call == call and re.fullmatch(where, p.where(spool))]
-    assert found, f"no {call} of {where} in the lifecycle:\n" + "\n".join(map(repr, points))
-    return found[0]
 
 
 def test_killed_at_a_commit_the_restart_loses_and_repeats_nothing(data, counted, tmp_path):
