@@ -110,6 +110,8 @@ BENCH_BINS = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
 # Shims preloaded into texsyn-server by fault tests: a poll() that fails on
 # demand, a rename() that kills the process (tests/preload/).
 PRELOADS = $(BUILD)/tests/libfail_poll.so $(BUILD)/tests/libkill_at_rename.so
+# ... and one that numbers the spool's writes, killing or failing one.
+PRELOADS += $(BUILD)/tests/libspool_fault.so
 all: $(BINS) $(IMAGE_LIB) $(UNIT_BINS) $(BENCH_BINS) $(REPLAY_BINS) $(PRELOADS)
 
 $(BUILD)/%.o: %.c
@@ -205,7 +207,9 @@ test-faults: all
 	  -p no:cacheprovider --durations=5 tests/integration/test_faults.py tests/integration/test_load.py \
 	  tests/integration/test_resume.py && \
 	TEXSYN_BUILD=$(abspath $(BUILD)) TEXSYN_LONG_TESTS=1 /usr/bin/python3 -m pytest -q -p no:cacheprovider \
-	  --durations=5 -m long tests/integration/test_cluster.py tests/integration/test_modbus.py
+	  --durations=5 -m long tests/integration/test_cluster.py tests/integration/test_modbus.py \
+	  tests/integration/test_crashpoints.py \
+	  tests/integration/test_disk_faults.py
 	TEXSYN_DATA=$$(bash tests/test-data.sh) TEXSYN_BUILD=$(abspath $(BUILD)) TEXSYN_LONG_TESTS=1 /usr/bin/python3 -m pytest \
 	  -q -p no:cacheprovider --durations=5 -m long tests/integration/test_hostile.py tests/integration/test_phases.py
 

@@ -144,12 +144,54 @@ FILE *ts_file_create(const char *path, char *tmp, char *err) {
   return f;
 }
 
-int ts_file_commit(FILE *f, const char *tmp, const char *path, int ok, char *err) {
-  ok = fclose(f) == 0 && ok;
-  if (ok && rename(tmp, path) == 0) return 0;
+int ts_dir_sync(const char *dir) {
+  int fd = open(dir, O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (fd < 0) return -1;
+  /* EINVAL: a file system that has nothing to sync for a directory. */
+  int rc = fsync(fd) != 0 && errno != EINVAL ? -1 : 0;
   int e = errno;
-  unlink(tmp);
-  return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(e));
+  close(fd);
+  errno = e;
+  return rc;
+}
+
+int ts_parent_sync(const char *path) {
+  char dir[TS_FILE_TMP_LEN];
+  const char *slash = strrchr(path, '/');
+  if (slash == NULL) return ts_dir_sync(".");
+  size_t n = slash == path ? 1 : (size_t)(slash - path);
+  if (n >= sizeof(dir)) {
+    errno = ENAMETOOLONG;
+    return -1;
+  }
+  memcpy(dir, path, n);
+  dir[n] = '\0';
+  return ts_dir_sync(dir);
+}
+
+/* The bytes reach the disk before the name does (fsync, then rename), and
+ * the name before the caller goes on (the directory's fsync): a caller
+ * that records "done" after its results, or acknowledges a file, can rely
+ * on what it recorded surviving a power loss, never naming an empty or
+ * half-written file. */
+int ts_file_commit(FILE *f, const char *tmp, const char *path, int ok, char *err) {
+  if (ok && (fflush(f) != 0 || ferror(f) || fsync(fileno(f)) != 0)) ok = 0;
+  int e = errno;
+  if (fclose(f) != 0 && ok) {
+    ok = 0;
+    e = errno;
+  }
+  if (ok && rename(tmp, path) != 0) {
+    ok = 0;
+    e = errno;
+  }
+  if (!ok) {
+    unlink(tmp);
+    return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(e));
+  }
+  if (ts_parent_sync(path) != 0)
+    return ts_error(err, TS_EIO, "cannot write %s: syncing its directory: %s", path, strerror(errno));
+  return 0;
 }
 
 int ts_file_write(const char *path, const void *data, size_t len, char *err) {

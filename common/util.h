@@ -30,12 +30,21 @@ int ts_file_read(const char *path, size_t max_bytes, uint8_t **buf, size_t *len,
 /* A file written whole or not at all, so a reader never sees half of it:
  * ts_file_create opens a temporary file beside path (its name in tmp,
  * TS_FILE_TMP_LEN bytes), ts_file_commit closes it and renames it over
- * path - or removes it, when ok is 0 or anything fails. NULL / TS_EIO with
- * a message naming path. ts_file_write does both for bytes in memory. */
+ * path - or removes it, when ok is 0 or anything fails. It is durable when
+ * ts_file_commit returns: the file is fsynced before the rename and its
+ * directory after. NULL / TS_EIO with a message naming path and the
+ * system's reason. ts_file_write does both for bytes in memory. */
 #define TS_FILE_TMP_LEN 4096
 FILE *ts_file_create(const char *path, char *tmp, char *err);
 int ts_file_commit(FILE *f, const char *tmp, const char *path, int ok, char *err);
 int ts_file_write(const char *path, const void *data, size_t len, char *err);
+
+/* Makes the names in directory dir durable (files created, renamed or
+ * removed in it, directories made in it): fsync of the directory itself.
+ * ts_parent_sync does it for the directory holding path. 0, or -1 with
+ * errno set. */
+int ts_dir_sync(const char *dir);
+int ts_parent_sync(const char *path);
 
 /* Numbers in option values and job specs: the whole text is one decimal
  * number (leading white space and a '+' are taken, as strtol does), else

@@ -10,6 +10,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/file.h>
 #include <sys/stat.h>
 #include <time.h>
 #include <unistd.h>
@@ -68,6 +69,7 @@ struct ts_jobs {
   uint64_t last_ended; /* id of the job that ended last */
   int nrunners;
   pthread_t runners[64];
+  int lock_fd; /* SPOOL/lock, flocked: this coordinator's spool */
 };
 
 /* The queue's lines go to the daemon's log (log.h). */
@@ -75,7 +77,10 @@ struct ts_jobs {
 
 /* ---- files ------------------------------------------------------------- */
 
-/* Writes data to path atomically (temporary file, fsync, rename). */
+/* Writes data to path atomically and durably: a temporary file, fsync,
+ * rename, then the directory's fsync (ts_file_commit says why in that
+ * order). A kill at any moment leaves the old file or the new one; once
+ * this returns, a power loss leaves the new one. */
 static int write_atomic(const char *path, const void *data, size_t len, char *err) {
   char tmp[JOBS_PATH + 32];
   snprintf(tmp, sizeof(tmp), "%s.tmp", path);
@@ -87,17 +92,38 @@ static int write_atomic(const char *path, const void *data, size_t len, char *er
     ssize_t k = write(fd, p, left);
     if (k < 0 && errno == EINTR) continue;
     if (k <= 0) {
+      int e = k < 0 ? errno : ENOSPC; /* a regular file that takes no byte is full */
       close(fd);
       unlink(tmp);
-      return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
+      return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(e));
     }
     p += k;
     left -= (size_t)k;
   }
-  if (fsync(fd) != 0 || close(fd) != 0 || rename(tmp, path) != 0) {
-    unlink(tmp);
-    return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
+  int ok = fsync(fd) == 0, e = errno;
+  if (close(fd) != 0 && ok) {
+    ok = 0;
+    e = errno;
   }
+  if (ok && rename(tmp, path) != 0) {
+    ok = 0;
+    e = errno;
+  }
+  if (!ok) {
+    unlink(tmp);
+    return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(e));
+  }
+  if (ts_parent_sync(path) != 0)
+    return ts_error(err, TS_EIO, "cannot write %s: syncing its directory: %s", path, strerror(errno));
+  return 0;
+}
+
+/* Makes directory dir, durably: once this returns, its parent's entry for
+ * it survives a power loss. */
+static int make_dir(const char *dir, char *err) {
+  if (mkdir(dir, 0755) != 0) return ts_error(err, TS_EIO, "cannot create %s: %s", dir, strerror(errno));
+  if (ts_parent_sync(dir) != 0)
+    return ts_error(err, TS_EIO, "cannot create %s: syncing its parent: %s", dir, strerror(errno));
   return 0;
 }
 
@@ -152,24 +178,33 @@ static void remove_temporaries(const char *dir) {
   closedir(d);
 }
 
-/* Removes a job's directory and the files in it. */
+/* Removes a job's directory and the files in it: 0, or -1 with errno
+ * telling the first failure (the other files are removed all the same). */
 static int remove_dir(const char *dir) {
   DIR *d = opendir(dir);
   if (d == NULL) return errno == ENOENT ? 0 : -1;
+  int first = 0;
   struct dirent *e;
   while ((e = readdir(d)) != NULL)
-    if (strcmp(e->d_name, ".") != 0 && strcmp(e->d_name, "..") != 0) unlinkat(dirfd(d), e->d_name, 0);
+    if (strcmp(e->d_name, ".") != 0 && strcmp(e->d_name, "..") != 0 && unlinkat(dirfd(d), e->d_name, 0) != 0 &&
+        first == 0)
+      first = errno;
   closedir(d);
-  return rmdir(dir);
+  if (rmdir(dir) != 0 && first == 0) first = errno;
+  errno = first;
+  return first != 0 ? -1 : 0;
 }
 
 /* The state after a job's last checkpoint (see on_checkpoint). */
 #define JOBS_CHECKPOINT "checkpoint"
 
-static void drop_job_checkpoint(job *jb) {
+/* A checkpoint left behind only takes room: the job is final. */
+static void drop_job_checkpoint(ts_jobs *j, job *jb) {
   char path[JOBS_PATH + 32];
   job_path(jb, JOBS_CHECKPOINT, path, sizeof(path));
-  unlink(path);
+  if (unlink(path) != 0 && errno != ENOENT)
+    jobs_log(j, "job %" PRIu64 ": cannot remove its checkpoint %s: %s; it stays until the job is deleted", jb->id,
+             path, strerror(errno));
 }
 
 /* ---- status ------------------------------------------------------------ */
@@ -205,17 +240,26 @@ static client_share *share_of(ts_jobs *j, const char *client) {
 
 static int job_final(const job *jb) { return jb->st.state >= TS_JOB_DONE; }
 
-/* Records a final state on disk, then in memory. */
+/* Records a final state on disk, then in memory. A "done" that cannot be
+ * recorded is not told to clients: the job fails with the reason, and a
+ * restart, finding no state, runs it again (the same bytes). */
 static void job_finish(ts_jobs *j, job *jb, int state, const char *text) {
-  char path[JOBS_PATH + 16], buf[TS_ERR_LEN + 32], err[TS_ERR_LEN];
+  char path[JOBS_PATH + 16], buf[TS_ERR_LEN + 32], err[TS_ERR_LEN], why[TS_ERR_LEN];
   job_path(jb, "state", path, sizeof(path));
   int n = state == TS_JOB_DONE ? snprintf(buf, sizeof(buf), "done\n")
           : state == TS_JOB_CANCELED ? snprintf(buf, sizeof(buf), "canceled\n")
                                      : snprintf(buf, sizeof(buf), "failed: %s\n", text);
-  if (write_atomic(path, buf, (size_t)n, err) != 0) jobs_log(j, "%s", err);
+  if (write_atomic(path, buf, (size_t)n, err) != 0) {
+    jobs_log(j, "job %" PRIu64 ": %s", jb->id, err);
+    if (state == TS_JOB_DONE) {
+      snprintf(why, sizeof(why), "%.400s; its results are written: a restart of the coordinator brings it back", err);
+      state = TS_JOB_FAILED;
+      text = why;
+    }
+  }
   if (state == TS_JOB_DONE) jobs_log(j, "job %" PRIu64 " done in %.2fs", jb->id, ts_now() - jb->started);
   else jobs_log(j, "job %" PRIu64 " %s%s%s", jb->id, ts_job_state_name((uint8_t)state), text[0] ? ": " : "", text);
-  drop_job_checkpoint(jb);
+  drop_job_checkpoint(j, jb);
   uint64_t bytes = dir_bytes(jb->dir); /* the reserve becomes what was written */
   pthread_mutex_lock(&j->lock);
   j->spool_bytes = j->spool_bytes - jb->bytes + bytes;
@@ -269,6 +313,11 @@ static int write_results(job *jb, const ts_engine_run *run, char *err) {
     job_path(jb, name, path, sizeof(path));
     rc = s->engine->write_output(run, k, path, 0, err);
   }
+  /* Their names durable before job_finish records "done" (which a restart
+   * trusts without looking at the results): the image library fsyncs an
+   * image before its rename but leaves the directory to its caller. */
+  if (rc == 0 && ts_dir_sync(jb->dir) != 0)
+    rc = ts_error(err, TS_EIO, "cannot write the results in %s: syncing the directory: %s", jb->dir, strerror(errno));
   return rc;
 }
 
@@ -446,16 +495,21 @@ static void *runner(void *arg) {
 
 /* ---- spool ------------------------------------------------------------- */
 
-static int mkdir_p(const char *path) {
+/* Makes path and the directories above it that are missing, each one
+ * made durably (make_dir). */
+static int mkdir_p(const char *path, char *err) {
   char buf[JOBS_PATH + 16];
   snprintf(buf, sizeof(buf), "%s", path);
-  for (char *p = buf + 1; *p; p++) {
-    if (*p != '/') continue;
-    *p = '\0';
-    if (mkdir(buf, 0755) != 0 && errno != EEXIST) return -1;
-    *p = '/';
+  size_t n = strlen(buf);
+  for (size_t i = 1; i <= n; i++) {
+    if (buf[i] != '/' && buf[i] != '\0') continue;
+    char c = buf[i];
+    buf[i] = '\0';
+    struct stat st;
+    if (stat(buf, &st) != 0 && make_dir(buf, err) != 0) return TS_EIO;
+    buf[i] = c;
   }
-  return mkdir(buf, 0755) != 0 && errno != EEXIST ? -1 : 0;
+  return 0;
 }
 
 /* Judges job directory dir by its files (spool.h). */
@@ -531,11 +585,12 @@ static void load_job(ts_jobs *j, uint64_t id) {
  * deleted job's id is not given out again after a restart. */
 #define JOBS_LAST_ID "last-id"
 
-static void note_last_id(ts_jobs *j, uint64_t id) {
-  char path[JOBS_PATH + 16], text[32], err[TS_ERR_LEN];
+/* Records id as given out, before the job that has it is acknowledged. */
+static int note_last_id(ts_jobs *j, uint64_t id, char *err) {
+  char path[JOBS_PATH + 16], text[32];
   snprintf(path, sizeof(path), "%s/%s", j->spool, JOBS_LAST_ID);
   int n = snprintf(text, sizeof(text), "%" PRIu64 "\n", id);
-  if (write_atomic(path, text, (size_t)n, err) != 0) jobs_log(j, "%s", err);
+  return write_atomic(path, text, (size_t)n, err);
 }
 
 /* Numbers new jobs after last-id (next_id is already past every job
@@ -565,19 +620,30 @@ static int cmp_u64(const void *a, const void *b) {
   return x < y ? -1 : x > y;
 }
 
+/* Removes what is left of a deleted job (TS_SPOOL_DELETED). */
+static void finish_deletion(ts_jobs *j, const char *jobs, const char *name) {
+  char path[JOBS_PATH + 16 + 256];
+  snprintf(path, sizeof(path), "%s/%s", jobs, name);
+  if (remove_dir(path) == 0) jobs_log(j, "removed %s, what a deletion cut short by a crash left", path);
+  else jobs_log(j, "cannot remove %s, a deleted job's files: %s; remove it by hand", path, strerror(errno));
+}
+
 static int load_spool(ts_jobs *j, char *err) {
   char path[JOBS_PATH + 16];
   snprintf(path, sizeof(path), "%s/jobs", j->spool);
-  if (mkdir_p(path) != 0) return ts_error(err, TS_EIO, "cannot create the spool %s: %s", path, strerror(errno));
   DIR *d = opendir(path);
   if (d == NULL) return ts_error(err, TS_EIO, "cannot read the spool %s: %s", path, strerror(errno));
   uint64_t *ids = NULL;
   size_t n = 0, cap = 0;
   struct dirent *e;
   while ((e = readdir(d)) != NULL) {
-    char *end;
-    uint64_t id = strtoull(e->d_name, &end, 10);
-    if (*end != '\0' || id == 0 || e->d_name[0] == '0') continue;
+    uint64_t id;
+    ts_spool_entry kind = ts_spool_entry_of(e->d_name, &id);
+    if (kind == TS_SPOOL_DELETED) {
+      if (id >= j->next_id) j->next_id = id + 1;
+      finish_deletion(j, path, e->d_name);
+    }
+    if (kind != TS_SPOOL_JOB) continue;
     if (n == cap) {
       cap = cap ? 2 * cap : 64;
       uint64_t *p = realloc(ids, cap * sizeof(*ids));
@@ -594,6 +660,62 @@ static int load_spool(ts_jobs *j, char *err) {
   return 0;
 }
 
+/* ---- the lock ---------------------------------------------------------- */
+
+/* One coordinator per spool: two would both run its queued jobs, write
+ * the same files and give out the same ids. The lock is flock's, on
+ * SPOOL/lock: the kernel drops it when its holder dies, however it dies,
+ * so the file a killed coordinator leaves never blocks the next one. The
+ * holder writes its pid there, for the message that refuses a second. */
+#define JOBS_LOCK "lock"
+
+/* The pid in the lock file open as fd; 0 while there is none (its holder
+ * is between its flock and its write). */
+static long lock_holder(int fd) {
+  char text[32], *end;
+  ssize_t n = pread(fd, text, sizeof(text) - 1, 0);
+  if (n <= 0) return 0;
+  text[n] = '\0';
+  long pid = strtol(text, &end, 10);
+  return pid > 0 && *end == '\n' ? pid : 0;
+}
+
+/* Why the lock at path, open as fd, of spool is not ours: its holder,
+ * named. */
+static int lock_refused(int fd, const char *spool, const char *path, char *err) {
+  long pid = 0;
+  const struct timespec tick = {0, 10 * 1000 * 1000};
+  for (int i = 0; i < 100 && (pid = lock_holder(fd)) == 0; i++) nanosleep(&tick, NULL);
+  char holder[64] = "its pid not written yet";
+  if (pid > 0) snprintf(holder, sizeof(holder), "pid %ld", pid);
+  return ts_error(err, TS_EINVAL,
+                  "the spool %s is in use by another texsyn-server (%s, holding %s): stop that one first, or "
+                  "give this one another --spool", spool, holder, path);
+}
+
+static int lock_spool(ts_jobs *j, char *err) {
+  char path[JOBS_PATH + 16], text[32];
+  snprintf(path, sizeof(path), "%s/%s", j->spool, JOBS_LOCK);
+  j->lock_fd = open(path, O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (j->lock_fd < 0) return ts_error(err, TS_EIO, "cannot lock the spool: cannot open %s: %s", path, strerror(errno));
+  if (flock(j->lock_fd, LOCK_EX | LOCK_NB) != 0)
+    return errno == EWOULDBLOCK ? lock_refused(j->lock_fd, j->spool, path, err)
+                                : ts_error(err, TS_EIO, "cannot lock the spool: %s: %s", path, strerror(errno));
+  int n = snprintf(text, sizeof(text), "%ld\n", (long)getpid());
+  if (ftruncate(j->lock_fd, 0) != 0 || write(j->lock_fd, text, (size_t)n) != n)
+    return ts_error(err, TS_EIO, "cannot lock the spool: cannot write %s: %s", path, strerror(errno));
+  return 0;
+}
+
+/* The spool's directories, made if missing, and its lock. */
+static int open_spool(ts_jobs *j, char *err) {
+  char path[JOBS_PATH + 16];
+  snprintf(path, sizeof(path), "%s/jobs", j->spool);
+  char why[TS_ERR_LEN];
+  if (mkdir_p(path, why) != 0) return ts_error(err, TS_EIO, "cannot create the spool %s: %s", path, why);
+  return lock_spool(j, err);
+}
+
 int ts_jobs_create(ts_jobs **out, const ts_jobs_opts *o, char *err) {
   *out = NULL;
   if (o->runners < 1 || o->runners > 64) return ts_error(err, TS_EINVAL, "--jobs %d: need 1..64", o->runners);
@@ -605,9 +727,11 @@ int ts_jobs_create(ts_jobs **out, const ts_jobs_opts *o, char *err) {
     return ts_error(err, TS_EINVAL, "--spool: path longer than %d bytes", JOBS_SPOOL_LEN - 1);
   }
   snprintf(j->spool, sizeof(j->spool), "%s", o->spool);
+  j->lock_fd = -1;
   pthread_mutex_init(&j->lock, NULL);
   pthread_cond_init(&j->changed, NULL);
-  int rc = load_spool(j, err);
+  int rc = open_spool(j, err);
+  if (rc == 0) rc = load_spool(j, err);
   for (int i = 0; rc == 0 && i < o->runners; i++) {
     if (pthread_create(&j->runners[i], NULL, runner, j) != 0) rc = ts_error(err, TS_ENOMEM, "cannot start job runners");
     else j->nrunners++;
@@ -657,6 +781,7 @@ void ts_jobs_destroy(ts_jobs *j) {
   }
   pthread_mutex_destroy(&j->lock);
   pthread_cond_destroy(&j->changed);
+  if (j->lock_fd >= 0) close(j->lock_fd); /* the spool is free for the next coordinator */
   free(j);
 }
 
@@ -687,11 +812,13 @@ static int admit(ts_jobs *j, job *jb, size_t inputs_len, const ts_image_info *in
                   "%.1f MiB; fetch and delete finished jobs (texsyn delete ID) or raise the limit",
                   mib(j->spool_bytes), mib(j->o.max_spool_bytes), mib(need));
   if (rc == 0) {
+    rc = note_last_id(j, j->next_id, err);
+    jb->id = j->next_id++; /* taken even when its record failed: it may be on disk */
+  }
+  if (rc == 0) {
     cs->unfinished++;
     jb->bytes = need;
     j->spool_bytes += need;
-    jb->id = j->next_id++;
-    note_last_id(j, jb->id);
   }
   pthread_mutex_unlock(&j->lock);
   return rc;
@@ -745,7 +872,7 @@ static int write_job_files(job *jb, const char *client, const ts_msg_submit *m, 
   char path[JOBS_PATH + 64], list[TS_ENGINE_MAX_INPUTS * (TS_ENGINE_KEY_LEN + TS_EXT_LEN + 2)];
   int rc = 0;
   size_t nl = 0;
-  if (mkdir(jb->dir, 0755) != 0) rc = ts_error(err, TS_EIO, "cannot create %s: %s", jb->dir, strerror(errno));
+  rc = make_dir(jb->dir, err);
   input_path(jb, names, 0, path, sizeof(path));
   if (rc == 0) rc = write_atomic(path, m->ref, m->ref_len, err);
   for (int k = 1; rc == 0 && k < names->n; k++) {
@@ -791,7 +918,9 @@ int ts_jobs_submit(ts_jobs *j, const char *client, const ts_msg_submit *m, uint6
   snprintf(jb->dir, sizeof(jb->dir), "%s/jobs/%" PRIu64, j->spool, jb->id);
   rc = write_job_files(jb, client, m, &names, err);
   if (rc != 0) {
-    remove_dir(jb->dir);
+    if (remove_dir(jb->dir) != 0)
+      jobs_log(j, "cannot remove %s, a submission refused: %s; remove it by hand before a restart, which would "
+               "run the job if its job.spec is there", jb->dir, strerror(errno));
     unadmit(j, jb);
     free(jb);
     return rc;
@@ -878,6 +1007,28 @@ int ts_jobs_cancel(ts_jobs *j, uint64_t id, char *err) {
   return rc;
 }
 
+/* Deletes a job's directory (lock held): renamed to ID.deleted first, the
+ * one step that takes the job out of the spool (a restart finishes a
+ * removal a crash cut short, spool.h), and that rename made durable before
+ * the deletion is acknowledged; then its files go. */
+static int discard_dir(ts_jobs *j, const job *jb, char *err) {
+  char gone[sizeof(jb->dir) + sizeof(TS_SPOOL_DELETED_SUFFIX)];
+  snprintf(gone, sizeof(gone), "%s%s", jb->dir, TS_SPOOL_DELETED_SUFFIX);
+  if (rename(jb->dir, gone) != 0) return ts_error(err, TS_EIO, "cannot remove %s: %s", jb->dir, strerror(errno));
+  if (ts_parent_sync(gone) != 0) {
+    int e = errno;
+    /* Put back: the job stays, rather than come back after a power loss. */
+    if (rename(gone, jb->dir) == 0)
+      return ts_error(err, TS_EIO, "cannot remove %s: syncing its parent: %s", jb->dir, strerror(e));
+    jobs_log(j, "job %" PRIu64 " deleted, but its deletion may not survive a power loss: syncing the parent of %s: "
+             "%s", jb->id, gone, strerror(e));
+  }
+  if (remove_dir(gone) != 0)
+    jobs_log(j, "job %" PRIu64 " deleted, but %s cannot be removed: %s; a restart tries again", jb->id, gone,
+             strerror(errno));
+  return 0;
+}
+
 int ts_jobs_delete(ts_jobs *j, uint64_t id, char *err) {
   pthread_mutex_lock(&j->lock);
   job *jb = job_find(j, id), *prev = NULL;
@@ -886,8 +1037,7 @@ int ts_jobs_delete(ts_jobs *j, uint64_t id, char *err) {
   else if (!job_final(jb))
     rc = ts_error(err, TS_EINVAL, "job %" PRIu64 " is %s: cancel it first, or wait for it to end", id,
                   ts_job_state_name(jb->st.state));
-  else if (remove_dir(jb->dir) != 0)
-    rc = ts_error(err, TS_EIO, "cannot remove %s: %s", jb->dir, strerror(errno));
+  else rc = discard_dir(j, jb, err);
   if (rc == 0) {
     for (job *p = j->head; p != jb; p = p->next) prev = p;
     if (prev) prev->next = jb->next;

@@ -217,3 +217,19 @@ int ts_spool_read_last_id(const char *path, const ts_spool_file *f, uint64_t *id
   one_line(err);
   return rc;
 }
+
+ts_spool_entry ts_spool_entry_of(const char *name, uint64_t *id) {
+  uint64_t v = 0;
+  size_t i = 0;
+  for (; name[i] >= '0' && name[i] <= '9'; i++) {
+    unsigned d = (unsigned)(name[i] - '0');
+    if (v > (UINT64_MAX - d) / 10) return TS_SPOOL_OTHER;
+    v = v * 10 + d;
+  }
+  ts_spool_entry kind = name[i] == '\0' ? TS_SPOOL_JOB
+                        : strcmp(name + i, TS_SPOOL_DELETED_SUFFIX) == 0 ? TS_SPOOL_DELETED
+                                                                         : TS_SPOOL_OTHER;
+  if (i == 0 || name[0] == '0') return TS_SPOOL_OTHER;
+  if (kind != TS_SPOOL_OTHER) *id = v;
+  return kind;
+}

@@ -64,6 +64,20 @@ typedef struct {
  * removed (err says so). */
 int ts_spool_read_job(const char *dir, const ts_spool_files *f, ts_spool_job *out, char *err);
 
+/* What a name in SPOOL/jobs is. A job is deleted by renaming its
+ * directory ID to ID.deleted (one atomic step: the job is there or gone)
+ * before its files are removed, so a deletion a crash cut short is
+ * finished by the restart, never half-done. */
+typedef enum {
+  TS_SPOOL_OTHER,  /* none of the spool's: left alone */
+  TS_SPOOL_JOB,    /* a job's directory: its id (digits, no leading zero) */
+  TS_SPOOL_DELETED /* ID.deleted: a deleted job's files, to remove */
+} ts_spool_entry;
+#define TS_SPOOL_DELETED_SUFFIX ".deleted"
+
+/* The kind of name, and its id in *id unless TS_SPOOL_OTHER. */
+ts_spool_entry ts_spool_entry_of(const char *name, uint64_t *id);
+
 /* The id in the last-id file at path (named in messages): 0 and *id (1 or
  * more); TS_ENOENT if the file is missing; TS_EIO or TS_EFORMAT if it is
  * unreadable or damaged. err says which. */

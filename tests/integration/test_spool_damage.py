@@ -5,9 +5,12 @@ reason naming the file (in `texsyn status` and the log); a damaged state
 file reruns its job, a damaged client file only loses the job's fairness
 key, a damaged last-id gives no id out twice; a directory without job.spec
 (a submission cut short) goes. The jobs left alone, and the reruns, end
-with the embedded run's bytes."""
+with the embedded run's bytes. One coordinator at a time on a spool: a
+second refuses to start, naming the first."""
 import re
+import signal
 
+import pytest
 
 from conftest import BUILD, Daemon, run, synth
 
@@ -145,3 +148,35 @@ def test_damaged_spool_files_after_a_restart(texsyn, data, cluster, tmp_path):
     assert "last-id" not in log, log
     assert status(cluster, "6")[0] == "failed" and status(cluster, "2") == ("done", "")
     assert submit(cluster, data) == "12"
+
+
+# ---- one coordinator per spool ---------------------------------------------------
+
+@pytest.mark.sanitize
+def test_a_second_coordinator_on_the_spool_refuses_to_start(texsyn, data, cluster, tmp_path):
+    """Two coordinators on one spool would both run its jobs: the second
+    refuses to start, naming the first's pid, and the first goes on
+    serving. The lock dies with its holder: after a kill -9 the lock file
+    it left blocks no one."""
+    expected = tmp_path / "expected.png"
+    synth(texsyn, ref_of(data), expected, (64, 48), "--levels", "3")
+    start_server(cluster, "server1.log")
+    first = cluster.server
+    spool = tmp_path / "spool"
+    second = run(BUILD / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", spool, check=False, timeout=20)
+    assert second.returncode == 1, second
+    assert second.stdout == "", second.stdout
+    assert second.stderr == (f"texsyn-server: the spool {spool} is in use by another texsyn-server (pid "
+                             f"{first.proc.pid}, holding {spool}/lock): stop that one first, or give this one "
+                             "another --spool\n"), second.stderr
+    job = submit(cluster, data)
+    cluster.texsyn("watch", job, "--quiet")
+    assert fetched(cluster, job, tmp_path) == expected.read_bytes()
+
+    first.proc.send_signal(signal.SIGKILL)
+    first.proc.wait()
+    assert (spool / "lock").read_text() == f"{first.proc.pid}\n"  # left behind, stale
+    start_server(cluster, "server2.log")
+    assert (spool / "lock").read_text() == f"{cluster.server.proc.pid}\n"
+    assert status(cluster, job) == ("done", "")
+    assert fetched(cluster, job, tmp_path) == expected.read_bytes()

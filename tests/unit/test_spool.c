@@ -3,7 +3,7 @@
  * cut short goes; a job with a damaged file is kept, as failed when it
  * needs the file, with a reason naming it, and a note for the log; a
  * damaged state reruns the job; a damaged last-id is refused, not read as
- * some other number. */
+ * some other number; a deletion cut short is told from a job. */
 #include "error.h"
 #include "msg.h"
 #include "spool.h"
@@ -268,6 +268,27 @@ static void last_id_is_a_number_or_refused(void **state) {
   assert_int_equal(ts_spool_read_last_id("/spool/last-id", &kUnreadable, &id, err), TS_EIO);
 }
 
+/* --- names in SPOOL/jobs ------------------------------------------------------ */
+
+static void job_directories_and_deletions_are_told_from_other_names(void **state) {
+  (void)state;
+  uint64_t id = 0;
+  assert_int_equal(ts_spool_entry_of("7", &id), TS_SPOOL_JOB);
+  assert_int_equal(id, 7);
+  assert_int_equal(ts_spool_entry_of("18446744073709551615", &id), TS_SPOOL_JOB);
+  assert_true(id == UINT64_MAX);
+  assert_int_equal(ts_spool_entry_of("12" TS_SPOOL_DELETED_SUFFIX, &id), TS_SPOOL_DELETED);
+  assert_int_equal(id, 12);
+  const char *other[] = {".", "..", "", "0", "07", " 5", "+5", "-5", "5x", "5.deleted.tmp", "5.delete",
+                         ".deleted", "0.deleted", "18446744073709551616", "99999999999999999999.deleted",
+                         "lock", "last-id"};
+  for (size_t i = 0; i < sizeof(other) / sizeof(other[0]); i++) {
+    id = 42;
+    if (ts_spool_entry_of(other[i], &id) != TS_SPOOL_OTHER) fail_msg("'%s' taken for a job's", other[i]);
+    assert_int_equal(id, 42);
+  }
+}
+
 static const struct CMUnitTest tests[] = {
     cmocka_unit_test(finished_jobs_come_back_as_they_were),
     cmocka_unit_test(unfinished_jobs_queue_again),
@@ -282,6 +303,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(an_energy_job_reads_back_with_its_image),
     cmocka_unit_test(a_damaged_client_only_loses_the_fairness_key),
     cmocka_unit_test(last_id_is_a_number_or_refused),
+    cmocka_unit_test(job_directories_and_deletions_are_told_from_other_names),
 };
 
 TS_TEST_MAIN(tests)
