@@ -9,7 +9,8 @@
 #   make test-valgrind  the unit tests under valgrind
 #   make test-faults    fault injection (TRIALS random trials, default 20), the load test,
 #                       a coordinator killed half-way through level 0 of a 20 s job, and the
-#                       rebalancing measurements (slow worker, slow link, load over Modbus)
+#                       rebalancing measurements (slow worker, slow link, load over Modbus);
+#                       network partitions and half-open TCP in namespaces (root, nft)
 #   make fuzz       run each libFuzzer target for FUZZ_SECONDS (default 30)
 #   make bench      quick benchmarks (< 10 min), write bench/results/ and its RESULTS.md
 #                   (with TEXSYN_EBSYNTH=PATH to the peer, also texsyn stylize against
@@ -203,7 +204,8 @@ test-faults: all
 	  -p no:cacheprovider --durations=5 tests/integration/test_faults.py tests/integration/test_load.py \
 	  tests/integration/test_resume.py && \
 	TEXSYN_BUILD=$(abspath $(BUILD)) TEXSYN_LONG_TESTS=1 /usr/bin/python3 -m pytest -q -p no:cacheprovider \
-	  --durations=5 -m long tests/integration/test_cluster.py tests/integration/test_modbus.py
+	  --durations=5 -m long tests/integration/test_cluster.py tests/integration/test_modbus.py \
+	  tests/integration/test_partitions.py
 
 # Every unit test under valgrind memcheck (about 4 minutes; not in `test`).
 test-valgrind: deps all
