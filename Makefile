@@ -19,7 +19,8 @@
 #                   bench/delay_relay) and a fitted performance model; writes
 #                   bench/results/netem.{json,md,png}
 #   make soak       SOAK_MINUTES (default 10) of small jobs on 3 workers that are killed,
-#                   stalled and replaced; writes bench/results/soak.{json,txt}
+#                   stalled, partitioned and replaced, the coordinator killed and its spool's
+#                   disk filled or made read-only (root); writes bench/results/soak.{json,txt}
 #   make test-deploy  (root) deploy/: the Slurm batch script on a single-node Slurm,
 #                   byte-identical to the embedded run; systemd-analyze verify of the
 #                   units; the Kubernetes manifests against the API's fields and schema
@@ -275,14 +276,20 @@ bench-netem: $(BINS) $(IMAGE_LIB) $(BUILD)/bench/delay_relay
 	bash deploy/install-deps.sh --bench
 	/usr/bin/python3 bench/netem.py --build $(BUILD) --out bench/results $(NETEM_ARGS)
 
-# Soak (not in `make test`): 4 clients submit small jobs for SOAK_MINUTES to
-# a coordinator whose 3 workers are SIGKILLed, SIGSTOPped and replaced at
-# random; every job must finish with the embedded run's bytes, and the
-# daemons' fds, RSS and the spool must stay within the bounds bench/soak.py
-# states. Writes bench/results/soak.json and soak.txt.
+# Soak (not in `make test`; root: network namespaces, nft, a tmpfs spool):
+# 4 clients submit small jobs for SOAK_MINUTES to a coordinator whose 3
+# workers are SIGKILLed, SIGSTOPped, cut off (partitions, half-open links)
+# and replaced at random, while the coordinator itself is SIGKILLed and
+# restarted on its spool and that spool's disk is filled or made read-only.
+# Every accepted job must be done once with the embedded run's bytes or fail
+# with a reason under a disk fault; the daemons' fds, RSS and the spool must
+# stay within the bounds bench/soak.py states. It ends and reports by
+# SOAK_MINUTES + 5 minutes whatever hangs. Writes bench/results/soak.json
+# and soak.txt.
 SOAK_MINUTES ?= 10
 .PHONY: soak
 soak: $(BINS) $(IMAGE_LIB)
+	@bash deploy/install-deps.sh
 	/usr/bin/python3 bench/soak.py --build $(BUILD) --minutes $(SOAK_MINUTES)
 
 # Not in `make test`: it installs Slurm and starts its daemons (as root),
