@@ -13,7 +13,8 @@ silent loss: the sender's TCP retransmits and hears nothing, as behind a
 dead switch. Only IP is dropped; ARP still answers, so a healed link works
 at once.
 
-Needs root and nft (deploy/install-deps.sh installs nftables). Every
+Needs root, and nft for partitions (deploy/install-deps.sh installs
+nftables). bench/netem.py uses it for its one slot's latency. Every
 namespace carries the tag given (default: this process's pid), so runs
 side by side do not collide; close() removes them all, and their veths
 with them."""
@@ -33,11 +34,11 @@ def sh(*args, check=True, input=None):
     return p
 
 
-def missing():
-    """Why namespaces and partitions cannot be made here (None: they can)."""
+def missing(partitions=True):
+    """Why namespaces (and partitions) cannot be made here (None: they can)."""
     if os.geteuid() != 0:
-        return "needs root (network namespaces, nftables)"
-    for tool, pkg in (("ip", "iproute2"), ("nft", "nftables")):
+        return "needs root (network namespaces" + (", nftables)" if partitions else ")")
+    for tool, pkg in (("ip", "iproute2"), ("nft", "nftables"))[:2 if partitions else 1]:
         if shutil.which(tool) is None:
             return f"needs {tool} (Debian package {pkg}: deploy/install-deps.sh installs it)"
     return None
@@ -85,8 +86,10 @@ class Net:
 
     # ---- making and removing
 
-    def create(self):
-        why = missing()
+    def create(self, partitions=True):
+        """Makes the namespaces; partitions=False: nft is not needed (no
+        partition() calls will follow)."""
+        why = missing(partitions)
         if why:
             raise RuntimeError(why)
         self._add_ns(self.coord_ns)
