@@ -38,8 +38,9 @@ BRICK = "textures/brick.png"
 # slice all fall inside it, the fault coming at the start of level 1
 # (a quarter of the job's time, level 0 the rest).
 LONG_JOB = ("--size", "2048x1024")
-# The short case's job: a few seconds, level 1 and 0 most of it.
-SHORT_JOB = ("--size", "768x576")
+# The short case's job: about 2 s on 3 workers. It cannot end during the
+# cut: the victim holds a slice every batch needs (the test's 7 s in all).
+SHORT_JOB = ("--size", "512x384")
 COMMON = ("--usage-weight", "1")
 PARTITION_S = 6.0       # past the 2 s batch deadline and the 2S+1 = 5 s heartbeat
 SHORT_PARTITION_S = 1.0
@@ -248,8 +249,10 @@ def partitioned_job(cl, data, tmp_path, expected, direction):
         time.sleep(0.05)
     assert len(ready_lines(cl.server.read_log(), victim_addr(cl))) >= 2, f"{what}: the victim was not dialled again"
     assert job.poll() is None, f"{what}: the job ended as the victim came back: make LONG_JOB longer"
+    back = time.time() - cut_at
     batches_back = int(cl.registers(VICTIM)["batches"])
     code, err = finish(job)
+    left = time.time() - cut_at - back
     log = cl.server.read_log()
     check_output(out, expected["long"], code, err, log, what)
     end = done_at(log, jid)
@@ -265,7 +268,8 @@ def partitioned_job(cl, data, tmp_path, expected, direction):
     assert sum(dropped.values()) > 0, f"{what}: the rules dropped nothing: {dropped}"
     assert DEADLINE_REASON.search(drops[0][2]), f"{what}: dropped for a reason a partition cannot give: {drops[0][2]}"
     assert sorted(cl.wait_pool(WORKERS)) == sorted(w.addr for w in cl.workers.values())
-    return {"why": m.group(2), "detected_s": round(detected, 2), "dropped_packets": dropped}
+    return {"why": m.group(2), "detected_s": round(detected, 2), "back_s": round(back, 2), "job_left_s": round(left, 1),
+            "dropped_packets": dropped}
 
 
 def test_partition_shorter_than_the_deadlines_is_ridden_out(data, net, cluster_in, tmp_path, expected):
@@ -302,8 +306,9 @@ def test_partition_drops_the_victim_which_rejoins_and_works_again(data, cluster_
     queries and answers them into the void."""
     cl = cluster_in.start()
     seen = partitioned_job(cl, data, tmp_path, expected, direction)
-    print(f"partition {direction}: victim dropped {seen['detected_s']} s after the cut ({seen['why']}); "
-          f"packets dropped {seen['dropped_packets']}")
+    print(f"partition {direction}: victim dropped {seen['detected_s']} s after the cut ({seen['why']}), ready "
+          f"again {seen['back_s']} s after it, the job ran {seen['job_left_s']} s more; packets dropped "
+          f"{seen['dropped_packets']}")
 
 
 @pytest.mark.long
