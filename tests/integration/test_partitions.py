@@ -260,7 +260,7 @@ def partitioned_job(cl, data, tmp_path, expected, direction):
     readies = ready_lines(log, victim_addr(cl))
     assert drops and drops[0][0] < end, f"{what}: the victim was not dropped during the job:\n{log[-3000:]}"
     assert readies[1][0] > drops[0][0], f"{what}: no re-admission after the drop"
-    resliced = [m.start() for m in re.finditer(r"set \d+ generation \d+ over 3 workers", log)]
+    resliced = [r.start() for r in re.finditer(r"set \d+ generation \d+ over 3 workers", log)]
     assert any(readies[1][0] < p < end for p in resliced), \
         f"{what}: the job was not sliced again over 3 workers after the victim came back:\n{log[-3000:]}"
     assert int(cl.registers(VICTIM)["batches"]) > batches_back, \
