@@ -9,7 +9,8 @@
 #   make test-valgrind  the unit tests under valgrind
 #   make test-faults    fault injection (TRIALS random trials, default 20), the load test,
 #                       a coordinator killed half-way through level 0 of a 20 s job, and the
-#                       rebalancing measurements (slow worker, slow link, load over Modbus)
+#                       rebalancing measurements (slow worker, slow link, load over Modbus);
+#                       network partitions and half-open TCP in namespaces (root, nft)
 #   make fuzz       run each libFuzzer target for FUZZ_SECONDS (default 30)
 #   make bench      quick benchmarks (< 10 min), write bench/results/ and its RESULTS.md
 #                   (with TEXSYN_EBSYNTH=PATH to the peer, also texsyn stylize against
@@ -20,7 +21,8 @@
 #   make test-hostile  SCHEDULES (2000) seeded schedules of a hostile worker over every engine;
 #                   writes bench/results/hostile.{json,md}
 #   make soak       SOAK_MINUTES (default 10) of small jobs on 3 workers that are killed,
-#                   stalled and replaced; writes bench/results/soak.{json,txt}
+#                   stalled, partitioned and replaced, the coordinator killed and its spool's
+#                   disk filled or made read-only (root); writes bench/results/soak.{json,txt}
 #   make test-deploy  (root) deploy/: the Slurm batch script on a single-node Slurm,
 #                   byte-identical to the embedded run; systemd-analyze verify of the
 #                   units; the Kubernetes manifests against the API's fields and schema
@@ -209,7 +211,7 @@ test-faults: all
 	TEXSYN_BUILD=$(abspath $(BUILD)) TEXSYN_LONG_TESTS=1 /usr/bin/python3 -m pytest -q -p no:cacheprovider \
 	  --durations=5 -m long tests/integration/test_cluster.py tests/integration/test_modbus.py \
 	  tests/integration/test_crashpoints.py \
-	  tests/integration/test_disk_faults.py
+	  tests/integration/test_disk_faults.py tests/integration/test_partitions.py
 	TEXSYN_DATA=$$(bash tests/test-data.sh) TEXSYN_BUILD=$(abspath $(BUILD)) TEXSYN_LONG_TESTS=1 /usr/bin/python3 -m pytest \
 	  -q -p no:cacheprovider --durations=5 -m long tests/integration/test_hostile.py tests/integration/test_phases.py
 
@@ -291,14 +293,20 @@ bench-netem: $(BINS) $(IMAGE_LIB) $(BUILD)/bench/delay_relay
 	bash deploy/install-deps.sh --bench
 	/usr/bin/python3 bench/netem.py --build $(BUILD) --out bench/results $(NETEM_ARGS)
 
-# Soak (not in `make test`): 4 clients submit small jobs for SOAK_MINUTES to
-# a coordinator whose 3 workers are SIGKILLed, SIGSTOPped and replaced at
-# random; every job must finish with the embedded run's bytes, and the
-# daemons' fds, RSS and the spool must stay within the bounds bench/soak.py
-# states. Writes bench/results/soak.json and soak.txt.
+# Soak (not in `make test`; root: network namespaces, nft, a tmpfs spool):
+# 4 clients submit small jobs for SOAK_MINUTES to a coordinator whose 3
+# workers are SIGKILLed, SIGSTOPped, cut off (partitions, half-open links)
+# and replaced at random, while the coordinator itself is SIGKILLed and
+# restarted on its spool and that spool's disk is filled or made read-only.
+# Every accepted job must be done once with the embedded run's bytes or fail
+# with a reason under a disk fault; the daemons' fds, RSS and the spool must
+# stay within the bounds bench/soak.py states. It ends and reports by
+# SOAK_MINUTES + 5 minutes whatever hangs. Writes bench/results/soak.json
+# and soak.txt.
 SOAK_MINUTES ?= 10
 .PHONY: soak
 soak: $(BINS) $(IMAGE_LIB)
+	@bash deploy/install-deps.sh
 	/usr/bin/python3 bench/soak.py --build $(BUILD) --minutes $(SOAK_MINUTES)
 
 # Not in `make test`: it installs Slurm and starts its daemons (as root),

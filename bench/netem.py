@@ -2,8 +2,9 @@
 """Cluster scaling under network latency, and a fitted performance model.
 
 The coordinator and its workers run in two network namespaces joined by a
-veth pair (10.77.0.1 coordinator side, 10.77.0.2 worker side), so every
-byte between them crosses an interface. A round-trip time (RTT) is added
+veth pair (tests/integration/netns.py with one worker slot: 10.78.0.1
+coordinator side, 10.78.0.2 worker side), so every byte between them
+crosses an interface. A round-trip time (RTT) is added
 between them:
   netem   `tc qdisc ... netem delay RTT/2` on both ends of the veth, where
           the kernel has the netem qdisc;
@@ -61,14 +62,18 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tests" / "integration"))
+import netns  # noqa: E402  (the namespaces the partition tests and the soak use too)
+
 DATA = Path(os.environ.get("TEXSYN_DATA", REPO.parent / "shared" / "data"))
 RTTS_US = [0, 50, 200, 1000]
 WORKERS = [1, 2]
 BATCHING = {"default": 256, "small": 8}  # --pipeline-queries
 JOB = ["--levels", 5, "--wn", 7, "--wb", 3, "--parity", "--quiet"]
-COORD_IP, WORKER_IP = "10.77.0.1", "10.77.0.2"
-TAG = f"tsn{os.getpid() % 100000}"
-NS_C, NS_W = f"{TAG}c", f"{TAG}w"  # namespaces; veth ends carry the same names
+NET = netns.Net(1, tag=f"tsn{os.getpid() % 100000}")  # the coordinator's namespace and one worker slot
+NS_C, NS_W = NET.coord_ns, NET.worker_ns(0)
+COORD_IP, WORKER_IP = NET.coord_ip(0), NET.worker_ip(0)
+DEV = {NS_C: NET.coord_dev(0), NS_W: NET.worker_dev(0)}  # each namespace's end of the veth
 PREDICT_N = [16, 64]
 VALIDATE_RTT = 200
 
@@ -125,20 +130,13 @@ class Topology:
 
     def create(self):
         self.up = True
-        sh("ip", "netns", "add", NS_C)
-        sh("ip", "netns", "add", NS_W)
-        sh("ip", "link", "add", NS_C, "type", "veth", "peer", "name", NS_W)
-        for ns, ip in ((NS_C, COORD_IP), (NS_W, WORKER_IP)):
-            sh("ip", "link", "set", ns, "netns", ns)
-            sh("ip", "-n", ns, "addr", "add", f"{ip}/24", "dev", ns)
-            sh("ip", "-n", ns, "link", "set", ns, "up")
-            sh("ip", "-n", ns, "link", "set", "lo", "up")
+        NET.create(partitions=False)
 
     def try_netem(self):
         """Adds a 0 us netem qdisc on both veth ends; the error when the
         kernel cannot (None when it can)."""
         for ns in (NS_C, NS_W):
-            p = sh("ip", "netns", "exec", ns, "tc", "qdisc", "add", "dev", ns, "root", "netem", "delay", "0us",
+            p = sh("ip", "netns", "exec", ns, "tc", "qdisc", "add", "dev", DEV[ns], "root", "netem", "delay", "0us",
                    check=False)
             if p.returncode != 0:
                 return p.stderr.strip() or f"tc exited {p.returncode}"
@@ -146,13 +144,12 @@ class Topology:
 
     def set_netem(self, rtt_us):
         for ns in (NS_C, NS_W):
-            sh("ip", "netns", "exec", ns, "tc", "qdisc", "change", "dev", ns, "root", "netem", "delay",
+            sh("ip", "netns", "exec", ns, "tc", "qdisc", "change", "dev", DEV[ns], "root", "netem", "delay",
                f"{rtt_us / 2}us")
 
     def close(self):
         if self.up:
-            for ns in (NS_C, NS_W):
-                sh("ip", "netns", "del", ns, check=False)  # the veth goes with it
+            NET.close()  # the veth goes with the namespaces
             self.up = False
 
 

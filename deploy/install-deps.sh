@@ -15,6 +15,7 @@ PACKAGES=(
   python3-pytest                       # integration tests
   valgrind                             # make test-valgrind
   clang                                # libFuzzer targets (make fuzz; 20 s each in make test)
+  iproute2 nftables                    # network partitions in namespaces (test_partitions.py, make soak)
 )
 # Plots for `make bench` (bench/gnuplot.py); bench/netem.py's namespaces and
 # RTT check.
