@@ -321,11 +321,15 @@ def test_bad_job_gets_a_clear_error_and_the_server_goes_on(data, cluster, tmp_pa
     cluster.start(1, 1)
     p = cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "x.png", "--size", "64x64",
                        "--wb", "4", check=False)
-    assert p.returncode != 0 and "--wb" in p.stderr
+    assert p.returncode == 2 and "--wb 4: the block width must be odd, 1..15" in p.stderr, p.stderr
     notimg = tmp_path / "fake.png"
     notimg.write_bytes(b"not an image at all" * 10)
     p = cluster.texsyn("synth", "--ref", notimg, "-o", tmp_path / "y.png", "--size", "64x64", check=False)
-    assert p.returncode != 0
+    assert p.returncode == 1, p.stderr
+    # What it is not, and its first bytes ("not an i"): the user sees which file is wrong and why.
+    assert f"{notimg}: not a PNG, JPEG, TIFF or OpenEXR image (starts with bytes 6e 6f 74 20 61 6e 20 69)" \
+        in p.stderr, p.stderr
+    assert " queued " not in cluster.server.read_log(), "a bad job reached the queue"
     remote(cluster, data, tmp_path)  # still serving
 
 
