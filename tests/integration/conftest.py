@@ -67,6 +67,25 @@ def modbus_registers(addr):
     return dict(line.split(" ", 1) for line in out.splitlines())
 
 
+def dropped_during_the_job(log, addr):
+    """The worker at addr was dropped while the coordinator's only job ran:
+    its "dropped" line lies between the job's "queued" and "done" lines
+    (a worker dropped after the job took no work from it). Returns the
+    reason the drop names."""
+    import re
+    lines = log.splitlines()
+    queued = next((i for i, line in enumerate(lines) if re.search(r"job \d+ queued ", line)), None)
+    assert queued is not None, f"no job was queued:\n{log}"
+    job = re.search(r"job (\d+) queued ", lines[queued]).group(1)
+    done = next((i for i, line in enumerate(lines) if f"job {job} done in " in line), None)
+    drop = next((i for i, line in enumerate(lines) if re.search(rf"worker \d+ \({re.escape(addr)}\) dropped: ", line)),
+                None)
+    assert done is not None, f"job {job} is not logged done:\n{log}"
+    assert drop is not None, f"the worker at {addr} was never dropped:\n{log}"
+    assert queued < drop < done, f"the worker at {addr} was dropped outside job {job}'s run:\n{log}"
+    return lines[drop].split(") dropped: ", 1)[1]
+
+
 def synth(exe, ref, out, size, *extra, env=None):
     """An embedded run (a reference result): --embedded, so that a
     TEXSYN_SERVER in the environment cannot send it to a cluster."""
