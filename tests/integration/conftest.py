@@ -35,6 +35,15 @@ def pytest_collection_modifyitems(config, items):
         items[:] = [i for i in items if not left_out(i)]
 
 
+def pytest_terminal_summary(terminalreporter):
+    """Every skipped test on a line of its own, "SKIP NODE_ID: REASON"
+    (pytest's -rs folds skips by file and line): tests/run-all.sh holds
+    each against tests/skips.allow, test by test."""
+    for rep in terminalreporter.stats.get("skipped", []):
+        why = rep.longrepr[2] if isinstance(rep.longrepr, tuple) else str(rep.longrepr)
+        terminalreporter.write_line(f"SKIP {rep.nodeid}: {why.removeprefix('Skipped: ')}")
+
+
 @pytest.fixture(scope="session")
 def texsyn():
     exe = BUILD / "texsyn"
