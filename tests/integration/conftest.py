@@ -169,8 +169,10 @@ class SignalledPopen(subprocess.Popen):
 
 
 # What a sanitizer prints when it finds an error: ASan and LSan name
-# themselves, UBSan reports "FILE:LINE:COL: runtime error: ...".
-SANITIZER_REPORT = re.compile(r"ERROR: (AddressSanitizer|LeakSanitizer)|^\S+:\d+:\d+: runtime error:", re.M)
+# themselves, UBSan reports "FILE:LINE:COL: runtime error: ...", TSan
+# (make test-tsan) "WARNING: ThreadSanitizer: data race" and the like.
+SANITIZER_REPORT = re.compile(r"ERROR: (AddressSanitizer|LeakSanitizer)|WARNING: ThreadSanitizer|"
+                              r"^\S+:\d+:\d+: runtime error:", re.M)
 STOP_SECONDS = 20
 
 # Every daemon the running test started, for check_daemons (below).
