@@ -18,6 +18,7 @@
 #ifndef TS_ENGINE_H
 #define TS_ENGINE_H
 
+#include <stdatomic.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -90,7 +91,7 @@ typedef struct {
   /* Set (by another thread) to stop the run at the end of the step under
    * way, with a checkpoint saved there: the run returns TS_ESTOPPED. A
    * daemon shutting down sets it. NULL: never. */
-  const volatile int *stop;
+  const atomic_int *stop;
 } ts_engine_hooks;
 
 typedef struct ts_engine_run ts_engine_run;

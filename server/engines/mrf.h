@@ -5,6 +5,7 @@
 #ifndef TS_MRF_H
 #define TS_MRF_H
 
+#include <stdatomic.h>
 #include <stddef.h>
 #include <stdint.h>
 
@@ -211,7 +212,7 @@ typedef struct {
   /* Set (by another thread) when the run should stop early: after the
    * step under way it saves a checkpoint and returns TS_ESTOPPED, so a
    * later run resumes there with nothing redone. NULL: never. */
-  const volatile int *stop;
+  const atomic_int *stop;
 } ts_mrf_hooks;
 
 /* Synthesises p->width x p->height (or, with stop_level > 0, the
