@@ -63,7 +63,7 @@ struct ts_jobs {
   uint64_t next_id;
   uint64_t spool_bytes; /* sum of the jobs' bytes */
   int stop;
-  atomic_int stopping; /* read by the engines: stop at a checkpoint */
+  atomic_int stopping; /* read by the engines (and runners, unlocked): stop at a checkpoint */
   int running; /* jobs in run_job */
   int paused; /* no queued job starts */
   uint64_t last_ended; /* id of the job that ended last */
@@ -480,7 +480,7 @@ static void *runner(void *arg) {
     int rc = run_job(j, jb, err);
     if (rc == TS_ESTOPPED)
       jobs_log(j, "job %" PRIu64 ": %s, checkpoint saved; a restart resumes it there", jb->id, err);
-    else if (rc != 0 && j->stop)
+    else if (rc != 0 && atomic_load(&j->stopping)) /* j->stop needs the lock; stopping is set with it */
       jobs_log(j, "job %" PRIu64 ": stopped before its step ended (%s); a restart resumes it from its last "
                "checkpoint", jb->id, err);
     else if (rc == TS_ECANCELED) job_finish(j, jb, TS_JOB_CANCELED, "canceled by a client");
@@ -749,7 +749,7 @@ int ts_jobs_create(ts_jobs **out, const ts_jobs_opts *o, char *err) {
  * which ends its search at once. */
 static void stop_running_jobs(ts_jobs *j) {
   j->stop = 1;
-  j->stopping = 1;
+  atomic_store(&j->stopping, 1);
   pthread_cond_broadcast(&j->changed);
   if (j->running > 0)
     jobs_log(j, "stopping: %d running job%s to checkpoint (--stop-grace %g s)", j->running,

@@ -11,6 +11,7 @@
 #include <inttypes.h>
 #include <pthread.h>
 #include <signal.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -48,7 +49,11 @@ typedef struct {
 static const ts_msg_ident kSelf = {TS_ROLE_COORD, TS_CAP_ALL | TS_CAP_PIECES, 0, 0, "texsyn-server 0.3"};
 
 static server g_server;
-static volatile sig_atomic_t g_stop;
+/* Set by the signal handler, read by every thread: an atomic, lock-free
+ * here, so safe in a handler (volatile sig_atomic_t is only for the thread
+ * the handler interrupts; elsewhere it is a data race). */
+static atomic_int g_stop;
+_Static_assert(ATOMIC_INT_LOCK_FREE == 2, "the stop flag must be lock-free to be set in a signal handler");
 
 static ts_connset g_conns;
 
@@ -117,7 +122,7 @@ static int serve_status(ts_conn *c, const ts_frame *f) {
   }
   int rc = send_status(c, f->id, &st, 1);
   /* Watch: one record per change until the job ends. */
-  while (rc == 0 && m.follow && st.state <= TS_JOB_RUNNING && !g_stop) {
+  while (rc == 0 && m.follow && st.state <= TS_JOB_RUNNING && !atomic_load(&g_stop)) {
     uint64_t seen = version;
     ts_jobs_wait(g_server.jobs, m.id, &version, 1000, &st);
     if (version != seen || st.state > TS_JOB_RUNNING) rc = send_status(c, f->id, &st, 1);
@@ -227,7 +232,7 @@ static void note_client_gone(const ts_conn *c, const char *client) {
 static void serve_client(ts_conn *c, const ts_msg_ident *ident) {
   char client[TS_MSG_NAME_MAX];
   snprintf(client, sizeof(client), "%s", ident->name);
-  while (!g_stop) {
+  while (!atomic_load(&g_stop)) {
     ts_frame f;
     char err[TS_ERR_LEN];
     int rc = ts_conn_recv(c, &f, 1000, err);
@@ -530,7 +535,7 @@ static int start_http(const server_opts *o, char *at, char *err) {
 
 static void on_signal(int sig) {
   (void)sig;
-  g_stop = 1;
+  atomic_store(&g_stop, 1);
 }
 
 int main(int argc, char **argv) {
@@ -596,7 +601,7 @@ int main(int argc, char **argv) {
            modbus_at[0] ? ")" : "", http_at[0] ? " (http " : "", http_at, http_at[0] ? ")" : "");
     fflush(stdout);
   }
-  while (!g_stop) {
+  while (!atomic_load(&g_stop)) {
     accepted *a = malloc(sizeof(*a));
     if (a == NULL) break;
     if (ts_net_accept(lfd, &a->fd, a->peer, sizeof(a->peer), &a->addr) != 0) {

@@ -2,7 +2,8 @@
 # Runs every cmocka test of every unit-test binary in its own process, with a
 # timeout (scaled by TEXSYN_TEST_TIMEOUT_MULTIPLIER for slow or sanitized
 # builds), TEXSYN_TEST_JOBS (default: the CPUs) at a time. Prints one line
-# per test, in a fixed order ("SKIP ..." for a test that skipped itself),
+# per test, in a fixed order ("SKIP tests/unit/FILE.c::TEST: REASON" for a
+# test that skipped itself, the reason from its "skipped: " line),
 # and a closing "N passed, N failed, N skipped" line. The test images come
 # from tests/test-data.sh (TEXSYN_DATA).
 # Usage: tests/run-unit.sh BUILD_DIR
@@ -39,7 +40,10 @@ while read -r bin name; do
   if [ -e "$log.ok" ]; then
     pass=$((pass + 1)); echo "ok   $(basename "$bin") $name"
   elif [ -e "$log.skip" ]; then
-    skip=$((skip + 1)); echo "SKIP tests/unit/$(basename "$bin").c: $name"; sed 's/^/     | /' "$log.log"
+    skip=$((skip + 1))
+    why=$(sed -n 's/^skipped: //p' "$log.log" | head -n 1)
+    echo "SKIP tests/unit/$(basename "$bin").c::$name: ${why:-no reason given (ts_test_skip says one)}"
+    sed 's/^/     | /' "$log.log"
   else
     fail=$((fail + 1)); echo "FAIL $(basename "$bin") $name"; sed 's/^/     | /' "$log.log"
   fi

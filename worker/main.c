@@ -11,6 +11,7 @@
 #include <malloc.h>
 #include <pthread.h>
 #include <signal.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -53,7 +54,11 @@ typedef struct {
 } worker;
 
 static worker g_w;
-static volatile sig_atomic_t g_stop;
+/* Set by the signal handler, read by every thread: an atomic, lock-free
+ * here, so safe in a handler (volatile sig_atomic_t is only for the thread
+ * the handler interrupts; elsewhere it is a data race). */
+static atomic_int g_stop;
+_Static_assert(ATOMIC_INT_LOCK_FREE == 2, "the stop flag must be lock-free to be set in a signal handler");
 
 /* ---- one connection ------------------------------------------------------ */
 
@@ -439,7 +444,7 @@ static int serve(int fd, const char *peer, const struct sockaddr *addr) {
   }
   int started = rc;
   if (rc == 0) ts_log("coordinator %s connected", peer);
-  while (rc >= 0 && !g_stop) {
+  while (rc >= 0 && !atomic_load(&g_stop)) {
     ts_frame f;
     rc = ts_conn_recv(&s->conn, &f, 1000, err);
     if (rc == TS_ETIMEDOUT) {
@@ -493,7 +498,7 @@ static int check_join(const char *addr, char *err) {
 static void *join_thread(void *arg) {
   const char *addr = arg;
   double backoff = 0.2;
-  while (!g_stop) {
+  while (!atomic_load(&g_stop)) {
     char err[TS_ERR_LEN];
     int fd;
     if (ts_net_connect(addr, 2000, &fd, err) == 0) {
@@ -503,7 +508,7 @@ static void *join_thread(void *arg) {
     } else {
       ts_log("join %s: %s; retrying in %.1fs", addr, err, backoff);
     }
-    for (double t = 0; t < backoff && !g_stop; t += 0.05) usleep(50000);
+    for (double t = 0; t < backoff && !atomic_load(&g_stop); t += 0.05) usleep(50000);
     backoff = backoff * 2 > 5.0 ? 5.0 : backoff * 2;
   }
   return NULL;
@@ -561,7 +566,7 @@ static int start_modbus(const char *arg, int control, char *at, char *err) {
 
 static void on_signal(int sig) {
   (void)sig;
-  g_stop = 1;
+  atomic_store(&g_stop, 1);
 }
 
 int main(int argc, char **argv) {
@@ -659,7 +664,7 @@ int main(int argc, char **argv) {
   }
   pthread_t joiner;
   int joining = join_addr != NULL && pthread_create(&joiner, NULL, join_thread, (void *)join_addr) == 0;
-  while (!g_stop) {
+  while (!atomic_load(&g_stop)) {
     if (lfd < 0) {
       usleep(100000);
       continue;

@@ -656,7 +656,7 @@ static int checkpoint_due(const engine *e) {
  * (best-of candidates stop once the choice is made). */
 static int stop_requested(const engine *e) {
   const ts_mrf_hooks *h = e->hooks;
-  return h->checkpoint != NULL && !e->candidate_phase && h->stop != NULL && *h->stop;
+  return h->checkpoint != NULL && !e->candidate_phase && h->stop != NULL && atomic_load(h->stop);
 }
 
 /* Runs steps t0.. of a schedule, every block of a step searched against

@@ -35,6 +35,15 @@ def pytest_collection_modifyitems(config, items):
         items[:] = [i for i in items if not left_out(i)]
 
 
+def pytest_terminal_summary(terminalreporter):
+    """Every skipped test on a line of its own, "SKIP NODE_ID: REASON"
+    (pytest's -rs folds skips by file and line): tests/run-all.sh holds
+    each against tests/skips.allow, test by test."""
+    for rep in terminalreporter.stats.get("skipped", []):
+        why = rep.longrepr[2] if isinstance(rep.longrepr, tuple) else str(rep.longrepr)
+        terminalreporter.write_line(f"SKIP {rep.nodeid}: {why.removeprefix('Skipped: ')}")
+
+
 @pytest.fixture(scope="session")
 def texsyn():
     exe = BUILD / "texsyn"
@@ -65,6 +74,25 @@ def modbus_registers(addr):
     """A daemon's Modbus registers by name (`texsyn modbus HOST:PORT`)."""
     out = run(BUILD / "texsyn", "modbus", addr).stdout
     return dict(line.split(" ", 1) for line in out.splitlines())
+
+
+def dropped_during_the_job(log, addr):
+    """The worker at addr was dropped while the coordinator's only job ran:
+    its "dropped" line lies between the job's "queued" and "done" lines
+    (a worker dropped after the job took no work from it). Returns the
+    reason the drop names."""
+    import re
+    lines = log.splitlines()
+    queued = next((i for i, line in enumerate(lines) if re.search(r"job \d+ queued ", line)), None)
+    assert queued is not None, f"no job was queued:\n{log}"
+    job = re.search(r"job (\d+) queued ", lines[queued]).group(1)
+    done = next((i for i, line in enumerate(lines) if f"job {job} done in " in line), None)
+    drop = next((i for i, line in enumerate(lines) if re.search(rf"worker \d+ \({re.escape(addr)}\) dropped: ", line)),
+                None)
+    assert done is not None, f"job {job} is not logged done:\n{log}"
+    assert drop is not None, f"the worker at {addr} was never dropped:\n{log}"
+    assert queued < drop < done, f"the worker at {addr} was dropped outside job {job}'s run:\n{log}"
+    return lines[drop].split(") dropped: ", 1)[1]
 
 
 def synth(exe, ref, out, size, *extra, env=None):
@@ -141,8 +169,10 @@ class SignalledPopen(subprocess.Popen):
 
 
 # What a sanitizer prints when it finds an error: ASan and LSan name
-# themselves, UBSan reports "FILE:LINE:COL: runtime error: ...".
-SANITIZER_REPORT = re.compile(r"ERROR: (AddressSanitizer|LeakSanitizer)|^\S+:\d+:\d+: runtime error:", re.M)
+# themselves, UBSan reports "FILE:LINE:COL: runtime error: ...", TSan
+# (make test-tsan) "WARNING: ThreadSanitizer: data race" and the like.
+SANITIZER_REPORT = re.compile(r"ERROR: (AddressSanitizer|LeakSanitizer)|WARNING: ThreadSanitizer|"
+                              r"^\S+:\d+:\d+: runtime error:", re.M)
 STOP_SECONDS = 20
 
 # Every daemon the running test started, for check_daemons (below).

@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from conftest import BUILD, REPO, modbus_registers, run
+from conftest import BUILD, REPO, dropped_during_the_job, modbus_registers, run
 from pnm import oiiotool, read_pnm
 
 
@@ -90,6 +90,7 @@ def test_a_killed_worker_changes_nothing(texsyn, cluster, tmp_path):
     victim.proc.kill()
     out, err = job.communicate(timeout=600)
     assert job.returncode == 0, err
+    dropped_during_the_job(cluster.server.read_log(), victim.addr)
     assert (tmp_path / "c.png").read_bytes() == (tmp_path / "e.png").read_bytes()
 
 

@@ -14,18 +14,29 @@ import pytest
 BENCH = Path(__file__).resolve().parents[2] / "bench"
 sys.path.insert(0, str(BENCH))
 import gnuplot  # noqa: E402
+from pnm import pixels_of  # noqa: E402
 import roofline  # noqa: E402
 import scaling  # noqa: E402
 
 PY = "/usr/bin/python3"
 
 
-def drew(png, ok):
-    """The picture exists (a PNG) exactly when gnuplot is installed."""
-    if shutil.which("gnuplot"):
-        assert ok and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    else:
+def drew(png, ok, tmp):
+    """The picture exists exactly when gnuplot is installed, and then it
+    is a PNG of the size asked (gnuplot's 800x500 default here) with the
+    plot in it: gnuplot writes a picture of axes and key alone when the
+    data misses the axes' ranges (or an empty file when it fails mid-way),
+    which only the pixels tell. The axes, text and key are grey or black,
+    a key sample line tens of coloured pixels: the series' lines and bars
+    are the hundreds more."""
+    if not shutil.which("gnuplot"):
         assert not ok and not png.exists()
+        return
+    assert ok and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    w, h, ch, px = pixels_of(png, tmp)
+    assert (w, h, ch) == (800, 500, 3), (w, h, ch)
+    coloured = sum(1 for i in range(0, len(px), ch) if max(px[i:i + ch]) - min(px[i:i + ch]) > 60)
+    assert coloured >= 300, f"{png}: {coloured} coloured pixels, the series are not drawn"
 
 
 def test_lines_writes_spread_log_axes_and_marks(tmp_path):
@@ -39,7 +50,7 @@ def test_lines_writes_spread_log_axes_and_marks(tmp_path):
     assert "index 1 using 1:2:3:4 with yerrorlines" in gp and "title 'job''s'" in gp
     assert "set arrow from 2, graph 0 to 2, graph 1" in gp and "set xtics ('1' 1, '2' 2)" in gp
     assert dat.split("\n\n\n")[1].splitlines() == ["1\t1\t0.9\t1.1", "2\t1.8\t1.7\t1.95"]
-    drew(png, ok)
+    drew(png, ok, tmp_path)
 
 
 def test_bars_writes_one_row_per_category_with_spreads(tmp_path):
@@ -50,7 +61,7 @@ def test_bars_writes_one_row_per_category_with_spreads(tmp_path):
     rows = (tmp_path / "gnuplot" / "b.dat").read_text().splitlines()
     assert "set style histogram errorbars" in gp and "using 5:6:7:xtic(1) title 'seed'" in gp
     assert rows == ["L1\t1\t0.5\t1.5\t3\t3\t3", "L0\t2\t2\t2.5\t4\t4\t4"]
-    drew(png, ok)
+    drew(png, ok, tmp_path)
 
 
 def kernels_csv(path, memread=True):

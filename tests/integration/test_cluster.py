@@ -139,24 +139,38 @@ def test_slow_worker_gets_a_proportionally_smaller_slice(data, cluster, tmp_path
     assert most[1] < most[0], most
 
 
+class Slowed:
+    """What run_slowed saw: seconds from the throttle's start to the job's
+    end; whether the job was still running when the throttle was lifted;
+    the batches the throttled worker answered while throttled (its scans
+    measured the slowdown: a throttle on an idle worker proves nothing)."""
+
+    def __init__(self, elapsed, running, batches):
+        self.elapsed, self.running, self.batches = elapsed, running, batches
+
+
 def run_slowed(cluster, data, tmp_path, slow_seconds, running, size=(2048, 1536)):
     """A long job; once both workers have answered its batches, worker 2
-    runs at `running` of its speed for slow_seconds."""
+    runs at `running` of its speed for slow_seconds (or until the job ends)."""
     w, h = size
     p = subprocess.Popen([str(BUILD / "texsyn"), "synth", "--server", cluster.server.addr, "--ref",
                           ref_of(data), "-o", tmp_path / "long.png", "--size", f"{w}x{h}", "--quiet",
                           "--parity"], stderr=subprocess.PIPE, text=True)
     while p.poll() is None and not all(x["batches"] > 0 for x in cluster.pool()):
         time.sleep(0.05)
+    before = cluster.pool()[1]["batches"]
+    assert p.poll() is None, "the job ended before the worker was throttled"
     slow = Throttle(cluster.workers[1].proc.pid, running)
     t0 = time.time()
     while p.poll() is None and time.time() - t0 < slow_seconds:
         time.sleep(0.05)
+    still = p.poll() is None
+    answered = cluster.pool()[1]["batches"] - before
     slow.stop()
     p.wait(timeout=600)
     assert p.returncode == 0, p.stderr.read()
     p.stderr.close()
-    return time.time() - t0
+    return Slowed(time.time() - t0, still, answered)
 
 
 @pytest.mark.long  # 25 s of measured slowdown: make test-faults
@@ -164,16 +178,22 @@ def test_sustained_slowdown_rebalances(data, cluster, tmp_path):
     cluster.start(2, 1, "--rebalance-after", "2")
     # At a quarter of its speed the worker's scans measure well below the
     # other's (2 workers: a deviation of about 0.45 from their mean)
-    elapsed = run_slowed(cluster, data, tmp_path, 600, 0.25)
-    assert elapsed > 3, "job too short to show a sustained slowdown"
+    s = run_slowed(cluster, data, tmp_path, 600, 0.25)
+    assert s.elapsed > 3, "job too short to show a sustained slowdown"
+    assert s.batches > 0, "the throttled worker answered no batch while throttled"
     assert rebalances(cluster) >= 1, cluster.server.read_log()
     pool = cluster.pool()
     assert pool[1]["share"] < 0.8 * pool[0]["share"], pool
 
 
 def test_one_second_spike_does_not_rebalance(data, cluster, tmp_path):
+    """The spike hits the job, not an idle worker: the job runs through it
+    with the throttled worker answering batches (a rebalance on a spike
+    would come during it)."""
     cluster.start(2, 1, "--rebalance-after", "3")
-    run_slowed(cluster, data, tmp_path, 1.0, 0.25, size=(1536, 1152))  # twice --rebalance-after beyond the spike
+    s = run_slowed(cluster, data, tmp_path, 1.0, 0.25, size=(1536, 1152))  # twice --rebalance-after beyond the spike
+    assert s.running, "the job ended during the spike: it proves nothing"
+    assert s.batches > 0, "the throttled worker answered no batch during the spike"
     assert rebalances(cluster) == 0, cluster.server.read_log()
 
 
@@ -321,11 +341,15 @@ def test_bad_job_gets_a_clear_error_and_the_server_goes_on(data, cluster, tmp_pa
     cluster.start(1, 1)
     p = cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "x.png", "--size", "64x64",
                        "--wb", "4", check=False)
-    assert p.returncode != 0 and "--wb" in p.stderr
+    assert p.returncode == 2 and "--wb 4: the block width must be odd, 1..15" in p.stderr, p.stderr
     notimg = tmp_path / "fake.png"
     notimg.write_bytes(b"not an image at all" * 10)
     p = cluster.texsyn("synth", "--ref", notimg, "-o", tmp_path / "y.png", "--size", "64x64", check=False)
-    assert p.returncode != 0
+    assert p.returncode == 1, p.stderr
+    # What it is not, and its first bytes ("not an i"): the user sees which file is wrong and why.
+    assert f"{notimg}: not a PNG, JPEG, TIFF or OpenEXR image (starts with bytes 6e 6f 74 20 61 6e 20 69)" \
+        in p.stderr, p.stderr
+    assert " queued " not in cluster.server.read_log(), "a bad job reached the queue"
     remote(cluster, data, tmp_path)  # still serving
 
 

@@ -310,16 +310,19 @@ def test_unwritable_output_is_refused_before_any_synthesis(texsyn, data, tmp_pat
     outputs, embedded and against a coordinator address."""
     (tmp_path / "file").write_text("")
     big = ["--size", "2048x2048"]  # minutes of work, were it to run
-    cases = [(["-o", tmp_path / "missing" / "out.png"], "No such file or directory"),
-             (["-o", tmp_path / "file" / "out.png"], "Not a directory"),
-             (["-o", tmp_path], "it is a directory"),
-             (["-o", tmp_path / "ok.png", "--report", tmp_path / "missing" / "r.json"], "No such file or directory")]
+    before = "(found before the job ran; nothing was done)"
+    cases = [(["-o", tmp_path / "missing" / "out.png"],
+              f"cannot write {tmp_path / 'missing' / 'out.png'}: No such file or directory {before}"),
+             (["-o", tmp_path / "file" / "out.png"], f"cannot write {tmp_path / 'file' / 'out.png'}: Not a directory {before}"),
+             (["-o", tmp_path], f"cannot write {tmp_path}: it is a directory; name a file in it"),
+             (["-o", tmp_path / "ok.png", "--report", tmp_path / "missing" / "r.json"],
+              f"cannot write {tmp_path / 'missing' / 'r.json'}: No such file or directory {before}")]
     for where in (["--embedded"], ["--server", "127.0.0.1:1"]):
         for out, why in cases:
             t0 = time.time()
             p = subprocess_run(texsyn, "synth", "--ref", ref_of(data), *out, *big, *where)
-            assert p.returncode == 1 and why in p.stderr and "found before the job ran" in p.stderr \
-                or "it is a directory" in p.stderr, p.stderr
+            assert p.returncode == 1, (where, why, p.returncode, p.stderr)
+            assert why in p.stderr, (where, why, p.stderr)
             assert time.time() - t0 < 5, "the check came after the synthesis"
     assert not (tmp_path / "ok.png").exists()
 

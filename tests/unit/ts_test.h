@@ -35,6 +35,19 @@ static inline void ts_test_put_file(char path[32], const void *data, size_t n) {
   assert_int_equal(close(fd), 0);
 }
 
+/* Skips the running test and says why, on a line of its own ("skipped:
+ * REASON") that tests/run-unit.sh puts on the test's SKIP line. A skip is
+ * not a pass: `make test` allows it only where tests/skips.allow names
+ * this test with this reason. */
+#define ts_test_skip(...)  \
+  do {                     \
+    printf("skipped: ");   \
+    printf(__VA_ARGS__);   \
+    printf("\n");          \
+    fflush(stdout);        \
+    skip();                \
+  } while (0)
+
 #define TS_TEST_MAIN(group)                                                  \
   int main(int argc, char **argv) {                                          \
     size_t n_ = sizeof(group) / sizeof(group[0]);                            \
