@@ -35,6 +35,13 @@ int ts_arg_double(const char *opt, const char *s, double *out, char *err) {
   return 0;
 }
 
+int ts_arg_size(const char *opt, const char *s, int *w, int *h, char *err) {
+  int rc = ts_parse_size(s, TS_OUTPUT_SIDE_MAX, w, h);
+  if (rc == TS_EFORMAT) return ts_error(err, TS_EINVAL, "%s %s: expected WxH, e.g. 1024x1024", opt, s);
+  if (rc != 0) return ts_error(err, TS_EINVAL, "%s %s: expected WxH with 1..%d each", opt, s, TS_OUTPUT_SIDE_MAX);
+  return 0;
+}
+
 const char *ts_env_server(void) {
   const char *s = getenv("TEXSYN_SERVER");
   return s != NULL && s[0] != '\0' ? s : NULL;

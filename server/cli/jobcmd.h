@@ -116,6 +116,8 @@ int ts_job_key_option(ts_job_cmd *o, const ts_key_option *t, size_t n, int c, co
 int ts_arg_long(const char *opt, const char *s, long lo, long hi, long *out, char *err);
 int ts_arg_u64(const char *opt, const char *s, uint64_t *out, char *err);
 int ts_arg_double(const char *opt, const char *s, double *out, char *err);
+/* WxH, each side 1..TS_OUTPUT_SIDE_MAX. */
+int ts_arg_size(const char *opt, const char *s, int *w, int *h, char *err);
 
 /* The coordinator from $TEXSYN_SERVER, or NULL when unset or empty. */
 const char *ts_env_server(void);
