@@ -38,8 +38,10 @@ enum { OUT_IMAGE, OUT_COPY_MAP, OUT_COPY_MAP_RAW, OUT_REPORT, OUT_COUNT };
 
 static const ts_engine_output fill_outputs[OUT_COUNT] = {
     [OUT_IMAGE] = {"output", "out", TS_OUTPUT_IMAGE},
-    [OUT_COPY_MAP] = {"copy_map", "copymap", TS_OUTPUT_IMAGE},
-    [OUT_COPY_MAP_RAW] = {"copy_map_raw", "copymap.raw", TS_OUTPUT_FLAG},
+    [OUT_COPY_MAP] = {"copy_map", "copymap", TS_OUTPUT_IMAGE,
+                      "copy-map", "where every pixel comes from, as an image (red = x, green = y; given pixels point at themselves)"},
+    [OUT_COPY_MAP_RAW] = {"copy_map_raw", "copymap.raw", TS_OUTPUT_FLAG,
+                      "copy-map-raw", "the same as little-endian uint32 (x, y) per pixel"},
     [OUT_REPORT] = {"report", "report.json", TS_OUTPUT_FLAG},
 };
 

@@ -9,6 +9,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "param.h"
+
 #include "image.h"
 #include "neigh.h"
 #include "progress.h"
@@ -66,6 +68,9 @@ int ts_mrf_lbg_levels_parse(const char *spec, uint32_t *mask);
 /* Formats a level mask as such a SPEC. */
 void ts_mrf_lbg_levels_format(uint32_t mask, char *buf, size_t cap);
 
+/* The parameters' declaration (mrf_params.c): spec keys, flags, ranges,
+ * defaults and help; ts_mrf_params_default sets those defaults. */
+extern const ts_param ts_mrf_param_table[];
 void ts_mrf_params_default(ts_mrf_params *p);
 
 /* Checks parameters against a reference of ref_w x ref_h with `channels`
