@@ -177,9 +177,9 @@ int ts_params_format(const ts_param *t, const void *params, char *buf, size_t ca
 static void range_text(const ts_param *p, int message, char *buf, size_t cap) {
   const char *odd = !(p->flags & TS_PARAM_ODD) ? "" : message ? "an odd number in " : "odd, ";
   if (p->flags & TS_PARAM_UNBOUNDED) snprintf(buf, cap, "0..2^64-1");
-  else if ((p->flags & TS_PARAM_ODD) && p->min == 0) snprintf(buf, cap, "0 or odd 1..%g", p->max);
-  else if (p->flags & TS_PARAM_MIN_OPEN) snprintf(buf, cap, "more than %g, at most %g", p->min, p->max);
-  else snprintf(buf, cap, "%s%g..%g", odd, p->min, p->max);
+  else if ((p->flags & TS_PARAM_ODD) && p->min == 0) snprintf(buf, cap, "0 or odd 1..%.15g", p->max);
+  else if (p->flags & TS_PARAM_MIN_OPEN) snprintf(buf, cap, "more than %.15g, at most %.15g", p->min, p->max);
+  else snprintf(buf, cap, "%s%.15g..%.15g", odd, p->min, p->max);
 }
 
 static int has_range(const ts_param *p) {

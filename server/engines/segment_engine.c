@@ -39,18 +39,8 @@ static void seg_inputs(const void *params, ts_engine_inputs *out) {
 
 /* ---- spec keys ----------------------------------------------------------- */
 
-/* Ranges here only keep values in their types; ts_seg_check judges them
- * (pairs excepted: the inputs follow from it). */
 static int seg_spec_set(void *params, const char *k, const char *v) {
-  ts_seg_params *p = params;
-  if (strcmp(k, "pairs") == 0) return ts_parse_int(v, 1, TS_SEG_MAX_PAIRS, &p->pairs);
-  if (strcmp(k, "levels") == 0) return ts_parse_int(v, -1000, 1000, &p->levels);
-  if (strcmp(k, "window") == 0) return ts_parse_int(v, -1000, 1000, &p->window);
-  if (strcmp(k, "denoise") == 0) return ts_parse_int(v, -1, TS_SEG_MAX_DENOISE + 1, &p->denoise);
-  if (strcmp(k, "rgb_search") == 0) return ts_parse_int(v, 0, 1, &p->rgb);
-  if (strcmp(k, "truth") == 0) return ts_parse_int(v, 0, 1, &p->truth);
-  if (strcmp(k, "max_pixels") == 0) return ts_parse_u64(v, &p->max_pixels);
-  return TS_ENOENT;
+  return ts_params_set(ts_seg_param_table, params, k, v);
 }
 
 static int seg_spec_complete(const void *params, char *err) {
@@ -59,10 +49,7 @@ static int seg_spec_complete(const void *params, char *err) {
 }
 
 static int seg_spec_format(const void *params, char *buf, size_t cap) {
-  const ts_seg_params *p = params;
-  int n = snprintf(buf, cap, "pairs=%d\nlevels=%d\nwindow=%d\ndenoise=%d\nrgb_search=%d\ntruth=%d\nmax_pixels=%llu\n",
-                   p->pairs, p->levels, p->window, p->denoise, p->rgb, p->truth, (unsigned long long)p->max_pixels);
-  return n < 0 || (size_t)n >= cap ? TS_ETOOBIG : n;
+  return ts_params_format(ts_seg_param_table, params, buf, cap);
 }
 
 /* The inputs named by their options (the CLI names its files itself). */
@@ -213,6 +200,7 @@ const ts_engine ts_engine_segment = {
     .name = "segment",
     .outputs = seg_outputs,
     .noutputs = OUT_COUNT,
+    .params = ts_seg_param_table,
     .params_default = seg_params_default,
     .spec_set = seg_spec_set,
     .spec_complete = seg_spec_complete,
