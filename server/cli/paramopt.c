@@ -38,7 +38,8 @@ int ts_paramopt_take(ts_job_cmd *o, int c, const char *arg, char *err) {
     const ts_param *p = &e->params[c - TS_OPT_PARAM];
     char what[64];
     snprintf(what, sizeof(what), "--%s", p->flag);
-    return ts_param_parse(p, &o->spec.params, p->type == TS_PARAM_FLAG ? "1" : arg, what, err);
+    if (p->type == TS_PARAM_FLAG) arg = p->flags & TS_PARAM_NEGATE ? "0" : "1";
+    return ts_param_parse(p, &o->spec.params, arg, what, err);
   }
   if (c >= TS_OPT_SIDE && c < TS_OPT_SIDE + e->noutputs) {
     ts_output_set(&o->out, e->outputs[c - TS_OPT_SIDE].key, arg);

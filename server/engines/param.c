@@ -29,6 +29,9 @@ int ts_param_count(const ts_param *t) {
   return n;
 }
 
+static int has_range(const ts_param *p);
+static int in_range(const ts_param *p, double v);
+
 /* ---- one value ----------------------------------------------------------- */
 
 static int parse_enum(const ts_param *p, const char *text, int *out) {
@@ -94,7 +97,10 @@ int ts_param_parse(const ts_param *p, void *params, const char *text, const char
 int ts_params_set(const ts_param *t, void *params, const char *key, const char *text) {
   const ts_param *p = ts_param_find(t, key);
   if (p == NULL || (p->flags & TS_PARAM_EMBEDDED)) return TS_ENOENT;
-  return parse_value(p, params, text);
+  /* A spec's value must also be in range: some bound what the engine
+   * allocates or indexes (aerial's classes), before any check runs. */
+  if (parse_value(p, params, text) != 0) return TS_EINVAL;
+  return has_range(p) && !in_range(p, ts_param_number(p, params)) ? TS_EINVAL : 0;
 }
 
 void ts_params_default(const ts_param *t, void *params) {

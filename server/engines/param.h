@@ -34,6 +34,7 @@ enum {
   TS_PARAM_UNBOUNDED = 4, /* U64: any value (min and max unused) */
   TS_PARAM_EMBEDDED = 8,  /* a command-line setting the spec does not keep:
                              the job runs in-process only */
+  TS_PARAM_NEGATE = 16,   /* FLAG: the option sets 0 (--no-self for self=1) */
 };
 
 /* A CUSTOM field's text form. */
@@ -77,8 +78,8 @@ void ts_params_default(const ts_param *table, void *params);
  * ("--levels", "levels") and what a value looks like. The type is checked
  * here, the range by ts_params_check. */
 int ts_param_parse(const ts_param *p, void *params, const char *text, const char *what, char *err);
-/* Sets spec key `key`: 0, TS_EINVAL, or TS_ENOENT if the table lacks it
- * or it is EMBEDDED. */
+/* Sets spec key `key`: 0, TS_EINVAL (not of the type, or out of range),
+ * or TS_ENOENT if the table lacks it or it is EMBEDDED. */
 int ts_params_set(const ts_param *table, void *params, const char *key, const char *text);
 /* Appends the spec lines `key=value\n` in table order (groups as above);
  * the length, or TS_ETOOBIG. */
