@@ -41,30 +41,15 @@ static void stylit_inputs(const void *params, ts_engine_inputs *out) { ts_stylit
 /* ---- spec keys ---------------------------------------------------------- */
 
 /* weight_K: K's weight; ranges are the check's business. */
-static int set_weight(ts_stylit_params *p, const char *k, const char *v) {
+int ts_stylit_weight_set(ts_stylit_params *p, const char *k, const char *v) {
   int g;
   if (strncmp(k, "weight_", 7) != 0 || ts_parse_int(k + 7, 0, TS_STYLIT_MAX_GUIDES - 1, &g) != 0) return TS_ENOENT;
   return ts_parse_double(v, &p->weight[g]) != 0 || p->weight[g] < 0 ? TS_EINVAL : 0;
 }
 
-int ts_stylit_scene_set(ts_stylit_params *p, const char *k, const char *v) {
-  if (strcmp(k, "patch_size") == 0) return ts_parse_int(v, -1000, 1000, &p->patch);
-  if (strcmp(k, "max_pixels") == 0) return ts_parse_u64(v, &p->max_pixels);
-  if (strcmp(k, "guides") == 0) return ts_parse_int(v, 1, TS_STYLIT_MAX_GUIDES, &p->guides);
-  if (strcmp(k, "style_weight") == 0) return ts_parse_double(v, &p->style_weight);
-  return set_weight(p, k, v);
-}
-
 static int stylit_spec_set(void *params, const char *k, const char *v) {
-  ts_stylit_params *p = params;
-  if (strcmp(k, "levels") == 0) return ts_parse_int(v, -1000, 1000, &p->levels);
-  if (strcmp(k, "iters") == 0) return ts_parse_int(v, -1000, 1000, &p->iters);
-  if (strcmp(k, "uniformity") == 0) return ts_parse_double(v, &p->uniformity);
-  if (strcmp(k, "seed") == 0) return ts_parse_u64(v, &p->seed);
-  if (strcmp(k, "search") == 0) return ts_stylit_search_parse(v, p, NULL) == 0 ? 0 : TS_EINVAL;
-  if (strcmp(k, "pm_iters") == 0) return ts_parse_int(v, -1000, 1000, &p->pm_iters);
-  if (strcmp(k, "budget") == 0) return ts_parse_double(v, &p->budget);
-  return ts_stylit_scene_set(p, k, v);
+  int rc = ts_params_set(ts_stylit_param_table, params, k, v);
+  return rc != TS_ENOENT ? rc : ts_stylit_weight_set(params, k, v);
 }
 
 /* A weight for a guide the job does not have would not survive format
@@ -81,24 +66,18 @@ static int stylit_spec_complete(const void *params, char *err) { return ts_styli
 
 /* Doubles with 17 significant digits, so they round-trip; guide weights
  * resolved (a default weight is written as the value it stands for). */
-int ts_stylit_scene_format(const ts_stylit_params *p, char *buf, size_t cap) {
-  int n = snprintf(buf, cap, "patch_size=%d\nmax_pixels=%llu\nguides=%d\nstyle_weight=%.17g\n", p->patch,
-                   (unsigned long long)p->max_pixels, p->guides, p->style_weight);
+int ts_stylit_weights_format(const ts_stylit_params *p, char *buf, size_t cap) {
+  int n = 0;
   for (int k = 0; n >= 0 && (size_t)n < cap && k < p->guides; k++)
     n += snprintf(buf + n, cap - (size_t)n, "weight_%d=%.17g\n", k, ts_stylit_weight(p, k));
   return n < 0 || (size_t)n >= cap ? TS_ETOOBIG : n;
 }
 
 static int stylit_spec_format(const void *params, char *buf, size_t cap) {
-  const ts_stylit_params *p = params;
-  char search[TS_STYLIT_SEARCH_LEN];
-  ts_stylit_search_format(p, search, sizeof(search));
-  int n = ts_stylit_scene_format(p, buf, cap);
+  int n = ts_params_format(ts_stylit_param_table, params, buf, cap);
   if (n < 0) return n;
-  int k = snprintf(buf + n, cap - (size_t)n,
-                   "levels=%d\niters=%d\nuniformity=%.17g\nseed=%llu\nsearch=%s\npm_iters=%d\nbudget=%.17g\n",
-                   p->levels, p->iters, p->uniformity, (unsigned long long)p->seed, search, p->pm_iters, p->budget);
-  return k < 0 || (size_t)k >= cap - (size_t)n ? TS_ETOOBIG : n + k;
+  int k = ts_stylit_weights_format(params, buf + n, cap - (size_t)n);
+  return k < 0 ? k : n + k;
 }
 
 static void stylit_params_default(void *params) { ts_stylit_params_default(params); }
@@ -208,6 +187,7 @@ const ts_engine ts_engine_stylize = {
     .name = "stylize",
     .outputs = stylit_outputs,
     .noutputs = OUT_COUNT,
+    .params = ts_stylit_param_table,
     .params_default = stylit_params_default,
     .spec_set = stylit_spec_set,
     .spec_complete = stylit_spec_complete,
