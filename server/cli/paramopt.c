@@ -70,3 +70,32 @@ double ts_paramopt_number(const ts_job_cmd *o, const char *key) {
   const ts_param *p = ts_param_find(o->spec.engine->params, key);
   return p != NULL ? ts_param_number(p, &o->spec.params) : 0;
 }
+
+/* One engine's table: spec key, option, default, range, help. */
+static void print_table(const ts_engine *e) {
+  printf("engine %s\n", e->name);
+  for (const ts_param *p = e->params; p->key != NULL; p++) {
+    char option[64] = "-", def[128] = "-";
+    if (p->flag != NULL) snprintf(option, sizeof(option), "--%s", p->flag);
+    if (p->def != NULL) snprintf(def, sizeof(def), "%s", p->def);
+    printf("  %-18s %-20s %-10s %s%s\n", p->key, option, def, p->help,
+           p->flags & TS_PARAM_EMBEDDED ? " [in-process only, not a spec key]" : "");
+  }
+}
+
+int ts_cmd_params(int argc, char **argv) {
+  if (argc > 2 || (argc == 2 && argv[1][0] == '-')) {
+    printf("usage: texsyn params [ENGINE]\n"
+           "Lists each engine's parameters (or ENGINE's): the job spec key, the command-line\n"
+           "option (- for a key set from the inputs), the default and what it does.\n");
+    return argc == 2 && (strcmp(argv[1], "--help") == 0 || strcmp(argv[1], "-h") == 0) ? 0 : 2;
+  }
+  const ts_engine *e;
+  if (argc == 2 && (e = ts_engine_find(argv[1])) == NULL) {
+    fprintf(stderr, "texsyn params: no engine '%s' (texsyn params lists them)\n", argv[1]);
+    return 2;
+  }
+  if (argc == 2) print_table(e);
+  for (int i = 0; argc == 1 && (e = ts_engine_at(i)) != NULL; i++) print_table(e);
+  return 0;
+}

@@ -30,4 +30,9 @@ void ts_paramopt_help(FILE *f, const ts_engine *e);
 /* The value of a parameter of o's engine as a number (param.h). */
 double ts_paramopt_number(const ts_job_cmd *o, const char *key);
 
+/* `texsyn params [ENGINE]`: the engines' parameter tables, for people
+ * writing job specs and for the tests that hold --help and the manual to
+ * the tables. The exit status. */
+int ts_cmd_params(int argc, char **argv);
+
 #endif

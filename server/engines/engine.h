@@ -141,6 +141,8 @@ typedef struct ts_engine {
 
 /* The engine of that name, or NULL. */
 const ts_engine *ts_engine_find(const char *name);
+/* The i-th engine of the registry (0, 1, ...), or NULL past the last. */
+const ts_engine *ts_engine_at(int i);
 /* The engine a spec without an `engine` key means (specs spooled before
  * engines had names are MRF jobs). */
 const ts_engine *ts_engine_default(void);
