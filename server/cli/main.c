@@ -33,7 +33,6 @@
 #include "engine.h"
 #include "fillcmd.h"
 #include "mrf.h"
-#include "outputs.h"
 #include "paramopt.h"
 #include "quality.h"
 #include "segment.h"

@@ -10,6 +10,7 @@
 #include "error.h"
 #include "image_meta.h"
 #include "mrf.h"
+#include "mrf_report.h"
 #include "outputs.h"
 #include "util.h"
 
