@@ -9,7 +9,9 @@
 
 #include "error.h"
 #include "fillcmd.h"
+#include "mrf.h"
 #include "paramopt.h"
+#include "util.h"
 
 static void usage_synth(FILE *f, const ts_engine *e) {
   fprintf(f,
@@ -55,7 +57,13 @@ static const struct option synth_own[] = {
     {"ref", required_argument, 0, OPT_REF}, {"ref-fine", required_argument, 0, OPT_REF_FINE}, TS_JOB_LONGOPTS,
     {0, 0, 0, 0}};
 
+/* Whether --levels was given: without it, an output too small for the
+ * default levels takes as many as it holds. */
+static int levels_given;
+
 static int synth_option(ts_job_cmd *o, int c, const char *arg, char *err) {
+  if (c == TS_OPT_PARAM + (int)(ts_param_find(o->spec.engine->params, "levels") - o->spec.engine->params))
+    levels_given = 1;
   if (c == OPT_REF) o->in[0] = arg;
   else if (c == OPT_REF_FINE) o->in[1] = arg;
   else {
@@ -67,7 +75,19 @@ static int synth_option(ts_job_cmd *o, int c, const char *arg, char *err) {
   return 0;
 }
 
+/* The default levels, or as many as the --size holds. */
+static int fit_levels(ts_job_cmd *o, char *err) {
+  char size[64], levels[16];
+  int w, h;
+  ts_param_format(ts_param_find(o->spec.engine->params, "size"), &o->spec.params, size, sizeof(size));
+  if (ts_parse_size(size, TS_OUTPUT_SIDE_MAX, &w, &h) != 0) return 0; /* the check names it */
+  snprintf(levels, sizeof(levels), "%d",
+           ts_mrf_levels_that_fit(w, h, (int)ts_paramopt_number(o, "wn"), (int)ts_paramopt_number(o, "levels")));
+  return ts_job_set_key(o, "levels", levels, "--levels", err);
+}
+
 static int synth_parse(int argc, char **argv, ts_job_cmd *o, char *err) {
+  levels_given = 0;
   ts_job_cmd_init(o, "synth", ts_engine_find("mrf"));
   struct option longopts[TS_PARAMOPT_MAX];
   if (ts_paramopt_build(o->spec.engine, synth_own, longopts, TS_PARAMOPT_MAX) != 0)
@@ -92,6 +112,7 @@ static int synth_parse(int argc, char **argv, ts_job_cmd *o, char *err) {
   if (rc != 0) return rc;
   if (ts_paramopt_number(o, "size") == 0 && o->spec.engine->spec_complete(&o->spec.params, err) != 0)
     return ts_error(err, TS_EINVAL, "--size WxH is required (see texsyn synth --help)");
+  if (!levels_given && fit_levels(o, err) != 0) return TS_EINVAL;
   if ((o->in[1] != NULL) != (ts_paramopt_number(o, "mix_level") != 0))
     return ts_error(err, TS_EINVAL, "--ref-fine IMG and --mix-level M go together (texture mixing)");
   return ts_paramopt_check(o, err);

@@ -49,6 +49,16 @@ static void level_sizes(int w, int h, int levels, int *lw, int *lh, int ceil_mod
   }
 }
 
+int ts_mrf_levels_that_fit(int w, int h, int wn, int most) {
+  int l = 1;
+  for (; l < most && l < TS_MRF_MAX_LEVELS; l++) {
+    w = (w + 1) / 2;
+    h = (h + 1) / 2;
+    if (w < wn || h < wn) break;
+  }
+  return l;
+}
+
 /* How a reference too small for its levels is named and what fixes it. */
 typedef struct {
   const char *option, *name, *fix;

@@ -60,7 +60,8 @@ enum { G_BEST_OF = 1, G_MIX, G_ACCEL, G_LBG };
  * the same text. */
 const ts_param ts_mrf_param_table[] = {
     {"size", "size", "WxH", TS_PARAM_SIZE, F(width), 0, 0, NULL, "output size in pixels (any size, >= 1)"},
-    {"levels", "levels", "L", TS_PARAM_INT, F(levels), 1, TS_MRF_MAX_LEVELS, "5", "pyramid levels"},
+    {"levels", "levels", "L", TS_PARAM_INT, F(levels), 1, TS_MRF_MAX_LEVELS, "5", "pyramid levels",
+     "5, or as many as a smaller --size holds"},
     {"wn", "wn", "N", TS_PARAM_INT, F(wn), 3, TS_MAX_WN, "7", "neighbourhood width, wider than --wb",
      .flags = TS_PARAM_ODD},
     {"wb", "wb", "B", TS_PARAM_INT, F(wb), 1, 15, "3", "block width", .flags = TS_PARAM_ODD},

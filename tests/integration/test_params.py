@@ -2,6 +2,7 @@
 command line's options and --help come from that table. These hold every
 command's --help to the table `texsyn params` prints: each declared option
 is offered and described with its default."""
+import json
 import re
 
 import pytest
@@ -56,3 +57,15 @@ def test_a_spec_only_key_is_no_option(texsyn):
     assert rows["pairs"] == "-" and rows["truth"] == "-"
     p = run(texsyn, "segment", "--pairs", "2", check=False)
     assert p.returncode == 2 and "--pairs" in p.stderr, p.stderr
+
+
+def test_a_small_size_takes_as_many_default_levels_as_it_holds(texsyn, data, tmp_path):
+    """The help says any size: 64x64 holds 4 levels of a 7-wide window, and
+    without --levels it takes them; an explicit --levels 5 is refused."""
+    ref = data / "textures" / "brick.png"
+    out, report = tmp_path / "s.png", tmp_path / "r.json"
+    run(texsyn, "synth", "--embedded", "--ref", ref, "--size", "64x64", "-o", out, "--report", report)
+    assert json.loads(report.read_text())["params"]["levels"] == 4
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    p = run(texsyn, "synth", "--embedded", "--ref", ref, "--size", "64x64", "--levels", "5", "-o", out, check=False)
+    assert p.returncode == 2 and "--levels 5: the output is only 4x4 at the coarsest level" in p.stderr, p.stderr
