@@ -107,6 +107,7 @@ typedef struct {
   uint8_t level_mode[TS_STYLIT_MAX_LEVELS];
   int pm_iters;       /* patchmatch passes per search step, 1..100 (4) */
   double budget;      /* auto: seconds an exact level may take, 0..1e6 (1) */
+  double scale;       /* the inputs resampled to this fraction first, (0, 1] (1) */
 } ts_stylit_params;
 
 /* Inputs in the engine's order: style, then per guide K source, target. */

@@ -3,6 +3,7 @@
  * energy engine), its own keys, result files and report. No checkpoints
  * yet: a job a coordinator restart interrupts runs again from its start,
  * which gives the same bytes. */
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -10,6 +11,7 @@
 #include "engine.h"
 #include "error.h"
 #include "outputs.h"
+#include "resample.h"
 #include "stylit.h"
 #include "stylit_engine.h"
 #include "util.h"
@@ -82,8 +84,48 @@ static int stylit_spec_format(const void *params, char *buf, size_t cap) {
 
 static void stylit_params_default(void *params) { ts_stylit_params_default(params); }
 
+/* ---- --scale: the inputs resampled first -------------------------------- */
+
+static int scaled_side(int n, double scale) {
+  int s = (int)lround(n * scale);
+  return s < 1 ? 1 : s;
+}
+
+typedef struct {
+  int n;
+  ts_image img[TS_ENGINE_MAX_INPUTS];
+  const ts_image *ptr[TS_ENGINE_MAX_INPUTS];
+} scaled_inputs;
+
+static void scaled_free(scaled_inputs *s) {
+  for (int k = 0; k < s->n; k++) ts_image_free(&s->img[k]);
+  s->n = 0;
+}
+
+/* The inputs the synthesis sees: in itself, or at p->scale. */
+static int scaled_make(const ts_stylit_params *p, const ts_image *const *in, scaled_inputs *s, char *err) {
+  int n = 1 + 2 * (p->guides < TS_STYLIT_MAX_GUIDES ? p->guides : TS_STYLIT_MAX_GUIDES);
+  s->n = 0;
+  for (int k = 0; k < n; k++) {
+    s->ptr[k] = in[k];
+    if (p->scale == 1.0) continue;
+    int rc = ts_image_resample(in[k], scaled_side(in[k]->width, p->scale), scaled_side(in[k]->height, p->scale),
+                               &s->img[k], err);
+    s->n = k + (rc == 0);
+    if (rc != 0) return rc;
+    s->ptr[k] = &s->img[k];
+  }
+  return 0;
+}
+
 static int stylit_check(const void *params, const ts_image *const *in, char *msg, size_t len) {
-  return ts_stylit_check(params, in, msg, len);
+  scaled_inputs s;
+  char err[TS_ERR_LEN];
+  int rc = scaled_make(params, in, &s, err);
+  if (rc != 0) snprintf(msg, len, "%s", err);
+  else rc = ts_stylit_check(params, s.ptr, msg, len);
+  scaled_free(&s);
+  return rc;
 }
 
 static void stylit_set_max_pixels(void *params, uint64_t max_pixels) {
@@ -92,9 +134,10 @@ static void stylit_set_max_pixels(void *params, uint64_t max_pixels) {
 
 /* Per target pixel: the image (4 bytes at most) and the NNF (8). */
 static uint64_t stylit_result_bytes(const void *params, const ts_engine_wants *w, const ts_image_info *in) {
-  (void)params;
+  const ts_stylit_params *p = params;
   const ts_image_info *t = &in[ts_stylit_in_tgt(0)];
-  return (uint64_t)t->width * (uint64_t)t->height * (4 + (w->want[OUT_NNF][0] ? 8 : 0));
+  return (uint64_t)scaled_side(t->width, p->scale) * (uint64_t)scaled_side(t->height, p->scale) *
+         (4 + (w->want[OUT_NNF][0] ? 8 : 0));
 }
 
 static int stylit_levels(const void *params) { return ((const ts_stylit_params *)params)->levels; }
@@ -115,7 +158,11 @@ static int stylit_run(const void *params, const ts_image *const *in, ts_search *
   r->p = params;
   r->search = search;
   ts_stylit_hooks sh = {h->progress, h->progress_ctx};
-  return ts_stylit_run(r->p, in, search, &sh, &r->res, err);
+  scaled_inputs s;
+  int rc = scaled_make(r->p, in, &s, err);
+  if (rc == 0) rc = ts_stylit_run(r->p, s.ptr, search, &sh, &r->res, err);
+  scaled_free(&s);
+  return rc;
 }
 
 /* The report: parameters, the search (its mode, and "patchmatch" among

@@ -99,6 +99,10 @@ const ts_param ts_stylit_param_table[] = {
     {"pm_iters", "pm-iters", "N", TS_PARAM_INT, F(pm_iters), 1, 100, "4", "patchmatch passes per search step"},
     {"budget", "budget", "SECONDS", TS_PARAM_DOUBLE, F(budget), 0, 1e6, "1",
      "size, auto: the longest an exact level may take"},
+    {"scale", "scale", "F", TS_PARAM_DOUBLE, F(scale), 0, 1, "1",
+     "work at this fraction of the inputs' size: the style and every guide resampled (area average) first, the "
+     "output and --nnf at the scaled target size and exemplar; for a preview of a large scene",
+     .group = 1, .flags = TS_PARAM_MIN_OPEN},
     {NULL}};
 
 void ts_stylit_params_default(ts_stylit_params *p) {
