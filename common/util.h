@@ -33,7 +33,8 @@ int ts_file_read(const char *path, size_t max_bytes, uint8_t **buf, size_t *len,
  * path - or removes it, when ok is 0 or anything fails. It is durable when
  * ts_file_commit returns: the file is fsynced before the rename and its
  * directory after. NULL / TS_EIO with a message naming path and the
- * system's reason. ts_file_write does both for bytes in memory. */
+ * system's reason. ts_file_write does both for bytes in memory: the one
+ * atomic write of the project, the spool's files included. */
 #define TS_FILE_TMP_LEN 4096
 FILE *ts_file_create(const char *path, char *tmp, char *err);
 int ts_file_commit(FILE *f, const char *tmp, const char *path, int ok, char *err);

@@ -77,47 +77,6 @@ struct ts_jobs {
 
 /* ---- files ------------------------------------------------------------- */
 
-/* Writes data to path atomically and durably: a temporary file, fsync,
- * rename, then the directory's fsync (ts_file_commit says why in that
- * order). A kill at any moment leaves the old file or the new one; once
- * this returns, a power loss leaves the new one. */
-static int write_atomic(const char *path, const void *data, size_t len, char *err) {
-  char tmp[JOBS_PATH + 32];
-  snprintf(tmp, sizeof(tmp), "%s.tmp", path);
-  int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (fd < 0) return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
-  const uint8_t *p = data;
-  size_t left = len;
-  while (left > 0) {
-    ssize_t k = write(fd, p, left);
-    if (k < 0 && errno == EINTR) continue;
-    if (k <= 0) {
-      int e = k < 0 ? errno : ENOSPC; /* a regular file that takes no byte is full */
-      close(fd);
-      unlink(tmp);
-      return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(e));
-    }
-    p += k;
-    left -= (size_t)k;
-  }
-  int ok = fsync(fd) == 0, e = errno;
-  if (close(fd) != 0 && ok) {
-    ok = 0;
-    e = errno;
-  }
-  if (ok && rename(tmp, path) != 0) {
-    ok = 0;
-    e = errno;
-  }
-  if (!ok) {
-    unlink(tmp);
-    return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(e));
-  }
-  if (ts_parent_sync(path) != 0)
-    return ts_error(err, TS_EIO, "cannot write %s: syncing its directory: %s", path, strerror(errno));
-  return 0;
-}
-
 /* Makes directory dir, durably: once this returns, its parent's entry for
  * it survives a power loss. */
 static int make_dir(const char *dir, char *err) {
@@ -160,8 +119,9 @@ static uint64_t dir_bytes(const char *dir) {
   return total;
 }
 
-/* Whether a file name is a temporary one of write_atomic ("NAME.tmp") or
- * of the image library ("NAME.tmp-PID-N"). */
+/* Whether a file name is a temporary one of util.h's atomic writes
+ * ("NAME.tmp-PID"; "NAME.tmp" in a spool of an older coordinator) or of
+ * the image library ("NAME.tmp-PID-N"). */
 static int temporary_name(const char *name) {
   const char *t = strstr(name, ".tmp");
   return t != NULL && (t[4] == '\0' || t[4] == '-');
@@ -249,7 +209,7 @@ static void job_finish(ts_jobs *j, job *jb, int state, const char *text) {
   int n = state == TS_JOB_DONE ? snprintf(buf, sizeof(buf), "done\n")
           : state == TS_JOB_CANCELED ? snprintf(buf, sizeof(buf), "canceled\n")
                                      : snprintf(buf, sizeof(buf), "failed: %s\n", text);
-  if (write_atomic(path, buf, (size_t)n, err) != 0) {
+  if (ts_file_write(path, buf, (size_t)n, err) != 0) {
     jobs_log(j, "job %" PRIu64 ": %s", jb->id, err);
     if (state == TS_JOB_DONE) {
       snprintf(why, sizeof(why), "%.400s; its results are written: a restart of the coordinator brings it back", err);
@@ -344,7 +304,7 @@ static int on_checkpoint(void *arg, const uint8_t *buf, size_t len, const char *
   char path[JOBS_PATH + 32], why[TS_ERR_LEN];
   (void)err;
   job_path(cc->jb, JOBS_CHECKPOINT, path, sizeof(path));
-  if (write_atomic(path, buf, len, why) == 0)
+  if (ts_file_write(path, buf, len, why) == 0)
     jobs_log(cc->j, "job %" PRIu64 ": checkpoint %s (%zu bytes)", cc->jb->id, what, len);
   else
     jobs_log(cc->j, "job %" PRIu64 ": no checkpoint %s: %s; the job goes on without it", cc->jb->id, what, why);
@@ -590,7 +550,7 @@ static int note_last_id(ts_jobs *j, uint64_t id, char *err) {
   char path[JOBS_PATH + 16], text[32];
   snprintf(path, sizeof(path), "%s/%s", j->spool, JOBS_LAST_ID);
   int n = snprintf(text, sizeof(text), "%" PRIu64 "\n", id);
-  return write_atomic(path, text, (size_t)n, err);
+  return ts_file_write(path, text, (size_t)n, err);
 }
 
 /* Numbers new jobs after last-id (next_id is already past every job
@@ -874,22 +834,22 @@ static int write_job_files(job *jb, const char *client, const ts_msg_submit *m, 
   size_t nl = 0;
   rc = make_dir(jb->dir, err);
   input_path(jb, names, 0, path, sizeof(path));
-  if (rc == 0) rc = write_atomic(path, m->ref, m->ref_len, err);
+  if (rc == 0) rc = ts_file_write(path, m->ref, m->ref_len, err);
   for (int k = 1; rc == 0 && k < names->n; k++) {
     input_path(jb, names, k, path, sizeof(path));
-    rc = write_atomic(path, m->more[k - 1].data, m->more[k - 1].len, err);
+    rc = ts_file_write(path, m->more[k - 1].data, m->more[k - 1].len, err);
     nl += (size_t)snprintf(list + nl, sizeof(list) - nl, "%s=%s\n", names->name[k], jb->more_ext[k - 1]);
   }
   job_path(jb, "client", path, sizeof(path));
-  if (rc == 0) rc = write_atomic(path, client, strlen(client), err);
+  if (rc == 0) rc = ts_file_write(path, client, strlen(client), err);
   job_path(jb, "ref.ext", path, sizeof(path));
-  if (rc == 0) rc = write_atomic(path, jb->ref_ext, strlen(jb->ref_ext), err);
+  if (rc == 0) rc = ts_file_write(path, jb->ref_ext, strlen(jb->ref_ext), err);
   job_path(jb, "inputs", path, sizeof(path));
-  if (rc == 0 && names->n > 1) rc = write_atomic(path, list, nl, err);
+  if (rc == 0 && names->n > 1) rc = ts_file_write(path, list, nl, err);
   char text[TS_SPEC_MAX];
   int n = ts_jobspec_format(&jb->spec, text, sizeof(text));
   job_path(jb, "job.spec", path, sizeof(path));
-  if (rc == 0) rc = n < 0 ? ts_error(err, TS_ETOOBIG, "job spec too long") : write_atomic(path, text, (size_t)n, err);
+  if (rc == 0) rc = n < 0 ? ts_error(err, TS_ETOOBIG, "job spec too long") : ts_file_write(path, text, (size_t)n, err);
   return rc;
 }
 
