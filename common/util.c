@@ -234,13 +234,24 @@ int ts_file_write(const char *path, const void *data, size_t len, char *err) {
   return file_publish(tmp, path, ok, e, err);
 }
 
-void ts_problem(char *msg, size_t len, int *count, const char *fmt, ...) {
+static void problem_v(char *msg, size_t len, int *count, const char *fmt, va_list ap) {
   size_t used = strlen(msg);
   (*count)++;
   if (used + 4 >= len) return;
   if (used > 0) msg[used++] = '\n';
+  vsnprintf(msg + used, len - used, fmt, ap);
+}
+
+void ts_problem(char *msg, size_t len, int *count, const char *fmt, ...) {
   va_list ap;
   va_start(ap, fmt);
-  vsnprintf(msg + used, len - used, fmt, ap);
+  problem_v(msg, len, count, fmt, ap);
+  va_end(ap);
+}
+
+void ts_problems_add(ts_problems *pr, const char *fmt, ...) {
+  va_list ap;
+  va_start(ap, fmt);
+  problem_v(pr->msg, pr->len, &pr->count, fmt, ap);
   va_end(ap);
 }

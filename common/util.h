@@ -18,6 +18,14 @@ struct timespec ts_wait_until(double seconds);
 /* Appends a problem to a list of them in msg (len bytes), one a line, and
  * counts it in *count: checks that report every problem at once. */
 void ts_problem(char *msg, size_t len, int *count, const char *fmt, ...) __attribute__((format(printf, 4, 5)));
+/* The same for checkers that pass their problems along: msg (len bytes,
+ * a string), and how many problems there were. */
+typedef struct {
+  char *msg;
+  size_t len;
+  int count;
+} ts_problems;
+void ts_problems_add(ts_problems *pr, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 
 /* Reads the regular file at path whole into a malloc'd buffer: *buf holds
  * *len bytes and a NUL after them, so text can be used as a string.

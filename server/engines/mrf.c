@@ -495,18 +495,6 @@ static int masked_query(engine *e, const ts_block *b, int refine) {
   return ts_vec_mask(&e->shape[SHAPE_MASKED], e->done, w, h, 1, b->x, b->y, e->mask);
 }
 
-/* Parity control (seed 002 §3.3.3): a block at (x, y) copies only from
- * reference blocks of the same (x & 1, y & 1): its class. */
-static int parity_class(int x, int y) { return (x & 1) | (y & 1) << 1; }
-
-/* The reference level's parity classes as the anchors' label plane. */
-static int parity_plane(ts_plane *p, int w, int h) {
-  if (ts_plane_alloc(p, w, h) != 0) return TS_ENOMEM;
-  for (int y = 0; y < h; y++)
-    for (int x = 0; x < w; x++) p->px[(size_t)y * (size_t)w + (size_t)x] = (uint8_t)parity_class(x, y);
-  return 0;
-}
-
 /* Sorts the blocks of a step into the two query groups, and the blocks
  * the copy-map shortcut copies: placed from their prediction in the scan,
  * left as they are by the sweeps. */
@@ -523,7 +511,7 @@ static void build_queries(engine *e, const ts_block *blocks, uint32_t n, int ref
     }
     query_group *g = &e->group[masked_query(e, b, refine) ? SHAPE_MASKED : SHAPE_PLAIN];
     g->pos[g->n] = (uint32_t)b->y * (uint32_t)e->cw[e->level] + (uint32_t)b->x;
-    g->klass[g->n] = e->p->parity ? (uint8_t)parity_class(b->x, b->y) : 0;
+    g->klass[g->n] = e->p->parity ? (uint8_t)ts_parity_class(b->x, b->y) : 0;
     g->block[g->n++] = i;
   }
 }
@@ -923,7 +911,7 @@ static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, c
   const ts_plane *r0 = e->ref_lp.fine[0];
   e->set_ids[0] = e->set_ids[1] = -1;
   e->cap = 0; /* the shapes' sizes changed */
-  if (rc == 0 && p->parity && (rc = parity_plane(&e->parity, r0->w, r0->h)) != 0) ts_error(err, rc, "out of memory");
+  if (rc == 0 && p->parity && (rc = ts_plane_parity(&e->parity, r0->w, r0->h)) != 0) ts_error(err, rc, "out of memory");
   if (rc == 0)
     rc = ts_anchors_init(&e->grid, &e->shape[SHAPE_PLAIN], r0->w, r0->h, coarse ? refs[l + 1].w : 0,
                          coarse ? refs[l + 1].h : 0, p->parity ? &e->parity : NULL, p->parity ? 4 : 1, NULL, err);

@@ -134,7 +134,7 @@ static int stylit_run(const void *params, const ts_image *const *in, ts_search *
   if (r == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
   r->p = params;
   r->search = search;
-  ts_stylit_hooks sh = {h->progress, h->progress_ctx};
+  ts_progress_hooks sh = {h->progress, h->progress_ctx};
   return ts_stylit_run(r->p, in, search, &sh, &r->res, err);
 }
 
