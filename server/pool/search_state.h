@@ -45,7 +45,7 @@ typedef struct {
   int nslices;
   cl_held *held; /* the workers that loaded the last slicing (o.max_workers slots) */
   int nheld;
-  int load_losses; /* loads of it that lost workers (ensure_slices) */
+  int load_losses; /* loads of it that lost workers (cl_ensure_slices) */
   ts_slice *local; /* in-process slice when no worker is ready */
   /* A partitioned set's codebook (rs.lbg), built once when the set is
    * prepared; every slice of the set carries it. */
