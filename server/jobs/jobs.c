@@ -1,4 +1,4 @@
-/* jobs.c - see jobs.h; the queue's files are in jobs_impl.h. */
+/* jobs.c - see jobs.h; jobs_state.h lists the queue's files. */
 #include "jobs.h"
 
 #include <errno.h>
@@ -11,7 +11,9 @@
 
 #include "error.h"
 #include "image.h"
-#include "jobs_impl.h"
+#include "jobs_queue.h"
+#include "jobs_runner.h"
+#include "jobs_spool.h"
 #include "util.h"
 
 _Static_assert(TS_ENGINE_MAX_INPUTS <= TS_MSG_MAX_INPUTS && TS_ENGINE_KEY_LEN == TS_MSG_KEY_MAX,

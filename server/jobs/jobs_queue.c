@@ -1,9 +1,9 @@
-/* jobs_queue.c - the jobs in memory (jobs_impl.h). */
+/* jobs_queue.c - the jobs in memory (jobs_queue.h). */
+#include "jobs_queue.h"
+
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-
-#include "jobs_impl.h"
 
 void jobs_changed(ts_jobs *j, job *jb) {
   jb->version++;

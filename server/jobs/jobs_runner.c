@@ -1,6 +1,8 @@
-/* jobs_runner.c - the job queue's runner threads (jobs_impl.h): each takes
+/* jobs_runner.c - the job queue's runner threads (jobs_runner.h): each takes
  * the next queued job, reads its inputs, runs its engine with progress and
  * checkpoint hooks, writes its results and records its end. */
+#include "jobs_runner.h"
+
 #include <errno.h>
 #include <inttypes.h>
 #include <stdio.h>
@@ -11,7 +13,8 @@
 #include "checkpoint.h"
 #include "error.h"
 #include "image.h"
-#include "jobs_impl.h"
+#include "jobs_queue.h"
+#include "jobs_spool.h"
 #include "util.h"
 
 typedef struct {

@@ -1,7 +1,9 @@
-/* jobs_spool.c - the job queue's spool on disk (jobs_impl.h): a job's
+/* jobs_spool.c - the job queue's spool on disk (jobs_spool.h): a job's
  * files written and removed, the spool reloaded at start (judged by
  * spool.h), SPOOL/last-id and SPOOL/lock. Every file is written by
  * ts_file_write (util.h), atomically and durably. */
+#include "jobs_spool.h"
+
 #include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
@@ -15,7 +17,7 @@
 #include <unistd.h>
 
 #include "error.h"
-#include "jobs_impl.h"
+#include "jobs_queue.h"
 #include "spool.h"
 #include "util.h"
 

@@ -1,5 +1,5 @@
-/* jobs_impl.h - what the job queue's files share (jobs.h is the face):
- * the records of jobs and clients, and each file's part of them.
+/* jobs_state.h - what the job queue's files share (jobs.h is the face):
+ * the records of jobs and clients.
  *
  *   jobs_queue.c   the jobs in memory: the list, versions, fair order
  *   jobs_spool.c   the spool on disk: a job's files, reloading, the lock
@@ -7,8 +7,8 @@
  *   jobs.c         the face: create, submit, status, cancel, delete
  *
  * Each calls only into the files listed above it. */
-#ifndef TS_JOBS_IMPL_H
-#define TS_JOBS_IMPL_H
+#ifndef TS_JOBS_STATE_H
+#define TS_JOBS_STATE_H
 
 #include <pthread.h>
 #include <stdatomic.h>
@@ -70,47 +70,7 @@ struct ts_jobs {
 /* The state after a job's last checkpoint (jobs_runner.c, on_checkpoint). */
 #define JOBS_CHECKPOINT "checkpoint"
 
-/* ---- jobs_queue.c: the jobs in memory (lock held) -------------------- */
-
-/* A job's status changed: its version moves on and waiters wake. */
-void jobs_changed(ts_jobs *j, job *jb);
-job *jobs_find(ts_jobs *j, uint64_t id);
-void jobs_append(ts_jobs *j, job *jb);
-/* A client's record; NULL only when out of memory. */
-client_share *jobs_share_of(ts_jobs *j, const char *client);
-/* The next job to start: fewest started jobs per client, then the oldest. */
-job *jobs_pick(ts_jobs *j);
+/* A job that ended: done, failed or canceled. */
 static inline int job_final(const job *jb) { return jb->st.state >= TS_JOB_DONE; }
-
-/* ---- jobs_spool.c: the spool on disk --------------------------------- */
-
-/* SPOOL/jobs made if missing, and SPOOL/lock taken: one coordinator per
- * spool. */
-int jobs_open_spool(ts_jobs *j, char *err);
-/* Reloads the spool's jobs; unfinished ones queue again. */
-int jobs_load_spool(ts_jobs *j, char *err);
-/* Records id as given out (SPOOL/last-id), before its job is acknowledged. */
-int jobs_note_last_id(ts_jobs *j, uint64_t id, char *err);
-/* A file of a job's directory; its input k (ref.EXT, then NAME.EXT). */
-void jobs_file_path(const job *jb, const char *name, char *out, size_t cap);
-void jobs_input_path(const job *jb, const ts_engine_inputs *names, int k, char *out, size_t cap);
-/* The directory and files of an admitted job, job.spec last. */
-int jobs_write_files(job *jb, const char *client, const ts_msg_submit *m, const ts_engine_inputs *names, char *err);
-/* A final state recorded on disk, then in memory (lock not held). */
-void jobs_finish(ts_jobs *j, job *jb, int state, const char *text);
-/* What a killed coordinator left half-written in a job's directory. */
-void jobs_remove_temporaries(const char *dir);
-/* A directory and its files: 0, or -1 with errno of the first failure. */
-int jobs_remove_dir(const char *dir);
-/* A finished job's directory out of the spool (lock held). */
-int jobs_discard_dir(ts_jobs *j, const job *jb, char *err);
-
-/* ---- jobs_runner.c: the runner threads -------------------------------- */
-
-/* A runner thread's body (arg: the ts_jobs). */
-void *jobs_runner(void *arg);
-/* Asks the running jobs to stop at a checkpoint, waits o.stop_grace at
- * most, then cancels what still runs (lock held). */
-void jobs_stop_running(ts_jobs *j);
 
 #endif
