@@ -65,17 +65,26 @@ WARN = -Wall -Wextra -Werror -Wstrict-prototypes -Wno-missing-field-initializers
 # Layers, each seeing only the folders below it (the compiler enforces the
 # direction: a header from a higher layer is simply not found):
 #   common <- common/search <- proto <- worker
-#                     common/search <- server/engines <- server <- server/cli
+#   common/search <- server/engines
+#   proto + server/engines <- server/cli
+#   proto <- server/pool <- server/jobs (+ server/engines) <- server/http <- server
 # Engines know the search interface, never the daemon, the wire or the CLI.
+# The CLI knows the wire and the engines (a job spec is an engine's), never
+# the coordinator; the coordinator's folders are its pool of workers, its
+# job queue and spool, its operations page, and at server/ itself the
+# daemon (main.c, and smon.c, its Modbus monitor), which sees them all.
 INC_common = -Icommon
 INC_common/search = $(INC_common) -Icommon/search
 INC_proto = $(INC_common/search) -Iproto
 INC_worker = $(INC_proto) -Iworker
 INC_server/engines = $(INC_common/search) -Iserver/engines
-INC_server = $(INC_proto) -Iserver/engines -Iserver $(MHD_CFLAGS)
-INC_server/cli = $(INC_server) -Iserver/cli
+INC_server/cli = $(INC_proto) -Iserver/engines -Iserver/cli
+INC_server/pool = $(INC_proto) -Iserver/pool
+INC_server/jobs = $(INC_server/pool) -Iserver/engines -Iserver/jobs
+INC_server/http = $(INC_server/jobs) -Iserver/http $(MHD_CFLAGS)
+INC_server = $(INC_server/http) -Iserver
 # Tests, fuzz targets and benchmarks may reach any layer.
-INC_ALL = $(INC_server/cli) -Iworker
+INC_ALL = $(INC_server) -Iserver/cli -Iworker
 INC_tests/unit = $(INC_ALL)
 INC_tests/fuzz = $(INC_ALL)
 INC_tests/preload = $(INC_common)
@@ -90,14 +99,15 @@ CXXFLAGS_ALL = -std=c++17 -Wall -Wextra -Werror $(OPT) -g $(SANFLAGS) -Icommon $
 # the image library (below) on their first image call.
 LIBS = -lmodbus -lsodium -lpthread -lm -ldl $(LDLIBS)
 LDFLAGS_ALL = $(SANFLAGS) $(LDFLAGS)
-# libmicrohttpd for the operations page (server/http.c): only
+# libmicrohttpd for the operations page (server/http/http.c): only
 # texsyn-server links it, the CLI and the worker start without it.
 MHD_CFLAGS := $(shell pkg-config --cflags libmicrohttpd 2>/dev/null)
 MHD_LIBS := $(or $(shell pkg-config --libs libmicrohttpd 2>/dev/null),-lmicrohttpd)
 
 # Mains: everything else in these folders goes into the library.
 MAINS = server/cli/main.c server/main.c worker/main.c
-LIB_DIRS = common common/search proto worker server server/engines server/cli
+LIB_DIRS = common common/search proto worker server server/engines server/pool server/jobs server/http \
+           server/cli
 LIB_C = $(filter-out $(MAINS),$(foreach d,$(LIB_DIRS),$(wildcard $(d)/*.c)))
 LIB_OBJ = $(LIB_C:%.c=$(BUILD)/%.o)
 LIB = $(BUILD)/libtexsyn.a

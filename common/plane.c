@@ -15,6 +15,13 @@ int ts_plane_alloc(ts_plane *p, int w, int h) {
   return p->px != NULL ? 0 : TS_ENOMEM;
 }
 
+int ts_plane_parity(ts_plane *p, int w, int h) {
+  if (ts_plane_alloc(p, w, h) != 0) return TS_ENOMEM;
+  for (int y = 0; y < h; y++)
+    for (int x = 0; x < w; x++) p->px[(size_t)y * (size_t)w + (size_t)x] = (uint8_t)ts_parity_class(x, y);
+  return 0;
+}
+
 void ts_plane_free(ts_plane *p) {
   free(p->px);
   p->px = NULL;

@@ -29,6 +29,13 @@ static inline uint8_t ts_plane_wrap(const ts_plane *p, int x, int y) {
   return p->px[(long)y * p->w + x];
 }
 
+/* Parity control (seed 002 §3.3.3): a block at (x, y) copies only from
+ * reference blocks of the same (x & 1, y & 1), its class. ts_plane_parity
+ * makes a w x h plane of every pixel's class (the label plane of anchors
+ * under parity control): 0, or TS_ENOMEM. */
+static inline int ts_parity_class(int x, int y) { return (x & 1) | (y & 1) << 1; }
+int ts_plane_parity(ts_plane *p, int w, int h);
+
 /* One Gaussian reduction step (seed 002 eqs. 2.1-2.3): the separable kernel
  * g = (0.05, 0.25, 0.4, 0.25, 0.05) = (1, 5, 8, 5, 1) / 20, evaluated at
  * (2x, 2y) with mirrored borders, in exact integer arithmetic rounded to

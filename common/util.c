@@ -133,12 +133,16 @@ int ts_parse_size(const char *text, int max, int *w, int *h) {
   return 0;
 }
 
-FILE *ts_file_create(const char *path, char *tmp, char *err) {
+/* The temporary name beside path that ts_file_create and ts_file_write
+ * write under: the pid keeps two processes writing one path apart. */
+static int temporary_path(const char *path, char *tmp, char *err) {
   int n = snprintf(tmp, TS_FILE_TMP_LEN, "%s.tmp-%ld", path, (long)getpid());
-  if (n < 0 || n >= TS_FILE_TMP_LEN) {
-    ts_error(err, TS_EIO, "cannot write %s: path too long", path);
-    return NULL;
-  }
+  if (n < 0 || n >= TS_FILE_TMP_LEN) return ts_error(err, TS_EIO, "cannot write %s: path too long", path);
+  return 0;
+}
+
+FILE *ts_file_create(const char *path, char *tmp, char *err) {
+  if (temporary_path(path, tmp, err) != 0) return NULL;
   FILE *f = fopen(tmp, "wb");
   if (f == NULL) ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
   return f;
@@ -169,18 +173,13 @@ int ts_parent_sync(const char *path) {
   return ts_dir_sync(dir);
 }
 
-/* The bytes reach the disk before the name does (fsync, then rename), and
- * the name before the caller goes on (the directory's fsync): a caller
- * that records "done" after its results, or acknowledges a file, can rely
- * on what it recorded surviving a power loss, never naming an empty or
- * half-written file. */
-int ts_file_commit(FILE *f, const char *tmp, const char *path, int ok, char *err) {
-  if (ok && (fflush(f) != 0 || ferror(f) || fsync(fileno(f)) != 0)) ok = 0;
-  int e = errno;
-  if (fclose(f) != 0 && ok) {
-    ok = 0;
-    e = errno;
-  }
+/* The end of every atomic write, once the temporary file's bytes are
+ * synced and it is closed (ok, else e is why not): the bytes reach the disk
+ * before the name does (fsync, then rename), and the name before the caller
+ * goes on (the directory's fsync): a caller that records "done" after its
+ * results, or acknowledges a file, can rely on what it recorded surviving a
+ * power loss, never naming an empty or half-written file. */
+static int file_publish(const char *tmp, const char *path, int ok, int e, char *err) {
   if (ok && rename(tmp, path) != 0) {
     ok = 0;
     e = errno;
@@ -194,20 +193,65 @@ int ts_file_commit(FILE *f, const char *tmp, const char *path, int ok, char *err
   return 0;
 }
 
-int ts_file_write(const char *path, const void *data, size_t len, char *err) {
-  char tmp[TS_FILE_TMP_LEN];
-  FILE *f = ts_file_create(path, tmp, err);
-  if (f == NULL) return TS_EIO;
-  return ts_file_commit(f, tmp, path, len == 0 || fwrite(data, 1, len, f) == len, err);
+int ts_file_commit(FILE *f, const char *tmp, const char *path, int ok, char *err) {
+  if (ok && (fflush(f) != 0 || ferror(f) || fsync(fileno(f)) != 0)) ok = 0;
+  int e = errno;
+  if (fclose(f) != 0 && ok) {
+    ok = 0;
+    e = errno;
+  }
+  return file_publish(tmp, path, ok, e, err);
 }
 
-void ts_problem(char *msg, size_t len, int *count, const char *fmt, ...) {
+/* Bytes in memory go out by write() itself, with no stream's buffer
+ * between: one call for a regular file, however large. */
+int ts_file_write(const char *path, const void *data, size_t len, char *err) {
+  char tmp[TS_FILE_TMP_LEN];
+  if (temporary_path(path, tmp, err) != 0) return TS_EIO;
+  int fd = open(tmp, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0666);
+  if (fd < 0) return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
+  const uint8_t *p = data;
+  int ok = 1, e = 0;
+  for (size_t left = len; ok && left > 0;) {
+    ssize_t k = write(fd, p, left);
+    if (k < 0 && errno == EINTR) continue;
+    if (k <= 0) {
+      ok = 0;
+      e = k < 0 ? errno : ENOSPC; /* a regular file that takes no byte is full */
+    } else {
+      p += k;
+      left -= (size_t)k;
+    }
+  }
+  if (ok && fsync(fd) != 0) {
+    ok = 0;
+    e = errno;
+  }
+  if (close(fd) != 0 && ok) {
+    ok = 0;
+    e = errno;
+  }
+  return file_publish(tmp, path, ok, e, err);
+}
+
+static void problem_v(char *msg, size_t len, int *count, const char *fmt, va_list ap) {
   size_t used = strlen(msg);
   (*count)++;
   if (used + 4 >= len) return;
   if (used > 0) msg[used++] = '\n';
+  vsnprintf(msg + used, len - used, fmt, ap);
+}
+
+void ts_problem(char *msg, size_t len, int *count, const char *fmt, ...) {
   va_list ap;
   va_start(ap, fmt);
-  vsnprintf(msg + used, len - used, fmt, ap);
+  problem_v(msg, len, count, fmt, ap);
+  va_end(ap);
+}
+
+void ts_problems_add(ts_problems *pr, const char *fmt, ...) {
+  va_list ap;
+  va_start(ap, fmt);
+  problem_v(pr->msg, pr->len, &pr->count, fmt, ap);
   va_end(ap);
 }

@@ -18,6 +18,14 @@ struct timespec ts_wait_until(double seconds);
 /* Appends a problem to a list of them in msg (len bytes), one a line, and
  * counts it in *count: checks that report every problem at once. */
 void ts_problem(char *msg, size_t len, int *count, const char *fmt, ...) __attribute__((format(printf, 4, 5)));
+/* The same for checkers that pass their problems along: msg (len bytes,
+ * a string), and how many problems there were. */
+typedef struct {
+  char *msg;
+  size_t len;
+  int count;
+} ts_problems;
+void ts_problems_add(ts_problems *pr, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 
 /* Reads the regular file at path whole into a malloc'd buffer: *buf holds
  * *len bytes and a NUL after them, so text can be used as a string.
@@ -33,7 +41,8 @@ int ts_file_read(const char *path, size_t max_bytes, uint8_t **buf, size_t *len,
  * path - or removes it, when ok is 0 or anything fails. It is durable when
  * ts_file_commit returns: the file is fsynced before the rename and its
  * directory after. NULL / TS_EIO with a message naming path and the
- * system's reason. ts_file_write does both for bytes in memory. */
+ * system's reason. ts_file_write does both for bytes in memory: the one
+ * atomic write of the project, the spool's files included. */
 #define TS_FILE_TMP_LEN 4096
 FILE *ts_file_create(const char *path, char *tmp, char *err);
 int ts_file_commit(FILE *f, const char *tmp, const char *path, int ok, char *err);

@@ -16,7 +16,7 @@
  *                 (the coordinator runs `--jobs` of them side by side) and
  *                 fetched in order; the workers keep the exemplar's
  *                 PatchMatch sources from one frame to the next
- *                 (server/search_field.c), so they are sent once.
+ *                 (server/pool/search_field.c), so they are sent once.
  * Either way a frame's bytes are those of the single job on its files. */
 #ifndef TS_FRAMES_H
 #define TS_FRAMES_H

@@ -357,7 +357,7 @@ static int aerial_run(const void *params, const ts_image *const *in, ts_search *
     return ts_error(err, TS_ENOMEM, "out of memory");
   }
   memcpy(r->order, a.order, sizeof(r->order));
-  ts_fill_hooks fh = {.progress = h->progress, .progress_ctx = h->progress_ctx};
+  ts_progress_hooks fh = {.progress = h->progress, .progress_ctx = h->progress_ctx};
   int rc = ts_fill_synthesize(&r->p->fill, &a.in, search, &fh, &r->res, err);
   aerial_fill_free(&a);
   return rc;

@@ -1,7 +1,7 @@
 /* engine.h - what every engine offers the rest of texsyn: one operations
  * table per engine, chosen by the job spec's `engine` key.
  *
- * The job queue and spool (server/jobs.c), the job spec (server/jobspec.c)
+ * The job queue and spool (server/jobs/), the job spec (jobspec.c, here)
  * and the CLI's embedded runs call engines only through this table, so a
  * new engine (stylization, aerial, segmentation) lands by adding a table
  * to the registry (engine.c), without touching them. An engine sees the

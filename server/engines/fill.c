@@ -181,16 +181,6 @@ static int qualifying_blocks(const atlas *a, int l, int levels, const ts_window 
   return rc;
 }
 
-/* Parity control (seed 002 §3.3.3): the class of a block at (x, y). */
-static int parity_class(int x, int y) { return (x & 1) | (y & 1) << 1; }
-
-static int parity_plane(ts_plane *p, int w, int h) {
-  if (ts_plane_alloc(p, w, h) != 0) return TS_ENOMEM;
-  for (int y = 0; y < h; y++)
-    for (int x = 0; x < w; x++) p->px[(size_t)y * (size_t)w + (size_t)x] = (uint8_t)parity_class(x, y);
-  return 0;
-}
-
 /* ---- the image's pyramid --------------------------------------------------
  *
  * Sizes halve rounding up, so every pixel has a coarse parent. A coarse
@@ -265,7 +255,7 @@ static int level_anchors(const atlas *a, int l, int levels, const ts_fill_params
   if (rc != 0) return rc;
   const ts_plane *u = &a->usable[l];
   rc = qualifying_blocks(a, l, levels, &win, valid);
-  if (rc == 0 && p->parity) rc = parity_plane(labels, u->w, u->h);
+  if (rc == 0 && p->parity) rc = ts_plane_parity(labels, u->w, u->h);
   if (rc != 0) rc = ts_error(err, rc, "out of memory");
   if (rc == 0)
     rc = ts_anchors_init(g, &win, u->w, u->h, coarse ? a->usable[l + 1].w : 0, coarse ? a->usable[l + 1].h : 0,
@@ -358,7 +348,7 @@ typedef struct {
   const ts_fill_params *p;
   const ts_fill_input *in;
   ts_search *search;
-  const ts_fill_hooks *hooks;
+  const ts_progress_hooks *hooks;
   ts_fill_result *res;
   image_pyramid ip;
   atlas at[TS_FILL_MAX_CLASSES];
@@ -443,7 +433,7 @@ static void place(engine *e, uint32_t b, uint32_t index, uint32_t *np) {
 static int block_class(const engine *e, uint32_t b) {
   int x, y;
   ts_fill_queue_block_xy(&e->q, b, &x, &y);
-  return e->p->parity ? parity_class(x, y) : 0;
+  return e->p->parity ? ts_parity_class(x, y) : 0;
 }
 
 /* An area with nothing known around it, at the coarsest level: its first
@@ -655,11 +645,11 @@ static void engine_free(engine *e) {
 }
 
 int ts_fill_synthesize(const ts_fill_params *p, const ts_fill_input *in, ts_search *search,
-                       const ts_fill_hooks *hooks, ts_fill_result *res, char *err) {
+                       const ts_progress_hooks *hooks, ts_fill_result *res, char *err) {
   memset(res, 0, sizeof(*res));
   char msg[2048];
   if (ts_fill_check(p, in, NULL, msg, sizeof(msg)) != 0) return ts_error(err, TS_EINVAL, "%s", msg);
-  static const ts_fill_hooks none = {0};
+  static const ts_progress_hooks none = {0};
   double t0 = ts_now();
   engine e;
   memset(&e, 0, sizeof(e));

@@ -149,17 +149,13 @@ typedef struct {
   ts_fill_class_stats cls[TS_FILL_MAX_CLASSES];
 } ts_fill_result;
 
-/* Progress: ts_progress after every step, its stage naming the class
- * being filled when there are several. */
-typedef struct {
-  ts_progress_fn *progress; /* may be NULL */
-  void *progress_ctx;
-} ts_fill_hooks;
+/* Progress (progress.h's hooks): ts_progress after every step, its stage
+ * naming the class being filled when there are several. */
 
 /* Fills in's work areas. hooks may be NULL. On success res owns its
  * buffers (ts_fill_result_free). */
 int ts_fill_synthesize(const ts_fill_params *p, const ts_fill_input *in, ts_search *search,
-                       const ts_fill_hooks *hooks, ts_fill_result *res, char *err);
+                       const ts_progress_hooks *hooks, ts_fill_result *res, char *err);
 void ts_fill_result_free(ts_fill_result *res);
 
 /* Report parts (JSON): the parameters as members of an object (no

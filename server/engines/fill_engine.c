@@ -234,7 +234,7 @@ static int fill_run(const void *params, const ts_image *const *in, ts_search *se
   r->search = search;
   fill_inputs_buf b;
   if (build_inputs(r->p, in, &b) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
-  ts_fill_hooks fh = {.progress = h->progress, .progress_ctx = h->progress_ctx};
+  ts_progress_hooks fh = {.progress = h->progress, .progress_ctx = h->progress_ctx};
   int rc = ts_fill_synthesize(&r->p->fill, &b.in, search, &fh, &r->res, err);
   inputs_free(&b);
   return rc;

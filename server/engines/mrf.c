@@ -13,8 +13,9 @@
  * Beyond the plain method, from the seed: passive usage-variance
  * optimisation (§3.7.1: best-of candidate seeds through the coarse levels),
  * texture mixing (§4.3: the finer levels from a second reference) and the
- * copy-map shortcut (§3.6.6, lossy, mrf_accel.h). */
-#include "mrf.h"
+ * copy-map shortcut (§3.6.6, lossy, mrf_accel.h). mrf_state.h lists the
+ * files these live in; this one holds the checks and the levels. */
+#include "mrf_levels.h"
 
 #include <stdio.h>
 #include <stdlib.h>
@@ -25,22 +26,21 @@
 #include "param.h"
 #include "util.h"
 #include "mrf_accel.h"
+#include "mrf_plan.h"
 #include "plane.h"
 #include "replica.h"
 #include "rng.h"
 #include "schedule.h"
 #include "usage.h"
 
-
-
-static int nplanes_for(const ts_mrf_params *p, int channels) {
+int mrf_nplanes_for(const ts_mrf_params *p, int channels) {
   if (!p->rgb_search || channels < 3) return 1;
   return 3;
 }
 
 /* Level sizes: the reference halves with floor (eq. 2.3), the canvas with
  * ceil so every output size works on the torus. */
-static void level_sizes(int w, int h, int levels, int *lw, int *lh, int ceil_mode) {
+void mrf_level_sizes(int w, int h, int levels, int *lw, int *lh, int ceil_mode) {
   lw[0] = w;
   lh[0] = h;
   for (int l = 1; l < levels; l++) {
@@ -70,7 +70,7 @@ typedef struct {
 static void check_reference_levels(const ts_mrf_params *p, int ref_w, int ref_h, int lo, int hi,
                                    const ref_words *words, char *msg, size_t len, int *count) {
   int rw[TS_MRF_MAX_LEVELS], rh[TS_MRF_MAX_LEVELS];
-  level_sizes(ref_w, ref_h, p->levels, rw, rh, 0);
+  mrf_level_sizes(ref_w, ref_h, p->levels, rw, rh, 0);
   for (int l = hi; l >= lo; l--) {
     ts_window s;
     ts_anchors g;
@@ -143,7 +143,7 @@ int ts_mrf_check(const ts_mrf_params *p, int ref_w, int ref_h, int channels,
   check_lbg(p, msg, len, &n);
   if (n > 0) return TS_EINVAL; /* the checks below need sane parameters */
   int cw[TS_MRF_MAX_LEVELS], ch[TS_MRF_MAX_LEVELS];
-  level_sizes(p->width, p->height, p->levels, cw, ch, 1);
+  mrf_level_sizes(p->width, p->height, p->levels, cw, ch, 1);
   int top = p->levels - 1;
   if (cw[top] < p->wn || ch[top] < p->wn)
     ts_problem(msg, len, &n,
@@ -175,7 +175,7 @@ int ts_mrf_check_fine(const ts_mrf_params *p, int fine_w, int fine_h, int fine_c
   int n = msg[0] != '\0', before = n;
   if (fine_channels < 1 || fine_channels > 16)
     ts_problem(msg, len, &n, "--ref-fine has %d channels: need 1..16", fine_channels);
-  else if (nplanes_for(p, fine_channels) != nplanes_for(p, ref_channels))
+  else if (mrf_nplanes_for(p, fine_channels) != mrf_nplanes_for(p, ref_channels))
     ts_problem(msg, len, &n,
             "--rgb-search: the reference has %d channels and the --ref-fine image %d; both need 3 or more "
             "(or drop --rgb-search to search on luminance)", ref_channels, fine_channels);
@@ -192,87 +192,6 @@ int ts_mrf_check_fine(const ts_mrf_params *p, int fine_w, int fine_h, int fine_c
 }
 
 /* ---- engine state ------------------------------------------------------ */
-
-/* A block is searched with the causal L-shaped neighbourhood (plain), or -
- * when its full window already holds placed blocks outside the L, which
- * happens only where the window wraps around the torus or meets the
- * clipped last row or column - with the full window and a variable mask
- * (§3.2.6) that keeps the L and every placed pixel. So the last column also
- * matches the first one on its right and the last row the first row below
- * it: the seams of the torus are matched from both sides. */
-enum { SHAPE_PLAIN = 0, SHAPE_MASKED = 1 };
-
-typedef struct {
-  uint32_t n;
-  uint32_t *pos; /* each query's canvas pixel */
-  uint8_t *klass;
-  uint32_t *block; /* index of each query's block within the step */
-  ts_l1_best *best;
-} query_group;
-
-typedef struct {
-  ts_schedule sched;
-  int refine, reps;
-} level_phase;
-
-/* The work of a level as one sequence of steps: the wavefront scan, then
- * each sweep pass's schedule `reps` times. A checkpoint inside the level
- * names its place in it by the number of steps done. */
-typedef struct {
-  int n;
-  level_phase phase[3];
-  uint64_t steps;
-} level_plan;
-
-typedef struct {
-  const ts_mrf_params *p;
-  ts_search *search;
-  const ts_mrf_hooks *hooks;
-  ts_mrf_result *res;
-  ts_progress prog;
-  int nplanes;
-  int levels;
-  ts_plane ref[TS_MAX_PLANES][TS_MRF_MAX_LEVELS];
-  /* Texture mixing (§4.3): the fine reference's pyramid, levels 0..mix
-   * (mix: p->mix_level, 0 without mixing). */
-  int mix;
-  ts_plane fine_ref[TS_MAX_PLANES][TS_MRF_MAX_LEVELS];
-  uint64_t seed;       /* the noise seed of the run under way (a best-of candidate's) */
-  int candidate_phase; /* running best-of candidates, which take no checkpoints */
-  /* The copy-map shortcut: this level's map (empty where it does not
-   * apply), and the candidates measured so far over all levels and how
-   * many of them kept their predicted source. */
-  ts_accel_map accel;
-  uint64_t accel_measured, accel_kept;
-  ts_plane canvas[TS_MAX_PLANES][TS_MRF_MAX_LEVELS];
-  int cw[TS_MRF_MAX_LEVELS], ch[TS_MRF_MAX_LEVELS];
-  /* current level */
-  int level;
-  ts_levelplanes ref_lp, canvas_lp;
-  ts_anchors grid;
-  ts_plane parity; /* the class (label) of every reference pixel, with parity */
-  ts_usage usage;
-  uint32_t *copy; /* (x, y) per canvas pixel at this level */
-  uint32_t *prev_copy; /* the same of the level above */
-  uint8_t *done;  /* 1 where a block was placed at this level */
-  ts_window shape[2]; /* SHAPE_PLAIN: causal L; SHAPE_MASKED: full window */
-  int image; /* the backend's replica of the canvas (replica.h), or -1 */
-  int set_ids[2];
-  level_plan plan;
-  uint64_t step; /* steps of the plan done */
-  /* The level's statistics: carried over from a checkpoint inside it, and
-   * the search counters when this run started it. */
-  ts_mrf_level_stats carried;
-  ts_search_stats base;
-  double t0;
-  double last_checkpoint; /* ts_now() then, or at the start */
-  /* per-step scratch: one query group per shape */
-  uint32_t cap;
-  query_group group[2];
-  uint32_t *direct, ndirect; /* blocks of the step copied by the shortcut */
-  ts_place *places;
-  uint8_t mask[TS_L1_MAX_CHUNKS * TS_L1_CHUNK];
-} engine;
 
 static void group_free(query_group *g) {
   free(g->pos);
@@ -300,90 +219,6 @@ static int ensure_step_scratch(engine *e, uint32_t n) {
   }
   e->cap = ok ? n : 0;
   return ok ? 0 : TS_ENOMEM;
-}
-
-/* Refinement sweeps (--refine N). On every level but the finest: N sweeps
- * over the whole canvas, then SEAM_SWEEPS_PER_REFINE * N more over the
- * band of SEAM_BAND_COARSE block rows and columns along each side of the
- * torus seam. The coarse levels fix the layout, and where their scan
- * closed the torus two independently grown patterns meet (bricks out of
- * phase, say); a few sweeps mend the join locally but ICM moves the misfit
- * one block per sweep, so it takes more of them, on a wider band, to
- * spread it out. Measured on brick 256^2, 6 seeds: windows across the seam
- * went from 1.32x to 0.94x the error of windows across interior lines, for
- * ~10 % more time on the Table 3.3 job. On the finest level, which costs
- * 16x a level above and inherits the layout, the N sweeps cover the band
- * of SEAM_BAND_FINEST block rows and columns only: it needs no more (more
- * sweeps there did not lower the seam's error). */
-#define SEAM_BAND_FINEST 3
-#define SEAM_BAND_COARSE 6
-#define SEAM_SWEEPS_PER_REFINE 4
-
-typedef struct {
-  int band, count; /* band 0: the whole canvas */
-} sweep_pass;
-
-/* The sweep passes of level l, in order; returns how many (at most 2). */
-static int level_sweeps(const ts_mrf_params *p, int l, sweep_pass pass[2]) {
-  if (p->refine == 0) return 0;
-  if (l == 0) {
-    pass[0] = (sweep_pass){SEAM_BAND_FINEST, p->refine};
-    return 1;
-  }
-  pass[0] = (sweep_pass){0, p->refine};
-  pass[1] = (sweep_pass){SEAM_BAND_COARSE, SEAM_SWEEPS_PER_REFINE * p->refine};
-  return 2;
-}
-
-/* Blocks a sweep over `band` block rows and columns of the seam visits. */
-static uint64_t band_blocks(uint64_t rows, uint64_t cols, uint64_t band) {
-  if (band == 0 || rows <= 2 * band || cols <= 2 * band) return rows * cols;
-  return rows * cols - (rows - 2 * band) * (cols - 2 * band);
-}
-
-/* Blocks searched at a level: the scan and the refinement sweeps. */
-static uint64_t level_blocks(const ts_mrf_params *p, int l, int w, int h) {
-  uint64_t rows = (uint64_t)(h + p->wb - 1) / p->wb, cols = (uint64_t)(w + p->wb - 1) / p->wb;
-  uint64_t n = rows * cols;
-  sweep_pass pass[2];
-  for (int i = 0, k = level_sweeps(p, l, pass); i < k; i++)
-    n += band_blocks(rows, cols, (uint64_t)pass[i].band) * (uint64_t)pass[i].count;
-  return n;
-}
-
-static void plan_free(level_plan *pl) {
-  for (int i = 0; i < pl->n; i++) ts_schedule_free(&pl->phase[i].sched);
-  memset(pl, 0, sizeof(*pl));
-}
-
-static int plan_level(level_plan *pl, const ts_mrf_params *p, int l, int w, int h) {
-  sweep_pass pass[2];
-  int npass = level_sweeps(p, l, pass);
-  memset(pl, 0, sizeof(*pl));
-  pl->n = 1 + npass;
-  pl->phase[0].reps = 1;
-  int rc = ts_schedule_wavefront(&pl->phase[0].sched, w, h, p->wb, p->wn);
-  for (int i = 0; rc == 0 && i < npass; i++) {
-    level_phase *ph = &pl->phase[1 + i];
-    ph->refine = 1;
-    ph->reps = pass[i].count;
-    rc = ts_schedule_sweep(&ph->sched, w, h, p->wb, p->wn, pass[i].band);
-  }
-  for (int i = 0; i < pl->n; i++) pl->steps += (uint64_t)pl->phase[i].sched.nsteps * (uint64_t)pl->phase[i].reps;
-  if (rc != 0) plan_free(pl);
-  return rc;
-}
-
-/* Calls fn on every block of the plan's first `steps` steps, in order. */
-static void plan_walk(const level_plan *pl, uint64_t steps, void (*fn)(void *ctx, const ts_block *b), void *ctx) {
-  for (int i = 0; i < pl->n && steps > 0; i++) {
-    const ts_schedule *s = &pl->phase[i].sched;
-    for (int r = 0; r < pl->phase[i].reps && steps > 0; r++) {
-      uint32_t t = steps < s->nsteps ? (uint32_t)steps : s->nsteps;
-      for (uint32_t b = 0; b < s->step_start[t]; b++) fn(ctx, &s->blocks[b]);
-      steps -= t;
-    }
-  }
 }
 
 /* Fills the coarsest level's canvas with reference pixels from uniformly
@@ -425,13 +260,6 @@ static void init_prediction(engine *e) {
 /* Whether level l is the first made from the fine reference (§4.3). */
 static int mix_switch(const engine *e, int l) { return e->mix > 0 && l == e->mix - 1; }
 
-/* The pyramid level l is made from: the fine reference's below the mix
- * level, the reference's from it up. Its level l is the fine part of the
- * vectors, its level l + 1 the coarse part; the coarse part of the queries
- * is the canvas above, so at the switch the coarse layout made from the
- * reference is matched against the fine reference's coarse level. */
-static const ts_plane *level_refs(const engine *e, int k, int l) { return l < e->mix ? e->fine_ref[k] : e->ref[k]; }
-
 /* Fills the first level made from the fine reference with that reference
  * laid out as tiles. The copy map above points into the other reference,
  * so there is nothing to predict from; as everywhere, the initial canvas
@@ -452,8 +280,6 @@ static void init_tiles(engine *e) {
       e->copy[2 * o + 1] = (uint32_t)sy;
     }
 }
-
-static double level_cost(int l) { return 1.0 / (double)(1ull << (2 * l)); }
 
 /* Copies reference block (sx, sy) onto canvas block b; records the copy. */
 static void place_block(engine *e, const ts_block *b, int sx, int sy) {
@@ -490,18 +316,6 @@ static int masked_query(engine *e, const ts_block *b, int refine) {
   return ts_vec_mask(&e->shape[SHAPE_MASKED], e->done, w, h, 1, b->x, b->y, e->mask);
 }
 
-/* Parity control (seed 002 §3.3.3): a block at (x, y) copies only from
- * reference blocks of the same (x & 1, y & 1): its class. */
-static int parity_class(int x, int y) { return (x & 1) | (y & 1) << 1; }
-
-/* The reference level's parity classes as the anchors' label plane. */
-static int parity_plane(ts_plane *p, int w, int h) {
-  if (ts_plane_alloc(p, w, h) != 0) return TS_ENOMEM;
-  for (int y = 0; y < h; y++)
-    for (int x = 0; x < w; x++) p->px[(size_t)y * (size_t)w + (size_t)x] = (uint8_t)parity_class(x, y);
-  return 0;
-}
-
 /* Sorts the blocks of a step into the two query groups, and the blocks
  * the copy-map shortcut copies: placed from their prediction in the scan,
  * left as they are by the sweeps. */
@@ -518,7 +332,7 @@ static void build_queries(engine *e, const ts_block *blocks, uint32_t n, int ref
     }
     query_group *g = &e->group[masked_query(e, b, refine) ? SHAPE_MASKED : SHAPE_PLAIN];
     g->pos[g->n] = (uint32_t)b->y * (uint32_t)e->cw[e->level] + (uint32_t)b->x;
-    g->klass[g->n] = e->p->parity ? (uint8_t)parity_class(b->x, b->y) : 0;
+    g->klass[g->n] = e->p->parity ? (uint8_t)ts_parity_class(b->x, b->y) : 0;
     g->block[g->n++] = i;
   }
 }
@@ -582,22 +396,14 @@ static int place_step(engine *e, const ts_block *blocks, int refine, char *err) 
   return ts_search_place(e->search, e->image, e->places, np, err);
 }
 
-/* Seconds since the epoch: a checkpoint's moment has to mean something to
- * the process that resumes from it, which the monotonic clock does not. */
-static double wall_now(void) {
-  struct timespec ts;
-  clock_gettime(CLOCK_REALTIME, &ts);
-  return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
-}
-
 /* The current level's statistics: those carried over from a checkpoint
  * inside it, plus what this run has done since it started the level. */
 static void level_stats(const engine *e, ts_mrf_level_stats *ls) {
   const ts_search_stats *s = &e->search->stats, *b = &e->base;
   int l = e->level;
   *ls = e->carried;
-  ls->ref_w = level_refs(e, 0, l)[l].w;
-  ls->ref_h = level_refs(e, 0, l)[l].h;
+  ls->ref_w = mrf_level_refs(e, 0, l)[l].w;
+  ls->ref_h = mrf_level_refs(e, 0, l)[l].h;
   ls->out_w = e->cw[l];
   ls->out_h = e->ch[l];
   ls->vectors = e->grid.total;
@@ -615,7 +421,7 @@ static void level_stats(const engine *e, ts_mrf_level_stats *ls) {
 static int save_checkpoint(engine *e, char *err) {
   const ts_mrf_hooks *h = e->hooks;
   int l = e->level;
-  ts_mrf_checkpoint ck = {.level = l, .step = e->step, .steps = e->plan.steps, .saved_at = wall_now(),
+  ts_mrf_checkpoint ck = {.level = l, .step = e->step, .steps = e->plan.steps, .saved_at = mrf_wall_now(),
                           .interval = h->checkpoint_interval, .width = e->cw[l], .height = e->ch[l],
                           .nplanes = e->nplanes, .copy = e->copy};
   for (int k = 0; k < e->nplanes; k++) ck.planes[k] = e->canvas[k][l].px;
@@ -669,7 +475,7 @@ static int run_steps(engine *e, const ts_schedule *sch, int refine, uint32_t t0,
     if (rc != 0) return rc;
     e->step++;
     e->prog.done += n;
-    e->prog.work_done += n * level_cost(e->level);
+    e->prog.work_done += n * mrf_level_cost(e->level);
     if (e->hooks->progress) e->hooks->progress(e->hooks->progress_ctx, &e->prog);
     if (e->step < e->plan.steps && stop_requested(e)) { /* a level's end stops in the caller */
       rc = save_checkpoint(e, err);
@@ -700,7 +506,7 @@ static int run_level(engine *e, char *err) {
 }
 
 /* The first `levels` levels of a reference's pyramid, per feature plane. */
-static int build_reference(engine *e, const ts_image *ref, int levels, ts_plane pyr[][TS_MRF_MAX_LEVELS]) {
+int mrf_build_reference(engine *e, const ts_image *ref, int levels, ts_plane pyr[][TS_MRF_MAX_LEVELS]) {
   int rw = ref->width, rh = ref->height;
   uint8_t *buf = malloc((size_t)rw * rh);
   if (buf == NULL) return TS_ENOMEM;
@@ -734,7 +540,7 @@ static int restore_inside(engine *e, const ts_mrf_checkpoint *ck, char *err) {
   e->step = ck->step;
   e->carried = ck->stats[l];
   e->prog.done = ck->stats[l].blocks;
-  e->prog.work_done += (double)e->prog.done * level_cost(l);
+  e->prog.work_done += (double)e->prog.done * mrf_level_cost(l);
   return 0;
 }
 
@@ -862,16 +668,16 @@ static void plan_queries(const level_plan *pl, const ts_mrf_params *p, int w, in
  * image's metadata say what ran whatever the run's history. (P partitions
  * of every class: fewer when a class has fewer vectors, which only errs
  * towards exhaustive search.) */
-static int lbg_decide(engine *e) {
+int mrf_lbg_decide(engine *e) {
   const ts_mrf_params *p = e->p;
   uint64_t parts = (uint64_t)p->lbg * (p->parity ? 4 : 1);
   for (int l = p->stop_level; l < p->levels && p->lbg > 0; l++) {
     if (!(p->lbg_levels >> l & 1)) continue;
     level_plan pl;
-    if (plan_level(&pl, p, l, e->cw[l], e->ch[l]) != 0) return TS_ENOMEM;
+    if (mrf_plan_level(&pl, p, l, e->cw[l], e->ch[l]) != 0) return TS_ENOMEM;
     ts_mrf_lbg_stats *ls = &e->res->lbg[l];
     plan_queries(&pl, p, e->cw[l], e->ch[l], ls->queries);
-    plan_free(&pl);
+    mrf_plan_free(&pl);
     for (int k = 0; k < 2; k++) {
       ls->partitioned[k] = ls->queries[k] > LBG_QUERIES_PER_PARTITION_ITERATION * TS_LBG_MAX_ITER * parts;
       ls->on |= ls->partitioned[k];
@@ -899,10 +705,10 @@ static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, c
   e->t0 = ts_now();
   e->base = e->search->stats;
   memset(&e->carried, 0, sizeof(e->carried));
-  const ts_plane *refs = level_refs(e, 0, l);
+  const ts_plane *refs = mrf_level_refs(e, 0, l);
   for (int k = 0; k < e->nplanes; k++) {
-    e->ref_lp.fine[k] = &level_refs(e, k, l)[l];
-    e->ref_lp.coarse[k] = coarse ? &level_refs(e, k, l)[l + 1] : NULL;
+    e->ref_lp.fine[k] = &mrf_level_refs(e, k, l)[l];
+    e->ref_lp.coarse[k] = coarse ? &mrf_level_refs(e, k, l)[l + 1] : NULL;
     e->canvas_lp.fine[k] = &e->canvas[k][l];
     e->canvas_lp.coarse[k] = coarse ? &e->canvas[k][l + 1] : NULL;
     if (ts_plane_alloc(&e->canvas[k][l], e->cw[l], e->ch[l]) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
@@ -918,7 +724,7 @@ static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, c
   const ts_plane *r0 = e->ref_lp.fine[0];
   e->set_ids[0] = e->set_ids[1] = -1;
   e->cap = 0; /* the shapes' sizes changed */
-  if (rc == 0 && p->parity && (rc = parity_plane(&e->parity, r0->w, r0->h)) != 0) ts_error(err, rc, "out of memory");
+  if (rc == 0 && p->parity && (rc = ts_plane_parity(&e->parity, r0->w, r0->h)) != 0) ts_error(err, rc, "out of memory");
   if (rc == 0)
     rc = ts_anchors_init(&e->grid, &e->shape[SHAPE_PLAIN], r0->w, r0->h, coarse ? refs[l + 1].w : 0,
                          coarse ? refs[l + 1].h : 0, p->parity ? &e->parity : NULL, p->parity ? 4 : 1, NULL, err);
@@ -927,11 +733,11 @@ static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, c
   e->copy = rc == 0 ? malloc(sizeof(uint32_t) * 2 * npx) : NULL;
   e->done = rc == 0 ? calloc(npx, 1) : NULL;
   if (rc == 0 && (e->copy == NULL || e->done == NULL)) rc = ts_error(err, TS_ENOMEM, "out of memory");
-  if (rc == 0 && (rc = plan_level(&e->plan, p, l, e->cw[l], e->ch[l])) != 0) ts_error(err, rc, "out of memory");
+  if (rc == 0 && (rc = mrf_plan_level(&e->plan, p, l, e->cw[l], e->ch[l])) != 0) ts_error(err, rc, "out of memory");
   e->step = 0;
   e->prog.level = l;
   e->prog.done = 0;
-  e->prog.total = level_blocks(p, l, e->cw[l], e->ch[l]);
+  e->prog.total = mrf_level_blocks(p, l, e->cw[l], e->ch[l]);
   if (rc == 0 && inside) rc = restore_inside(e, inside, err);
   else if (rc == 0 && mix_switch(e, l)) init_tiles(e);
   else if (rc == 0 && coarse) init_prediction(e);
@@ -959,7 +765,7 @@ static int synthesize_level(engine *e, int l, const ts_mrf_checkpoint *inside, c
   return rc;
 }
 
-static void engine_free(engine *e) {
+void mrf_engine_free(engine *e) {
   for (int p = 0; p < TS_MAX_PLANES; p++) {
     ts_pyramid_free(e->ref[p], e->levels);
     ts_pyramid_free(e->fine_ref[p], e->levels);
@@ -979,13 +785,12 @@ static void engine_free(engine *e) {
   }
   free(e->places);
   if (e->image >= 0) ts_search_image_close(e->search, e->image);
-  plan_free(&e->plan);
+  mrf_plan_free(&e->plan);
 }
-
 
 /* Full result: reference pixels of any type gathered through the copy map
  * (§3.8). Preview (stop_level > 0): the level's luminance plane. */
-static int gather_output(engine *e, const ts_image *ref, ts_mrf_result *res, char *err) {
+int mrf_gather_output(engine *e, const ts_image *ref, ts_mrf_result *res, char *err) {
   int l = e->level, w = e->cw[l], h = e->ch[l];
   int rc = l == 0 ? ts_image_alloc(&res->image, w, h, ref->channels, ref->type, err)
                   : ts_image_alloc(&res->image, w, h, 1, TS_PIX_U8, err);
@@ -1000,160 +805,13 @@ static int gather_output(engine *e, const ts_image *ref, ts_mrf_result *res, cha
   e->copy = NULL;
   res->usage = e->usage.count;
   e->usage.count = NULL;
-  res->ref_w = level_refs(e, 0, l)[l].w;
-  res->ref_h = level_refs(e, 0, l)[l].h;
+  res->ref_w = mrf_level_refs(e, 0, l)[l].w;
+  res->ref_h = mrf_level_refs(e, 0, l)[l].h;
   return 0;
-}
-
-/* The last level the best-of candidates run: the best_of_levels coarsest
- * (by default all but the finest two), but not below the output's. */
-static int candidate_last_level(const ts_mrf_params *p) {
-  int n = p->best_of_levels > 0 ? p->best_of_levels : p->levels - 2;
-  int last = p->levels - (n > 0 ? n : 1);
-  return last > p->stop_level ? last : p->stop_level;
-}
-
-/* ---- resuming ----------------------------------------------------------- */
-
-/* What the first steps of a plan leave: the blocks placed, and how many
- * were searched. */
-typedef struct {
-  int w;
-  uint8_t *done;
-  uint64_t blocks;
-} walk_state;
-
-static void mark_block(void *ctx, const ts_block *b) {
-  walk_state *ws = ctx;
-  ws->blocks++;
-  for (int dy = 0; dy < b->h; dy++) memset(ws->done + (size_t)(b->y + dy) * ws->w + b->x, 1, b->w);
-}
-
-/* A checkpoint inside a level must hold what its first `step` steps of the
- * plan leave: exactly those blocks placed, as many blocks searched, and
- * usage counters that count the placed pixels' copies (every copy adds
- * its pixels, every sweep's replacement takes the old ones away). */
-static int check_inside(const engine *e, const ts_mrf_checkpoint *ck, const level_plan *pl, char *err) {
-  int l = ck->level, top = l + 1 == e->levels;
-  int rw = level_refs(e, 0, l)[l].w, rh = level_refs(e, 0, l)[l].h;
-  if (ck->coarse_width != (top ? 0 : e->cw[l + 1]) || ck->coarse_height != (top ? 0 : e->ch[l + 1]) ||
-      ck->ref_width != rw || ck->ref_height != rh)
-    return ts_error(err, TS_EINVAL,
-                    "the checkpoint inside level %d (coarse canvas %dx%d, reference %dx%d) does not belong to "
-                    "this job", l, ck->coarse_width, ck->coarse_height, ck->ref_width, ck->ref_height);
-  size_t npx = (size_t)ck->width * ck->height;
-  walk_state ws = {ck->width, calloc(npx, 1), 0};
-  uint32_t *count = calloc((size_t)rw * rh, sizeof(uint32_t));
-  int rc = ws.done && count ? 0 : ts_error(err, TS_ENOMEM, "out of memory");
-  if (rc == 0) plan_walk(pl, ck->step, mark_block, &ws);
-  if (rc == 0 && memcmp(ws.done, ck->done, npx) != 0)
-    rc = ts_error(err, TS_EINVAL, "the checkpoint's placed blocks are not those of its %llu steps",
-                  (unsigned long long)ck->step);
-  if (rc == 0 && ws.blocks != ck->stats[l].blocks)
-    rc = ts_error(err, TS_EINVAL, "the checkpoint counts %llu blocks searched, its %llu steps search %llu",
-                  (unsigned long long)ck->stats[l].blocks, (unsigned long long)ck->step,
-                  (unsigned long long)ws.blocks);
-  for (size_t i = 0; rc == 0 && i < npx; i++)
-    if (ck->done[i]) count[(size_t)ck->copy[2 * i + 1] * rw + ck->copy[2 * i]]++;
-  if (rc == 0 && memcmp(count, ck->usage, (size_t)rw * rh * sizeof(uint32_t)) != 0)
-    rc = ts_error(err, TS_EINVAL, "the checkpoint's usage counters do not count its placed copies");
-  free(ws.done);
-  free(count);
-  return rc;
-}
-
-/* Checks that a checkpoint is a state this job's synthesis passes through.
- * It came through a checksum, but from a file: one left by another build,
- * or a lie, must be refused rather than trusted. */
-static int check_resume(const engine *e, const ts_mrf_checkpoint *ck, char *err) {
-  const ts_mrf_params *p = e->p;
-  int l = ck->level, inside = ck->step < ck->steps;
-  if (l < p->stop_level + !inside || l >= p->levels || ck->nplanes != e->nplanes || ck->width != e->cw[l] ||
-      ck->height != e->ch[l])
-    return ts_error(err, TS_EINVAL, "the checkpoint (level %d, %dx%d, %d planes) does not belong to this job", l,
-                    ck->width, ck->height, ck->nplanes);
-  if (p->copy_accel)
-    return ts_error(err, TS_EINVAL, "a job with --copy-accel takes no checkpoints: its choices rest on the copy "
-                    "maps and constancy of the levels above, which a checkpoint does not hold");
-  int last = candidate_last_level(p);
-  if (p->best_of > 1 && (l > last || (l == last && inside)))
-    return ts_error(err, TS_EINVAL, "the checkpoint (level %d) lies among the best-of candidates' levels (%d and "
-                    "up), which take none", l, last);
-  size_t npx = (size_t)ck->width * ck->height;
-  const ts_plane *r = &level_refs(e, 0, l)[l];
-  for (size_t i = 0; i < npx; i++)
-    if (ck->copy[2 * i] >= (uint32_t)r->w || ck->copy[2 * i + 1] >= (uint32_t)r->h)
-      return ts_error(err, TS_EINVAL, "the checkpoint's copy map points outside the level-%d reference", l);
-  level_plan pl;
-  if (plan_level(&pl, p, l, ck->width, ck->height) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
-  int rc = 0;
-  if (ck->steps != pl.steps || ck->stats[l].steps != ck->step || ck->step > ck->steps)
-    rc = ts_error(err, TS_EINVAL, "the checkpoint is at step %llu of %llu of level %d, which has %llu steps here",
-                  (unsigned long long)ck->step, (unsigned long long)ck->steps, l, (unsigned long long)pl.steps);
-  else if (inside)
-    rc = check_inside(e, ck, &pl, err);
-  plan_free(&pl);
-  return rc;
-}
-
-/* Takes over a finished level's state: its canvas becomes the coarse part
- * of the next level and its copy map the prediction. */
-static int restore_level_end(engine *e, const ts_mrf_checkpoint *ck, char *err) {
-  int l = ck->level;
-  size_t npx = (size_t)ck->width * ck->height;
-  for (int k = 0; k < e->nplanes; k++) {
-    if (ts_plane_alloc(&e->canvas[k][l], ck->width, ck->height) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
-    memcpy(e->canvas[k][l].px, ck->planes[k], npx);
-  }
-  e->copy = malloc(sizeof(uint32_t) * 2 * npx);
-  if (e->copy == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
-  memcpy(e->copy, ck->copy, sizeof(uint32_t) * 2 * npx);
-  e->level = l;
-  return 0;
-}
-
-static void describe_resume(const engine *e, const ts_mrf_checkpoint *ck, ts_mrf_resume *r) {
-  int l = ck->level;
-  r->level = l;
-  r->step = ck->step;
-  r->steps = ck->steps;
-  r->level_done = (double)ck->stats[l].blocks / (double)level_blocks(e->p, l, e->cw[l], e->ch[l]);
-  r->saved_at = ck->saved_at;
-  r->age = wall_now() - ck->saved_at;
-  if (!(r->age > 0)) r->age = 0; /* a clock set back */
-  r->redone = ck->interval > 0 && ck->interval < r->age ? ck->interval : r->age;
-}
-
-/* Goes on from hooks->resume when it fits the job: *first is the level to
- * run first, and *inside the checkpoint to start it from when it was taken
- * inside that level. One that does not fit fails the synthesis, or, with a
- * `refused` hook, is reported and synthesis starts from noise. */
-static int take_resume(engine *e, int *first, const ts_mrf_checkpoint **inside, char *err) {
-  const ts_mrf_hooks *h = e->hooks;
-  const ts_mrf_checkpoint *ck = h->resume;
-  char why[TS_ERR_LEN];
-  int rc = check_resume(e, ck, why);
-  if (rc == TS_EINVAL && h->refused != NULL) {
-    h->refused(h->resume_ctx, why);
-    return 0;
-  }
-  if (rc != 0) return ts_error(err, rc, "%s", why);
-  int l = ck->level, finished = ck->step == ck->steps;
-  if (finished) rc = restore_level_end(e, ck, err);
-  *first = finished ? l - 1 : l;
-  *inside = finished ? NULL : ck;
-  for (int k = finished ? l : l + 1; k < e->levels; k++) { /* the levels done */
-    e->res->level[k] = ck->stats[k];
-    e->prog.work_done += (double)level_blocks(e->p, k, e->cw[k], e->ch[k]) * level_cost(k);
-  }
-  e->res->resumed = 1;
-  describe_resume(e, ck, &e->res->resume);
-  if (h->resumed) h->resumed(h->resume_ctx, &e->res->resume);
-  return rc;
 }
 
 /* Frees the state of the level above before level l starts. */
-static void drop_previous_level(engine *e) {
+void mrf_drop_previous_level(engine *e) {
   ts_usage_free(&e->usage);
   ts_anchors_free(&e->grid);
   ts_plane_free(&e->parity);
@@ -1163,13 +821,13 @@ static void drop_previous_level(engine *e) {
   e->copy = NULL;
   e->done = NULL;
   for (int k = 0; k < 2; k++) ts_window_free(&e->shape[k]);
-  plan_free(&e->plan);
+  mrf_plan_free(&e->plan);
   ts_accel_map_free(&e->accel);
 }
 
 /* After a level but the output's: its checkpoint (best-of candidates take
  * none), and a stop if one was asked for. */
-static int level_end(engine *e, int l, char *err) {
+int mrf_level_end(engine *e, int l, char *err) {
   int rc = e->hooks->checkpoint && !e->candidate_phase ? save_checkpoint(e, err) : 0;
   if (rc == 0 && stop_requested(e)) rc = ts_error(err, TS_ESTOPPED, "stopped after level %d", l);
   return rc;
@@ -1177,160 +835,16 @@ static int level_end(engine *e, int l, char *err) {
 
 /* Runs levels `from` down to `to`, the first from `inside` when that is a
  * checkpoint taken inside it. */
-static int run_levels(engine *e, int from, int to, const ts_mrf_checkpoint *inside, char *err) {
+int mrf_run_levels(engine *e, int from, int to, const ts_mrf_checkpoint *inside, char *err) {
   const ts_mrf_params *p = e->p;
   int rc = 0;
   for (int l = from; l >= to && rc == 0; l--) {
-    if (l < p->levels - 1) drop_previous_level(e);
+    if (l < p->levels - 1) mrf_drop_previous_level(e);
     rc = synthesize_level(e, l, l == from ? inside : NULL, err);
     level_stats(e, &e->res->level[l]);
     /* Level l+2 is no longer needed as anyone's coarse part. */
     for (int k = 0; k < e->nplanes && l + 2 < p->levels; k++) ts_plane_free(&e->canvas[k][l + 2]);
-    if (rc == 0 && l > p->stop_level) rc = level_end(e, l, err);
+    if (rc == 0 && l > p->stop_level) rc = mrf_level_end(e, l, err);
   }
   return rc;
-}
-
-/* ---- passive usage-variance optimisation (§3.7.1) ----------------------- */
-
-#define BEST_OF_STREAM (0x62657374ull << 32) /* "best": apart from the levels' noise streams */
-
-/* The seed of candidate k: the job's own for the first (so the first
- * candidate is the plain run), the others drawn from it. */
-static uint64_t candidate_seed(uint64_t seed, int k) {
-  if (k == 0) return seed;
-  ts_rng rng;
-  ts_rng_seed(&rng, seed, BEST_OF_STREAM + (uint64_t)k);
-  return ts_rng_next(&rng);
-}
-
-/* Back to before the coarsest level, for another candidate: every level's
- * state goes, and so does the backend's replica (each run opens its own). */
-static void reset_run(engine *e) {
-  drop_previous_level(e);
-  free(e->prev_copy);
-  e->prev_copy = NULL;
-  for (int k = 0; k < TS_MAX_PLANES; k++) ts_pyramid_free(e->canvas[k], e->levels);
-  if (e->image >= 0) ts_search_image_close(e->search, e->image);
-  e->image = -1;
-  e->accel_measured = e->accel_kept = 0;
-}
-
-/* Candidate k from noise down to level `last`, its usage variance there
- * and (unless it is a re-run) its time. */
-static int run_candidate(engine *e, int k, int last, int rerun, char *err) {
-  ts_mrf_candidate *c = &e->res->candidate[k];
-  double t0 = ts_now(), mean;
-  e->seed = c->seed = candidate_seed(e->p->seed, k);
-  int rc = run_levels(e, e->levels - 1, last, NULL, err);
-  if (rc == 0) ts_usage_stats(&e->usage, &mean, &c->variance);
-  if (!rerun) c->seconds = ts_now() - t0;
-  return rc;
-}
-
-/* The work of one candidate, for the progress bar. */
-static double candidate_work(const engine *e, int last) {
-  double w = 0;
-  for (int l = last; l < e->levels; l++) w += (double)level_blocks(e->p, l, e->cw[l], e->ch[l]) * level_cost(l);
-  return w;
-}
-
-/* Runs best_of candidates through the coarse levels and keeps the one
- * whose usage map has the least variance at the last of them (ties: the
- * lowest number): the coarse levels fix the layout and the global use of
- * the reference, and cost a few per cent of a run. The engine is left as
- * the chosen one left that level, the next level to run in *next. When
- * the chosen one was not the last run, it is run again: runs are
- * deterministic, so that gives its state exactly (and a plain run with its
- * seed the same bytes), for less memory than keeping every candidate's
- * canvas and replica. */
-static int choose_candidate(engine *e, int *next, char *err) {
-  const ts_mrf_params *p = e->p;
-  ts_mrf_result *res = e->res;
-  int last = candidate_last_level(p), rc = 0;
-  res->best_of_level = last;
-  e->candidate_phase = 1;
-  for (int k = 0; rc == 0 && k < p->best_of; k++) {
-    if (k > 0) reset_run(e);
-    rc = run_candidate(e, k, last, 0, err);
-    res->ncandidates = k + 1;
-    if (rc == 0 && res->candidate[k].variance < res->candidate[res->chosen].variance) res->chosen = k;
-  }
-  if (rc == 0 && res->chosen != p->best_of - 1) {
-    reset_run(e);
-    e->prog.work_total += candidate_work(e, last);
-    rc = run_candidate(e, res->chosen, last, 1, err);
-  }
-  e->candidate_phase = 0;
-  if (rc == 0 && last > p->stop_level) rc = level_end(e, last, err);
-  *next = last - 1;
-  return rc;
-}
-
-/* The inputs' checks, every problem listed. */
-static int check_inputs(const ts_mrf_params *p, const ts_image *ref, const ts_image *fine, char *err) {
-  char msg[2048];
-  if (p->mix_level > 0 && fine == NULL) return ts_error(err, TS_EINVAL, "--mix-level needs a --ref-fine image");
-  if (p->mix_level == 0 && fine != NULL) return ts_error(err, TS_EINVAL, "--ref-fine needs --mix-level");
-  int rc = ts_mrf_check(p, ref->width, ref->height, ref->channels, msg, sizeof(msg));
-  if (fine != NULL && ts_mrf_check_fine(p, fine->width, fine->height, fine->channels, ref->channels, msg,
-                                        sizeof(msg)) != 0)
-    rc = TS_EINVAL;
-  return rc != 0 ? ts_error(err, TS_EINVAL, "%s", msg) : 0;
-}
-
-int ts_mrf_synthesize(const ts_mrf_params *p, const ts_image *ref, ts_search *search,
-                      const ts_mrf_hooks *hooks, ts_mrf_result *res, char *err) {
-  return ts_mrf_synthesize_mixed(p, ref, NULL, search, hooks, res, err);
-}
-
-int ts_mrf_synthesize_mixed(const ts_mrf_params *p, const ts_image *ref, const ts_image *ref_fine,
-                            ts_search *search, const ts_mrf_hooks *hooks, ts_mrf_result *res, char *err) {
-  memset(res, 0, sizeof(*res));
-  if (check_inputs(p, ref, ref_fine, err) != 0) return TS_EINVAL;
-  static const ts_mrf_hooks none = {0};
-  double t_start = ts_now();
-  engine e;
-  memset(&e, 0, sizeof(e));
-  e.p = p;
-  e.search = search;
-  e.hooks = hooks ? hooks : &none;
-  e.res = res;
-  e.last_checkpoint = t_start;
-  e.image = -1;
-  e.levels = p->levels;
-  e.mix = p->mix_level;
-  e.seed = p->seed;
-  e.nplanes = nplanes_for(p, ref->channels);
-  e.prog.levels = p->levels;
-  level_sizes(p->width, p->height, p->levels, e.cw, e.ch, 1);
-  for (int l = 0; l < p->levels; l++)
-    e.prog.work_total += (double)level_blocks(p, l, e.cw[l], e.ch[l]) * level_cost(l);
-  if (p->best_of > 1) e.prog.work_total += (p->best_of - 1) * candidate_work(&e, candidate_last_level(p));
-  int rc = build_reference(&e, ref, p->levels, e.ref);
-  if (rc == 0 && e.mix > 0) rc = build_reference(&e, ref_fine, e.mix + 1, e.fine_ref);
-  if (rc != 0) rc = ts_error(err, rc, "cannot build the reference pyramids: %s", ts_strerror(rc));
-  if (rc == 0 && (rc = lbg_decide(&e)) != 0) ts_error(err, rc, "out of memory");
-  int first = p->levels - 1;
-  const ts_mrf_checkpoint *inside = NULL;
-  if (rc == 0 && e.hooks->resume) rc = take_resume(&e, &first, &inside, err);
-  if (rc == 0 && p->best_of > 1 && !res->resumed) rc = choose_candidate(&e, &first, err);
-  if (rc == 0) rc = run_levels(&e, first, p->stop_level, inside, err);
-  if (rc == 0) {
-    ts_usage_stats(&e.usage, &res->usage_mean, &res->usage_variance);
-    /* Colour from the reference the finest level was made from. */
-    rc = gather_output(&e, e.mix > p->stop_level ? ref_fine : ref, res, err);
-  }
-  engine_free(&e);
-  res->seconds = ts_now() - t_start;
-  if (rc != 0) ts_mrf_result_free(res);
-  return rc;
-}
-
-void ts_mrf_result_free(ts_mrf_result *res) {
-  ts_image_free(&res->image);
-  free(res->copy_map);
-  free(res->usage);
-  res->copy_map = NULL;
-  res->usage = NULL;
 }

@@ -18,4 +18,11 @@ typedef struct {
 
 typedef void ts_progress_fn(void *ctx, const ts_progress *p);
 
+/* The hooks of an engine whose core reports progress only (fill, segment,
+ * stylit; the MRF's take checkpoints too: mrf.h). */
+typedef struct {
+  ts_progress_fn *progress; /* may be NULL */
+  void *progress_ctx;
+} ts_progress_hooks;
+
 #endif

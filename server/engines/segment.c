@@ -28,7 +28,7 @@ typedef struct {
 typedef struct {
   const ts_seg_params *p;
   ts_search *search;
-  const ts_seg_hooks *h;
+  const ts_progress_hooks *h;
   int levels, r, nplanes, nclass;
   ts_window win;
   /* [level]: the input, and per pair the training image. */
@@ -414,7 +414,7 @@ static void run_free(run *e) {
   ts_window_free(&e->win);
 }
 
-int ts_seg_run(const ts_seg_params *p, const ts_image *const *in, ts_search *search, const ts_seg_hooks *h,
+int ts_seg_run(const ts_seg_params *p, const ts_image *const *in, ts_search *search, const ts_progress_hooks *h,
                ts_seg_result *res, char *err) {
   memset(res, 0, sizeof(*res));
   double t0 = ts_now();

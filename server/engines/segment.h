@@ -191,13 +191,8 @@ typedef struct {
   uint64_t truth_pixels[TS_SEG_MAX_CLASSES], correct_before[TS_SEG_MAX_CLASSES], correct_after[TS_SEG_MAX_CLASSES];
 } ts_seg_result;
 
-typedef struct {
-  ts_progress_fn *progress; /* may be NULL */
-  void *progress_ctx;
-} ts_seg_hooks;
-
 /* Runs a checked job (ts_seg_check). 0, or a TS_E* code with a message. */
-int ts_seg_run(const ts_seg_params *p, const ts_image *const *in, ts_search *search, const ts_seg_hooks *h,
+int ts_seg_run(const ts_seg_params *p, const ts_image *const *in, ts_search *search, const ts_progress_hooks *h,
                ts_seg_result *res, char *err);
 void ts_seg_result_free(ts_seg_result *res);
 

@@ -95,7 +95,7 @@ static int seg_run(const void *params, const ts_image *const *in, ts_search *sea
   r->p = params;
   r->search = search;
   r->meta = in[TS_SEG_IN_INPUT]->meta;
-  ts_seg_hooks sh = {h->progress, h->progress_ctx};
+  ts_progress_hooks sh = {h->progress, h->progress_ctx};
   return ts_seg_run(r->p, in, search, &sh, &r->res, err);
 }
 

@@ -1,7 +1,6 @@
 /* segment_input.c - a segmentation's parameters and inputs: their checks
  * (every problem at once, each naming its input), the classes of the label
  * rasters, and the 8-bit planes the search compares (segment.h). */
-#include <stdarg.h>
 #include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -11,6 +10,7 @@
 #include "param.h"
 #include "segment.h"
 #include "util.h"
+
 
 #define F(field) offsetof(ts_seg_params, field)
 
@@ -52,30 +52,9 @@ void ts_seg_role_names(const ts_seg_params *p, char (*names)[TS_SEG_NAME_LEN]) {
 
 /* ---- problems ------------------------------------------------------------ */
 
-typedef struct {
-  char *msg;
-  size_t len, used;
-  int count;
-} problems;
-
-/* One more problem, on a line of its own. */
-static void problem(problems *pr, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-static void problem(problems *pr, const char *fmt, ...) {
-  pr->count++;
-  if (pr->used + 2 >= pr->len) return;
-  if (pr->used > 0) pr->msg[pr->used++] = '\n';
-  va_list ap;
-  va_start(ap, fmt);
-  int n = vsnprintf(pr->msg + pr->used, pr->len - pr->used, fmt, ap);
-  va_end(ap);
-  if (n > 0) pr->used += (size_t)n < pr->len - pr->used ? (size_t)n : pr->len - pr->used - 1;
-}
-
-/* The table's ranges (param.h), into this accumulator. */
-static void check_params(const ts_seg_params *p, problems *pr) {
-  pr->msg[pr->used] = '\0';
+/* The table's ranges (param.h). */
+static void check_params(const ts_seg_params *p, ts_problems *pr) {
   ts_params_check(ts_seg_param_table, p, pr->msg, pr->len, &pr->count);
-  pr->used = strlen(pr->msg);
 }
 
 static int levels_ok(const ts_seg_params *p) {
@@ -84,28 +63,28 @@ static int levels_ok(const ts_seg_params *p) {
 }
 
 /* A raster of class values: one channel of whole numbers. */
-static void check_raster(const ts_image_info *in, const char *name, problems *pr) {
+static void check_raster(const ts_image_info *in, const char *name, ts_problems *pr) {
   if (in->channels != 1)
-    problem(pr, "%s has %d channels: a label raster has one (class values); take one with oiiotool --ch 0", name,
+    ts_problems_add(pr, "%s has %d channels: a label raster has one (class values); take one with oiiotool --ch 0", name,
             in->channels);
   if (in->type != TS_PIX_U8 && in->type != TS_PIX_U16)
-    problem(pr, "%s is %s: a label raster holds whole numbers, 8- or 16-bit", name, ts_pixtype_name(in->type));
+    ts_problems_add(pr, "%s is %s: a label raster holds whole numbers, 8- or 16-bit", name, ts_pixtype_name(in->type));
 }
 
-static void check_channels(const ts_seg_params *p, const ts_image_info *in, const char *name, problems *pr) {
+static void check_channels(const ts_seg_params *p, const ts_image_info *in, const char *name, ts_problems *pr) {
   if (p->rgb && in->channels < 3)
-    problem(pr, "%s has %d channel%s: --rgb-search compares three colour channels", name, in->channels,
+    ts_problems_add(pr, "%s has %d channel%s: --rgb-search compares three colour channels", name, in->channels,
             in->channels == 1 ? "" : "s");
 }
 
 /* Training image k against the window at the coarsest level, and (more
  * than one level) the halves its self-segmentation cuts across its longer
  * side. */
-static void check_train_size(const ts_seg_params *p, const ts_image_info *t, const char *name, problems *pr) {
+static void check_train_size(const ts_seg_params *p, const ts_image_info *t, const char *name, ts_problems *pr) {
   int l = p->levels - 1, n = p->window;
   int w = t->width >> l, h = t->height >> l;
   if (w < n || h < n) {
-    problem(pr, "%s is %dx%d: at level %d of %d it is %dx%d, too small for a %dx%d window; use at least %dx%d, "
+    ts_problems_add(pr, "%s is %dx%d: at level %d of %d it is %dx%d, too small for a %dx%d window; use at least %dx%d, "
             "fewer --levels or a smaller --window", name, t->width, t->height, l + 1, p->levels, w, h, n, n, n << l,
             n << l);
     return;
@@ -113,7 +92,7 @@ static void check_train_size(const ts_seg_params *p, const ts_image_info *t, con
   int wide = t->width >= t->height;
   int hw = wide ? w / 2 : w, hh = wide ? h : h / 2;
   if (p->levels > 1 && (hw < n || hh < n))
-    problem(pr, "%s is %dx%d: at level %d of %d the halves its self-segmentation weighs the levels with are "
+    ts_problems_add(pr, "%s is %dx%d: at level %d of %d the halves its self-segmentation weighs the levels with are "
             "%dx%d, too small for a %dx%d window; use at least %dx%d, fewer --levels or a smaller --window",
             name, t->width, t->height, l + 1, p->levels, hw, hh, n, n, (wide ? 2 * n : n) << l,
             (wide ? n : 2 * n) << l);
@@ -121,23 +100,23 @@ static void check_train_size(const ts_seg_params *p, const ts_image_info *t, con
 
 int ts_seg_check_headers(const ts_seg_params *p, const ts_image_info *info, const char *const *names, char *msg,
                          size_t len) {
-  problems pr = {msg, len, 0, 0};
+  ts_problems pr = {msg, len, 0};
   msg[0] = '\0';
   if (p->pairs < 1 || p->pairs > TS_SEG_MAX_PAIRS) {
-    problem(&pr, "%d training pairs: need 1..%d (--train IMG --labels LBL)", p->pairs, TS_SEG_MAX_PAIRS);
+    ts_problems_add(&pr, "%d training pairs: need 1..%d (--train IMG --labels LBL)", p->pairs, TS_SEG_MAX_PAIRS);
     return TS_EINVAL;
   }
   check_params(p, &pr);
   const ts_image_info *in = &info[TS_SEG_IN_INPUT];
   check_channels(p, in, names[TS_SEG_IN_INPUT], &pr);
   if (levels_ok(p) && ((in->width >> (p->levels - 1)) < 1 || (in->height >> (p->levels - 1)) < 1))
-    problem(&pr, "%s is %dx%d: too small for %d levels", names[TS_SEG_IN_INPUT], in->width, in->height, p->levels);
+    ts_problems_add(&pr, "%s is %dx%d: too small for %d levels", names[TS_SEG_IN_INPUT], in->width, in->height, p->levels);
   for (int k = 0; k < p->pairs; k++) {
     const ts_image_info *t = &info[ts_seg_in_train(k)], *l = &info[ts_seg_in_labels(k)];
     const char *tn = names[ts_seg_in_train(k)], *ln = names[ts_seg_in_labels(k)];
     check_channels(p, t, tn, &pr);
     if (l->width != t->width || l->height != t->height)
-      problem(&pr, "%s is %dx%d, its training image %s %dx%d: a label raster has its image's size", ln, l->width,
+      ts_problems_add(&pr, "%s is %dx%d, its training image %s %dx%d: a label raster has its image's size", ln, l->width,
               l->height, tn, t->width, t->height);
     check_raster(l, ln, &pr);
     if (levels_ok(p)) check_train_size(p, t, tn, &pr);
@@ -146,7 +125,7 @@ int ts_seg_check_headers(const ts_seg_params *p, const ts_image_info *info, cons
     const ts_image_info *t = &info[ts_seg_in_truth(p)];
     const char *tn = names[ts_seg_in_truth(p)];
     if (t->width != in->width || t->height != in->height)
-      problem(&pr, "%s is %dx%d, %s %dx%d: the truth has the input's size", tn, t->width, t->height,
+      ts_problems_add(&pr, "%s is %dx%d, %s %dx%d: the truth has the input's size", tn, t->width, t->height,
               names[TS_SEG_IN_INPUT], in->width, in->height);
     check_raster(t, tn, &pr);
   }
@@ -190,7 +169,7 @@ static void list_values(const uint8_t *seen, int most, char *buf, size_t cap) {
 /* The truth's values that are no class (flagged in stray, 65536 zeroed
  * flags), listed. */
 static void check_truth_values(const ts_image *truth, const uint8_t *classes, uint8_t *stray, const char *name,
-                               problems *pr) {
+                               ts_problems *pr) {
   int n = 0;
   for (size_t i = 0; i < npixels(truth); i++) {
     unsigned v = value_at(truth, i);
@@ -201,7 +180,7 @@ static void check_truth_values(const ts_image *truth, const uint8_t *classes, ui
   char got[160], want[160];
   list_values(stray, 8, got, sizeof(got));
   list_values(classes, 16, want, sizeof(want));
-  problem(pr, "%s holds %d label value%s no --labels raster has (%s); the classes are %s", name, n, n == 1 ? "" : "s",
+  ts_problems_add(pr, "%s holds %d label value%s no --labels raster has (%s); the classes are %s", name, n, n == 1 ? "" : "s",
           got, want);
 }
 
@@ -217,11 +196,11 @@ int ts_seg_check(const ts_seg_params *p, const ts_image *const *in, const char *
     snprintf(msg, len, "out of memory for checking the label values");
     return TS_ENOMEM;
   }
-  problems pr = {msg, len, 0, 0};
+  ts_problems pr = {msg, len, 0};
   int n = 0;
   for (int k = 0; k < p->pairs; k++) n += mark_values(in[ts_seg_in_labels(k)], seen);
   if (n > TS_SEG_MAX_CLASSES)
-    problem(&pr, "the --labels rasters hold %d distinct values: at most %d classes", n, TS_SEG_MAX_CLASSES);
+    ts_problems_add(&pr, "the --labels rasters hold %d distinct values: at most %d classes", n, TS_SEG_MAX_CLASSES);
   if (p->truth) check_truth_values(in[ts_seg_in_truth(p)], seen, seen + 65536, names[ts_seg_in_truth(p)], &pr);
   free(seen);
   return pr.count ? TS_EINVAL : 0;

@@ -28,7 +28,7 @@
 typedef struct {
   const ts_stylit_params *p;
   ts_search *search;
-  const ts_stylit_hooks *h;
+  const ts_progress_hooks *h;
   ts_stylit_planes pl;
   int levels, r, patch;
   double lambda;
@@ -474,7 +474,7 @@ static void run_free(run *e) {
   free(e->nnf);
 }
 
-int ts_stylit_run(const ts_stylit_params *p, const ts_image *const *in, ts_search *search, const ts_stylit_hooks *h,
+int ts_stylit_run(const ts_stylit_params *p, const ts_image *const *in, ts_search *search, const ts_progress_hooks *h,
                   ts_stylit_result *res, char *err) {
   memset(res, 0, sizeof(*res));
   double t0 = ts_now();

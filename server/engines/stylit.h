@@ -168,13 +168,8 @@ typedef struct {
   ts_stylit_level_stats level[TS_STYLIT_MAX_LEVELS];
 } ts_stylit_result;
 
-typedef struct {
-  ts_progress_fn *progress; /* may be NULL */
-  void *progress_ctx;
-} ts_stylit_hooks;
-
 /* Runs a checked job. 0, or a TS_E* code with a message. */
-int ts_stylit_run(const ts_stylit_params *p, const ts_image *const *in, ts_search *search, const ts_stylit_hooks *h,
+int ts_stylit_run(const ts_stylit_params *p, const ts_image *const *in, ts_search *search, const ts_progress_hooks *h,
                   ts_stylit_result *res, char *err);
 void ts_stylit_result_free(ts_stylit_result *res);
 

@@ -8,6 +8,7 @@
 
 #include "error.h"
 #include "stylit_input.h"
+#include "util.h"
 
 /* Queries per search call: only the traffic's shape, never the result. */
 #define BATCH 4096
@@ -40,26 +41,15 @@ static int step_problem(int step, char *msg, size_t len) {
   return TS_EINVAL;
 }
 
-/* Appends a line to the problems in msg. */
-static void add_problem(char *msg, size_t len, const char *line) {
-  size_t used = strlen(msg);
-  if (used + 1 < len) snprintf(msg + used, len - used, "%s%s", used > 0 ? "\n" : "", line);
-}
-
 int ts_stylit_energy_check(const ts_stylit_params *p, const ts_image *const *in, const ts_image *image, int step,
                            char *msg, size_t len) {
   int rc = ts_stylit_check(p, in, msg, len);
   if (p->guides < 1 || p->guides > TS_STYLIT_MAX_GUIDES) return rc; /* then in[] has no target guide */
   char line[TS_ERR_LEN];
-  if (image_problem(in, image, line, sizeof(line)) != 0) {
-    add_problem(msg, len, line);
-    rc = TS_EINVAL;
-  }
-  if (step_problem(step, line, sizeof(line)) != 0) {
-    add_problem(msg, len, line);
-    rc = TS_EINVAL;
-  }
-  return rc;
+  int more = 0;
+  if (image_problem(in, image, line, sizeof(line)) != 0) ts_problem(msg, len, &more, "%s", line);
+  if (step_problem(step, line, sizeof(line)) != 0) ts_problem(msg, len, &more, "%s", line);
+  return more > 0 ? TS_EINVAL : rc;
 }
 
 /* The engine's planes with B' in the style estimate's place, its window,

@@ -157,7 +157,7 @@ static int stylit_run(const void *params, const ts_image *const *in, ts_search *
   if (r == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
   r->p = params;
   r->search = search;
-  ts_stylit_hooks sh = {h->progress, h->progress_ctx};
+  ts_progress_hooks sh = {h->progress, h->progress_ctx};
   scaled_inputs s;
   int rc = scaled_make(r->p, in, &s, err);
   if (rc == 0) rc = ts_stylit_run(r->p, s.ptr, search, &sh, &r->res, err);

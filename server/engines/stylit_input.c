@@ -1,48 +1,27 @@
 /* stylit_input.c - checking a stylization's parameters and inputs, and
  * turning the inputs into 8-bit planes (stylit.h says how and why). */
 #include <math.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <string.h>
 
 #include "error.h"
 #include "stylit_input.h"
+#include "util.h"
 
 /* ---- the check --------------------------------------------------------- */
 
-typedef struct {
-  char *msg;
-  size_t len, used;
-  int problems;
-} problems;
-
-/* One more problem, on a line of its own. */
-static void problem(problems *pr, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
-static void problem(problems *pr, const char *fmt, ...) {
-  pr->problems++;
-  if (pr->used + 2 >= pr->len) return;
-  if (pr->used > 0) pr->msg[pr->used++] = '\n';
-  va_list ap;
-  va_start(ap, fmt);
-  int n = vsnprintf(pr->msg + pr->used, pr->len - pr->used, fmt, ap);
-  va_end(ap);
-  if (n > 0) pr->used += (size_t)n < pr->len - pr->used ? (size_t)n : pr->len - pr->used - 1;
-}
-
 static int weight_ok(double w) { return w == 0.0 || (w >= 0.01 && w <= 100.0); }
 
-static void check_params(const ts_stylit_params *p, problems *pr) {
-  pr->msg[pr->used] = '\0';
-  ts_params_check(ts_stylit_param_table, p, pr->msg, pr->len, &pr->problems);
-  pr->used = strlen(pr->msg);
-  if (!weight_ok(p->style_weight)) problem(pr, "--weight %g of the style: need 0 or 0.01..100", p->style_weight);
+static void check_params(const ts_stylit_params *p, ts_problems *pr) {
+  ts_params_check(ts_stylit_param_table, p, pr->msg, pr->len, &pr->count);
+  if (!weight_ok(p->style_weight)) ts_problems_add(pr, "--weight %g of the style: need 0 or 0.01..100", p->style_weight);
   double sum = p->style_weight;
   for (int k = 0; k < p->guides && k < TS_STYLIT_MAX_GUIDES; k++) {
     if (p->weight[k] >= 0 && !weight_ok(p->weight[k]))
-      problem(pr, "--weight %g of guide %d: need 0 or 0.01..100", p->weight[k], k + 1);
+      ts_problems_add(pr, "--weight %g of guide %d: need 0 or 0.01..100", p->weight[k], k + 1);
     sum += ts_stylit_weight(p, k);
   }
-  if (!(sum > 0)) problem(pr, "every weight is 0: nothing would be compared");
+  if (!(sum > 0)) ts_problems_add(pr, "every weight is 0: nothing would be compared");
 }
 
 static int colour_channels(int channels) { return channels < 3 ? 1 : 3; }
@@ -51,62 +30,62 @@ static int colour_channels(int channels) { return channels < 3 ? 1 : 3; }
 static int part_bytes(int n, int patch) { return (n * patch * patch + TS_L1_CHUNK - 1) / TS_L1_CHUNK * TS_L1_CHUNK; }
 
 /* Sizes and channels of the inputs: every mismatch, not just the first. */
-static void check_inputs(const ts_stylit_params *p, const ts_image *const *in, problems *pr) {
+static void check_inputs(const ts_stylit_params *p, const ts_image *const *in, ts_problems *pr) {
   const ts_image *style = in[TS_STYLIT_IN_STYLE], *tgt0 = in[ts_stylit_in_tgt(0)];
   if (style->channels > TS_STYLIT_MAX_STYLE_CHANNELS)
-    problem(pr, "the style has %d channels: need 1..%d", style->channels, TS_STYLIT_MAX_STYLE_CHANNELS);
+    ts_problems_add(pr, "the style has %d channels: need 1..%d", style->channels, TS_STYLIT_MAX_STYLE_CHANNELS);
   int planes = colour_channels(style->channels), bytes = part_bytes(planes, p->patch);
   for (int k = 0; k < p->guides; k++) {
     const ts_image *s = in[ts_stylit_in_src(k)], *t = in[ts_stylit_in_tgt(k)];
     if (s->width != style->width || s->height != style->height)
-      problem(pr, "guide %d: its source is %dx%d, the style %dx%d (a source guide has the style's size)", k + 1,
+      ts_problems_add(pr, "guide %d: its source is %dx%d, the style %dx%d (a source guide has the style's size)", k + 1,
               s->width, s->height, style->width, style->height);
     if (k > 0 && (t->width != tgt0->width || t->height != tgt0->height))
-      problem(pr, "guide %d: its target is %dx%d, guide 1's %dx%d (every target guide has the output's size)", k + 1,
+      ts_problems_add(pr, "guide %d: its target is %dx%d, guide 1's %dx%d (every target guide has the output's size)", k + 1,
               t->width, t->height, tgt0->width, tgt0->height);
     if (s->channels != t->channels)
-      problem(pr, "guide %d: its source has %d channels, its target %d", k + 1, s->channels, t->channels);
-    if (s->channels > 4) problem(pr, "guide %d has %d channels: need 1..4", k + 1, s->channels);
+      ts_problems_add(pr, "guide %d: its source has %d channels, its target %d", k + 1, s->channels, t->channels);
+    if (s->channels > 4) ts_problems_add(pr, "guide %d has %d channels: need 1..4", k + 1, s->channels);
     planes += colour_channels(s->channels);
     bytes += part_bytes(colour_channels(s->channels), p->patch);
   }
   if (planes > TS_WIN_MAX_PLANES)
-    problem(pr, "the style and guides make %d channels to compare: at most %d", planes, TS_WIN_MAX_PLANES);
+    ts_problems_add(pr, "the style and guides make %d channels to compare: at most %d", planes, TS_WIN_MAX_PLANES);
   else if (p->patch <= TS_STYLIT_MAX_PATCH && bytes > TS_L1_MAX_CHUNKS * TS_L1_CHUNK)
-    problem(pr, "%dx%d patches of the style and guides make %d-byte vectors: at most %d; use a smaller "
+    ts_problems_add(pr, "%dx%d patches of the style and guides make %d-byte vectors: at most %d; use a smaller "
             "--patch-size or fewer guides", p->patch, p->patch, bytes, TS_L1_MAX_CHUNKS * TS_L1_CHUNK);
 }
 
 /* The coarsest level must still hold a patch in the source and target. */
-static void check_pyramid(const ts_stylit_params *p, const ts_image *const *in, problems *pr) {
+static void check_pyramid(const ts_stylit_params *p, const ts_image *const *in, ts_problems *pr) {
   const ts_image *style = in[TS_STYLIT_IN_STYLE], *tgt = in[ts_stylit_in_tgt(0)];
   if ((uint64_t)tgt->width * (uint64_t)tgt->height > p->max_pixels)
-    problem(pr, "the output would be %dx%d, over --max-pixels %llu", tgt->width, tgt->height,
+    ts_problems_add(pr, "the output would be %dx%d, over --max-pixels %llu", tgt->width, tgt->height,
             (unsigned long long)p->max_pixels);
   if (p->patch < 3 || p->patch > TS_STYLIT_MAX_PATCH || p->levels < 0 || p->levels > TS_STYLIT_MAX_LEVELS) return;
   int l = ts_stylit_levels(p, in) - 1;
   int sw = style->width >> l, sh = style->height >> l, tw = tgt->width >> l, th = tgt->height >> l;
   if (sw < p->patch || sh < p->patch || tw < 1 || th < 1)
-    problem(pr,
+    ts_problems_add(pr,
             "--levels %d: the coarsest level's source is %dx%d and target %dx%d, and the source needs room for a "
             "%dx%d patch; use fewer levels or a smaller --patch-size",
             l + 1, sw, sh, tw, th, p->patch, p->patch);
   if (p->search == TS_STYLIT_LIST && p->nlevel_modes != l + 1)
-    problem(pr, "--search lists %d level%s, the job runs %d: give one mode per level, coarsest first (or set --levels)",
+    ts_problems_add(pr, "--search lists %d level%s, the job runs %d: give one mode per level, coarsest first (or set --levels)",
             p->nlevel_modes, p->nlevel_modes == 1 ? "" : "s", l + 1);
 }
 
 int ts_stylit_check(const ts_stylit_params *p, const ts_image *const *in, char *msg, size_t len) {
-  problems pr = {msg, len, 0, 0};
+  ts_problems pr = {msg, len, 0};
   msg[0] = '\0';
   if (p->guides < 1 || p->guides > TS_STYLIT_MAX_GUIDES) {
-    problem(&pr, "%d guide pairs: need 1..%d --guide SRC TGT", p->guides, TS_STYLIT_MAX_GUIDES);
+    ts_problems_add(&pr, "%d guide pairs: need 1..%d --guide SRC TGT", p->guides, TS_STYLIT_MAX_GUIDES);
     return TS_EINVAL;
   }
   check_params(p, &pr);
   check_inputs(p, in, &pr);
   check_pyramid(p, in, &pr);
-  return pr.problems ? TS_EINVAL : 0;
+  return pr.count ? TS_EINVAL : 0;
 }
 
 int ts_stylit_levels(const ts_stylit_params *p, const ts_image *const *in) {

@@ -1,5 +1,5 @@
 /* fuzz_jobspec.c - libFuzzer target for the job-spec text parser
- * (server/jobspec.c), the text a client submits and the spool keeps. The
+ * (server/engines/jobspec.c), the text a client submits and the spool keeps. The
  * input is the spec, not NUL-terminated. A spec the parser accepts must
  * format back and parse again to the same spec (what a restarted
  * coordinator reads from job.spec); any crash, sanitizer report or failed

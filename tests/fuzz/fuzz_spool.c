@@ -1,5 +1,5 @@
 /* fuzz_spool.c - libFuzzer target for what a restarted coordinator makes of
- * its spool (server/spool.c): a job directory's job.spec, client, ref.ext
+ * its spool (server/jobs/spool.c): a job directory's job.spec, client, ref.ext
  * and state, and the last-id file.
  *
  * The input is a directory: a first byte saying, two bits per file (spec,

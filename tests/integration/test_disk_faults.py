@@ -24,7 +24,7 @@ def tolerated(point):
     """Whether the point's failure costs nothing a client asked for: it is
     logged, and the job goes on (a checkpoint) or the deletion stands (the
     files of a job renamed away)."""
-    return bool(re.search(r"/checkpoint(\.tmp)?$", point.path)) or \
+    return bool(re.search(r"/checkpoint(\.tmp(-\d+)?)?$", point.path)) or \
         (point.call in ("unlink", "rmdir") and ".deleted" in point.path)
 
 
@@ -149,7 +149,7 @@ def test_one_fault_per_errno(data, counted, tmp_path):
     """A submission refused (EACCES at job.spec), a job failed (ENOSPC at
     its report, EIO at its state) and a deletion refused (EROFS)."""
     expected, spool, points = counted
-    cases = [("EACCES", pick(points, spool, "open", r"jobs/1/job\.spec\.tmp"), "submit refused"),
+    cases = [("EACCES", pick(points, spool, "open", r"jobs/1/job\.spec\.tmp-PID"), "submit refused"),
              ("ENOSPC", pick(points, spool, "fflush", r"jobs/1/report\.json\.tmp-PID"), "job failed"),
              ("EIO", pick(points, spool, "rename", r"jobs/2/state"), "job failed"),
              ("EROFS", pick(points, spool, "rename", r"jobs/1\.deleted"), "delete refused")]

@@ -1,4 +1,4 @@
-"""Damaged files in a stopped coordinator's spool (server/spool.c): an
+"""Damaged files in a stopped coordinator's spool (server/jobs/spool.c): an
 accepted job is never dropped in silence. After a restart, a job whose
 job.spec or ref.ext is damaged and that still needs it is failed with a
 reason naming the file (in `texsyn status` and the log); a damaged state

@@ -97,7 +97,7 @@ def embedded(texsyn, data, tmp_path):
     return out.read_bytes(), (tmp_path / "embedded.png.raw").read_bytes()
 
 
-# Each mode's named reason (server/cluster.c req_match, search_cluster.c
+# Each mode's named reason (server/pool/cluster.c req_match, search_batch.c
 # answer_reply): a duplicate answers no request outstanding, or not the
 # oldest one; a misaddressed answer names a frame id not sent.
 WHY = {"short": "which asked", "extra": "which asked",

@@ -1,5 +1,5 @@
 /* test_spool.c - what a restarted coordinator makes of a job directory and
- * of last-id (server/spool.c): jobs come back as they were; a submission
+ * of last-id (server/jobs/spool.c): jobs come back as they were; a submission
  * cut short goes; a job with a damaged file is kept, as failed when it
  * needs the file, with a reason naming it, and a note for the log; a
  * damaged state reruns the job; a damaged last-id is refused, not read as

@@ -1,8 +1,13 @@
-/* search_cluster_impl.h - the cluster search backend's state, shared by
- * its files: search_cluster.c (sets sliced over the pool, query batches)
- * and search_field.c (PatchMatch sources held whole, passes over tiles). */
-#ifndef TS_SEARCH_CLUSTER_IMPL_H
-#define TS_SEARCH_CLUSTER_IMPL_H
+/* search_state.h - the cluster search backend's state, shared by its
+ * files, each of which calls only into those listed above it:
+ *
+ *   search_replica.c  query images: the coordinator's replica, the workers'
+ *   search_field.c    PatchMatch sources held whole, passes over tiles
+ *   search_sets.c     reference sets sliced over the pool
+ *   search_batch.c    query batches, answers merged, rebalancing
+ *   search_cluster.c  the backend's face (search.h's operations) */
+#ifndef TS_SEARCH_STATE_H
+#define TS_SEARCH_STATE_H
 
 #include "cluster_impl.h"
 #include "patchmatch.h"
@@ -40,7 +45,7 @@ typedef struct {
   int nslices;
   cl_held *held; /* the workers that loaded the last slicing (o.max_workers slots) */
   int nheld;
-  int load_losses; /* loads of it that lost workers (ensure_slices) */
+  int load_losses; /* loads of it that lost workers (cl_ensure_slices) */
   ts_slice *local; /* in-process slice when no worker is ready */
   /* A partitioned set's codebook (rs.lbg), built once when the set is
    * prepared; every slice of the set carries it. */
@@ -103,22 +108,15 @@ typedef struct {
 
 static inline int cl_canceled(const cluster_search *cs) { return cs->cancel != NULL && atomic_load(cs->cancel); }
 
-/* Checks an 'R' acknowledgement against the request it answers (whose
- * tag is the image's id on the wire): 0, or TS_EPROTO. */
-int cl_image_ack(const ts_frame *f, const cl_request *rq, char *err);
+/* A query image or a set by its id, or NULL if there is none. */
+static inline cl_image *cl_image_get(cluster_search *cs, int id) {
+  if (id < 0 || id >= CL_MAX_IMAGES || !cs->images[id].used) return NULL;
+  return &cs->images[id];
+}
 
-/* What worker w holds of the image: its record, or NULL (lock held). */
-cl_synced *cl_synced_of(cl_image *im, const cl_worker *w);
-void cl_mark_synced(ts_cluster *c, cl_image *im, const cl_worker *w, uint64_t seq);
-/* The replica as a LOAD message (its pointers stay valid until the
- * replica changes, after the exchange). */
-void cl_load_message(const cl_image *im, ts_msg_image *m);
-/* The pending placements into the coordinator's replica (lock held). */
-int cl_flush_image(cluster_search *cs, int id, char *err);
-
-/* search_field.c: a field set prepared, a pass, a field set freed. */
-int cl_field_prepare(cluster_search *cs, cl_set *st, char *err);
-int cl_field_pass(ts_search *s, const ts_field_pass *fp, char *err);
-void cl_field_clear(cluster_search *cs, cl_set *st);
+static inline cl_set *cl_set_get(cluster_search *cs, int id) {
+  if (id < 0 || id >= CL_MAX_SETS || !cs->sets[id].used) return NULL;
+  return &cs->sets[id];
+}
 
 #endif

@@ -6,6 +6,8 @@
  * tiles of a worker that fails are swept again by the others (or by the
  * coordinator, with none left) and the field is the same bytes whoever
  * swept what - and the same as the local backend's. */
+#include "search_field.h"
+
 #include <math.h>
 #include <pthread.h>
 #include <stdlib.h>
@@ -14,7 +16,7 @@
 #include <sodium.h>
 
 #include "error.h"
-#include "search_cluster_impl.h"
+#include "search_replica.h"
 
 /* Candidates a pixel tries in a pass (current, two neighbours, about 12
  * random), for deadlines only. */

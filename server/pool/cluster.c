@@ -1,8 +1,8 @@
 /* cluster.c - see cluster.h: the pool of workers - joining, calibration,
  * heartbeats, failures - and the exchanges every request to the workers
  * goes through. The Modbus supervision is in supervise.c, the search
- * backend over the pool in search_cluster.c; cluster_impl.h says how they
- * share the lock. */
+ * backend over the pool in search_cluster.c and the files search_state.h
+ * lists; cluster_impl.h says how they share the lock. */
 #include <errno.h>
 #include <math.h>
 #include <poll.h>

@@ -1,7 +1,7 @@
 /* cluster_impl.h - what the three parts of the coordinator's cluster share
  * (not for anyone else): the pool and its exchanges (cluster.c), the Modbus
  * supervision of the workers (supervise.c) and the search backend over the
- * pool (search_cluster.c).
+ * pool (search_cluster.c and the files search_state.h lists).
  *
  * Locking: one mutex guards the worker list and the workers' state, and is
  * never held while bytes travel. An exchange *leases* its workers (under

@@ -131,7 +131,7 @@ static int read_client(const ts_spool_file *f, char client[TS_SPOOL_CLIENT_LEN],
   return -1;
 }
 
-/* state: what job_finish (jobs.c) writes, "done", "canceled" or "failed:
+/* state: what jobs_finish (jobs_spool.c) writes, "done", "canceled" or "failed:
  * REASON", one line; none while the job is unfinished. The state, or -1
  * with why when it is none of these (a failed job's reason into text). */
 static int read_state(const ts_spool_file *f, char text[TS_ERR_LEN], char *why, size_t cap) {
