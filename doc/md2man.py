@@ -8,10 +8,10 @@ tables (each row becomes a tagged paragraph: the first cell as the tag, the
 others as `header: cell`), inline code, bold, italics and links (their text;
 a page's link becomes page(1), a guide's link keeps its path). HTML comments
 and pictures are left out. The NAME section's names, `texsyn-a, texsyn-b -
-what`, are the page's names: each after the first gets a stub that sources the
-page (`man texsyn-watch` opens texsyn-jobs(1)).
+what`, are the page's names: each but the page's own gets a stub that sources
+the page (`man texsyn-watch` opens texsyn-jobs(1)).
 
-Usage: doc/md2man.py --out DIR PAGE.md ...   (writes DIR/NAME.1 per name)
+Usage: doc/md2man.py --out DIR PAGE.md ...   (DIR/PAGE.1, and DIR/NAME.1 per other name)
 """
 import argparse
 import posixpath
@@ -86,8 +86,8 @@ class Page:
     def convert(self):
         lines, k = self.lines, 0
         m = TITLE.match(lines[0]) if lines else None
-        if not m:
-            self.fail(0, "a page starts with its title: # texsyn-NAME(1)")
+        if not m or m.group("name") != Path(self.source).stem:
+            self.fail(0, f"a page starts with its title: # {Path(self.source).stem}(1)")
         self.out.append(f'.TH "{m.group("name").upper()}" "{m.group("section")}" "" "texsyn" "texsyn manual"')
         # Left-aligned and unhyphenated: option names and paths stay whole.
         self.out += [".ad l", ".nh"]
@@ -196,9 +196,10 @@ def main():
     args.out.mkdir(parents=True, exist_ok=True)
     for path in args.pages:
         text, names = convert(path)
-        (args.out / f"{names[0]}.1").write_text(text)
-        for alias in names[1:]:
-            (args.out / f"{alias}.1").write_text(f".so man1/{names[0]}.1\n")
+        (args.out / f"{path.stem}.1").write_text(text)
+        for alias in names:
+            if alias != path.stem:
+                (args.out / f"{alias}.1").write_text(f".so man1/{path.stem}.1\n")
     return 0
 
 
