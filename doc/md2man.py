@@ -17,6 +17,7 @@ import argparse
 import posixpath
 import re
 import sys
+import unicodedata
 from pathlib import Path
 
 TITLE = re.compile(r"^# (?P<name>[\w-]+)\((?P<section>\d)\)\s*$")
@@ -69,6 +70,19 @@ def protect(line):
     return "\\&" + line if line.startswith((".", "'")) else line
 
 
+def ascii_fallback(c):
+    """What a terminal without the character shows instead (`.fchar` is used
+    only where the device lacks the glyph): the letter without its accent,
+    a superscript digit as ^9, a subscript as _1."""
+    if c.isascii():
+        return None
+    base = "".join(b for b in unicodedata.normalize("NFKD", c) if not unicodedata.combining(b))
+    if not base or not base.isascii() or not base.isprintable():
+        return None
+    name = unicodedata.name(c, "")
+    return ("^" if name.startswith("SUPERSCRIPT") else "_" if name.startswith("SUBSCRIPT") else "") + base
+
+
 def cells(row):
     return [c.strip() for c in row.strip().strip("|").split("|")]
 
@@ -91,6 +105,8 @@ class Page:
         self.out.append(f'.TH "{m.group("name").upper()}" "{m.group("section")}" "" "texsyn" "texsyn manual"')
         # Left-aligned and unhyphenated: option names and paths stay whole.
         self.out += [".ad l", ".nh"]
+        self.out += [f".fchar \\[u{ord(c):04X}] {f}" for c in sorted(set("\n".join(lines)))
+                     if (f := ascii_fallback(c))]
         section = None
         k = 1
         while k < len(lines):
