@@ -33,7 +33,7 @@
 #include "engine.h"
 #include "fillcmd.h"
 #include "mrf.h"
-#include "outputs.h"
+#include "paramopt.h"
 #include "quality.h"
 #include "segment.h"
 #include "stylize.h"
@@ -335,6 +335,7 @@ static void usage_main(FILE *f) {
           "  quality  neighbourhood error of an image against a reference\n"
           "  shuffle  random block shuffle of a reference (a baseline)\n"
           "  simd     list the L1 kernel variants this CPU supports\n"
+          "  params   list the engines' parameters: job spec keys, options, defaults\n"
           "  status   jobs on a coordinator (texsyn-server); also watch, fetch, cancel,\n"
           "           delete, workers\n"
           "  modbus   read a daemon's Modbus register map, or set its drain/pause coil\n");
@@ -360,6 +361,7 @@ int main(int argc, char **argv) {
   if (strcmp(cmd, "quality") == 0) return cmd_quality(argc - 1, argv + 1);
   if (strcmp(cmd, "shuffle") == 0) return cmd_shuffle(argc - 1, argv + 1);
   if (strcmp(cmd, "simd") == 0) return cmd_simd();
+  if (strcmp(cmd, "params") == 0) return ts_cmd_params(argc - 1, argv + 1);
   if (strcmp(cmd, "modbus") == 0) return ts_mbclient_main(argc - 1, argv + 1);
   if (strcmp(cmd, "status") == 0 || strcmp(cmd, "watch") == 0 || strcmp(cmd, "fetch") == 0 ||
       strcmp(cmd, "cancel") == 0 || strcmp(cmd, "delete") == 0 || strcmp(cmd, "workers") == 0)
