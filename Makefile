@@ -4,7 +4,9 @@
 #
 #   make            build binaries into build/
 #   make install    the binaries into PREFIX/bin (default /usr/local), the
-#                   image library into PREFIX/lib/texsyn
+#                   image library into PREFIX/lib/texsyn, the man pages into
+#                   PREFIX/share/man/man1 (man texsyn-synth)
+#   make doc        the command pages' options blocks from the programs' --help
 #   make test       install missing packages, build, run every test
 #   make test-valgrind  the unit tests under valgrind
 #   make test-tsan  the cluster's integration tests on a ThreadSanitizer build (build-tsan/)
@@ -197,10 +199,30 @@ $(BUILD)/bench/$(notdir $(IMAGE_LIB)): $(IMAGE_LIB)
 # The library goes to ../lib/texsyn from the programs' directory, where
 # they look for it (common/image_load.c); DESTDIR for staged installs.
 PREFIX ?= /usr/local
-install: $(BINS) $(IMAGE_LIB)
+install: $(BINS) $(IMAGE_LIB) install-man
 	install -d $(DESTDIR)$(PREFIX)/bin $(DESTDIR)$(PREFIX)/lib/texsyn
 	install -m 755 $(BINS) $(DESTDIR)$(PREFIX)/bin/
 	install -m 644 $(IMAGE_LIB) $(DESTDIR)$(PREFIX)/lib/texsyn/
+
+# The command pages (doc/texsyn*.md): `make doc` fills their options blocks
+# with what the programs' --help prints (doc/gen.py; test_manual.py fails on
+# a stale one). Each page is also a man page (doc/md2man.py), with a stub
+# for each further name it has (texsyn-watch: texsyn-jobs), installed into
+# PREFIX/share/man/man1.
+DOC_PAGES = $(wildcard doc/texsyn*.md)
+MAN_DIR = $(BUILD)/man
+.PHONY: doc install-man
+doc: $(BINS)
+	/usr/bin/python3 doc/gen.py --build $(BUILD)
+
+$(MAN_DIR)/.stamp: $(DOC_PAGES) doc/md2man.py
+	rm -rf $(MAN_DIR)
+	/usr/bin/python3 doc/md2man.py --out $(MAN_DIR) $(DOC_PAGES)
+	touch $@
+
+install-man: $(MAN_DIR)/.stamp
+	install -d $(DESTDIR)$(PREFIX)/share/man/man1
+	install -m 644 $(MAN_DIR)/*.1 $(DESTDIR)$(PREFIX)/share/man/man1/
 
 deps:
 	@bash deploy/install-deps.sh

@@ -13,6 +13,7 @@ PACKAGES=(
   chromium python3-prometheus-client   # its tests: a headless browser, Prometheus' parser
   libcmocka-dev                        # unit tests
   python3-pytest                       # integration tests
+  man-db groff-base                    # make install's man pages; test_manual.py renders them
   valgrind                             # make test-valgrind
   clang                                # libFuzzer targets (make fuzz; 20 s each in make test)
   iproute2 nftables                    # network partitions in namespaces (test_partitions.py, make soak)
