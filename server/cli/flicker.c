@@ -95,6 +95,13 @@ static int parse(int argc, char **argv, flicker_opts *o, char *err) {
   return rc;
 }
 
+/* err, a message about frame f of option (or of the sequence), says so. */
+static int in_frame(char *err, int rc, const char *option, long f, const char *tail) {
+  char why[TS_ERR_LEN];
+  snprintf(why, sizeof(why), "%s", err);
+  return ts_error(err, rc, "%s%sframe %ld: %s%s", option ? option : "", option ? " " : "", f, why, tail);
+}
+
 /* The header of frame f of s, its path into path. */
 static int probe_frame(const sequence *s, long f, char *path, ts_image_info *info, char *err) {
   if (ts_frame_path(s->pattern, f, path, FLICKER_PATH) != 0)
@@ -104,7 +111,7 @@ static int probe_frame(const sequence *s, long f, char *path, ts_image_info *inf
   int rc = ts_file_read(path, FLICKER_MAX_FILE, &buf, &len, err);
   if (rc == 0) rc = ts_image_probe_mem(path, buf, len, NULL, info, err);
   free(buf);
-  return rc != 0 ? ts_error(err, rc, "%s frame %ld: %s (nothing was scored)", s->option, f, err) : 0;
+  return rc != 0 ? in_frame(err, rc, s->option, f, " (nothing was scored)") : 0;
 }
 
 /* Every frame of s there, readable and of its first frame's size (and
@@ -236,7 +243,7 @@ static int score_all(const flicker_opts *o, const sequence *in, const sequence *
   for (long f = o->fr.first + 1; rc == 0 && f <= o->fr.last; f++) {
     rc = read_frame(in, sty, f, &cur, err);
     if (rc == 0) rc = score_step(&prev, &cur, w, h, c, &b, &steps[f - o->fr.first - 1], err);
-    if (rc != 0) rc = ts_error(err, rc, "frame %ld: %s", f, err);
+    if (rc != 0) rc = in_frame(err, rc, NULL, f, "");
     frame_free(&prev);
     prev = cur;
     cur = (frame){0};
@@ -274,14 +281,14 @@ static void report(const flicker_opts *o, const step_score *steps, long n) {
 int ts_cmd_flicker(int argc, char **argv) {
   char err[TS_ERR_LEN] = "";
   flicker_opts o = {0};
-  sequence in = {"--input", NULL, {0}}, sty = {"--image", NULL, {0}};
-  step_score *steps = NULL;
   int rc = parse(argc, argv, &o, err);
-  if (rc == 0) {
-    in.pattern = o.input;
-    sty.pattern = o.image;
-    rc = check_all(&o, &in, &sty, err);
+  if (rc != 0) {
+    fprintf(stderr, "texsyn flicker: %s\n", err);
+    return 2;
   }
+  sequence in = {"--input", o.input, {0}}, sty = {"--image", o.image, {0}};
+  step_score *steps = NULL;
+  rc = check_all(&o, &in, &sty, err);
   long n = o.fr.last - o.fr.first;
   if (rc == 0 && (steps = calloc((size_t)n, sizeof(*steps))) == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
   if (rc == 0) rc = score_all(&o, &in, &sty, steps, err);
