@@ -23,16 +23,23 @@
 #ifndef TS_DL_LIB_H
 #define TS_DL_LIB_H
 
+#include "error.h"
+
+/* A library: what to look for (constant), then the outcome of the one
+ * load, kept for the process's life. */
 typedef struct {
   const char *file;  /* the file name, e.g. "libtexsyn-image.so" */
   const char *env;   /* the variable that overrides the search */
-  const char *table; /* the table's symbol */
+  const char *name;  /* the table's symbol */
   const char *what;  /* what messages call it, e.g. "image library" */
+  int loaded, rc;    /* set by ts_dl_lib_load */
+  const void *table; /* the table, once loaded */
+  char err[TS_ERR_LEN];
 } ts_dl_lib;
 
-/* Finds and loads lib: its table into *table, or TS_ENOTSUP with a message
- * naming the paths tried, the reason, and how to fix it. Call it once per
- * process (e.g. under pthread_once) and keep the outcome. */
-int ts_dl_lib_open(const ts_dl_lib *lib, const void **table, char *err);
+/* Finds and loads lib on the first call, then gives that outcome every
+ * time: 0 with lib->table set, or TS_ENOTSUP with a message naming the
+ * paths tried, the reason, and how to fix it. Thread-safe. */
+int ts_dl_lib_load(ts_dl_lib *lib, char *err);
 
 #endif

@@ -4,31 +4,17 @@
  * where it is looked for and how it is loaded). */
 #include "image_lib.h"
 
-#include <pthread.h>
 #include <string.h>
 
 #include "dl_lib.h"
 #include "error.h"
 #include "image_meta.h"
 
-/* The outcome of the one load, written only by ts_lib_load_once. */
-static pthread_once_t ts_lib_once = PTHREAD_ONCE_INIT;
-static const ts_image_lib *ts_lib;
-static int ts_lib_rc;
-static char ts_lib_err[TS_ERR_LEN];
+static ts_dl_lib image_lib = {TS_IMAGE_LIB_NAME, TS_IMAGE_LIB_ENV, TS_IMAGE_LIB_TABLE_NAME, "image library"};
+/* The table, valid once ts_image_lib_load returned 0. */
+#define ts_lib ((const ts_image_lib *)image_lib.table)
 
-static void ts_lib_load_once(void) {
-  static const ts_dl_lib lib = {TS_IMAGE_LIB_NAME, TS_IMAGE_LIB_ENV, TS_IMAGE_LIB_TABLE_NAME,
-                                "image library"};
-  const void *table = NULL;
-  ts_lib_rc = ts_dl_lib_open(&lib, &table, ts_lib_err);
-  ts_lib = table;
-}
-
-int ts_image_lib_load(char *err) {
-  pthread_once(&ts_lib_once, ts_lib_load_once);
-  return ts_lib_rc != 0 ? ts_error(err, ts_lib_rc, "%s", ts_lib_err) : 0;
-}
+int ts_image_lib_load(char *err) { return ts_dl_lib_load(&image_lib, err); }
 
 /* --- image.h's file functions, forwarded -------------------------------- */
 
