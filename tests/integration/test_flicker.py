@@ -102,3 +102,12 @@ def test_bad_input_is_refused_before_any_work(texsyn, shot, tmp_path):
     missing = tmp_path / "nope" / "libtexsyn-flow.so"
     err = refused("--frames", "1..2", "--input", inp, "--image", inp, env={"TEXSYN_FLOW_LIB": str(missing)})
     assert str(missing) in err and "TEXSYN_FLOW_LIB" in err and "No such file" in err, err
+
+
+@pytest.mark.parametrize("program", ["texsyn", "texsyn-server", "texsyn-worker"])
+def test_programs_do_not_link_opencv(program):
+    """OpenCV and the C++ runtime come with libtexsyn-flow.so, loaded on the first flow only."""
+    needed = subprocess.run(["readelf", "-d", BUILD / program], capture_output=True, text=True, check=True).stdout
+    assert "libopencv" not in needed and "libstdc++" not in needed, needed
+    assert "libopencv_video" in subprocess.run(["readelf", "-d", BUILD / "libtexsyn-flow.so"], capture_output=True,
+                                               text=True, check=True).stdout
