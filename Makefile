@@ -125,6 +125,16 @@ IMAGE_LIB = $(BUILD)/libtexsyn-image.so
 IMAGE_LIBS = -lOpenImageIO -lOpenImageIO_Util
 PIC = -fPIC -fvisibility=hidden
 
+# Optical flow as a shared library of its own (common/flow_lib.h), built
+# like the image library: OpenCV's DIS flow behind a C table, loaded by
+# common/flow_load.c on the first flow, so the programs link neither OpenCV
+# nor the C++ runtime.
+FLOW_SRC = common/flow_cv.cpp common/error.c
+FLOW_OBJ = $(patsubst %.c,%.o,$(FLOW_SRC:%.cpp=%.o))
+FLOW_LIB = $(BUILD)/libtexsyn-flow.so
+FLOW_CFLAGS = -I/usr/include/opencv4
+FLOW_LIBS = -lopencv_video -lopencv_core
+
 BINS = $(BUILD)/texsyn $(BUILD)/texsyn-server $(BUILD)/texsyn-worker
 UNIT_SRC = $(wildcard tests/unit/test_*.c)
 UNIT_BINS = $(UNIT_SRC:tests/unit/%.c=$(BUILD)/tests/%)
@@ -140,7 +150,7 @@ BENCH_BINS = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
 PRELOADS = $(BUILD)/tests/libfail_poll.so $(BUILD)/tests/libkill_at_rename.so
 # ... and one that numbers the spool's writes, killing or failing one.
 PRELOADS += $(BUILD)/tests/libspool_fault.so
-all: $(BINS) $(IMAGE_LIB) $(UNIT_BINS) $(BENCH_BINS) $(REPLAY_BINS) $(PRELOADS)
+all: $(BINS) $(IMAGE_LIB) $(FLOW_LIB) $(UNIT_BINS) $(BENCH_BINS) $(REPLAY_BINS) $(PRELOADS)
 
 $(BUILD)/%.o: %.c
 	@mkdir -p $(dir $@)
@@ -161,6 +171,10 @@ $(LIB): $(LIB_OBJ)
 # -z defs: a symbol the library lacks fails this link, not a dlopen later.
 $(IMAGE_LIB): $(IMAGE_OBJ:%=$(BUILD)/pic/%)
 	$(CXX) -shared $(LDFLAGS_ALL) -Wl,-z,defs -o $@ $^ $(IMAGE_LIBS)
+
+$(BUILD)/pic/common/flow_cv.o: CXXFLAGS_ALL += $(FLOW_CFLAGS)
+$(FLOW_LIB): $(FLOW_OBJ:%=$(BUILD)/pic/%)
+	$(CXX) -shared $(LDFLAGS_ALL) -Wl,-z,defs -o $@ $^ $(FLOW_LIBS)
 
 $(BUILD)/texsyn: $(BUILD)/server/cli/main.o $(LIB)
 	$(CC) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
@@ -199,10 +213,10 @@ $(BUILD)/bench/$(notdir $(IMAGE_LIB)): $(IMAGE_LIB)
 # The library goes to ../lib/texsyn from the programs' directory, where
 # they look for it (common/image_load.c); DESTDIR for staged installs.
 PREFIX ?= /usr/local
-install: $(BINS) $(IMAGE_LIB) install-man
+install: $(BINS) $(IMAGE_LIB) $(FLOW_LIB) install-man
 	install -d $(DESTDIR)$(PREFIX)/bin $(DESTDIR)$(PREFIX)/lib/texsyn
 	install -m 755 $(BINS) $(DESTDIR)$(PREFIX)/bin/
-	install -m 644 $(IMAGE_LIB) $(DESTDIR)$(PREFIX)/lib/texsyn/
+	install -m 644 $(IMAGE_LIB) $(FLOW_LIB) $(DESTDIR)$(PREFIX)/lib/texsyn/
 
 # The command pages (doc/texsyn*.md): `make doc` fills their options blocks
 # with what the programs' --help prints (doc/gen.py; test_manual.py fails on

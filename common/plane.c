@@ -30,16 +30,6 @@ void ts_plane_free(ts_plane *p) {
 
 static const int kTaps[5] = {1, 5, 8, 5, 1}; /* sum 20 */
 
-/* Mirror an index into [0, n) without repeating the edge sample. */
-static int mirror(int i, int n) {
-  if (n == 1) return 0;
-  while (i < 0 || i >= n) {
-    if (i < 0) i = -i;
-    if (i >= n) i = 2 * (n - 1) - i;
-  }
-  return i;
-}
-
 int ts_plane_reduce(const ts_plane *src, ts_plane *dst) {
   int w = src->w / 2, h = src->h / 2;
   int rc = ts_plane_alloc(dst, w, h);
@@ -54,14 +44,14 @@ int ts_plane_reduce(const ts_plane *src, ts_plane *dst) {
     const uint8_t *s = src->px + (long)y * src->w;
     for (int x = 0; x < w; x++) {
       uint32_t acc = 0;
-      for (int i = -2; i <= 2; i++) acc += kTaps[i + 2] * s[mirror(2 * x + i, src->w)];
+      for (int i = -2; i <= 2; i++) acc += kTaps[i + 2] * s[ts_plane_mirror(2 * x + i, src->w)];
       rows[(long)y * w + x] = acc;
     }
   }
   for (int y = 0; y < h; y++) {
     for (int x = 0; x < w; x++) {
       uint32_t acc = 0;
-      for (int j = -2; j <= 2; j++) acc += kTaps[j + 2] * rows[(long)mirror(2 * y + j, src->h) * w + x];
+      for (int j = -2; j <= 2; j++) acc += kTaps[j + 2] * rows[(long)ts_plane_mirror(2 * y + j, src->h) * w + x];
       dst->px[(long)y * w + x] = (uint8_t)((acc + 200) / 400);
     }
   }
@@ -77,7 +67,7 @@ static void masked_rows(const ts_plane *src, const ts_plane *mask, int w, uint32
     for (int x = 0; x < w; x++) {
       uint32_t acc = 0, sum = 0;
       for (int i = -2; i <= 2; i++) {
-        int sx = mirror(2 * x + i, src->w);
+        int sx = ts_plane_mirror(2 * x + i, src->w);
         uint32_t k = m[sx] ? (uint32_t)kTaps[i + 2] : 0;
         acc += k * s[sx];
         sum += k;
@@ -105,7 +95,7 @@ int ts_plane_reduce_masked(const ts_plane *src, const ts_plane *mask, int ceil_s
     for (int x = 0; x < w; x++) {
       uint64_t acc = 0, sum = 0;
       for (int j = -2; j <= 2; j++) {
-        long o = (long)mirror(2 * y + j, src->h) * w + x;
+        long o = (long)ts_plane_mirror(2 * y + j, src->h) * w + x;
         acc += (uint64_t)kTaps[j + 2] * val[o];
         sum += (uint64_t)kTaps[j + 2] * wt[o];
       }

@@ -36,6 +36,17 @@ static inline uint8_t ts_plane_wrap(const ts_plane *p, int x, int y) {
 static inline int ts_parity_class(int x, int y) { return (x & 1) | (y & 1) << 1; }
 int ts_plane_parity(ts_plane *p, int w, int h);
 
+/* An index mirrored into [0, n) without repeating the edge sample
+ * (-1 -> 1, n -> n - 2): how filters read past a plane's border. */
+static inline int ts_plane_mirror(int i, int n) {
+  if (n == 1) return 0;
+  while (i < 0 || i >= n) {
+    if (i < 0) i = -i;
+    if (i >= n) i = 2 * (n - 1) - i;
+  }
+  return i;
+}
+
 /* One Gaussian reduction step (seed 002 eqs. 2.1-2.3): the separable kernel
  * g = (0.05, 0.25, 0.4, 0.25, 0.05) = (1, 5, 8, 5, 1) / 20, evaluated at
  * (2x, 2y) with mirrored borders, in exact integer arithmetic rounded to

@@ -7,6 +7,8 @@ set -euo pipefail
 PACKAGES=(
   build-essential pkg-config
   libopenimageio-dev openimageio-tools # image I/O (OpenImageIO) + oiiotool for tests
+  libopencv-video-dev                  # optical flow (OpenCV's DIS) for texsyn flicker and video:
+                                       # libtexsyn-flow.so, common/flow_cv.cpp
   libmodbus-dev mbpoll                 # Modbus TCP monitoring plane; mbpoll reads it in tests
   libsodium-dev                        # HMAC-SHA-256 connection authentication
   libmicrohttpd-dev                    # the operations page (texsyn-server --http)

@@ -13,6 +13,7 @@ TEXSYN_DATA=$(bash "$(dirname "$0")/test-data.sh") || exit 1
 export TEXSYN_DATA
 # The test binaries sit in BUILD/tests/, not next to the image library.
 export TEXSYN_IMAGE_LIB=$(cd "$build" && pwd)/libtexsyn-image.so
+export TEXSYN_FLOW_LIB=$(cd "$build" && pwd)/libtexsyn-flow.so
 mult=${TEXSYN_TEST_TIMEOUT_MULTIPLIER:-1}
 export timeout_s=$((120 * mult))
 logdir=$(mktemp -d)

@@ -36,6 +36,7 @@
 #include "paramopt.h"
 #include "quality.h"
 #include "segment.h"
+#include "flicker.h"
 #include "stylize.h"
 #include "synth.h"
 #include "search.h"
@@ -332,6 +333,7 @@ static void usage_main(FILE *f) {
           "  energy   score a stylized image: mean exact best guided patch distance, coverage\n"
           "  apply-nnf  vote a stylize --nnf field over another layer of the exemplar\n"
           "  segment  label an image's pixels with the classes of training textures\n"
+          "  flicker  score a stylized sequence's temporal coherence: warp error along the flow\n"
           "  quality  neighbourhood error of an image against a reference\n"
           "  shuffle  random block shuffle of a reference (a baseline)\n"
           "  simd     list the L1 kernel variants this CPU supports\n"
@@ -358,6 +360,7 @@ int main(int argc, char **argv) {
   if (strcmp(cmd, "energy") == 0) return ts_cmd_energy(argc - 1, argv + 1);
   if (strcmp(cmd, "apply-nnf") == 0) return ts_cmd_apply_nnf(argc - 1, argv + 1);
   if (strcmp(cmd, "segment") == 0) return ts_cmd_segment(argc - 1, argv + 1);
+  if (strcmp(cmd, "flicker") == 0) return ts_cmd_flicker(argc - 1, argv + 1);
   if (strcmp(cmd, "quality") == 0) return cmd_quality(argc - 1, argv + 1);
   if (strcmp(cmd, "shuffle") == 0) return cmd_shuffle(argc - 1, argv + 1);
   if (strcmp(cmd, "simd") == 0) return cmd_simd();

@@ -1,0 +1,43 @@
+/* video_guides.h - the per-frame guides of video stylization (issue 27,
+ * after Jamriška et al., "Stylizing Video by Example", SIGGRAPH 2019):
+ * besides the frame's own colours,
+ *   edges     where the frame's structure is, so strokes follow contours
+ *             whatever their colour;
+ *   position  where each pixel's content was in the keyframe: the key's
+ *             pixel coordinates carried along the optical flow frame after
+ *             frame, so the same content keeps taking its style from the
+ *             same place of the key (what stops strokes swimming).
+ * 8-bit planes as the StyLit engine takes them; integer arithmetic or
+ * plain float without contraction, so the same bytes everywhere. Not yet
+ * used by a command: `texsyn video` will build on these. */
+#ifndef TS_VIDEO_GUIDES_H
+#define TS_VIDEO_GUIDES_H
+
+#include <stdint.h>
+
+/* The edge guide of a w x h luminance plane into out (w x h): the Sobel
+ * gradient magnitude |gx| + |gy| scaled to 0..255, then blurred by the
+ * binomial kernel (1 4 6 4 1)/16 across and down, so that an edge guides
+ * the patches near it too and one-pixel noise does not. Borders mirror.
+ * 0, or TS_ENOMEM. */
+int ts_guide_edges(const uint8_t *luma, int w, int h, uint8_t *out);
+
+/* The positional guide of the keyframe itself: pos (2*w*h floats) holds
+ * each pixel's own (x, y). */
+void ts_guide_position_key(int w, int h, float *pos);
+
+/* The positional guide one frame on: pixel x of the new frame takes the
+ * previous guide at x + back(x) (back: the flow from the new frame to the
+ * previous one, flow.h), sampled bilinearly; where occluded (1: the
+ * content is not in the previous frame, ts_flow_occlusion on the new
+ * frame) nothing can be carried, and the pixel is reset to its own
+ * coordinates, as in the key. prev and pos must not overlap. */
+void ts_guide_position_advect(const float *prev, const float *back, const uint8_t *occluded, int w, int h,
+                              float *pos);
+
+/* pos as two 8-bit planes, x and y, scaled so that the key's w x h pixels
+ * span 0..255 (rounded, clamped: content carried beyond the key's edge
+ * stays at the edge value). */
+void ts_guide_position_planes(const float *pos, int w, int h, uint8_t *px, uint8_t *py);
+
+#endif
