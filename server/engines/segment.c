@@ -9,7 +9,7 @@
 
 #include "error.h"
 #include "segment.h"
-#include "stylit_input.h"
+#include "stylit.h"
 #include "util.h"
 
 /* Queries per batch and requests per query_many call (a cluster takes 64

@@ -8,7 +8,7 @@
 
 #include "error.h"
 #include "param.h"
-#include "segment.h"
+#include "segment_input.h"
 #include "util.h"
 
 

@@ -7,7 +7,7 @@
 #include <string.h>
 
 #include "error.h"
-#include "segment.h"
+#include "segment_post.h"
 
 void ts_seg_weights(int levels, int nclass, const uint64_t *correct, const uint64_t *total, double *rate,
                     double *weight) {

@@ -8,7 +8,7 @@
 #include "error.h"
 #include "patchmatch.h"
 #include "rng.h"
-#include "stylit_input.h"
+#include "stylit.h"
 #include "util.h"
 
 /* Queries per batch, and batches per query_many call (one round trip on

@@ -7,7 +7,7 @@
 #include <string.h>
 
 #include "error.h"
-#include "stylit_input.h"
+#include "stylit.h"
 #include "util.h"
 
 /* Queries per search call: only the traffic's shape, never the result. */

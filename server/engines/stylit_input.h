@@ -5,8 +5,9 @@
 #ifndef TS_STYLIT_INPUT_H
 #define TS_STYLIT_INPUT_H
 
+#include "image.h"
 #include "plane.h"
-#include "stylit.h"
+#include "stylit_params.h"
 #include "window.h"
 
 #define TS_STYLIT_MAX_STYLE_CHANNELS 4
@@ -27,20 +28,12 @@ typedef struct {
 int ts_stylit_planes_init(ts_stylit_planes *pl, const ts_stylit_params *p, const ts_image *const *in);
 void ts_stylit_planes_free(ts_stylit_planes *pl);
 
-/* The p x p window over pl's planes, anchored at a patch's top-left corner
- * (so the usage block of an anchor is its patch): one part for the style,
- * one per guide, each weighted by its weight per channel. */
-int ts_stylit_window(ts_window *win, const ts_stylit_params *p, const ts_stylit_planes *pl, char *err);
-/* The query image: n planes of one size with r pixels of border, each the
- * nearest edge pixel, so the patch of every pixel lies inside it; the
- * patch of pixel (x, y) is the window at (x, y). 0 or TS_ENOMEM (the
- * caller frees pad[0..n-1] either way). */
-int ts_stylit_pad(const ts_plane *const *t, int n, int r, ts_plane *pad);
-/* counts (ncounts, sw wide) = per source pixel, the patches of radius r
- * centred on the n NNF entries (x, y pairs) that cover it. */
-void ts_stylit_occurrences(const uint32_t *nnf, size_t n, int r, int sw, uint32_t *counts, size_t ncounts);
-/* out[c] (tw x th) = the rounded mean of what the patches covering each
- * pixel bring from src[c] (whose centres the NNF gives), for n planes. */
-void ts_stylit_vote(const uint32_t *nnf, int tw, int th, int r, const ts_plane *src, int n, uint8_t *const *out);
+/* Every problem with the parameters and inputs (sizes, channels, ranges,
+ * the pyramid against the patch), one per line: 0 or TS_EINVAL. */
+int ts_stylit_check(const ts_stylit_params *p, const ts_image *const *in, char *msg, size_t len);
+/* The levels a job runs: p->levels, or when 0 the most (up to 6) that
+ * leave the coarsest source and target at least 4 patches on each side
+ * (at least 1). */
+int ts_stylit_levels(const ts_stylit_params *p, const ts_image *const *in);
 
 #endif

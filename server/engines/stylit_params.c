@@ -7,7 +7,7 @@
 
 #include "error.h"
 #include "param.h"
-#include "stylit.h"
+#include "stylit_params.h"
 
 static const char *const kSearchNames[] = {"exact", "patchmatch", "auto", "size"};
 
