@@ -53,7 +53,7 @@ static void usage(FILE *f, const ts_engine *e) {
           "                       0.01..100 (default 1)\n"
           "  --edge-weight W      the edge guide's weight: 0 (off) or 0.01..100 (default 0.5)\n"
           "  --position-weight W  the positional guide's: 0 (off) or 0.02..100 (default 1)\n"
-          "  --temporal-weight W  the temporal guide's: 0 (off) or 0.01..100 (default 0.5)\n"
+          "  --temporal-weight W  the temporal guide's: 0 (off) or 0.01..100 (default 1)\n"
           "  --write-guides DIR   keep the guides made (edges, positions, temporal, each\n"
           "                       chain's frames) in DIR, made if missing\n"
           "  --report F           one JSON object: the settings and every job's report\n",
@@ -170,7 +170,7 @@ static int video_parse(int argc, char **argv, video_opts *o, char *err) {
   o->v.input_weight = 1;
   o->v.edge_weight = 0.5;
   o->v.position_weight = 1;
-  o->v.temporal_weight = 0.5;
+  o->v.temporal_weight = 1;
   struct option longopts[TS_PARAMOPT_MAX];
   if (ts_paramopt_build(o->v.job.spec.engine, own_opts, longopts, TS_PARAMOPT_MAX) != 0)
     return ts_error(err, TS_EINVAL, "internal: too many options");
