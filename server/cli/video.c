@@ -58,8 +58,9 @@ static void usage(FILE *f, const ts_engine *e) {
           "                       chain's frames) in DIR, made if missing\n"
           "  --report F           one JSON object: the settings and every job's report\n",
           TS_FLOW_MIN_SIDE, TS_FLOW_MIN_SIDE, TS_FRAME_LAST, TS_VIDEO_MAX_KEYS, TS_VIDEO_MAX_PASSES);
-  ts_paramopt_help(f, e);
-  fprintf(f, "%s", TS_JOB_RUN_HELP);
+  ts_params_help(f, e->params);
+  fprintf(f, "%s  (not --detach: each frame needs the one before, so the command follows its jobs)\n",
+          TS_JOB_RUN_HELP);
 }
 
 enum { OPT_INPUT = TS_OPT_OWN, OPT_FRAMES, OPT_KEY, OPT_PASS, OPT_WEIGHT, OPT_EDGE, OPT_POSITION, OPT_TEMPORAL,
@@ -130,7 +131,6 @@ static int own_option(video_opts *o, int c, int argc, char **argv, char *err) {
   default: break;
   }
   int rc = ts_paramopt_take(&v->job, c, optarg, err);
-  if (rc == 0 && c >= TS_OPT_SIDE) return ts_error(err, TS_EINVAL, "%s: not an output of texsyn video", argv[optind - 1]);
   if (rc != TS_ENOENT) return rc;
   rc = ts_job_option(&v->job, c, optarg, err);
   return rc != TS_ENOENT ? rc : ts_error(err, TS_EINVAL, "unknown option (see texsyn video --help)");
@@ -156,10 +156,22 @@ static int parse_end(video_opts *o, char *err) {
       return ts_error(err, TS_EINVAL, "--key %ld: given twice (%s and %s)", v->key[k].frame, v->key[k - 1].image,
                       v->key[k].image);
   }
+  if (ts_paramopt_number(&v->job, "scale") != 1)
+    return ts_error(err, TS_EINVAL, "--scale: texsyn video works at the frames' size (scale the frames and keys "
+                    "first for a preview)");
   int rc = ts_job_parse_end(&v->job, err);
   if (rc == 0) rc = ts_paramopt_check(&v->job, err);
   v->out = ts_output_path(&v->job.out, "output");
   return rc == 0 ? ts_video_weigh(v, err) : rc;
+}
+
+/* Stylize's side outputs (--nnf) taken out of a built table: a frame's
+ * field would be overwritten by the next. */
+static void without_side_outputs(struct option *t) {
+  size_t n = 0;
+  for (size_t i = 0; t[i].name != NULL; i++)
+    if (t[i].val < TS_OPT_SIDE) t[n++] = t[i];
+  t[n] = (struct option){0, 0, 0, 0};
 }
 
 /* '+': no reordering of argv, so the word after --key N is its image. */
@@ -174,6 +186,7 @@ static int video_parse(int argc, char **argv, video_opts *o, char *err) {
   struct option longopts[TS_PARAMOPT_MAX];
   if (ts_paramopt_build(o->v.job.spec.engine, own_opts, longopts, TS_PARAMOPT_MAX) != 0)
     return ts_error(err, TS_EINVAL, "internal: too many options");
+  without_side_outputs(longopts);
   optind = 1;
   opterr = 0;
   int c;
