@@ -113,3 +113,7 @@ def test_bad_input_is_refused_before_any_work(texsyn, shot, tmp_path):
     assert "given twice" in refused(keys=(1, 1))
     assert "frame number" in refused("-o", tmp_path / "o.png")
     assert "--detach" in refused("--detach")
+    assert "--nnf" in refused("--nnf", tmp_path / "n_%04d.raw")  # one file per frame: not an output here
+    assert "--scale" in refused("--scale", "0.5")
+    err = refused("--pass", shot / "in_%04d.png", "--pass", tmp_path / "missing_%04d.png", code=1)
+    assert "--pass frame 1" in err and "missing_0001.png" in err, err
