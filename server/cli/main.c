@@ -38,6 +38,7 @@
 #include "segment.h"
 #include "flicker.h"
 #include "stylize.h"
+#include "video.h"
 #include "synth.h"
 #include "search.h"
 
@@ -334,6 +335,7 @@ static void usage_main(FILE *f) {
           "  apply-nnf  vote a stylize --nnf field over another layer of the exemplar\n"
           "  segment  label an image's pixels with the classes of training textures\n"
           "  flicker  score a stylized sequence's temporal coherence: warp error along the flow\n"
+          "  video    stylize a sequence from painted keyframes along the optical flow\n"
           "  quality  neighbourhood error of an image against a reference\n"
           "  shuffle  random block shuffle of a reference (a baseline)\n"
           "  simd     list the L1 kernel variants this CPU supports\n"
@@ -361,6 +363,7 @@ int main(int argc, char **argv) {
   if (strcmp(cmd, "apply-nnf") == 0) return ts_cmd_apply_nnf(argc - 1, argv + 1);
   if (strcmp(cmd, "segment") == 0) return ts_cmd_segment(argc - 1, argv + 1);
   if (strcmp(cmd, "flicker") == 0) return ts_cmd_flicker(argc - 1, argv + 1);
+  if (strcmp(cmd, "video") == 0) return ts_cmd_video(argc - 1, argv + 1);
   if (strcmp(cmd, "quality") == 0) return cmd_quality(argc - 1, argv + 1);
   if (strcmp(cmd, "shuffle") == 0) return cmd_shuffle(argc - 1, argv + 1);
   if (strcmp(cmd, "simd") == 0) return cmd_simd();

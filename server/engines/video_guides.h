@@ -8,8 +8,8 @@
  *             frame, so the same content keeps taking its style from the
  *             same place of the key (what stops strokes swimming).
  * 8-bit planes as the StyLit engine takes them; integer arithmetic or
- * plain float without contraction, so the same bytes everywhere. Not yet
- * used by a command: `texsyn video` will build on these. */
+ * plain float without contraction, so the same bytes everywhere.
+ * `texsyn video` makes its guides with these (server/cli/video_chain.c). */
 #ifndef TS_VIDEO_GUIDES_H
 #define TS_VIDEO_GUIDES_H
 

@@ -1,0 +1,457 @@
+/* video.c - `texsyn video`'s options, the checks made before any work,
+ * and the sequence put together from its chains (video_chain.h does the
+ * stylizing).
+ *
+ * Between two keys K1 < K2 every frame t has two stylizations, from K1
+ * forward (F) and from K2 backward (B); this increment blends them by the
+ * frame's place, (F * (K2 - t) + B * (t - K1)) / (K2 - K1) per sample,
+ * rounded: deterministic and seamless at the keys, at the price of some
+ * ghosting where the two disagree. (Jamriška et al. select per pixel by
+ * the chains' accumulated error, with a temporally coherent selection,
+ * and blend in the gradient domain: the next step.) Frames before the
+ * first key and after the last come from the nearest key alone. */
+#include "video.h"
+
+#include <dirent.h>
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "error.h"
+#include "flow.h"
+#include "image.h"
+#include "paramopt.h"
+#include "util.h"
+#include "video_chain.h"
+
+static void usage(FILE *f, const ts_engine *e) {
+  fprintf(f,
+          "usage: texsyn video --input PATTERN --frames A..B --key N KEY_IMG [--key M KEY_IMG ...]\n"
+          "                    -o PATTERN [--pass PATTERN [--weight W]] [options]\n"
+          "\n"
+          "Stylizes a sequence from painted keyframes (after Jamriska et al. 2019): each\n"
+          "frame is a stylize job with the key's painting as exemplar, guided by the\n"
+          "frame's colours and edges, by where its content was in the key (the key's pixel\n"
+          "coordinates carried along the optical flow) and by the previous stylized frame\n"
+          "warped along the flow. From each key a chain of such jobs runs forward to the\n"
+          "next key and backward to the previous; between two keys the two chains are\n"
+          "blended by the frame's place (linearly). Exact and deterministic: the same\n"
+          "bytes in-process and on any pool.\n"
+          "\n"
+          "  --input PATTERN      the input frames, the frame number as %%d or %%04d; one size\n"
+          "                       and channel count, at least %dx%d\n"
+          "  --frames A..B        the frames to stylize (0..%d)\n"
+          "  --key N KEY_IMG      frame N painted (within A..B, the frames' size); 1..%d keys,\n"
+          "                       all with one channel count, which the output has (8-bit)\n"
+          "  -o PATTERN           the stylized frames (a key's own frame is its painting)\n"
+          "  --pass PATTERN       another guide per frame (render passes, masks): its source\n"
+          "                       is the pass at the key's frame; at most %d\n"
+          "  --weight W           the weight of the --input or --pass just before it: 0 or\n"
+          "                       0.01..100 (default 1)\n"
+          "  --edge-weight W      the edge guide's weight: 0 (off) or 0.01..100 (default 0.5)\n"
+          "  --position-weight W  the positional guide's: 0 (off) or 0.02..100 (default 1)\n"
+          "  --temporal-weight W  the temporal guide's: 0 (off) or 0.01..100 (default 1)\n"
+          "  --write-guides DIR   keep the guides made (edges, positions, temporal, each\n"
+          "                       chain's frames) in DIR, made if missing\n"
+          "  --report F           one JSON object: the settings and every job's report\n",
+          TS_FLOW_MIN_SIDE, TS_FLOW_MIN_SIDE, TS_FRAME_LAST, TS_VIDEO_MAX_KEYS, TS_VIDEO_MAX_PASSES);
+  ts_params_help(f, e->params);
+  fprintf(f, "%s  (not --detach: each frame needs the one before, so the command follows its jobs)\n",
+          TS_JOB_RUN_HELP);
+}
+
+enum { OPT_INPUT = TS_OPT_OWN, OPT_FRAMES, OPT_KEY, OPT_PASS, OPT_WEIGHT, OPT_EDGE, OPT_POSITION, OPT_TEMPORAL,
+       OPT_GUIDES };
+
+static const struct option own_opts[] = {
+    {"input", required_argument, 0, OPT_INPUT},         {"frames", required_argument, 0, OPT_FRAMES},
+    {"key", required_argument, 0, OPT_KEY},             {"pass", required_argument, 0, OPT_PASS},
+    {"weight", required_argument, 0, OPT_WEIGHT},       {"edge-weight", required_argument, 0, OPT_EDGE},
+    {"position-weight", required_argument, 0, OPT_POSITION},
+    {"temporal-weight", required_argument, 0, OPT_TEMPORAL},
+    {"write-guides", required_argument, 0, OPT_GUIDES}, TS_JOB_LONGOPTS,
+    {0, 0, 0, 0}};
+
+typedef struct {
+  ts_video v;
+  int weighs; /* what --weight sets: -1 nothing yet, 0 the input, p + 1 pass p */
+  const char *frames, *report;
+} video_opts;
+
+/* A weight: 0 or lo..100. */
+static int weight_arg(const char *opt, const char *arg, double lo, double *w, char *err) {
+  int rc = ts_arg_double(opt, arg, w, err);
+  if (rc == 0 && *w != 0 && (*w < lo || *w > 100)) rc = ts_error(err, TS_EINVAL, "%s %s: need 0 or %g..100", opt, arg, lo);
+  return rc;
+}
+
+/* --key N KEY_IMG: getopt hands over N; KEY_IMG is the next word. */
+static int key_option(video_opts *o, int argc, char **argv, const char *n, char *err) {
+  if (optind >= argc || (argv[optind][0] == '-' && argv[optind][1] != '\0'))
+    return ts_error(err, TS_EINVAL, "--key %s: needs the painted image after the frame number (--key N KEY_IMG)", n);
+  if (o->v.nkeys == TS_VIDEO_MAX_KEYS) return ts_error(err, TS_EINVAL, "--key: at most %d keys", TS_VIDEO_MAX_KEYS);
+  ts_video_key *k = &o->v.key[o->v.nkeys++];
+  k->image = argv[optind++];
+  return ts_arg_long("--key", n, 0, TS_FRAME_LAST, &k->frame, err);
+}
+
+static int pass_option(video_opts *o, const char *arg, char *err) {
+  if (o->v.npass == TS_VIDEO_MAX_PASSES)
+    return ts_error(err, TS_EINVAL, "--pass: at most %d passes", TS_VIDEO_MAX_PASSES);
+  o->v.pass_weight[o->v.npass] = 1;
+  o->v.pass[o->v.npass++] = arg;
+  o->weighs = o->v.npass;
+  return 0;
+}
+
+static int weight_option(video_opts *o, const char *arg, char *err) {
+  if (o->weighs < 0) return ts_error(err, TS_EINVAL, "--weight %s: put it after the --input or --pass it weighs", arg);
+  return weight_arg("--weight", arg, 0.01, o->weighs == 0 ? &o->v.input_weight : &o->v.pass_weight[o->weighs - 1],
+                    err);
+}
+
+static int own_option(video_opts *o, int c, int argc, char **argv, char *err) {
+  ts_video *v = &o->v;
+  switch (c) {
+  case OPT_INPUT: v->input = optarg; o->weighs = 0; return 0;
+  case OPT_FRAMES: o->frames = optarg; return ts_frames_parse(optarg, &v->fr, err);
+  case OPT_KEY: return key_option(o, argc, argv, optarg, err);
+  case OPT_PASS: return pass_option(o, optarg, err);
+  case OPT_WEIGHT: return weight_option(o, optarg, err);
+  case OPT_EDGE: return weight_arg("--edge-weight", optarg, 0.01, &v->edge_weight, err);
+  case OPT_POSITION: return weight_arg("--position-weight", optarg, 0.02, &v->position_weight, err);
+  case OPT_TEMPORAL: return weight_arg("--temporal-weight", optarg, 0.01, &v->temporal_weight, err);
+  case OPT_GUIDES: v->guides_dir = optarg; return 0;
+  case TS_OPT_REPORT: o->report = optarg; return ts_job_option(&v->job, c, optarg, err);
+  case TS_OPT_DETACH: return ts_error(err, TS_EINVAL, "--detach: each frame needs the one before, so texsyn video "
+                                      "follows its jobs to the end");
+  default: break;
+  }
+  int rc = ts_paramopt_take(&v->job, c, optarg, err);
+  if (rc != TS_ENOENT) return rc;
+  rc = ts_job_option(&v->job, c, optarg, err);
+  return rc != TS_ENOENT ? rc : ts_error(err, TS_EINVAL, "unknown option (see texsyn video --help)");
+}
+
+static int key_order(const void *a, const void *b) {
+  long x = ((const ts_video_key *)a)->frame, y = ((const ts_video_key *)b)->frame;
+  return x < y ? -1 : x > y;
+}
+
+/* What must be there after the options; the keys sorted. */
+static int parse_end(video_opts *o, char *err) {
+  ts_video *v = &o->v;
+  if (v->input == NULL || o->frames == NULL || v->nkeys == 0)
+    return ts_error(err, TS_EINVAL, "--input PATTERN, --frames A..B and at least one --key N KEY_IMG are required "
+                    "(see texsyn video --help)");
+  qsort(v->key, (size_t)v->nkeys, sizeof(v->key[0]), key_order);
+  for (int k = 0; k < v->nkeys; k++) {
+    if (v->key[k].frame < v->fr.first || v->key[k].frame > v->fr.last)
+      return ts_error(err, TS_EINVAL, "--key %ld %s: frame %ld is outside --frames %s", v->key[k].frame,
+                      v->key[k].image, v->key[k].frame, o->frames);
+    if (k > 0 && v->key[k].frame == v->key[k - 1].frame)
+      return ts_error(err, TS_EINVAL, "--key %ld: given twice (%s and %s)", v->key[k].frame, v->key[k - 1].image,
+                      v->key[k].image);
+  }
+  if (ts_paramopt_number(&v->job, "scale") != 1)
+    return ts_error(err, TS_EINVAL, "--scale: texsyn video works at the frames' size (scale the frames and keys "
+                    "first for a preview)");
+  int rc = ts_job_parse_end(&v->job, err);
+  if (rc == 0) rc = ts_paramopt_check(&v->job, err);
+  v->out = ts_output_path(&v->job.out, "output");
+  return rc == 0 ? ts_video_weigh(v, err) : rc;
+}
+
+/* Stylize's side outputs (--nnf) taken out of a built table: a frame's
+ * field would be overwritten by the next. */
+static void without_side_outputs(struct option *t) {
+  size_t n = 0;
+  for (size_t i = 0; t[i].name != NULL; i++)
+    if (t[i].val < TS_OPT_SIDE) t[n++] = t[i];
+  t[n] = (struct option){0, 0, 0, 0};
+}
+
+/* '+': no reordering of argv, so the word after --key N is its image. */
+static int video_parse(int argc, char **argv, video_opts *o, char *err) {
+  memset(o, 0, sizeof(*o));
+  ts_job_cmd_init(&o->v.job, "video", ts_engine_find("stylize"));
+  o->weighs = -1;
+  o->v.input_weight = 1;
+  o->v.edge_weight = 0.5;
+  o->v.position_weight = 1;
+  o->v.temporal_weight = 1;
+  struct option longopts[TS_PARAMOPT_MAX];
+  if (ts_paramopt_build(o->v.job.spec.engine, own_opts, longopts, TS_PARAMOPT_MAX) != 0)
+    return ts_error(err, TS_EINVAL, "internal: too many options");
+  without_side_outputs(longopts);
+  optind = 1;
+  opterr = 0;
+  int c;
+  while ((c = getopt_long(argc, argv, "+o:h", longopts, NULL)) != -1) {
+    if (c == TS_OPT_HELP || c == 'h') {
+      usage(stdout, o->v.job.spec.engine);
+      exit(0);
+    }
+    if (c == '?' || c == ':')
+      return ts_error(err, TS_EINVAL, "%s: unknown option or missing value (see texsyn video --help)",
+                      argv[optind - 1]);
+    int rc = own_option(o, c, argc, argv, err);
+    if (rc != 0) return rc;
+  }
+  if (optind < argc) return ts_error(err, TS_EINVAL, "unexpected argument '%s'", argv[optind]);
+  return parse_end(o, err);
+}
+
+/* ---- before any work ------------------------------------------------- */
+
+/* The header of path (what names it in a message). */
+static int probe(const char *what, const char *path, const ts_video *v, ts_image_info *info, char *err) {
+  uint8_t *buf = NULL;
+  size_t len = 0;
+  ts_image_limits limits = {v->job.max_pixels, NULL};
+  int rc = ts_file_read(path, 1ull << 32, &buf, &len, err);
+  if (rc == 0) rc = ts_image_probe_mem(path, buf, len, &limits, info, err);
+  free(buf);
+  if (rc != 0) {
+    char why[TS_ERR_LEN];
+    snprintf(why, sizeof(why), "%s", err);
+    return ts_error(err, rc, "%s: %s (nothing was stylized)", what, why);
+  }
+  return 0;
+}
+
+/* Every frame of a sequence readable, of one size and channel count; the
+ * first frame's header in *first. */
+static int check_sequence(const char *option, const char *pattern, const ts_video *v, ts_image_info *first,
+                          char *err) {
+  int n = ts_frame_pattern(pattern, err);
+  if (n < 0) return n;
+  if (n == 0)
+    return ts_error(err, TS_EINVAL, "%s %s: put the frame number in the name (%%d or %%04d, e.g. shot/%%04d.png)",
+                    option, pattern);
+  char path[TS_VIDEO_PATH], what[64];
+  for (long f = v->fr.first; f <= v->fr.last; f++) {
+    ts_image_info info;
+    if (ts_frame_path(pattern, f, path, sizeof(path)) != 0) return ts_error(err, TS_EINVAL, "%s: path too long", pattern);
+    snprintf(what, sizeof(what), "%s frame %ld", option, f);
+    int rc = probe(what, path, v, f == v->fr.first ? first : &info, err);
+    if (rc != 0) return rc;
+    if (f > v->fr.first && (info.width != first->width || info.height != first->height ||
+                            info.channels != first->channels))
+      return ts_error(err, TS_EINVAL, "%s frame %ld (%s) is %dx%d with %d channels, frame %ld %dx%d with %d: every "
+                      "frame must have the first one's size and channels", option, f, path, info.width, info.height,
+                      info.channels, v->fr.first, first->width, first->height, first->channels);
+  }
+  return 0;
+}
+
+/* The keys: readable, the frames' size, one channel count (v->channels). */
+static int check_keys(ts_video *v, char *err) {
+  for (int k = 0; k < v->nkeys; k++) {
+    ts_image_info info;
+    char what[64];
+    snprintf(what, sizeof(what), "--key %ld", v->key[k].frame);
+    int rc = probe(what, v->key[k].image, v, &info, err);
+    if (rc != 0) return rc;
+    if (info.width != v->w || info.height != v->h)
+      return ts_error(err, TS_EINVAL, "--key %ld %s is %dx%d, the frames %dx%d: a key is a painted frame, of the "
+                      "frames' size", v->key[k].frame, v->key[k].image, info.width, info.height, v->w, v->h);
+    if (k > 0 && info.channels != v->channels)
+      return ts_error(err, TS_EINVAL, "--key %ld %s has %d channels, --key %ld %d: every key needs the same",
+                      v->key[k].frame, v->key[k].image, info.channels, v->key[0].frame, v->channels);
+    v->channels = info.channels;
+  }
+  return 0;
+}
+
+/* Every output frame writable. */
+static int check_outputs(const ts_video *v, char *err) {
+  int n = ts_frame_pattern(v->out, err);
+  if (n < 0) return n;
+  if (n == 0)
+    return ts_error(err, TS_EINVAL, "-o %s: put the frame number in the name (%%04d: out_%%04d.png), or every frame "
+                    "would overwrite it", v->out);
+  ts_job_cmd job = v->job;
+  char path[TS_VIDEO_PATH];
+  job.out = (ts_output_paths){0};
+  ts_output_set(&job.out, "output", path);
+  for (long f = v->fr.first; f <= v->fr.last; f++) {
+    if (ts_frame_path(v->out, f, path, sizeof(path)) != 0) return ts_error(err, TS_EINVAL, "%s: path too long", v->out);
+    int rc = ts_job_check_outputs(&job, err);
+    if (rc != 0) return rc;
+  }
+  return 0;
+}
+
+static int check_all(video_opts *o, char *err) {
+  ts_video *v = &o->v;
+  ts_image_info first;
+  int rc = ts_flow_lib_load(err);
+  if (rc == 0) rc = check_sequence("--input", v->input, v, &first, err);
+  if (rc != 0) return rc;
+  v->w = first.width;
+  v->h = first.height;
+  if (v->w < TS_FLOW_MIN_SIDE || v->h < TS_FLOW_MIN_SIDE)
+    return ts_error(err, TS_EINVAL, "--input frames are %dx%d: the optical flow needs at least %dx%d", v->w, v->h,
+                    TS_FLOW_MIN_SIDE, TS_FLOW_MIN_SIDE);
+  rc = check_keys(v, err);
+  for (int p = 0; rc == 0 && p < v->npass; p++) {
+    rc = check_sequence("--pass", v->pass[p], v, &first, err);
+    if (rc == 0 && (first.width != v->w || first.height != v->h))
+      rc = ts_error(err, TS_EINVAL, "--pass %s: its frames are %dx%d, the input's %dx%d", v->pass[p], first.width,
+                    first.height, v->w, v->h);
+  }
+  if (rc == 0) rc = check_outputs(v, err);
+  if (rc == 0 && o->report != NULL) {
+    ts_job_cmd job = v->job;
+    job.out = (ts_output_paths){0};
+    ts_output_set(&job.out, "report", o->report);
+    rc = ts_job_check_outputs(&job, err);
+  }
+  return rc;
+}
+
+/* ---- the work directory ------------------------------------------------ */
+
+/* --write-guides DIR (made if missing), else a temporary directory. */
+static int workdir_make(const ts_video *v, char *dir, size_t cap, char *err) {
+  if (v->guides_dir != NULL) {
+    snprintf(dir, cap, "%s", v->guides_dir);
+    if (mkdir(dir, 0777) != 0 && errno != EEXIST)
+      return ts_error(err, TS_EIO, "--write-guides %s: cannot make it: %s", dir, strerror(errno));
+    return 0;
+  }
+  const char *tmp = getenv("TMPDIR");
+  snprintf(dir, cap, "%s/texsyn-video-XXXXXX", tmp != NULL && tmp[0] != '\0' ? tmp : "/tmp");
+  if (mkdtemp(dir) == NULL)
+    return ts_error(err, TS_EIO, "cannot make a work directory %s: %s (set TMPDIR to a writable directory)", dir,
+                    strerror(errno));
+  return 0;
+}
+
+/* The temporary work directory removed (it holds only files). */
+static void workdir_remove(const char *dir) {
+  DIR *d = opendir(dir);
+  struct dirent *e;
+  char path[TS_VIDEO_PATH + 256];
+  while (d != NULL && (e = readdir(d)) != NULL) {
+    if (strcmp(e->d_name, ".") == 0 || strcmp(e->d_name, "..") == 0) continue;
+    snprintf(path, sizeof(path), "%s/%s", dir, e->d_name);
+    unlink(path);
+  }
+  if (d != NULL) closedir(d);
+  rmdir(dir);
+}
+
+/* ---- the sequence ------------------------------------------------------ */
+
+/* The keys around frame t: *lo the last key at or before it (-1: none),
+ * *hi the first at or after it (nkeys: none). */
+static void keys_around(const ts_video *v, long t, int *lo, int *hi) {
+  *lo = -1;
+  *hi = v->nkeys;
+  for (int k = 0; k < v->nkeys; k++) {
+    if (v->key[k].frame <= t) *lo = k;
+    if (v->key[k].frame >= t && *hi == v->nkeys) *hi = k;
+  }
+}
+
+/* Output frame t into px: from one chain, or the two blended by place. */
+static int frame_out(const ts_video *v, const char *dir, long t, uint8_t *px, uint8_t *other, char *err) {
+  int lo, hi;
+  keys_around(v, t, &lo, &hi);
+  char path[TS_VIDEO_PATH];
+  long k1 = lo >= 0 ? v->key[lo].frame : -1, k2 = hi < v->nkeys ? v->key[hi].frame : -1;
+  ts_video_chain_file(dir, lo >= 0 ? k1 : k2, t, "out.png", path, sizeof(path));
+  int rc = ts_video_read8(v, path, px, err);
+  if (rc != 0 || lo < 0 || hi == v->nkeys || k1 == k2) return rc;
+  ts_video_chain_file(dir, k2, t, "out.png", path, sizeof(path));
+  rc = ts_video_read8(v, path, other, err);
+  long span = k2 - k1;
+  for (size_t i = 0; rc == 0 && i < (size_t)v->w * v->h * v->channels; i++)
+    px[i] = (uint8_t)((px[i] * (k2 - t) + other[i] * (t - k1) + span / 2) / span);
+  return rc;
+}
+
+static int write_sequence(const ts_video *v, const char *dir, char *err) {
+  size_t n = (size_t)v->w * v->h * v->channels;
+  uint8_t *px = malloc(n), *other = malloc(n);
+  int rc = px != NULL && other != NULL ? 0 : ts_error(err, TS_ENOMEM, "out of memory");
+  char path[TS_VIDEO_PATH];
+  for (long t = v->fr.first; rc == 0 && t <= v->fr.last; t++) {
+    rc = frame_out(v, dir, t, px, other, err);
+    ts_image img = {v->w, v->h, v->channels, TS_PIX_U8, px, NULL};
+    ts_frame_path(v->out, t, path, sizeof(path)); /* fits: checked */
+    if (rc == 0) rc = ts_image_write(path, &img, NULL, err);
+  }
+  free(px);
+  free(other);
+  return rc;
+}
+
+/* ---- the report ------------------------------------------------------ */
+
+/* Appends the file at path to f as it is (a job's JSON report). */
+static int append_file(FILE *f, const char *path, char *err) {
+  uint8_t *buf = NULL;
+  size_t len = 0;
+  int rc = ts_file_read(path, 1u << 26, &buf, &len, err);
+  while (rc == 0 && len > 0 && (buf[len - 1] == '\n' || buf[len - 1] == ' ')) len--;
+  if (rc == 0) fwrite(buf, 1, len, f);
+  free(buf);
+  return rc;
+}
+
+/* One JSON object: the sequence, keys, weights, the flow, and each job's
+ * report in chain order. */
+static int write_report(const ts_video *v, const char *dir, const char *path, char *err) {
+  FILE *f = fopen(path, "w");
+  if (f == NULL) return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
+  fprintf(f, "{\"frames\": [%ld, %ld], \"size\": [%d, %d], \"flow\": \"%s\", \"weights\": {\"input\": %g, "
+          "\"edge\": %g, \"position\": %g, \"temporal\": %g}, \"blend\": \"linear\", \"keys\": [",
+          v->fr.first, v->fr.last, v->w, v->h, ts_flow_method(), v->input_weight, v->edge_weight,
+          v->position_weight, v->temporal_weight);
+  for (int k = 0; k < v->nkeys; k++) fprintf(f, "%s%ld", k ? ", " : "", v->key[k].frame);
+  fprintf(f, "], \"jobs\": [");
+  int rc = 0, first = 1;
+  char file[TS_VIDEO_PATH];
+  for (long t = v->fr.first; rc == 0 && t <= v->fr.last; t++)
+    for (int k = 0; rc == 0 && k < v->nkeys; k++) {
+      ts_video_chain_file(dir, v->key[k].frame, t, "report.json", file, sizeof(file));
+      if (access(file, R_OK) != 0) continue;
+      fprintf(f, "%s\n  {\"frame\": %ld, \"key\": %ld, \"report\": ", first ? "" : ",", t, v->key[k].frame);
+      rc = append_file(f, file, err);
+      fprintf(f, "}");
+      first = 0;
+    }
+  fprintf(f, "]}\n");
+  if (fclose(f) != 0 && rc == 0) rc = ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
+  return rc;
+}
+
+int ts_cmd_video(int argc, char **argv) {
+  char err[TS_ERR_LEN] = "", dir[TS_VIDEO_PATH];
+  video_opts *o = calloc(1, sizeof(*o));
+  if (o == NULL) {
+    fprintf(stderr, "texsyn video: out of memory\n");
+    return 1;
+  }
+  int rc = video_parse(argc, argv, o, err);
+  int status = rc == 0 ? 0 : 2;
+  if (rc == 0) rc = check_all(o, err);
+  if (rc != 0 && status == 0) status = rc == TS_EINVAL ? 2 : 1;
+  int made = rc == 0 && (rc = workdir_make(&o->v, dir, sizeof(dir), err)) == 0;
+  if (rc == 0) rc = ts_video_prepare(&o->v, dir, err);
+  if (rc == TS_EINVAL && status == 0) status = 2;
+  if (rc == 0) rc = ts_video_run_chains(&o->v, dir, err);
+  if (rc == 0) rc = write_sequence(&o->v, dir, err);
+  if (rc == 0 && o->report != NULL) rc = write_report(&o->v, dir, o->report, err);
+  if (made && o->v.guides_dir == NULL) workdir_remove(dir);
+  if (rc != 0) fprintf(stderr, "texsyn video: %s\n", err);
+  if (rc != 0 && status == 0) status = 1;
+  free(o);
+  return status;
+}

@@ -1,0 +1,432 @@
+/* video_chain.c - see video_chain.h. */
+#include "video_chain.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "error.h"
+#include "flow.h"
+#include "image.h"
+#include "video_guides.h"
+
+/* ---- the work directory's files ---------------------------------------- */
+
+void ts_video_chain_file(const char *dir, long key, long t, const char *what, char *out, size_t cap) {
+  snprintf(out, cap, "%s/from_%04ld_%04ld_%s", dir, key, t, what);
+}
+
+/* The key's 8-bit painting ("" what) or source guide ("edge"). */
+static void key_file(const char *dir, long key, const char *what, char *out, size_t cap) {
+  snprintf(out, cap, "%s/key_%04ld%s%s.png", dir, key, what[0] ? "_" : "", what);
+}
+
+static void identity_file(const char *dir, const char *axis, char *out, size_t cap) {
+  snprintf(out, cap, "%s/position_%s.png", dir, axis);
+}
+
+/* Writes w x h pixels of c interleaved 8-bit channels as a PNG. */
+static int write_u8(const char *path, const uint8_t *px, int w, int h, int c, char *err) {
+  ts_image img = {w, h, c, TS_PIX_U8, (void *)px, NULL};
+  return ts_image_write(path, &img, NULL, err);
+}
+
+int ts_video_read8(const ts_video *v, const char *path, uint8_t *px, char *err) {
+  ts_image img = {0};
+  ts_image_limits limits = {v->job.max_pixels, NULL};
+  int rc = ts_image_read(path, &img, &limits, err);
+  uint8_t *plane = rc == 0 ? malloc((size_t)v->w * v->h) : NULL;
+  if (rc == 0 && plane == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory for %s", path);
+  if (rc == 0 && (img.width != v->w || img.height != v->h || img.channels != v->channels))
+    rc = ts_error(err, TS_EFORMAT, "%s is %dx%d with %d channels, expected %dx%d with %d", path, img.width,
+                  img.height, img.channels, v->w, v->h, v->channels);
+  for (int c = 0; rc == 0 && c < v->channels; c++) {
+    ts_image_channel8(&img, c, plane);
+    for (size_t i = 0; i < (size_t)v->w * v->h; i++) px[i * v->channels + c] = plane[i];
+  }
+  free(plane);
+  ts_image_free(&img);
+  return rc;
+}
+
+/* The luminance of input frame t. */
+static int read_luma(const ts_video *v, long t, uint8_t *luma, char *err) {
+  char path[TS_VIDEO_PATH];
+  ts_frame_path(v->input, t, path, sizeof(path)); /* fits: checked */
+  ts_image img = {0};
+  ts_image_limits limits = {v->job.max_pixels, NULL};
+  int rc = ts_image_read(path, &img, &limits, err);
+  if (rc == 0) ts_image_luma8(&img, luma);
+  ts_image_free(&img);
+  return rc;
+}
+
+/* The edge guide of input frame t, written to path. */
+static int write_edges(const ts_video *v, long t, const char *path, char *err) {
+  size_t n = (size_t)v->w * v->h;
+  uint8_t *luma = malloc(n), *edges = malloc(n);
+  int rc = luma != NULL && edges != NULL ? read_luma(v, t, luma, err) : ts_error(err, TS_ENOMEM, "out of memory");
+  if (rc == 0 && ts_guide_edges(luma, v->w, v->h, edges) != 0) rc = ts_error(err, TS_ENOMEM, "out of memory");
+  if (rc == 0) rc = write_u8(path, edges, v->w, v->h, 1, err);
+  free(luma);
+  free(edges);
+  return rc;
+}
+
+/* A position guide as its two planes, x and y, written beside each other. */
+static int write_position(const float *pos, int w, int h, const char *px_path, const char *py_path, char *err) {
+  uint8_t *px = malloc((size_t)w * h), *py = malloc((size_t)w * h);
+  int rc = px != NULL && py != NULL ? 0 : ts_error(err, TS_ENOMEM, "out of memory");
+  if (rc == 0) ts_guide_position_planes(pos, w, h, px, py);
+  if (rc == 0) rc = write_u8(px_path, px, w, h, 1, err);
+  if (rc == 0) rc = write_u8(py_path, py, w, h, 1, err);
+  free(px);
+  free(py);
+  return rc;
+}
+
+/* ---- the guides' order and weights ------------------------------------- */
+
+/* The guide pairs of frame t of the chain from key (t == key: the key's
+ * own frame, target = source) into in[], in the engine's order; the count. */
+static int job_paths(const ts_video *v, const char *dir, long key, long t, char in[][TS_VIDEO_PATH]) {
+  int own = t == key, g = 0;
+  key_file(dir, key, "", in[TS_STYLIT_IN_STYLE], TS_VIDEO_PATH);
+  ts_frame_path(v->input, key, in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
+  ts_frame_path(v->input, t, in[ts_stylit_in_tgt(g++)], TS_VIDEO_PATH);
+  if (v->edge_weight > 0) {
+    key_file(dir, key, "edge", in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
+    ts_video_chain_file(dir, key, t, "edge.png", in[ts_stylit_in_tgt(g++)], TS_VIDEO_PATH);
+  }
+  static const char *const axes[2] = {"x", "y"};
+  for (int a = 0; a < 2 && v->position_weight > 0; a++) {
+    char what[32];
+    snprintf(what, sizeof(what), "position_%s.png", axes[a]);
+    identity_file(dir, axes[a], in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
+    ts_video_chain_file(dir, key, t, what, in[ts_stylit_in_tgt(g++)], TS_VIDEO_PATH);
+  }
+  if (v->temporal_weight > 0) {
+    key_file(dir, key, "", in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
+    ts_video_chain_file(dir, key, t, "temporal.png", in[ts_stylit_in_tgt(g++)], TS_VIDEO_PATH);
+  }
+  for (int p = 0; p < v->npass; p++) {
+    ts_frame_path(v->pass[p], key, in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
+    ts_frame_path(v->pass[p], t, in[ts_stylit_in_tgt(g++)], TS_VIDEO_PATH);
+  }
+  if (own) /* the key's own frame: its made targets are its sources */
+    for (int k = 0; k < g; k++) snprintf(in[ts_stylit_in_tgt(k)], TS_VIDEO_PATH, "%s", in[ts_stylit_in_src(k)]);
+  return g;
+}
+
+int ts_video_weigh(ts_video *v, char *err) {
+  double w[TS_STYLIT_MAX_GUIDES];
+  int g = 0;
+  w[g++] = v->input_weight;
+  if (v->edge_weight > 0) w[g++] = v->edge_weight;
+  for (int a = 0; a < 2 && v->position_weight > 0; a++) w[g++] = v->position_weight / 2; /* x and y */
+  if (v->temporal_weight > 0) w[g++] = v->temporal_weight;
+  for (int p = 0; p < v->npass; p++) w[g++] = v->pass_weight[p];
+  char key[32], value[32];
+  snprintf(value, sizeof(value), "%d", g);
+  int rc = ts_job_set_key(&v->job, "guides", value, "the guides", err);
+  for (int k = 0; rc == 0 && k < g; k++) {
+    snprintf(key, sizeof(key), "weight_%d", k);
+    snprintf(value, sizeof(value), "%.17g", w[k]);
+    rc = ts_job_set_key(&v->job, key, value, "a guide's weight", err);
+  }
+  return rc;
+}
+
+/* ---- preparing the keys ------------------------------------------------ */
+
+/* Key k's 8-bit painting and its edge guide, in dir. */
+static int prepare_key(const ts_video *v, const char *dir, int k, char *err) {
+  char path[TS_VIDEO_PATH];
+  uint8_t *px = malloc((size_t)v->w * v->h * v->channels);
+  int rc = px != NULL ? ts_video_read8(v, v->key[k].image, px, err) : ts_error(err, TS_ENOMEM, "out of memory");
+  key_file(dir, v->key[k].frame, "", path, sizeof(path));
+  if (rc == 0) rc = write_u8(path, px, v->w, v->h, v->channels, err);
+  ts_video_chain_file(dir, v->key[k].frame, v->key[k].frame, "out.png", path, sizeof(path));
+  if (rc == 0) rc = write_u8(path, px, v->w, v->h, v->channels, err); /* the key's own frame */
+  free(px);
+  key_file(dir, v->key[k].frame, "edge", path, sizeof(path));
+  if (rc == 0 && v->edge_weight > 0) rc = write_edges(v, v->key[k].frame, path, err);
+  return rc;
+}
+
+/* Reads a job's n inputs into in[] and asks the engine about them: 0, or
+ * TS_EINVAL with the engine's problems (the images read either way, for
+ * free_inputs). */
+static int load_job(const ts_job_cmd *job, int n, ts_image *in, const ts_image **inp, char *err) {
+  ts_image_limits limits = {job->max_pixels, NULL};
+  int rc = 0;
+  for (int k = 0; k < n; k++) {
+    if (rc == 0) rc = ts_image_read(job->in[k], &in[k], &limits, err);
+    inp[k] = &in[k];
+  }
+  char msg[4096];
+  if (rc == 0 && job->spec.engine->check(&job->spec.params, inp, msg, sizeof(msg)) != 0)
+    rc = ts_error(err, TS_EINVAL, "the stylize jobs would fail (nothing was stylized):\n%s", msg);
+  return rc;
+}
+
+static void free_inputs(ts_image *in, int n) {
+  for (int k = 0; k < n; k++) ts_image_free(&in[k]);
+}
+
+/* ---- a chain ----------------------------------------------------------- */
+
+typedef struct {
+  long key, frame, last; /* frame: the last one stylized */
+  int dir;               /* +1 forward, -1 backward */
+  uint8_t *painting;     /* the key's, 8-bit, interleaved */
+  uint8_t *luma;         /* input frame `frame` */
+  float *pos;            /* the position guide at `frame` */
+  float *sty;            /* the stylized frame `frame`, 8-bit values */
+  uint64_t id;           /* the running job on a coordinator */
+  ts_job_cmd job;
+  char in[TS_ENGINE_MAX_INPUTS][TS_VIDEO_PATH];
+  char out[TS_VIDEO_PATH], report[TS_VIDEO_PATH], name[64];
+} chain;
+
+/* One step's scratch, shared by the chains (one step is made at a time). */
+typedef struct {
+  uint8_t *luma, *occluded, *px;
+  float *back, *fwd, *pos, *warped;
+} step_buf;
+
+static void chain_free(chain *c) {
+  free(c->painting);
+  free(c->luma);
+  free(c->pos);
+  free(c->sty);
+}
+
+static int chain_init(const ts_video *v, const char *dir, long key, long last, chain *c, char *err) {
+  size_t n = (size_t)v->w * v->h;
+  *c = (chain){.key = key, .frame = key, .last = last, .dir = last > key ? 1 : -1};
+  c->painting = malloc(n * v->channels);
+  c->luma = malloc(n);
+  c->pos = malloc(sizeof(float) * 2 * n);
+  c->sty = malloc(sizeof(float) * n * v->channels);
+  if (!c->painting || !c->luma || !c->pos || !c->sty) return ts_error(err, TS_ENOMEM, "out of memory");
+  char path[TS_VIDEO_PATH];
+  key_file(dir, key, "", path, sizeof(path));
+  int rc = ts_video_read8(v, path, c->painting, err);
+  if (rc == 0) rc = read_luma(v, key, c->luma, err);
+  for (size_t i = 0; i < n * v->channels; i++) c->sty[i] = c->painting[i];
+  ts_guide_position_key(v->w, v->h, c->pos);
+  return rc;
+}
+
+static int step_buf_alloc(step_buf *b, const ts_video *v, char *err) {
+  size_t n = (size_t)v->w * v->h;
+  b->luma = malloc(n);
+  b->occluded = malloc(n);
+  b->px = malloc(n * v->channels);
+  b->back = malloc(sizeof(float) * 2 * n);
+  b->fwd = malloc(sizeof(float) * 2 * n);
+  b->pos = malloc(sizeof(float) * 2 * n);
+  b->warped = malloc(sizeof(float) * n * v->channels);
+  return b->luma && b->occluded && b->px && b->back && b->fwd && b->pos && b->warped
+             ? 0
+             : ts_error(err, TS_ENOMEM, "out of memory for the flows of %dx%d frames", v->w, v->h);
+}
+
+static void step_buf_free(step_buf *b) {
+  free(b->luma);
+  free(b->occluded);
+  free(b->px);
+  free(b->back);
+  free(b->fwd);
+  free(b->pos);
+  free(b->warped);
+}
+
+static uint8_t round8(float v) { return v <= 0.0f ? 0 : v >= 255.0f ? 255 : (uint8_t)(v + 0.5f); }
+
+/* The temporal guide of frame t: the chain's last frame warped onto t,
+ * the key's painting where t's pixel is occluded (video_chain.h). */
+static void temporal_guide(const ts_video *v, const chain *c, step_buf *b) {
+  int ch = v->channels;
+  ts_flow_warp(c->sty, v->w, v->h, ch, b->back, b->warped);
+  for (size_t i = 0; i < (size_t)v->w * v->h; i++)
+    for (int k = 0; k < ch; k++)
+      b->px[i * ch + k] = b->occluded[i] ? c->painting[i * ch + k] : round8(b->warped[i * ch + k]);
+}
+
+/* The made guides of the chain's next frame t, written to dir; b->luma
+ * and b->pos hold t's luminance and position guide. */
+static int make_guides(const ts_video *v, const char *dir, chain *c, long t, step_buf *b, char *err) {
+  int rc = read_luma(v, t, b->luma, err);
+  if (rc == 0) rc = ts_flow_dis(b->luma, c->luma, v->w, v->h, b->back, err);
+  if (rc == 0) rc = ts_flow_dis(c->luma, b->luma, v->w, v->h, b->fwd, err);
+  if (rc != 0) return rc;
+  ts_flow_occlusion(b->back, b->fwd, v->w, v->h, b->occluded);
+  ts_guide_position_advect(c->pos, b->back, b->occluded, v->w, v->h, b->pos);
+  char path[TS_VIDEO_PATH], path2[TS_VIDEO_PATH];
+  if (v->edge_weight > 0) {
+    ts_video_chain_file(dir, c->key, t, "edge.png", path, sizeof(path));
+    rc = write_edges(v, t, path, err);
+  }
+  if (rc == 0 && v->position_weight > 0) {
+    ts_video_chain_file(dir, c->key, t, "position_x.png", path, sizeof(path));
+    ts_video_chain_file(dir, c->key, t, "position_y.png", path2, sizeof(path2));
+    rc = write_position(b->pos, v->w, v->h, path, path2, err);
+  }
+  if (rc == 0 && v->temporal_weight > 0) {
+    temporal_guide(v, c, b);
+    ts_video_chain_file(dir, c->key, t, "temporal.png", path, sizeof(path));
+    rc = write_u8(path, b->px, v->w, v->h, v->channels, err);
+  }
+  return rc;
+}
+
+/* The stylize job of frame t of the chain, its inputs and output in dir:
+ * the number of inputs. */
+static int chain_job(const ts_video *v, const char *dir, chain *c, long t) {
+  c->job = v->job;
+  int g = job_paths(v, dir, c->key, t, c->in);
+  for (int k = 0; k < 1 + 2 * g; k++) c->job.in[k] = c->in[k];
+  ts_video_chain_file(dir, c->key, t, "out.png", c->out, sizeof(c->out));
+  ts_output_set(&c->job.out, "output", c->out);
+  if (ts_output_path(&v->job.out, "report") != NULL) {
+    ts_video_chain_file(dir, c->key, t, "report.json", c->report, sizeof(c->report));
+    ts_output_set(&c->job.out, "report", c->report);
+  }
+  snprintf(c->name, sizeof(c->name), "frame %ld from key %ld", t, c->key);
+  c->job.result_name = c->name;
+  return 1 + 2 * g;
+}
+
+/* ---- running the chains ------------------------------------------------ */
+
+typedef struct {
+  const ts_video *v;
+  const char *dir;
+  ts_search *search; /* embedded */
+  ts_conn conn;      /* on a coordinator */
+  int connected;
+  step_buf b;
+} runner;
+
+/* Reads a job's inputs and runs it here. */
+static int run_here(runner *r, const ts_job_cmd *job, char *err) {
+  ts_engine_inputs names;
+  job->spec.engine->inputs(&job->spec.params, &names);
+  ts_image in[TS_ENGINE_MAX_INPUTS] = {0};
+  const ts_image *inp[TS_ENGINE_MAX_INPUTS];
+  int rc = load_job(job, names.n, in, inp, err);
+  if (rc == 0) rc = ts_job_embedded(job, inp, r->search, err);
+  free_inputs(in, names.n);
+  return rc;
+}
+
+/* The chain's next frame: its guides made, its job run (embedded) or
+ * submitted (coordinator). */
+static int step_start(runner *r, chain *c, char *err) {
+  long t = c->frame + c->dir;
+  int rc = make_guides(r->v, r->dir, c, t, &r->b, err);
+  if (rc != 0) return rc;
+  float *pos = c->pos;
+  c->pos = r->b.pos;
+  r->b.pos = pos;
+  uint8_t *luma = c->luma;
+  c->luma = r->b.luma;
+  r->b.luma = luma;
+  chain_job(r->v, r->dir, c, t);
+  return r->connected ? ts_job_submit(&r->conn, &c->job, &c->id, err) : run_here(r, &c->job, err);
+}
+
+/* The chain's next frame done: fetched (coordinator) and taken as the
+ * frame the following one is warped from. */
+static int step_end(runner *r, chain *c, char *err) {
+  int rc = r->connected ? ts_job_finish(&r->conn, &c->job, c->id, err) : 0;
+  uint8_t *px = rc == 0 ? malloc((size_t)r->v->w * r->v->h * r->v->channels) : NULL;
+  if (rc == 0 && px == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
+  if (rc == 0) rc = ts_video_read8(r->v, c->out, px, err);
+  for (size_t i = 0; rc == 0 && i < (size_t)r->v->w * r->v->h * r->v->channels; i++) c->sty[i] = px[i];
+  free(px);
+  c->frame += c->dir;
+  return rc;
+}
+
+/* The chains: per key, backward to the frame after the previous key (or
+ * the first frame), forward to the frame before the next (or the last). */
+static int chains_make(const ts_video *v, const char *dir, chain *cs, int *n, char *err) {
+  int rc = 0;
+  *n = 0;
+  for (int k = 0; rc == 0 && k < v->nkeys; k++) {
+    long key = v->key[k].frame;
+    long lo = k > 0 ? v->key[k - 1].frame + 1 : v->fr.first, hi = k + 1 < v->nkeys ? v->key[k + 1].frame - 1 : v->fr.last;
+    if (lo < key) rc = chain_init(v, dir, key, lo, &cs[(*n)++], err);
+    if (rc == 0 && hi > key) rc = chain_init(v, dir, key, hi, &cs[(*n)++], err);
+  }
+  return rc;
+}
+
+/* One round: the next frame of every chain not at its end. */
+static int round_run(runner *r, chain *cs, int n, int *active, char *err) {
+  int rc = 0, started[2 * TS_VIDEO_MAX_KEYS] = {0};
+  *active = 0;
+  for (int i = 0; rc == 0 && i < n; i++)
+    if (cs[i].frame != cs[i].last) {
+      rc = step_start(r, &cs[i], err);
+      started[i] = rc == 0;
+      *active += started[i];
+    }
+  for (int i = 0; i < n; i++) /* the submitted ones are collected even after a failure */
+    if (started[i]) {
+      char why[TS_ERR_LEN];
+      int rc2 = step_end(r, &cs[i], rc == 0 ? err : why);
+      if (rc == 0) rc = rc2;
+    }
+  return rc;
+}
+
+int ts_video_run_chains(const ts_video *v, const char *dir, char *err) {
+  chain *cs = calloc(2 * (size_t)v->nkeys, sizeof(*cs));
+  int n = 0, active = 1;
+  runner r = {.v = v, .dir = dir};
+  int rc = cs != NULL ? step_buf_alloc(&r.b, v, err) : ts_error(err, TS_ENOMEM, "out of memory");
+  if (rc == 0) rc = chains_make(v, dir, cs, &n, err);
+  if (rc == 0 && v->job.server != NULL) {
+    rc = ts_job_open(&r.conn, &v->job, err);
+    r.connected = rc == 0;
+  } else if (rc == 0) {
+    rc = ts_search_local_create(&r.search, v->job.threads, NULL, err);
+  }
+  while (rc == 0 && active > 0) rc = round_run(&r, cs, n, &active, err);
+  if (r.connected) ts_conn_close(&r.conn);
+  ts_search_destroy(r.search);
+  for (int i = 0; i < n; i++) chain_free(&cs[i]);
+  free(cs);
+  step_buf_free(&r.b);
+  return rc;
+}
+
+int ts_video_prepare(const ts_video *v, const char *dir, char *err) {
+  int rc = 0;
+  for (int k = 0; rc == 0 && k < v->nkeys; k++) rc = prepare_key(v, dir, k, err);
+  float *pos = rc == 0 ? malloc(sizeof(float) * 2 * v->w * v->h) : NULL;
+  if (rc == 0 && pos == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
+  if (rc == 0 && v->position_weight > 0) {
+    char px[TS_VIDEO_PATH], py[TS_VIDEO_PATH];
+    identity_file(dir, "x", px, sizeof(px));
+    identity_file(dir, "y", py, sizeof(py));
+    ts_guide_position_key(v->w, v->h, pos);
+    rc = write_position(pos, v->w, v->h, px, py, err);
+  }
+  free(pos);
+  if (rc != 0) return rc;
+  chain *c = calloc(1, sizeof(*c)); /* its paths: too large for the stack */
+  if (c == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+  c->key = v->key[0].frame;
+  int n = chain_job(v, dir, c, c->key);
+  ts_image img[TS_ENGINE_MAX_INPUTS] = {0};
+  const ts_image *inp[TS_ENGINE_MAX_INPUTS];
+  rc = load_job(&c->job, n, img, inp, err);
+  free_inputs(img, n);
+  free(c);
+  return rc;
+}

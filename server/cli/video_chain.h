@@ -1,0 +1,83 @@
+/* video_chain.h - the chains of stylize jobs of `texsyn video` (video.c).
+ *
+ * A chain starts at a key K and walks one frame at a time, forward or
+ * backward, to its last frame. Every frame t of it is one stylize job
+ * whose exemplar is the key's painting and whose guide pairs are
+ *   colour     input frame K        / input frame t
+ *   edges      edges of frame K     / edges of frame t       (weight > 0)
+ *   position   the key's own x, y   / the key's x, y carried from K to t
+ *                                     along the flow          (weight > 0)
+ *   temporal   the key's painting   / the chain's frame t-1 (or t+1)
+ *                                     warped onto t           (weight > 0)
+ *   --pass P   P at frame K         / P at frame t
+ * (Jamriška et al. 2019, built from video_guides.h and flow.h). The source
+ * side is the same for the whole chain, so on a coordinator the workers
+ * keep the exemplar's sources from one frame to the next, as for
+ * `stylize --frames` (frames.h).
+ *
+ * Where the flow check finds a pixel occluded (its content is not in the
+ * previous frame) the positional guide restarts at the pixel's own place
+ * (video_guides.h) and the temporal guide takes the key's painting there,
+ * which is what the positional guide points at: the paper weights the
+ * temporal guide out at such pixels, which the engine's per-image weights
+ * cannot, and the previous frame warped from elsewhere would vote for
+ * whatever occluded it. So the temporal guide adds nothing there that the
+ * positional guide does not already say.
+ *
+ * Every guide is written as an 8-bit PNG to a work directory and the job
+ * reads it back, embedded or on a coordinator alike: the same bytes go in
+ * either way. The chains advance in rounds: each round takes one frame of
+ * every chain not yet at its end, so on a coordinator the chains' jobs run
+ * side by side while each chain stays in order. */
+#ifndef TS_VIDEO_CHAIN_H
+#define TS_VIDEO_CHAIN_H
+
+#include "frames.h"
+#include "jobcmd.h"
+#include "stylit.h"
+
+#define TS_VIDEO_MAX_KEYS 64
+/* Guides beyond the colour, edge, two position and temporal ones. */
+#define TS_VIDEO_MAX_PASSES (TS_STYLIT_MAX_GUIDES - 5)
+#define TS_VIDEO_PATH 4096
+
+typedef struct {
+  long frame;
+  const char *image; /* the painted key, the frames' size */
+} ts_video_key;
+
+typedef struct {
+  ts_job_cmd job; /* the stylize engine's parameters and where jobs run */
+  const char *input, *out, *guides_dir;
+  ts_frames fr;
+  int nkeys; /* sorted by frame, distinct */
+  ts_video_key key[TS_VIDEO_MAX_KEYS];
+  int npass;
+  const char *pass[TS_VIDEO_MAX_PASSES];
+  double input_weight, pass_weight[TS_VIDEO_MAX_PASSES];
+  double edge_weight, position_weight, temporal_weight;
+  int w, h, channels; /* the frames' size, the keys' channels (checked) */
+} ts_video;
+
+/* The work directory's file for key `key` and frame t: what ("out.png",
+ * "temporal.png", "report.json", ...) of the chain from that key. */
+void ts_video_chain_file(const char *dir, long key, long t, const char *what, char *out, size_t cap);
+
+/* An image of the frames' size and the keys' channels as interleaved
+ * 8-bit samples (stylize's conversion), into px. */
+int ts_video_read8(const ts_video *v, const char *path, uint8_t *px, char *err);
+
+/* Sets the stylize job's guide count and weights from v's weights. */
+int ts_video_weigh(ts_video *v, char *err);
+
+/* Writes each key's 8-bit painting and source guides to dir, then checks
+ * the stylize job of a key's own frame with the engine (sizes, levels
+ * against the patch): 0, TS_EINVAL (nothing stylized yet) or an error. */
+int ts_video_prepare(const ts_video *v, const char *dir, char *err);
+
+/* Runs every chain (ts_video_prepare first): the stylized frames are the
+ * "out.png" files of dir (a key's own frame: its painting). 0 or an error
+ * with its message. */
+int ts_video_run_chains(const ts_video *v, const char *dir, char *err);
+
+#endif
