@@ -1,0 +1,47 @@
+"""The command line a newcomer meets (issue 26): the README's quick start
+run as written in a clean shell, the closing line saying where a job ran,
+output formats refused before any work, Ctrl-C of a cluster run, fetch of
+outputs a job never made, hints that name the real cause, progress
+without a terminal, --version, "did you mean", the generated --help."""
+import os
+import re
+import subprocess
+
+from conftest import BUILD, REPO, run
+
+SCRIPT = REPO / "deploy" / "local-cluster.sh"
+
+
+def clean_shell(script, cwd, timeout=300):
+    """bash -c script with nothing in the environment but a PATH that finds
+    the binaries under test (as after `make install`), run in cwd."""
+    env = {"PATH": f"{BUILD}:/usr/bin:/bin", "HOME": str(cwd)}
+    if BUILD.resolve() != (REPO / "build").resolve():
+        env["TEXSYN_BUILD"] = str(BUILD)  # the script's default is build/ beside deploy/
+    return subprocess.run(["env", "-i", *(f"{k}={v}" for k, v in env.items()), "bash", "-c", script],
+                          cwd=cwd, capture_output=True, text=True, timeout=timeout)
+
+
+def test_the_readme_cluster_quick_start_runs_the_job_on_the_cluster(data, tmp_path):
+    """The README's commands, in a shell that has no TEXSYN_SERVER of its
+    own: the synth after `eval "$(deploy/local-cluster.sh start 2)"` is job
+    1 of the local coordinator (its log says so), and `texsyn workers`
+    finds the 2 workers instead of failing on 127.0.0.1:7070."""
+    ref = data / "textures" / "brick.png"
+    try:
+        p = clean_shell(f"""set -e
+eval "$({SCRIPT} start 2)"
+texsyn synth --ref {ref} -o out.png --size 96x64 --levels 3 --parity
+texsyn workers
+texsyn status
+{SCRIPT} stop
+""", tmp_path)
+    finally:  # a failed step leaves the cluster running
+        clean_shell(f"{SCRIPT} stop", tmp_path)
+    assert p.returncode == 0, p.stdout + p.stderr
+    log = (tmp_path / "texsyn-run" / "server.log").read_text()
+    assert re.search(r"job 1 done in ", log), log
+    assert p.stdout.count(" ready ") == 2, p.stdout
+    assert re.search(r"^1 +done", p.stdout, re.M), p.stdout
+    assert (tmp_path / "out.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "local-cluster: stopped" in p.stdout
