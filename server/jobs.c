@@ -472,6 +472,7 @@ static void *runner(void *arg) {
     client_share *cs = share_of(j, jb->client);
     if (cs) cs->started++;
     jb->st.state = TS_JOB_RUNNING;
+    jb->st.workers = (uint16_t)ts_cluster_ready(j->o.cluster); /* for jobs that report no progress (energy) */
     jb->started = ts_now();
     j->running++;
     job_changed(j, jb);

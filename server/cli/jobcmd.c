@@ -209,8 +209,9 @@ int ts_job_embedded(const ts_job_cmd *o, const ts_image *const *in, ts_search *s
   if (pb.enabled) fputc('\n', stderr);
   if (rc == 0) rc = write_outputs(o, run, err);
   if (rc == 0 && !o->quiet)
-    fprintf(stderr, "texsyn: %s in %.2fs (%s, %d threads, %.3g comparisons)\n", result_name(o), ts_now() - t0,
-            search->simd->name, o->threads, (double)(search->stats.pairs - pairs));
+    fprintf(stderr, "texsyn: %s in %.2fs (in-process with %d thread%s, %s, %.3g comparisons)\n", result_name(o),
+            ts_now() - t0, o->threads, o->threads == 1 ? "" : "s", search->simd->name,
+            (double)(search->stats.pairs - pairs));
   e->run_free(run);
   return rc;
 }
@@ -356,13 +357,18 @@ int ts_job_open(ts_conn *c, const ts_job_cmd *o, char *err) {
 
 int ts_job_finish(ts_conn *c, const ts_job_cmd *o, uint64_t id, char *err) {
   ts_job_status st = {0};
+  double t0 = ts_now();
   int rc = ts_job_watch(c, id, !o->quiet && isatty(STDERR_FILENO), &st, err);
   if (rc == 0 && st.state != TS_JOB_DONE)
     rc = ts_error(err, TS_EIO, "job %llu %s%s%s", (unsigned long long)id, ts_job_state_name(st.state),
                   st.text[0] ? ": " : "", st.text);
   if (rc == 0) rc = ts_job_fetch(c, id, &o->out, err);
-  if (rc == 0 && !o->quiet)
-    fprintf(stderr, "texsyn: %s (job %llu on %s)\n", result_name(o), (unsigned long long)id, o->server);
+  if (rc == 0 && !o->quiet) {
+    char pool[48] = "no workers: the coordinator scanned alone";
+    if (st.workers > 0) snprintf(pool, sizeof(pool), "%u worker%s", st.workers, st.workers == 1 ? "" : "s");
+    fprintf(stderr, "texsyn: %s in %.2fs (job %llu on %s with %s)\n", result_name(o), ts_now() - t0,
+            (unsigned long long)id, o->server, pool);
+  }
   return rc;
 }
 

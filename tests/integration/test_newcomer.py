@@ -39,9 +39,31 @@ texsyn status
     finally:  # a failed step leaves the cluster running
         clean_shell(f"{SCRIPT} stop", tmp_path)
     assert p.returncode == 0, p.stdout + p.stderr
+    assert re.search(r"^texsyn: out.png in [\d.]+s \(job 1 on 127.0.0.1:\d+ with 2 workers\)$", p.stderr, re.M), p.stderr
     log = (tmp_path / "texsyn-run" / "server.log").read_text()
     assert re.search(r"job 1 done in ", log), log
     assert p.stdout.count(" ready ") == 2, p.stdout
     assert re.search(r"^1 +done", p.stdout, re.M), p.stdout
     assert (tmp_path / "out.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "local-cluster: stopped" in p.stdout
+
+
+def test_the_closing_line_says_where_the_job_ran(texsyn, data, cluster, tmp_path):
+    """In-process: the threads; on a coordinator: the job, its address and
+    the workers (none: the coordinator scanned alone)."""
+    ref = data / "textures" / "grass.png"
+    args = ["synth", "--ref", ref, "--size", "48x32", "--levels", "2"]
+    p = run(texsyn, *args, "-o", tmp_path / "a.png", "--embedded", "--threads", "3")
+    assert re.fullmatch(r"texsyn: \S+a.png in [\d.]+s \(in-process with 3 threads, \w+, [\d.e+]+ comparisons\)\n",
+                        p.stderr), p.stderr
+    cluster.start(0)
+    p = run(texsyn, *args, "-o", tmp_path / "b.png", "--server", cluster.server.addr)
+    assert re.search(rf"texsyn: \S+b.png in [\d.]+s \(job 1 on {cluster.server.addr} with no workers: "
+                     r"the coordinator scanned alone\)\n", p.stderr), p.stderr
+    w = cluster.worker()
+    cluster.server.stop()
+    cluster.restart_server()
+    cluster.wait_ready(1)
+    p = run(texsyn, *args, "-o", tmp_path / "c.png", "--server", cluster.server.addr)
+    assert re.search(rf"\(job 2 on {cluster.server.addr} with 1 worker\)\n", p.stderr), p.stderr
+    assert w.alive()

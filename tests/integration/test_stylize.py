@@ -312,7 +312,7 @@ def test_energy_on_a_cluster_prints_what_it_prints_in_process(texsyn, scene, clu
     assert score(env={"TEXSYN_SERVER": addr}) == embedded
     assert score("--embedded", env={"TEXSYN_SERVER": "127.0.0.1:1"}) == embedded
     p = run(texsyn, *cases[0], "--server", addr)
-    assert p.stdout == embedded[0] and re.search(rf"texsyn: energy \(job \d+ on {addr}\)", p.stderr), p.stderr
+    assert p.stdout == embedded[0] and re.search(rf"texsyn: energy in [\d.]+s \(job \d+ on {addr} with 2 workers\)", p.stderr), p.stderr
 
 
 def test_energy_lists_every_mismatch_in_one_error_on_a_cluster_too(texsyn, scene, cluster, tmp_path):
