@@ -5,6 +5,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -88,11 +89,53 @@ int ts_job_option(ts_job_cmd *o, int c, const char *arg, char *err) {
   return rc;
 }
 
+/* The image formats texsyn writes, by extension (image_oiio.cpp sets
+ * each one's pixel type and lossless defaults); any other, even one
+ * OpenImageIO could write, is refused before the job runs. */
+static const char *const kImageExts[] = {"png", "jpg", "jpeg", "tif", "tiff", "exr"};
+#define IMAGE_EXTS_HELP ".png, .jpg, .jpeg, .tif, .tiff or .exr"
+
+/* The option that sets output key: -o, else --KEY with '-' for '_'. */
+static void output_option(const char *key, char *out, size_t cap) {
+  if (strcmp(key, "output") == 0) {
+    snprintf(out, cap, "-o");
+    return;
+  }
+  int n = snprintf(out, cap, "--%s", key);
+  for (int i = 2; i < n && (size_t)i < cap; i++)
+    if (out[i] == '_') out[i] = '-';
+}
+
+/* Every image output's extension names a format texsyn writes: checked
+ * on the client, before any work, wherever the job is to run (a
+ * coordinator would find out only after the job ran). */
+static int check_formats(const ts_job_cmd *o, char *err) {
+  const ts_engine *e = o->spec.engine;
+  for (int k = 0; k < e->noutputs; k++) {
+    const char *path = ts_output_path(&o->out, e->outputs[k].key);
+    if (path == NULL || e->outputs[k].kind != TS_OUTPUT_IMAGE) continue;
+    const char *ext = ts_path_ext(path);
+    size_t i = 0;
+    while (i < sizeof(kImageExts) / sizeof(kImageExts[0]) && strcasecmp(ext, kImageExts[i]) != 0) i++;
+    if (i < sizeof(kImageExts) / sizeof(kImageExts[0])) continue;
+    char opt[64];
+    output_option(e->outputs[k].key, opt, sizeof(opt));
+    if (ext[0] == '\0')
+      return ts_error(err, TS_EINVAL, "%s %s: the extension names the image format: use " IMAGE_EXTS_HELP, opt,
+                      path);
+    return ts_error(err, TS_EINVAL, "%s %s: texsyn does not write .%s images; use " IMAGE_EXTS_HELP, opt, path,
+                    ext);
+  }
+  return 0;
+}
+
 int ts_job_parse_end(ts_job_cmd *o, char *err) {
   if (o->server != NULL && o->embedded) return ts_error(err, TS_EINVAL, "--server and --embedded exclude each other");
   if (o->server == NULL && !o->embedded) o->server = ts_env_server();
   if (ts_output_path(&o->out, "output") == NULL)
     return ts_error(err, TS_EINVAL, "-o OUT is required (see texsyn %s --help)", o->cmd);
+  int rc = check_formats(o, err);
+  if (rc != 0) return rc;
   if (o->detach && o->server == NULL) return ts_error(err, TS_EINVAL, "--detach needs --server");
   o->spec.engine->set_max_pixels(&o->spec.params, o->max_pixels);
   return 0;
@@ -128,18 +171,15 @@ int ts_job_check_outputs(const ts_job_cmd *o, char *err) {
 /* The spec's wants, for a coordinator (an embedded run writes to the
  * paths): for every output given a path, the format its extension names
  * ("1" for a flag output). */
-static int set_wants(const ts_job_cmd *o, ts_jobspec *spec, char *err) {
+static void set_wants(const ts_job_cmd *o, ts_jobspec *spec) {
   const ts_engine *e = spec->engine;
   for (int k = 0; k < e->noutputs; k++) {
     const char *path = ts_output_path(&o->out, e->outputs[k].key);
     char *want = spec->wants.want[k];
     if (path == NULL) want[0] = '\0';
     else if (e->outputs[k].kind == TS_OUTPUT_FLAG) snprintf(want, TS_EXT_LEN, "1");
-    else if (!ts_ext_valid(ts_path_ext(path)))
-      return ts_error(err, TS_EINVAL, "%s: needs an extension (.png, .tif, .exr, ...)", path);
-    else snprintf(want, TS_EXT_LEN, "%s", ts_path_ext(path));
+    else snprintf(want, TS_EXT_LEN, "%s", ts_path_ext(path)); /* a format ts_job_parse_end took */
   }
-  return 0;
 }
 
 /* Reads the first n inputs (within --max-pixels); on failure the ones
@@ -303,9 +343,8 @@ static void base_name(const char *path, char *out, size_t cap) {
 int ts_job_submit(ts_conn *c, const ts_job_cmd *o, uint64_t *id, char *err) {
   ts_jobspec js = o->spec;
   char spec[TS_SPEC_MAX];
-  int n = set_wants(o, &js, err);
-  if (n != 0) return n;
-  n = ts_jobspec_format(&js, spec, sizeof(spec));
+  set_wants(o, &js);
+  int n = ts_jobspec_format(&js, spec, sizeof(spec));
   if (n < 0) return ts_error(err, TS_ETOOBIG, "job spec too long");
   ts_engine_inputs names;
   o->spec.engine->inputs(&o->spec.params, &names);

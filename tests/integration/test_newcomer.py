@@ -67,3 +67,26 @@ def test_the_closing_line_says_where_the_job_ran(texsyn, data, cluster, tmp_path
     p = run(texsyn, *args, "-o", tmp_path / "c.png", "--server", cluster.server.addr)
     assert re.search(rf"\(job 2 on {cluster.server.addr} with 1 worker\)\n", p.stderr), p.stderr
     assert w.alive()
+
+
+def test_an_output_format_texsyn_does_not_write_is_refused_before_any_work(texsyn, data, cluster, tmp_path):
+    """-o big.xyz (no writer), -o x.gif and a --copy-map .bmp (writers
+    OpenImageIO has, formats texsyn does not write) and an output without
+    an extension: one error naming the option and the formats, exit
+    status 2, in-process and on a coordinator alike (with --detach too);
+    nothing is written and no job reaches the coordinator."""
+    cluster.start(0)
+    exts = "use .png, .jpg, .jpeg, .tif, .tiff or .exr"
+    cases = [(["-o", tmp_path / "big.xyz"], f"-o {tmp_path}/big.xyz: texsyn does not write .xyz images; {exts}"),
+             (["-o", tmp_path / "x.gif"], f"-o {tmp_path}/x.gif: texsyn does not write .gif images; {exts}"),
+             (["-o", tmp_path / "a.png", "--copy-map", tmp_path / "c.bmp"],
+              f"--copy-map {tmp_path}/c.bmp: texsyn does not write .bmp images; {exts}"),
+             (["-o", tmp_path / "a.png", "--usage-map", tmp_path / "usage"],
+              f"--usage-map {tmp_path}/usage: the extension names the image format: {exts}")]
+    for where in (["--embedded"], ["--server", cluster.server.addr], ["--server", cluster.server.addr, "--detach"]):
+        for outs, message in cases:
+            p = run(texsyn, "synth", "--ref", data / "textures" / "grass.png", "--size", "48x32", *outs, *where,
+                    check=False)
+            assert (p.returncode, p.stderr, p.stdout) == (2, f"texsyn synth: {message}\n", ""), (where, p.stderr)
+    assert sorted(f.name for f in tmp_path.iterdir() if not f.name.endswith(".log")) == ["spool"]
+    assert cluster.texsyn("status").stdout == ""
