@@ -2,6 +2,7 @@
 #include "jobcmd.h"
 
 #include <errno.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -394,10 +395,53 @@ int ts_job_open(ts_conn *c, const ts_job_cmd *o, char *err) {
   return rc;
 }
 
+/* What an interrupt of a client following its job says, made before the
+ * handler is armed: the handler may only write(2) it and _exit. */
+static char interrupt_msg[768];
+static size_t interrupt_len;
+
+static void on_interrupt(int sig) {
+  (void)sig;
+  ssize_t n = write(STDERR_FILENO, interrupt_msg, interrupt_len);
+  (void)n;
+  _exit(130);
+}
+
+/* Ctrl-C (or a SIGTERM) while a client follows job id: the job is the
+ * coordinator's and goes on; the client says so, and how to follow or
+ * stop it, rather than vanish with the id unsaid. `old` keeps the
+ * handlers armed before, for interrupt_disarm. */
+static void interrupt_arm(const ts_job_cmd *o, uint64_t id, int bar, struct sigaction *old) {
+  char where[300] = "";
+  if (o->server != ts_env_server()) snprintf(where, sizeof(where), " --server %s", o->server);
+  int n = snprintf(interrupt_msg, sizeof(interrupt_msg),
+                   "%stexsyn %s: interrupted; job %llu keeps running on %s: `texsyn watch %llu%s` follows it, "
+                   "`texsyn cancel %llu%s` stops it\n",
+                   bar ? "\n" : "", o->cmd, (unsigned long long)id, o->server, (unsigned long long)id, where,
+                   (unsigned long long)id, where);
+  interrupt_len = n < 0 ? 0 : (size_t)n < sizeof(interrupt_msg) ? (size_t)n : sizeof(interrupt_msg) - 1;
+  struct sigaction sa;
+  memset(&sa, 0, sizeof(sa));
+  sa.sa_handler = on_interrupt;
+  sigemptyset(&sa.sa_mask);
+  sigaction(SIGINT, &sa, &old[0]);
+  sigaction(SIGTERM, &sa, &old[1]);
+}
+
+static void interrupt_disarm(const struct sigaction *old) {
+  sigaction(SIGINT, &old[0], NULL);
+  sigaction(SIGTERM, &old[1], NULL);
+}
+
 int ts_job_finish(ts_conn *c, const ts_job_cmd *o, uint64_t id, char *err) {
   ts_job_status st = {0};
   double t0 = ts_now();
-  int rc = ts_job_watch(c, id, !o->quiet && isatty(STDERR_FILENO), &st, err);
+  int bar = !o->quiet && isatty(STDERR_FILENO);
+  struct sigaction old[2];
+  interrupt_arm(o, id, bar, old); /* before the id is out: an interrupt from then on says it */
+  if (!o->quiet) fprintf(stderr, "texsyn %s: job %llu on %s\n", o->cmd, (unsigned long long)id, o->server);
+  int rc = ts_job_watch(c, id, bar, &st, err);
+  interrupt_disarm(old);
   if (rc == 0 && st.state != TS_JOB_DONE)
     rc = ts_error(err, TS_EIO, "job %llu %s%s%s", (unsigned long long)id, ts_job_state_name(st.state),
                   st.text[0] ? ": " : "", st.text);

@@ -286,6 +286,19 @@ static int job_workers(ts_conn *c, char *err) {
   return rc;
 }
 
+/* A running job stops at its next batch, not when the coordinator takes
+ * the cancel: `cancel` returns once it has, so that what follows (status,
+ * delete) finds it canceled. */
+static int job_cancel_wait(ts_conn *c, uint64_t id, char *err) {
+  ts_job_status st;
+  int rc = ts_job_watch(c, id, 0, &st, err);
+  if (rc == 0 && st.state != TS_JOB_CANCELED)
+    rc = ts_error(err, TS_EINVAL, "job %llu ended %s before the cancel reached it", (unsigned long long)id,
+                  ts_job_state_name(st.state));
+  if (rc == 0) printf("job %llu canceled\n", (unsigned long long)id);
+  return rc;
+}
+
 static int cmd_job(const char *cmd, int argc, char **argv) {
   char err[TS_ERR_LEN] = "";
   job_opts o;
@@ -316,6 +329,7 @@ static int cmd_job(const char *cmd, int argc, char **argv) {
       ts_frame f;
       rc = ts_client_call(&c, strcmp(cmd, "cancel") == 0 ? TS_MSG_CANCEL : TS_MSG_DELETE, &w, 30000, &f, err);
       ts_wr_free(&w);
+      if (rc == 0 && strcmp(cmd, "cancel") == 0) rc = job_cancel_wait(&c, o.id, err);
     }
     ts_conn_close(&c);
   }

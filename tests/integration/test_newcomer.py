@@ -5,6 +5,7 @@ outputs a job never made, hints that name the real cause, progress
 without a terminal, --version, "did you mean", the generated --help."""
 import os
 import re
+import signal
 import subprocess
 
 from conftest import BUILD, REPO, run
@@ -90,3 +91,43 @@ def test_an_output_format_texsyn_does_not_write_is_refused_before_any_work(texsy
             assert (p.returncode, p.stderr, p.stdout) == (2, f"texsyn synth: {message}\n", ""), (where, p.stderr)
     assert sorted(f.name for f in tmp_path.iterdir() if not f.name.endswith(".log")) == ["spool"]
     assert cluster.texsyn("status").stdout == ""
+
+
+def interrupt_after_submission(texsyn, ref, out, *where, env=None):
+    """`texsyn synth` of a long job (stderr a pipe, not a terminal),
+    interrupted (SIGINT, as Ctrl-C) once it has said which job it
+    submitted; returns (exit status, the line naming the job, the rest of
+    stderr)."""
+    p = subprocess.Popen([str(texsyn), "synth", "--ref", str(ref), "-o", str(out), "--size", "2048x2048", *where],
+                         stderr=subprocess.PIPE, text=True, env=dict(os.environ, **(env or {})))
+    first = p.stderr.readline()
+    p.send_signal(signal.SIGINT)
+    rest = p.stderr.read()
+    return p.wait(timeout=60), first, rest
+
+
+def test_ctrl_c_of_a_cluster_run_names_the_job_that_goes_on(texsyn, data, cluster, tmp_path):
+    """The job id is said once submitted; Ctrl-C says the job goes on and
+    how to follow and cancel it (with --server when the address came from
+    the command line, not $TEXSYN_SERVER), exit status 130. The cancel it
+    names returns once the job has stopped: status says canceled and
+    delete takes it."""
+    cluster.start(1)
+    addr = cluster.server.addr
+    ref = data / "textures" / "brick.png"
+    code, first, rest = interrupt_after_submission(texsyn, ref, tmp_path / "a.png", "--server", addr)
+    assert (code, first) == (130, f"texsyn synth: job 1 on {addr}\n"), (code, first, rest)
+    assert rest == (f"texsyn synth: interrupted; job 1 keeps running on {addr}: `texsyn watch 1 --server {addr}` "
+                    f"follows it, `texsyn cancel 1 --server {addr}` stops it\n"), rest
+    code, first, rest = interrupt_after_submission(texsyn, ref, tmp_path / "b.png", env={"TEXSYN_SERVER": addr})
+    assert (code, first) == (130, f"texsyn synth: job 2 on {addr}\n"), (code, first, rest)
+    assert rest == (f"texsyn synth: interrupted; job 2 keeps running on {addr}: `texsyn watch 2` follows it, "
+                    "`texsyn cancel 2` stops it\n"), rest
+    states = [line.split()[1] for line in cluster.texsyn("status").stdout.splitlines()]
+    assert len(states) == 2 and set(states) <= {"queued", "running"}, states
+    for job in ("1", "2"):
+        assert cluster.texsyn("cancel", job).stdout == f"job {job} canceled\n"
+        assert re.fullmatch(rf"{job} +canceled +canceled by a client\n", cluster.texsyn("status", job).stdout)
+        cluster.texsyn("delete", job)
+    assert cluster.texsyn("status").stdout == ""
+    assert not (tmp_path / "a.png").exists() and not (tmp_path / "b.png").exists()
