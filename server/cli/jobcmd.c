@@ -95,6 +95,15 @@ int ts_job_option(ts_job_cmd *o, int c, const char *arg, char *err) {
  * OpenImageIO could write, is refused before the job runs. */
 static const char *const kImageExts[] = {"png", "jpg", "jpeg", "tif", "tiff", "exr"};
 #define IMAGE_EXTS_HELP ".png, .jpg, .jpeg, .tif, .tiff or .exr"
+/* The one image output that also has a format of its own: stylize's NNF
+ * as raw uint32 pairs (stylit_engine.c). */
+#define RAW_NNF_KEY "nnf"
+
+static int image_ext(const char *key, const char *ext) {
+  for (size_t i = 0; i < sizeof(kImageExts) / sizeof(kImageExts[0]); i++)
+    if (strcasecmp(ext, kImageExts[i]) == 0) return 1;
+  return strcmp(key, RAW_NNF_KEY) == 0 && strcmp(ext, "raw") == 0;
+}
 
 /* The option that sets output key: -o, else --KEY with '-' for '_'. */
 static void output_option(const char *key, char *out, size_t cap) {
@@ -115,17 +124,16 @@ static int check_formats(const ts_job_cmd *o, char *err) {
   for (int k = 0; k < e->noutputs; k++) {
     const char *path = ts_output_path(&o->out, e->outputs[k].key);
     if (path == NULL || e->outputs[k].kind != TS_OUTPUT_IMAGE) continue;
-    const char *ext = ts_path_ext(path);
-    size_t i = 0;
-    while (i < sizeof(kImageExts) / sizeof(kImageExts[0]) && strcasecmp(ext, kImageExts[i]) != 0) i++;
-    if (i < sizeof(kImageExts) / sizeof(kImageExts[0])) continue;
+    const char *key = e->outputs[k].key, *ext = ts_path_ext(path);
+    if (image_ext(key, ext)) continue;
     char opt[64];
-    output_option(e->outputs[k].key, opt, sizeof(opt));
+    output_option(key, opt, sizeof(opt));
+    const char *raw = strcmp(key, RAW_NNF_KEY) == 0 ? " (or .raw)" : "";
     if (ext[0] == '\0')
-      return ts_error(err, TS_EINVAL, "%s %s: the extension names the image format: use " IMAGE_EXTS_HELP, opt,
-                      path);
-    return ts_error(err, TS_EINVAL, "%s %s: texsyn does not write .%s images; use " IMAGE_EXTS_HELP, opt, path,
-                    ext);
+      return ts_error(err, TS_EINVAL, "%s %s: the extension names the image format: use " IMAGE_EXTS_HELP "%s", opt,
+                      path, raw);
+    return ts_error(err, TS_EINVAL, "%s %s: texsyn does not write .%s images; use " IMAGE_EXTS_HELP "%s", opt,
+                    path, ext, raw);
   }
   return 0;
 }
@@ -276,6 +284,27 @@ int ts_job_connect(ts_conn *c, const char *addr, const char *path, char *err) {
   return rc;
 }
 
+/* Every output given a path is among the job's files: a job makes only
+ * what its submission asked for, and a fetch that quietly wrote less
+ * would leave the caller with old or no files. Nothing is written then. */
+static int check_fetched(uint64_t id, const ts_msg_files *m, const ts_output_paths *t, char *err) {
+  char missing[512] = "";
+  size_t len = 0;
+  for (int i = 0; i < t->n; i++) {
+    uint32_t k = 0;
+    for (const char *key; k < m->n; k++)
+      if ((key = ts_engine_output_key_of_file(m->name[k])) != NULL && strcmp(key, t->key[i]) == 0) break;
+    if (k < m->n) continue;
+    char opt[64];
+    output_option(t->key[i], opt, sizeof(opt));
+    int n = snprintf(missing + len, sizeof(missing) - len, "%s%s %s", len ? ", " : "", opt, t->path[i]);
+    if (n > 0 && (size_t)n < sizeof(missing) - len) len += (size_t)n;
+  }
+  if (len == 0) return 0;
+  return ts_error(err, TS_ENOENT, "job %llu did not make %s: a job makes only the outputs asked for when it was "
+                  "submitted; nothing was written", (unsigned long long)id, missing);
+}
+
 int ts_job_fetch(ts_conn *c, uint64_t id, const ts_output_paths *t, char *err) {
   ts_wr w;
   ts_wr_init(&w);
@@ -285,6 +314,7 @@ int ts_job_fetch(ts_conn *c, uint64_t id, const ts_output_paths *t, char *err) {
   ts_wr_free(&w);
   ts_msg_files m;
   if (rc == 0) rc = ts_msg_files_read(&f, &m, err);
+  if (rc == 0) rc = check_fetched(id, &m, t, err);
   for (uint32_t i = 0; rc == 0 && i < m.n; i++) {
     const char *key = ts_engine_output_key_of_file(m.name[i]);
     const char *path = key != NULL ? ts_output_path(t, key) : NULL;

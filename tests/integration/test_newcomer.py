@@ -131,3 +131,31 @@ def test_ctrl_c_of_a_cluster_run_names_the_job_that_goes_on(texsyn, data, cluste
         cluster.texsyn("delete", job)
     assert cluster.texsyn("status").stdout == ""
     assert not (tmp_path / "a.png").exists() and not (tmp_path / "b.png").exists()
+
+
+def test_fetch_of_outputs_the_job_never_made_fails_naming_them(texsyn, data, cluster, tmp_path):
+    """A job submitted without a report or copy map: fetch --report F
+    --copy-map F fails naming both and writes nothing, not even -o; the
+    outputs it made fetch as they would have been written in-process,
+    stylize's --nnf (.raw too) among them, which fetch's --help names."""
+    from pnm import oiiotool
+    assert "--nnf F (stylize)" in run(texsyn, "fetch", "--help").stdout
+    cluster.start(1)
+    job = cluster.submit(data / "textures" / "grass.png", "--size", "48x32", "--levels", "2")
+    cluster.texsyn("watch", job, "--quiet")
+    out, report, copy = tmp_path / "out.png", tmp_path / "r.json", tmp_path / "c.png"
+    p = cluster.texsyn("fetch", job, "-o", out, "--report", report, "--copy-map", copy, check=False)
+    assert (p.returncode, p.stderr) == (1, f"texsyn fetch: job {job} did not make --report {report}, --copy-map "
+                                           f"{copy}: a job makes only the outputs asked for when it was submitted; "
+                                           "nothing was written\n"), p.stderr
+    assert not out.exists() and not report.exists() and not copy.exists()
+    style = tmp_path / "style.png"
+    oiiotool(data / "textures" / "grass.png", "--cut", "48x32+100+100", "-o", style)
+    for nnf in ("nnf.png", "nnf.raw"):
+        args = ["stylize", "--style", style, "--guide", style, style, "--iters", "2", "--quiet"]
+        run(texsyn, *args, "-o", tmp_path / "want.png", "--nnf", tmp_path / f"want-{nnf}", "--embedded")
+        job = cluster.texsyn(*args, "-o", tmp_path / "x.png", "--nnf", tmp_path / nnf, "--detach").stdout.strip()
+        cluster.texsyn("watch", job, "--quiet")
+        cluster.texsyn("fetch", job, "-o", tmp_path / "got.png", "--nnf", tmp_path / f"got-{nnf}")
+        assert (tmp_path / f"got-{nnf}").read_bytes() == (tmp_path / f"want-{nnf}").read_bytes(), nnf
+        assert (tmp_path / "got.png").read_bytes() == (tmp_path / "want.png").read_bytes(), nnf
