@@ -3,6 +3,7 @@
 
 #include <errno.h>
 #include <signal.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -275,11 +276,46 @@ static int run_embedded(const ts_job_cmd *o, const ts_image *const *in, char *er
 
 /* ---- on a coordinator -------------------------------------------------- */
 
+const char ts_default_server[] = "127.0.0.1:7070";
+
+/* Appends text to the message in err, cut to fit. */
+static void err_append(char *err, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static void err_append(char *err, const char *fmt, ...) {
+  size_t n = strlen(err);
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(err + n, TS_ERR_LEN - n, fmt, ap);
+  va_end(ap);
+}
+
+/* The hint a failed connection gets, by what failed: the address, the
+ * coordinator not there, or the secret (naming where it came from). */
+static void connect_hint(int rc, const char *addr, const char *secret, const char *secret_from, char *err) {
+  const char *from = addr == ts_env_server() ? ", from $TEXSYN_SERVER"
+                     : addr == ts_default_server ? ", the default: no --server, no $TEXSYN_SERVER"
+                                                 : "";
+  if (rc == TS_ECONN || rc == TS_ETIMEDOUT) err_append(err, " (is texsyn-server running at %s%s?)", addr, from);
+  else if (rc == TS_EAUTH && secret != NULL) err_append(err, "; this client's secret: %s, from %s", secret, secret_from);
+}
+
 int ts_job_connect(ts_conn *c, const char *addr, const char *path, char *err) {
-  if (path == NULL) path = getenv("TEXSYN_SECRET_FILE");
+  char host[256];
+  int port;
+  if (ts_net_split(addr, host, sizeof(host), &port, NULL) != 0 || port == 0)
+    return ts_error(err, TS_EINVAL, "%s%s: need HOST:PORT, e.g. 127.0.0.1:7070",
+                    addr == ts_env_server() ? "$TEXSYN_SERVER=" : "--server ", addr);
+  const char *from = "--secret-file";
+  if (path == NULL) {
+    path = getenv("TEXSYN_SECRET_FILE");
+    from = "$TEXSYN_SECRET_FILE";
+  }
+  if (path != NULL && path[0] == '\0') path = NULL;
   ts_auth auth = {0};
-  int rc = path != NULL && path[0] != '\0' ? ts_auth_load(&auth, path, err) : 0;
-  if (rc == 0) rc = ts_client_connect(c, addr, &auth, err);
+  int rc = path != NULL ? ts_auth_load(&auth, path, err) : 0;
+  if (rc == 0) {
+    rc = ts_client_connect(c, addr, &auth, err);
+    if (rc != 0) connect_hint(rc, addr, path, from, err);
+  }
   ts_auth_clear(&auth);
   return rc;
 }
@@ -417,11 +453,7 @@ int ts_job_submit(ts_conn *c, const ts_job_cmd *o, uint64_t *id, char *err) {
 
 int ts_job_open(ts_conn *c, const ts_job_cmd *o, char *err) {
   int rc = ts_job_connect(c, o->server, o->secret_file, err);
-  if (rc != 0) {
-    size_t n = strlen(err);
-    snprintf(err + n, TS_ERR_LEN - n, "\n(no job was submitted: is texsyn-server running at %s%s? --embedded runs here)",
-             o->server, o->server == ts_env_server() ? ", from $TEXSYN_SERVER" : "");
-  }
+  if (rc != 0) err_append(err, "\n(no job was submitted; --embedded runs it here)");
   return rc;
 }
 

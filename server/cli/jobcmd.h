@@ -121,8 +121,12 @@ int ts_arg_size(const char *opt, const char *s, int *w, int *h, char *err);
 
 /* The coordinator from $TEXSYN_SERVER, or NULL when unset or empty. */
 const char *ts_env_server(void);
+/* The job commands' coordinator without --server and $TEXSYN_SERVER
+ * (passed as this pointer, messages call it the default). */
+extern const char ts_default_server[];
 /* Connects to a coordinator with the shared secret from path, else
- * $TEXSYN_SECRET_FILE, else none. */
+ * $TEXSYN_SECRET_FILE, else none; a failure's message says what to check
+ * (the address, the coordinator, the secret and where it came from). */
 int ts_job_connect(ts_conn *c, const char *addr, const char *path, char *err);
 /* Follows a job until it ends (a progress line if show); its final
  * status in *last. */

@@ -208,7 +208,7 @@ static int job_parse(int argc, char **argv, job_opts *o, char *err) {
       {"help", no_argument, 0, TS_OPT_HELP},              {"secret-file", required_argument, 0, TS_OPT_SECRET},
       {0, 0, 0, 0}};
   memset(o, 0, sizeof(*o));
-  o->server = ts_env_server() ? ts_env_server() : "127.0.0.1:7070";
+  o->server = ts_env_server() ? ts_env_server() : ts_default_server;
   optind = 1;
   opterr = 0;
   int c;

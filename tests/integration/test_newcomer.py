@@ -6,6 +6,7 @@ without a terminal, --version, "did you mean", the generated --help."""
 import os
 import re
 import signal
+import socket
 import subprocess
 
 from conftest import BUILD, REPO, run
@@ -159,3 +160,40 @@ def test_fetch_of_outputs_the_job_never_made_fails_naming_them(texsyn, data, clu
         cluster.texsyn("fetch", job, "-o", tmp_path / "got.png", "--nnf", tmp_path / f"got-{nnf}")
         assert (tmp_path / f"got-{nnf}").read_bytes() == (tmp_path / f"want-{nnf}").read_bytes(), nnf
         assert (tmp_path / "got.png").read_bytes() == (tmp_path / "want.png").read_bytes(), nnf
+
+
+def test_a_refused_secret_or_an_address_without_port_says_so(texsyn, data, tmp_path):
+    """A wrong secret is named as refused, with the file it came from
+    (option or environment), not as a coordinator that may be down; an
+    address without a port is named as such; only a connection that fails
+    asks whether texsyn-server runs there."""
+    from conftest import Daemon
+    key, wrong = tmp_path / "key", tmp_path / "wrong"
+    for path in (key, wrong):
+        path.write_text(os.urandom(24).hex() + "\n")
+        path.chmod(0o600)
+    server = Daemon([BUILD / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", tmp_path / "spool",
+                     "--secret-file", key], tmp_path / "server.log")
+    addr = server.addr
+    args = ["synth", "--ref", data / "textures" / "grass.png", "-o", tmp_path / "o.png", "--size", "48x32",
+            "--levels", "2"]
+    refused = (f"texsyn synth: {addr}: authentication failed: wrong secret (every server, worker and client needs "
+               f"the same --secret-file); this client's secret: {wrong}, from ")
+    cases = [(["--server", addr, "--secret-file", wrong], {}, refused + "--secret-file"),
+             (["--server", addr], {"TEXSYN_SECRET_FILE": str(wrong)}, refused + "$TEXSYN_SECRET_FILE"),
+             (["--server", "localhost"], {}, "texsyn synth: --server localhost: need HOST:PORT, e.g. 127.0.0.1:7070"),
+             ([], {"TEXSYN_SERVER": "localhost"},
+              "texsyn synth: $TEXSYN_SERVER=localhost: need HOST:PORT, e.g. 127.0.0.1:7070"),
+             (["--server", "127.0.0.1:1"], {}, "texsyn synth: cannot connect to 127.0.0.1:1: Connection refused "
+                                               "(is texsyn-server running at 127.0.0.1:1?)")]
+    for where, env, message in cases:
+        p = run(texsyn, *args, *where, env=env, check=False)
+        assert (p.returncode, p.stderr) == (1, message + "\n(no job was submitted; --embedded runs it here)\n"), \
+            (where, env, p.stderr)
+    with socket.socket() as held:  # bound, not listening: a connection to the default address is refused
+        held.bind(("127.0.0.1", 7070))
+        p = run(texsyn, "status", env={"TEXSYN_SERVER": ""}, check=False)
+    assert p.stderr == ("texsyn status: cannot connect to 127.0.0.1:7070: Connection refused (is texsyn-server "
+                        "running at 127.0.0.1:7070, the default: no --server, no $TEXSYN_SERVER?)\n"), p.stderr
+    assert run(texsyn, "status", "--server", addr, "--secret-file", key).stdout == ""
+    assert not (tmp_path / "o.png").exists()
