@@ -206,28 +206,95 @@ static int read_inputs(const ts_job_cmd *o, int n, ts_image *in, char *err) {
   return 0;
 }
 
-/* ---- progress bar ------------------------------------------------------ */
+/* ---- progress ---------------------------------------------------------- */
 
+/* A plain line at least this often (seconds) inside a long level. */
+#define PROGRESS_LINE_SECONDS 10.0
+
+int ts_progress_mode(int quiet) {
+  return quiet ? TS_PROGRESS_NONE : isatty(STDERR_FILENO) ? TS_PROGRESS_BAR : TS_PROGRESS_LINES;
+}
+
+/* What a client shows of a job under way: the bar redrawn at most every
+ * 0.1 s, or a line when a level (or a level's stage) starts and every
+ * PROGRESS_LINE_SECONDS. Levels are shown as people count them, 1 the
+ * coarsest to L the finest; engines and the wire count down to 0. */
 typedef struct {
-  int enabled;
-  double start, last;
-} progress_bar;
+  int mode;
+  const char *cmd;
+  double start, last_bar, last_line;
+  int line_level; /* level of the last line: 0 queued, -1 no line yet */
+  char line_stage[64];
+} progress_view;
 
-static void progress_draw(void *ctx, const ts_progress *p) {
-  progress_bar *pb = ctx;
-  double t = ts_now();
-  int level_done = p->done == p->total;
-  if (!pb->enabled || (t - pb->last < 0.1 && !level_done)) return;
-  pb->last = t;
-  double frac = p->work_total > 0 ? p->work_done / p->work_total : 1.0;
-  double eta = frac > 0.001 ? (t - pb->start) * (1.0 - frac) / frac : 0.0;
-  int pct = p->total ? (int)(100 * p->done / p->total) : 100;
-  char bar[31];
+static void view_init(progress_view *v, int mode, const char *cmd) {
+  *v = (progress_view){mode, cmd, ts_now(), 0, 0, -1, ""};
+}
+
+static int line_due(progress_view *v, int level, const char *stage, double t) {
+  int n = (int)sizeof(v->line_stage) - 1;
+  if (level == v->line_level && strncmp(stage, v->line_stage, (size_t)n) == 0 && t - v->last_line < PROGRESS_LINE_SECONDS)
+    return 0;
+  v->line_level = level;
+  snprintf(v->line_stage, sizeof(v->line_stage), "%.*s", n, stage);
+  v->last_line = t;
+  return 1;
+}
+
+static void bar_of(double frac, char bar[31]) {
   int fill = (int)(frac * 30);
   for (int i = 0; i < 30; i++) bar[i] = i < fill ? '#' : '.';
   bar[30] = '\0';
-  fprintf(stderr, "\r%s%slevel %d (%d of %d) %3d%% of blocks [%s] ETA %5.1fs ", p->stage, p->stage[0] ? ": " : "",
-          p->level, p->levels - p->level, p->levels, pct, bar, eta);
+}
+
+/* "ETA 5.1s", or "ETA ?" before there is anything to go by. */
+static void eta_of(double seconds, int known, char *out, size_t cap) {
+  if (known) snprintf(out, cap, "ETA %.1fs", seconds);
+  else snprintf(out, cap, "ETA ?");
+}
+
+static void progress_draw(void *ctx, const ts_progress *p) {
+  progress_view *v = ctx;
+  double t = ts_now();
+  double frac = p->work_total > 0 ? p->work_done / p->work_total : 1.0;
+  char eta[32];
+  eta_of(frac > 0.001 ? (t - v->start) * (1.0 - frac) / frac : 0.0, frac > 0.001, eta, sizeof(eta));
+  int level = p->levels - p->level;
+  const char *sep = p->stage[0] ? ": " : "";
+  if (v->mode == TS_PROGRESS_LINES && line_due(v, level, p->stage, t))
+    fprintf(stderr, "texsyn %s: %s%slevel %d of %d, %.0f%% of the work, %s\n", v->cmd, p->stage, sep, level,
+            p->levels, 100.0 * frac, eta);
+  if (v->mode != TS_PROGRESS_BAR || (t - v->last_bar < 0.1 && p->done != p->total)) return;
+  v->last_bar = t;
+  int pct = p->total ? (int)(100 * p->done / p->total) : 100;
+  char bar[31];
+  bar_of(frac, bar);
+  fprintf(stderr, "\r%s%slevel %d of %d %3d%% of blocks [%s] %s ", p->stage, sep, level, p->levels, pct, bar, eta);
+  fflush(stderr);
+}
+
+static void remote_progress(progress_view *v, const ts_job_status *s) {
+  double t = ts_now();
+  unsigned long long id = (unsigned long long)s->id;
+  if (s->state == TS_JOB_QUEUED) {
+    if (v->mode == TS_PROGRESS_LINES && line_due(v, 0, "", t)) fprintf(stderr, "texsyn %s: job %llu queued\n", v->cmd, id);
+    if (v->mode == TS_PROGRESS_BAR) fprintf(stderr, "\rjob %llu queued (%.0fs) ", id, t - v->start);
+    fflush(stderr);
+    return;
+  }
+  if (s->state != TS_JOB_RUNNING) return;
+  char eta[32], bar[31];
+  eta_of(s->eta_ms / 1000.0, s->eta_ms != UINT32_MAX, eta, sizeof(eta));
+  int level = s->levels - s->level;
+  const char *sep = s->text[0] ? ": " : "", *plural = s->workers == 1 ? "" : "s";
+  if (v->mode == TS_PROGRESS_LINES && line_due(v, level, s->text, t))
+    fprintf(stderr, "texsyn %s: job %llu %s%slevel %d of %d, %.1f%% of the work, %s, %u worker%s\n", v->cmd, id,
+            s->text, sep, level, s->levels, s->permille / 10.0, eta, s->workers, plural);
+  if (v->mode == TS_PROGRESS_BAR) {
+    bar_of(s->permille / 1000.0, bar);
+    fprintf(stderr, "\rjob %llu %s%slevel %d of %d %5.1f%% [%s] %s, %u worker%s ", id, s->text, sep, level, s->levels,
+            s->permille / 10.0, bar, eta, s->workers, plural);
+  }
   fflush(stderr);
 }
 
@@ -251,12 +318,13 @@ static const char *result_name(const ts_job_cmd *o) {
 int ts_job_embedded(const ts_job_cmd *o, const ts_image *const *in, ts_search *search, char *err) {
   const ts_engine *e = o->spec.engine;
   ts_engine_run *run = NULL;
-  progress_bar pb = {!o->quiet && isatty(STDERR_FILENO), ts_now(), 0};
-  ts_engine_hooks hooks = {.progress = progress_draw, .progress_ctx = &pb};
+  progress_view pv;
+  view_init(&pv, ts_progress_mode(o->quiet), o->cmd);
+  ts_engine_hooks hooks = {.progress = progress_draw, .progress_ctx = &pv};
   double t0 = ts_now();
   uint64_t pairs = search->stats.pairs;
   int rc = e->run(&o->spec.params, in, search, &hooks, &run, err);
-  if (pb.enabled) fputc('\n', stderr);
+  if (pv.mode == TS_PROGRESS_BAR) fputc('\n', stderr);
   if (rc == 0) rc = write_outputs(o, run, err);
   if (rc == 0 && !o->quiet)
     fprintf(stderr, "texsyn: %s in %.2fs (in-process with %d thread%s, %s, %.3g comparisons)\n", result_name(o),
@@ -359,31 +427,15 @@ int ts_job_fetch(ts_conn *c, uint64_t id, const ts_output_paths *t, char *err) {
   return rc;
 }
 
-static void remote_progress(const ts_job_status *s, double start) {
-  char bar[31];
-  int fill = s->permille * 30 / 1000;
-  for (int i = 0; i < 30; i++) bar[i] = i < fill ? '#' : '.';
-  bar[30] = '\0';
-  if (s->state == TS_JOB_QUEUED) {
-    fprintf(stderr, "\rjob %llu queued (%.0fs) ", (unsigned long long)s->id, ts_now() - start);
-  } else {
-    char eta[32] = "  ?";
-    if (s->eta_ms != UINT32_MAX) snprintf(eta, sizeof(eta), "%5.1fs", s->eta_ms / 1000.0);
-    fprintf(stderr, "\rjob %llu %s%slevel %d of %d %5.1f%% [%s] ETA %s, %u worker%s ", (unsigned long long)s->id,
-            s->text, s->text[0] ? ": " : "", s->levels - s->level, s->levels, s->permille / 10.0, bar, eta, s->workers,
-            s->workers == 1 ? "" : "s");
-  }
-  fflush(stderr);
-}
-
-int ts_job_watch(ts_conn *c, uint64_t id, int show, ts_job_status *last, char *err) {
+int ts_job_watch(ts_conn *c, uint64_t id, const char *cmd, int mode, ts_job_status *last, char *err) {
   ts_wr w;
   ts_wr_init(&w);
   ts_msg_status_req req = {id, 1};
   ts_msg_status_req_write(&w, &req);
   int rc = ts_wr_status(&w) ? TS_ENOMEM : ts_net_send(c->fd, TS_MSG_STATUS, 1, w.buf, w.len, err);
   ts_wr_free(&w);
-  double start = ts_now();
+  progress_view pv;
+  view_init(&pv, mode, cmd);
   while (rc == 0) {
     ts_frame f;
     uint32_t n;
@@ -391,10 +443,10 @@ int ts_job_watch(ts_conn *c, uint64_t id, int show, ts_job_status *last, char *e
     if (rc == 0) rc = ts_msg_status_read(&f, last, 1, &n, err);
     if (rc == 0 && n != 1) rc = ts_error(err, TS_EPROTO, "empty status update");
     if (rc != 0) break;
-    if (show) remote_progress(last, start);
+    remote_progress(&pv, last);
     if (last->state > TS_JOB_RUNNING) break;
   }
-  if (show) fputc('\n', stderr);
+  if (mode == TS_PROGRESS_BAR) fputc('\n', stderr);
   return rc;
 }
 
@@ -498,11 +550,11 @@ static void interrupt_disarm(const struct sigaction *old) {
 int ts_job_finish(ts_conn *c, const ts_job_cmd *o, uint64_t id, char *err) {
   ts_job_status st = {0};
   double t0 = ts_now();
-  int bar = !o->quiet && isatty(STDERR_FILENO);
+  int mode = ts_progress_mode(o->quiet);
   struct sigaction old[2];
-  interrupt_arm(o, id, bar, old); /* before the id is out: an interrupt from then on says it */
+  interrupt_arm(o, id, mode == TS_PROGRESS_BAR, old); /* before the id is out: an interrupt from then on says it */
   if (!o->quiet) fprintf(stderr, "texsyn %s: job %llu on %s\n", o->cmd, (unsigned long long)id, o->server);
-  int rc = ts_job_watch(c, id, bar, &st, err);
+  int rc = ts_job_watch(c, id, o->cmd, mode, &st, err);
   interrupt_disarm(old);
   if (rc == 0 && st.state != TS_JOB_DONE)
     rc = ts_error(err, TS_EIO, "job %llu %s%s%s", (unsigned long long)id, ts_job_state_name(st.state),

@@ -190,7 +190,8 @@ static const char *kJobUsage =
     "  --server HOST:PORT   the coordinator (default: $TEXSYN_SERVER, else 127.0.0.1:7070)\n"
     "  --secret-file PATH   the shared secret the coordinator requires\n"
     "                       (default: $TEXSYN_SECRET_FILE if set)\n"
-    "  --quiet              no progress bar (watch)\n";
+    "  --quiet              no progress (watch): without it a bar on a terminal, else\n"
+    "                       a line as each level starts and every 10 s\n";
 
 typedef struct {
   const char *server, *secret_file;
@@ -293,7 +294,7 @@ static int job_workers(ts_conn *c, char *err) {
  * delete) finds it canceled. */
 static int job_cancel_wait(ts_conn *c, uint64_t id, char *err) {
   ts_job_status st;
-  int rc = ts_job_watch(c, id, 0, &st, err);
+  int rc = ts_job_watch(c, id, NULL, TS_PROGRESS_NONE, &st, err);
   if (rc == 0 && st.state != TS_JOB_CANCELED)
     rc = ts_error(err, TS_EINVAL, "job %llu ended %s before the cancel reached it", (unsigned long long)id,
                   ts_job_state_name(st.state));
@@ -320,7 +321,7 @@ static int cmd_job(const char *cmd, int argc, char **argv) {
     else if (strcmp(cmd, "workers") == 0) rc = job_workers(&c, err);
     else if (strcmp(cmd, "fetch") == 0) rc = ts_job_fetch(&c, o.id, &o.t, err);
     else if (strcmp(cmd, "watch") == 0) {
-      rc = ts_job_watch(&c, o.id, !o.quiet && isatty(STDERR_FILENO), &st, err);
+      rc = ts_job_watch(&c, o.id, cmd, ts_progress_mode(o.quiet), &st, err);
       if (rc == 0) print_status(&st);
       if (rc == 0 && st.state != TS_JOB_DONE)
         rc = ts_error(err, TS_EINVAL, "job %llu %s", (unsigned long long)o.id, ts_job_state_name(st.state));

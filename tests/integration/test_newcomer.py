@@ -56,8 +56,8 @@ def test_the_closing_line_says_where_the_job_ran(texsyn, data, cluster, tmp_path
     ref = data / "textures" / "grass.png"
     args = ["synth", "--ref", ref, "--size", "48x32", "--levels", "2"]
     p = run(texsyn, *args, "-o", tmp_path / "a.png", "--embedded", "--threads", "3")
-    assert re.fullmatch(r"texsyn: \S+a.png in [\d.]+s \(in-process with 3 threads, \w+, [\d.e+]+ comparisons\)\n",
-                        p.stderr), p.stderr
+    assert re.fullmatch(r"texsyn: \S+a.png in [\d.]+s \(in-process with 3 threads, \w+, [\d.e+]+ comparisons\)",
+                        p.stderr.splitlines()[-1]), p.stderr
     cluster.start(0)
     p = run(texsyn, *args, "-o", tmp_path / "b.png", "--server", cluster.server.addr)
     assert re.search(rf"texsyn: \S+b.png in [\d.]+s \(job 1 on {cluster.server.addr} with no workers: "
@@ -97,14 +97,15 @@ def test_an_output_format_texsyn_does_not_write_is_refused_before_any_work(texsy
 def interrupt_after_submission(texsyn, ref, out, *where, env=None):
     """`texsyn synth` of a long job (stderr a pipe, not a terminal),
     interrupted (SIGINT, as Ctrl-C) once it has said which job it
-    submitted; returns (exit status, the line naming the job, the rest of
-    stderr)."""
+    submitted; returns (exit status, the line naming the job, the last
+    line of stderr), the lines between them progress lines."""
     p = subprocess.Popen([str(texsyn), "synth", "--ref", str(ref), "-o", str(out), "--size", "2048x2048", *where],
                          stderr=subprocess.PIPE, text=True, env=dict(os.environ, **(env or {})))
     first = p.stderr.readline()
     p.send_signal(signal.SIGINT)
-    rest = p.stderr.read()
-    return p.wait(timeout=60), first, rest
+    *progress, last = p.stderr.read().splitlines(keepends=True) or [""]
+    assert all(re.match(r"texsyn synth: job \d+ (queued|level \d of \d, )", line) for line in progress), progress
+    return p.wait(timeout=60), first, last
 
 
 def test_ctrl_c_of_a_cluster_run_names_the_job_that_goes_on(texsyn, data, cluster, tmp_path):
@@ -197,3 +198,47 @@ def test_a_refused_secret_or_an_address_without_port_says_so(texsyn, data, tmp_p
                         "running at 127.0.0.1:7070, the default: no --server, no $TEXSYN_SERVER?)\n"), p.stderr
     assert run(texsyn, "status", "--server", addr, "--secret-file", key).stdout == ""
     assert not (tmp_path / "o.png").exists()
+
+
+def test_progress_counts_levels_one_way_and_reaches_logs_without_a_terminal(texsyn, data, cluster, tmp_path):
+    """Without a terminal (a batch job's log) a plain line as each level
+    starts, "level K of L" with 1 the coarsest, in-process and on a
+    coordinator, for synth and watch; the bar on a terminal counts the same
+    way; --quiet leaves stderr empty."""
+    import pty
+    ref = data / "textures" / "grass.png"
+    args = ["synth", "--ref", ref, "--size", "96x64", "--levels", "3"]
+    line = r"texsyn (synth|watch): {job}level {k} of 3, [\d.]+% of the work, ETA (\?|[\d.]+s){workers}"
+
+    def levels(stderr, job="", workers=""):
+        got = [int(m.group(2)) for m in re.finditer(line.format(job=job, k=r"(\d)", workers=workers), stderr)]
+        assert got == [1, 2, 3], stderr
+        return stderr
+
+    err = levels(run(texsyn, *args, "-o", tmp_path / "a.png", "--embedded").stderr)
+    assert len(err.splitlines()) == 4 and err.splitlines()[-1].startswith("texsyn: "), err
+    assert run(texsyn, *args, "-o", tmp_path / "q.png", "--embedded", "--quiet").stderr == ""
+    cluster.start(1)
+    addr = cluster.server.addr
+    err = levels(run(texsyn, *args, "-o", tmp_path / "b.png", "--server", addr).stderr, "job 1 ", ", 1 worker")
+    assert err.splitlines()[0] == f"texsyn synth: job 1 on {addr}", err
+    job = cluster.submit(ref, "--size", "96x64", "--levels", "3")
+    levels(cluster.texsyn("watch", job).stderr, f"job {job} ", ", 1 worker")
+    # On a terminal: the bar, redrawn in place, with the same numbering.
+    main, sub = pty.openpty()
+    p = subprocess.run([str(texsyn), *map(str, args), "-o", str(tmp_path / "c.png"), "--embedded"],
+                       stderr=sub, stdout=subprocess.DEVNULL, timeout=120)
+    os.close(sub)
+    shown = b""
+    while True:
+        try:
+            chunk = os.read(main, 65536)
+        except OSError:
+            break
+        if not chunk:
+            break
+        shown += chunk
+    os.close(main)
+    text = shown.decode()
+    assert p.returncode == 0 and "\rlevel 1 of 3 " in text and "\rlevel 3 of 3 100% of blocks" in text, text
+    assert "texsyn synth: level" not in text and "(1 of 3)" not in text, text
