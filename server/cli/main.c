@@ -381,6 +381,10 @@ int main(int argc, char **argv) {
   if (strcmp(cmd, "status") == 0 || strcmp(cmd, "watch") == 0 || strcmp(cmd, "fetch") == 0 ||
       strcmp(cmd, "cancel") == 0 || strcmp(cmd, "delete") == 0 || strcmp(cmd, "workers") == 0)
     return cmd_job(cmd, argc - 1, argv + 1);
+  if (strcmp(cmd, "--version") == 0) {
+    ts_version_print("texsyn");
+    return 0;
+  }
   if (strcmp(cmd, "--help") == 0 || strcmp(cmd, "-h") == 0 || strcmp(cmd, "help") == 0) {
     usage_main(stdout);
     return 0;

@@ -242,3 +242,14 @@ def test_progress_counts_levels_one_way_and_reaches_logs_without_a_terminal(texs
     text = shown.decode()
     assert p.returncode == 0 and "\rlevel 1 of 3 " in text and "\rlevel 3 of 3 100% of blocks" in text, text
     assert "texsyn synth: level" not in text and "(1 of 3)" not in text, text
+
+
+def test_every_program_says_its_version_and_the_wire_protocol_it_speaks():
+    """--version: the same release for the three programs, and the protocol
+    version their frames carry (the third byte of every frame header)."""
+    from conftest import FRAME_START
+    lines = [run(BUILD / prog, "--version").stdout for prog in ("texsyn", "texsyn-server", "texsyn-worker")]
+    release = re.fullmatch(rf"texsyn (\d+\.\d+\.\d+) \(wire protocol {FRAME_START[2]}\)\n", lines[0])
+    assert release, lines
+    assert lines[1:] == [f"texsyn-server {release.group(1)} (wire protocol {FRAME_START[2]})\n",
+                         f"texsyn-worker {release.group(1)} (wire protocol {FRAME_START[2]})\n"], lines
