@@ -13,6 +13,7 @@
 #include "client.h"
 #include "engine.h"
 #include "jobspec.h"
+#include "suggest.h"
 
 #define TS_DEFAULT_THREADS 2
 

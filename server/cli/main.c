@@ -87,7 +87,7 @@ static int eval_parse(int argc, char **argv, eval_opts *o, const char *usage, ch
     case OPT_SEED: rc = ts_arg_u64("--seed", optarg, &o->seed, err); break;
     case TS_OPT_THREADS: rc = ts_arg_long("--threads", optarg, 1, 1024, &v, err); o->threads = (int)v; break;
     case TS_OPT_HELP: case 'h': printf("%s", usage); exit(0);
-    default: rc = ts_error(err, TS_EINVAL, "unknown option or missing value\n%s", usage);
+    default: rc = ts_arg_unknown(argv[0], argv[optind - 1], eval_longopts, err);
     }
   }
   return rc;
@@ -104,10 +104,14 @@ static int cmd_quality(int argc, char **argv) {
   int rc = eval_parse(argc, argv, &o, kQualityUsage, err);
   if (rc == 0 && (o.ref == NULL || o.image == NULL))
     rc = ts_error(err, TS_EINVAL, "--ref and --image are required\n%s", kQualityUsage);
+  if (rc != 0) {
+    fprintf(stderr, "texsyn quality: %s\n", err);
+    return 2; /* a usage error, as in every command */
+  }
   ts_plane ref = {0}, img = {0};
   ts_search *search = NULL;
   ts_quality q;
-  if (rc == 0) rc = read_luma(o.ref, &ref, err);
+  rc = read_luma(o.ref, &ref, err);
   if (rc == 0) rc = read_luma(o.image, &img, err);
   if (rc == 0) rc = ts_search_local_create(&search, o.threads, NULL, err);
   if (rc == 0) rc = ts_quality_measure(search, &ref, &img, o.wn, (uint32_t)o.samples, o.seed, &q, err);
@@ -132,9 +136,13 @@ static int cmd_shuffle(int argc, char **argv) {
   int rc = eval_parse(argc, argv, &o, kShuffleUsage, err);
   if (rc == 0 && (o.ref == NULL || o.out == NULL || o.w == 0))
     rc = ts_error(err, TS_EINVAL, "--ref, -o and --size are required\n%s", kShuffleUsage);
+  if (rc != 0) {
+    fprintf(stderr, "texsyn shuffle: %s\n", err);
+    return 2; /* a usage error, as in every command */
+  }
   ts_image ref = {0}, out = {0};
   uint32_t *map = NULL;
-  if (rc == 0) rc = ts_image_read(o.ref, &ref, NULL, err);
+  rc = ts_image_read(o.ref, &ref, NULL, err);
   if (rc == 0 && (map = malloc(sizeof(uint32_t) * 2 * (size_t)o.w * o.h)) == NULL)
     rc = ts_error(err, TS_ENOMEM, "out of memory");
   if (rc == 0) {
@@ -222,8 +230,7 @@ static int job_parse(int argc, char **argv, job_opts *o, char *err) {
     case 'o': ts_output_set(&o->t, "output", optarg); break;
     case TS_OPT_REPORT: ts_output_set(&o->t, "report", optarg); break;
     default:
-      if (!ts_synth_output_option(&o->t, c, optarg))
-        return ts_error(err, TS_EINVAL, "%s: unknown option or missing value\n%s", argv[optind - 1], kJobUsage);
+      if (!ts_synth_output_option(&o->t, c, optarg)) return ts_arg_unknown(argv[0], argv[optind - 1], longopts, err);
     }
   }
   if (optind < argc) {
@@ -389,7 +396,12 @@ int main(int argc, char **argv) {
     usage_main(stdout);
     return 0;
   }
-  fprintf(stderr, "texsyn: unknown command '%s'\n", cmd);
+  static const char *const commands[] = {"synth", "run", "stylize", "aerial", "energy", "apply-nnf", "segment",
+                                         "quality", "shuffle", "simd", "modbus", "status", "watch", "fetch",
+                                         "cancel", "delete", "workers", "help"};
+  const char *best = ts_closest(cmd, strlen(cmd), commands, sizeof(commands) / sizeof(commands[0]));
+  if (best != NULL) fprintf(stderr, "texsyn: unknown command '%s'; did you mean '%s'?\n", cmd, best);
+  else fprintf(stderr, "texsyn: unknown command '%s'\n", cmd);
   usage_main(stderr);
   return 2;
 }

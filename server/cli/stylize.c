@@ -180,9 +180,7 @@ static int stylize_parse(int argc, char **argv, stylize_opts *o, char *err) {
       usage(stdout);
       exit(0);
     }
-    if (c == '?' || c == ':')
-      return ts_error(err, TS_EINVAL, "%s: unknown option or missing value (see texsyn stylize --help)",
-                      argv[optind - 1]);
+    if (c == '?' || c == ':') return ts_arg_unknown("stylize", argv[optind - 1], longopts, err);
     int rc = stylize_option(o, c, argc, argv, err);
     if (rc != 0) return rc;
   }
@@ -286,9 +284,7 @@ static int energy_parse(int argc, char **argv, energy_opts *o, char *err) {
       printf(kEnergyUsage, TS_STYLIT_MAX_STEP, TS_JOB_RUN_HELP);
       exit(0);
     }
-    if (c == '?' || c == ':')
-      return ts_error(err, TS_EINVAL, "%s: unknown option or missing value (see texsyn energy --help)",
-                      argv[optind - 1]);
+    if (c == '?' || c == ':') return ts_arg_unknown("energy", argv[optind - 1], energy_longopts, err);
     int rc = energy_option(o, c, argc, argv, err);
     if (rc != 0) return rc;
   }
@@ -387,7 +383,7 @@ static int apply_option(apply_opts *o, int c, const char *arg, char *err) {
     if (ts_parse_size(arg, 1 << 16, &o->w, &o->h) != 0)
       rc = ts_error(err, TS_EINVAL, "--size %s: expected WxH, e.g. 640x480", arg);
     break;
-  default: rc = ts_error(err, TS_EINVAL, "%s: unknown option or missing value (see texsyn apply-nnf --help)", arg);
+  default: rc = ts_arg_unknown("apply-nnf", arg, apply_longopts, err);
   }
   return rc;
 }

@@ -253,3 +253,40 @@ def test_every_program_says_its_version_and_the_wire_protocol_it_speaks():
     assert release, lines
     assert lines[1:] == [f"texsyn-server {release.group(1)} (wire protocol {FRAME_START[2]})\n",
                          f"texsyn-worker {release.group(1)} (wire protocol {FRAME_START[2]})\n"], lines
+
+
+def test_a_mistyped_command_or_option_gets_the_closest_one(texsyn):
+    """Commands, and the options of every command's table: the closest
+    within two edits, or none; an option's missing value or a value given
+    to a flag said as such."""
+    cases = [(["synht"], "texsyn: unknown command 'synht'; did you mean 'synth'?\n"),
+             (["stauts"], "texsyn: unknown command 'stauts'; did you mean 'status'?\n"),
+             (["frobnicate"], "texsyn: unknown command 'frobnicate'\n"),
+             (["synth", "--levles", "3"],
+              "texsyn synth: unknown option --levles; did you mean --levels? (see texsyn synth --help)\n"),
+             (["synth", "--levles=3"],
+              "texsyn synth: unknown option --levles=3; did you mean --levels? (see texsyn synth --help)\n"),
+             (["synth", "--levels"], "texsyn synth: --levels needs a value (see texsyn synth --help)\n"),
+             (["synth", "--parity=1"], "texsyn synth: --parity takes no value (see texsyn synth --help)\n"),
+             (["synth", "-x"], "texsyn synth: unknown option -x (see texsyn synth --help)\n"),
+             (["synth", "--ref", "a.png", "-o"], "texsyn synth: -o needs a value (see texsyn synth --help)\n"),
+             (["stylize", "--stlye", "s.png"],
+              "texsyn stylize: unknown option --stlye; did you mean --style? (see texsyn stylize --help)\n"),
+             (["energy", "--sampel", "2"],
+              "texsyn energy: unknown option --sampel; did you mean --sample? (see texsyn energy --help)\n"),
+             (["apply-nnf", "--nff", "f"],
+              "texsyn apply-nnf: unknown option --nff; did you mean --nnf? (see texsyn apply-nnf --help)\n"),
+             (["segment", "--trian", "t.png"],
+              "texsyn segment: unknown option --trian; did you mean --train? (see texsyn segment --help)\n"),
+             (["aerial", "--clases", "m.png"],
+              "texsyn aerial: unknown option --clases; did you mean --classes? (see texsyn aerial --help)\n"),
+             (["status", "--sevrer", "h:1"],
+              "texsyn status: unknown option --sevrer; did you mean --server? (see texsyn status --help)\n"),
+             (["quality", "--imgae", "i.png"],
+              "texsyn quality: unknown option --imgae; did you mean --image? (see texsyn quality --help)\n"),
+             (["modbus", "--sett", "drain=1"],
+              "texsyn modbus: unknown option --sett; did you mean --set? (see texsyn modbus --help)\n")]
+    for args, message in cases:
+        p = run(texsyn, *args, check=False)
+        first = p.stderr.splitlines(keepends=True)[0]
+        assert (p.returncode, first) == (2, message), (args, p.stderr)
