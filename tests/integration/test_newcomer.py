@@ -290,3 +290,22 @@ def test_a_mistyped_command_or_option_gets_the_closest_one(texsyn):
         p = run(texsyn, *args, check=False)
         first = p.stderr.splitlines(keepends=True)[0]
         assert (p.returncode, first) == (2, message), (args, p.stderr)
+
+
+def test_texsyn_help_is_the_command_table(texsyn):
+    """`texsyn --help` lists every command once, one line each, and every
+    command it lists answers its own --help (the alias run as synth); no
+    command at all shows the list on stderr, exit status 2."""
+    p = run(texsyn, "--help")
+    lines = p.stdout.splitlines()
+    assert lines[0] == "usage: texsyn COMMAND [options]   (texsyn COMMAND --help for details)", p.stdout
+    names = [re.match(r"  (\S+) +\S", line).group(1) for line in lines[1:]]
+    assert names == ["synth", "aerial", "stylize", "energy", "apply-nnf", "segment", "quality", "shuffle", "simd",
+                     "status", "watch", "fetch", "cancel", "delete", "workers", "modbus", "help", "--version"], names
+    for name in names:
+        q = run(texsyn, name, "--help")
+        assert q.stdout.startswith("usage: texsyn") or name == "--version", (name, q.stdout)
+    assert run(texsyn, "run", "--help").stdout == run(texsyn, "synth", "--help").stdout
+    assert run(texsyn, "help").stdout == run(texsyn, "-h").stdout == p.stdout
+    bare = run(texsyn, check=False)
+    assert (bare.returncode, bare.stderr, bare.stdout) == (2, p.stdout, "")
