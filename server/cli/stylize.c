@@ -219,15 +219,15 @@ static const char *const kEnergyUsage =
     "estimate, the target guides), weights and 8-bit conversions, no uniformity penalty -\n"
     "in grey levels per compared value. Coverage: the share of exemplar pixels covered\n"
     "by those best exemplar patches (each counts all its pixels). Lower energy is better.\n"
-    "Prints: energy=E coverage=C samples=N step=S patch=P (or one JSON object, --json),\n"
-    "the same numbers in-process and on a cluster (--server: the coordinator's workers\n"
-    "run the search).\n"
+    "Prints one JSON object, as texsyn quality does: {\"energy\": E, \"coverage\": C, ...,\n"
+    "\"samples\": N, \"step\": S, \"patch_size\": P}, the same bytes in-process and on a\n"
+    "cluster (--server: the coordinator's workers run the search).\n"
     "\n"
     "  --style, --guide, --weight, --patch-size   the scene, as texsyn stylize takes it\n"
     "  --image OUT          the image to score: the target guides' size; 1 or 2\n"
     "                       channels for a grey style, 3 or 4 for a colour one\n"
     "  --sample STEP        score the patches at every STEP-th pixel, 1..%d (default 1)\n"
-    "  --json               print one JSON object instead of the line\n"
+    "  --json               the JSON object (the default; taken for older scripts)\n"
     "%s"
     "\n"
     "With --detach, texsyn fetch ID -o F writes the JSON object to F.\n";
@@ -244,7 +244,6 @@ static const struct option energy_longopts[] = {
 typedef struct {
   stylize_opts s;
   const char *image;
-  int json;
   char result[4096]; /* the temporary file the result goes to (mkstemp's template until made) */
 } energy_opts;
 
@@ -262,7 +261,7 @@ static int energy_option(energy_opts *o, int c, int argc, char **argv, char *err
     rc = ts_arg_long("--sample", optarg, 1, TS_STYLIT_MAX_STEP, &v, err);
     energy_params(o)->step = (int)v;
     return rc;
-  case OPT_JSON: o->json = 1; return 0;
+  case OPT_JSON: return 0; /* JSON is what energy prints */
   default:
     rc = ts_job_option(&o->s.job, c, optarg, err);
     return rc != TS_ENOENT ? rc : ts_error(err, TS_EINVAL, "unknown option (see texsyn energy --help)");
@@ -311,7 +310,8 @@ static int energy_result_file(energy_opts *o, char *err) {
   return 0;
 }
 
-/* Prints the result the job wrote: the line, or with --json the JSON. */
+/* Prints the result the job wrote, one JSON object as texsyn quality's,
+ * once it is checked to be the engine's. */
 static int energy_print(const energy_opts *o, char *err) {
   uint8_t *buf = NULL;
   size_t len = 0;
@@ -320,10 +320,7 @@ static int energy_print(const energy_opts *o, char *err) {
   int rc = ts_file_read(o->result, 4096, &buf, &len, err);
   if (rc == 0 && ts_stylit_energy_json_read((const char *)buf, len, &en, why) != 0)
     rc = ts_error(err, TS_EFORMAT, "the job's result (energy.json): %.400s", why);
-  if (rc == 0 && o->json) fwrite(buf, 1, len, stdout);
-  else if (rc == 0)
-    printf("energy=%.6f coverage=%.6f samples=%u step=%d patch=%d\n", en.energy, en.coverage, en.samples, en.step,
-           en.patch);
+  if (rc == 0) fwrite(buf, 1, len, stdout);
   free(buf);
   return rc;
 }

@@ -3,6 +3,7 @@ run as written in a clean shell, the closing line saying where a job ran,
 output formats refused before any work, Ctrl-C of a cluster run, fetch of
 outputs a job never made, hints that name the real cause, progress
 without a terminal, --version, "did you mean", the generated --help."""
+import json
 import os
 import re
 import signal
@@ -309,3 +310,16 @@ def test_texsyn_help_is_the_command_table(texsyn):
     assert run(texsyn, "help").stdout == run(texsyn, "-h").stdout == p.stdout
     bare = run(texsyn, check=False)
     assert (bare.returncode, bare.stderr, bare.stdout) == (2, p.stdout, "")
+
+
+def test_energy_prints_one_json_object_as_quality_does(texsyn, data, tmp_path):
+    """Both measures print one JSON object on stdout and nothing else."""
+    from pnm import oiiotool
+    style = tmp_path / "style.png"
+    oiiotool(data / "textures" / "grass.png", "--cut", "48x32+100+100", "-o", style)
+    energy = run(texsyn, "energy", "--style", style, "--guide", style, style, "--image", style, "--embedded",
+                 "--quiet").stdout
+    quality = run(texsyn, "quality", "--ref", style, "--image", style, "--samples", "50").stdout
+    for out in (energy, quality):
+        assert out.count("\n") == 1 and isinstance(json.loads(out), dict), out
+    assert json.loads(energy)["samples"] == 48 * 32 and json.loads(energy)["coverage"] == 1, energy
