@@ -323,3 +323,10 @@ def test_energy_prints_one_json_object_as_quality_does(texsyn, data, tmp_path):
     for out in (energy, quality):
         assert out.count("\n") == 1 and isinstance(json.loads(out), dict), out
     assert json.loads(energy)["samples"] == 48 * 32 and json.loads(energy)["coverage"] == 1, energy
+
+
+def test_the_local_clusters_run_directory_is_ignored_by_git():
+    """deploy/local-cluster.sh leaves its pids, logs and spool in
+    ./texsyn-run by default: .gitignore keeps them out of `git status`."""
+    default = re.search(r"^run=\$\{TEXSYN_RUN:-([^}]+)\}$", SCRIPT.read_text(), re.M).group(1)
+    assert f"/{default}/" in (REPO / ".gitignore").read_text().splitlines(), default
