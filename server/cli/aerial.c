@@ -13,9 +13,10 @@
 #include "error.h"
 #include "fill.h"
 #include "jobcmd.h"
+#include "paramopt.h"
 #include "util.h"
 
-static void usage(FILE *f) {
+static void usage(FILE *f, const ts_engine *e) {
   fprintf(f,
           "usage: texsyn aerial --classes MAP --catalogue CAT.json -o OUT [options]\n"
           "\n"
@@ -39,39 +40,17 @@ static void usage(FILE *f) {
           "RGB at MAP's size. Exact: the same bytes in-process and on any pool.\n"
           "\n"
           "  --classes MAP        the class map\n"
-          "  --catalogue F        the catalogue (JSON, as above)\n"
-          "  --levels L           pyramid levels, 1..%d (default 3)\n"
-          "  --wn N               neighbourhood width, odd, > --wb, <= 41 (default 7)\n"
-          "  --wb B               block width, odd, 1..15 (default 3)\n"
-          "  --order O            puzzle (default) or threshold (see texsyn synth --input\n"
-          "                       --help)\n"
-          "  --threshold F        threshold order: the share of the window (0.25)\n"
-          "  --parity             parity control (4x fewer comparisons, coarser joins)\n"
-          "  --coarse-weight W    weight of the coarse-level part, (0, 100] (default 1)\n"
-          "  --seed S             seed of the blocks that start areas with nothing known\n"
-          "                       around them (default 1)\n"
-          "%s",
-          TS_FILL_MAX_LEVELS, ts_job_options_help);
+          "  --catalogue F        the catalogue (JSON, as above)\n");
+  ts_paramopt_help(f, e);
+  fprintf(f, "%s", ts_job_options_help);
 }
 
-enum {
-  OPT_CLASSES = TS_OPT_OWN, OPT_CATALOGUE, OPT_LEVELS, OPT_WN, OPT_WB, OPT_ORDER, OPT_THRESHOLD, OPT_PARITY,
-  OPT_COARSE, OPT_SEED
-};
+enum { OPT_CLASSES = TS_OPT_OWN, OPT_CATALOGUE };
 
-static const struct option longopts[] = {
+/* Its own options: the inputs (the parameters are the engine's). */
+static const struct option own_opts[] = {
     {"classes", required_argument, 0, OPT_CLASSES}, {"catalogue", required_argument, 0, OPT_CATALOGUE},
-    {"levels", required_argument, 0, OPT_LEVELS},   {"wn", required_argument, 0, OPT_WN},
-    {"wb", required_argument, 0, OPT_WB},           {"order", required_argument, 0, OPT_ORDER},
-    {"threshold", required_argument, 0, OPT_THRESHOLD}, {"parity", no_argument, 0, OPT_PARITY},
-    {"coarse-weight", required_argument, 0, OPT_COARSE}, {"seed", required_argument, 0, OPT_SEED},
-    TS_JOB_LONGOPTS,
-    {0, 0, 0, 0}};
-
-static const ts_key_option value_keys[] = {{OPT_LEVELS, "levels", "--levels"},          {OPT_WN, "wn", "--wn"},
-                  {OPT_WB, "wb", "--wb"},                      {OPT_ORDER, "order", "--order"},
-                  {OPT_THRESHOLD, "threshold", "--threshold"}, {OPT_COARSE, "coarse_weight", "--coarse-weight"},
-                  {OPT_SEED, "seed", "--seed"}};
+    TS_JOB_LONGOPTS, {0, 0, 0, 0}};
 
 typedef struct {
   ts_job_cmd job;
@@ -80,15 +59,14 @@ typedef struct {
 } aerial_opts;
 
 static int option(aerial_opts *o, int c, const char *arg, char *err) {
-  int rc = ts_job_key_option(&o->job, value_keys, sizeof(value_keys) / sizeof(value_keys[0]), c, arg, err);
-  if (rc != TS_ENOENT) return rc;
   switch (c) {
   case OPT_CLASSES: o->job.in[0] = arg; return 0;
   case OPT_CATALOGUE: o->catalogue = arg; return 0;
-  case OPT_PARITY: return ts_job_set_key(&o->job, "parity", "1", "--parity", err);
-  default:
-    rc = ts_job_option(&o->job, c, arg, err);
+  default: {
+    int rc = ts_paramopt_take(&o->job, c, arg, err);
+    if (rc == TS_ENOENT) rc = ts_job_option(&o->job, c, arg, err);
     return rc == TS_ENOENT ? ts_error(err, TS_EINVAL, "unknown option (see texsyn aerial --help)") : rc;
+  }
   }
 }
 
@@ -125,12 +103,15 @@ static int take_catalogue(aerial_opts *o, char *err) {
 
 static int parse(int argc, char **argv, aerial_opts *o, char *err) {
   ts_job_cmd_init(&o->job, "aerial", ts_engine_find("aerial"));
+  struct option longopts[TS_PARAMOPT_MAX];
+  if (ts_paramopt_build(o->job.spec.engine, own_opts, longopts, TS_PARAMOPT_MAX) != 0)
+    return ts_error(err, TS_EINVAL, "internal: too many options");
   optind = 1;
   opterr = 0;
   int c;
   while ((c = getopt_long(argc, argv, "o:h", longopts, NULL)) != -1) {
     if (c == TS_OPT_HELP || c == 'h') {
-      usage(stdout);
+      usage(stdout, o->job.spec.engine);
       exit(0);
     }
     if (c == '?' || c == ':') return ts_arg_unknown("aerial", argv[optind - 1], longopts, err);

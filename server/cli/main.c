@@ -26,7 +26,7 @@
 #include "engine.h"
 #include "fillcmd.h"
 #include "mrf.h"
-#include "outputs.h"
+#include "paramopt.h"
 #include "quality.h"
 #include "segment.h"
 #include "stylize.h"
@@ -383,6 +383,7 @@ static const command kCommands[] = {
     {"quality", cmd_quality, NULL, 0, "neighbourhood error of an image against a reference"},
     {"shuffle", cmd_shuffle, NULL, 0, "random block shuffle of a reference (a baseline)"},
     {"simd", cmd_simd_main, NULL, 0, "list the L1 kernel variants this CPU supports"},
+    {"params", ts_cmd_params, NULL, 0, "list the engines' parameters: job spec keys, options, defaults"},
     {"status", NULL, job_status, 0, "jobs on a coordinator (texsyn-server): one, or every job"},
     {"watch", NULL, job_watch, 1, "follow a job until it ends"},
     {"fetch", NULL, job_fetch, 1, "write a finished job's results"},

@@ -16,6 +16,7 @@
 #include "error.h"
 #include "image.h"
 #include "jobcmd.h"
+#include "paramopt.h"
 #include "util.h"
 
 static const char *const kUsage =
@@ -34,26 +35,19 @@ static const char *const kUsage =
     "  --input IMG          the image to segment\n"
     "  -o, --output LABELS  the label raster out: the input's size, the training label\n"
     "                       values, 16-bit if a label raster is, else 8-bit\n"
-    "  --levels L           pyramid levels, 1..%d (default 3; 1: the single level)\n"
-    "  --window N           window width, odd, 3..%d (default 9)\n"
-    "  --denoise MIN_AREA   regions (4-connected) of fewer pixels take the class most of\n"
-    "                       their border touches; 0 = off (default 0)\n"
-    "  --rgb-search         compare the three colour channels instead of luminance\n"
     "  --truth TRUTH        the right labels (the input's size, values among the\n"
     "                       classes): print per-class and overall accuracy before and\n"
     "                       after noise reduction; --report records them too\n"
     "  --report F           JSON: parameters, per level sizes, queries, comparisons,\n"
-    "                       seconds, self-segmentation rates and weights; accuracy\n"
-    "%s";
+    "                       seconds, self-segmentation rates and weights; accuracy\n";
 
-enum { OPT_TRAIN = TS_OPT_OWN, OPT_LABELS, OPT_INPUT, OPT_LEVELS, OPT_WINDOW, OPT_DENOISE, OPT_TRUTH, OPT_RGB };
+enum { OPT_TRAIN = TS_OPT_OWN, OPT_LABELS, OPT_INPUT, OPT_TRUTH };
 
-static const struct option longopts[] = {
-    {"train", required_argument, 0, OPT_TRAIN},     {"labels", required_argument, 0, OPT_LABELS},
-    {"input", required_argument, 0, OPT_INPUT},     {"levels", required_argument, 0, OPT_LEVELS},
-    {"window", required_argument, 0, OPT_WINDOW},   {"denoise", required_argument, 0, OPT_DENOISE},
-    {"truth", required_argument, 0, OPT_TRUTH},     {"rgb-search", no_argument, 0, OPT_RGB},
-    TS_JOB_LONGOPTS,                                {0, 0, 0, 0}};
+/* Its own options: the inputs (the parameters are the engine's). */
+static const struct option own_opts[] = {
+    {"train", required_argument, 0, OPT_TRAIN}, {"labels", required_argument, 0, OPT_LABELS},
+    {"input", required_argument, 0, OPT_INPUT}, {"truth", required_argument, 0, OPT_TRUTH},
+    TS_JOB_LONGOPTS,                            {0, 0, 0, 0}};
 
 typedef struct {
   ts_job_cmd job;
@@ -62,7 +56,8 @@ typedef struct {
   char accuracy[4096]; /* the temporary file the table goes to (mkstemp's template until made) */
 } seg_opts;
 
-static ts_seg_params *params(seg_opts *o) { return (ts_seg_params *)o->job.spec.params.bytes; }
+/* The parameters, read only: the CLI sets them through the spec keys. */
+static const ts_seg_params *params(const seg_opts *o) { return (const ts_seg_params *)o->job.spec.params.bytes; }
 
 /* --train and --labels pair up in order: the k-th --labels is the k-th
  * --train's. */
@@ -77,22 +72,14 @@ static int pair_option(seg_opts *o, int c, const char *arg, char *err) {
 }
 
 static int seg_option(seg_opts *o, int c, const char *arg, char *err) {
-  ts_seg_params *p = params(o);
-  long v;
   int rc = 0;
   switch (c) {
   case OPT_TRAIN: case OPT_LABELS: rc = pair_option(o, c, arg, err); break;
   case OPT_INPUT: o->input = arg; break;
   case OPT_TRUTH: o->truth = arg; break;
-  case OPT_LEVELS: rc = ts_arg_long("--levels", arg, -1000, 1000, &v, err); p->levels = (int)v; break;
-  case OPT_WINDOW: rc = ts_arg_long("--window", arg, -1000, 1000, &v, err); p->window = (int)v; break;
-  case OPT_DENOISE:
-    rc = ts_arg_long("--denoise", arg, 0, TS_SEG_MAX_DENOISE, &v, err);
-    p->denoise = (int)v;
-    break;
-  case OPT_RGB: p->rgb = 1; break;
   default:
-    rc = ts_job_option(&o->job, c, arg, err);
+    rc = ts_paramopt_take(&o->job, c, arg, err);
+    if (rc == TS_ENOENT) rc = ts_job_option(&o->job, c, arg, err);
     if (rc == TS_ENOENT) rc = ts_error(err, TS_EINVAL, "unknown option (see texsyn segment --help)");
   }
   return rc;
@@ -108,9 +95,12 @@ static int inputs_complete(seg_opts *o, char *err) {
     return ts_error(err, TS_EINVAL, "--labels %s has no --train: give a --train IMG for each --labels LBL, in order",
                     o->labels[o->ntrain]);
   if (o->input == NULL) return ts_error(err, TS_EINVAL, "--input IMG is required (see texsyn segment --help)");
-  ts_seg_params *p = params(o);
-  p->pairs = o->ntrain;
-  p->truth = o->truth != NULL;
+  char pairs[16];
+  snprintf(pairs, sizeof(pairs), "%d", o->ntrain);
+  if (ts_job_set_key(&o->job, "pairs", pairs, "--train", err) != 0 ||
+      ts_job_set_key(&o->job, "truth", o->truth != NULL ? "1" : "0", "--truth", err) != 0)
+    return TS_EINVAL;
+  const ts_seg_params *p = params(o);
   o->job.in[TS_SEG_IN_INPUT] = o->input;
   for (int k = 0; k < o->ntrain; k++) {
     o->job.in[ts_seg_in_train(k)] = o->train[k];
@@ -123,12 +113,17 @@ static int inputs_complete(seg_opts *o, char *err) {
 static int seg_parse(int argc, char **argv, seg_opts *o, char *err) {
   memset(o, 0, sizeof(*o));
   ts_job_cmd_init(&o->job, "segment", ts_engine_find("segment"));
+  struct option longopts[TS_PARAMOPT_MAX];
+  if (ts_paramopt_build(o->job.spec.engine, own_opts, longopts, TS_PARAMOPT_MAX) != 0)
+    return ts_error(err, TS_EINVAL, "internal: too many options");
   optind = 1;
   opterr = 0;
   int c;
   while ((c = getopt_long(argc, argv, "o:h", longopts, NULL)) != -1) {
     if (c == TS_OPT_HELP || c == 'h') {
-      printf(kUsage, TS_SEG_MAX_PAIRS, TS_SEG_MAX_LEVELS, TS_SEG_MAX_WINDOW, TS_JOB_RUN_HELP);
+      printf(kUsage, TS_SEG_MAX_PAIRS);
+      ts_paramopt_help(stdout, o->job.spec.engine);
+      printf("%s", TS_JOB_RUN_HELP);
       exit(0);
     }
     if (c == '?' || c == ':') return ts_arg_unknown("segment", argv[optind - 1], longopts, err);

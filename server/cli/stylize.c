@@ -13,10 +13,11 @@
 #include "error.h"
 #include "frames.h"
 #include "jobcmd.h"
+#include "paramopt.h"
 #include "stylit.h"
 #include "util.h"
 
-static void usage(FILE *f) {
+static void usage(FILE *f, const ts_engine *e) {
   fprintf(f,
           "usage: texsyn stylize --style EXEMPLAR --guide SRC TGT [--weight W] [--guide SRC TGT ...]\n"
           "                      -o OUT [options]\n"
@@ -35,69 +36,38 @@ static void usage(FILE *f) {
           "  --weight W           the weight of the --style or --guide just before it:\n"
           "                       0 or 0.01..100; the style 1, each of N guides 1/N by\n"
           "                       default (weights count whole images, whatever their channels)\n"
-          "  --patch-size P       patch width, odd, 3..%d (default 5)\n"
-          "  --levels L           pyramid levels, 1..%d (default: as many as leave 4 patches\n"
-          "                       on each side of the coarsest level, at most 6)\n"
-          "  --iters K            search-and-vote iterations per level, 1..100 (default 6)\n"
-          "  --uniformity U       how much a source patch used more than its share costs,\n"
-          "                       0..1000 (default 1; 0 = off): U = 1 charges a patch used\n"
-          "                       at the average rate one grey level per compared value\n"
-          "  --search MODE        exact: every target patch takes the best source patch;\n"
-          "                       patchmatch: passes of propagation and random search over\n"
-          "                       fixed seeded tiles (approximate; the same bytes on any pool);\n"
-          "                       size (default): exact at each level whose exact search\n"
-          "                       takes at most --budget at a fixed reference speed (1e9\n"
-          "                       comparisons a second), patchmatch at the others: the same\n"
-          "                       bytes on any pool; auto (opt-in): the same at the calibrated\n"
-          "                       speed of the threads or the pool, so its bytes depend on\n"
-          "                       the pool; the report's search.levels says which ran where;\n"
-          "                       or a list of exact and patchmatch, one per level, coarsest\n"
-          "                       first (that list: the same job on any pool)\n"
-          "  --pm-iters N         patchmatch passes per search step, 1..100 (default 4)\n"
-          "  --budget SECONDS     size, auto: the longest an exact level may take (default 1)\n"
-          "  --seed S             seed of the coarsest level's random start and of the\n"
-          "                       patchmatch passes (default 1)\n"
-          "  --nnf F              the nearest-neighbour field: for each output pixel the\n"
-          "                       exemplar pixel it comes from (.raw: little-endian uint32\n"
-          "                       x, y pairs; else a 16-bit image, red = x, green = y)\n"
           "  --frames A..B        a sequence: frames A to B (0..%d, at most %d), each\n"
           "                       a job on the files whose names hold the frame number as\n"
           "                       %%d or %%04d (target guides; -o, --nnf and --report must);\n"
           "                       the exemplar and source guides are shared, sent to the\n"
-          "                       workers once; frames run side by side on a coordinator\n"
-          "%s",
-          TS_STYLIT_MAX_GUIDES, TS_STYLIT_MAX_PATCH, TS_STYLIT_MAX_LEVELS, TS_FRAME_LAST, TS_FRAMES_MAX,
-          ts_job_options_help);
+          "                       workers once; frames run side by side on a coordinator\n",
+          TS_STYLIT_MAX_GUIDES, TS_FRAME_LAST, TS_FRAMES_MAX);
+  ts_paramopt_help(f, e);
+  fprintf(f, "%s", ts_job_options_help);
 }
 
-enum { OPT_STYLE = TS_OPT_OWN, OPT_GUIDE, OPT_WEIGHT, OPT_PATCH, OPT_LEVELS, OPT_ITERS, OPT_UNIFORMITY, OPT_SEED, OPT_NNF,
-       OPT_SEARCH, OPT_PM_ITERS, OPT_BUDGET, OPT_FRAMES };
+enum { OPT_STYLE = TS_OPT_OWN, OPT_GUIDE, OPT_WEIGHT, OPT_FRAMES, OPT_IMAGE, OPT_JSON };
 
-static const struct option longopts[] = {
-    {"style", required_argument, 0, OPT_STYLE},       {"guide", required_argument, 0, OPT_GUIDE},
-    {"weight", required_argument, 0, OPT_WEIGHT},     {"patch-size", required_argument, 0, OPT_PATCH},
-    {"levels", required_argument, 0, OPT_LEVELS},     {"iters", required_argument, 0, OPT_ITERS},
-    {"uniformity", required_argument, 0, OPT_UNIFORMITY}, {"seed", required_argument, 0, OPT_SEED},
-    {"nnf", required_argument, 0, OPT_NNF},           {"search", required_argument, 0, OPT_SEARCH},
-    {"pm-iters", required_argument, 0, OPT_PM_ITERS}, {"budget", required_argument, 0, OPT_BUDGET},
-    {"frames", required_argument, 0, OPT_FRAMES},     TS_JOB_LONGOPTS,
-    {0, 0, 0, 0}};
+/* Its own options: the scene's images and weights, and the frames (the
+ * parameters are the engine's). */
+#define SCENE_LONGOPTS                                                                                 \
+  {"style", required_argument, 0, OPT_STYLE}, {"guide", required_argument, 0, OPT_GUIDE},             \
+      {"weight", required_argument, 0, OPT_WEIGHT}
+static const struct option own_opts[] = {SCENE_LONGOPTS, {"frames", required_argument, 0, OPT_FRAMES},
+                                         TS_JOB_LONGOPTS, {0, 0, 0, 0}};
 
 typedef struct {
   ts_job_cmd job;
-  ts_stylit_params *scene; /* in job.spec's parameters: stylize's, or the energy engine's scene */
   int guides;
   int weighs; /* what --weight sets: -1 nothing yet, 0 the style, k + 1 guide k */
   int sequence; /* --frames given */
   ts_frames frames;
 } stylize_opts;
 
-static ts_stylit_params *params(stylize_opts *o) { return o->scene; }
-
 /* --guide SRC TGT: getopt hands over SRC; TGT is the next word. */
 static int guide_option(stylize_opts *o, int argc, char **argv, const char *src, char *err) {
   /* An option where TGT should be is a forgotten TGT, not a file name. */
-  if (optind >= argc || strncmp(argv[optind], "--", 2) == 0)
+  if (optind >= argc || (argv[optind][0] == '-' && argv[optind][1] != '\0'))
     return ts_error(err, TS_EINVAL, "--guide %s: needs a target guide after it (--guide SRC TGT)", src);
   if (o->guides == TS_STYLIT_MAX_GUIDES)
     return ts_error(err, TS_EINVAL, "--guide: at most %d guide pairs", TS_STYLIT_MAX_GUIDES);
@@ -113,48 +83,32 @@ static int weight_option(stylize_opts *o, const char *arg, char *err) {
     return ts_error(err, TS_EINVAL, "--weight %s: put it after the --style or --guide it weighs", arg);
   int rc = ts_arg_double("--weight", arg, &w, err);
   if (rc == 0 && w < 0) rc = ts_error(err, TS_EINVAL, "--weight %s: need 0 or 0.01..100", arg);
-  if (rc == 0 && o->weighs == 0) params(o)->style_weight = w;
-  else if (rc == 0) params(o)->weight[o->weighs - 1] = w;
-  return rc;
+  char key[32];
+  if (o->weighs == 0) snprintf(key, sizeof(key), "style_weight");
+  else snprintf(key, sizeof(key), "weight_%d", o->weighs - 1);
+  return rc != 0 ? rc : ts_job_set_key(&o->job, key, arg, "--weight", err);
 }
 
-/* The options that describe the scene, shared by stylize and energy:
- * TS_ENOENT when c is none of them. */
+/* The options that describe the scene, shared by stylize and energy, then
+ * the engine's parameters: TS_ENOENT when c is none of them. */
 static int scene_option(stylize_opts *o, int c, int argc, char **argv, char *err) {
-  ts_stylit_params *p = params(o);
-  long v;
-  int rc = 0;
   switch (c) {
-  case OPT_STYLE: o->job.in[TS_STYLIT_IN_STYLE] = optarg; o->weighs = 0; break;
-  case OPT_GUIDE: rc = guide_option(o, argc, argv, optarg, err); break;
-  case OPT_WEIGHT: rc = weight_option(o, optarg, err); break;
-  case OPT_PATCH: rc = ts_arg_long("--patch-size", optarg, -1000, 1000, &v, err); p->patch = (int)v; break;
-  default: rc = TS_ENOENT;
+  case OPT_STYLE: o->job.in[TS_STYLIT_IN_STYLE] = optarg; o->weighs = 0; return 0;
+  case OPT_GUIDE: return guide_option(o, argc, argv, optarg, err);
+  case OPT_WEIGHT: return weight_option(o, optarg, err);
+  default: return ts_paramopt_take(&o->job, c, optarg, err);
   }
-  return rc;
 }
 
 static int stylize_option(stylize_opts *o, int c, int argc, char **argv, char *err) {
-  ts_stylit_params *p = params(o);
-  long v;
   int rc = scene_option(o, c, argc, argv, err);
   if (rc != TS_ENOENT) return rc;
-  rc = 0;
-  switch (c) {
-  case OPT_LEVELS: rc = ts_arg_long("--levels", optarg, -1000, 1000, &v, err); p->levels = (int)v; break;
-  case OPT_ITERS: rc = ts_arg_long("--iters", optarg, -1000, 1000, &v, err); p->iters = (int)v; break;
-  case OPT_UNIFORMITY: rc = ts_arg_double("--uniformity", optarg, &p->uniformity, err); break;
-  case OPT_SEED: rc = ts_arg_u64("--seed", optarg, &p->seed, err); break;
-  case OPT_NNF: ts_output_set(&o->job.out, "nnf", optarg); break;
-  case OPT_SEARCH: rc = ts_stylit_search_parse(optarg, p, err); break;
-  case OPT_PM_ITERS: rc = ts_arg_long("--pm-iters", optarg, -1000, 1000, &v, err); p->pm_iters = (int)v; break;
-  case OPT_BUDGET: rc = ts_arg_double("--budget", optarg, &p->budget, err); break;
-  case OPT_FRAMES: rc = ts_frames_parse(optarg, &o->frames, err); o->sequence = 1; break;
-  default:
-    rc = ts_job_option(&o->job, c, optarg, err);
-    if (rc == TS_ENOENT) rc = ts_error(err, TS_EINVAL, "unknown option (see texsyn stylize --help)");
+  if (c == OPT_FRAMES) {
+    o->sequence = 1;
+    return ts_frames_parse(optarg, &o->frames, err);
   }
-  return rc;
+  rc = ts_job_option(&o->job, c, optarg, err);
+  return rc != TS_ENOENT ? rc : ts_error(err, TS_EINVAL, "unknown option (see texsyn stylize --help)");
 }
 
 /* The scene's required parts, after the options. */
@@ -162,22 +116,25 @@ static int scene_complete(stylize_opts *o, const char *cmd, char *err) {
   if (o->job.in[TS_STYLIT_IN_STYLE] == NULL)
     return ts_error(err, TS_EINVAL, "--style EXEMPLAR is required (see texsyn %s --help)", cmd);
   if (o->guides == 0) return ts_error(err, TS_EINVAL, "at least one --guide SRC TGT is required");
-  params(o)->guides = o->guides;
-  return 0;
+  char n[16];
+  snprintf(n, sizeof(n), "%d", o->guides);
+  return ts_job_set_key(&o->job, "guides", n, "--guide", err);
 }
 
 /* '+': no reordering of argv, so the word after --guide SRC is its TGT. */
 static int stylize_parse(int argc, char **argv, stylize_opts *o, char *err) {
   memset(o, 0, sizeof(*o));
   ts_job_cmd_init(&o->job, "stylize", ts_engine_find("stylize"));
-  o->scene = (ts_stylit_params *)o->job.spec.params.bytes;
   o->weighs = -1;
+  struct option longopts[TS_PARAMOPT_MAX];
+  if (ts_paramopt_build(o->job.spec.engine, own_opts, longopts, TS_PARAMOPT_MAX) != 0)
+    return ts_error(err, TS_EINVAL, "internal: too many options");
   optind = 1;
   opterr = 0;
   int c;
   while ((c = getopt_long(argc, argv, "+o:h", longopts, NULL)) != -1) {
     if (c == TS_OPT_HELP || c == 'h') {
-      usage(stdout);
+      usage(stdout, o->job.spec.engine);
       exit(0);
     }
     if (c == '?' || c == ':') return ts_arg_unknown("stylize", argv[optind - 1], longopts, err);
@@ -223,23 +180,14 @@ static const char *const kEnergyUsage =
     "\"samples\": N, \"step\": S, \"patch_size\": P}, the same bytes in-process and on a\n"
     "cluster (--server: the coordinator's workers run the search).\n"
     "\n"
-    "  --style, --guide, --weight, --patch-size   the scene, as texsyn stylize takes it\n"
+    "  --style, --guide, --weight   the scene, as texsyn stylize takes it\n"
     "  --image OUT          the image to score: the target guides' size; 1 or 2\n"
     "                       channels for a grey style, 3 or 4 for a colour one\n"
-    "  --sample STEP        score the patches at every STEP-th pixel, 1..%d (default 1)\n"
-    "  --json               the JSON object (the default; taken for older scripts)\n"
-    "%s"
-    "\n"
-    "With --detach, texsyn fetch ID -o F writes the JSON object to F.\n";
+    "  --json               the JSON object (the default; taken for older scripts)\n";
 
-enum { OPT_IMAGE = OPT_NNF + 1, OPT_SAMPLE, OPT_JSON, OPT_SOURCE, OPT_SIZE };
-
-static const struct option energy_longopts[] = {
-    {"style", required_argument, 0, OPT_STYLE},     {"guide", required_argument, 0, OPT_GUIDE},
-    {"weight", required_argument, 0, OPT_WEIGHT},   {"patch-size", required_argument, 0, OPT_PATCH},
-    {"image", required_argument, 0, OPT_IMAGE},     {"sample", required_argument, 0, OPT_SAMPLE},
-    {"json", no_argument, 0, OPT_JSON},             TS_JOB_RUN_LONGOPTS,
-    {0, 0, 0, 0}};
+static const struct option energy_own[] = {SCENE_LONGOPTS, {"image", required_argument, 0, OPT_IMAGE},
+                                           {"json", no_argument, 0, OPT_JSON}, TS_JOB_RUN_LONGOPTS,
+                                           {0, 0, 0, 0}};
 
 typedef struct {
   stylize_opts s;
@@ -247,20 +195,11 @@ typedef struct {
   char result[4096]; /* the temporary file the result goes to (mkstemp's template until made) */
 } energy_opts;
 
-static ts_stylit_energy_params *energy_params(energy_opts *o) {
-  return (ts_stylit_energy_params *)o->s.job.spec.params.bytes;
-}
-
 static int energy_option(energy_opts *o, int c, int argc, char **argv, char *err) {
-  long v;
   int rc = scene_option(&o->s, c, argc, argv, err);
   if (rc != TS_ENOENT) return rc;
   switch (c) {
   case OPT_IMAGE: o->image = optarg; return 0;
-  case OPT_SAMPLE:
-    rc = ts_arg_long("--sample", optarg, 1, TS_STYLIT_MAX_STEP, &v, err);
-    energy_params(o)->step = (int)v;
-    return rc;
   case OPT_JSON: return 0; /* JSON is what energy prints */
   default:
     rc = ts_job_option(&o->s.job, c, optarg, err);
@@ -273,17 +212,21 @@ static int energy_parse(int argc, char **argv, energy_opts *o, char *err) {
   memset(o, 0, sizeof(*o));
   ts_job_cmd_init(&o->s.job, "energy", ts_engine_find("energy"));
   o->s.job.result_name = "energy";
-  o->s.scene = &energy_params(o)->scene;
   o->s.weighs = -1;
+  struct option longopts[TS_PARAMOPT_MAX];
+  if (ts_paramopt_build(o->s.job.spec.engine, energy_own, longopts, TS_PARAMOPT_MAX) != 0)
+    return ts_error(err, TS_EINVAL, "internal: too many options");
   optind = 1;
   opterr = 0;
   int c;
-  while ((c = getopt_long(argc, argv, "+h", energy_longopts, NULL)) != -1) {
+  while ((c = getopt_long(argc, argv, "+h", longopts, NULL)) != -1) {
     if (c == TS_OPT_HELP || c == 'h') {
-      printf(kEnergyUsage, TS_STYLIT_MAX_STEP, TS_JOB_RUN_HELP);
+      printf("%s", kEnergyUsage);
+      ts_paramopt_help(stdout, o->s.job.spec.engine);
+      printf("%s\nWith --detach, texsyn fetch ID -o F writes the JSON object to F.\n", TS_JOB_RUN_HELP);
       exit(0);
     }
-    if (c == '?' || c == ':') return ts_arg_unknown("energy", argv[optind - 1], energy_longopts, err);
+    if (c == '?' || c == ':') return ts_arg_unknown("energy", argv[optind - 1], longopts, err);
     int rc = energy_option(o, c, argc, argv, err);
     if (rc != 0) return rc;
   }
@@ -356,6 +299,8 @@ static const char *const kApplyUsage =
     "itself, it gives the stylize output byte for byte. OUT is 8-bit with IMG's channels.\n"
     "  --patch-size P   the stylize job's patch size (default 5)\n"
     "  --size WxH       the output size, needed for a .raw NNF (it has no header)\n";
+
+enum { OPT_NNF = OPT_JSON + 1, OPT_SOURCE, OPT_PATCH, OPT_SIZE };
 
 static const struct option apply_longopts[] = {
     {"nnf", required_argument, 0, OPT_NNF},          {"source", required_argument, 0, OPT_SOURCE},

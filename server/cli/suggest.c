@@ -41,7 +41,7 @@ const char *ts_closest(const char *word, size_t len, const char *const *known, s
   return best;
 }
 
-#define MAX_LONGOPTS 128
+#define MAX_LONGOPTS 256
 
 /* A short option getopt stopped at (optopt): known (a long option has it
  * as its value) means its value is missing. Inside a cluster ("-xvf")

@@ -14,6 +14,7 @@
  * georeferencing stays). No checkpoints: a job a restart interrupts runs
  * again, with the same bytes. */
 #include <math.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -62,13 +63,22 @@ static const ts_engine_output aerial_outputs[OUT_COUNT] = {
     [OUT_REPORT] = {"report", "report.json", TS_OUTPUT_FLAG},
 };
 
+#define F(field) offsetof(aerial_job, field)
+
+/* In the spec's order; the classes' and colours' lines (classK, colourK)
+ * come from the catalogue, after them. */
+static const ts_param aerial_param_table[] = {
+    TS_FILL_PARAMS(F(fill), "3", "7"),
+    {"max_pixels", NULL, NULL, TS_PARAM_U64, F(max_pixels), 0, 0, "268435456", "image size limit",
+     .flags = TS_PARAM_UNBOUNDED},
+    {"classes", NULL, NULL, TS_PARAM_INT, F(nclass), 1, AERIAL_MAX_CLASSES, NULL, "classes of the catalogue"},
+    {"lines", NULL, NULL, TS_PARAM_FLAG, F(lines), 0, 1, "0", "a line raster is an input"},
+    {"colours", NULL, NULL, TS_PARAM_INT, F(ncolours), 0, AERIAL_MAX_COLOURS, "0", "colours of the line raster"},
+    {NULL}};
+
 static void aerial_params_default(void *params) {
-  aerial_job *p = params;
-  memset(p, 0, sizeof(*p));
-  ts_fill_params_default(&p->fill);
-  p->fill.levels = 3;
-  p->fill.wn = 7;
-  p->max_pixels = TS_IMAGE_DEFAULT_MAX_PIXELS;
+  memset(params, 0, sizeof(aerial_job));
+  ts_params_default(aerial_param_table, params);
 }
 
 /* ---- spec keys ------------------------------------------------------------
@@ -115,21 +125,8 @@ static int numbered(const char *k, const char *stem) {
 
 static int aerial_spec_set(void *params, const char *k, const char *v) {
   aerial_job *p = params;
-  ts_fill_params *f = &p->fill;
-  int n;
-  if (strcmp(k, "levels") == 0) return ts_parse_int(v, -1000, 1000, &f->levels);
-  if (strcmp(k, "wn") == 0) return ts_parse_int(v, -1000, 1000, &f->wn);
-  if (strcmp(k, "wb") == 0) return ts_parse_int(v, -1000, 1000, &f->wb);
-  if (strcmp(k, "parity") == 0) return ts_parse_int(v, 0, 1, &f->parity);
-  if (strcmp(k, "coarse_weight") == 0) return ts_parse_double(v, &f->coarse_weight);
-  if (strcmp(k, "order") == 0) return strcmp(v, "puzzle") == 0 ? (f->order = TS_FILL_PUZZLE, 0)
-                                    : strcmp(v, "threshold") == 0 ? (f->order = TS_FILL_THRESHOLD, 0) : TS_EINVAL;
-  if (strcmp(k, "threshold") == 0) return ts_parse_double(v, &f->threshold);
-  if (strcmp(k, "seed") == 0) return ts_parse_u64(v, &f->seed);
-  if (strcmp(k, "classes") == 0) return ts_parse_int(v, 1, AERIAL_MAX_CLASSES, &p->nclass);
-  if (strcmp(k, "lines") == 0) return ts_parse_int(v, 0, 1, &p->lines);
-  if (strcmp(k, "colours") == 0) return ts_parse_int(v, 0, AERIAL_MAX_COLOURS, &p->ncolours);
-  if (strcmp(k, "max_pixels") == 0) return ts_parse_u64(v, &p->max_pixels);
+  int n, rc = ts_params_set(aerial_param_table, params, k, v);
+  if (rc != TS_ENOENT) return rc;
   if ((n = numbered(k, "class")) > 0) return class_set(p, n, v);
   if ((n = numbered(k, "colour")) > 0) return colour_set(p, n, v);
   return TS_ENOENT;
@@ -146,13 +143,7 @@ static int aerial_spec_complete(const void *params, char *err) {
 
 static int aerial_spec_format(const void *params, char *buf, size_t cap) {
   const aerial_job *p = params;
-  const ts_fill_params *f = &p->fill;
-  int n = snprintf(buf, cap,
-                   "levels=%d\nwn=%d\nwb=%d\nparity=%d\ncoarse_weight=%.17g\norder=%s\nthreshold=%.17g\nseed=%llu\n"
-                   "max_pixels=%llu\nclasses=%d\nlines=%d\ncolours=%d\n",
-                   f->levels, f->wn, f->wb, f->parity, f->coarse_weight,
-                   f->order == TS_FILL_THRESHOLD ? "threshold" : "puzzle", f->threshold, (unsigned long long)f->seed,
-                   (unsigned long long)p->max_pixels, p->nclass, p->lines, p->ncolours);
+  int n = ts_params_format(aerial_param_table, params, buf, cap);
   for (int k = 0; n >= 0 && (size_t)n < cap && k < p->nclass; k++) {
     const aerial_class *c = &p->cls[k];
     n += snprintf(buf + n, cap - (size_t)n, "class%d=%d %s %.17g %s\n", k + 1, c->id,
@@ -446,6 +437,7 @@ const ts_engine ts_engine_aerial = {
     .name = "aerial",
     .outputs = aerial_outputs,
     .noutputs = OUT_COUNT,
+    .params = aerial_param_table,
     .params_default = aerial_params_default,
     .spec_set = aerial_spec_set,
     .spec_complete = aerial_spec_complete,

@@ -6,6 +6,7 @@
  * line, energy.json, which the CLI prints from whichever process measured.
  * The measure is one exact search step: no checkpoints, a job a restart
  * interrupts measures again, with the same numbers. */
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -27,10 +28,20 @@ static const ts_engine_output energy_outputs[OUT_COUNT] = {
     [OUT_RESULT] = {"output", "energy.json", TS_OUTPUT_FLAG},
 };
 
+#define F(field) offsetof(ts_stylit_energy_params, field)
+
+/* The scene's parameters, then the step; the weights follow in the spec. */
+static const ts_param energy_param_table[] = {
+    TS_STYLIT_SCENE_PARAMS(F(scene)),
+    {"sample", "sample", "STEP", TS_PARAM_INT, F(step), 1, TS_STYLIT_MAX_STEP, "1",
+     "score the patches at every STEP-th pixel"},
+    {NULL}};
+
+/* The scene's stylize parameters keep their defaults (unused). */
 static void energy_params_default(void *params) {
   ts_stylit_energy_params *p = params;
   ts_stylit_params_default(&p->scene);
-  p->step = 1;
+  ts_params_default(energy_param_table, params);
 }
 
 /* The scene's inputs, then the image. */
@@ -48,8 +59,8 @@ static const ts_image *image_of(const ts_stylit_energy_params *p, const ts_image
 
 static int energy_spec_set(void *params, const char *k, const char *v) {
   ts_stylit_energy_params *p = params;
-  if (strcmp(k, "sample") == 0) return ts_parse_int(v, -1000000, 1000000, &p->step);
-  return ts_stylit_scene_set(&p->scene, k, v);
+  int rc = ts_params_set(energy_param_table, params, k, v);
+  return rc != TS_ENOENT ? rc : ts_stylit_weight_set(&p->scene, k, v);
 }
 
 static int energy_spec_complete(const void *params, char *err) {
@@ -58,10 +69,10 @@ static int energy_spec_complete(const void *params, char *err) {
 
 static int energy_spec_format(const void *params, char *buf, size_t cap) {
   const ts_stylit_energy_params *p = params;
-  int n = ts_stylit_scene_format(&p->scene, buf, cap);
+  int n = ts_params_format(energy_param_table, params, buf, cap);
   if (n < 0) return n;
-  int k = snprintf(buf + n, cap - (size_t)n, "sample=%d\n", p->step);
-  return k < 0 || (size_t)k >= cap - (size_t)n ? TS_ETOOBIG : n + k;
+  int k = ts_stylit_weights_format(&p->scene, buf + n, cap - (size_t)n);
+  return k < 0 ? k : n + k;
 }
 
 static int energy_check(const void *params, const ts_image *const *in, char *msg, size_t len) {
@@ -119,6 +130,7 @@ const ts_engine ts_engine_energy = {
     .name = "energy",
     .outputs = energy_outputs,
     .noutputs = OUT_COUNT,
+    .params = energy_param_table,
     .params_default = energy_params_default,
     .spec_set = energy_spec_set,
     .spec_complete = energy_spec_complete,

@@ -17,6 +17,10 @@ const ts_engine *ts_engine_find(const char *name) {
   return NULL;
 }
 
+const ts_engine *ts_engine_at(int i) {
+  return i >= 0 && (size_t)i < sizeof(registry) / sizeof(registry[0]) ? registry[i] : NULL;
+}
+
 const ts_engine *ts_engine_default(void) { return &ts_engine_mrf; }
 
 int ts_engine_output_index(const ts_engine *e, const char *key) {

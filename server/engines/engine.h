@@ -23,6 +23,7 @@
 #include <stdint.h>
 
 #include "image.h"
+#include "param.h"
 #include "progress.h"
 #include "search.h"
 
@@ -49,6 +50,9 @@ typedef struct {
   const char *key;  /* spec key, e.g. "copy_map" */
   const char *file; /* spool file: stem ("copymap") or name ("report.json") */
   ts_output_kind kind;
+  /* A side output's command-line option and its --help ("copy-map");
+   * NULL for the result (-o) and the report (--report), every job's. */
+  const char *flag, *help;
 } ts_engine_output;
 
 /* The input images of a job, in the order run and check receive them.
@@ -100,6 +104,9 @@ typedef struct ts_engine {
   const char *name;  /* the spec's engine= value */
   const ts_engine_output *outputs; /* noutputs entries, [0] the result */
   int noutputs;
+  /* Its parameters, declared once (param.h): what the CLI offers, --help
+   * and the manual show, and the spec keys spec_set and spec_format take. */
+  const ts_param *params;
   void (*params_default)(void *params);
   /* Sets one spec key: 0, TS_EINVAL for a bad value, TS_ENOENT for a key
    * it does not know (outputs are not its business: the spec parser
@@ -134,6 +141,8 @@ typedef struct ts_engine {
 
 /* The engine of that name, or NULL. */
 const ts_engine *ts_engine_find(const char *name);
+/* The i-th engine of the registry (0, 1, ...), or NULL past the last. */
+const ts_engine *ts_engine_at(int i);
 /* The engine a spec without an `engine` key means (specs spooled before
  * engines had names are MRF jobs). */
 const ts_engine *ts_engine_default(void);

@@ -19,15 +19,12 @@
 #include "usage.h"
 #include "util.h"
 
+const char *const ts_fill_order_names[] = {[TS_FILL_PUZZLE] = "puzzle", [TS_FILL_THRESHOLD] = "threshold", NULL};
+const ts_param ts_fill_param_table[] = {TS_FILL_PARAMS(0, "4", "9"), {NULL}};
+
 void ts_fill_params_default(ts_fill_params *p) {
   memset(p, 0, sizeof(*p));
-  p->levels = 4;
-  p->wn = 9;
-  p->wb = 3;
-  p->coarse_weight = 1.0;
-  p->order = TS_FILL_PUZZLE;
-  p->threshold = 0.25;
-  p->seed = 1;
+  ts_params_default(ts_fill_param_table, p);
 }
 
 /* ---- atlases: a class's sources stacked into one reference ---------------
@@ -313,20 +310,10 @@ static void check_class_levels(const ts_fill_params *p, const ts_fill_input *in,
 
 void ts_fill_check_params(const ts_fill_params *p, char *msg, size_t len, int *count) {
   int n = 0;
-  if (p->wb < 1 || p->wb % 2 == 0 || p->wb > 15) ts_problem(msg, len, &n, "--wb %d: the block width must be odd, 1..15", p->wb);
-  if (p->wn % 2 == 0 || p->wn < 3 || p->wn > TS_MAX_WN)
-    ts_problem(msg, len, &n, "--wn %d: the neighbourhood width must be odd, 3..%d", p->wn, TS_MAX_WN);
-  else if (p->wn < p->wb + 2)
+  ts_params_check(ts_fill_param_table, p, msg, len, &n);
+  if (n == 0 && p->wn < p->wb + 2)
     ts_problem(msg, len, &n, "--wn %d: the neighbourhood must be wider than the block (--wb %d), at least %d", p->wn,
             p->wb, p->wb + 2);
-  if (p->levels < 1 || p->levels > TS_FILL_MAX_LEVELS)
-    ts_problem(msg, len, &n, "--levels %d: need 1..%d", p->levels, TS_FILL_MAX_LEVELS);
-  if (!(p->coarse_weight > 0.0 && p->coarse_weight <= 100.0))
-    ts_problem(msg, len, &n, "--coarse-weight %g: need more than 0, at most 100", p->coarse_weight);
-  if (p->order != TS_FILL_PUZZLE && p->order != TS_FILL_THRESHOLD)
-    ts_problem(msg, len, &n, "fill order %d: need puzzle or threshold", p->order);
-  if (!(p->threshold > 0.0 && p->threshold <= 1.0))
-    ts_problem(msg, len, &n, "--threshold %g: need a share of the window, more than 0, at most 1", p->threshold);
   *count += n;
 }
 

@@ -42,6 +42,7 @@
 #include <stdio.h>
 
 #include "neigh.h"
+#include "param.h"
 #include "progress.h"
 #include "search.h"
 
@@ -64,6 +65,32 @@ typedef struct {
                            this many (0 = whole steps); never changes results */
 } ts_fill_params;
 
+/* The fill's parameters (param.h) as entries of a table whose struct
+ * holds a ts_fill_params at byte `base`, with the defaults of levels and
+ * wn given (the fill job's and the aerial job's differ); the engines'
+ * tables start with them, in their spec order. */
+extern const char *const ts_fill_order_names[];
+#define TS_FILL_PARAMS(base, levels_def, wn_def)                                                              \
+  {"levels", "levels", "L", TS_PARAM_INT, (base) + offsetof(ts_fill_params, levels), 1, TS_FILL_MAX_LEVELS,   \
+   levels_def, "pyramid levels"},                                                                              \
+  {"wn", "wn", "N", TS_PARAM_INT, (base) + offsetof(ts_fill_params, wn), 3, TS_MAX_WN, wn_def,                \
+   "neighbourhood width, wider than --wb", .flags = TS_PARAM_ODD},                                            \
+  {"wb", "wb", "B", TS_PARAM_INT, (base) + offsetof(ts_fill_params, wb), 1, 15, "3", "block width",          \
+   .flags = TS_PARAM_ODD},                                                                                     \
+  {"parity", "parity", NULL, TS_PARAM_FLAG, (base) + offsetof(ts_fill_params, parity), 0, 1, "0",            \
+   "parity control (4x fewer comparisons, coarser joins)"},                                                  \
+  {"coarse_weight", "coarse-weight", "W", TS_PARAM_DOUBLE, (base) + offsetof(ts_fill_params, coarse_weight), \
+   0, 100, "1", "weight of the coarse-level part", .flags = TS_PARAM_MIN_OPEN},                               \
+  {"order", "order", "O", TS_PARAM_ENUM, (base) + offsetof(ts_fill_params, order), 0, 0, "puzzle",           \
+   "puzzle: the best known blocks first, re-sorted after every step; threshold: in rounds, every block with " \
+   "at least --threshold of its window known (seed §3.2.5)", .names = ts_fill_order_names},                  \
+  {"threshold", "threshold", "F", TS_PARAM_DOUBLE, (base) + offsetof(ts_fill_params, threshold), 0, 1,       \
+   "0.25", "threshold order: the share of the window a block needs known", .flags = TS_PARAM_MIN_OPEN},      \
+  {"seed", "seed", "S", TS_PARAM_U64, (base) + offsetof(ts_fill_params, seed), 0, 0, "1",                    \
+   "seed of the blocks that start areas with nothing known around them", .flags = TS_PARAM_UNBOUNDED}
+
+/* Those entries alone (base 0), with the fill job's defaults. */
+extern const ts_param ts_fill_param_table[];
 void ts_fill_params_default(ts_fill_params *p);
 
 /* A source image of a class's reference: nplanes feature planes and the

@@ -10,6 +10,7 @@
  * met (the seed's Fig. 3.35 problem), the colour search did not.
  * No checkpoints: a job a restart interrupts is filled again, with the same
  * bytes. */
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -38,48 +39,40 @@ enum { OUT_IMAGE, OUT_COPY_MAP, OUT_COPY_MAP_RAW, OUT_REPORT, OUT_COUNT };
 
 static const ts_engine_output fill_outputs[OUT_COUNT] = {
     [OUT_IMAGE] = {"output", "out", TS_OUTPUT_IMAGE},
-    [OUT_COPY_MAP] = {"copy_map", "copymap", TS_OUTPUT_IMAGE},
-    [OUT_COPY_MAP_RAW] = {"copy_map_raw", "copymap.raw", TS_OUTPUT_FLAG},
+    [OUT_COPY_MAP] = {"copy_map", "copymap", TS_OUTPUT_IMAGE,
+                      "copy-map", "where every pixel comes from, as an image (red = x, green = y; given pixels point at themselves)"},
+    [OUT_COPY_MAP_RAW] = {"copy_map_raw", "copymap.raw", TS_OUTPUT_FLAG,
+                      "copy-map-raw", "the same as little-endian uint32 (x, y) per pixel"},
     [OUT_REPORT] = {"report", "report.json", TS_OUTPUT_FLAG},
 };
 
+#define F(field) offsetof(fill_job, field)
+
+/* In the spec's order: the fill's, then the job's. */
+static const ts_param fill_param_table[] = {
+    TS_FILL_PARAMS(F(fill), "4", "9"),
+    {"refs", NULL, NULL, TS_PARAM_INT, F(refs), 0, FILL_MAX_REFS, "0", "further reference images"},
+    {"self", "no-self", NULL, TS_PARAM_FLAG, F(self), 0, 1, "1", "do not copy from IMG itself (needs --ref)",
+     .flags = TS_PARAM_NEGATE},
+    {"usage_weight", "usage-weight", "A", TS_PARAM_DOUBLE, F(usage_weight), 0, 100, "0",
+     "active usage-variance penalty, 0 = off"},
+    /* Colour images are searched on their colour: see this file's head. */
+    {"rgb_search", "luma-search", NULL, TS_PARAM_FLAG, F(rgb_search), 0, 1, "1",
+     "search a colour image on its luminance, as the seed does; without it on its colour channels, which keeps "
+     "colours from mixing where different colours have one grey", .flags = TS_PARAM_NEGATE},
+    {"max_pixels", NULL, NULL, TS_PARAM_U64, F(max_pixels), 0, 0, "268435456", "image size limit",
+     .flags = TS_PARAM_UNBOUNDED},
+    {NULL}};
+
 static void fill_params_default(void *params) {
-  fill_job *p = params;
-  memset(p, 0, sizeof(*p));
-  ts_fill_params_default(&p->fill);
-  p->self = 1;
-  p->rgb_search = 1; /* colour images: see fill_engine.c's head */
-  p->max_pixels = TS_IMAGE_DEFAULT_MAX_PIXELS;
+  memset(params, 0, sizeof(fill_job));
+  ts_params_default(fill_param_table, params);
 }
 
 /* ---- spec keys ---------------------------------------------------------- */
 
-static int parse_order(const char *v, int *order) {
-  if (strcmp(v, "puzzle") == 0) *order = TS_FILL_PUZZLE;
-  else if (strcmp(v, "threshold") == 0) *order = TS_FILL_THRESHOLD;
-  else return TS_EINVAL;
-  return 0;
-}
-
-static const char *order_name(int order) { return order == TS_FILL_THRESHOLD ? "threshold" : "puzzle"; }
-
 static int fill_spec_set(void *params, const char *k, const char *v) {
-  fill_job *p = params;
-  ts_fill_params *f = &p->fill;
-  if (strcmp(k, "levels") == 0) return ts_parse_int(v, -1000, 1000, &f->levels);
-  if (strcmp(k, "wn") == 0) return ts_parse_int(v, -1000, 1000, &f->wn);
-  if (strcmp(k, "wb") == 0) return ts_parse_int(v, -1000, 1000, &f->wb);
-  if (strcmp(k, "parity") == 0) return ts_parse_int(v, 0, 1, &f->parity);
-  if (strcmp(k, "coarse_weight") == 0) return ts_parse_double(v, &f->coarse_weight);
-  if (strcmp(k, "order") == 0) return parse_order(v, &f->order);
-  if (strcmp(k, "threshold") == 0) return ts_parse_double(v, &f->threshold);
-  if (strcmp(k, "seed") == 0) return ts_parse_u64(v, &f->seed);
-  if (strcmp(k, "refs") == 0) return ts_parse_int(v, 0, FILL_MAX_REFS, &p->refs);
-  if (strcmp(k, "self") == 0) return ts_parse_int(v, 0, 1, &p->self);
-  if (strcmp(k, "usage_weight") == 0) return ts_parse_double(v, &p->usage_weight);
-  if (strcmp(k, "rgb_search") == 0) return ts_parse_int(v, 0, 1, &p->rgb_search);
-  if (strcmp(k, "max_pixels") == 0) return ts_parse_u64(v, &p->max_pixels);
-  return TS_ENOENT;
+  return ts_params_set(fill_param_table, params, k, v);
 }
 
 static int fill_spec_complete(const void *params, char *err) {
@@ -90,15 +83,7 @@ static int fill_spec_complete(const void *params, char *err) {
 }
 
 static int fill_spec_format(const void *params, char *buf, size_t cap) {
-  const fill_job *p = params;
-  const ts_fill_params *f = &p->fill;
-  int n = snprintf(buf, cap,
-                   "levels=%d\nwn=%d\nwb=%d\nparity=%d\ncoarse_weight=%.17g\norder=%s\nthreshold=%.17g\nseed=%llu\n"
-                   "refs=%d\nself=%d\nusage_weight=%.17g\nrgb_search=%d\nmax_pixels=%llu\n",
-                   f->levels, f->wn, f->wb, f->parity, f->coarse_weight, order_name(f->order), f->threshold,
-                   (unsigned long long)f->seed, p->refs, p->self, p->usage_weight, p->rgb_search,
-                   (unsigned long long)p->max_pixels);
-  return n < 0 || (size_t)n >= cap ? TS_ETOOBIG : n;
+  return ts_params_format(fill_param_table, params, buf, cap);
 }
 
 /* The image, the mask, then the further references. */
@@ -335,6 +320,7 @@ const ts_engine ts_engine_fill = {
     .name = "fill",
     .outputs = fill_outputs,
     .noutputs = OUT_COUNT,
+    .params = fill_param_table,
     .params_default = fill_params_default,
     .spec_set = fill_spec_set,
     .spec_complete = fill_spec_complete,

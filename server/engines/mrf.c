@@ -22,6 +22,7 @@
 #include <time.h>
 
 #include "error.h"
+#include "param.h"
 #include "util.h"
 #include "mrf_accel.h"
 #include "plane.h"
@@ -46,6 +47,16 @@ static void level_sizes(int w, int h, int levels, int *lw, int *lh, int ceil_mod
     lw[l] = ceil_mode ? (lw[l - 1] + 1) / 2 : lw[l - 1] / 2;
     lh[l] = ceil_mode ? (lh[l - 1] + 1) / 2 : lh[l - 1] / 2;
   }
+}
+
+int ts_mrf_levels_that_fit(int w, int h, int wn, int most) {
+  int l = 1;
+  for (; l < most && l < TS_MRF_MAX_LEVELS; l++) {
+    w = (w + 1) / 2;
+    h = (h + 1) / 2;
+    if (w < wn || h < wn) break;
+  }
+  return l;
 }
 
 /* How a reference too small for its levels is named and what fixes it. */
@@ -85,29 +96,24 @@ static void check_reference_levels(const ts_mrf_params *p, int ref_w, int ref_h,
 /* The options of best-of, mixing and the copy-map shortcut. */
 static void check_extras(const ts_mrf_params *p, char *msg, size_t len, int *n) {
   int levels_ok = p->levels >= 1 && p->levels <= TS_MRF_MAX_LEVELS;
-  if (p->best_of < 1 || p->best_of > TS_MRF_MAX_BEST_OF)
-    ts_problem(msg, len, n, "--best-of %d: need 1..%d candidates (1 = off)", p->best_of, TS_MRF_MAX_BEST_OF);
-  if (p->best_of_levels < 0 || (levels_ok && p->best_of_levels > p->levels))
+  if (levels_ok && p->best_of_levels > p->levels)
     ts_problem(msg, len, n, "--best-of-levels %d: need 1..%d (--levels), or 0 for all but the finest two",
             p->best_of_levels, p->levels);
-  if (p->mix_level < 0 || (levels_ok && p->mix_level >= p->levels))
+  if (p->best_of_levels != 0 && p->best_of == 1)
+    ts_problem(msg, len, n, "--best-of-levels needs --best-of K with K > 1");
+  if (levels_ok && p->mix_level >= p->levels)
     ts_problem(msg, len, n, "--mix-level %d: need 1..%d (below --levels; 0 = no mixing)", p->mix_level,
             p->levels - 1);
-  if (p->accel_kernel < 0 || p->accel_kernel > 15 || (p->accel_kernel > 0 && p->accel_kernel % 2 == 0))
-    ts_problem(msg, len, n, "--copy-accel-kernel %d: need an odd width 1..15 (0 = the coarse window width)",
-            p->accel_kernel);
-  if (!(p->accel_min >= 0.0 && p->accel_min <= 1.0))
-    ts_problem(msg, len, n, "--copy-accel-min %g: need a share 0..1", p->accel_min);
+  if (!p->copy_accel && (p->accel_kernel != 0 || p->accel_min != 0.95))
+    ts_problem(msg, len, n, "--copy-accel-kernel and --copy-accel-min need --copy-accel");
 }
 
 /* The partitioning options: a count of partitions, a probe of at most as
  * many, levels the job has; none of them without --lbg. */
 static void check_lbg(const ts_mrf_params *p, char *msg, size_t len, int *count) {
-  if (p->lbg < 0 || p->lbg > TS_LBG_MAX_PARTITIONS)
-    ts_problem(msg, len, count, "--lbg %d: need 0 (off) to %d partitions", p->lbg, TS_LBG_MAX_PARTITIONS);
-  else if (p->lbg == 0 && (p->lbg_probe != 1 || p->lbg_exact || p->lbg_levels != 1))
+  if (p->lbg == 0 && (p->lbg_probe != 1 || p->lbg_exact || p->lbg_levels != 1))
     ts_problem(msg, len, count, "--lbg-probe, --lbg-levels and --lbg-exact need --lbg P (the partitions)");
-  else if (p->lbg > 0 && (p->lbg_probe < 1 || p->lbg_probe > p->lbg))
+  else if (p->lbg > 0 && p->lbg_probe > p->lbg)
     ts_problem(msg, len, count, "--lbg-probe %d: need 1..%d (at most the --lbg partitions)", p->lbg_probe, p->lbg);
   if (p->lbg > 0 && p->lbg_levels != TS_MRF_LBG_ALL && p->levels >= 1 && p->levels <= TS_MRF_MAX_LEVELS &&
       (p->lbg_levels >> p->levels) != 0)
@@ -125,23 +131,12 @@ int ts_mrf_check(const ts_mrf_params *p, int ref_w, int ref_h, int channels,
     ts_problem(msg, len, &n, "--size %dx%d: %llu pixels exceed the limit of %llu (raise --max-pixels)",
             p->width, p->height, (unsigned long long)p->width * p->height,
             (unsigned long long)p->max_pixels);
-  if (p->wb < 1 || p->wb % 2 == 0 || p->wb > 15)
-    ts_problem(msg, len, &n, "--wb %d: the block width must be odd, 1..15", p->wb);
-  if (p->wn % 2 == 0 || p->wn < 3 || p->wn > TS_MAX_WN)
-    ts_problem(msg, len, &n, "--wn %d: the neighbourhood width must be odd, 3..%d", p->wn, TS_MAX_WN);
-  else if (p->wn < p->wb + 2)
+  ts_params_check(ts_mrf_param_table, p, msg, len, &n);
+  if (n == 0 && p->wn < p->wb + 2)
     ts_problem(msg, len, &n, "--wn %d: the neighbourhood must be wider than the block (--wb %d), at least %d",
             p->wn, p->wb, p->wb + 2);
-  if (p->levels < 1 || p->levels > TS_MRF_MAX_LEVELS)
-    ts_problem(msg, len, &n, "--levels %d: need 1..%d", p->levels, TS_MRF_MAX_LEVELS);
-  else if (p->stop_level < 0 || p->stop_level >= p->levels)
+  if (p->levels >= 1 && p->levels <= TS_MRF_MAX_LEVELS && p->stop_level >= p->levels)
     ts_problem(msg, len, &n, "--stop-level %d: need 0..%d (below --levels)", p->stop_level, p->levels - 1);
-  if (!(p->usage_weight >= 0.0 && p->usage_weight <= 100.0))
-    ts_problem(msg, len, &n, "--usage-weight %g: need 0..100 (0 = off)", p->usage_weight);
-  if (p->refine < 0 || p->refine > 20)
-    ts_problem(msg, len, &n, "--refine %d: need 0..20 sweeps", p->refine);
-  if (!(p->coarse_weight > 0.0 && p->coarse_weight <= 100.0))
-    ts_problem(msg, len, &n, "--coarse-weight %g: need more than 0, at most 100", p->coarse_weight);
   if (channels < 1 || channels > 16)
     ts_problem(msg, len, &n, "reference has %d channels: need 1..16", channels);
   check_extras(p, msg, len, &n);

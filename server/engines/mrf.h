@@ -9,6 +9,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "param.h"
+
 #include "image.h"
 #include "neigh.h"
 #include "progress.h"
@@ -66,7 +68,13 @@ int ts_mrf_lbg_levels_parse(const char *spec, uint32_t *mask);
 /* Formats a level mask as such a SPEC. */
 void ts_mrf_lbg_levels_format(uint32_t mask, char *buf, size_t cap);
 
+/* The parameters' declaration (mrf_params.c): spec keys, flags, ranges,
+ * defaults and help; ts_mrf_params_default sets those defaults. */
+extern const ts_param ts_mrf_param_table[];
 void ts_mrf_params_default(ts_mrf_params *p);
+/* The most pyramid levels, up to `most`, whose coarsest level of a w x h
+ * output still holds a wn x wn neighbourhood (at least 1). */
+int ts_mrf_levels_that_fit(int w, int h, int wn, int most);
 
 /* Checks parameters against a reference of ref_w x ref_h with `channels`
  * channels. Returns 0, or TS_EINVAL with every problem found listed in msg

@@ -10,6 +10,7 @@
 #include "error.h"
 #include "image_meta.h"
 #include "mrf.h"
+#include "mrf_report.h"
 #include "outputs.h"
 #include "util.h"
 
@@ -19,72 +20,19 @@ enum { OUT_IMAGE, OUT_COPY_MAP, OUT_COPY_MAP_RAW, OUT_USAGE_MAP, OUT_REPORT, OUT
 
 static const ts_engine_output mrf_outputs[OUT_COUNT] = {
     [OUT_IMAGE] = {"output", "out", TS_OUTPUT_IMAGE},
-    [OUT_COPY_MAP] = {"copy_map", "copymap", TS_OUTPUT_IMAGE},
-    [OUT_COPY_MAP_RAW] = {"copy_map_raw", "copymap.raw", TS_OUTPUT_FLAG},
-    [OUT_USAGE_MAP] = {"usage_map", "usage", TS_OUTPUT_IMAGE},
+    [OUT_COPY_MAP] = {"copy_map", "copymap", TS_OUTPUT_IMAGE,
+                      "copy-map", "copy map as an image (red = source x, green = source y)"},
+    [OUT_COPY_MAP_RAW] = {"copy_map_raw", "copymap.raw", TS_OUTPUT_FLAG,
+                      "copy-map-raw", "copy map as raw little-endian uint32 (x, y) per pixel"},
+    [OUT_USAGE_MAP] = {"usage_map", "usage", TS_OUTPUT_IMAGE,
+                      "usage-map", "usage map: counts per reference pixel (.tif/.exr as float counts; other formats normalised to the maximum)"},
     [OUT_REPORT] = {"report", "report.json", TS_OUTPUT_FLAG},
 };
 
-/* ---- spec keys ---------------------------------------------------------- */
+/* ---- spec keys (mrf_params.c declares them) ------------------------------ */
 
-/* Ranges here only keep values in their types; ts_mrf_check judges them. */
 static int mrf_spec_set(void *params, const char *k, const char *v) {
-  ts_mrf_params *p = params;
-  if (strcmp(k, "size") == 0) return ts_parse_size(v, TS_OUTPUT_SIDE_MAX, &p->width, &p->height) != 0 ? TS_EINVAL : 0;
-  if (strcmp(k, "levels") == 0) return ts_parse_int(v, -1000, 1000, &p->levels);
-  if (strcmp(k, "wn") == 0) return ts_parse_int(v, -1000, 1000, &p->wn);
-  if (strcmp(k, "wb") == 0) return ts_parse_int(v, -1000, 1000, &p->wb);
-  if (strcmp(k, "parity") == 0) return ts_parse_int(v, 0, 1, &p->parity);
-  if (strcmp(k, "usage_weight") == 0) return ts_parse_double(v, &p->usage_weight);
-  if (strcmp(k, "coarse_weight") == 0) return ts_parse_double(v, &p->coarse_weight);
-  if (strcmp(k, "refine") == 0) return ts_parse_int(v, -1000, 1000, &p->refine);
-  if (strcmp(k, "seed") == 0) return ts_parse_u64(v, &p->seed);
-  if (strcmp(k, "rgb_search") == 0) return ts_parse_int(v, 0, 1, &p->rgb_search);
-  if (strcmp(k, "max_pixels") == 0) return ts_parse_u64(v, &p->max_pixels);
-  if (strcmp(k, "best_of") == 0) return ts_parse_int(v, -1000, 1000, &p->best_of);
-  if (strcmp(k, "best_of_levels") == 0) return ts_parse_int(v, -1000, 1000, &p->best_of_levels);
-  if (strcmp(k, "mix_level") == 0) return ts_parse_int(v, -1000, 1000, &p->mix_level);
-  if (strcmp(k, "copy_accel") == 0) return ts_parse_int(v, 0, 1, &p->copy_accel);
-  if (strcmp(k, "copy_accel_kernel") == 0) return ts_parse_int(v, -1000, 1000, &p->accel_kernel);
-  if (strcmp(k, "copy_accel_min") == 0) return ts_parse_double(v, &p->accel_min);
-  if (strcmp(k, "lbg") == 0) return ts_parse_int(v, -1, TS_LBG_MAX_PARTITIONS + 1, &p->lbg);
-  if (strcmp(k, "lbg_levels") == 0) return ts_mrf_lbg_levels_parse(v, &p->lbg_levels);
-  if (strcmp(k, "lbg_probe") == 0) return ts_parse_int(v, -1, TS_LBG_MAX_PARTITIONS + 1, &p->lbg_probe);
-  if (strcmp(k, "lbg_exact") == 0) return ts_parse_int(v, 0, 1, &p->lbg_exact);
-  return TS_ENOENT;
-}
-
-int ts_mrf_lbg_levels_parse(const char *spec, uint32_t *mask) {
-  if (strcmp(spec, "all") == 0) {
-    *mask = TS_MRF_LBG_ALL;
-    return 0;
-  }
-  uint32_t m = 0;
-  for (const char *s = spec;; s++) {
-    int level = 0, digits = 0;
-    for (; *s >= '0' && *s <= '9' && digits < 3; s++, digits++) level = 10 * level + (*s - '0');
-    if (digits == 0 || level >= TS_MRF_MAX_LEVELS) return TS_EINVAL;
-    m |= 1u << level;
-    if (*s == '\0') break;
-    if (*s != ',') return TS_EINVAL;
-  }
-  *mask = m;
-  return 0;
-}
-
-void ts_mrf_lbg_levels_format(uint32_t mask, char *buf, size_t cap) {
-  size_t at = 0;
-  buf[0] = '\0';
-  if (mask == TS_MRF_LBG_ALL) {
-    snprintf(buf, cap, "all");
-    return;
-  }
-  for (int l = 0; l < 32 && at < cap; l++)
-    if (mask >> l & 1) {
-      int n = snprintf(buf + at, cap - at, "%s%d", at ? "," : "", l);
-      if (n < 0) break;
-      at += (size_t)n;
-    }
+  return ts_params_set(ts_mrf_param_table, params, k, v);
 }
 
 /* Without it the spec would format as size=0x0, which no parse takes
@@ -94,53 +42,8 @@ static int mrf_spec_complete(const void *params, char *err) {
   return p->width == 0 ? ts_error(err, TS_EINVAL, "job spec: size=WxH is required") : 0;
 }
 
-/* The keys of best-of, mixing and the copy-map shortcut, when set: a job
- * without them keeps the spec text (and so the checkpoint tag) it had
- * before they existed. */
-static int format_extras(const ts_mrf_params *p, char *buf, size_t cap) {
-  int n = 0;
-  if (p->best_of != 1 || p->best_of_levels != 0)
-    n += snprintf(buf, cap, "best_of=%d\nbest_of_levels=%d\n", p->best_of, p->best_of_levels);
-  if (n >= 0 && (size_t)n < cap && p->mix_level != 0) n += snprintf(buf + n, cap - (size_t)n, "mix_level=%d\n", p->mix_level);
-  if (n >= 0 && (size_t)n < cap && p->copy_accel)
-    n += snprintf(buf + n, cap - (size_t)n, "copy_accel=1\ncopy_accel_kernel=%d\ncopy_accel_min=%.17g\n",
-                  p->accel_kernel, p->accel_min);
-  return n;
-}
-
-/* Doubles with 17 significant digits, so they round-trip. */
 static int mrf_spec_format(const void *params, char *buf, size_t cap) {
-  const ts_mrf_params *p = params;
-  int n = snprintf(buf, cap,
-                   "size=%dx%d\nlevels=%d\nwn=%d\nwb=%d\nparity=%d\nusage_weight=%.17g\n"
-                   "coarse_weight=%.17g\nrefine=%d\nseed=%llu\nrgb_search=%d\nmax_pixels=%llu\n",
-                   p->width, p->height, p->levels, p->wn, p->wb, p->parity, p->usage_weight, p->coarse_weight,
-                   p->refine, (unsigned long long)p->seed, p->rgb_search, (unsigned long long)p->max_pixels);
-  if (n >= 0 && (size_t)n < cap) n += format_extras(p, buf + n, cap - (size_t)n);
-  if (n < 0 || (size_t)n >= cap) return TS_ETOOBIG;
-  /* The partitioning keys only when set: a spec without them reads and
-   * writes as before (its checkpoints' tag unchanged). */
-  if (p->lbg == 0 && p->lbg_probe == 1 && !p->lbg_exact && p->lbg_levels == 1) return n;
-  char levels[64];
-  ts_mrf_lbg_levels_format(p->lbg_levels, levels, sizeof(levels));
-  int more = snprintf(buf + n, cap - (size_t)n, "lbg=%d\nlbg_levels=%s\nlbg_probe=%d\nlbg_exact=%d\n", p->lbg, levels,
-                      p->lbg_probe, p->lbg_exact);
-  return more < 0 || (size_t)more >= cap - (size_t)n ? TS_ETOOBIG : n + more;
-}
-
-void ts_mrf_params_default(ts_mrf_params *p) {
-  memset(p, 0, sizeof(*p));
-  p->levels = 5;
-  p->wn = 7;
-  p->wb = 3;
-  p->coarse_weight = 1.0;
-  p->refine = 2;
-  p->seed = 1;
-  p->max_pixels = TS_IMAGE_DEFAULT_MAX_PIXELS;
-  p->best_of = 1;
-  p->accel_min = 0.95;
-  p->lbg_levels = 1; /* level 0, as the seed does */
-  p->lbg_probe = 1;
+  return ts_params_format(ts_mrf_param_table, params, buf, cap);
 }
 
 static void mrf_params_default(void *params) { ts_mrf_params_default(params); }
@@ -343,6 +246,7 @@ const ts_engine ts_engine_mrf = {
     .name = "mrf",
     .outputs = mrf_outputs,
     .noutputs = OUT_COUNT,
+    .params = ts_mrf_param_table,
     .params_default = mrf_params_default,
     .spec_set = mrf_spec_set,
     .spec_complete = mrf_spec_complete,

@@ -56,6 +56,7 @@
 #include <stdint.h>
 
 #include "image.h"
+#include "param.h"
 #include "progress.h"
 #include "search.h"
 
@@ -85,6 +86,8 @@ static inline int ts_seg_in_truth(const ts_seg_params *p) { return 1 + 2 * p->pa
 /* How many inputs a job with these parameters takes (pairs bounded). */
 int ts_seg_ninputs(const ts_seg_params *p);
 
+/* The parameters' declaration (param.h) and their defaults. */
+extern const ts_param ts_seg_param_table[];
 void ts_seg_params_default(ts_seg_params *p);
 
 /* ---- checks (segment_input.c) -------------------------------------------

@@ -16,12 +16,15 @@
 _Static_assert(sizeof(ts_seg_params) <= TS_ENGINE_PARAMS_MAX, "segment parameters outgrew ts_engine_params");
 _Static_assert(2 + 2 * TS_SEG_MAX_PAIRS <= TS_ENGINE_MAX_INPUTS, "segment inputs outgrew ts_engine_inputs");
 
-enum { OUT_LABELS, OUT_REPORT, OUT_ACCURACY, OUT_COUNT };
+enum { OUT_LABELS, OUT_REPORT, OUT_ACCURACY, OUT_PALETTE, OUT_COUNT };
 
 static const ts_engine_output seg_outputs[OUT_COUNT] = {
     [OUT_LABELS] = {"output", "out", TS_OUTPUT_IMAGE},
     [OUT_REPORT] = {"report", "report.json", TS_OUTPUT_FLAG},
     [OUT_ACCURACY] = {"accuracy", "accuracy.txt", TS_OUTPUT_FLAG},
+    [OUT_PALETTE] = {"palette", "palette", TS_OUTPUT_IMAGE, "palette",
+                     "the labels as an 8-bit RGB image to look at: each class value its own colour, the same on "
+                     "every run"},
 };
 
 static void seg_params_default(void *params) { ts_seg_params_default(params); }
@@ -39,18 +42,8 @@ static void seg_inputs(const void *params, ts_engine_inputs *out) {
 
 /* ---- spec keys ----------------------------------------------------------- */
 
-/* Ranges here only keep values in their types; ts_seg_check judges them
- * (pairs excepted: the inputs follow from it). */
 static int seg_spec_set(void *params, const char *k, const char *v) {
-  ts_seg_params *p = params;
-  if (strcmp(k, "pairs") == 0) return ts_parse_int(v, 1, TS_SEG_MAX_PAIRS, &p->pairs);
-  if (strcmp(k, "levels") == 0) return ts_parse_int(v, -1000, 1000, &p->levels);
-  if (strcmp(k, "window") == 0) return ts_parse_int(v, -1000, 1000, &p->window);
-  if (strcmp(k, "denoise") == 0) return ts_parse_int(v, -1, TS_SEG_MAX_DENOISE + 1, &p->denoise);
-  if (strcmp(k, "rgb_search") == 0) return ts_parse_int(v, 0, 1, &p->rgb);
-  if (strcmp(k, "truth") == 0) return ts_parse_int(v, 0, 1, &p->truth);
-  if (strcmp(k, "max_pixels") == 0) return ts_parse_u64(v, &p->max_pixels);
-  return TS_ENOENT;
+  return ts_params_set(ts_seg_param_table, params, k, v);
 }
 
 static int seg_spec_complete(const void *params, char *err) {
@@ -59,10 +52,7 @@ static int seg_spec_complete(const void *params, char *err) {
 }
 
 static int seg_spec_format(const void *params, char *buf, size_t cap) {
-  const ts_seg_params *p = params;
-  int n = snprintf(buf, cap, "pairs=%d\nlevels=%d\nwindow=%d\ndenoise=%d\nrgb_search=%d\ntruth=%d\nmax_pixels=%llu\n",
-                   p->pairs, p->levels, p->window, p->denoise, p->rgb, p->truth, (unsigned long long)p->max_pixels);
-  return n < 0 || (size_t)n >= cap ? TS_ETOOBIG : n;
+  return ts_params_format(ts_seg_param_table, params, buf, cap);
 }
 
 /* The inputs named by their options (the CLI names its files itself). */
@@ -81,8 +71,9 @@ static void seg_set_max_pixels(void *params, uint64_t max_pixels) {
 
 /* The labels (2 bytes a pixel at most), the report and the table. */
 static uint64_t seg_result_bytes(const void *params, const ts_engine_wants *w, const ts_image_info *in) {
-  (void)params, (void)w;
-  return (uint64_t)in[TS_SEG_IN_INPUT].width * (uint64_t)in[TS_SEG_IN_INPUT].height * 2 + 65536;
+  (void)params;
+  uint64_t per_px = 2 + (w->want[OUT_PALETTE][0] ? 3 : 0);
+  return (uint64_t)in[TS_SEG_IN_INPUT].width * (uint64_t)in[TS_SEG_IN_INPUT].height * per_px + 65536;
 }
 
 static int seg_levels(const void *params) { return ((const ts_seg_params *)params)->levels; }
@@ -194,11 +185,38 @@ static int write_accuracy(const ts_engine_run *r, const char *path, char *err) {
   return ts_file_write(path, text, (size_t)n, err);
 }
 
+/* Class value v's colour: hues a golden angle apart (neighbouring values
+ * far apart on the wheel), two brightnesses alternating; integers only,
+ * so the bytes are the same on every machine. */
+static void palette_colour(unsigned v, uint8_t rgb[3]) {
+  unsigned hue = (v * 40503u) & 0xffffu; /* 65536 / golden ratio */
+  unsigned top = v & 1 ? 190 : 245, low = top * 35 / 100;
+  unsigned sector = hue * 6 >> 16, f = (hue * 6 & 0xffffu) * (top - low) >> 16;
+  unsigned up = low + f, down = top - f;
+  const unsigned c[6][3] = {{top, up, low}, {down, top, low}, {low, top, up},
+                            {low, down, top}, {up, low, top}, {top, low, down}};
+  for (int i = 0; i < 3; i++) rgb[i] = (uint8_t)c[sector][i];
+}
+
+static int write_palette(const ts_engine_run *r, const char *path, char *err) {
+  const ts_image *labels = &r->res.labels;
+  ts_image out = {0};
+  int rc = ts_image_alloc(&out, labels->width, labels->height, 3, TS_PIX_U8, err);
+  for (size_t i = 0; rc == 0 && i < (size_t)labels->width * (size_t)labels->height; i++) {
+    unsigned v = labels->type == TS_PIX_U16 ? ((const uint16_t *)labels->pixels)[i] : ((const uint8_t *)labels->pixels)[i];
+    palette_colour(v, (uint8_t *)out.pixels + 3 * i);
+  }
+  if (rc == 0) rc = ts_image_write(path, &out, r->meta, err);
+  ts_image_free(&out);
+  return rc;
+}
+
 static int seg_write_output(const ts_engine_run *r, int k, const char *path, int threads, char *err) {
   switch (k) {
   case OUT_LABELS: return ts_image_write(path, &r->res.labels, r->meta, err);
   case OUT_REPORT: return write_report(r, path, threads, err);
   case OUT_ACCURACY: return write_accuracy(r, path, err);
+  case OUT_PALETTE: return write_palette(r, path, err);
   default: return ts_error(err, TS_EINVAL, "the segment engine has no output %d", k);
   }
 }
@@ -213,6 +231,7 @@ const ts_engine ts_engine_segment = {
     .name = "segment",
     .outputs = seg_outputs,
     .noutputs = OUT_COUNT,
+    .params = ts_seg_param_table,
     .params_default = seg_params_default,
     .spec_set = seg_spec_set,
     .spec_complete = seg_spec_complete,

@@ -2,19 +2,37 @@
  * (every problem at once, each naming its input), the classes of the label
  * rasters, and the 8-bit planes the search compares (segment.h). */
 #include <stdarg.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "error.h"
+#include "param.h"
 #include "segment.h"
+#include "util.h"
+
+#define F(field) offsetof(ts_seg_params, field)
+
+/* In the spec's order. pairs and truth follow from the inputs given. */
+const ts_param ts_seg_param_table[] = {
+    {"pairs", NULL, NULL, TS_PARAM_INT, F(pairs), 1, TS_SEG_MAX_PAIRS, "1", "training pairs"},
+    {"levels", "levels", "L", TS_PARAM_INT, F(levels), 1, TS_SEG_MAX_LEVELS, "3",
+     "pyramid levels, 1 = the single level"},
+    {"window", "window", "N", TS_PARAM_INT, F(window), 3, TS_SEG_MAX_WINDOW, "9", "window width",
+     .flags = TS_PARAM_ODD},
+    {"denoise", "denoise", "MIN_AREA", TS_PARAM_INT, F(denoise), 0, TS_SEG_MAX_DENOISE, "0",
+     "regions (4-connected) of fewer pixels take the class most of their border touches; 0 = off"},
+    {"rgb_search", "rgb-search", NULL, TS_PARAM_FLAG, F(rgb), 0, 1, "0",
+     "compare the three colour channels instead of luminance"},
+    {"truth", NULL, NULL, TS_PARAM_FLAG, F(truth), 0, 1, "0", "the last input is a truth raster"},
+    {"max_pixels", NULL, NULL, TS_PARAM_U64, F(max_pixels), 0, 0, "268435456", "input size limit",
+     .flags = TS_PARAM_UNBOUNDED},
+    {NULL}};
 
 void ts_seg_params_default(ts_seg_params *p) {
   memset(p, 0, sizeof(*p));
-  p->pairs = 1;
-  p->levels = 3;
-  p->window = 9;
-  p->max_pixels = TS_IMAGE_DEFAULT_MAX_PIXELS;
+  ts_params_default(ts_seg_param_table, p);
 }
 
 static int pairs_of(const ts_seg_params *p) {
@@ -53,14 +71,11 @@ static void problem(problems *pr, const char *fmt, ...) {
   if (n > 0) pr->used += (size_t)n < pr->len - pr->used ? (size_t)n : pr->len - pr->used - 1;
 }
 
+/* The table's ranges (param.h), into this accumulator. */
 static void check_params(const ts_seg_params *p, problems *pr) {
-  if (p->levels < 1 || p->levels > TS_SEG_MAX_LEVELS)
-    problem(pr, "--levels %d: need 1..%d", p->levels, TS_SEG_MAX_LEVELS);
-  if (p->window < 3 || p->window > TS_SEG_MAX_WINDOW || p->window % 2 == 0)
-    problem(pr, "--window %d: need an odd number in 3..%d", p->window, TS_SEG_MAX_WINDOW);
-  if (p->denoise < 0 || p->denoise > TS_SEG_MAX_DENOISE)
-    problem(pr, "--denoise %d: need a region size of 0..%d pixels (0: off)", p->denoise, TS_SEG_MAX_DENOISE);
-  if (p->rgb != 0 && p->rgb != 1) problem(pr, "rgb_search=%d: need 0 or 1", p->rgb);
+  pr->msg[pr->used] = '\0';
+  ts_params_check(ts_seg_param_table, p, pr->msg, pr->len, &pr->count);
+  pr->used = strlen(pr->msg);
 }
 
 static int levels_ok(const ts_seg_params *p) {

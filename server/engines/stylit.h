@@ -60,9 +60,11 @@
 #ifndef TS_STYLIT_H
 #define TS_STYLIT_H
 
+#include <stddef.h>
 #include <stdint.h>
 
 #include "image.h"
+#include "param.h"
 #include "progress.h"
 #include "search.h"
 
@@ -105,6 +107,7 @@ typedef struct {
   uint8_t level_mode[TS_STYLIT_MAX_LEVELS];
   int pm_iters;       /* patchmatch passes per search step, 1..100 (4) */
   double budget;      /* auto: seconds an exact level may take, 0..1e6 (1) */
+  double scale;       /* the inputs resampled to this fraction first, (0, 1] (1) */
 } ts_stylit_params;
 
 /* Inputs in the engine's order: style, then per guide K source, target. */
@@ -112,6 +115,22 @@ enum { TS_STYLIT_IN_STYLE = 0 };
 static inline int ts_stylit_in_src(int k) { return 1 + 2 * k; }
 static inline int ts_stylit_in_tgt(int k) { return 2 + 2 * k; }
 
+/* The scene's parameters (param.h) as entries of a table whose struct
+ * holds a ts_stylit_params at byte `base`: the stylize and the energy
+ * engines' tables start with them. The guides' weights are set by
+ * --weight after what they weigh, as spec keys weight_K. */
+#define TS_STYLIT_SCENE_PARAMS(base)                                                                          \
+  {"patch_size", "patch-size", "P", TS_PARAM_INT, (base) + offsetof(ts_stylit_params, patch), 3,              \
+   TS_STYLIT_MAX_PATCH, "5", "patch width", .flags = TS_PARAM_ODD},                                           \
+  {"max_pixels", NULL, NULL, TS_PARAM_U64, (base) + offsetof(ts_stylit_params, max_pixels), 0, 0,             \
+   "268435456", "image size limit", .flags = TS_PARAM_UNBOUNDED},                                             \
+  {"guides", NULL, NULL, TS_PARAM_INT, (base) + offsetof(ts_stylit_params, guides), 1, TS_STYLIT_MAX_GUIDES, \
+   "1", "guide pairs"},                                                                                        \
+  {"style_weight", NULL, NULL, TS_PARAM_DOUBLE, (base) + offsetof(ts_stylit_params, style_weight), 0, 100,   \
+   "1", "the style's weight"}
+
+/* The stylize engine's parameters (stylit_params.c) and their defaults. */
+extern const ts_param ts_stylit_param_table[];
 void ts_stylit_params_default(ts_stylit_params *p);
 /* Search mode names: "exact", "patchmatch", "auto". */
 const char *ts_stylit_search_name(int mode);

@@ -3,6 +3,7 @@
  * energy engine), its own keys, result files and report. No checkpoints
  * yet: a job a coordinator restart interrupts runs again from its start,
  * which gives the same bytes. */
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -10,6 +11,7 @@
 #include "engine.h"
 #include "error.h"
 #include "outputs.h"
+#include "resample.h"
 #include "stylit.h"
 #include "stylit_engine.h"
 #include "util.h"
@@ -21,7 +23,8 @@ enum { OUT_IMAGE, OUT_NNF, OUT_REPORT, OUT_COUNT };
 
 static const ts_engine_output stylit_outputs[OUT_COUNT] = {
     [OUT_IMAGE] = {"output", "out", TS_OUTPUT_IMAGE},
-    [OUT_NNF] = {"nnf", "nnf", TS_OUTPUT_IMAGE},
+    [OUT_NNF] = {"nnf", "nnf", TS_OUTPUT_IMAGE,
+                      "nnf", "the nearest-neighbour field: for each output pixel the exemplar pixel it comes from (.raw: little-endian uint32 x, y pairs; else a 16-bit image, red = x, green = y)"},
     [OUT_REPORT] = {"report", "report.json", TS_OUTPUT_FLAG},
 };
 
@@ -40,30 +43,15 @@ static void stylit_inputs(const void *params, ts_engine_inputs *out) { ts_stylit
 /* ---- spec keys ---------------------------------------------------------- */
 
 /* weight_K: K's weight; ranges are the check's business. */
-static int set_weight(ts_stylit_params *p, const char *k, const char *v) {
+int ts_stylit_weight_set(ts_stylit_params *p, const char *k, const char *v) {
   int g;
   if (strncmp(k, "weight_", 7) != 0 || ts_parse_int(k + 7, 0, TS_STYLIT_MAX_GUIDES - 1, &g) != 0) return TS_ENOENT;
   return ts_parse_double(v, &p->weight[g]) != 0 || p->weight[g] < 0 ? TS_EINVAL : 0;
 }
 
-int ts_stylit_scene_set(ts_stylit_params *p, const char *k, const char *v) {
-  if (strcmp(k, "patch_size") == 0) return ts_parse_int(v, -1000, 1000, &p->patch);
-  if (strcmp(k, "max_pixels") == 0) return ts_parse_u64(v, &p->max_pixels);
-  if (strcmp(k, "guides") == 0) return ts_parse_int(v, 1, TS_STYLIT_MAX_GUIDES, &p->guides);
-  if (strcmp(k, "style_weight") == 0) return ts_parse_double(v, &p->style_weight);
-  return set_weight(p, k, v);
-}
-
 static int stylit_spec_set(void *params, const char *k, const char *v) {
-  ts_stylit_params *p = params;
-  if (strcmp(k, "levels") == 0) return ts_parse_int(v, -1000, 1000, &p->levels);
-  if (strcmp(k, "iters") == 0) return ts_parse_int(v, -1000, 1000, &p->iters);
-  if (strcmp(k, "uniformity") == 0) return ts_parse_double(v, &p->uniformity);
-  if (strcmp(k, "seed") == 0) return ts_parse_u64(v, &p->seed);
-  if (strcmp(k, "search") == 0) return ts_stylit_search_parse(v, p, NULL) == 0 ? 0 : TS_EINVAL;
-  if (strcmp(k, "pm_iters") == 0) return ts_parse_int(v, -1000, 1000, &p->pm_iters);
-  if (strcmp(k, "budget") == 0) return ts_parse_double(v, &p->budget);
-  return ts_stylit_scene_set(p, k, v);
+  int rc = ts_params_set(ts_stylit_param_table, params, k, v);
+  return rc != TS_ENOENT ? rc : ts_stylit_weight_set(params, k, v);
 }
 
 /* A weight for a guide the job does not have would not survive format
@@ -80,30 +68,64 @@ static int stylit_spec_complete(const void *params, char *err) { return ts_styli
 
 /* Doubles with 17 significant digits, so they round-trip; guide weights
  * resolved (a default weight is written as the value it stands for). */
-int ts_stylit_scene_format(const ts_stylit_params *p, char *buf, size_t cap) {
-  int n = snprintf(buf, cap, "patch_size=%d\nmax_pixels=%llu\nguides=%d\nstyle_weight=%.17g\n", p->patch,
-                   (unsigned long long)p->max_pixels, p->guides, p->style_weight);
+int ts_stylit_weights_format(const ts_stylit_params *p, char *buf, size_t cap) {
+  int n = 0;
   for (int k = 0; n >= 0 && (size_t)n < cap && k < p->guides; k++)
     n += snprintf(buf + n, cap - (size_t)n, "weight_%d=%.17g\n", k, ts_stylit_weight(p, k));
   return n < 0 || (size_t)n >= cap ? TS_ETOOBIG : n;
 }
 
 static int stylit_spec_format(const void *params, char *buf, size_t cap) {
-  const ts_stylit_params *p = params;
-  char search[TS_STYLIT_SEARCH_LEN];
-  ts_stylit_search_format(p, search, sizeof(search));
-  int n = ts_stylit_scene_format(p, buf, cap);
+  int n = ts_params_format(ts_stylit_param_table, params, buf, cap);
   if (n < 0) return n;
-  int k = snprintf(buf + n, cap - (size_t)n,
-                   "levels=%d\niters=%d\nuniformity=%.17g\nseed=%llu\nsearch=%s\npm_iters=%d\nbudget=%.17g\n",
-                   p->levels, p->iters, p->uniformity, (unsigned long long)p->seed, search, p->pm_iters, p->budget);
-  return k < 0 || (size_t)k >= cap - (size_t)n ? TS_ETOOBIG : n + k;
+  int k = ts_stylit_weights_format(params, buf + n, cap - (size_t)n);
+  return k < 0 ? k : n + k;
 }
 
 static void stylit_params_default(void *params) { ts_stylit_params_default(params); }
 
+/* ---- --scale: the inputs resampled first -------------------------------- */
+
+static int scaled_side(int n, double scale) {
+  int s = (int)lround(n * scale);
+  return s < 1 ? 1 : s;
+}
+
+typedef struct {
+  int n;
+  ts_image img[TS_ENGINE_MAX_INPUTS];
+  const ts_image *ptr[TS_ENGINE_MAX_INPUTS];
+} scaled_inputs;
+
+static void scaled_free(scaled_inputs *s) {
+  for (int k = 0; k < s->n; k++) ts_image_free(&s->img[k]);
+  s->n = 0;
+}
+
+/* The inputs the synthesis sees: in itself, or at p->scale. */
+static int scaled_make(const ts_stylit_params *p, const ts_image *const *in, scaled_inputs *s, char *err) {
+  int n = 1 + 2 * (p->guides < TS_STYLIT_MAX_GUIDES ? p->guides : TS_STYLIT_MAX_GUIDES);
+  s->n = 0;
+  for (int k = 0; k < n; k++) {
+    s->ptr[k] = in[k];
+    if (p->scale == 1.0) continue;
+    int rc = ts_image_resample(in[k], scaled_side(in[k]->width, p->scale), scaled_side(in[k]->height, p->scale),
+                               &s->img[k], err);
+    s->n = k + (rc == 0);
+    if (rc != 0) return rc;
+    s->ptr[k] = &s->img[k];
+  }
+  return 0;
+}
+
 static int stylit_check(const void *params, const ts_image *const *in, char *msg, size_t len) {
-  return ts_stylit_check(params, in, msg, len);
+  scaled_inputs s;
+  char err[TS_ERR_LEN];
+  int rc = scaled_make(params, in, &s, err);
+  if (rc != 0) snprintf(msg, len, "%s", err);
+  else rc = ts_stylit_check(params, s.ptr, msg, len);
+  scaled_free(&s);
+  return rc;
 }
 
 static void stylit_set_max_pixels(void *params, uint64_t max_pixels) {
@@ -112,9 +134,10 @@ static void stylit_set_max_pixels(void *params, uint64_t max_pixels) {
 
 /* Per target pixel: the image (4 bytes at most) and the NNF (8). */
 static uint64_t stylit_result_bytes(const void *params, const ts_engine_wants *w, const ts_image_info *in) {
-  (void)params;
+  const ts_stylit_params *p = params;
   const ts_image_info *t = &in[ts_stylit_in_tgt(0)];
-  return (uint64_t)t->width * (uint64_t)t->height * (4 + (w->want[OUT_NNF][0] ? 8 : 0));
+  return (uint64_t)scaled_side(t->width, p->scale) * (uint64_t)scaled_side(t->height, p->scale) *
+         (4 + (w->want[OUT_NNF][0] ? 8 : 0));
 }
 
 static int stylit_levels(const void *params) { return ((const ts_stylit_params *)params)->levels; }
@@ -135,7 +158,11 @@ static int stylit_run(const void *params, const ts_image *const *in, ts_search *
   r->p = params;
   r->search = search;
   ts_stylit_hooks sh = {h->progress, h->progress_ctx};
-  return ts_stylit_run(r->p, in, search, &sh, &r->res, err);
+  scaled_inputs s;
+  int rc = scaled_make(r->p, in, &s, err);
+  if (rc == 0) rc = ts_stylit_run(r->p, s.ptr, search, &sh, &r->res, err);
+  scaled_free(&s);
+  return rc;
 }
 
 /* The report: parameters, the search (its mode, and "patchmatch" among
@@ -207,6 +234,7 @@ const ts_engine ts_engine_stylize = {
     .name = "stylize",
     .outputs = stylit_outputs,
     .noutputs = OUT_COUNT,
+    .params = ts_stylit_param_table,
     .params_default = stylit_params_default,
     .spec_set = stylit_spec_set,
     .spec_complete = stylit_spec_complete,

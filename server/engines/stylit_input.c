@@ -8,74 +8,6 @@
 #include "error.h"
 #include "stylit_input.h"
 
-void ts_stylit_params_default(ts_stylit_params *p) {
-  memset(p, 0, sizeof(*p));
-  p->patch = 5;
-  p->iters = 6;
-  p->uniformity = 1.0;
-  p->seed = 1;
-  p->max_pixels = TS_IMAGE_DEFAULT_MAX_PIXELS;
-  p->guides = 1;
-  p->style_weight = 1.0;
-  for (int k = 0; k < TS_STYLIT_MAX_GUIDES; k++) p->weight[k] = -1.0;
-  p->search = TS_STYLIT_SIZE;
-  p->pm_iters = 4;
-  p->budget = 1.0;
-}
-
-static const char *const kSearchNames[] = {"exact", "patchmatch", "auto", "size"};
-
-const char *ts_stylit_search_name(int mode) {
-  return mode >= TS_STYLIT_EXACT && mode <= TS_STYLIT_SIZE ? kSearchNames[mode] : "unknown";
-}
-
-static int mode_of(const char *name, size_t len, int last) {
-  for (int m = TS_STYLIT_EXACT; m <= last; m++)
-    if (strlen(kSearchNames[m]) == len && strncmp(name, kSearchNames[m], len) == 0) return m;
-  return -1;
-}
-
-int ts_stylit_search_parse(const char *text, ts_stylit_params *p, char *err) {
-  int m = mode_of(text, strlen(text), TS_STYLIT_SIZE);
-  if (m >= 0) {
-    p->search = m;
-    p->nlevel_modes = 0;
-    return 0;
-  }
-  int n = 0;
-  for (const char *s = text;; n++) {
-    const char *comma = strchr(s, ',');
-    size_t len = comma != NULL ? (size_t)(comma - s) : strlen(s);
-    int lm = n < TS_STYLIT_MAX_LEVELS ? mode_of(s, len, TS_STYLIT_PATCHMATCH) : -1;
-    if (lm < 0)
-      return ts_error(err, TS_EINVAL, "--search %s: need exact, patchmatch, size, auto, or a list of exact and patchmatch "
-                      "with one per level, coarsest first (at most %d)", text, TS_STYLIT_MAX_LEVELS);
-    p->level_mode[n] = (uint8_t)lm;
-    if (comma == NULL) break;
-    s = comma + 1;
-  }
-  p->search = TS_STYLIT_LIST;
-  p->nlevel_modes = n + 1;
-  return 0;
-}
-
-void ts_stylit_search_format(const ts_stylit_params *p, char *out, size_t cap) {
-  if (p->search != TS_STYLIT_LIST) {
-    snprintf(out, cap, "%s", ts_stylit_search_name(p->search));
-    return;
-  }
-  size_t o = 0;
-  out[0] = '\0';
-  for (int l = 0; l < p->nlevel_modes && o < cap; l++) {
-    int n = snprintf(out + o, cap - o, "%s%s", l ? "," : "", ts_stylit_search_name(p->level_mode[l]));
-    o += n > 0 ? (size_t)n : 0;
-  }
-}
-
-double ts_stylit_weight(const ts_stylit_params *p, int k) {
-  return p->weight[k] < 0 ? 1.0 / p->guides : p->weight[k];
-}
-
 /* ---- the check --------------------------------------------------------- */
 
 typedef struct {
@@ -100,16 +32,9 @@ static void problem(problems *pr, const char *fmt, ...) {
 static int weight_ok(double w) { return w == 0.0 || (w >= 0.01 && w <= 100.0); }
 
 static void check_params(const ts_stylit_params *p, problems *pr) {
-  if (p->patch < 3 || p->patch > TS_STYLIT_MAX_PATCH || p->patch % 2 == 0)
-    problem(pr, "--patch-size %d: need an odd number in 3..%d", p->patch, TS_STYLIT_MAX_PATCH);
-  if (p->levels < 0 || p->levels > TS_STYLIT_MAX_LEVELS)
-    problem(pr, "--levels %d: need 1..%d (or 0: as many as fit)", p->levels, TS_STYLIT_MAX_LEVELS);
-  if (p->iters < 1 || p->iters > 100) problem(pr, "--iters %d: need 1..100", p->iters);
-  if (p->search < TS_STYLIT_EXACT || p->search > TS_STYLIT_LIST) problem(pr, "search mode %d: need exact, patchmatch, size or auto", p->search);
-  if (p->pm_iters < 1 || p->pm_iters > 100) problem(pr, "--pm-iters %d: need 1..100", p->pm_iters);
-  if (!(p->budget >= 0 && p->budget <= 1e6)) problem(pr, "--budget %g: need 0..1000000 seconds", p->budget);
-  if (!(p->uniformity >= 0.0 && p->uniformity <= 1000.0))
-    problem(pr, "--uniformity %g: need 0..1000 (0: off)", p->uniformity);
+  pr->msg[pr->used] = '\0';
+  ts_params_check(ts_stylit_param_table, p, pr->msg, pr->len, &pr->problems);
+  pr->used = strlen(pr->msg);
   if (!weight_ok(p->style_weight)) problem(pr, "--weight %g of the style: need 0 or 0.01..100", p->style_weight);
   double sum = p->style_weight;
   for (int k = 0; k < p->guides && k < TS_STYLIT_MAX_GUIDES; k++) {

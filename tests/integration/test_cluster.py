@@ -341,7 +341,7 @@ def test_bad_job_gets_a_clear_error_and_the_server_goes_on(data, cluster, tmp_pa
     cluster.start(1, 1)
     p = cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "x.png", "--size", "64x64",
                        "--wb", "4", check=False)
-    assert p.returncode == 2 and "--wb 4: the block width must be odd, 1..15" in p.stderr, p.stderr
+    assert p.returncode == 2 and "--wb 4: need an odd number in 1..15" in p.stderr, p.stderr
     notimg = tmp_path / "fake.png"
     notimg.write_bytes(b"not an image at all" * 10)
     p = cluster.texsyn("synth", "--ref", notimg, "-o", tmp_path / "y.png", "--size", "64x64", check=False)

@@ -157,10 +157,10 @@ def test_a_job_too_small_for_a_codebook_runs_exact_and_says_so(texsyn, data, tmp
 
 @pytest.mark.sanitize
 @pytest.mark.parametrize("args, needle", [
-    (["--lbg", "-1"], "--lbg -1: need a whole number in 0..65536"),
-    (["--lbg", "70000"], "--lbg 70000: need a whole number in 0..65536"),
+    (["--lbg", "-1"], "--lbg -1: need 0..65536"),
+    (["--lbg", "70000"], "--lbg 70000: need 0..65536"),
     (["--lbg", "8", "--lbg-probe", "9"], "--lbg-probe 9: need 1..8"),
-    (["--lbg", "8", "--lbg-probe", "0"], "--lbg-probe 0: need a whole number in 1..65536"),
+    (["--lbg", "8", "--lbg-probe", "0"], "--lbg-probe 0: need 1..65536"),
     (["--lbg-exact"], "need --lbg P"),
     (["--lbg-probe", "2"], "need --lbg P"),
     (["--lbg", "8", "--lbg-levels", "0,x"], "--lbg-levels 0,x: need \"all\" or level numbers"),

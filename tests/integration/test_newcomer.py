@@ -302,7 +302,8 @@ def test_texsyn_help_is_the_command_table(texsyn):
     assert lines[0] == "usage: texsyn COMMAND [options]   (texsyn COMMAND --help for details)", p.stdout
     names = [re.match(r"  (\S+) +\S", line).group(1) for line in lines[1:]]
     assert names == ["synth", "aerial", "stylize", "energy", "apply-nnf", "segment", "quality", "shuffle", "simd",
-                     "status", "watch", "fetch", "cancel", "delete", "workers", "modbus", "help", "--version"], names
+                     "params", "status", "watch", "fetch", "cancel", "delete", "workers", "modbus", "help",
+                     "--version"], names
     for name in names:
         q = run(texsyn, name, "--help")
         assert q.stdout.startswith("usage: texsyn") or name == "--version", (name, q.stdout)

@@ -176,3 +176,32 @@ def test_a_truth_with_a_label_no_training_has_is_refused(texsyn, small, tmp_path
     err = errors(texsyn, *pair_args(small), "--input", small["input"], "-o", tmp_path / "o.png", "--truth", truth,
                  *SMALL)
     assert "--truth holds 3 label values no --labels raster has (7, 8, 9); the classes are 0, 1, 2" in err
+
+
+def read_rgb(path, tmp_path):
+    """The RGB triples of an 8-bit colour image, through a binary PPM."""
+    ppm = tmp_path / (path.stem + ".ppm")
+    subprocess.run(["oiiotool", path, "-o", ppm], check=True)
+    data = ppm.read_bytes()
+    m = re.match(rb"P6\s+(\d+)\s+(\d+)\s+255\s", data)
+    assert m, data[:20]
+    w, h = int(m.group(1)), int(m.group(2))
+    px = data[m.end():]
+    return w, h, [px[3 * i:3 * i + 3] for i in range(w * h)]
+
+
+@pytest.mark.sanitize
+def test_the_palette_gives_each_class_its_own_colour(texsyn, small, tmp_path):
+    """--palette draws the labels in colour: one colour per class value,
+    different classes apart, and the same bytes on a second run."""
+    out, pal, again = tmp_path / "l.png", tmp_path / "p.png", tmp_path / "p2.png"
+    segment(texsyn, small, out, *SMALL, "--palette", pal)
+    w, h, labels = read_grey(out)
+    pw, ph, colours = read_rgb(pal, tmp_path)
+    assert (pw, ph) == (w, h)
+    of_label = {}
+    for v, c in zip(labels, colours):
+        assert of_label.setdefault(v, c) == c, f"class {v} drawn in two colours"
+    assert len(set(of_label.values())) == len(of_label) >= 3, of_label
+    segment(texsyn, small, tmp_path / "l2.png", *SMALL, "--palette", again)
+    assert again.read_bytes() == pal.read_bytes()

@@ -349,3 +349,23 @@ def test_a_queued_energy_job_runs_after_a_coordinator_restart(texsyn, scene, clu
     cluster.texsyn("watch", job, "--quiet")
     cluster.texsyn("fetch", job, "-o", tmp_path / "energy.json")
     assert (tmp_path / "energy.json").read_text() == want
+
+
+def test_scale_runs_the_job_at_a_fraction_of_the_inputs_size(texsyn, scene, cluster, tmp_path):
+    """--scale 0.5 resamples the exemplar and guides first: the output and
+    its NNF are the halved target's size, pointing into the halved
+    exemplar, the same bytes embedded and on 2 workers; out of (0, 1] it is
+    refused before any work."""
+    emb, nnf = tmp_path / "e.png", tmp_path / "e.raw"
+    stylize(texsyn, scene, emb, "--scale", "0.5", "--nnf", nnf, "--embedded")
+    oiiotool(emb, "-o", tmp_path / "e.ppm")
+    w, h, _, _ = read_pnm(tmp_path / "e.ppm")
+    assert (w, h) == (32, 24)
+    pairs = struct.unpack(f"<{2 * w * h}I", nnf.read_bytes())
+    assert max(pairs[0::2]) < 32 and max(pairs[1::2]) < 24
+    cluster.start(2, 1)
+    stylize(texsyn, scene, tmp_path / "c.png", "--scale", "0.5", "--server", cluster.server.addr)
+    assert (tmp_path / "c.png").read_bytes() == emb.read_bytes()
+    for bad in ("0", "1.5"):
+        p = stylize(texsyn, scene, tmp_path / "x.png", "--scale", bad, "--embedded", check=False)
+        assert p.returncode == 2 and f"--scale {bad}: need more than 0, at most 1" in p.stderr, p.stderr

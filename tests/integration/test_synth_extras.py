@@ -259,7 +259,7 @@ def test_copy_accel_option_errors(texsyn, data, tmp_path):
     assert p.returncode == 2 and "need --copy-accel" in p.stderr, p.stderr
     p = run(texsyn, *base, "--copy-accel", "--copy-accel-kernel", "4", "--copy-accel-min", "2", check=False)
     assert p.returncode == 2, p.stderr
-    assert "--copy-accel-kernel 4: need an odd width 1..15" in p.stderr and "--copy-accel-min 2" in p.stderr
+    assert "--copy-accel-kernel 4: need 0 or odd 1..15" in p.stderr and "--copy-accel-min 2" in p.stderr
     p = run(texsyn, *base, "--best-of", "0", check=False)
     assert p.returncode == 2 and "--best-of 0: need 1..64" in p.stderr, p.stderr
     p = run(texsyn, *base, "--best-of-levels", "2", check=False)

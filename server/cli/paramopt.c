@@ -1,0 +1,101 @@
+/* paramopt.c - see paramopt.h. */
+#include "paramopt.h"
+
+#include <string.h>
+
+#include "error.h"
+
+static size_t count_options(const struct option *t) {
+  size_t n = 0;
+  while (t[n].name != NULL) n++;
+  return n;
+}
+
+int ts_paramopt_build(const ts_engine *e, const struct option *own, struct option *out, size_t cap) {
+  size_t n = count_options(own);
+  if (n >= cap) return TS_ETOOBIG;
+  memcpy(out, own, n * sizeof(*out));
+  for (int i = 0; e->params[i].key != NULL; i++) {
+    const ts_param *p = &e->params[i];
+    if (p->flag == NULL) continue;
+    if (n + 1 >= cap) return TS_ETOOBIG;
+    out[n++] = (struct option){p->flag, p->type == TS_PARAM_FLAG ? no_argument : required_argument, 0,
+                               TS_OPT_PARAM + i};
+  }
+  for (int k = 0; k < e->noutputs; k++) {
+    if (e->outputs[k].flag == NULL) continue;
+    if (n + 1 >= cap) return TS_ETOOBIG;
+    out[n++] = (struct option){e->outputs[k].flag, required_argument, 0, TS_OPT_SIDE + k};
+  }
+  out[n] = (struct option){0, 0, 0, 0};
+  return 0;
+}
+
+int ts_paramopt_take(ts_job_cmd *o, int c, const char *arg, char *err) {
+  const ts_engine *e = o->spec.engine;
+  int nparams = ts_param_count(e->params);
+  if (c >= TS_OPT_PARAM && c < TS_OPT_PARAM + nparams) {
+    const ts_param *p = &e->params[c - TS_OPT_PARAM];
+    char what[64];
+    snprintf(what, sizeof(what), "--%s", p->flag);
+    if (p->type == TS_PARAM_FLAG) arg = p->flags & TS_PARAM_NEGATE ? "0" : "1";
+    return ts_param_parse(p, &o->spec.params, arg, what, err);
+  }
+  if (c >= TS_OPT_SIDE && c < TS_OPT_SIDE + e->noutputs) {
+    ts_output_set(&o->out, e->outputs[c - TS_OPT_SIDE].key, arg);
+    return 0;
+  }
+  return TS_ENOENT;
+}
+
+int ts_paramopt_check(const ts_job_cmd *o, char *err) {
+  if (o->server == NULL) return 0;
+  for (const ts_param *p = o->spec.engine->params; p->key != NULL; p++)
+    if ((p->flags & TS_PARAM_EMBEDDED) && !ts_param_is_default(p, &o->spec.params))
+      return ts_error(err, TS_EINVAL, "--%s runs in-process only (add --embedded)", p->flag);
+  return 0;
+}
+
+void ts_paramopt_help(FILE *f, const ts_engine *e) {
+  ts_params_help(f, e->params);
+  for (int k = 0; k < e->noutputs; k++) {
+    if (e->outputs[k].flag == NULL) continue;
+    char option[64];
+    snprintf(option, sizeof(option), "--%s F", e->outputs[k].flag);
+    ts_help_line(f, option, e->outputs[k].help);
+  }
+}
+
+double ts_paramopt_number(const ts_job_cmd *o, const char *key) {
+  const ts_param *p = ts_param_find(o->spec.engine->params, key);
+  return p != NULL ? ts_param_number(p, &o->spec.params) : 0;
+}
+
+/* One engine's table: spec key, option, default, range, help. */
+static void print_table(const ts_engine *e) {
+  printf("engine %s\n", e->name);
+  for (const ts_param *p = e->params; p->key != NULL; p++) {
+    char option[64] = "-", def[128] = "-";
+    if (p->flag != NULL) snprintf(option, sizeof(option), "--%s", p->flag);
+    if (p->def != NULL) snprintf(def, sizeof(def), "%s", p->def);
+    printf("  %-18s %-20s %-10s %s%s\n", p->key, option, def, p->help,
+           p->flags & TS_PARAM_EMBEDDED ? " [in-process only, not a spec key]" : "");
+  }
+}
+
+int ts_cmd_params(int argc, char **argv) {
+  if (argc > 2 || (argc == 2 && argv[1][0] == '-')) {
+    printf("usage: texsyn params [ENGINE]\n"
+           "Lists each engine's parameters (or ENGINE's): the job spec key, the command-line\n"
+           "option (- for a key set from the inputs), the default and what it does.\n");
+    return argc == 2 && (strcmp(argv[1], "--help") == 0 || strcmp(argv[1], "-h") == 0) ? 0 : 2;
+  }
+  const ts_engine *e;
+  if (argc == 2 && (e = ts_engine_find(argv[1])) == NULL) {
+    fprintf(stderr, "texsyn params: no engine '%s' (texsyn params lists them)\n", argv[1]);
+    return 2;
+  }
+  if (argc == 2) print_table(e);
+  for (int i = 0; argc == 1 && (e = ts_engine_at(i)) != NULL; i++) print_table(e);
+  return 0;
+}
