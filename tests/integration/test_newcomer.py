@@ -270,23 +270,13 @@ def test_a_mistyped_command_or_option_gets_the_closest_one(texsyn):
              (["synth", "--levels"], "texsyn synth: --levels needs a value (see texsyn synth --help)\n"),
              (["synth", "--parity=1"], "texsyn synth: --parity takes no value (see texsyn synth --help)\n"),
              (["synth", "-x"], "texsyn synth: unknown option -x (see texsyn synth --help)\n"),
-             (["synth", "--ref", "a.png", "-o"], "texsyn synth: -o needs a value (see texsyn synth --help)\n"),
-             (["stylize", "--stlye", "s.png"],
-              "texsyn stylize: unknown option --stlye; did you mean --style? (see texsyn stylize --help)\n"),
-             (["energy", "--sampel", "2"],
-              "texsyn energy: unknown option --sampel; did you mean --sample? (see texsyn energy --help)\n"),
-             (["apply-nnf", "--nff", "f"],
-              "texsyn apply-nnf: unknown option --nff; did you mean --nnf? (see texsyn apply-nnf --help)\n"),
-             (["segment", "--trian", "t.png"],
-              "texsyn segment: unknown option --trian; did you mean --train? (see texsyn segment --help)\n"),
-             (["aerial", "--clases", "m.png"],
-              "texsyn aerial: unknown option --clases; did you mean --classes? (see texsyn aerial --help)\n"),
-             (["status", "--sevrer", "h:1"],
-              "texsyn status: unknown option --sevrer; did you mean --server? (see texsyn status --help)\n"),
-             (["quality", "--imgae", "i.png"],
-              "texsyn quality: unknown option --imgae; did you mean --image? (see texsyn quality --help)\n"),
-             (["modbus", "--sett", "drain=1"],
-              "texsyn modbus: unknown option --sett; did you mean --set? (see texsyn modbus --help)\n")]
+             (["synth", "--ref", "a.png", "-o"], "texsyn synth: -o needs a value (see texsyn synth --help)\n")]
+    # Every command's table: (command, typo, the option meant).
+    for cmd, typo, meant in [("stylize", "stlye", "style"), ("energy", "sampel", "sample"), ("apply-nnf", "nff", "nnf"),
+                             ("segment", "trian", "train"), ("aerial", "clases", "classes"),
+                             ("status", "sevrer", "server"), ("quality", "imgae", "image"), ("modbus", "sett", "set")]:
+        cases.append(([cmd, f"--{typo}", "x"], f"texsyn {cmd}: unknown option --{typo}; did you mean --{meant}? "
+                                               f"(see texsyn {cmd} --help)\n"))
     for args, message in cases:
         p = run(texsyn, *args, check=False)
         first = p.stderr.splitlines(keepends=True)[0]
