@@ -126,7 +126,8 @@ static int check_formats(const ts_job_cmd *o, char *err) {
     const char *path = ts_output_path(&o->out, e->outputs[k].key);
     if (path == NULL || e->outputs[k].kind != TS_OUTPUT_IMAGE) continue;
     const char *key = e->outputs[k].key, *ext = ts_path_ext(path);
-    if (image_ext(key, ext)) continue;
+    struct stat st; /* a directory is check_writable's to name */
+    if (image_ext(key, ext) || (stat(path, &st) == 0 && S_ISDIR(st.st_mode))) continue;
     char opt[64];
     output_option(key, opt, sizeof(opt));
     const char *raw = strcmp(key, RAW_NNF_KEY) == 0 ? " (or .raw)" : "";
