@@ -7,13 +7,15 @@
 #
 # Ports are chosen by the kernel (port 0); the run directory (TEXSYN_RUN,
 # default ./texsyn-run) holds server.addr, the pids, every log and the
-# spool. `start` prints the coordinator address as TEXSYN_SERVER=HOST:PORT,
-# which `texsyn` reads:   eval "$(deploy/local-cluster.sh start 2)"
-# Binaries come from TEXSYN_BUILD (default build/).
+# spool. `start` prints `export TEXSYN_SERVER=HOST:PORT`, for the shell to
+# evaluate:   eval "$(deploy/local-cluster.sh start 2)"
+# (exported, so that the texsyn commands the shell starts see it: a plain
+# assignment would leave them running in-process).
+# Binaries come from TEXSYN_BUILD (default: build/ beside deploy/).
 set -euo pipefail
 
 run=${TEXSYN_RUN:-texsyn-run}
-bin=${TEXSYN_BUILD:-build}
+bin=${TEXSYN_BUILD:-$(dirname "$0")/../build}
 
 die() { echo "local-cluster: $*" >&2; exit 1; }
 
@@ -69,7 +71,7 @@ start() {
     [ "$ready" -ge "$n" ] && break
     sleep 0.05
   done
-  echo "TEXSYN_SERVER=$addr"
+  echo "export TEXSYN_SERVER=$addr"
 }
 
 stop() {

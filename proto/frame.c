@@ -1,10 +1,16 @@
 /* frame.c - see frame.h. */
 #include "frame.h"
 
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "error.h"
+#include "version.h"
+
+void ts_version_print(const char *program) {
+  printf("%s %s (wire protocol %d)\n", program, TS_VERSION, TS_PROTO_VERSION);
+}
 
 void ts_frame_header(uint8_t out[TS_FRAME_HEADER], uint8_t type, uint32_t id, uint32_t len) {
   out[0] = 'T';

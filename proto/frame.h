@@ -38,6 +38,8 @@ typedef struct {
 } ts_frame;
 
 void ts_frame_header(uint8_t out[TS_FRAME_HEADER], uint8_t type, uint32_t id, uint32_t len);
+/* `PROGRAM --version`: "texsyn-worker 0.1.0 (wire protocol 5)" on stdout. */
+void ts_version_print(const char *program);
 
 typedef struct {
   uint8_t *buf;

@@ -40,7 +40,8 @@ enum {
   TS_MB_IR_JOB = 39,       /* u64 id of the running job that started first, else
                               of the job that ended last (0: none) */
   TS_MB_IR_PROGRESS = 43,  /* that job's progress, per mille */
-  TS_MB_IR_LEVEL = 44,     /* the level it synthesises (counts down to 0) */
+  TS_MB_IR_LEVEL = 44,     /* the level it synthesises, machine-numbered: L-1 the coarsest down to
+                            * 0 the finest (texsyn status shows "level L-this of L") */
   TS_MB_IR_ETA = 45,       /* u32 its ETA in seconds (0xFFFFFFFF: unknown) */
   TS_MB_IR_PAUSED = 47,    /* 1 while the queue is paused */
   TS_MB_IR_SERVER_END = 48,

@@ -365,7 +365,8 @@ static void usage(FILE *f) {
           "  --http [ADDR:]PORT        serve the read-only operations page (jobs, pool,\n"
           "                            /metrics for Prometheus); off by default; PORT or\n"
           "                            :PORT listens on loopback; same secret rules\n"
-          "  --quiet                   no startup line\n",
+          "  --quiet                   no startup line\n"
+          "  --version                 the texsyn release and wire protocol version\n",
           TS_FRAME_DEFAULT_MAX, (unsigned long long)TS_IMAGE_DEFAULT_MAX_PIXELS);
 }
 
@@ -416,7 +417,7 @@ static int rebalance_from(const char *s, int *out) {
 }
 
 static int parse_opts(int argc, char **argv, server_opts *o) {
-  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_MAX_WORKERS, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_CKPT, O_GRACE, O_SECRET, O_MODBUS, O_MB_CONTROL, O_MB_POLL, O_REBAL_FROM, O_HTTP, O_QUIET, O_HELP };
+  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_MAX_WORKERS, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_CKPT, O_GRACE, O_SECRET, O_MODBUS, O_MB_CONTROL, O_MB_POLL, O_REBAL_FROM, O_HTTP, O_QUIET, O_HELP, O_VERSION };
   static const struct option longopts[] = {
       {"listen", required_argument, 0, O_LISTEN}, {"workers", required_argument, 0, O_WORKERS},
       {"spool", required_argument, 0, O_SPOOL}, {"jobs", required_argument, 0, O_JOBS},
@@ -433,7 +434,8 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
       {"modbus", required_argument, 0, O_MODBUS}, {"modbus-control", no_argument, 0, O_MB_CONTROL},
       {"modbus-poll", required_argument, 0, O_MB_POLL}, {"rebalance-from", required_argument, 0, O_REBAL_FROM},
       {"http", required_argument, 0, O_HTTP},
-      {"quiet", no_argument, 0, O_QUIET}, {"help", no_argument, 0, O_HELP}, {0, 0, 0, 0}};
+      {"quiet", no_argument, 0, O_QUIET}, {"help", no_argument, 0, O_HELP},
+      {"version", no_argument, 0, O_VERSION}, {0, 0, 0, 0}};
   memset(o, 0, sizeof(*o));
   o->listen = "127.0.0.1:7070";
   o->spool = "texsyn-spool";
@@ -480,6 +482,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
     case O_HTTP: o->http = optarg; break;
     case O_QUIET: o->quiet = 1; break;
     case O_HELP: case 'h': usage(stdout); exit(0);
+    case O_VERSION: ts_version_print("texsyn-server"); exit(0);
     default:
       fprintf(stderr, "texsyn-server: %s: unknown option or missing value (see --help)\n", argv[optind - 1]);
       return -1;

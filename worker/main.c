@@ -537,6 +537,7 @@ static void usage(FILE *f) {
           "                       (off by default; a bare port listens on loopback)\n"
           "  --modbus-control     accept coil writes (drain) on the Modbus plane\n"
           "  --quiet              no log lines\n"
+          "  --version            the texsyn release and wire protocol version\n"
           "\n"
           "TEXSYN_SIMD=scalar|mmx|sse2|avx2|avx512 forces a kernel variant.\n",
           sysconf(_SC_NPROCESSORS_ONLN), TS_FRAME_LIMIT_MIN, TS_FRAME_DEFAULT_MAX,
@@ -570,7 +571,7 @@ static void on_signal(int sig) {
 }
 
 int main(int argc, char **argv) {
-  enum { O_LISTEN = 256, O_JOIN, O_THREADS, O_FRAME, O_MESSAGE, O_NAME, O_SECRET, O_MODBUS, O_MB_CONTROL, O_QUIET, O_HELP };
+  enum { O_LISTEN = 256, O_JOIN, O_THREADS, O_FRAME, O_MESSAGE, O_NAME, O_SECRET, O_MODBUS, O_MB_CONTROL, O_QUIET, O_HELP, O_VERSION };
   static const struct option longopts[] = {
       {"listen", required_argument, 0, O_LISTEN}, {"join", required_argument, 0, O_JOIN},
       {"threads", required_argument, 0, O_THREADS}, {"max-frame", required_argument, 0, O_FRAME},
@@ -578,7 +579,7 @@ int main(int argc, char **argv) {
       {"name", required_argument, 0, O_NAME}, {"secret-file", required_argument, 0, O_SECRET},
       {"modbus", required_argument, 0, O_MODBUS}, {"modbus-control", no_argument, 0, O_MB_CONTROL},
       {"quiet", no_argument, 0, O_QUIET},
-      {"help", no_argument, 0, O_HELP}, {0, 0, 0, 0}};
+      {"help", no_argument, 0, O_HELP}, {"version", no_argument, 0, O_VERSION}, {0, 0, 0, 0}};
   const char *listen_addr = NULL, *join_addr = NULL, *secret_file = NULL, *modbus_addr = NULL;
   int modbus_control = 0, quiet = 0;
   long v;
@@ -602,6 +603,7 @@ int main(int argc, char **argv) {
     case O_MB_CONTROL: modbus_control = 1; break;
     case O_QUIET: quiet = 1; break;
     case O_HELP: case 'h': usage(stdout); return 0;
+    case O_VERSION: ts_version_print("texsyn-worker"); return 0;
     default:
       fprintf(stderr, "texsyn-worker: %s: unknown option or missing value (see --help)\n", argv[optind - 1]);
       return 2;

@@ -114,9 +114,7 @@ static int parse(int argc, char **argv, aerial_opts *o, char *err) {
       usage(stdout, o->job.spec.engine);
       exit(0);
     }
-    if (c == '?' || c == ':')
-      return ts_error(err, TS_EINVAL, "%s: unknown option or missing value (see texsyn aerial --help)",
-                      argv[optind - 1]);
+    if (c == '?' || c == ':') return ts_arg_unknown("aerial", argv[optind - 1], longopts, err);
     int rc = option(o, c, optarg, err);
     if (rc != 0) return rc;
   }

@@ -13,6 +13,7 @@
 
 #include "error.h"
 #include "json.h"
+#include "suggest.h"
 #include "util.h"
 
 /* More values than any catalogue within the limits needs (64 classes of 5
@@ -57,49 +58,19 @@ static const char *got(const reader *r, int node, char *buf, size_t cap) {
 
 /* --- unknown keys ---------------------------------------------------------- */
 
-/* Edit distance with adjacent transpositions (optimal string alignment),
- * for suggesting a known key for a typo such as "usage_wieght". Keys
- * longer than 31 bytes are never close to a known one. */
-static int edit_distance(const char *a, size_t na, const char *b) {
-  size_t nb = strlen(b);
-  if (na > 31 || nb > 31) return 99;
-  int d[32][32];
-  for (size_t i = 0; i <= na; i++) d[i][0] = (int)i;
-  for (size_t j = 0; j <= nb; j++) d[0][j] = (int)j;
-  for (size_t i = 1; i <= na; i++) {
-    for (size_t j = 1; j <= nb; j++) {
-      int cost = a[i - 1] != b[j - 1];
-      int v = d[i - 1][j] + 1;
-      if (d[i][j - 1] + 1 < v) v = d[i][j - 1] + 1;
-      if (d[i - 1][j - 1] + cost < v) v = d[i - 1][j - 1] + cost;
-      if (i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1] && d[i - 2][j - 2] + 1 < v)
-        v = d[i - 2][j - 2] + 1;
-      d[i][j] = v;
-    }
-  }
-  return d[na][nb];
-}
-
 /* Every member of obj has a key in known (NULL-terminated); else the first
  * other one is named, with the closest known key if it looks like a typo. */
 static int only_known_keys(reader *r, int obj, const char *const *known) {
   const ts_json_node *nodes = r->doc->nodes;
   for (int m = nodes[obj].first; m >= 0; m = nodes[m].next) {
-    const char *best = NULL;
-    int best_d = 3; /* suggest only within two edits */
     size_t i;
-    for (i = 0; known[i] != NULL; i++) {
+    for (i = 0; known[i] != NULL; i++)
       if (strlen(known[i]) == nodes[m].klen && memcmp(known[i], nodes[m].key, nodes[m].klen) == 0) break;
-      int d = edit_distance(nodes[m].key, nodes[m].klen, known[i]);
-      if (d < best_d) {
-        best_d = d;
-        best = known[i];
-      }
-    }
     if (known[i] != NULL) continue;
     char list[128] = "";
     for (i = 0; known[i] != NULL; i++)
       snprintf(list + strlen(list), sizeof(list) - strlen(list), "%s\"%s\"", i ? ", " : "", known[i]);
+    const char *best = ts_closest(nodes[m].key, nodes[m].klen, known, i);
     char hint[64] = "";
     if (best != NULL) snprintf(hint, sizeof(hint), "; did you mean \"%s\"?", best);
     return bad(r, m, 1, "unknown key \"%.40s\" (known: %s)%s", nodes[m].key, list, hint);

@@ -80,9 +80,7 @@ static int parse(int argc, char **argv, fill_opts *o, char *err) {
       usage(stdout, o->job.spec.engine);
       exit(0);
     }
-    if (c == '?' || c == ':')
-      return ts_error(err, TS_EINVAL, "%s: unknown option or missing value (see texsyn synth --help)",
-                      argv[optind - 1]);
+    if (c == '?' || c == ':') return ts_arg_unknown("synth", argv[optind - 1], longopts, err);
     int rc = fill_option(o, c, optarg, err);
     if (rc != 0) return rc;
   }

@@ -2,9 +2,12 @@
 #include "jobcmd.h"
 
 #include <errno.h>
+#include <signal.h>
+#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -88,11 +91,62 @@ int ts_job_option(ts_job_cmd *o, int c, const char *arg, char *err) {
   return rc;
 }
 
+/* The image formats texsyn writes, by extension (image_oiio.cpp sets
+ * each one's pixel type and lossless defaults); any other, even one
+ * OpenImageIO could write, is refused before the job runs. */
+static const char *const kImageExts[] = {"png", "jpg", "jpeg", "tif", "tiff", "exr"};
+#define IMAGE_EXTS_HELP ".png, .jpg, .jpeg, .tif, .tiff or .exr"
+/* The one image output that also has a format of its own: stylize's NNF
+ * as raw uint32 pairs (stylit_engine.c). */
+#define RAW_NNF_KEY "nnf"
+
+static int image_ext(const char *key, const char *ext) {
+  for (size_t i = 0; i < sizeof(kImageExts) / sizeof(kImageExts[0]); i++)
+    if (strcasecmp(ext, kImageExts[i]) == 0) return 1;
+  return strcmp(key, RAW_NNF_KEY) == 0 && strcmp(ext, "raw") == 0;
+}
+
+/* The option that sets output key: -o, else --KEY with '-' for '_'. */
+static void output_option(const char *key, char *out, size_t cap) {
+  if (strcmp(key, "output") == 0) {
+    snprintf(out, cap, "-o");
+    return;
+  }
+  int n = snprintf(out, cap, "--%s", key);
+  for (int i = 2; i < n && (size_t)i < cap; i++)
+    if (out[i] == '_') out[i] = '-';
+}
+
+/* Every image output's extension names a format texsyn writes: checked
+ * on the client, before any work, wherever the job is to run (a
+ * coordinator would find out only after the job ran). */
+static int check_formats(const ts_job_cmd *o, char *err) {
+  const ts_engine *e = o->spec.engine;
+  for (int k = 0; k < e->noutputs; k++) {
+    const char *path = ts_output_path(&o->out, e->outputs[k].key);
+    if (path == NULL || e->outputs[k].kind != TS_OUTPUT_IMAGE) continue;
+    const char *key = e->outputs[k].key, *ext = ts_path_ext(path);
+    struct stat st; /* a directory is check_writable's to name */
+    if (image_ext(key, ext) || (stat(path, &st) == 0 && S_ISDIR(st.st_mode))) continue;
+    char opt[64];
+    output_option(key, opt, sizeof(opt));
+    const char *raw = strcmp(key, RAW_NNF_KEY) == 0 ? " (or .raw)" : "";
+    if (ext[0] == '\0')
+      return ts_error(err, TS_EINVAL, "%s %s: the extension names the image format: use " IMAGE_EXTS_HELP "%s", opt,
+                      path, raw);
+    return ts_error(err, TS_EINVAL, "%s %s: texsyn does not write .%s images; use " IMAGE_EXTS_HELP "%s", opt,
+                    path, ext, raw);
+  }
+  return 0;
+}
+
 int ts_job_parse_end(ts_job_cmd *o, char *err) {
   if (o->server != NULL && o->embedded) return ts_error(err, TS_EINVAL, "--server and --embedded exclude each other");
   if (o->server == NULL && !o->embedded) o->server = ts_env_server();
   if (ts_output_path(&o->out, "output") == NULL)
     return ts_error(err, TS_EINVAL, "-o OUT is required (see texsyn %s --help)", o->cmd);
+  int rc = check_formats(o, err);
+  if (rc != 0) return rc;
   if (o->detach && o->server == NULL) return ts_error(err, TS_EINVAL, "--detach needs --server");
   o->spec.engine->set_max_pixels(&o->spec.params, o->max_pixels);
   return 0;
@@ -128,18 +182,15 @@ int ts_job_check_outputs(const ts_job_cmd *o, char *err) {
 /* The spec's wants, for a coordinator (an embedded run writes to the
  * paths): for every output given a path, the format its extension names
  * ("1" for a flag output). */
-static int set_wants(const ts_job_cmd *o, ts_jobspec *spec, char *err) {
+static void set_wants(const ts_job_cmd *o, ts_jobspec *spec) {
   const ts_engine *e = spec->engine;
   for (int k = 0; k < e->noutputs; k++) {
     const char *path = ts_output_path(&o->out, e->outputs[k].key);
     char *want = spec->wants.want[k];
     if (path == NULL) want[0] = '\0';
     else if (e->outputs[k].kind == TS_OUTPUT_FLAG) snprintf(want, TS_EXT_LEN, "1");
-    else if (!ts_ext_valid(ts_path_ext(path)))
-      return ts_error(err, TS_EINVAL, "%s: needs an extension (.png, .tif, .exr, ...)", path);
-    else snprintf(want, TS_EXT_LEN, "%s", ts_path_ext(path));
+    else snprintf(want, TS_EXT_LEN, "%s", ts_path_ext(path)); /* a format ts_job_parse_end took */
   }
-  return 0;
 }
 
 /* Reads the first n inputs (within --max-pixels); on failure the ones
@@ -156,28 +207,95 @@ static int read_inputs(const ts_job_cmd *o, int n, ts_image *in, char *err) {
   return 0;
 }
 
-/* ---- progress bar ------------------------------------------------------ */
+/* ---- progress ---------------------------------------------------------- */
 
+/* A plain line at least this often (seconds) inside a long level. */
+#define PROGRESS_LINE_SECONDS 10.0
+
+int ts_progress_mode(int quiet) {
+  return quiet ? TS_PROGRESS_NONE : isatty(STDERR_FILENO) ? TS_PROGRESS_BAR : TS_PROGRESS_LINES;
+}
+
+/* What a client shows of a job under way: the bar redrawn at most every
+ * 0.1 s, or a line when a level (or a level's stage) starts and every
+ * PROGRESS_LINE_SECONDS. Levels are shown as people count them, 1 the
+ * coarsest to L the finest; engines and the wire count down to 0. */
 typedef struct {
-  int enabled;
-  double start, last;
-} progress_bar;
+  int mode;
+  const char *cmd;
+  double start, last_bar, last_line;
+  int line_level; /* level of the last line: 0 queued, -1 no line yet */
+  char line_stage[64];
+} progress_view;
 
-static void progress_draw(void *ctx, const ts_progress *p) {
-  progress_bar *pb = ctx;
-  double t = ts_now();
-  int level_done = p->done == p->total;
-  if (!pb->enabled || (t - pb->last < 0.1 && !level_done)) return;
-  pb->last = t;
-  double frac = p->work_total > 0 ? p->work_done / p->work_total : 1.0;
-  double eta = frac > 0.001 ? (t - pb->start) * (1.0 - frac) / frac : 0.0;
-  int pct = p->total ? (int)(100 * p->done / p->total) : 100;
-  char bar[31];
+static void view_init(progress_view *v, int mode, const char *cmd) {
+  *v = (progress_view){mode, cmd, ts_now(), 0, 0, -1, ""};
+}
+
+static int line_due(progress_view *v, int level, const char *stage, double t) {
+  int n = (int)sizeof(v->line_stage) - 1;
+  if (level == v->line_level && strncmp(stage, v->line_stage, (size_t)n) == 0 && t - v->last_line < PROGRESS_LINE_SECONDS)
+    return 0;
+  v->line_level = level;
+  snprintf(v->line_stage, sizeof(v->line_stage), "%.*s", n, stage);
+  v->last_line = t;
+  return 1;
+}
+
+static void bar_of(double frac, char bar[31]) {
   int fill = (int)(frac * 30);
   for (int i = 0; i < 30; i++) bar[i] = i < fill ? '#' : '.';
   bar[30] = '\0';
-  fprintf(stderr, "\r%s%slevel %d (%d of %d) %3d%% of blocks [%s] ETA %5.1fs ", p->stage, p->stage[0] ? ": " : "",
-          p->level, p->levels - p->level, p->levels, pct, bar, eta);
+}
+
+/* "ETA 5.1s", or "ETA ?" before there is anything to go by. */
+static void eta_of(double seconds, int known, char *out, size_t cap) {
+  if (known) snprintf(out, cap, "ETA %.1fs", seconds);
+  else snprintf(out, cap, "ETA ?");
+}
+
+static void progress_draw(void *ctx, const ts_progress *p) {
+  progress_view *v = ctx;
+  double t = ts_now();
+  double frac = p->work_total > 0 ? p->work_done / p->work_total : 1.0;
+  char eta[32];
+  eta_of(frac > 0.001 ? (t - v->start) * (1.0 - frac) / frac : 0.0, frac > 0.001, eta, sizeof(eta));
+  int level = p->levels - p->level;
+  const char *sep = p->stage[0] ? ": " : "";
+  if (v->mode == TS_PROGRESS_LINES && line_due(v, level, p->stage, t))
+    fprintf(stderr, "texsyn %s: %s%slevel %d of %d, %.0f%% of the work, %s\n", v->cmd, p->stage, sep, level,
+            p->levels, 100.0 * frac, eta);
+  if (v->mode != TS_PROGRESS_BAR || (t - v->last_bar < 0.1 && p->done != p->total)) return;
+  v->last_bar = t;
+  int pct = p->total ? (int)(100 * p->done / p->total) : 100;
+  char bar[31];
+  bar_of(frac, bar);
+  fprintf(stderr, "\r%s%slevel %d of %d %3d%% of blocks [%s] %s ", p->stage, sep, level, p->levels, pct, bar, eta);
+  fflush(stderr);
+}
+
+static void remote_progress(progress_view *v, const ts_job_status *s) {
+  double t = ts_now();
+  unsigned long long id = (unsigned long long)s->id;
+  if (s->state == TS_JOB_QUEUED) {
+    if (v->mode == TS_PROGRESS_LINES && line_due(v, 0, "", t)) fprintf(stderr, "texsyn %s: job %llu queued\n", v->cmd, id);
+    if (v->mode == TS_PROGRESS_BAR) fprintf(stderr, "\rjob %llu queued (%.0fs) ", id, t - v->start);
+    fflush(stderr);
+    return;
+  }
+  if (s->state != TS_JOB_RUNNING) return;
+  char eta[32], bar[31];
+  eta_of(s->eta_ms / 1000.0, s->eta_ms != UINT32_MAX, eta, sizeof(eta));
+  int level = s->levels - s->level;
+  const char *sep = s->text[0] ? ": " : "", *plural = s->workers == 1 ? "" : "s";
+  if (v->mode == TS_PROGRESS_LINES && line_due(v, level, s->text, t))
+    fprintf(stderr, "texsyn %s: job %llu %s%slevel %d of %d, %.1f%% of the work, %s, %u worker%s\n", v->cmd, id,
+            s->text, sep, level, s->levels, s->permille / 10.0, eta, s->workers, plural);
+  if (v->mode == TS_PROGRESS_BAR) {
+    bar_of(s->permille / 1000.0, bar);
+    fprintf(stderr, "\rjob %llu %s%slevel %d of %d %5.1f%% [%s] %s, %u worker%s ", id, s->text, sep, level, s->levels,
+            s->permille / 10.0, bar, eta, s->workers, plural);
+  }
   fflush(stderr);
 }
 
@@ -201,16 +319,18 @@ static const char *result_name(const ts_job_cmd *o) {
 int ts_job_embedded(const ts_job_cmd *o, const ts_image *const *in, ts_search *search, char *err) {
   const ts_engine *e = o->spec.engine;
   ts_engine_run *run = NULL;
-  progress_bar pb = {!o->quiet && isatty(STDERR_FILENO), ts_now(), 0};
-  ts_engine_hooks hooks = {.progress = progress_draw, .progress_ctx = &pb};
+  progress_view pv;
+  view_init(&pv, ts_progress_mode(o->quiet), o->cmd);
+  ts_engine_hooks hooks = {.progress = progress_draw, .progress_ctx = &pv};
   double t0 = ts_now();
   uint64_t pairs = search->stats.pairs;
   int rc = e->run(&o->spec.params, in, search, &hooks, &run, err);
-  if (pb.enabled) fputc('\n', stderr);
+  if (pv.mode == TS_PROGRESS_BAR) fputc('\n', stderr);
   if (rc == 0) rc = write_outputs(o, run, err);
   if (rc == 0 && !o->quiet)
-    fprintf(stderr, "texsyn: %s in %.2fs (%s, %d threads, %.3g comparisons)\n", result_name(o), ts_now() - t0,
-            search->simd->name, o->threads, (double)(search->stats.pairs - pairs));
+    fprintf(stderr, "texsyn: %s in %.2fs (in-process with %d thread%s, %s, %.3g comparisons)\n", result_name(o),
+            ts_now() - t0, o->threads, o->threads == 1 ? "" : "s", search->simd->name,
+            (double)(search->stats.pairs - pairs));
   e->run_free(run);
   return rc;
 }
@@ -225,13 +345,69 @@ static int run_embedded(const ts_job_cmd *o, const ts_image *const *in, char *er
 
 /* ---- on a coordinator -------------------------------------------------- */
 
+const char ts_default_server[] = "127.0.0.1:7070";
+
+/* Appends text to the message in err, cut to fit. */
+static void err_append(char *err, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
+static void err_append(char *err, const char *fmt, ...) {
+  size_t n = strlen(err);
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(err + n, TS_ERR_LEN - n, fmt, ap);
+  va_end(ap);
+}
+
+/* The hint a failed connection gets, by what failed: the address, the
+ * coordinator not there, or the secret (naming where it came from). */
+static void connect_hint(int rc, const char *addr, const char *secret, const char *secret_from, char *err) {
+  const char *from = addr == ts_env_server() ? ", from $TEXSYN_SERVER"
+                     : addr == ts_default_server ? ", the default: no --server, no $TEXSYN_SERVER"
+                                                 : "";
+  if (rc == TS_ECONN || rc == TS_ETIMEDOUT) err_append(err, " (is texsyn-server running at %s%s?)", addr, from);
+  else if (rc == TS_EAUTH && secret != NULL) err_append(err, "; this client's secret: %s, from %s", secret, secret_from);
+}
+
 int ts_job_connect(ts_conn *c, const char *addr, const char *path, char *err) {
-  if (path == NULL) path = getenv("TEXSYN_SECRET_FILE");
+  char host[256];
+  int port;
+  if (ts_net_split(addr, host, sizeof(host), &port, NULL) != 0 || port == 0)
+    return ts_error(err, TS_EINVAL, "%s%s: need HOST:PORT, e.g. 127.0.0.1:7070",
+                    addr == ts_env_server() ? "$TEXSYN_SERVER=" : "--server ", addr);
+  const char *from = "--secret-file";
+  if (path == NULL) {
+    path = getenv("TEXSYN_SECRET_FILE");
+    from = "$TEXSYN_SECRET_FILE";
+  }
+  if (path != NULL && path[0] == '\0') path = NULL;
   ts_auth auth = {0};
-  int rc = path != NULL && path[0] != '\0' ? ts_auth_load(&auth, path, err) : 0;
-  if (rc == 0) rc = ts_client_connect(c, addr, &auth, err);
+  int rc = path != NULL ? ts_auth_load(&auth, path, err) : 0;
+  if (rc == 0) {
+    rc = ts_client_connect(c, addr, &auth, err);
+    if (rc != 0) connect_hint(rc, addr, path, from, err);
+  }
   ts_auth_clear(&auth);
   return rc;
+}
+
+/* Every output given a path is among the job's files: a job makes only
+ * what its submission asked for, and a fetch that quietly wrote less
+ * would leave the caller with old or no files. Nothing is written then. */
+static int check_fetched(uint64_t id, const ts_msg_files *m, const ts_output_paths *t, char *err) {
+  char missing[512] = "";
+  size_t len = 0;
+  for (int i = 0; i < t->n; i++) {
+    uint32_t k = 0;
+    for (const char *key; k < m->n; k++)
+      if ((key = ts_engine_output_key_of_file(m->name[k])) != NULL && strcmp(key, t->key[i]) == 0) break;
+    if (k < m->n) continue;
+    char opt[64];
+    output_option(t->key[i], opt, sizeof(opt));
+    int n = snprintf(missing + len, sizeof(missing) - len, "%s%s %s", len ? ", " : "", opt, t->path[i]);
+    if (n > 0 && (size_t)n < sizeof(missing) - len) len += (size_t)n;
+  }
+  if (len == 0) return 0;
+  return ts_error(err, TS_ENOENT, "job %llu did not make %s: a job makes only the outputs asked for when it was "
+                  "submitted; nothing was written", (unsigned long long)id, missing);
 }
 
 int ts_job_fetch(ts_conn *c, uint64_t id, const ts_output_paths *t, char *err) {
@@ -243,6 +419,7 @@ int ts_job_fetch(ts_conn *c, uint64_t id, const ts_output_paths *t, char *err) {
   ts_wr_free(&w);
   ts_msg_files m;
   if (rc == 0) rc = ts_msg_files_read(&f, &m, err);
+  if (rc == 0) rc = check_fetched(id, &m, t, err);
   for (uint32_t i = 0; rc == 0 && i < m.n; i++) {
     const char *key = ts_engine_output_key_of_file(m.name[i]);
     const char *path = key != NULL ? ts_output_path(t, key) : NULL;
@@ -251,31 +428,15 @@ int ts_job_fetch(ts_conn *c, uint64_t id, const ts_output_paths *t, char *err) {
   return rc;
 }
 
-static void remote_progress(const ts_job_status *s, double start) {
-  char bar[31];
-  int fill = s->permille * 30 / 1000;
-  for (int i = 0; i < 30; i++) bar[i] = i < fill ? '#' : '.';
-  bar[30] = '\0';
-  if (s->state == TS_JOB_QUEUED) {
-    fprintf(stderr, "\rjob %llu queued (%.0fs) ", (unsigned long long)s->id, ts_now() - start);
-  } else {
-    char eta[32] = "  ?";
-    if (s->eta_ms != UINT32_MAX) snprintf(eta, sizeof(eta), "%5.1fs", s->eta_ms / 1000.0);
-    fprintf(stderr, "\rjob %llu %s%slevel %d of %d %5.1f%% [%s] ETA %s, %u worker%s ", (unsigned long long)s->id,
-            s->text, s->text[0] ? ": " : "", s->levels - s->level, s->levels, s->permille / 10.0, bar, eta, s->workers,
-            s->workers == 1 ? "" : "s");
-  }
-  fflush(stderr);
-}
-
-int ts_job_watch(ts_conn *c, uint64_t id, int show, ts_job_status *last, char *err) {
+int ts_job_watch(ts_conn *c, uint64_t id, const char *cmd, int mode, ts_job_status *last, char *err) {
   ts_wr w;
   ts_wr_init(&w);
   ts_msg_status_req req = {id, 1};
   ts_msg_status_req_write(&w, &req);
   int rc = ts_wr_status(&w) ? TS_ENOMEM : ts_net_send(c->fd, TS_MSG_STATUS, 1, w.buf, w.len, err);
   ts_wr_free(&w);
-  double start = ts_now();
+  progress_view pv;
+  view_init(&pv, mode, cmd);
   while (rc == 0) {
     ts_frame f;
     uint32_t n;
@@ -283,10 +444,10 @@ int ts_job_watch(ts_conn *c, uint64_t id, int show, ts_job_status *last, char *e
     if (rc == 0) rc = ts_msg_status_read(&f, last, 1, &n, err);
     if (rc == 0 && n != 1) rc = ts_error(err, TS_EPROTO, "empty status update");
     if (rc != 0) break;
-    if (show) remote_progress(last, start);
+    remote_progress(&pv, last);
     if (last->state > TS_JOB_RUNNING) break;
   }
-  if (show) fputc('\n', stderr);
+  if (mode == TS_PROGRESS_BAR) fputc('\n', stderr);
   return rc;
 }
 
@@ -302,9 +463,8 @@ static void base_name(const char *path, char *out, size_t cap) {
 int ts_job_submit(ts_conn *c, const ts_job_cmd *o, uint64_t *id, char *err) {
   ts_jobspec js = o->spec;
   char spec[TS_SPEC_MAX];
-  int n = set_wants(o, &js, err);
-  if (n != 0) return n;
-  n = ts_jobspec_format(&js, spec, sizeof(spec));
+  set_wants(o, &js);
+  int n = ts_jobspec_format(&js, spec, sizeof(spec));
   if (n < 0) return ts_error(err, TS_ETOOBIG, "job spec too long");
   ts_engine_inputs names;
   o->spec.engine->inputs(&o->spec.params, &names);
@@ -346,23 +506,67 @@ int ts_job_submit(ts_conn *c, const ts_job_cmd *o, uint64_t *id, char *err) {
 
 int ts_job_open(ts_conn *c, const ts_job_cmd *o, char *err) {
   int rc = ts_job_connect(c, o->server, o->secret_file, err);
-  if (rc != 0) {
-    size_t n = strlen(err);
-    snprintf(err + n, TS_ERR_LEN - n, "\n(no job was submitted: is texsyn-server running at %s%s? --embedded runs here)",
-             o->server, o->server == ts_env_server() ? ", from $TEXSYN_SERVER" : "");
-  }
+  if (rc != 0) err_append(err, "\n(no job was submitted; --embedded runs it here)");
   return rc;
+}
+
+/* What an interrupt of a client following its job says, made before the
+ * handler is armed: the handler may only write(2) it and _exit. */
+static char interrupt_msg[768];
+static size_t interrupt_len;
+
+static void on_interrupt(int sig) {
+  (void)sig;
+  ssize_t n = write(STDERR_FILENO, interrupt_msg, interrupt_len);
+  (void)n;
+  _exit(130);
+}
+
+/* Ctrl-C (or a SIGTERM) while a client follows job id: the job is the
+ * coordinator's and goes on; the client says so, and how to follow or
+ * stop it, rather than vanish with the id unsaid. `old` keeps the
+ * handlers armed before, for interrupt_disarm. */
+static void interrupt_arm(const ts_job_cmd *o, uint64_t id, int bar, struct sigaction *old) {
+  char where[300] = "";
+  if (o->server != ts_env_server()) snprintf(where, sizeof(where), " --server %s", o->server);
+  int n = snprintf(interrupt_msg, sizeof(interrupt_msg),
+                   "%stexsyn %s: interrupted; job %llu keeps running on %s: `texsyn watch %llu%s` follows it, "
+                   "`texsyn cancel %llu%s` stops it\n",
+                   bar ? "\n" : "", o->cmd, (unsigned long long)id, o->server, (unsigned long long)id, where,
+                   (unsigned long long)id, where);
+  interrupt_len = n < 0 ? 0 : (size_t)n < sizeof(interrupt_msg) ? (size_t)n : sizeof(interrupt_msg) - 1;
+  struct sigaction sa;
+  memset(&sa, 0, sizeof(sa));
+  sa.sa_handler = on_interrupt;
+  sigemptyset(&sa.sa_mask);
+  sigaction(SIGINT, &sa, &old[0]);
+  sigaction(SIGTERM, &sa, &old[1]);
+}
+
+static void interrupt_disarm(const struct sigaction *old) {
+  sigaction(SIGINT, &old[0], NULL);
+  sigaction(SIGTERM, &old[1], NULL);
 }
 
 int ts_job_finish(ts_conn *c, const ts_job_cmd *o, uint64_t id, char *err) {
   ts_job_status st = {0};
-  int rc = ts_job_watch(c, id, !o->quiet && isatty(STDERR_FILENO), &st, err);
+  double t0 = ts_now();
+  int mode = ts_progress_mode(o->quiet);
+  struct sigaction old[2];
+  interrupt_arm(o, id, mode == TS_PROGRESS_BAR, old); /* before the id is out: an interrupt from then on says it */
+  if (!o->quiet) fprintf(stderr, "texsyn %s: job %llu on %s\n", o->cmd, (unsigned long long)id, o->server);
+  int rc = ts_job_watch(c, id, o->cmd, mode, &st, err);
+  interrupt_disarm(old);
   if (rc == 0 && st.state != TS_JOB_DONE)
     rc = ts_error(err, TS_EIO, "job %llu %s%s%s", (unsigned long long)id, ts_job_state_name(st.state),
                   st.text[0] ? ": " : "", st.text);
   if (rc == 0) rc = ts_job_fetch(c, id, &o->out, err);
-  if (rc == 0 && !o->quiet)
-    fprintf(stderr, "texsyn: %s (job %llu on %s)\n", result_name(o), (unsigned long long)id, o->server);
+  if (rc == 0 && !o->quiet) {
+    char pool[48] = "no workers: the coordinator scanned alone";
+    if (st.workers > 0) snprintf(pool, sizeof(pool), "%u worker%s", st.workers, st.workers == 1 ? "" : "s");
+    fprintf(stderr, "texsyn: %s in %.2fs (job %llu on %s with %s)\n", result_name(o), ts_now() - t0,
+            (unsigned long long)id, o->server, pool);
+  }
   return rc;
 }
 

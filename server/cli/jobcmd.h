@@ -13,6 +13,7 @@
 #include "client.h"
 #include "engine.h"
 #include "jobspec.h"
+#include "suggest.h"
 
 #define TS_DEFAULT_THREADS 2
 
@@ -62,7 +63,9 @@ enum {
 #define TS_JOB_RUN_HELP                                                                      \
   "  --threads T          scan threads, 1..1024 (default 2)\n"                               \
   "  --max-pixels N       refuse inputs and outputs above N pixels (default 268435456)\n"    \
-  "  --quiet              no progress bar\n"                                                 \
+  "  --quiet              nothing on stderr but errors: no progress (else a bar on a\n"    \
+  "                       terminal, or a line as each level starts and every 10 s),\n"   \
+  "                       no job id, no closing line\n"                                    \
   "  --server HOST:PORT   run the job on a texsyn-server (and its workers) instead\n"        \
   "                       of in-process; same options, same output bytes\n"                 \
   "                       (default: $TEXSYN_SERVER if set, else in-process)\n"              \
@@ -121,12 +124,21 @@ int ts_arg_size(const char *opt, const char *s, int *w, int *h, char *err);
 
 /* The coordinator from $TEXSYN_SERVER, or NULL when unset or empty. */
 const char *ts_env_server(void);
+/* The job commands' coordinator without --server and $TEXSYN_SERVER
+ * (passed as this pointer, messages call it the default). */
+extern const char ts_default_server[];
 /* Connects to a coordinator with the shared secret from path, else
- * $TEXSYN_SECRET_FILE, else none. */
+ * $TEXSYN_SECRET_FILE, else none; a failure's message says what to check
+ * (the address, the coordinator, the secret and where it came from). */
 int ts_job_connect(ts_conn *c, const char *addr, const char *path, char *err);
-/* Follows a job until it ends (a progress line if show); its final
- * status in *last. */
-int ts_job_watch(ts_conn *c, uint64_t id, int show, ts_job_status *last, char *err);
+/* How a client shows a job's progress on stderr: not at all (--quiet), a
+ * bar redrawn in place (a terminal), or plain lines, one as each level
+ * starts and every 10 s (a batch job's or Slurm's log). */
+enum { TS_PROGRESS_NONE, TS_PROGRESS_BAR, TS_PROGRESS_LINES };
+int ts_progress_mode(int quiet);
+/* Follows a job until it ends, showing its progress in mode (lines say
+ * "texsyn CMD: ..."); its final status in *last. */
+int ts_job_watch(ts_conn *c, uint64_t id, const char *cmd, int mode, ts_job_status *last, char *err);
 /* Writes a finished job's files to the paths given for their outputs. */
 int ts_job_fetch(ts_conn *c, uint64_t id, const ts_output_paths *t, char *err);
 

@@ -1,16 +1,9 @@
-/* cli.c - the `texsyn` command line.
- *
- *   texsyn synth ...     synthesise a texture (embedded: in-process engine
- *                        and local scan threads; `run` is an alias), or
- *                        submit it to a coordinator with --server
- *   texsyn stylize ...   paint a target in an exemplar's style (stylize.c)
- *   texsyn energy ...    score a stylized image (stylize.c)
- *   texsyn apply-nnf ... vote a saved NNF over another layer (stylize.c)
- *   texsyn segment ...   label an image's pixels by training textures (segment.c)
- *   texsyn status|watch|fetch|cancel|workers   manage jobs on a coordinator
- *   texsyn quality ...   neighbourhood error of an image against a reference
- *   texsyn shuffle ...   random block shuffle baseline
- *   texsyn simd          list the kernel variants this CPU supports
+/* main.c - the `texsyn` command line: the command table (kCommands, at
+ * the end: each command's name, entry and line of `texsyn --help`), the
+ * job commands that manage jobs on a coordinator (status, watch, fetch,
+ * cancel, delete, workers), quality, shuffle and simd. The job-running
+ * commands live in rooms of their own (synth.c, stylize.c, segment.c,
+ * aerial.c; their shared part in jobcmd.c), as does modbus (mbclient.c).
  */
 #include <errno.h>
 #include <getopt.h>
@@ -32,14 +25,14 @@
 #include "aerial.h"
 #include "engine.h"
 #include "fillcmd.h"
+#include "flicker.h"
 #include "mrf.h"
 #include "paramopt.h"
 #include "quality.h"
 #include "segment.h"
-#include "flicker.h"
 #include "stylize.h"
-#include "video.h"
 #include "synth.h"
+#include "video.h"
 #include "search.h"
 
 
@@ -89,7 +82,7 @@ static int eval_parse(int argc, char **argv, eval_opts *o, const char *usage, ch
     case OPT_SEED: rc = ts_arg_u64("--seed", optarg, &o->seed, err); break;
     case TS_OPT_THREADS: rc = ts_arg_long("--threads", optarg, 1, 1024, &v, err); o->threads = (int)v; break;
     case TS_OPT_HELP: case 'h': printf("%s", usage); exit(0);
-    default: rc = ts_error(err, TS_EINVAL, "unknown option or missing value\n%s", usage);
+    default: rc = ts_arg_unknown(argv[0], argv[optind - 1], eval_longopts, err);
     }
   }
   return rc;
@@ -106,10 +99,14 @@ static int cmd_quality(int argc, char **argv) {
   int rc = eval_parse(argc, argv, &o, kQualityUsage, err);
   if (rc == 0 && (o.ref == NULL || o.image == NULL))
     rc = ts_error(err, TS_EINVAL, "--ref and --image are required\n%s", kQualityUsage);
+  if (rc != 0) {
+    fprintf(stderr, "texsyn quality: %s\n", err);
+    return 2; /* a usage error, as in every command */
+  }
   ts_plane ref = {0}, img = {0};
   ts_search *search = NULL;
   ts_quality q;
-  if (rc == 0) rc = read_luma(o.ref, &ref, err);
+  rc = read_luma(o.ref, &ref, err);
   if (rc == 0) rc = read_luma(o.image, &img, err);
   if (rc == 0) rc = ts_search_local_create(&search, o.threads, NULL, err);
   if (rc == 0) rc = ts_quality_measure(search, &ref, &img, o.wn, (uint32_t)o.samples, o.seed, &q, err);
@@ -134,9 +131,13 @@ static int cmd_shuffle(int argc, char **argv) {
   int rc = eval_parse(argc, argv, &o, kShuffleUsage, err);
   if (rc == 0 && (o.ref == NULL || o.out == NULL || o.w == 0))
     rc = ts_error(err, TS_EINVAL, "--ref, -o and --size are required\n%s", kShuffleUsage);
+  if (rc != 0) {
+    fprintf(stderr, "texsyn shuffle: %s\n", err);
+    return 2; /* a usage error, as in every command */
+  }
   ts_image ref = {0}, out = {0};
   uint32_t *map = NULL;
-  if (rc == 0) rc = ts_image_read(o.ref, &ref, NULL, err);
+  rc = ts_image_read(o.ref, &ref, NULL, err);
   if (rc == 0 && (map = malloc(sizeof(uint32_t) * 2 * (size_t)o.w * o.h)) == NULL)
     rc = ts_error(err, TS_ENOMEM, "out of memory");
   if (rc == 0) {
@@ -178,8 +179,10 @@ static const char *kJobUsage =
     "  status [ID]   one job, or every job the coordinator knows\n"
     "  watch ID      follow a job (level, % of blocks, ETA, workers) until it ends\n"
     "  fetch ID      write a finished job's results: -o OUT (the image, or an energy\n"
-    "                job's JSON) and, if the job made them, --copy-map F,\n"
-    "                --copy-map-raw F, --usage-map F, --report F\n"
+    "                job's JSON) and those of the side outputs asked for when it\n"
+    "                was submitted: --report F, --copy-map F, --copy-map-raw F,\n"
+    "                --usage-map F (synth), --nnf F (stylize); one the job did not\n"
+    "                make is an error, and then nothing is written\n"
     "  cancel ID     stop a queued or running job\n"
     "  delete ID     remove a finished, failed or canceled job and its files from the\n"
     "                coordinator's spool (frees space under its --max-spool limit)\n"
@@ -190,7 +193,8 @@ static const char *kJobUsage =
     "  --server HOST:PORT   the coordinator (default: $TEXSYN_SERVER, else 127.0.0.1:7070)\n"
     "  --secret-file PATH   the shared secret the coordinator requires\n"
     "                       (default: $TEXSYN_SECRET_FILE if set)\n"
-    "  --quiet              no progress bar (watch)\n";
+    "  --quiet              no progress (watch): without it a bar on a terminal, else\n"
+    "                       a line as each level starts and every 10 s\n";
 
 typedef struct {
   const char *server, *secret_file;
@@ -208,7 +212,7 @@ static int job_parse(int argc, char **argv, job_opts *o, char *err) {
       {"help", no_argument, 0, TS_OPT_HELP},              {"secret-file", required_argument, 0, TS_OPT_SECRET},
       {0, 0, 0, 0}};
   memset(o, 0, sizeof(*o));
-  o->server = ts_env_server() ? ts_env_server() : "127.0.0.1:7070";
+  o->server = ts_env_server() ? ts_env_server() : ts_default_server;
   optind = 1;
   opterr = 0;
   int c;
@@ -221,8 +225,7 @@ static int job_parse(int argc, char **argv, job_opts *o, char *err) {
     case 'o': ts_output_set(&o->t, "output", optarg); break;
     case TS_OPT_REPORT: ts_output_set(&o->t, "report", optarg); break;
     default:
-      if (!ts_synth_output_option(&o->t, c, optarg))
-        return ts_error(err, TS_EINVAL, "%s: unknown option or missing value\n%s", argv[optind - 1], kJobUsage);
+      if (!ts_synth_output_option(&o->t, c, optarg)) return ts_arg_unknown(argv[0], argv[optind - 1], longopts, err);
     }
   }
   if (optind < argc) {
@@ -266,7 +269,8 @@ static int job_status(ts_conn *c, const job_opts *o, char *err) {
   return rc;
 }
 
-static int job_workers(ts_conn *c, char *err) {
+static int job_workers(ts_conn *c, const job_opts *o, char *err) {
+  (void)o;
   ts_wr w;
   ts_wr_init(&w);
   ts_frame f;
@@ -288,63 +292,152 @@ static int job_workers(ts_conn *c, char *err) {
   return rc;
 }
 
-static int cmd_job(const char *cmd, int argc, char **argv) {
+/* A running job stops at its next batch, not when the coordinator takes
+ * the cancel: `cancel` returns once it has, so that what follows (status,
+ * delete) finds it canceled. */
+static int job_cancel_wait(ts_conn *c, uint64_t id, char *err) {
+  ts_job_status st;
+  int rc = ts_job_watch(c, id, NULL, TS_PROGRESS_NONE, &st, err);
+  if (rc == 0 && st.state != TS_JOB_CANCELED)
+    rc = ts_error(err, TS_EINVAL, "job %llu ended %s before the cancel reached it", (unsigned long long)id,
+                  ts_job_state_name(st.state));
+  if (rc == 0) printf("job %llu canceled\n", (unsigned long long)id);
+  return rc;
+}
+
+/* ---- the job commands' actions: connected, their options parsed ---------- */
+
+static int job_fetch(ts_conn *c, const job_opts *o, char *err) { return ts_job_fetch(c, o->id, &o->t, err); }
+
+static int job_watch(ts_conn *c, const job_opts *o, char *err) {
+  ts_job_status st;
+  int rc = ts_job_watch(c, o->id, "watch", ts_progress_mode(o->quiet), &st, err);
+  if (rc == 0) print_status(&st);
+  if (rc == 0 && st.state != TS_JOB_DONE)
+    rc = ts_error(err, TS_EINVAL, "job %llu %s", (unsigned long long)o->id, ts_job_state_name(st.state));
+  return rc;
+}
+
+/* Sends a request about job o->id whose reply says only that it was done. */
+static int job_request(ts_conn *c, uint8_t type, const job_opts *o, char *err) {
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_jobid_write(&w, o->id);
+  ts_frame f;
+  int rc = ts_client_call(c, type, &w, 30000, &f, err);
+  ts_wr_free(&w);
+  return rc;
+}
+
+static int job_cancel(ts_conn *c, const job_opts *o, char *err) {
+  int rc = job_request(c, TS_MSG_CANCEL, o, err);
+  return rc == 0 ? job_cancel_wait(c, o->id, err) : rc;
+}
+
+static int job_delete(ts_conn *c, const job_opts *o, char *err) { return job_request(c, TS_MSG_DELETE, o, err); }
+
+/* ---- the command table ------------------------------------------------ */
+
+typedef int job_action(ts_conn *c, const job_opts *o, char *err);
+
+/* A command: its own main (argv[0] its name), or a job command's action
+ * (with job_parse's options, a job id if needs_id, then connected). The
+ * help line is texsyn --help's; NULL leaves an alias out. */
+typedef struct {
+  const char *name;
+  int (*run)(int argc, char **argv);
+  job_action *job;
+  int needs_id;
+  const char *help;
+} command;
+
+static int cmd_simd_main(int argc, char **argv) {
+  static const char *usage = "usage: texsyn simd\n"
+                             "Lists the L1 kernel variants this CPU supports; the one texsyn uses is marked\n"
+                             "(selected). TEXSYN_SIMD=scalar|mmx|sse2|avx2|avx512 forces one.\n";
+  if (argc == 2 && (strcmp(argv[1], "--help") == 0 || strcmp(argv[1], "-h") == 0)) {
+    printf("%s", usage);
+    return 0;
+  }
+  if (argc > 1) {
+    fprintf(stderr, "texsyn simd: unexpected argument '%s'\n%s", argv[1], usage);
+    return 2;
+  }
+  return cmd_simd();
+}
+
+static int cmd_help(int argc, char **argv);
+static int cmd_version(int argc, char **argv) {
+  (void)argc;
+  (void)argv;
+  ts_version_print("texsyn");
+  return 0;
+}
+
+static const command kCommands[] = {
+    {"synth", ts_cmd_synth, NULL, 0, "synthesise a texture from a reference (alias: run), or fill a hole"},
+    {"run", ts_cmd_synth, NULL, 0, NULL},
+    {"aerial", ts_cmd_aerial, NULL, 0, "build an aerial image from a land-use class map and a catalogue"},
+    {"stylize", ts_cmd_stylize, NULL, 0, "paint a target in the style of an exemplar, guided by image pairs"},
+    {"energy", ts_cmd_energy, NULL, 0, "score a stylized image: mean exact best guided patch distance, coverage"},
+    {"apply-nnf", ts_cmd_apply_nnf, NULL, 0, "vote a stylize --nnf field over another layer of the exemplar"},
+    {"segment", ts_cmd_segment, NULL, 0, "label an image's pixels with the classes of training textures"},
+    {"video", ts_cmd_video, NULL, 0, "stylize a sequence from painted keyframes along the optical flow"},
+    {"flicker", ts_cmd_flicker, NULL, 0, "score a stylized sequence's temporal coherence: warp error along the flow"},
+    {"quality", cmd_quality, NULL, 0, "neighbourhood error of an image against a reference"},
+    {"shuffle", cmd_shuffle, NULL, 0, "random block shuffle of a reference (a baseline)"},
+    {"simd", cmd_simd_main, NULL, 0, "list the L1 kernel variants this CPU supports"},
+    {"params", ts_cmd_params, NULL, 0, "list the engines' parameters: job spec keys, options, defaults"},
+    {"status", NULL, job_status, 0, "jobs on a coordinator (texsyn-server): one, or every job"},
+    {"watch", NULL, job_watch, 1, "follow a job until it ends"},
+    {"fetch", NULL, job_fetch, 1, "write a finished job's results"},
+    {"cancel", NULL, job_cancel, 1, "stop a queued or running job"},
+    {"delete", NULL, job_delete, 1, "remove an ended job and its files from the coordinator"},
+    {"workers", NULL, job_workers, 0, "the coordinator's worker pool"},
+    {"modbus", ts_mbclient_main, NULL, 0, "read a daemon's Modbus register map, or set its drain/pause coil"},
+    {"help", cmd_help, NULL, 0, "this list (also --help, -h)"},
+    {"--help", cmd_help, NULL, 0, NULL},
+    {"-h", cmd_help, NULL, 0, NULL},
+    {"--version", cmd_version, NULL, 0, "the texsyn release and wire protocol version"},
+};
+#define NCOMMANDS (sizeof(kCommands) / sizeof(kCommands[0]))
+
+static void usage_main(FILE *f) {
+  fprintf(f, "usage: texsyn COMMAND [options]   (texsyn COMMAND --help for details)\n");
+  for (size_t i = 0; i < NCOMMANDS; i++)
+    if (kCommands[i].help != NULL) fprintf(f, "  %-10s %s\n", kCommands[i].name, kCommands[i].help);
+}
+
+static int cmd_help(int argc, char **argv) {
+  (void)argc;
+  (void)argv;
+  usage_main(stdout);
+  return 0;
+}
+
+static int cmd_job(const command *cmd, int argc, char **argv) {
   char err[TS_ERR_LEN] = "";
   job_opts o;
   int rc = job_parse(argc, argv, &o, err);
-  int needs_id = strcmp(cmd, "status") != 0 && strcmp(cmd, "workers") != 0;
-  if (rc == 0 && needs_id && !o.have_id) rc = ts_error(err, TS_EINVAL, "%s needs a job id\n%s", cmd, kJobUsage);
-  if (rc == 0 && strcmp(cmd, "fetch") == 0 && ts_output_path(&o.t, "output") == NULL) rc = ts_error(err, TS_EINVAL, "fetch needs -o OUT");
+  if (rc == 0 && cmd->needs_id && !o.have_id)
+    rc = ts_error(err, TS_EINVAL, "%s needs a job id\n%s", cmd->name, kJobUsage);
+  if (rc == 0 && cmd->job == job_fetch && ts_output_path(&o.t, "output") == NULL)
+    rc = ts_error(err, TS_EINVAL, "fetch needs -o OUT");
   if (rc != 0) {
-    fprintf(stderr, "texsyn %s: %s\n", cmd, err);
+    fprintf(stderr, "texsyn %s: %s\n", cmd->name, err);
     return 2;
   }
   ts_conn c;
   rc = ts_job_connect(&c, o.server, o.secret_file, err);
   if (rc == 0) {
-    ts_job_status st;
-    if (strcmp(cmd, "status") == 0) rc = job_status(&c, &o, err);
-    else if (strcmp(cmd, "workers") == 0) rc = job_workers(&c, err);
-    else if (strcmp(cmd, "fetch") == 0) rc = ts_job_fetch(&c, o.id, &o.t, err);
-    else if (strcmp(cmd, "watch") == 0) {
-      rc = ts_job_watch(&c, o.id, !o.quiet && isatty(STDERR_FILENO), &st, err);
-      if (rc == 0) print_status(&st);
-      if (rc == 0 && st.state != TS_JOB_DONE)
-        rc = ts_error(err, TS_EINVAL, "job %llu %s", (unsigned long long)o.id, ts_job_state_name(st.state));
-    } else {
-      ts_wr w;
-      ts_wr_init(&w);
-      ts_msg_jobid_write(&w, o.id);
-      ts_frame f;
-      rc = ts_client_call(&c, strcmp(cmd, "cancel") == 0 ? TS_MSG_CANCEL : TS_MSG_DELETE, &w, 30000, &f, err);
-      ts_wr_free(&w);
-    }
+    rc = cmd->job(&c, &o, err);
     ts_conn_close(&c);
   }
-  if (rc != 0) fprintf(stderr, "texsyn %s: %s\n", cmd, err);
+  if (rc != 0) fprintf(stderr, "texsyn %s: %s\n", cmd->name, err);
   return rc == 0 ? 0 : 1;
 }
 
-static void usage_main(FILE *f) {
-  fprintf(f,
-          "usage: texsyn COMMAND [options]   (texsyn COMMAND --help for details)\n"
-          "  synth    synthesise a texture from a reference (alias: run), or fill a hole\n"
-          "  aerial   build an aerial image from a land-use class map and a catalogue\n"
-          "  stylize  paint a target in the style of an exemplar, guided by image pairs\n"
-          "  energy   score a stylized image: mean exact best guided patch distance, coverage\n"
-          "  apply-nnf  vote a stylize --nnf field over another layer of the exemplar\n"
-          "  segment  label an image's pixels with the classes of training textures\n"
-          "  flicker  score a stylized sequence's temporal coherence: warp error along the flow\n"
-          "  video    stylize a sequence from painted keyframes along the optical flow\n"
-          "  quality  neighbourhood error of an image against a reference\n"
-          "  shuffle  random block shuffle of a reference (a baseline)\n"
-          "  simd     list the L1 kernel variants this CPU supports\n"
-          "  params   list the engines' parameters: job spec keys, options, defaults\n"
-          "  status   jobs on a coordinator (texsyn-server); also watch, fetch, cancel,\n"
-          "           delete, workers\n"
-          "  modbus   read a daemon's Modbus register map, or set its drain/pause coil\n");
-}
-
+/* texsyn COMMAND ...: the command's entry, or a hint at the closest one. */
 int main(int argc, char **argv) {
   char err[TS_ERR_LEN];
   if (ts_auth_init(err) != 0) {
@@ -355,28 +448,16 @@ int main(int argc, char **argv) {
     usage_main(stderr);
     return 2;
   }
-  const char *cmd = argv[1];
-  if (strcmp(cmd, "synth") == 0 || strcmp(cmd, "run") == 0) return ts_cmd_synth(argc - 1, argv + 1);
-  if (strcmp(cmd, "stylize") == 0) return ts_cmd_stylize(argc - 1, argv + 1);
-  if (strcmp(cmd, "aerial") == 0) return ts_cmd_aerial(argc - 1, argv + 1);
-  if (strcmp(cmd, "energy") == 0) return ts_cmd_energy(argc - 1, argv + 1);
-  if (strcmp(cmd, "apply-nnf") == 0) return ts_cmd_apply_nnf(argc - 1, argv + 1);
-  if (strcmp(cmd, "segment") == 0) return ts_cmd_segment(argc - 1, argv + 1);
-  if (strcmp(cmd, "flicker") == 0) return ts_cmd_flicker(argc - 1, argv + 1);
-  if (strcmp(cmd, "video") == 0) return ts_cmd_video(argc - 1, argv + 1);
-  if (strcmp(cmd, "quality") == 0) return cmd_quality(argc - 1, argv + 1);
-  if (strcmp(cmd, "shuffle") == 0) return cmd_shuffle(argc - 1, argv + 1);
-  if (strcmp(cmd, "simd") == 0) return cmd_simd();
-  if (strcmp(cmd, "params") == 0) return ts_cmd_params(argc - 1, argv + 1);
-  if (strcmp(cmd, "modbus") == 0) return ts_mbclient_main(argc - 1, argv + 1);
-  if (strcmp(cmd, "status") == 0 || strcmp(cmd, "watch") == 0 || strcmp(cmd, "fetch") == 0 ||
-      strcmp(cmd, "cancel") == 0 || strcmp(cmd, "delete") == 0 || strcmp(cmd, "workers") == 0)
-    return cmd_job(cmd, argc - 1, argv + 1);
-  if (strcmp(cmd, "--help") == 0 || strcmp(cmd, "-h") == 0 || strcmp(cmd, "help") == 0) {
-    usage_main(stdout);
-    return 0;
+  const char *name = argv[1], *names[NCOMMANDS];
+  size_t n = 0;
+  for (size_t i = 0; i < NCOMMANDS; i++) {
+    const command *cmd = &kCommands[i];
+    if (strcmp(cmd->name, name) == 0) return cmd->run ? cmd->run(argc - 1, argv + 1) : cmd_job(cmd, argc - 1, argv + 1);
+    if (cmd->help != NULL) names[n++] = cmd->name;
   }
-  fprintf(stderr, "texsyn: unknown command '%s'\n", cmd);
+  const char *best = ts_closest(name, strlen(name), names, n);
+  if (best != NULL) fprintf(stderr, "texsyn: unknown command '%s'; did you mean '%s'?\n", name, best);
+  else fprintf(stderr, "texsyn: unknown command '%s'\n", name);
   usage_main(stderr);
   return 2;
 }

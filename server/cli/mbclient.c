@@ -2,6 +2,7 @@
 #include "mbclient.h"
 
 #include <errno.h>
+#include <getopt.h>
 #include <modbus/modbus.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -11,6 +12,7 @@
 #include "l1.h"
 #include "mbmap.h"
 #include "net.h"
+#include "suggest.h"
 
 static const char *kUsage =
     "usage: texsyn modbus HOST:PORT [--set drain=0|1 | --set pause=0|1]\n"
@@ -105,24 +107,35 @@ static int run(const char *addr, const char *set, char *err) {
 }
 
 int ts_mbclient_main(int argc, char **argv) {
+  static const struct option longopts[] = {
+      {"set", required_argument, 0, 's'}, {"help", no_argument, 0, 'h'}, {0, 0, 0, 0}};
   const char *addr = NULL, *set = NULL;
-  for (int i = 1; i < argc; i++) {
-    if (strcmp(argv[i], "--help") == 0 || strcmp(argv[i], "-h") == 0) {
+  char err[TS_ERR_LEN];
+  optind = 1;
+  opterr = 0;
+  int c;
+  while ((c = getopt_long(argc, argv, "h", longopts, NULL)) != -1) {
+    if (c == 'h') {
       printf("%s", kUsage);
       return 0;
     }
-    if (strcmp(argv[i], "--set") == 0 && i + 1 < argc) set = argv[++i];
-    else if (argv[i][0] != '-' && addr == NULL) addr = argv[i];
-    else {
-      fprintf(stderr, "texsyn modbus: unexpected argument '%s'\n%s", argv[i], kUsage);
-      return 2;
+    if (c == 's') {
+      set = optarg;
+      continue;
     }
+    ts_arg_unknown("modbus", argv[optind - 1], longopts, err);
+    fprintf(stderr, "texsyn modbus: %s\n", err);
+    return 2;
+  }
+  if (optind < argc) addr = argv[optind++];
+  if (optind < argc) {
+    fprintf(stderr, "texsyn modbus: unexpected argument '%s'\n%s", argv[optind], kUsage);
+    return 2;
   }
   if (addr == NULL) {
     fprintf(stderr, "texsyn modbus: give the daemon's Modbus HOST:PORT\n%s", kUsage);
     return 2;
   }
-  char err[TS_ERR_LEN];
   if (run(addr, set, err) != 0) {
     fprintf(stderr, "texsyn modbus: %s\n", err);
     return 1;

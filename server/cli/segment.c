@@ -126,9 +126,7 @@ static int seg_parse(int argc, char **argv, seg_opts *o, char *err) {
       printf("%s", TS_JOB_RUN_HELP);
       exit(0);
     }
-    if (c == '?' || c == ':')
-      return ts_error(err, TS_EINVAL, "%s: unknown option or missing value (see texsyn segment --help)",
-                      argv[optind - 1]);
+    if (c == '?' || c == ':') return ts_arg_unknown("segment", argv[optind - 1], longopts, err);
     int rc = seg_option(o, c, optarg, err);
     if (rc != 0) return rc;
   }

@@ -137,9 +137,7 @@ static int stylize_parse(int argc, char **argv, stylize_opts *o, char *err) {
       usage(stdout, o->job.spec.engine);
       exit(0);
     }
-    if (c == '?' || c == ':')
-      return ts_error(err, TS_EINVAL, "%s: unknown option or missing value (see texsyn stylize --help)",
-                      argv[optind - 1]);
+    if (c == '?' || c == ':') return ts_arg_unknown("stylize", argv[optind - 1], longopts, err);
     int rc = stylize_option(o, c, argc, argv, err);
     if (rc != 0) return rc;
   }
@@ -178,14 +176,14 @@ static const char *const kEnergyUsage =
     "estimate, the target guides), weights and 8-bit conversions, no uniformity penalty -\n"
     "in grey levels per compared value. Coverage: the share of exemplar pixels covered\n"
     "by those best exemplar patches (each counts all its pixels). Lower energy is better.\n"
-    "Prints: energy=E coverage=C samples=N step=S patch=P (or one JSON object, --json),\n"
-    "the same numbers in-process and on a cluster (--server: the coordinator's workers\n"
-    "run the search).\n"
+    "Prints one JSON object, as texsyn quality does: {\"energy\": E, \"coverage\": C, ...,\n"
+    "\"samples\": N, \"step\": S, \"patch_size\": P}, the same bytes in-process and on a\n"
+    "cluster (--server: the coordinator's workers run the search).\n"
     "\n"
     "  --style, --guide, --weight   the scene, as texsyn stylize takes it\n"
     "  --image OUT          the image to score: the target guides' size; 1 or 2\n"
     "                       channels for a grey style, 3 or 4 for a colour one\n"
-    "  --json               print one JSON object instead of the line\n";
+    "  --json               the JSON object (the default; taken for older scripts)\n";
 
 static const struct option energy_own[] = {SCENE_LONGOPTS, {"image", required_argument, 0, OPT_IMAGE},
                                            {"json", no_argument, 0, OPT_JSON}, TS_JOB_RUN_LONGOPTS,
@@ -194,7 +192,6 @@ static const struct option energy_own[] = {SCENE_LONGOPTS, {"image", required_ar
 typedef struct {
   stylize_opts s;
   const char *image;
-  int json;
   char result[4096]; /* the temporary file the result goes to (mkstemp's template until made) */
 } energy_opts;
 
@@ -203,7 +200,7 @@ static int energy_option(energy_opts *o, int c, int argc, char **argv, char *err
   if (rc != TS_ENOENT) return rc;
   switch (c) {
   case OPT_IMAGE: o->image = optarg; return 0;
-  case OPT_JSON: o->json = 1; return 0;
+  case OPT_JSON: return 0; /* JSON is what energy prints */
   default:
     rc = ts_job_option(&o->s.job, c, optarg, err);
     return rc != TS_ENOENT ? rc : ts_error(err, TS_EINVAL, "unknown option (see texsyn energy --help)");
@@ -229,9 +226,7 @@ static int energy_parse(int argc, char **argv, energy_opts *o, char *err) {
       printf("%s\nWith --detach, texsyn fetch ID -o F writes the JSON object to F.\n", TS_JOB_RUN_HELP);
       exit(0);
     }
-    if (c == '?' || c == ':')
-      return ts_error(err, TS_EINVAL, "%s: unknown option or missing value (see texsyn energy --help)",
-                      argv[optind - 1]);
+    if (c == '?' || c == ':') return ts_arg_unknown("energy", argv[optind - 1], longopts, err);
     int rc = energy_option(o, c, argc, argv, err);
     if (rc != 0) return rc;
   }
@@ -258,7 +253,8 @@ static int energy_result_file(energy_opts *o, char *err) {
   return 0;
 }
 
-/* Prints the result the job wrote: the line, or with --json the JSON. */
+/* Prints the result the job wrote, one JSON object as texsyn quality's,
+ * once it is checked to be the engine's. */
 static int energy_print(const energy_opts *o, char *err) {
   uint8_t *buf = NULL;
   size_t len = 0;
@@ -267,10 +263,7 @@ static int energy_print(const energy_opts *o, char *err) {
   int rc = ts_file_read(o->result, 4096, &buf, &len, err);
   if (rc == 0 && ts_stylit_energy_json_read((const char *)buf, len, &en, why) != 0)
     rc = ts_error(err, TS_EFORMAT, "the job's result (energy.json): %.400s", why);
-  if (rc == 0 && o->json) fwrite(buf, 1, len, stdout);
-  else if (rc == 0)
-    printf("energy=%.6f coverage=%.6f samples=%u step=%d patch=%d\n", en.energy, en.coverage, en.samples, en.step,
-           en.patch);
+  if (rc == 0) fwrite(buf, 1, len, stdout);
   free(buf);
   return rc;
 }
@@ -332,7 +325,7 @@ static int apply_option(apply_opts *o, int c, const char *arg, char *err) {
     if (ts_parse_size(arg, 1 << 16, &o->w, &o->h) != 0)
       rc = ts_error(err, TS_EINVAL, "--size %s: expected WxH, e.g. 640x480", arg);
     break;
-  default: rc = ts_error(err, TS_EINVAL, "%s: unknown option or missing value (see texsyn apply-nnf --help)", arg);
+  default: rc = ts_arg_unknown("apply-nnf", arg, apply_longopts, err);
   }
   return rc;
 }

@@ -100,9 +100,7 @@ static int synth_parse(int argc, char **argv, ts_job_cmd *o, char *err) {
       usage_synth(stdout, o->spec.engine);
       exit(0);
     }
-    if (c == '?' || c == ':')
-      return ts_error(err, TS_EINVAL, "%s: unknown option or missing value (see texsyn synth --help)",
-                      argv[optind - 1]);
+    if (c == '?' || c == ':') return ts_arg_unknown("synth", argv[optind - 1], longopts, err);
     int rc = synth_option(o, c, optarg, err);
     if (rc != 0) return rc;
   }

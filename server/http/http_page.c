@@ -146,9 +146,9 @@ static void html_job(ts_text *t, const ts_job_status *j, const char *engine) {
   ts_text_add(t, "<tr class=\"job %s\" id=\"job-%" PRIu64 "\"><td class=n>%" PRIu64 "</td><td>", state, j->id, j->id);
   add_html(t, engine);
   ts_text_add(t,
-              "</td><td class=state>%s</td><td><progress max=\"1000\" value=\"%u\">%u&permil;</progress> "
-              "<span class=permille>%u</span>&permil;</td><td>",
-              state, j->permille, j->permille, j->permille);
+              "</td><td class=state>%s</td><td><progress max=\"1000\" value=\"%u\">%.1f%%</progress> "
+              "<span class=percent>%.1f</span>%%</td><td>",
+              state, j->permille, j->permille / 10.0, j->permille / 10.0);
   /* Counted up, as `texsyn status` shows it: the status's level counts down to 0. */
   if (j->state == TS_JOB_RUNNING && j->levels > 0)
     ts_text_add(t, "level %d of %u", j->levels - j->level, j->levels);
@@ -281,7 +281,9 @@ static void metrics_coordinator(ts_text *t, const ts_http_snapshot *s) {
          run ? (double)s->cur.id : 0);
   metric(t, "texsyn_current_job_progress_ratio", "gauge", "That job's progress, 0..1.",
          run ? s->cur.permille / 1000.0 : 0);
-  metric(t, "texsyn_current_job_level", "gauge", "The level that job synthesises (counts down to 0).",
+  metric(t, "texsyn_current_job_level", "gauge",
+         "The level that job synthesises, machine-numbered: L-1 the coarsest down to 0 the finest "
+         "(texsyn status shows L-level of L).",
          run ? s->cur.level : 0);
   /* NaN: no estimate yet (Prometheus takes it as a value, not a gap). */
   int eta = run && s->cur.state == TS_JOB_RUNNING && s->cur.eta_ms != UINT32_MAX;

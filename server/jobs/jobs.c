@@ -267,6 +267,9 @@ int ts_jobs_delete(ts_jobs *j, uint64_t id, char *err) {
   job *jb = jobs_find(j, id), *prev = NULL;
   int rc = 0;
   if (jb == NULL) rc = ts_error(err, TS_ENOENT, "no job %" PRIu64, id);
+  else if (!job_final(jb) && jb->cancel)
+    rc = ts_error(err, TS_EINVAL, "job %" PRIu64 " is still stopping after its cancel: delete it once it has "
+                  "(texsyn watch %" PRIu64 " waits for that)", id, id);
   else if (!job_final(jb))
     rc = ts_error(err, TS_EINVAL, "job %" PRIu64 " is %s: cancel it first, or wait for it to end", id,
                   ts_job_state_name(jb->st.state));

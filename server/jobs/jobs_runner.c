@@ -187,6 +187,8 @@ void *jobs_runner(void *arg) {
     client_share *cs = jobs_share_of(j, jb->client);
     if (cs) cs->started++;
     jb->st.state = TS_JOB_RUNNING;
+    jb->st.workers = (uint16_t)ts_cluster_ready(j->o.cluster); /* for jobs that report no progress (energy) */
+    jb->st.level = jb->st.levels > 0 ? jb->st.levels - 1 : 0;    /* the coarsest, until progress says more */
     jb->started = ts_now();
     j->running++;
     jobs_changed(j, jb);

@@ -334,7 +334,7 @@ def test_unreachable_server_is_named_before_any_upload(texsyn, data, tmp_path, m
     assert "cannot connect to 127.0.0.1:1" in p.stderr and "no job was submitted" in p.stderr, p.stderr
     monkeypatch.setenv("TEXSYN_SERVER", "127.0.0.1:1")
     p = subprocess_run(texsyn, "synth", "--ref", ref_of(data), "-o", tmp_path / "o.png", *JOB)
-    assert p.returncode == 1 and "from $TEXSYN_SERVER" in p.stderr and "--embedded runs here" in p.stderr, p.stderr
+    assert p.returncode == 1 and "from $TEXSYN_SERVER" in p.stderr and "(no job was submitted; --embedded runs it here)" in p.stderr, p.stderr
     assert not (tmp_path / "o.png").exists()
 
 

@@ -51,7 +51,7 @@ def test_every_command_has_a_page():
     named = set()
     for page in PAGES:
         named.update(md2man.convert(page)[1])
-    missing = [c for c in listed if f"texsyn-{c}" not in named]
+    missing = [c for c in listed if f"texsyn-{c}" not in named and c != "help"]  # help: this list, texsyn(1)
     assert not missing, f"no page in doc/ names texsyn-{', texsyn-'.join(missing)} in its NAME section"
 
 

@@ -146,8 +146,8 @@ def test_apply_nnf_to_the_style_gives_the_output(texsyn, scene, tmp_path):
     assert p.returncode == 2 and "is --size right?" in p.stderr, p.stderr
 
 
-def test_energy_prints_a_line_and_json(texsyn, scene, tmp_path):
-    """The line and the JSON agree and count every 2nd pixel in x and y; the
+def test_energy_prints_json_as_quality_does(texsyn, scene, tmp_path):
+    """One JSON object, with --json or without, counting every 2nd pixel in x and y; the
     exemplar scored as its own stylization (target guide = source guide)
     beats a stylize output; a grey image for an RGB style and a --guide
     without its TGT are refused."""
@@ -155,11 +155,11 @@ def test_energy_prints_a_line_and_json(texsyn, scene, tmp_path):
     stylize(texsyn, scene, out)
     args = ["energy", "--style", scene / "style.png", "--guide", scene / "src.png", scene / "tgt.png",
             "--image", out, "--sample", "2"]
-    line = run(texsyn, *args).stdout.split()
-    fields = dict(f.split("=") for f in line)
-    got = json.loads(run(texsyn, *args, "--json").stdout)
-    assert got["samples"] == int(fields["samples"]) == 32 * 24
-    assert abs(got["energy"] - float(fields["energy"])) < 1e-6 and 0 < got["coverage"] <= 1
+    printed = run(texsyn, *args).stdout
+    assert run(texsyn, *args, "--json").stdout == printed  # JSON, as quality prints, with or without --json
+    got = json.loads(printed)
+    assert got["samples"] == 32 * 24 and got["step"] == 2
+    assert 0 < got["energy"] and 0 < got["coverage"] <= 1
     copy = run(texsyn, "energy", "--style", scene / "style.png", "--guide", scene / "src.png", scene / "src.png",
                "--image", scene / "style.png", "--json").stdout
     assert json.loads(copy)["energy"] < got["energy"]
@@ -285,7 +285,7 @@ def energy_args(scene, image, *extra, tgt=None):
 @pytest.mark.sanitize
 def test_energy_on_a_cluster_prints_what_it_prints_in_process(texsyn, scene, cluster, tmp_path):
     """A stylize output (every patch, and every 2nd pixel) and the exemplar
-    as its own stylization, each as the line and as JSON: in-process, with
+    as its own stylization, each with and without --json: in-process, with
     --server and with $TEXSYN_SERVER on 2 workers, the same bytes on
     stdout, and both workers searched; --embedded stays in-process whatever
     $TEXSYN_SERVER says; --quiet leaves stderr empty."""
@@ -300,8 +300,9 @@ def test_energy_on_a_cluster_prints_what_it_prints_in_process(texsyn, scene, clu
         return [p.stdout for p in ps]
 
     embedded = score("--embedded")
-    fields = dict(f.split("=") for f in embedded[2].split())
-    assert fields["samples"] == "768" and fields["step"] == "2" and fields["patch"] == "5", embedded[2]
+    fields = json.loads(embedded[2])
+    assert (fields["samples"], fields["step"], fields["patch_size"]) == (768, 2, 5), embedded[2]
+    assert embedded[0] == embedded[1] and embedded[2] == embedded[3], embedded  # --json prints what the default does
     assert json.loads(embedded[4])["energy"] < json.loads(embedded[1])["energy"], embedded
     cluster.start(2, 1)
     addr = cluster.server.addr
@@ -312,7 +313,7 @@ def test_energy_on_a_cluster_prints_what_it_prints_in_process(texsyn, scene, clu
     assert score(env={"TEXSYN_SERVER": addr}) == embedded
     assert score("--embedded", env={"TEXSYN_SERVER": "127.0.0.1:1"}) == embedded
     p = run(texsyn, *cases[0], "--server", addr)
-    assert p.stdout == embedded[0] and re.search(rf"texsyn: energy \(job \d+ on {addr}\)", p.stderr), p.stderr
+    assert p.stdout == embedded[0] and re.search(rf"texsyn: energy in [\d.]+s \(job \d+ on {addr} with 2 workers\)", p.stderr), p.stderr
 
 
 def test_energy_lists_every_mismatch_in_one_error_on_a_cluster_too(texsyn, scene, cluster, tmp_path):

@@ -226,7 +226,7 @@ static void html_and_json_escape_what_they_show(void **state) {
   assert_false(t.failed);
   assert_null(strstr(t.buf, "<script>"));
   assert_non_null(strstr(t.buf, "level 3 of 4: &lt;script&gt;&quot;x&quot;"));
-  assert_non_null(strstr(t.buf, "<progress max=\"1000\" value=\"512\">"));
+  assert_non_null(strstr(t.buf, "<progress max=\"1000\" value=\"512\">51.2%</progress> <span class=percent>51.2</span>%"));
   assert_non_null(strstr(t.buf, "<td class=n>1 min 2 s</td>")); /* 61.5 s, rounded up */
   assert_non_null(strstr(t.buf, "<img src=\"/jobs/3/thumb.png\""));
   assert_null(strstr(t.buf, "/jobs/4/thumb.png")); /* running: no result yet */
