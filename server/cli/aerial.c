@@ -58,15 +58,13 @@ typedef struct {
   ts_catalogue *cat;
 } aerial_opts;
 
-static int option(aerial_opts *o, int c, const char *arg, char *err) {
+static int option(void *ctx, int c, const char *arg, int argc, char **argv, char *err) {
+  (void)argc, (void)argv, (void)err;
+  aerial_opts *o = ctx;
   switch (c) {
   case OPT_CLASSES: o->job.in[0] = arg; return 0;
   case OPT_CATALOGUE: o->catalogue = arg; return 0;
-  default: {
-    int rc = ts_paramopt_take(&o->job, c, arg, err);
-    if (rc == TS_ENOENT) rc = ts_job_option(&o->job, c, arg, err);
-    return rc == TS_ENOENT ? ts_error(err, TS_EINVAL, "unknown option (see texsyn aerial --help)") : rc;
-  }
+  default: return TS_ENOENT;
   }
 }
 
@@ -103,25 +101,12 @@ static int take_catalogue(aerial_opts *o, char *err) {
 
 static int parse(int argc, char **argv, aerial_opts *o, char *err) {
   ts_job_cmd_init(&o->job, "aerial", ts_engine_find("aerial"));
-  struct option longopts[TS_PARAMOPT_MAX];
-  if (ts_paramopt_build(o->job.spec.engine, own_opts, longopts, TS_PARAMOPT_MAX) != 0)
-    return ts_error(err, TS_EINVAL, "internal: too many options");
-  optind = 1;
-  opterr = 0;
-  int c;
-  while ((c = getopt_long(argc, argv, "o:h", longopts, NULL)) != -1) {
-    if (c == TS_OPT_HELP || c == 'h') {
-      usage(stdout, o->job.spec.engine);
-      exit(0);
-    }
-    if (c == '?' || c == ':') return ts_arg_unknown("aerial", argv[optind - 1], longopts, err);
-    int rc = option(o, c, optarg, err);
-    if (rc != 0) return rc;
-  }
-  if (optind < argc) return ts_error(err, TS_EINVAL, "unexpected argument '%s'", argv[optind]);
+  static const ts_cmd_options cmd = {"o:h", own_opts, option, usage};
+  int rc = ts_paramopt_parse(&o->job, &cmd, o, argc, argv, err);
+  if (rc != 0) return rc;
   if (o->job.in[0] == NULL || o->catalogue == NULL)
     return ts_error(err, TS_EINVAL, "--classes MAP and --catalogue F are both required (see texsyn aerial --help)");
-  int rc = ts_catalogue_load(o->catalogue, o->cat, err);
+  rc = ts_catalogue_load(o->catalogue, o->cat, err);
   if (rc == 0) rc = take_catalogue(o, err);
   return rc != 0 ? rc : ts_job_parse_end(&o->job, err);
 }

@@ -49,7 +49,9 @@ typedef struct {
   const char *ref[TS_FILL_MAX_SOURCES - 1];
 } fill_opts;
 
-static int fill_option(fill_opts *o, int c, const char *arg, char *err) {
+static int fill_option(void *ctx, int c, const char *arg, int argc, char **argv, char *err) {
+  (void)argc, (void)argv;
+  fill_opts *o = ctx;
   switch (c) {
   case OPT_INPUT: o->job.in[0] = arg; return 0;
   case OPT_MASK: o->job.in[1] = arg; return 0;
@@ -58,38 +60,21 @@ static int fill_option(fill_opts *o, int c, const char *arg, char *err) {
       return ts_error(err, TS_EINVAL, "--ref: at most %d further references", TS_FILL_MAX_SOURCES - 1);
     o->ref[o->refs++] = arg;
     return 0;
-  default: {
-    int rc = ts_paramopt_take(&o->job, c, arg, err);
-    if (rc == TS_ENOENT) rc = ts_job_option(&o->job, c, arg, err);
-    return rc == TS_ENOENT ? ts_error(err, TS_EINVAL, "unknown option (see texsyn synth --help)") : rc;
-  }
+  default: return TS_ENOENT;
   }
 }
 
 static int parse(int argc, char **argv, fill_opts *o, char *err) {
   memset(o, 0, sizeof(*o));
   ts_job_cmd_init(&o->job, "synth", ts_engine_find("fill"));
-  struct option longopts[TS_PARAMOPT_MAX];
-  if (ts_paramopt_build(o->job.spec.engine, own_opts, longopts, TS_PARAMOPT_MAX) != 0)
-    return ts_error(err, TS_EINVAL, "internal: too many options");
-  optind = 1;
-  opterr = 0;
-  int c;
-  while ((c = getopt_long(argc, argv, "o:h", longopts, NULL)) != -1) {
-    if (c == TS_OPT_HELP || c == 'h') {
-      usage(stdout, o->job.spec.engine);
-      exit(0);
-    }
-    if (c == '?' || c == ':') return ts_arg_unknown("synth", argv[optind - 1], longopts, err);
-    int rc = fill_option(o, c, optarg, err);
-    if (rc != 0) return rc;
-  }
-  if (optind < argc) return ts_error(err, TS_EINVAL, "unexpected argument '%s'", argv[optind]);
+  static const ts_cmd_options cmd = {"o:h", own_opts, fill_option, usage};
+  int rc = ts_paramopt_parse(&o->job, &cmd, o, argc, argv, err);
+  if (rc != 0) return rc;
   if (o->job.in[0] == NULL || o->job.in[1] == NULL)
     return ts_error(err, TS_EINVAL, "--input IMG and --mask MASK are both required (see texsyn synth --help)");
   char n[16];
   snprintf(n, sizeof(n), "%d", o->refs);
-  int rc = ts_job_set_key(&o->job, "refs", n, "--ref", err);
+  rc = ts_job_set_key(&o->job, "refs", n, "--ref", err);
   for (int i = 0; i < o->refs; i++) o->job.in[2 + i] = o->ref[i];
   if (rc == 0) rc = o->job.spec.engine->spec_complete(o->job.spec.params.bytes, err);
   if (rc != 0) return ts_error(err, TS_EINVAL, "--no-self needs at least one --ref");

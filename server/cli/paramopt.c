@@ -1,9 +1,11 @@
 /* paramopt.c - see paramopt.h. */
 #include "paramopt.h"
 
+#include <stdlib.h>
 #include <string.h>
 
 #include "error.h"
+#include "suggest.h"
 
 static size_t count_options(const struct option *t) {
   size_t n = 0;
@@ -46,6 +48,34 @@ int ts_paramopt_take(ts_job_cmd *o, int c, const char *arg, char *err) {
     return 0;
   }
   return TS_ENOENT;
+}
+
+static int take(ts_job_cmd *o, const ts_cmd_options *cmd, void *ctx, int c, int argc, char **argv, char *err) {
+  int rc = cmd->option(ctx, c, optarg, argc, argv, err);
+  if (rc == TS_ENOENT) rc = ts_paramopt_take(o, c, optarg, err);
+  if (rc == TS_ENOENT) rc = ts_job_option(o, c, optarg, err);
+  if (rc == TS_ENOENT) rc = ts_error(err, TS_EINVAL, "unknown option (see texsyn %s --help)", o->cmd);
+  return rc;
+}
+
+int ts_paramopt_parse(ts_job_cmd *o, const ts_cmd_options *cmd, void *ctx, int argc, char **argv, char *err) {
+  struct option longopts[TS_PARAMOPT_MAX];
+  if (ts_paramopt_build(o->spec.engine, cmd->own, longopts, TS_PARAMOPT_MAX) != 0)
+    return ts_error(err, TS_EINVAL, "internal: too many options");
+  optind = 1;
+  opterr = 0;
+  int c;
+  while ((c = getopt_long(argc, argv, cmd->shortopts, longopts, NULL)) != -1) {
+    if (c == TS_OPT_HELP || c == 'h') {
+      cmd->usage(stdout, o->spec.engine);
+      exit(0);
+    }
+    if (c == '?' || c == ':') return ts_arg_unknown(o->cmd, argv[optind - 1], longopts, err);
+    int rc = take(o, cmd, ctx, c, argc, argv, err);
+    if (rc != 0) return rc;
+  }
+  if (optind < argc) return ts_error(err, TS_EINVAL, "unexpected argument '%s'", argv[optind]);
+  return 0;
 }
 
 int ts_paramopt_check(const ts_job_cmd *o, char *err) {

@@ -30,6 +30,20 @@ void ts_paramopt_help(FILE *f, const ts_engine *e);
 /* The value of a parameter of o's engine as a number (param.h). */
 double ts_paramopt_number(const ts_job_cmd *o, const char *key);
 
+/* A job command's option loop, the same for every command: getopt_long
+ * over its own options and its engine's; --help printed by `usage` (and
+ * exit 0); each option handed first to `option` (TS_ENOENT when it is not
+ * the command's own; argc and argv for options that take two words), then
+ * taken as an engine parameter or side output, then as every job's; a
+ * mistyped one named with the closest option; no word left over. */
+typedef struct {
+  const char *shortopts;    /* "o:h", or "+o:h" to keep the words in order */
+  const struct option *own; /* the command's own long options, zero-terminated */
+  int (*option)(void *ctx, int c, const char *arg, int argc, char **argv, char *err);
+  void (*usage)(FILE *f, const ts_engine *e);
+} ts_cmd_options;
+int ts_paramopt_parse(ts_job_cmd *o, const ts_cmd_options *cmd, void *ctx, int argc, char **argv, char *err);
+
 /* `texsyn params [ENGINE]`: the engines' parameter tables, for people
  * writing job specs and for the tests that hold --help and the manual to
  * the tables. The exit status. */

@@ -71,18 +71,21 @@ static int pair_option(seg_opts *o, int c, const char *arg, char *err) {
   return 0;
 }
 
-static int seg_option(seg_opts *o, int c, const char *arg, char *err) {
-  int rc = 0;
+static int seg_option(void *ctx, int c, const char *arg, int argc, char **argv, char *err) {
+  (void)argc, (void)argv;
+  seg_opts *o = ctx;
   switch (c) {
-  case OPT_TRAIN: case OPT_LABELS: rc = pair_option(o, c, arg, err); break;
-  case OPT_INPUT: o->input = arg; break;
-  case OPT_TRUTH: o->truth = arg; break;
-  default:
-    rc = ts_paramopt_take(&o->job, c, arg, err);
-    if (rc == TS_ENOENT) rc = ts_job_option(&o->job, c, arg, err);
-    if (rc == TS_ENOENT) rc = ts_error(err, TS_EINVAL, "unknown option (see texsyn segment --help)");
+  case OPT_TRAIN: case OPT_LABELS: return pair_option(o, c, arg, err);
+  case OPT_INPUT: o->input = arg; return 0;
+  case OPT_TRUTH: o->truth = arg; return 0;
+  default: return TS_ENOENT;
   }
-  return rc;
+}
+
+static void usage(FILE *f, const ts_engine *e) {
+  fprintf(f, kUsage, TS_SEG_MAX_PAIRS);
+  ts_paramopt_help(f, e);
+  fprintf(f, "%s", TS_JOB_RUN_HELP);
 }
 
 /* The pairs complete, and the inputs in the engine's order. */
@@ -113,25 +116,10 @@ static int inputs_complete(seg_opts *o, char *err) {
 static int seg_parse(int argc, char **argv, seg_opts *o, char *err) {
   memset(o, 0, sizeof(*o));
   ts_job_cmd_init(&o->job, "segment", ts_engine_find("segment"));
-  struct option longopts[TS_PARAMOPT_MAX];
-  if (ts_paramopt_build(o->job.spec.engine, own_opts, longopts, TS_PARAMOPT_MAX) != 0)
-    return ts_error(err, TS_EINVAL, "internal: too many options");
-  optind = 1;
-  opterr = 0;
-  int c;
-  while ((c = getopt_long(argc, argv, "o:h", longopts, NULL)) != -1) {
-    if (c == TS_OPT_HELP || c == 'h') {
-      printf(kUsage, TS_SEG_MAX_PAIRS);
-      ts_paramopt_help(stdout, o->job.spec.engine);
-      printf("%s", TS_JOB_RUN_HELP);
-      exit(0);
-    }
-    if (c == '?' || c == ':') return ts_arg_unknown("segment", argv[optind - 1], longopts, err);
-    int rc = seg_option(o, c, optarg, err);
-    if (rc != 0) return rc;
-  }
-  if (optind < argc) return ts_error(err, TS_EINVAL, "unexpected argument '%s'", argv[optind]);
-  int rc = inputs_complete(o, err);
+  static const ts_cmd_options cmd = {"o:h", own_opts, seg_option, usage};
+  int rc = ts_paramopt_parse(&o->job, &cmd, o, argc, argv, err);
+  if (rc != 0) return rc;
+  rc = inputs_complete(o, err);
   return rc != 0 ? rc : ts_job_parse_end(&o->job, err);
 }
 

@@ -89,26 +89,22 @@ static int weight_option(stylize_opts *o, const char *arg, char *err) {
   return rc != 0 ? rc : ts_job_set_key(&o->job, key, arg, "--weight", err);
 }
 
-/* The options that describe the scene, shared by stylize and energy, then
- * the engine's parameters: TS_ENOENT when c is none of them. */
+/* The options that describe the scene, shared by stylize and energy:
+ * TS_ENOENT when c is none of them. */
 static int scene_option(stylize_opts *o, int c, int argc, char **argv, char *err) {
   switch (c) {
   case OPT_STYLE: o->job.in[TS_STYLIT_IN_STYLE] = optarg; o->weighs = 0; return 0;
   case OPT_GUIDE: return guide_option(o, argc, argv, optarg, err);
   case OPT_WEIGHT: return weight_option(o, optarg, err);
-  default: return ts_paramopt_take(&o->job, c, optarg, err);
+  default: return TS_ENOENT;
   }
 }
 
-static int stylize_option(stylize_opts *o, int c, int argc, char **argv, char *err) {
-  int rc = scene_option(o, c, argc, argv, err);
-  if (rc != TS_ENOENT) return rc;
-  if (c == OPT_FRAMES) {
-    o->sequence = 1;
-    return ts_frames_parse(optarg, &o->frames, err);
-  }
-  rc = ts_job_option(&o->job, c, optarg, err);
-  return rc != TS_ENOENT ? rc : ts_error(err, TS_EINVAL, "unknown option (see texsyn stylize --help)");
+static int stylize_option(void *ctx, int c, const char *arg, int argc, char **argv, char *err) {
+  stylize_opts *o = ctx;
+  if (c != OPT_FRAMES) return scene_option(o, c, argc, argv, err);
+  o->sequence = 1;
+  return ts_frames_parse(arg, &o->frames, err);
 }
 
 /* The scene's required parts, after the options. */
@@ -126,23 +122,10 @@ static int stylize_parse(int argc, char **argv, stylize_opts *o, char *err) {
   memset(o, 0, sizeof(*o));
   ts_job_cmd_init(&o->job, "stylize", ts_engine_find("stylize"));
   o->weighs = -1;
-  struct option longopts[TS_PARAMOPT_MAX];
-  if (ts_paramopt_build(o->job.spec.engine, own_opts, longopts, TS_PARAMOPT_MAX) != 0)
-    return ts_error(err, TS_EINVAL, "internal: too many options");
-  optind = 1;
-  opterr = 0;
-  int c;
-  while ((c = getopt_long(argc, argv, "+o:h", longopts, NULL)) != -1) {
-    if (c == TS_OPT_HELP || c == 'h') {
-      usage(stdout, o->job.spec.engine);
-      exit(0);
-    }
-    if (c == '?' || c == ':') return ts_arg_unknown("stylize", argv[optind - 1], longopts, err);
-    int rc = stylize_option(o, c, argc, argv, err);
-    if (rc != 0) return rc;
-  }
-  if (optind < argc) return ts_error(err, TS_EINVAL, "unexpected argument '%s'", argv[optind]);
-  int rc = scene_complete(o, "stylize", err);
+  static const ts_cmd_options cmd = {"+o:h", own_opts, stylize_option, usage};
+  int rc = ts_paramopt_parse(&o->job, &cmd, o, argc, argv, err);
+  if (rc != 0) return rc;
+  rc = scene_complete(o, "stylize", err);
   return rc != 0 ? rc : ts_job_parse_end(&o->job, err);
 }
 
@@ -195,16 +178,17 @@ typedef struct {
   char result[4096]; /* the temporary file the result goes to (mkstemp's template until made) */
 } energy_opts;
 
-static int energy_option(energy_opts *o, int c, int argc, char **argv, char *err) {
-  int rc = scene_option(&o->s, c, argc, argv, err);
-  if (rc != TS_ENOENT) return rc;
-  switch (c) {
-  case OPT_IMAGE: o->image = optarg; return 0;
-  case OPT_JSON: return 0; /* JSON is what energy prints */
-  default:
-    rc = ts_job_option(&o->s.job, c, optarg, err);
-    return rc != TS_ENOENT ? rc : ts_error(err, TS_EINVAL, "unknown option (see texsyn energy --help)");
-  }
+static int energy_option(void *ctx, int c, const char *arg, int argc, char **argv, char *err) {
+  energy_opts *o = ctx;
+  if (c == OPT_IMAGE) o->image = arg;
+  else if (c != OPT_JSON) return scene_option(&o->s, c, argc, argv, err); /* --json: JSON is what energy prints */
+  return 0;
+}
+
+static void energy_usage(FILE *f, const ts_engine *e) {
+  fprintf(f, "%s", kEnergyUsage);
+  ts_paramopt_help(f, e);
+  fprintf(f, "%s\nWith --detach, texsyn fetch ID -o F writes the JSON object to F.\n", TS_JOB_RUN_HELP);
 }
 
 /* The result's path is set here, made by energy_result_file. */
@@ -213,26 +197,11 @@ static int energy_parse(int argc, char **argv, energy_opts *o, char *err) {
   ts_job_cmd_init(&o->s.job, "energy", ts_engine_find("energy"));
   o->s.job.result_name = "energy";
   o->s.weighs = -1;
-  struct option longopts[TS_PARAMOPT_MAX];
-  if (ts_paramopt_build(o->s.job.spec.engine, energy_own, longopts, TS_PARAMOPT_MAX) != 0)
-    return ts_error(err, TS_EINVAL, "internal: too many options");
-  optind = 1;
-  opterr = 0;
-  int c;
-  while ((c = getopt_long(argc, argv, "+h", longopts, NULL)) != -1) {
-    if (c == TS_OPT_HELP || c == 'h') {
-      printf("%s", kEnergyUsage);
-      ts_paramopt_help(stdout, o->s.job.spec.engine);
-      printf("%s\nWith --detach, texsyn fetch ID -o F writes the JSON object to F.\n", TS_JOB_RUN_HELP);
-      exit(0);
-    }
-    if (c == '?' || c == ':') return ts_arg_unknown("energy", argv[optind - 1], longopts, err);
-    int rc = energy_option(o, c, argc, argv, err);
-    if (rc != 0) return rc;
-  }
-  if (optind < argc) return ts_error(err, TS_EINVAL, "unexpected argument '%s'", argv[optind]);
+  static const ts_cmd_options cmd = {"+h", energy_own, energy_option, energy_usage};
+  int rc = ts_paramopt_parse(&o->s.job, &cmd, o, argc, argv, err);
+  if (rc != 0) return rc;
   if (o->image == NULL) return ts_error(err, TS_EINVAL, "--image OUT is required: the stylized image to score");
-  int rc = scene_complete(&o->s, "energy", err);
+  rc = scene_complete(&o->s, "energy", err);
   if (rc != 0) return rc;
   o->s.job.in[1 + 2 * o->s.guides] = o->image;
   const char *dir = getenv("TMPDIR");

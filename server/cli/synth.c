@@ -57,21 +57,20 @@ static const struct option synth_own[] = {
     {"ref", required_argument, 0, OPT_REF}, {"ref-fine", required_argument, 0, OPT_REF_FINE}, TS_JOB_LONGOPTS,
     {0, 0, 0, 0}};
 
-/* Whether --levels was given: without it, an output too small for the
- * default levels takes as many as it holds. */
-static int levels_given;
+typedef struct {
+  ts_job_cmd *job;
+  int levels_given; /* without --levels, an output too small for the default takes as many as it holds */
+} synth_ctx;
 
-static int synth_option(ts_job_cmd *o, int c, const char *arg, char *err) {
-  if (c == TS_OPT_PARAM + (int)(ts_param_find(o->spec.engine->params, "levels") - o->spec.engine->params))
-    levels_given = 1;
-  if (c == OPT_REF) o->in[0] = arg;
-  else if (c == OPT_REF_FINE) o->in[1] = arg;
-  else {
-    int rc = ts_paramopt_take(o, c, arg, err);
-    if (rc == TS_ENOENT) rc = ts_job_option(o, c, arg, err);
-    if (rc == TS_ENOENT) rc = ts_error(err, TS_EINVAL, "unknown option (see texsyn synth --help)");
-    return rc;
-  }
+/* Its own options: the inputs; it notes --levels (taken as the others). */
+static int synth_option(void *ctx, int c, const char *arg, int argc, char **argv, char *err) {
+  (void)argc, (void)argv, (void)err;
+  synth_ctx *s = ctx;
+  const ts_param *t = s->job->spec.engine->params;
+  if (c == TS_OPT_PARAM + (int)(ts_param_find(t, "levels") - t)) s->levels_given = 1;
+  if (c == OPT_REF) s->job->in[0] = arg;
+  else if (c == OPT_REF_FINE) s->job->in[1] = arg;
+  else return TS_ENOENT;
   return 0;
 }
 
@@ -87,30 +86,17 @@ static int fit_levels(ts_job_cmd *o, char *err) {
 }
 
 static int synth_parse(int argc, char **argv, ts_job_cmd *o, char *err) {
-  levels_given = 0;
   ts_job_cmd_init(o, "synth", ts_engine_find("mrf"));
-  struct option longopts[TS_PARAMOPT_MAX];
-  if (ts_paramopt_build(o->spec.engine, synth_own, longopts, TS_PARAMOPT_MAX) != 0)
-    return ts_error(err, TS_EINVAL, "internal: too many options");
-  optind = 1;
-  opterr = 0;
-  int c;
-  while ((c = getopt_long(argc, argv, "o:h", longopts, NULL)) != -1) {
-    if (c == TS_OPT_HELP || c == 'h') {
-      usage_synth(stdout, o->spec.engine);
-      exit(0);
-    }
-    if (c == '?' || c == ':') return ts_arg_unknown("synth", argv[optind - 1], longopts, err);
-    int rc = synth_option(o, c, optarg, err);
-    if (rc != 0) return rc;
-  }
-  if (optind < argc) return ts_error(err, TS_EINVAL, "unexpected argument '%s'", argv[optind]);
-  if (o->in[0] == NULL) return ts_error(err, TS_EINVAL, "--ref IMG is required (see texsyn synth --help)");
-  int rc = ts_job_parse_end(o, err);
+  static const ts_cmd_options cmd = {"o:h", synth_own, synth_option, usage_synth};
+  synth_ctx ctx = {o, 0};
+  int rc = ts_paramopt_parse(o, &cmd, &ctx, argc, argv, err);
   if (rc != 0) return rc;
-  if (ts_paramopt_number(o, "size") == 0 && o->spec.engine->spec_complete(&o->spec.params, err) != 0)
+  if (o->in[0] == NULL) return ts_error(err, TS_EINVAL, "--ref IMG is required (see texsyn synth --help)");
+  rc = ts_job_parse_end(o, err);
+  if (rc != 0) return rc;
+  if (o->spec.engine->spec_complete(&o->spec.params, err) != 0)
     return ts_error(err, TS_EINVAL, "--size WxH is required (see texsyn synth --help)");
-  if (!levels_given && fit_levels(o, err) != 0) return TS_EINVAL;
+  if (!ctx.levels_given && fit_levels(o, err) != 0) return TS_EINVAL;
   if ((o->in[1] != NULL) != (ts_paramopt_number(o, "mix_level") != 0))
     return ts_error(err, TS_EINVAL, "--ref-fine IMG and --mix-level M go together (texture mixing)");
   return ts_paramopt_check(o, err);

@@ -114,7 +114,7 @@ static int job_paths(const ts_video *v, const char *dir, long key, long t, char 
     ts_frame_path(v->pass[p], t, in[ts_stylit_in_tgt(g++)], TS_VIDEO_PATH);
   }
   if (own) /* the key's own frame: its made targets are its sources */
-    for (int k = 0; k < g; k++) snprintf(in[ts_stylit_in_tgt(k)], TS_VIDEO_PATH, "%s", in[ts_stylit_in_src(k)]);
+    for (int k = 0; k < g; k++) memcpy(in[ts_stylit_in_tgt(k)], in[ts_stylit_in_src(k)], TS_VIDEO_PATH);
   return g;
 }
 
