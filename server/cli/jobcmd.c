@@ -45,6 +45,11 @@ int ts_arg_size(const char *opt, const char *s, int *w, int *h, char *err) {
   return 0;
 }
 
+int ts_default_threads(void) {
+  long n = sysconf(_SC_NPROCESSORS_ONLN);
+  return n < 1 ? 1 : n > 1024 ? 1024 : (int)n;
+}
+
 const char *ts_env_server(void) {
   const char *s = getenv("TEXSYN_SERVER");
   return s != NULL && s[0] != '\0' ? s : NULL;
@@ -69,7 +74,7 @@ void ts_job_cmd_init(ts_job_cmd *o, const char *cmd, const ts_engine *e) {
   memset(o, 0, sizeof(*o));
   o->cmd = cmd;
   ts_jobspec_default(&o->spec, e);
-  o->threads = TS_DEFAULT_THREADS;
+  o->threads = ts_default_threads();
   o->max_pixels = TS_IMAGE_DEFAULT_MAX_PIXELS;
 }
 

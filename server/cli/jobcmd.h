@@ -15,7 +15,9 @@
 #include "jobspec.h"
 #include "suggest.h"
 
-#define TS_DEFAULT_THREADS 2
+/* The scan threads a job takes without --threads: the online CPUs, as a
+ * worker does (1..1024). The bytes do not depend on it. */
+int ts_default_threads(void);
 
 /* Local paths of a job's outputs, by spec key ("output" is -o). */
 typedef struct {
@@ -61,7 +63,7 @@ enum {
 /* Their lines of a command's --help: TS_JOB_RUN_HELP those of
  * TS_JOB_RUN_LONGOPTS, ts_job_options_help all of them. */
 #define TS_JOB_RUN_HELP                                                                      \
-  "  --threads T          scan threads, 1..1024 (default 2)\n"                               \
+  "  --threads T          scan threads, 1..1024 (default: the online CPUs)\n"                               \
   "  --max-pixels N       refuse inputs and outputs above N pixels (default 268435456)\n"    \
   "  --quiet              nothing on stderr but errors: no progress (else a bar on a\n"    \
   "                       terminal, or a line as each level starts and every 10 s),\n"   \

@@ -65,7 +65,7 @@ typedef struct {
 } eval_opts;
 
 static int eval_parse(int argc, char **argv, eval_opts *o, const char *usage, char *err) {
-  *o = (eval_opts){NULL, NULL, NULL, 0, 0, 7, 16, TS_DEFAULT_THREADS, 2000, 1};
+  *o = (eval_opts){NULL, NULL, NULL, 0, 0, 7, 16, ts_default_threads(), 2000, 1};
   optind = 1;
   opterr = 0;
   int c, rc = 0;

@@ -3,6 +3,7 @@ command line's options and --help come from that table. These hold every
 command's --help to the table `texsyn params` prints: each declared option
 is offered and described with its default."""
 import json
+import os
 import re
 
 import pytest
@@ -69,3 +70,11 @@ def test_a_small_size_takes_as_many_default_levels_as_it_holds(texsyn, data, tmp
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     p = run(texsyn, "synth", "--embedded", "--ref", ref, "--size", "64x64", "--levels", "5", "-o", out, check=False)
     assert p.returncode == 2 and "--levels 5: the output is only 4x4 at the coarsest level" in p.stderr, p.stderr
+
+
+def test_threads_default_to_the_online_cpus(texsyn, data, tmp_path):
+    """Without --threads an in-process job scans on every online CPU, as a
+    worker does; the closing line says how many."""
+    p = run(texsyn, "synth", "--embedded", "--ref", data / "textures" / "brick.png", "--size", "64x64",
+            "-o", tmp_path / "t.png")
+    assert f"in-process with {os.cpu_count()} threads" in p.stderr, p.stderr
