@@ -96,21 +96,6 @@ int ts_job_option(ts_job_cmd *o, int c, const char *arg, char *err) {
   return rc;
 }
 
-/* The image formats texsyn writes, by extension (image_oiio.cpp sets
- * each one's pixel type and lossless defaults); any other, even one
- * OpenImageIO could write, is refused before the job runs. */
-static const char *const kImageExts[] = {"png", "jpg", "jpeg", "tif", "tiff", "exr"};
-#define IMAGE_EXTS_HELP ".png, .jpg, .jpeg, .tif, .tiff or .exr"
-/* The one image output that also has a format of its own: stylize's NNF
- * as raw uint32 pairs (stylit_engine.c). */
-#define RAW_NNF_KEY "nnf"
-
-static int image_ext(const char *key, const char *ext) {
-  for (size_t i = 0; i < sizeof(kImageExts) / sizeof(kImageExts[0]); i++)
-    if (strcasecmp(ext, kImageExts[i]) == 0) return 1;
-  return strcmp(key, RAW_NNF_KEY) == 0 && strcmp(ext, "raw") == 0;
-}
-
 /* The option that sets output key: -o, else --KEY with '-' for '_'. */
 static void output_option(const char *key, char *out, size_t cap) {
   if (strcmp(key, "output") == 0) {
@@ -130,17 +115,17 @@ static int check_formats(const ts_job_cmd *o, char *err) {
   for (int k = 0; k < e->noutputs; k++) {
     const char *path = ts_output_path(&o->out, e->outputs[k].key);
     if (path == NULL || e->outputs[k].kind != TS_OUTPUT_IMAGE) continue;
-    const char *key = e->outputs[k].key, *ext = ts_path_ext(path);
+    const char *ext = ts_path_ext(path);
     struct stat st; /* a directory is check_writable's to name */
-    if (image_ext(key, ext) || (stat(path, &st) == 0 && S_ISDIR(st.st_mode))) continue;
-    char opt[64];
-    output_option(key, opt, sizeof(opt));
-    const char *raw = strcmp(key, RAW_NNF_KEY) == 0 ? " (or .raw)" : "";
+    if (ts_output_ext_ok(&e->outputs[k], ext) || (stat(path, &st) == 0 && S_ISDIR(st.st_mode))) continue;
+    char opt[64], own[32] = "";
+    output_option(e->outputs[k].key, opt, sizeof(opt));
+    if (e->outputs[k].own_ext != NULL) snprintf(own, sizeof(own), " (or .%s)", e->outputs[k].own_ext);
     if (ext[0] == '\0')
-      return ts_error(err, TS_EINVAL, "%s %s: the extension names the image format: use " IMAGE_EXTS_HELP "%s", opt,
-                      path, raw);
-    return ts_error(err, TS_EINVAL, "%s %s: texsyn does not write .%s images; use " IMAGE_EXTS_HELP "%s", opt,
-                    path, ext, raw);
+      return ts_error(err, TS_EINVAL, "%s %s: the extension names the image format: use " TS_IMAGE_EXTS_HELP "%s",
+                      opt, path, own);
+    return ts_error(err, TS_EINVAL, "%s %s: texsyn does not write .%s images; use " TS_IMAGE_EXTS_HELP "%s", opt,
+                    path, ext, own);
   }
   return 0;
 }
@@ -394,6 +379,15 @@ int ts_job_connect(ts_conn *c, const char *addr, const char *path, char *err) {
   return rc;
 }
 
+/* The fetched file that is output `key`, or -1. */
+static int fetched_file(const ts_msg_files *m, const char *key) {
+  for (uint32_t k = 0; k < m->n; k++) {
+    const ts_engine_output *out = ts_engine_output_of_file(m->name[k]);
+    if (out != NULL && strcmp(out->key, key) == 0) return (int)k;
+  }
+  return -1;
+}
+
 /* Every output given a path is among the job's files: a job makes only
  * what its submission asked for, and a fetch that quietly wrote less
  * would leave the caller with old or no files. Nothing is written then. */
@@ -401,10 +395,7 @@ static int check_fetched(uint64_t id, const ts_msg_files *m, const ts_output_pat
   char missing[512] = "";
   size_t len = 0;
   for (int i = 0; i < t->n; i++) {
-    uint32_t k = 0;
-    for (const char *key; k < m->n; k++)
-      if ((key = ts_engine_output_key_of_file(m->name[k])) != NULL && strcmp(key, t->key[i]) == 0) break;
-    if (k < m->n) continue;
+    if (fetched_file(m, t->key[i]) >= 0) continue;
     char opt[64];
     output_option(t->key[i], opt, sizeof(opt));
     int n = snprintf(missing + len, sizeof(missing) - len, "%s%s %s", len ? ", " : "", opt, t->path[i]);
@@ -413,6 +404,44 @@ static int check_fetched(uint64_t id, const ts_msg_files *m, const ts_output_pat
   if (len == 0) return 0;
   return ts_error(err, TS_ENOENT, "job %llu did not make %s: a job makes only the outputs asked for when it was "
                   "submitted; nothing was written", (unsigned long long)id, missing);
+}
+
+/* An image fetched in one format and asked for in another is converted
+ * (as the job would have written it); a format of the output's own (the
+ * NNF's .raw) has no conversion. Checked for every path before any is
+ * written. */
+static int check_conversions(uint64_t id, const ts_msg_files *m, const ts_output_paths *t, char *err) {
+  for (int i = 0; i < t->n; i++) {
+    const char *name = m->name[fetched_file(m, t->key[i])], *want = ts_path_ext(t->path[i]);
+    const ts_engine_output *out = ts_engine_output_of_file(name);
+    if (out->kind != TS_OUTPUT_IMAGE || ts_ext_same_format(ts_path_ext(name), want)) continue;
+    char opt[64];
+    output_option(t->key[i], opt, sizeof(opt));
+    if (!ts_output_ext_ok(out, want))
+      return ts_error(err, TS_EINVAL, "%s %s: texsyn does not write .%s images; use " TS_IMAGE_EXTS_HELP
+                      " (nothing was written)", opt, t->path[i], want);
+    if (out->own_ext != NULL && (strcasecmp(want, out->own_ext) == 0 ||
+                                 strcasecmp(ts_path_ext(name), out->own_ext) == 0))
+      return ts_error(err, TS_EINVAL, "%s %s: job %llu made %s, and .%s has no conversion to or from another "
+                      "format: fetch it as .%s (nothing was written)", opt, t->path[i], (unsigned long long)id, name,
+                      out->own_ext, ts_path_ext(name));
+  }
+  return 0;
+}
+
+/* One fetched file written to path: as it is, or converted to the format
+ * the path names. */
+static int write_fetched(const char *name, const uint8_t *data, size_t len, const char *path, char *err) {
+  const ts_engine_output *out = ts_engine_output_of_file(name);
+  if (out->kind != TS_OUTPUT_IMAGE || ts_ext_same_format(ts_path_ext(name), ts_path_ext(path)))
+    return ts_file_write(path, data, len, err);
+  ts_image img;
+  ts_image_limits any = {UINT64_MAX, NULL}; /* the coordinator wrote it: no decoding surprise to fear */
+  int rc = ts_image_read_mem(name, data, len, &img, &any, err);
+  if (rc != 0) return rc;
+  rc = ts_image_write(path, &img, img.meta, err);
+  ts_image_free(&img);
+  return rc;
 }
 
 int ts_job_fetch(ts_conn *c, uint64_t id, const ts_output_paths *t, char *err) {
@@ -425,10 +454,11 @@ int ts_job_fetch(ts_conn *c, uint64_t id, const ts_output_paths *t, char *err) {
   ts_msg_files m;
   if (rc == 0) rc = ts_msg_files_read(&f, &m, err);
   if (rc == 0) rc = check_fetched(id, &m, t, err);
+  if (rc == 0) rc = check_conversions(id, &m, t, err);
   for (uint32_t i = 0; rc == 0 && i < m.n; i++) {
-    const char *key = ts_engine_output_key_of_file(m.name[i]);
-    const char *path = key != NULL ? ts_output_path(t, key) : NULL;
-    if (path != NULL) rc = ts_file_write(path, m.data[i], m.len[i], err);
+    const ts_engine_output *out = ts_engine_output_of_file(m.name[i]);
+    const char *path = out != NULL ? ts_output_path(t, out->key) : NULL;
+    if (path != NULL) rc = write_fetched(m.name[i], m.data[i], m.len[i], path, err);
   }
   return rc;
 }

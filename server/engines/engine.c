@@ -48,10 +48,10 @@ static int output_of_file(const ts_engine *e, const char *name) {
   return -1;
 }
 
-const char *ts_engine_output_key_of_file(const char *name) {
+const ts_engine_output *ts_engine_output_of_file(const char *name) {
   for (size_t i = 0; i < sizeof(registry) / sizeof(registry[0]); i++) {
     int k = output_of_file(registry[i], name);
-    if (k >= 0) return registry[i]->outputs[k].key;
+    if (k >= 0) return &registry[i]->outputs[k];
   }
   return NULL;
 }

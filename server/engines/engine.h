@@ -53,6 +53,9 @@ typedef struct {
   /* A side output's command-line option and its --help ("copy-map");
    * NULL for the result (-o) and the report (--report), every job's. */
   const char *flag, *help;
+  /* An image output's format of its own besides the image formats
+   * (jobspec.h), as an extension: "raw" for stylize's NNF; else NULL. */
+  const char *own_ext;
 } ts_engine_output;
 
 /* The input images of a job, in the order run and check receive them.
@@ -148,11 +151,11 @@ const ts_engine *ts_engine_at(int i);
 const ts_engine *ts_engine_default(void);
 /* Index of the output whose spec key is `key`, or -1. */
 int ts_engine_output_index(const ts_engine *e, const char *key);
-/* The spec key of the output a fetched file name is ("copymap.png":
+/* The output a fetched file name is ("copymap.png": the one with key
  * "copy_map"), in whichever engine makes it, or NULL. Engines that make
- * the same file give it the same key, so a client can place a job's files
- * without knowing its engine. */
-const char *ts_engine_output_key_of_file(const char *name);
+ * the same file give it the same key and kind, so a client can place a
+ * job's files without knowing its engine. */
+const ts_engine_output *ts_engine_output_of_file(const char *name);
 /* The spool file name of output k as wanted ("out.png", "report.json"). */
 void ts_engine_output_file(const ts_engine *e, int k, const ts_engine_wants *w, char *out, size_t cap);
 

@@ -3,6 +3,7 @@
 
 #include <stdio.h>
 #include <string.h>
+#include <strings.h>
 
 #include "error.h"
 #include "util.h"
@@ -53,11 +54,34 @@ int ts_ext_valid(const char *ext) {
   return ext[0] != '\0' && parse_ext(ext, tmp) == 0;
 }
 
+/* The formats by extension; synonyms share a canonical name. */
+static const struct {
+  const char *ext, *format;
+} kImageExts[] = {{"png", "png"}, {"jpg", "jpeg"}, {"jpeg", "jpeg"}, {"tif", "tiff"}, {"tiff", "tiff"}, {"exr", "exr"}};
+
+static const char *image_format(const char *ext) {
+  for (size_t i = 0; i < sizeof(kImageExts) / sizeof(kImageExts[0]); i++)
+    if (strcasecmp(ext, kImageExts[i].ext) == 0) return kImageExts[i].format;
+  return NULL;
+}
+
+int ts_output_ext_ok(const ts_engine_output *out, const char *ext) {
+  return image_format(ext) != NULL || (out->own_ext != NULL && strcasecmp(ext, out->own_ext) == 0);
+}
+
+int ts_ext_same_format(const char *a, const char *b) {
+  const char *fa = image_format(a), *fb = image_format(b);
+  return fa != NULL || fb != NULL ? fa == fb : strcasecmp(a, b) == 0;
+}
+
 /* An output key of the engine: its wish; TS_ENOENT if the key is no output. */
 static int set_output(ts_jobspec *s, const char *k, const char *v) {
   int i = ts_engine_output_index(s->engine, k);
   if (i < 0) return TS_ENOENT;
-  if (s->engine->outputs[i].kind == TS_OUTPUT_IMAGE) return parse_ext(v, s->wants.want[i]) != 0 ? TS_EINVAL : 0;
+  if (s->engine->outputs[i].kind == TS_OUTPUT_IMAGE) /* empty: not wanted */
+    return (v[0] == '\0' || ts_output_ext_ok(&s->engine->outputs[i], v)) && parse_ext(v, s->wants.want[i]) == 0
+               ? 0
+               : TS_EINVAL;
   int on;
   if (ts_parse_int(v, 0, 1, &on) != 0) return TS_EINVAL;
   snprintf(s->wants.want[i], TS_EXT_LEN, "%s", on ? "1" : "");

@@ -40,6 +40,17 @@ int ts_jobspec_parse(const char *text, size_t len, ts_jobspec *s, char *err);
 /* 1 if ext is a non-empty extension a spec accepts (letters and digits,
  * shorter than TS_EXT_LEN), else 0. */
 int ts_ext_valid(const char *ext);
+/* The image formats texsyn writes, by extension (each one's pixel type and
+ * lossless defaults are known; any other, even one OpenImageIO could write,
+ * is refused before a job runs: on the client, and by a coordinator's spec
+ * parse for a client that skipped that check). */
+#define TS_IMAGE_EXTS_HELP ".png, .jpg, .jpeg, .tif, .tiff or .exr"
+/* 1 if an image output takes extension ext (any case): an image format, or
+ * the output's own (own_ext), else 0. */
+int ts_output_ext_ok(const ts_engine_output *out, const char *ext);
+/* 1 if extensions a and b name one format (any case; jpg = jpeg, tif =
+ * tiff), else 0. */
+int ts_ext_same_format(const char *a, const char *b);
 /* The extension of a path ("png" for "a/b.png"), or "" without one. */
 const char *ts_path_ext(const char *path);
 

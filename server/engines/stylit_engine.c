@@ -24,7 +24,7 @@ enum { OUT_IMAGE, OUT_NNF, OUT_REPORT, OUT_COUNT };
 static const ts_engine_output stylit_outputs[OUT_COUNT] = {
     [OUT_IMAGE] = {"output", "out", TS_OUTPUT_IMAGE},
     [OUT_NNF] = {"nnf", "nnf", TS_OUTPUT_IMAGE,
-                      "nnf", "the nearest-neighbour field: for each output pixel the exemplar pixel it comes from (.raw: little-endian uint32 x, y pairs; else a 16-bit image, red = x, green = y)"},
+                      "nnf", "the nearest-neighbour field: for each output pixel the exemplar pixel it comes from (.raw: little-endian uint32 x, y pairs; else a 16-bit image, red = x, green = y)", "raw"},
     [OUT_REPORT] = {"report", "report.json", TS_OUTPUT_FLAG},
 };
 

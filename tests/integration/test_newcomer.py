@@ -164,6 +164,35 @@ def test_fetch_of_outputs_the_job_never_made_fails_naming_them(texsyn, data, clu
         assert (tmp_path / "got.png").read_bytes() == (tmp_path / "want.png").read_bytes(), nnf
 
 
+def test_fetch_converts_to_the_format_its_path_names(texsyn, data, cluster, tmp_path):
+    """A job made as PNG and fetched with -o x.tif writes a TIFF with the
+    same pixels (before: PNG bytes under a .tif name); -o x.xyz is refused
+    as at submit; the NNF's .raw has no conversion: said, nothing written."""
+    from pnm import oiiotool, pixels_of
+    cluster.start(1)
+    job = cluster.submit(data / "textures" / "grass.png", "--size", "48x32", "--levels", "2")
+    cluster.texsyn("watch", job, "--quiet")
+    png, tif = tmp_path / "got.png", tmp_path / "got.tif"
+    cluster.texsyn("fetch", job, "-o", png)
+    cluster.texsyn("fetch", job, "-o", tif)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert tif.read_bytes()[:4] in (b"II*\x00", b"MM\x00*")
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    assert pixels_of(png, tmp_path / "a") == pixels_of(tif, tmp_path / "b")
+    p = cluster.texsyn("fetch", job, "-o", tmp_path / "x.xyz", check=False)
+    assert (p.returncode, p.stderr) == (1, f"texsyn fetch: -o {tmp_path}/x.xyz: texsyn does not write .xyz images; "
+                                           "use .png, .jpg, .jpeg, .tif, .tiff or .exr (nothing was written)\n"), p.stderr
+    style = tmp_path / "style.png"
+    oiiotool(data / "textures" / "grass.png", "--cut", "48x32+100+100", "-o", style)
+    args = ["stylize", "--style", style, "--guide", style, style, "--iters", "2", "--quiet"]
+    job = cluster.texsyn(*args, "-o", tmp_path / "s.png", "--nnf", tmp_path / "n.raw", "--detach").stdout.strip()
+    cluster.texsyn("watch", job, "--quiet")
+    p = cluster.texsyn("fetch", job, "-o", tmp_path / "s.png", "--nnf", tmp_path / "n.png", check=False)
+    assert p.returncode == 1 and f"job {job} made nnf.raw, and .raw has no conversion" in p.stderr, p.stderr
+    assert not (tmp_path / "s.png").exists() and not (tmp_path / "n.png").exists()
+
+
 def test_a_refused_secret_or_an_address_without_port_says_so(texsyn, data, tmp_path):
     """A wrong secret is named as refused, with the file it came from
     (option or environment), not as a coordinator that may be down; an

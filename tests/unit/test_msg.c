@@ -658,6 +658,22 @@ static void jobspec_refuses_bad_lines(void **state) {
    * which no parse takes back (a spooled job lost on restart). */
   assert_int_equal(ts_jobspec_parse("output=png\n", 11, &s, err), TS_EINVAL);
   assert_non_null(strstr(err, "size=WxH is required"));
+  /* A format texsyn does not write is refused at the spec, so a raw wire
+   * client's job fails at submit, not after it ran; .raw only for the NNF. */
+  const char *unwritable[] = {"size=8x8\noutput=xyz\n", "size=8x8\noutput=gif\n", "size=8x8\ncopy_map=raw\n",
+                              "engine=stylize\nnnf=bmp\n"};
+  for (size_t i = 0; i < sizeof(unwritable) / sizeof(unwritable[0]); i++) {
+    assert_int_equal(ts_jobspec_parse(unwritable[i], strlen(unwritable[i]), &s, err), TS_EINVAL);
+    assert_non_null(strstr(err, "bad value"));
+  }
+  const char *fine[] = {"size=8x8\noutput=TIFF\ncopy_map=exr\n", "engine=stylize\nnnf=raw\n"};
+  for (size_t i = 0; i < sizeof(fine) / sizeof(fine[0]); i++)
+    assert_int_equal(ts_jobspec_parse(fine[i], strlen(fine[i]), &s, err), 0);
+  assert_int_equal(ts_ext_same_format("jpg", "JPEG"), 1);
+  assert_int_equal(ts_ext_same_format("tif", "tiff"), 1);
+  assert_int_equal(ts_ext_same_format("png", "tif"), 0);
+  assert_int_equal(ts_ext_same_format("raw", "png"), 0);
+  assert_int_equal(ts_ext_same_format("raw", "RAW"), 1);
   assert_int_equal(ts_ext_valid("png"), 1);
   assert_int_equal(ts_ext_valid(""), 0);
   assert_int_equal(ts_ext_valid("p.g"), 0);
