@@ -42,8 +42,12 @@ Writes OUT/video.{md,json}, per kind of keys OUT/video-strip-KIND.png
 (frames across the shot, one row per way) and, when the build's texsyn
 video takes --preview, OUT/video-KIND.gif (the two-key run).
 
+With --pool: two chains (one key in the middle) on a coordinator with 1
+and with 2 workers of 1 thread: times, efficiency, bytes against embedded.
+
 usage: bench/video.py --build BUILD [--out bench/results] [--ebsynth PATH]
-                      [--frames 48] [--runs 3] [--keys noise,painting] [--quick]
+                      [--frames 48] [--runs 3] [--keys noise,painting] [--pool]
+                      [--quick]
 """
 import argparse
 import json
@@ -56,6 +60,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from cluster import Config  # noqa: E402
 from stylize import cpu, loadavg, run, shown  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -207,6 +212,13 @@ def markdown(res):
              f"{res['loadavg_end']}.", ""]
     for r in res["sections"]:
         lines += section(r, res["frames"], res["runs"])
+    if res.get("pool"):
+        q = res["pool"]
+        lines += ["## Two chains on the pool", "",
+                  f"Key {q['key']} of 1..{q['frames']} (noise keys): a chain backward and one forward, side by side "
+                  "on a coordinator (--jobs 2) with workers of 1 thread; every frame the embedded run's bytes. "
+                  f"1 worker {q['seconds_1']:.1f} s, 2 workers {q['seconds_2']:.1f} s (medians): efficiency "
+                  f"{q['efficiency']:.2f}.", ""]
     lines += ["Commands (TMP is the run's scratch directory; keys painted as bench/video.py says):", ""]
     lines += [f"* {k}: `{v}`" for k, v in res["commands"].items()]
     return "\n".join(lines) + "\n"
@@ -268,6 +280,36 @@ def measure(build, ebsynth, tmp, n, runs, kind, out, cmds):
     return res
 
 
+def pool(build, tmp, n, runs):
+    """Two chains side by side (the key in the middle of the shot) on a
+    coordinator (--jobs 2) with 1 worker and with 2 workers of 1 thread:
+    medians, efficiency T1 / (2 T2), and the frames' bytes against the
+    embedded run's."""
+    paint_keys(build, tmp, (n // 2,), "noise")
+    cmd = video_cmd(build, tmp, n, (n // 2,), tmp / "emb_%04d.png")
+    run(cmd)
+    want = [(tmp / f"emb_{t:04d}.png").read_bytes() for t in range(1, n + 1)]
+    res = {"key": n // 2, "frames": n}
+    for workers in (1, 2):
+        cfg = Config(f"{workers} worker", [1] * workers)
+        cfg.up(build, tmp)
+        try:
+            times = []
+            for i in range(runs):
+                out = tmp / f"pool{workers}_{i}_%04d.png"
+                times.append(timed(video_cmd(build, tmp, n, (n // 2,), out, ("--server", cfg.addr))))
+                got = [Path(str(out).replace("%04d", f"{t:04d}")).read_bytes() for t in range(1, n + 1)]
+                if got != want:
+                    sys.exit(f"bench: texsyn video on {workers} workers gave other bytes than embedded")
+        finally:
+            cfg.down()
+        res[f"seconds_{workers}"] = statistics.median(times)
+        res[f"runs_{workers}"] = times
+        print(f"  pool: {workers} worker(s) {res[f'seconds_{workers}']:.1f} s", flush=True)
+    res["efficiency"] = res["seconds_1"] / (2 * res["seconds_2"])
+    return res
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--build", type=Path, required=True)
@@ -276,6 +318,7 @@ def main():
     p.add_argument("--frames", type=int, default=48)
     p.add_argument("--runs", type=int, default=3)
     p.add_argument("--keys", default="noise,painting")
+    p.add_argument("--pool", action="store_true", help="also two chains on 1 and 2 workers")
     p.add_argument("--quick", action="store_true", help="16 frames, 1 run")
     a = p.parse_args()
     n, runs = (16, 1) if a.quick else (a.frames, a.runs)
@@ -287,6 +330,10 @@ def main():
             tmp = Path(d)
             make_shot(tmp, n)
             res["sections"].append(measure(build, a.ebsynth, tmp, n, runs, kind, a.out, res["commands"]))
+    if a.pool:
+        with tempfile.TemporaryDirectory(prefix="texsyn-video-bench-") as d:
+            make_shot(Path(d), n)
+            res["pool"] = pool(build, Path(d), n, runs)
     res["loadavg_end"] = loadavg()
     (a.out / "video.json").write_text(json.dumps(res, indent=1) + "\n")
     (a.out / "video.md").write_text(markdown(res))
