@@ -51,29 +51,25 @@ static void usage(FILE *f, const ts_engine *e) {
           "                       is the pass at the key's frame; at most %d\n"
           "  --weight W           the weight of the --input or --pass just before it: 0 or\n"
           "                       0.01..100 (default 1)\n"
-          "  --edge-weight W      the edge guide's weight: 0 (off) or 0.01..100 (default 0.5)\n"
-          "  --position-weight W  the positional guide's: 0 (off) or 0.02..100 (default 1)\n"
-          "  --temporal-weight W  the temporal guide's: 0 (off) or 0.01..100 (default 1)\n"
           "  --write-guides DIR   keep the guides made (edges, positions, temporal, each\n"
           "                       chain's frames) in DIR, made if missing\n"
           "  --report F           one JSON object: the settings and every job's report\n",
           TS_FLOW_MIN_SIDE, TS_FLOW_MIN_SIDE, TS_FRAME_LAST, TS_VIDEO_MAX_KEYS, TS_VIDEO_MAX_PASSES);
+  ts_params_help(f, ts_video_params);
   ts_params_help(f, e->params);
   fprintf(f, "%s  (not --detach: each frame needs the one before, so the command follows its jobs)\n",
           TS_JOB_RUN_HELP);
 }
 
-enum { OPT_INPUT = TS_OPT_OWN, OPT_FRAMES, OPT_KEY, OPT_PASS, OPT_WEIGHT, OPT_EDGE, OPT_POSITION, OPT_TEMPORAL,
-       OPT_GUIDES };
+/* The command's own options; its guides' weights follow from
+ * ts_video_params (video_guides.h), OPT_WEIGHTS + their index. */
+enum { OPT_INPUT = TS_OPT_OWN, OPT_FRAMES, OPT_KEY, OPT_PASS, OPT_WEIGHT, OPT_GUIDES, OPT_WEIGHTS };
 
-static const struct option own_opts[] = {
-    {"input", required_argument, 0, OPT_INPUT},         {"frames", required_argument, 0, OPT_FRAMES},
-    {"key", required_argument, 0, OPT_KEY},             {"pass", required_argument, 0, OPT_PASS},
-    {"weight", required_argument, 0, OPT_WEIGHT},       {"edge-weight", required_argument, 0, OPT_EDGE},
-    {"position-weight", required_argument, 0, OPT_POSITION},
-    {"temporal-weight", required_argument, 0, OPT_TEMPORAL},
-    {"write-guides", required_argument, 0, OPT_GUIDES}, TS_JOB_LONGOPTS,
-    {0, 0, 0, 0}};
+static const struct option fixed_opts[] = {
+    {"input", required_argument, 0, OPT_INPUT},   {"frames", required_argument, 0, OPT_FRAMES},
+    {"key", required_argument, 0, OPT_KEY},       {"pass", required_argument, 0, OPT_PASS},
+    {"weight", required_argument, 0, OPT_WEIGHT}, {"write-guides", required_argument, 0, OPT_GUIDES},
+    TS_JOB_LONGOPTS,                              {0, 0, 0, 0}};
 
 typedef struct {
   ts_video v;
@@ -81,11 +77,17 @@ typedef struct {
   const char *frames, *report;
 } video_opts;
 
-/* A weight: 0 or lo..100. */
-static int weight_arg(const char *opt, const char *arg, double lo, double *w, char *err) {
-  int rc = ts_arg_double(opt, arg, w, err);
-  if (rc == 0 && *w != 0 && (*w < lo || *w > 100)) rc = ts_error(err, TS_EINVAL, "%s %s: need 0 or %g..100", opt, arg, lo);
-  return rc;
+/* fixed_opts, then one option per entry of ts_video_params: 0, or
+ * TS_ETOOBIG when they do not fit in cap entries. */
+static int own_options(struct option *out, size_t cap) {
+  size_t n = 0;
+  for (; fixed_opts[n].name != NULL; n++) out[n] = fixed_opts[n];
+  for (int i = 0; ts_video_params[i].key != NULL; i++) {
+    if (n + 1 >= cap) return TS_ETOOBIG;
+    out[n++] = (struct option){ts_video_params[i].flag, required_argument, 0, OPT_WEIGHTS + i};
+  }
+  out[n] = (struct option){0, 0, 0, 0};
+  return 0;
 }
 
 /* --key N KEY_IMG: getopt hands over N; KEY_IMG is the next word. */
@@ -107,33 +109,46 @@ static int pass_option(video_opts *o, const char *arg, char *err) {
   return 0;
 }
 
+/* --weight W: 0 or 0.01..100, as stylize's --weight. */
 static int weight_option(video_opts *o, const char *arg, char *err) {
   if (o->weighs < 0) return ts_error(err, TS_EINVAL, "--weight %s: put it after the --input or --pass it weighs", arg);
-  return weight_arg("--weight", arg, 0.01, o->weighs == 0 ? &o->v.input_weight : &o->v.pass_weight[o->weighs - 1],
-                    err);
+  double *w = o->weighs == 0 ? &o->v.input_weight : &o->v.pass_weight[o->weighs - 1];
+  int rc = ts_arg_double("--weight", arg, w, err);
+  if (rc == 0 && *w != 0 && (*w < 0.01 || *w > 100))
+    rc = ts_error(err, TS_EINVAL, "--weight %s: need 0 or 0.01..100", arg);
+  return rc;
 }
 
-static int own_option(video_opts *o, int c, int argc, char **argv, char *err) {
+/* A guide's weight (ts_video_params); its range is checked after the
+ * loop, as an engine parameter's is. */
+static int weights_option(video_opts *o, int i, const char *arg, char *err) {
+  char what[64];
+  snprintf(what, sizeof(what), "--%s", ts_video_params[i].flag);
+  return ts_param_parse(&ts_video_params[i], &o->v.wt, arg, what, err);
+}
+
+/* The command's own options (ts_cmd_options.option): TS_ENOENT for the
+ * engine's and every job's. */
+static int video_option(void *ctx, int c, const char *arg, int argc, char **argv, char *err) {
+  video_opts *o = ctx;
   ts_video *v = &o->v;
+  if (c >= OPT_WEIGHTS && c < OPT_WEIGHTS + ts_param_count(ts_video_params))
+    return weights_option(o, c - OPT_WEIGHTS, arg, err);
+  if (c >= TS_OPT_SIDE) /* stylize's side outputs (--nnf): one file, which every frame would overwrite */
+    return ts_error(err, TS_EINVAL, "--%s: a stylize side output is one file, which every frame would overwrite: "
+                    "texsyn video does not take it", v->job.spec.engine->outputs[c - TS_OPT_SIDE].flag);
   switch (c) {
-  case OPT_INPUT: v->input = optarg; o->weighs = 0; return 0;
-  case OPT_FRAMES: o->frames = optarg; return ts_frames_parse(optarg, &v->fr, err);
-  case OPT_KEY: return key_option(o, argc, argv, optarg, err);
-  case OPT_PASS: return pass_option(o, optarg, err);
-  case OPT_WEIGHT: return weight_option(o, optarg, err);
-  case OPT_EDGE: return weight_arg("--edge-weight", optarg, 0.01, &v->edge_weight, err);
-  case OPT_POSITION: return weight_arg("--position-weight", optarg, 0.02, &v->position_weight, err);
-  case OPT_TEMPORAL: return weight_arg("--temporal-weight", optarg, 0.01, &v->temporal_weight, err);
-  case OPT_GUIDES: v->guides_dir = optarg; return 0;
-  case TS_OPT_REPORT: o->report = optarg; return ts_job_option(&v->job, c, optarg, err);
+  case OPT_INPUT: v->input = arg; o->weighs = 0; return 0;
+  case OPT_FRAMES: o->frames = arg; return ts_frames_parse(arg, &v->fr, err);
+  case OPT_KEY: return key_option(o, argc, argv, arg, err);
+  case OPT_PASS: return pass_option(o, arg, err);
+  case OPT_WEIGHT: return weight_option(o, arg, err);
+  case OPT_GUIDES: v->guides_dir = arg; return 0;
+  case TS_OPT_REPORT: o->report = arg; return TS_ENOENT; /* noted, then taken as every job's --report */
   case TS_OPT_DETACH: return ts_error(err, TS_EINVAL, "--detach: each frame needs the one before, so texsyn video "
                                       "follows its jobs to the end");
-  default: break;
+  default: return TS_ENOENT;
   }
-  int rc = ts_paramopt_take(&v->job, c, optarg, err);
-  if (rc != TS_ENOENT) return rc;
-  rc = ts_job_option(&v->job, c, optarg, err);
-  return rc != TS_ENOENT ? rc : ts_error(err, TS_EINVAL, "unknown option (see texsyn video --help)");
 }
 
 static int key_order(const void *a, const void *b) {
@@ -147,6 +162,10 @@ static int parse_end(video_opts *o, char *err) {
   if (v->input == NULL || o->frames == NULL || v->nkeys == 0)
     return ts_error(err, TS_EINVAL, "--input PATTERN, --frames A..B and at least one --key N KEY_IMG are required "
                     "(see texsyn video --help)");
+  char msg[1024] = "";
+  int problems = 0;
+  ts_params_check(ts_video_params, &v->wt, msg, sizeof(msg), &problems);
+  if (problems > 0) return ts_error(err, TS_EINVAL, "%s", msg);
   qsort(v->key, (size_t)v->nkeys, sizeof(v->key[0]), key_order);
   for (int k = 0; k < v->nkeys; k++) {
     if (v->key[k].frame < v->fr.first || v->key[k].frame > v->fr.last)
@@ -165,44 +184,18 @@ static int parse_end(video_opts *o, char *err) {
   return rc == 0 ? ts_video_weigh(v, err) : rc;
 }
 
-/* Stylize's side outputs (--nnf) taken out of a built table: a frame's
- * field would be overwritten by the next. */
-static void without_side_outputs(struct option *t) {
-  size_t n = 0;
-  for (size_t i = 0; t[i].name != NULL; i++)
-    if (t[i].val < TS_OPT_SIDE) t[n++] = t[i];
-  t[n] = (struct option){0, 0, 0, 0};
-}
-
 /* '+': no reordering of argv, so the word after --key N is its image. */
 static int video_parse(int argc, char **argv, video_opts *o, char *err) {
   memset(o, 0, sizeof(*o));
   ts_job_cmd_init(&o->v.job, "video", ts_engine_find("stylize"));
   o->weighs = -1;
   o->v.input_weight = 1;
-  o->v.edge_weight = 0.5;
-  o->v.position_weight = 1;
-  o->v.temporal_weight = 1;
-  struct option longopts[TS_PARAMOPT_MAX];
-  if (ts_paramopt_build(o->v.job.spec.engine, own_opts, longopts, TS_PARAMOPT_MAX) != 0)
-    return ts_error(err, TS_EINVAL, "internal: too many options");
-  without_side_outputs(longopts);
-  optind = 1;
-  opterr = 0;
-  int c;
-  while ((c = getopt_long(argc, argv, "+o:h", longopts, NULL)) != -1) {
-    if (c == TS_OPT_HELP || c == 'h') {
-      usage(stdout, o->v.job.spec.engine);
-      exit(0);
-    }
-    if (c == '?' || c == ':')
-      return ts_error(err, TS_EINVAL, "%s: unknown option or missing value (see texsyn video --help)",
-                      argv[optind - 1]);
-    int rc = own_option(o, c, argc, argv, err);
-    if (rc != 0) return rc;
-  }
-  if (optind < argc) return ts_error(err, TS_EINVAL, "unexpected argument '%s'", argv[optind]);
-  return parse_end(o, err);
+  ts_params_default(ts_video_params, &o->v.wt);
+  struct option own[TS_PARAMOPT_MAX];
+  if (own_options(own, TS_PARAMOPT_MAX) != 0) return ts_error(err, TS_EINVAL, "internal: too many options");
+  ts_cmd_options cmd = {"+o:h", own, video_option, usage};
+  int rc = ts_paramopt_parse(&o->v.job, &cmd, o, argc, argv, err);
+  return rc != 0 ? rc : parse_end(o, err);
 }
 
 /* ---- before any work ------------------------------------------------- */
@@ -412,8 +405,8 @@ static int write_report(const ts_video *v, const char *dir, const char *path, ch
   if (f == NULL) return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
   fprintf(f, "{\"frames\": [%ld, %ld], \"size\": [%d, %d], \"flow\": \"%s\", \"weights\": {\"input\": %g, "
           "\"edge\": %g, \"position\": %g, \"temporal\": %g}, \"blend\": \"linear\", \"keys\": [",
-          v->fr.first, v->fr.last, v->w, v->h, ts_flow_method(), v->input_weight, v->edge_weight,
-          v->position_weight, v->temporal_weight);
+          v->fr.first, v->fr.last, v->w, v->h, ts_flow_method(), v->input_weight, v->wt.edge,
+          v->wt.position, v->wt.temporal);
   for (int k = 0; k < v->nkeys; k++) fprintf(f, "%s%ld", k ? ", " : "", v->key[k].frame);
   fprintf(f, "], \"jobs\": [");
   int rc = 0, first = 1;

@@ -94,18 +94,18 @@ static int job_paths(const ts_video *v, const char *dir, long key, long t, char 
   key_file(dir, key, "", in[TS_STYLIT_IN_STYLE], TS_VIDEO_PATH);
   ts_frame_path(v->input, key, in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
   ts_frame_path(v->input, t, in[ts_stylit_in_tgt(g++)], TS_VIDEO_PATH);
-  if (v->edge_weight > 0) {
+  if (v->wt.edge > 0) {
     key_file(dir, key, "edge", in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
     ts_video_chain_file(dir, key, t, "edge.png", in[ts_stylit_in_tgt(g++)], TS_VIDEO_PATH);
   }
   static const char *const axes[2] = {"x", "y"};
-  for (int a = 0; a < 2 && v->position_weight > 0; a++) {
+  for (int a = 0; a < 2 && v->wt.position > 0; a++) {
     char what[32];
     snprintf(what, sizeof(what), "position_%s.png", axes[a]);
     identity_file(dir, axes[a], in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
     ts_video_chain_file(dir, key, t, what, in[ts_stylit_in_tgt(g++)], TS_VIDEO_PATH);
   }
-  if (v->temporal_weight > 0) {
+  if (v->wt.temporal > 0) {
     key_file(dir, key, "", in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
     ts_video_chain_file(dir, key, t, "temporal.png", in[ts_stylit_in_tgt(g++)], TS_VIDEO_PATH);
   }
@@ -122,9 +122,9 @@ int ts_video_weigh(ts_video *v, char *err) {
   double w[TS_STYLIT_MAX_GUIDES];
   int g = 0;
   w[g++] = v->input_weight;
-  if (v->edge_weight > 0) w[g++] = v->edge_weight;
-  for (int a = 0; a < 2 && v->position_weight > 0; a++) w[g++] = v->position_weight / 2; /* x and y */
-  if (v->temporal_weight > 0) w[g++] = v->temporal_weight;
+  if (v->wt.edge > 0) w[g++] = v->wt.edge;
+  for (int a = 0; a < 2 && v->wt.position > 0; a++) w[g++] = v->wt.position / 2; /* x and y */
+  if (v->wt.temporal > 0) w[g++] = v->wt.temporal;
   for (int p = 0; p < v->npass; p++) w[g++] = v->pass_weight[p];
   char key[32], value[32];
   snprintf(value, sizeof(value), "%d", g);
@@ -150,7 +150,7 @@ static int prepare_key(const ts_video *v, const char *dir, int k, char *err) {
   if (rc == 0) rc = write_u8(path, px, v->w, v->h, v->channels, err); /* the key's own frame */
   free(px);
   key_file(dir, v->key[k].frame, "edge", path, sizeof(path));
-  if (rc == 0 && v->edge_weight > 0) rc = write_edges(v, v->key[k].frame, path, err);
+  if (rc == 0 && v->wt.edge > 0) rc = write_edges(v, v->key[k].frame, path, err);
   return rc;
 }
 
@@ -265,16 +265,16 @@ static int make_guides(const ts_video *v, const char *dir, chain *c, long t, ste
   ts_flow_occlusion(b->back, b->fwd, v->w, v->h, b->occluded);
   ts_guide_position_advect(c->pos, b->back, b->occluded, v->w, v->h, b->pos);
   char path[TS_VIDEO_PATH], path2[TS_VIDEO_PATH];
-  if (v->edge_weight > 0) {
+  if (v->wt.edge > 0) {
     ts_video_chain_file(dir, c->key, t, "edge.png", path, sizeof(path));
     rc = write_edges(v, t, path, err);
   }
-  if (rc == 0 && v->position_weight > 0) {
+  if (rc == 0 && v->wt.position > 0) {
     ts_video_chain_file(dir, c->key, t, "position_x.png", path, sizeof(path));
     ts_video_chain_file(dir, c->key, t, "position_y.png", path2, sizeof(path2));
     rc = write_position(b->pos, v->w, v->h, path, path2, err);
   }
-  if (rc == 0 && v->temporal_weight > 0) {
+  if (rc == 0 && v->wt.temporal > 0) {
     temporal_guide(v, c, b);
     ts_video_chain_file(dir, c->key, t, "temporal.png", path, sizeof(path));
     rc = write_u8(path, b->px, v->w, v->h, v->channels, err);
@@ -410,7 +410,7 @@ int ts_video_prepare(const ts_video *v, const char *dir, char *err) {
   for (int k = 0; rc == 0 && k < v->nkeys; k++) rc = prepare_key(v, dir, k, err);
   float *pos = rc == 0 ? malloc(sizeof(float) * 2 * v->w * v->h) : NULL;
   if (rc == 0 && pos == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
-  if (rc == 0 && v->position_weight > 0) {
+  if (rc == 0 && v->wt.position > 0) {
     char px[TS_VIDEO_PATH], py[TS_VIDEO_PATH];
     identity_file(dir, "x", px, sizeof(px));
     identity_file(dir, "y", py, sizeof(py));

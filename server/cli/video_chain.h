@@ -35,6 +35,7 @@
 #include "frames.h"
 #include "jobcmd.h"
 #include "stylit.h"
+#include "video_guides.h"
 
 #define TS_VIDEO_MAX_KEYS 64
 /* Guides beyond the colour, edge, two position and temporal ones. */
@@ -55,7 +56,7 @@ typedef struct {
   int npass;
   const char *pass[TS_VIDEO_MAX_PASSES];
   double input_weight, pass_weight[TS_VIDEO_MAX_PASSES];
-  double edge_weight, position_weight, temporal_weight;
+  ts_video_weights wt; /* the made guides' (video_guides.h) */
   int w, h, channels; /* the frames' size, the keys' channels (checked) */
 } ts_video;
 

@@ -115,5 +115,10 @@ def test_bad_input_is_refused_before_any_work(texsyn, shot, tmp_path):
     assert "--detach" in refused("--detach")
     assert "--nnf" in refused("--nnf", tmp_path / "n_%04d.raw")  # one file per frame: not an output here
     assert "--scale" in refused("--scale", "0.5")
+    # The guide weights' ranges come from their table (texsyn params video).
+    assert "--edge-weight 200: need 0: off, or 0.01..100" in refused("--edge-weight", "200")
+    assert "--position-weight 0.01: need 0: off, or 0.02..100" in refused("--position-weight", "0.01")
+    assert "--temporal-weight x: need a number" in refused("--temporal-weight", "x")
+    assert "did you mean --edge-weight" in refused("--edge-weigth", "1")
     err = refused("--pass", shot / "in_%04d.png", "--pass", tmp_path / "missing_%04d.png", code=1)
     assert "--pass frame 1" in err and "missing_0001.png" in err, err
