@@ -26,6 +26,7 @@
 #include "paramopt.h"
 #include "util.h"
 #include "video_chain.h"
+#include "video_mask.h"
 
 static void usage(FILE *f, const ts_engine *e) {
   fprintf(f,
@@ -51,6 +52,9 @@ static void usage(FILE *f, const ts_engine *e) {
           "                       is the pass at the key's frame; at most %d\n"
           "  --weight W           the weight of the --input or --pass just before it: 0 or\n"
           "                       0.01..100 (default 1)\n"
+          "  --mask PATTERN       per frame, where to stylize: white stylized, black the\n"
+          "                       input frame as it is, grey between; colour masks by\n"
+          "                       their luminance. Also a guide (--mask-weight)\n"
           "  --write-guides DIR   keep the guides made (edges, positions, temporal, each\n"
           "                       chain's frames) in DIR, made if missing\n"
           "  --report F           one JSON object: the settings and every job's report\n",
@@ -63,13 +67,14 @@ static void usage(FILE *f, const ts_engine *e) {
 
 /* The command's own options; its guides' weights follow from
  * ts_video_params (video_guides.h), OPT_WEIGHTS + their index. */
-enum { OPT_INPUT = TS_OPT_OWN, OPT_FRAMES, OPT_KEY, OPT_PASS, OPT_WEIGHT, OPT_GUIDES, OPT_WEIGHTS };
+enum { OPT_INPUT = TS_OPT_OWN, OPT_FRAMES, OPT_KEY, OPT_PASS, OPT_WEIGHT, OPT_GUIDES, OPT_MASK, OPT_WEIGHTS };
 
 static const struct option fixed_opts[] = {
     {"input", required_argument, 0, OPT_INPUT},   {"frames", required_argument, 0, OPT_FRAMES},
     {"key", required_argument, 0, OPT_KEY},       {"pass", required_argument, 0, OPT_PASS},
     {"weight", required_argument, 0, OPT_WEIGHT}, {"write-guides", required_argument, 0, OPT_GUIDES},
-    TS_JOB_LONGOPTS,                              {0, 0, 0, 0}};
+    {"mask", required_argument, 0, OPT_MASK},     TS_JOB_LONGOPTS,
+    {0, 0, 0, 0}};
 
 typedef struct {
   ts_video v;
@@ -144,6 +149,7 @@ static int video_option(void *ctx, int c, const char *arg, int argc, char **argv
   case OPT_PASS: return pass_option(o, arg, err);
   case OPT_WEIGHT: return weight_option(o, arg, err);
   case OPT_GUIDES: v->guides_dir = arg; return 0;
+  case OPT_MASK: v->mask = arg; return 0;
   case TS_OPT_REPORT: o->report = arg; return TS_ENOENT; /* noted, then taken as every job's --report */
   case TS_OPT_DETACH: return ts_error(err, TS_EINVAL, "--detach: each frame needs the one before, so texsyn video "
                                       "follows its jobs to the end");
@@ -166,6 +172,8 @@ static int parse_end(video_opts *o, char *err) {
   int problems = 0;
   ts_params_check(ts_video_params, &v->wt, msg, sizeof(msg), &problems);
   if (problems > 0) return ts_error(err, TS_EINVAL, "%s", msg);
+  if (v->mask != NULL && v->wt.mask > 0 && v->npass == TS_VIDEO_MAX_PASSES)
+    return ts_error(err, TS_EINVAL, "--mask takes a guide: at most %d --pass with it", TS_VIDEO_MAX_PASSES - 1);
   qsort(v->key, (size_t)v->nkeys, sizeof(v->key[0]), key_order);
   for (int k = 0; k < v->nkeys; k++) {
     if (v->key[k].frame < v->fr.first || v->key[k].frame > v->fr.last)
@@ -297,6 +305,12 @@ static int check_all(video_opts *o, char *err) {
       rc = ts_error(err, TS_EINVAL, "--pass %s: its frames are %dx%d, the input's %dx%d", v->pass[p], first.width,
                     first.height, v->w, v->h);
   }
+  if (rc == 0 && v->mask != NULL) {
+    rc = check_sequence("--mask", v->mask, v, &first, err);
+    if (rc == 0 && (first.width != v->w || first.height != v->h))
+      rc = ts_error(err, TS_EINVAL, "--mask %s: its frames are %dx%d, the input's %dx%d", v->mask, first.width,
+                    first.height, v->w, v->h);
+  }
   if (rc == 0) rc = check_outputs(v, err);
   if (rc == 0 && o->report != NULL) {
     ts_job_cmd job = v->job;
@@ -385,6 +399,19 @@ static int write_sequence(const ts_video *v, const char *dir, char *err) {
   return rc;
 }
 
+/* The sequence written; with --mask first into dir, then composited into
+ * the outputs (video_mask.h). */
+static int sequence_out(ts_video *v, const char *dir, char *err) {
+  if (v->mask == NULL) return write_sequence(v, dir, err);
+  const char *out = v->out;
+  char stylized[TS_VIDEO_PATH + 32];
+  snprintf(stylized, sizeof(stylized), "%s/stylized_%%04d.png", dir);
+  v->out = stylized;
+  int rc = write_sequence(v, dir, err);
+  v->out = out;
+  return rc == 0 ? ts_video_mask_write(v, dir, stylized, err) : rc;
+}
+
 /* ---- the report ------------------------------------------------------ */
 
 /* Appends the file at path to f as it is (a job's JSON report). */
@@ -404,9 +431,9 @@ static int write_report(const ts_video *v, const char *dir, const char *path, ch
   FILE *f = fopen(path, "w");
   if (f == NULL) return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
   fprintf(f, "{\"frames\": [%ld, %ld], \"size\": [%d, %d], \"flow\": \"%s\", \"weights\": {\"input\": %g, "
-          "\"edge\": %g, \"position\": %g, \"temporal\": %g}, \"blend\": \"linear\", \"keys\": [",
+          "\"edge\": %g, \"position\": %g, \"temporal\": %g, \"mask\": %g}, \"blend\": \"linear\", \"keys\": [",
           v->fr.first, v->fr.last, v->w, v->h, ts_flow_method(), v->input_weight, v->wt.edge,
-          v->wt.position, v->wt.temporal);
+          v->wt.position, v->wt.temporal, v->mask != NULL ? v->wt.mask : 0);
   for (int k = 0; k < v->nkeys; k++) fprintf(f, "%s%ld", k ? ", " : "", v->key[k].frame);
   fprintf(f, "], \"jobs\": [");
   int rc = 0, first = 1;
@@ -440,7 +467,7 @@ int ts_cmd_video(int argc, char **argv) {
   if (rc == 0) rc = ts_video_prepare(&o->v, dir, err);
   if (rc == TS_EINVAL && status == 0) status = 2;
   if (rc == 0) rc = ts_video_run_chains(&o->v, dir, err);
-  if (rc == 0) rc = write_sequence(&o->v, dir, err);
+  if (rc == 0) rc = sequence_out(&o->v, dir, err);
   if (rc == 0 && o->report != NULL) rc = write_report(&o->v, dir, o->report, err);
   if (made && o->v.guides_dir == NULL) workdir_remove(dir);
   if (rc != 0) fprintf(stderr, "texsyn video: %s\n", err);

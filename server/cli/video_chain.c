@@ -9,6 +9,7 @@
 #include "flow.h"
 #include "image.h"
 #include "video_guides.h"
+#include "video_mask.h"
 
 /* ---- the work directory's files ---------------------------------------- */
 
@@ -109,6 +110,10 @@ static int job_paths(const ts_video *v, const char *dir, long key, long t, char 
     key_file(dir, key, "", in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
     ts_video_chain_file(dir, key, t, "temporal.png", in[ts_stylit_in_tgt(g++)], TS_VIDEO_PATH);
   }
+  if (v->mask != NULL && v->wt.mask > 0) {
+    ts_video_mask_file(dir, key, in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
+    ts_video_mask_file(dir, t, in[ts_stylit_in_tgt(g++)], TS_VIDEO_PATH);
+  }
   for (int p = 0; p < v->npass; p++) {
     ts_frame_path(v->pass[p], key, in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
     ts_frame_path(v->pass[p], t, in[ts_stylit_in_tgt(g++)], TS_VIDEO_PATH);
@@ -125,6 +130,7 @@ int ts_video_weigh(ts_video *v, char *err) {
   if (v->wt.edge > 0) w[g++] = v->wt.edge;
   for (int a = 0; a < 2 && v->wt.position > 0; a++) w[g++] = v->wt.position / 2; /* x and y */
   if (v->wt.temporal > 0) w[g++] = v->wt.temporal;
+  if (v->mask != NULL && v->wt.mask > 0) w[g++] = v->wt.mask;
   for (int p = 0; p < v->npass; p++) w[g++] = v->pass_weight[p];
   char key[32], value[32];
   snprintf(value, sizeof(value), "%d", g);
@@ -406,7 +412,7 @@ int ts_video_run_chains(const ts_video *v, const char *dir, char *err) {
 }
 
 int ts_video_prepare(const ts_video *v, const char *dir, char *err) {
-  int rc = 0;
+  int rc = v->mask != NULL ? ts_video_mask_prepare(v, dir, err) : 0;
   for (int k = 0; rc == 0 && k < v->nkeys; k++) rc = prepare_key(v, dir, k, err);
   float *pos = rc == 0 ? malloc(sizeof(float) * 2 * v->w * v->h) : NULL;
   if (rc == 0 && pos == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");

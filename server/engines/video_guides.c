@@ -17,6 +17,9 @@ const ts_param ts_video_params[] = {
      "1", "the positional guide's weight, split between its x and y planes", .flags = TS_PARAM_ZERO_OFF},
     {"temporal_weight", "temporal-weight", "W", TS_PARAM_DOUBLE, offsetof(ts_video_weights, temporal), 0.01, 100,
      "1", "the temporal guide's weight", .flags = TS_PARAM_ZERO_OFF},
+    {"mask_weight", "mask-weight", "W", TS_PARAM_DOUBLE, offsetof(ts_video_weights, mask), 0.01, 100, "1",
+     "with --mask, the mask's weight as a guide, which keeps the inside's patches from the key's inside",
+     .flags = TS_PARAM_ZERO_OFF},
     {0}};
 
 /* Sobel magnitude at (x, y): |gx| + |gy| <= 2 * 4 * 255, scaled by 1/8

@@ -22,7 +22,7 @@
  * options, their --help, ranges and defaults and `texsyn params video`
  * come. The position weight is split between its x and y planes. */
 typedef struct {
-  double edge, position, temporal;
+  double edge, position, temporal, mask;
 } ts_video_weights;
 extern const ts_param ts_video_params[];
 

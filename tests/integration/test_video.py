@@ -122,3 +122,45 @@ def test_bad_input_is_refused_before_any_work(texsyn, shot, tmp_path):
     assert "did you mean --edge-weight" in refused("--edge-weigth", "1")
     err = refused("--pass", shot / "in_%04d.png", "--pass", tmp_path / "missing_%04d.png", code=1)
     assert "--pass frame 1" in err and "missing_0001.png" in err, err
+
+
+def halves(image, tmp_path):
+    """The left and right halves' rows of an image's 8-bit pixels."""
+    w, h, c, px = pixels_of(image, tmp_path)
+    rows = [px[y * w * c:(y + 1) * w * c] for y in range(h)]
+    return [r[:w // 2 * c] for r in rows], [r[w // 2 * c:] for r in rows]
+
+
+def test_mask_keeps_the_input_outside_and_stylizes_inside(texsyn, shot, tmp_path):
+    """White left half, black right half: the right half of every output
+    frame is the input frame's bytes, the left half stylized (on the key's
+    frame, the painting); the mask is also a guide of the jobs."""
+    oiiotool("--create", "96x72", "1", "--fill:color=1", "48x72+0+0", "-d", "uint8", "-o", tmp_path / "m.png")
+    for f in range(1, 5):
+        (tmp_path / f"mask_{f:04d}.png").write_bytes((tmp_path / "m.png").read_bytes())
+    video(texsyn, shot, tmp_path / "v_%04d.png", "--mask", tmp_path / "mask_%04d.png", "--report", tmp_path / "r.json",
+          frames="1..4", keys=(1,))
+    for f in range(1, 5):
+        left, right = halves(tmp_path / f"v_{f:04d}.png", tmp_path)
+        in_left, in_right = halves(shot / f"in_{f:04d}.png", tmp_path)
+        assert right == in_right, f
+        if f == 1:
+            assert left == halves(shot / "key1.png", tmp_path)[0]
+        else:
+            assert left != in_left, f
+    r = json.loads((tmp_path / "r.json").read_text())
+    # colour, edge, position x and y, temporal, the mask: 6 guides.
+    assert r["weights"]["mask"] == 1 and len(r["jobs"][0]["report"]["params"]["guide_weights"]) == 6, r
+
+
+def test_bad_masks_are_refused_before_any_work(texsyn, shot, tmp_path):
+    oiiotool("--create", "48x36", "1", "-d", "uint8", "-o", tmp_path / "small_0001.png")
+    for f in range(2, 4):
+        (tmp_path / f"small_{f:04d}.png").write_bytes((tmp_path / "small_0001.png").read_bytes())
+    for mask, words, code in ((tmp_path / "small_%04d.png", ["48x36", "96x72"], 2),
+                              (tmp_path / "none_%04d.png", ["--mask frame 1", "none_0001.png"], 1),
+                              (tmp_path / "small_%04d.png", ["--mask frame 4", "small_0004.png"], 1)):
+        frames = "1..4" if "frame 4" in words[0] else "1..3"
+        p = video(texsyn, shot, tmp_path / "o_%04d.png", "--mask", mask, frames=frames, check=False)
+        assert p.returncode == code and all(w in p.stderr for w in words), p.stderr
+        assert len(p.stderr.strip().splitlines()) == 1 and not list(tmp_path.glob("o_*")), p.stderr
