@@ -26,6 +26,7 @@
 #include "paramopt.h"
 #include "util.h"
 #include "video_chain.h"
+#include "video_flow.h"
 #include "video_mask.h"
 
 static void usage(FILE *f, const ts_engine *e) {
@@ -55,6 +56,10 @@ static void usage(FILE *f, const ts_engine *e) {
           "  --mask PATTERN       per frame, where to stylize: white stylized, black the\n"
           "                       input frame as it is, grey between; colour masks by\n"
           "                       their luminance. Also a guide (--mask-weight)\n"
+          "  --flow PATTERN       motion vectors per frame instead of computed flow: float\n"
+          "                       images (EXR), the first two channels x, y in pixels;\n"
+          "                       frame t's maps t to t+1 (content at p moves to p + flow)\n"
+          "  --flow-back PATTERN  with --flow, frame t's maps t to t-1 (else --flow inverted)\n"
           "  --write-guides DIR   keep the guides made (edges, positions, temporal, each\n"
           "                       chain's frames) in DIR, made if missing\n"
           "  --report F           one JSON object: the settings and every job's report\n",
@@ -67,13 +72,15 @@ static void usage(FILE *f, const ts_engine *e) {
 
 /* The command's own options; its guides' weights follow from
  * ts_video_params (video_guides.h), OPT_WEIGHTS + their index. */
-enum { OPT_INPUT = TS_OPT_OWN, OPT_FRAMES, OPT_KEY, OPT_PASS, OPT_WEIGHT, OPT_GUIDES, OPT_MASK, OPT_WEIGHTS };
+enum { OPT_INPUT = TS_OPT_OWN, OPT_FRAMES, OPT_KEY, OPT_PASS, OPT_WEIGHT, OPT_GUIDES, OPT_MASK, OPT_FLOW, OPT_FLOW_BACK,
+       OPT_WEIGHTS };
 
 static const struct option fixed_opts[] = {
     {"input", required_argument, 0, OPT_INPUT},   {"frames", required_argument, 0, OPT_FRAMES},
     {"key", required_argument, 0, OPT_KEY},       {"pass", required_argument, 0, OPT_PASS},
     {"weight", required_argument, 0, OPT_WEIGHT}, {"write-guides", required_argument, 0, OPT_GUIDES},
-    {"mask", required_argument, 0, OPT_MASK},     TS_JOB_LONGOPTS,
+    {"mask", required_argument, 0, OPT_MASK},     {"flow", required_argument, 0, OPT_FLOW},
+    {"flow-back", required_argument, 0, OPT_FLOW_BACK}, TS_JOB_LONGOPTS,
     {0, 0, 0, 0}};
 
 typedef struct {
@@ -150,6 +157,8 @@ static int video_option(void *ctx, int c, const char *arg, int argc, char **argv
   case OPT_WEIGHT: return weight_option(o, arg, err);
   case OPT_GUIDES: v->guides_dir = arg; return 0;
   case OPT_MASK: v->mask = arg; return 0;
+  case OPT_FLOW: v->flow = arg; return 0;
+  case OPT_FLOW_BACK: v->flow_back = arg; return 0;
   case TS_OPT_REPORT: o->report = arg; return TS_ENOENT; /* noted, then taken as every job's --report */
   case TS_OPT_DETACH: return ts_error(err, TS_EINVAL, "--detach: each frame needs the one before, so texsyn video "
                                       "follows its jobs to the end");
@@ -172,6 +181,8 @@ static int parse_end(video_opts *o, char *err) {
   int problems = 0;
   ts_params_check(ts_video_params, &v->wt, msg, sizeof(msg), &problems);
   if (problems > 0) return ts_error(err, TS_EINVAL, "%s", msg);
+  if (v->flow_back != NULL && v->flow == NULL)
+    return ts_error(err, TS_EINVAL, "--flow-back %s: give --flow too (the flow towards the next frame)", v->flow_back);
   if (v->mask != NULL && v->wt.mask > 0 && v->npass == TS_VIDEO_MAX_PASSES)
     return ts_error(err, TS_EINVAL, "--mask takes a guide: at most %d --pass with it", TS_VIDEO_MAX_PASSES - 1);
   qsort(v->key, (size_t)v->nkeys, sizeof(v->key[0]), key_order);
@@ -290,7 +301,7 @@ static int check_outputs(const ts_video *v, char *err) {
 static int check_all(video_opts *o, char *err) {
   ts_video *v = &o->v;
   ts_image_info first;
-  int rc = ts_flow_lib_load(err);
+  int rc = v->flow == NULL ? ts_flow_lib_load(err) : 0; /* given flows need no OpenCV */
   if (rc == 0) rc = check_sequence("--input", v->input, v, &first, err);
   if (rc != 0) return rc;
   v->w = first.width;
@@ -311,6 +322,7 @@ static int check_all(video_opts *o, char *err) {
       rc = ts_error(err, TS_EINVAL, "--mask %s: its frames are %dx%d, the input's %dx%d", v->mask, first.width,
                     first.height, v->w, v->h);
   }
+  if (rc == 0) rc = ts_video_flow_check(v, err);
   if (rc == 0) rc = check_outputs(v, err);
   if (rc == 0 && o->report != NULL) {
     ts_job_cmd job = v->job;
@@ -432,7 +444,9 @@ static int write_report(const ts_video *v, const char *dir, const char *path, ch
   if (f == NULL) return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
   fprintf(f, "{\"frames\": [%ld, %ld], \"size\": [%d, %d], \"flow\": \"%s\", \"weights\": {\"input\": %g, "
           "\"edge\": %g, \"position\": %g, \"temporal\": %g, \"mask\": %g}, \"blend\": \"linear\", \"keys\": [",
-          v->fr.first, v->fr.last, v->w, v->h, ts_flow_method(), v->input_weight, v->wt.edge,
+          v->fr.first, v->fr.last, v->w, v->h,
+          v->flow == NULL ? ts_flow_method() : v->flow_back == NULL ? "given (--flow; backward: inverted)"
+                                                                   : "given (--flow, --flow-back)", v->input_weight, v->wt.edge,
           v->wt.position, v->wt.temporal, v->mask != NULL ? v->wt.mask : 0);
   for (int k = 0; k < v->nkeys; k++) fprintf(f, "%s%ld", k ? ", " : "", v->key[k].frame);
   fprintf(f, "], \"jobs\": [");

@@ -8,6 +8,7 @@
 #include "error.h"
 #include "flow.h"
 #include "image.h"
+#include "video_flow.h"
 #include "video_guides.h"
 #include "video_mask.h"
 
@@ -198,7 +199,7 @@ typedef struct {
 /* One step's scratch, shared by the chains (one step is made at a time). */
 typedef struct {
   uint8_t *luma, *occluded, *px;
-  float *back, *fwd, *pos, *warped;
+  float *back, *fwd, *pos, *warped, *scratch;
 } step_buf;
 
 static void chain_free(chain *c) {
@@ -234,7 +235,8 @@ static int step_buf_alloc(step_buf *b, const ts_video *v, char *err) {
   b->fwd = malloc(sizeof(float) * 2 * n);
   b->pos = malloc(sizeof(float) * 2 * n);
   b->warped = malloc(sizeof(float) * n * v->channels);
-  return b->luma && b->occluded && b->px && b->back && b->fwd && b->pos && b->warped
+  b->scratch = malloc(sizeof(float) * n);
+  return b->luma && b->occluded && b->px && b->back && b->fwd && b->pos && b->warped && b->scratch
              ? 0
              : ts_error(err, TS_ENOMEM, "out of memory for the flows of %dx%d frames", v->w, v->h);
 }
@@ -247,6 +249,7 @@ static void step_buf_free(step_buf *b) {
   free(b->fwd);
   free(b->pos);
   free(b->warped);
+  free(b->scratch);
 }
 
 static uint8_t round8(float v) { return v <= 0.0f ? 0 : v >= 255.0f ? 255 : (uint8_t)(v + 0.5f); }
@@ -265,8 +268,7 @@ static void temporal_guide(const ts_video *v, const chain *c, step_buf *b) {
  * and b->pos hold t's luminance and position guide. */
 static int make_guides(const ts_video *v, const char *dir, chain *c, long t, step_buf *b, char *err) {
   int rc = read_luma(v, t, b->luma, err);
-  if (rc == 0) rc = ts_flow_dis(b->luma, c->luma, v->w, v->h, b->back, err);
-  if (rc == 0) rc = ts_flow_dis(c->luma, b->luma, v->w, v->h, b->fwd, err);
+  if (rc == 0) rc = ts_video_flows(v, c->frame, t, c->luma, b->luma, b->back, b->fwd, b->scratch, err);
   if (rc != 0) return rc;
   ts_flow_occlusion(b->back, b->fwd, v->w, v->h, b->occluded);
   ts_guide_position_advect(c->pos, b->back, b->occluded, v->w, v->h, b->pos);

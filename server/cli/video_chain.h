@@ -53,6 +53,7 @@ typedef struct {
   ts_job_cmd job; /* the stylize engine's parameters and where jobs run */
   const char *input, *out, *guides_dir;
   const char *mask; /* --mask PATTERN or NULL (video_mask.h) */
+  const char *flow, *flow_back; /* --flow, --flow-back PATTERN or NULL (video_flow.h) */
   ts_frames fr;
   int nkeys; /* sorted by frame, distinct */
   ts_video_key key[TS_VIDEO_MAX_KEYS];

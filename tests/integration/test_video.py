@@ -164,3 +164,65 @@ def test_bad_masks_are_refused_before_any_work(texsyn, shot, tmp_path):
         p = video(texsyn, shot, tmp_path / "o_%04d.png", "--mask", mask, frames=frames, check=False)
         assert p.returncode == code and all(w in p.stderr for w in words), p.stderr
         assert len(p.stderr.strip().splitlines()) == 1 and not list(tmp_path.glob("o_*")), p.stderr
+
+
+def flows(tmp_path, name, u, v, frames, size="96x72", channels=2, dtype="float", ext="exr"):
+    """A constant flow (u, v) per frame: name_%04d.ext."""
+    color = ",".join(str(x) for x in ([u, v] + [0] * (channels - 2))[:channels])
+    oiiotool("--create", size, channels, f"--fill:color={color}", size + "+0+0", "-d", dtype,
+             "-o", tmp_path / f"{name}_0001.{ext}")
+    for f in frames:
+        if f != 1:
+            (tmp_path / f"{name}_{f:04d}.{ext}").write_bytes((tmp_path / f"{name}_0001.{ext}").read_bytes())
+    return tmp_path / f"{name}_%04d.{ext}"
+
+
+def test_a_given_flow_is_used_its_sign_as_documented(texsyn, shot, tmp_path):
+    """--flow of +3 px in x per frame (content moves right): the positional
+    guide of frame t holds x - 3 (t - 1) where content came from the key,
+    and the pixel's own x on the columns it did not (occluded, reset); the
+    backward flow inverted from it gives the same guides, so the same
+    bytes, as a --flow-back of -3."""
+    fwd = flows(tmp_path, "f", 3, 0, (1, 2))
+    video(texsyn, shot, tmp_path / "v_%04d.png", "--flow", fwd, "--write-guides", tmp_path / "g",
+          "--report", tmp_path / "r.json", frames="1..3", keys=(1,))
+    assert json.loads((tmp_path / "r.json").read_text())["flow"] == "given (--flow; backward: inverted)"
+
+    def scale8(x):
+        return int(x * 255 / 95 + 0.5)
+    for t, expect in ((2, lambda x: x - 3 if x >= 3 else x), (3, lambda x: x - 6 if x >= 6 else x - 3 if x >= 3 else x)):
+        w, h, c, px = pixels_of(tmp_path / "g" / f"from_0001_{t:04d}_position_x.png", tmp_path)
+        assert (w, h, c) == (96, 72, 1)
+        assert px[:96] == bytes(scale8(expect(x)) for x in range(96)), (t, list(px[:96]))
+        assert px[96 * 71:] == px[:96]  # every row alike
+    back = flows(tmp_path, "b", -3, 0, (2, 3))
+    video(texsyn, shot, tmp_path / "w_%04d.png", "--flow", fwd, "--flow-back", back, frames="1..3", keys=(1,))
+    for f in (2, 3):
+        assert (tmp_path / f"w_{f:04d}.png").read_bytes() == (tmp_path / f"v_{f:04d}.png").read_bytes(), f
+    # Computed flow: other guides, other frames.
+    video(texsyn, shot, tmp_path / "c_%04d.png", frames="1..3", keys=(1,))
+    assert (tmp_path / "c_0003.png").read_bytes() != (tmp_path / "v_0003.png").read_bytes()
+
+
+def test_bad_flows_are_refused_before_any_work(texsyn, shot, tmp_path):
+    def refused(*args, frames="1..3", code=2):
+        p = video(texsyn, shot, tmp_path / "o_%04d.png", *args, frames=frames, check=False)
+        assert p.returncode == code, p.stderr
+        assert len(p.stderr.strip().splitlines()) == 1 and not list(tmp_path.glob("o_*")), p.stderr
+        return p.stderr
+
+    good = flows(tmp_path, "f", 1, 0, (1, 2))
+    err = refused("--flow", good, frames="1..4", code=1)  # frame 3 missing
+    assert "--flow frame 3" in err and "f_0003.exr" in err, err
+    err = refused("--flow", flows(tmp_path, "s", 1, 0, (1, 2), size="48x36"))
+    assert "--flow frame 1" in err and "48x36" in err and "96x72" in err, err
+    err = refused("--flow", flows(tmp_path, "one", 1, 0, (1, 2), channels=1))
+    assert "--flow frame 1" in err and "1 channel" in err and "two" in err, err
+    err = refused("--flow", flows(tmp_path, "u8", 1, 0, (1, 2), dtype="uint8", ext="png"))
+    assert "--flow frame 1" in err and "uint8" in err and "float" in err, err
+    err = refused("--flow", good, "--flow-back", flows(tmp_path, "bk", -1, 0, (2,)), code=1)  # frame 3 missing
+    assert "--flow-back frame 3" in err and "bk_0003.exr" in err, err
+    assert "give --flow too" in refused("--flow-back", good)
+    # Three channels (a renderer's with a spare one) are fine: the first two are used.
+    video(texsyn, shot, tmp_path / "ok_%04d.png", "--flow", flows(tmp_path, "three", 1, 0, (1,), channels=3),
+          frames="1..2")
