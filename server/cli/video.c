@@ -44,7 +44,8 @@ static void usage(FILE *f, const ts_engine *e) {
           "bytes in-process and on any pool.\n"
           "\n"
           "  --input PATTERN      the input frames, the frame number as %%d or %%04d; one size\n"
-          "                       and channel count, at least %dx%d\n"
+          "                       and channel count, at least %dx%d. Or a movie (FFmpeg):\n"
+          "                       --frames then counts its frames from 0\n"
           "  --frames A..B        the frames to stylize (0..%d)\n"
           "  --key N KEY_IMG      frame N painted (within A..B, the frames' size); 1..%d keys,\n"
           "                       all with one channel count, which the output has (8-bit)\n"
@@ -87,6 +88,8 @@ typedef struct {
   ts_video v;
   int weighs; /* what --weight sets: -1 nothing yet, 0 the input, p + 1 pass p */
   const char *frames, *report;
+  const char *movie;                    /* --input a movie: its path (v.input: its frames decoded) */
+  char movie_frames[TS_VIDEO_PATH + 32]; /* where they are decoded to, in the work directory */
 } video_opts;
 
 /* fixed_opts, then one option per entry of ts_video_params: 0, or
@@ -298,11 +301,42 @@ static int check_outputs(const ts_video *v, char *err) {
   return 0;
 }
 
+/* --input without a frame number: a movie, whose frames A..B are there
+ * (frame 0 its first); its frames' header in *first. */
+static int check_movie(video_opts *o, ts_image_info *first, char *err) {
+  ts_video *v = &o->v;
+  ts_movie_info mi;
+  ts_image_limits limits = {v->job.max_pixels, NULL};
+  int rc = ts_movie_probe(v->input, &limits, &mi, err);
+  if (rc != 0) {
+    char why[TS_ERR_LEN];
+    snprintf(why, sizeof(why), "%s", err);
+    return ts_error(err, rc, "--input: no frame number in the name (%%d or %%04d, e.g. shot/%%04d.png), and %s "
+                    "(nothing was stylized)", why);
+  }
+  if (mi.frames == 1)
+    return ts_error(err, TS_EINVAL, "--input %s: one image; put the frame number in the name (%%d or %%04d, e.g. "
+                    "shot/%%04d.png) or give a movie", v->input);
+  if (v->fr.last >= mi.frames)
+    return ts_error(err, TS_EINVAL, "--frames %s: the movie %s has %d frames, 0..%d", o->frames, v->input, mi.frames,
+                    mi.frames - 1);
+  *first = mi.frame;
+  o->movie = v->input;
+  return 0;
+}
+
+/* The --input sequence or movie: one size and channel count, *first. */
+static int check_input(video_opts *o, ts_image_info *first, char *err) {
+  int n = ts_frame_pattern(o->v.input, err);
+  if (n < 0) return n;
+  return n == 0 ? check_movie(o, first, err) : check_sequence("--input", o->v.input, &o->v, first, err);
+}
+
 static int check_all(video_opts *o, char *err) {
   ts_video *v = &o->v;
   ts_image_info first;
   int rc = v->flow == NULL ? ts_flow_lib_load(err) : 0; /* given flows need no OpenCV */
-  if (rc == 0) rc = check_sequence("--input", v->input, v, &first, err);
+  if (rc == 0) rc = check_input(o, &first, err);
   if (rc != 0) return rc;
   v->w = first.width;
   v->h = first.height;
@@ -330,6 +364,24 @@ static int check_all(video_opts *o, char *err) {
     ts_output_set(&job.out, "report", o->report);
     rc = ts_job_check_outputs(&job, err);
   }
+  return rc;
+}
+
+/* ---- the movie's frames ------------------------------------------------ */
+
+static int movie_frame(void *ctx, long frame, const ts_image *img, char *err) {
+  char path[TS_VIDEO_PATH + 64];
+  ts_frame_path(ctx, frame, path, sizeof(path)); /* fits: the work directory's */
+  return ts_image_write(path, img, NULL, err);
+}
+
+/* --input a movie: its frames A..B decoded into the work directory as
+ * lossless PNGs, which then are the input sequence. */
+static int movie_decode(video_opts *o, const char *dir, char *err) {
+  snprintf(o->movie_frames, sizeof(o->movie_frames), "%s/input_%%04d.png", dir);
+  ts_image_limits limits = {o->v.job.max_pixels, NULL};
+  int rc = ts_movie_read(o->movie, o->v.fr.first, o->v.fr.last, &limits, movie_frame, o->movie_frames, err);
+  o->v.input = o->movie_frames;
   return rc;
 }
 
@@ -478,6 +530,7 @@ int ts_cmd_video(int argc, char **argv) {
   if (rc == 0) rc = check_all(o, err);
   if (rc != 0 && status == 0) status = rc == TS_EINVAL ? 2 : 1;
   int made = rc == 0 && (rc = workdir_make(&o->v, dir, sizeof(dir), err)) == 0;
+  if (rc == 0 && o->movie != NULL) rc = movie_decode(o, dir, err);
   if (rc == 0) rc = ts_video_prepare(&o->v, dir, err);
   if (rc == TS_EINVAL && status == 0) status = 2;
   if (rc == 0) rc = ts_video_run_chains(&o->v, dir, err);

@@ -13,6 +13,7 @@ import subprocess
 import pytest
 
 from conftest import REPO, modbus_registers, run
+from avi import write_avi
 from pnm import oiiotool, pixels_of
 
 FRAMES = 10
@@ -226,3 +227,41 @@ def test_bad_flows_are_refused_before_any_work(texsyn, shot, tmp_path):
     # Three channels (a renderer's with a spare one) are fine: the first two are used.
     video(texsyn, shot, tmp_path / "ok_%04d.png", "--flow", flows(tmp_path, "three", 1, 0, (1,), channels=3),
           frames="1..2")
+
+
+def test_a_movie_input_is_its_frames(texsyn, shot, tmp_path):
+    """The shot as an uncompressed AVI (frame 0 = in_0001.png): --input
+    clip.avi --frames 0..4 gives the bytes of --input in_%04d.png --frames
+    1..5, decoded frames being the pixels that went in."""
+    frames = [pixels_of(shot / f"in_{f:04d}.png", tmp_path)[3] for f in range(1, FRAMES + 1)]
+    write_avi(tmp_path / "clip.avi", frames, 96, 72)
+    key = ["--key", "0", shot / "key1.png"]
+    run(texsyn, "video", "--input", tmp_path / "clip.avi", "--frames", "0..4", *key, "-o", tmp_path / "m_%04d.png",
+        "--write-guides", tmp_path / "g", *FAST)
+    for f in range(5):
+        assert pixels_of(tmp_path / "g" / f"input_{f:04d}.png", tmp_path)[3] == frames[f], f
+    video(texsyn, shot, tmp_path / "s_%04d.png", frames="1..5", keys=(1,))
+    for f in range(5):
+        assert (tmp_path / f"m_{f:04d}.png").read_bytes() == (tmp_path / f"s_{f + 1:04d}.png").read_bytes(), f
+
+
+def test_bad_movies_are_refused_before_any_work(texsyn, shot, tmp_path):
+    frames = [pixels_of(shot / f"in_{f:04d}.png", tmp_path)[3] for f in range(1, 4)]
+    write_avi(tmp_path / "clip.avi", frames, 96, 72)
+    (tmp_path / "junk.mp4").write_bytes(b"\0\0\0\x18ftypmp42" + bytes(range(256)) * 4)
+
+    def refused(movie, frames, code):
+        p = run(texsyn, "video", "--input", movie, "--frames", frames, "--key", "0", shot / "key1.png",
+                "-o", tmp_path / "o_%04d.png", *FAST, check=False)
+        assert p.returncode == code and len(p.stderr.strip().splitlines()) == 1, p.stderr
+        assert not list(tmp_path.glob("o_*")), "work was done"
+        return p.stderr
+
+    err = refused(tmp_path / "junk.mp4", "0..2", 1)
+    assert "junk.mp4: not a movie FFmpeg reads" in err, err
+    err = refused(tmp_path / "none.mp4", "0..2", 1)
+    assert "none.mp4" in err and "No such file" in err, err
+    err = refused(tmp_path / "clip.avi", "0..3", 2)
+    assert "--frames 0..3: the movie" in err and "has 3 frames, 0..2" in err, err
+    err = refused(shot / "in_0001.png", "0..2", 1)  # an image, not a movie: the pattern forgotten
+    assert "--input: no frame number in the name" in err and "in_0001.png: not a movie" in err, err
