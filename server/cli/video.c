@@ -17,6 +17,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -61,6 +62,8 @@ static void usage(FILE *f, const ts_engine *e) {
           "                       images (EXR), the first two channels x, y in pixels;\n"
           "                       frame t's maps t to t+1 (content at p moves to p + flow)\n"
           "  --flow-back PATTERN  with --flow, frame t's maps t to t-1 (else --flow inverted)\n"
+          "  --preview OUT.gif    the output frames also as an animated GIF (the movie's\n"
+          "                       frame rate, else 24 frames a second)\n"
           "  --write-guides DIR   keep the guides made (edges, positions, temporal, each\n"
           "                       chain's frames) in DIR, made if missing\n"
           "  --report F           one JSON object: the settings and every job's report\n",
@@ -74,14 +77,15 @@ static void usage(FILE *f, const ts_engine *e) {
 /* The command's own options; its guides' weights follow from
  * ts_video_params (video_guides.h), OPT_WEIGHTS + their index. */
 enum { OPT_INPUT = TS_OPT_OWN, OPT_FRAMES, OPT_KEY, OPT_PASS, OPT_WEIGHT, OPT_GUIDES, OPT_MASK, OPT_FLOW, OPT_FLOW_BACK,
-       OPT_WEIGHTS };
+       OPT_PREVIEW, OPT_WEIGHTS };
 
 static const struct option fixed_opts[] = {
     {"input", required_argument, 0, OPT_INPUT},   {"frames", required_argument, 0, OPT_FRAMES},
     {"key", required_argument, 0, OPT_KEY},       {"pass", required_argument, 0, OPT_PASS},
     {"weight", required_argument, 0, OPT_WEIGHT}, {"write-guides", required_argument, 0, OPT_GUIDES},
     {"mask", required_argument, 0, OPT_MASK},     {"flow", required_argument, 0, OPT_FLOW},
-    {"flow-back", required_argument, 0, OPT_FLOW_BACK}, TS_JOB_LONGOPTS,
+    {"flow-back", required_argument, 0, OPT_FLOW_BACK}, {"preview", required_argument, 0, OPT_PREVIEW},
+    TS_JOB_LONGOPTS,
     {0, 0, 0, 0}};
 
 typedef struct {
@@ -89,6 +93,8 @@ typedef struct {
   int weighs; /* what --weight sets: -1 nothing yet, 0 the input, p + 1 pass p */
   const char *frames, *report;
   const char *movie;                    /* --input a movie: its path (v.input: its frames decoded) */
+  double fps;                           /* the movie's, for --preview (0: not a movie, or it does not say) */
+  const char *preview;                  /* --preview OUT.gif or NULL */
   char movie_frames[TS_VIDEO_PATH + 32]; /* where they are decoded to, in the work directory */
 } video_opts;
 
@@ -162,6 +168,7 @@ static int video_option(void *ctx, int c, const char *arg, int argc, char **argv
   case OPT_MASK: v->mask = arg; return 0;
   case OPT_FLOW: v->flow = arg; return 0;
   case OPT_FLOW_BACK: v->flow_back = arg; return 0;
+  case OPT_PREVIEW: o->preview = arg; return 0;
   case TS_OPT_REPORT: o->report = arg; return TS_ENOENT; /* noted, then taken as every job's --report */
   case TS_OPT_DETACH: return ts_error(err, TS_EINVAL, "--detach: each frame needs the one before, so texsyn video "
                                       "follows its jobs to the end");
@@ -322,6 +329,7 @@ static int check_movie(video_opts *o, ts_image_info *first, char *err) {
                     mi.frames - 1);
   *first = mi.frame;
   o->movie = v->input;
+  o->fps = mi.fps;
   return 0;
 }
 
@@ -330,6 +338,17 @@ static int check_input(video_opts *o, ts_image_info *first, char *err) {
   int n = ts_frame_pattern(o->v.input, err);
   if (n < 0) return n;
   return n == 0 ? check_movie(o, first, err) : check_sequence("--input", o->v.input, &o->v, first, err);
+}
+
+/* --preview: a .gif, writable. */
+static int check_preview(const video_opts *o, char *err) {
+  size_t n = strlen(o->preview);
+  if (n < 4 || strcasecmp(o->preview + n - 4, ".gif") != 0)
+    return ts_error(err, TS_EINVAL, "--preview %s: an animated GIF, named .gif", o->preview);
+  ts_job_cmd job = o->v.job;
+  job.out = (ts_output_paths){0};
+  ts_output_set(&job.out, "output", o->preview);
+  return ts_job_check_outputs(&job, err);
 }
 
 static int check_all(video_opts *o, char *err) {
@@ -358,6 +377,7 @@ static int check_all(video_opts *o, char *err) {
   }
   if (rc == 0) rc = ts_video_flow_check(v, err);
   if (rc == 0) rc = check_outputs(v, err);
+  if (rc == 0 && o->preview != NULL) rc = check_preview(o, err);
   if (rc == 0 && o->report != NULL) {
     ts_job_cmd job = v->job;
     job.out = (ts_output_paths){0};
@@ -476,6 +496,42 @@ static int sequence_out(ts_video *v, const char *dir, char *err) {
   return rc == 0 ? ts_video_mask_write(v, dir, stylized, err) : rc;
 }
 
+/* ---- the preview ------------------------------------------------------ */
+
+/* Output frame t as 8-bit RGB (grey repeated) or RGBA into px. */
+static int preview_frame(const ts_video *v, long t, uint8_t *px, uint8_t *own, char *err) {
+  char path[TS_VIDEO_PATH];
+  ts_frame_path(v->out, t, path, sizeof(path)); /* fits: checked */
+  int rc = ts_video_read8(v, path, own, err);
+  int c = v->channels, pc = c == 2 || c == 4 ? 4 : 3;
+  for (size_t i = 0; rc == 0 && i < (size_t)v->w * v->h; i++)
+    for (int k = 0; k < pc; k++) {
+      int from = c <= 2 ? (k < 3 ? 0 : 1) : k; /* grey: its grey thrice, then its alpha */
+      px[i * pc + k] = own[i * c + (from < c ? from : c - 1)];
+    }
+  return rc;
+}
+
+/* --preview: the output frames as one GIF, at the movie's rate or 24 fps. */
+static int write_preview(const video_opts *o, char *err) {
+  const ts_video *v = &o->v;
+  int n = (int)(v->fr.last - v->fr.first + 1), pc = v->channels == 2 || v->channels == 4 ? 4 : 3;
+  size_t px = (size_t)v->w * v->h;
+  ts_image *frames = calloc((size_t)n, sizeof(*frames));
+  uint8_t *own = malloc(px * v->channels);
+  int rc = frames != NULL && own != NULL ? 0 : ts_error(err, TS_ENOMEM, "out of memory");
+  for (int k = 0; rc == 0 && k < n; k++) {
+    frames[k] = (ts_image){v->w, v->h, pc, TS_PIX_U8, malloc(px * pc), NULL};
+    rc = frames[k].pixels != NULL ? preview_frame(v, v->fr.first + k, frames[k].pixels, own, err)
+                                  : ts_error(err, TS_ENOMEM, "out of memory for the preview");
+  }
+  if (rc == 0) rc = ts_image_write_animation(o->preview, frames, n, o->fps > 0 ? o->fps : 24, err);
+  for (int k = 0; frames != NULL && k < n; k++) free(frames[k].pixels);
+  free(frames);
+  free(own);
+  return rc;
+}
+
 /* ---- the report ------------------------------------------------------ */
 
 /* Appends the file at path to f as it is (a job's JSON report). */
@@ -535,6 +591,7 @@ int ts_cmd_video(int argc, char **argv) {
   if (rc == TS_EINVAL && status == 0) status = 2;
   if (rc == 0) rc = ts_video_run_chains(&o->v, dir, err);
   if (rc == 0) rc = sequence_out(&o->v, dir, err);
+  if (rc == 0 && o->preview != NULL) rc = write_preview(o, err);
   if (rc == 0 && o->report != NULL) rc = write_report(&o->v, dir, o->report, err);
   if (made && o->v.guides_dir == NULL) workdir_remove(dir);
   if (rc != 0) fprintf(stderr, "texsyn video: %s\n", err);

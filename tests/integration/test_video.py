@@ -14,7 +14,7 @@ import pytest
 
 from conftest import REPO, modbus_registers, run
 from avi import write_avi
-from pnm import oiiotool, pixels_of
+from pnm import oiiotool, pixels_of, read_pnm
 
 FRAMES = 10
 FAST = ["--levels", "3", "--iters", "2", "--quiet"]
@@ -265,3 +265,22 @@ def test_bad_movies_are_refused_before_any_work(texsyn, shot, tmp_path):
     assert "--frames 0..3: the movie" in err and "has 3 frames, 0..2" in err, err
     err = refused(shot / "in_0001.png", "0..2", 1)  # an image, not a movie: the pattern forgotten
     assert "--input: no frame number in the name" in err and "in_0001.png: not a movie" in err, err
+
+
+def test_preview_is_an_animated_gif_of_the_output(texsyn, shot, tmp_path):
+    video(texsyn, shot, tmp_path / "v_%04d.png", "--preview", tmp_path / "p.gif", frames="2..6", keys=(5,))
+    info = subprocess.run(["oiiotool", "--info", "-v", tmp_path / "p.gif"], capture_output=True, text=True,
+                          check=True).stdout
+    assert "96 x   72" in info and "5 subimages: 96x72" in info and "gif:LoopCount: 0" in info, info
+    # Each frame is its output frame in at most 256 colours: close (the
+    # keys' noise quantizes to a mean error of some 7 levels), and closer
+    # to its own output frame than to any other, in order.
+    outs = [pixels_of(tmp_path / f"v_{f:04d}.png", tmp_path)[3] for f in range(2, 7)]
+    for k in range(5):
+        oiiotool(tmp_path / "p.gif", "--subimage", k, "--ch", "R,G,B", "-o", tmp_path / f"p{k}.pnm")
+        got = read_pnm(tmp_path / f"p{k}.pnm")[3]
+        errors = [sum(abs(a - b) for a, b in zip(got, want)) / len(got) for want in outs]
+        assert len(got) == 96 * 72 * 3 and errors[k] < 12 and errors[k] == min(errors), (k, errors)
+    p = video(texsyn, shot, tmp_path / "o_%04d.png", "--preview", tmp_path / "p.png", frames="2..6", keys=(5,),
+              check=False)
+    assert p.returncode == 2 and "--preview" in p.stderr and ".gif" in p.stderr and not list(tmp_path.glob("o_*"))
