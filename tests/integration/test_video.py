@@ -284,3 +284,21 @@ def test_preview_is_an_animated_gif_of_the_output(texsyn, shot, tmp_path):
     p = video(texsyn, shot, tmp_path / "o_%04d.png", "--preview", tmp_path / "p.png", frames="2..6", keys=(5,),
               check=False)
     assert p.returncode == 2 and "--preview" in p.stderr and ".gif" in p.stderr and not list(tmp_path.glob("o_*"))
+
+
+def test_a_grey_mask_blends_by_the_documented_rounding(texsyn, shot, tmp_path):
+    """Mask 128 everywhere, not a guide (--mask-weight 0): every output
+    sample is (S * 128 + I * 127 + 127) // 255 of the unmasked run's S and
+    the input I."""
+    oiiotool("--create", "96x72", "1", "--fill:color=0.50196", "96x72+0+0", "-d", "uint8", "-o", tmp_path / "g.png")
+    assert set(pixels_of(tmp_path / "g.png", tmp_path)[3]) == {128}
+    for f in range(1, 4):
+        (tmp_path / f"mask_{f:04d}.png").write_bytes((tmp_path / "g.png").read_bytes())
+    video(texsyn, shot, tmp_path / "s_%04d.png", frames="1..3", keys=(1,))
+    video(texsyn, shot, tmp_path / "m_%04d.png", "--mask", tmp_path / "mask_%04d.png", "--mask-weight", "0",
+          frames="1..3", keys=(1,))
+    for f in range(1, 4):
+        s = pixels_of(tmp_path / f"s_{f:04d}.png", tmp_path)[3]
+        i = pixels_of(shot / f"in_{f:04d}.png", tmp_path)[3]
+        m = pixels_of(tmp_path / f"m_{f:04d}.png", tmp_path)[3]
+        assert m == bytes((a * 128 + b * 127 + 127) // 255 for a, b in zip(s, i)), f
