@@ -1,6 +1,8 @@
 /* video.c - `texsyn video`'s options, the checks made before any work,
- * and the sequence put together from its chains (video_chain.h does the
- * stylizing).
+ * the input (frames, or a movie decoded into the work directory), and the
+ * sequence put together from its chains (video_chain.h does the
+ * stylizing; video_flow.h, video_mask.h and video_preview.h the given
+ * flows, masks and GIF).
  *
  * Between two keys K1 < K2 every frame t has two stylizations, from K1
  * forward (F) and from K2 backward (B); this increment blends them by the
@@ -29,6 +31,7 @@
 #include "video_chain.h"
 #include "video_flow.h"
 #include "video_mask.h"
+#include "video_preview.h"
 
 static void usage(FILE *f, const ts_engine *e) {
   fprintf(f,
@@ -496,42 +499,6 @@ static int sequence_out(ts_video *v, const char *dir, char *err) {
   return rc == 0 ? ts_video_mask_write(v, dir, stylized, err) : rc;
 }
 
-/* ---- the preview ------------------------------------------------------ */
-
-/* Output frame t as 8-bit RGB (grey repeated) or RGBA into px. */
-static int preview_frame(const ts_video *v, long t, uint8_t *px, uint8_t *own, char *err) {
-  char path[TS_VIDEO_PATH];
-  ts_frame_path(v->out, t, path, sizeof(path)); /* fits: checked */
-  int rc = ts_video_read8(v, path, own, err);
-  int c = v->channels, pc = c == 2 || c == 4 ? 4 : 3;
-  for (size_t i = 0; rc == 0 && i < (size_t)v->w * v->h; i++)
-    for (int k = 0; k < pc; k++) {
-      int from = c <= 2 ? (k < 3 ? 0 : 1) : k; /* grey: its grey thrice, then its alpha */
-      px[i * pc + k] = own[i * c + (from < c ? from : c - 1)];
-    }
-  return rc;
-}
-
-/* --preview: the output frames as one GIF, at the movie's rate or 24 fps. */
-static int write_preview(const video_opts *o, char *err) {
-  const ts_video *v = &o->v;
-  int n = (int)(v->fr.last - v->fr.first + 1), pc = v->channels == 2 || v->channels == 4 ? 4 : 3;
-  size_t px = (size_t)v->w * v->h;
-  ts_image *frames = calloc((size_t)n, sizeof(*frames));
-  uint8_t *own = malloc(px * v->channels);
-  int rc = frames != NULL && own != NULL ? 0 : ts_error(err, TS_ENOMEM, "out of memory");
-  for (int k = 0; rc == 0 && k < n; k++) {
-    frames[k] = (ts_image){v->w, v->h, pc, TS_PIX_U8, malloc(px * pc), NULL};
-    rc = frames[k].pixels != NULL ? preview_frame(v, v->fr.first + k, frames[k].pixels, own, err)
-                                  : ts_error(err, TS_ENOMEM, "out of memory for the preview");
-  }
-  if (rc == 0) rc = ts_image_write_animation(o->preview, frames, n, o->fps > 0 ? o->fps : 24, err);
-  for (int k = 0; frames != NULL && k < n; k++) free(frames[k].pixels);
-  free(frames);
-  free(own);
-  return rc;
-}
-
 /* ---- the report ------------------------------------------------------ */
 
 /* Appends the file at path to f as it is (a job's JSON report). */
@@ -591,7 +558,7 @@ int ts_cmd_video(int argc, char **argv) {
   if (rc == TS_EINVAL && status == 0) status = 2;
   if (rc == 0) rc = ts_video_run_chains(&o->v, dir, err);
   if (rc == 0) rc = sequence_out(&o->v, dir, err);
-  if (rc == 0 && o->preview != NULL) rc = write_preview(o, err);
+  if (rc == 0 && o->preview != NULL) rc = ts_video_preview(&o->v, o->preview, o->fps > 0 ? o->fps : 24, err);
   if (rc == 0 && o->report != NULL) rc = write_report(&o->v, dir, o->report, err);
   if (made && o->v.guides_dir == NULL) workdir_remove(dir);
   if (rc != 0) fprintf(stderr, "texsyn video: %s\n", err);

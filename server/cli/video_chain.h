@@ -11,7 +11,8 @@
  *                                     warped onto t           (weight > 0)
  *   mask       the mask at frame K  / the mask at frame t    (--mask, weight > 0)
  *   --pass P   P at frame K         / P at frame t
- * (Jamriška et al. 2019, built from video_guides.h and flow.h). The source
+ * (Jamriška et al. 2019, built from video_guides.h and flow.h; the flow
+ * computed, or given with --flow: video_flow.h). The source
  * side is the same for the whole chain, so on a coordinator the workers
  * keep the exemplar's sources from one frame to the next, as for
  * `stylize --frames` (frames.h).
