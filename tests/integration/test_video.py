@@ -154,6 +154,7 @@ def test_mask_keeps_the_input_outside_and_stylizes_inside(texsyn, shot, tmp_path
     assert r["weights"]["mask"] == 1 and len(r["jobs"][0]["report"]["params"]["guide_weights"]) == 6, r
 
 
+@pytest.mark.sanitize
 def test_bad_masks_are_refused_before_any_work(texsyn, shot, tmp_path):
     oiiotool("--create", "48x36", "1", "-d", "uint8", "-o", tmp_path / "small_0001.png")
     for f in range(2, 4):
@@ -205,6 +206,7 @@ def test_a_given_flow_is_used_its_sign_as_documented(texsyn, shot, tmp_path):
     assert (tmp_path / "c_0003.png").read_bytes() != (tmp_path / "v_0003.png").read_bytes()
 
 
+@pytest.mark.sanitize
 def test_bad_flows_are_refused_before_any_work(texsyn, shot, tmp_path):
     def refused(*args, frames="1..3", code=2):
         p = video(texsyn, shot, tmp_path / "o_%04d.png", *args, frames=frames, check=False)
@@ -229,6 +231,7 @@ def test_bad_flows_are_refused_before_any_work(texsyn, shot, tmp_path):
           frames="1..2")
 
 
+@pytest.mark.sanitize
 def test_a_movie_input_is_its_frames(texsyn, shot, tmp_path):
     """The shot as an uncompressed AVI (frame 0 = in_0001.png): --input
     clip.avi --frames 0..4 gives the bytes of --input in_%04d.png --frames
@@ -245,6 +248,7 @@ def test_a_movie_input_is_its_frames(texsyn, shot, tmp_path):
         assert (tmp_path / f"m_{f:04d}.png").read_bytes() == (tmp_path / f"s_{f + 1:04d}.png").read_bytes(), f
 
 
+@pytest.mark.sanitize
 def test_bad_movies_are_refused_before_any_work(texsyn, shot, tmp_path):
     frames = [pixels_of(shot / f"in_{f:04d}.png", tmp_path)[3] for f in range(1, 4)]
     write_avi(tmp_path / "clip.avi", frames, 96, 72)
