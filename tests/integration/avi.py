@@ -1,7 +1,9 @@
-"""A movie the tests can make without an encoder: an AVI of uncompressed
-24-bit frames (BI_RGB, bottom-up BGR rows padded to 4 bytes), which
-FFmpeg decodes losslessly, so a decoded frame can be compared byte for
-byte with the pixels that went in."""
+"""Movies the tests can make without a video encoder (Debian's OpenImageIO
+reads movies but writes none, and ffmpeg's command is not installed): an
+AVI of uncompressed 24-bit frames (BI_RGB, bottom-up BGR rows padded to 4
+bytes), which FFmpeg decodes losslessly, so a decoded frame can be
+compared byte for byte with the pixels that went in; and a Motion JPEG
+AVI of JPEG files, a compressed codec."""
 import struct
 
 
@@ -25,17 +27,29 @@ def _dib(rgb, w, h):
     return b"".join(rows)
 
 
-def write_avi(path, frames, w, h, fps=10):
-    """frames: the RGB bytes (w * h * 3, rows top-down) of each frame."""
-    size = ((w * 3 + 3) & ~3) * h
-    n = len(frames)
+def _write(path, chunks, w, h, fps, handler, compression, bits):
+    n, size = len(chunks), max(len(c) for c in chunks)
     avih = struct.pack("<14I", 1000000 // fps, size * fps, 0, 0x10, n, 0, 1, size, w, h, 0, 0, 0, 0)
-    strh = struct.pack("<4s4sIHHIIIIIIIIhhhh", b"vids", b"DIB ", 0, 0, 0, 0, 1, fps, 0, n, size, 0xFFFFFFFF, 0,
+    strh = struct.pack("<4s4sIHHIIIIIIIIhhhh", b"vids", handler, 0, 0, 0, 0, 1, fps, 0, n, size, 0xFFFFFFFF, 0,
                        0, 0, w, h)
-    strf = struct.pack("<IiiHHIIiiII", 40, w, h, 1, 24, 0, size, 0, 0, 0, 0)
+    strf = struct.pack("<IiiHHIIiiII", 40, w, h, 1, bits, compression, size, 0, 0, 0, 0)
     hdrl = _list(b"hdrl", _chunk(b"avih", avih) + _list(b"strl", _chunk(b"strh", strh) + _chunk(b"strf", strf)))
-    movi = _list(b"movi", b"".join(_chunk(b"00db", _dib(f, w, h)) for f in frames))
-    index = b"".join(struct.pack("<4sIII", b"00db", 0x10, 4 + k * (8 + size + size % 2), size) for k in range(n))
+    movi = _list(b"movi", b"".join(_chunk(b"00dc", c) for c in chunks))
+    index, off = b"", 4
+    for c in chunks:
+        index += struct.pack("<4sIII", b"00dc", 0x10, off, len(c))
+        off += 8 + len(c) + len(c) % 2
     body = b"AVI " + hdrl + movi + _chunk(b"idx1", index)
     with open(path, "wb") as f:
         f.write(b"RIFF" + struct.pack("<I", len(body)) + body)
+
+
+def write_avi(path, frames, w, h, fps=10):
+    """frames: the RGB bytes (w * h * 3, rows top-down) of each frame."""
+    _write(path, [_dib(f, w, h) for f in frames], w, h, fps, b"DIB ", 0, 24)
+
+
+def write_mjpeg_avi(path, jpegs, w, h, fps=10):
+    """jpegs: each frame as a JPEG file's bytes (Motion JPEG: compressed,
+    decoded by FFmpeg's own JPEG decoder)."""
+    _write(path, jpegs, w, h, fps, b"MJPG", struct.unpack("<I", b"MJPG")[0], 24)
