@@ -197,6 +197,12 @@ def test_a_given_flow_is_used_its_sign_as_documented(texsyn, shot, tmp_path):
         assert (w, h, c) == (96, 72, 1)
         assert px[:96] == bytes(scale8(expect(x)) for x in range(96)), (t, list(px[:96]))
         assert px[96 * 71:] == px[:96]  # every row alike
+    # Backward from key 3: frame 2 takes the key's x + 3, but for the
+    # columns whose content leaves the frame by frame 3 (x >= 93).
+    run(texsyn, "video", "--input", shot / "in_%04d.png", "--frames", "1..3", "--key", "3", shot / "key5.png",
+        "-o", tmp_path / "k_%04d.png", "--flow", fwd, "--write-guides", tmp_path / "g3", *FAST)
+    px = pixels_of(tmp_path / "g3" / "from_0003_0002_position_x.png", tmp_path)[3]
+    assert px[:96] == bytes(scale8(x + 3 if x < 93 else x) for x in range(96)), list(px[:96])
     back = flows(tmp_path, "b", -3, 0, (2, 3))
     video(texsyn, shot, tmp_path / "w_%04d.png", "--flow", fwd, "--flow-back", back, frames="1..3", keys=(1,))
     for f in (2, 3):
