@@ -50,3 +50,39 @@ size_t ts_flow_occlusion(const float *f, const float *b, int w, int h, uint8_t *
     }
   return n;
 }
+
+/* Adds weight wt of the motion (u, v) to B's pixel (x, y) if it is in B. */
+static void splat(float *inv, float *weight, int w, int h, int x, int y, float wt, float u, float v) {
+  if (x < 0 || y < 0 || x >= w || y >= h || wt <= 0.0f) return;
+  size_t i = (size_t)y * w + x;
+  inv[2 * i] += wt * u;
+  inv[2 * i + 1] += wt * v;
+  weight[i] += wt;
+}
+
+void ts_flow_invert(const float *f, int w, int h, float *weight, float *inv) {
+  for (size_t i = 0; i < (size_t)w * h; i++) inv[2 * i] = inv[2 * i + 1] = weight[i] = 0.0f;
+  for (int y = 0; y < h; y++)
+    for (int x = 0; x < w; x++) {
+      size_t i = (size_t)y * w + x;
+      float u = f[2 * i], v = f[2 * i + 1], tx = (float)x + u, ty = (float)y + v;
+      if (!(tx >= 0.0f && ty >= 0.0f && tx <= (float)(w - 1) && ty <= (float)(h - 1))) continue;
+      int x0 = (int)tx, y0 = (int)ty;
+      float ax = tx - (float)x0, ay = ty - (float)y0;
+      splat(inv, weight, w, h, x0, y0, (1.0f - ax) * (1.0f - ay), -u, -v);
+      splat(inv, weight, w, h, x0 + 1, y0, ax * (1.0f - ay), -u, -v);
+      splat(inv, weight, w, h, x0, y0 + 1, (1.0f - ax) * ay, -u, -v);
+      splat(inv, weight, w, h, x0 + 1, y0 + 1, ax * ay, -u, -v);
+    }
+  for (int y = 0; y < h; y++)
+    for (int x = 0; x < w; x++) {
+      size_t i = (size_t)y * w + x;
+      if (weight[i] > TS_FLOW_HOLE) {
+        inv[2 * i] /= weight[i];
+        inv[2 * i + 1] /= weight[i];
+      } else {
+        inv[2 * i] = -(float)(x + w); /* lands at -w: out of the frame */
+        inv[2 * i + 1] = 0.0f;
+      }
+    }
+}

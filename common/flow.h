@@ -42,6 +42,20 @@ const char *ts_flow_method(void);
  * frame A and src frame A, dst is A brought onto B's pixels. */
 void ts_flow_warp(const float *src, int w, int h, int channels, const float *uv, float *dst);
 
+/* The inverse of the flow f from A to B: the flow from B to A into inv
+ * (2*w*h floats), by splatting. Each pixel x of A whose target x + f(x)
+ * lies in B spreads -f(x) over the four pixels of B around the target
+ * with its bilinear weights (raster order: the same sums everywhere);
+ * each pixel of B takes the weighted mean of what it got. A pixel of B
+ * that got a total weight of at most TS_FLOW_HOLE (no content of A lands
+ * there: it is disoccluded) is given a flow that points out of the frame,
+ * to the left, so that ts_flow_occlusion marks it occluded. Where content
+ * of A lands on content of A (an occlusion), B's pixel takes the mean of
+ * their motions, which the forward-backward check then finds inconsistent
+ * where they differ. weight: w*h floats of scratch. */
+#define TS_FLOW_HOLE 1e-3f
+void ts_flow_invert(const float *f, int w, int h, float *weight, float *inv);
+
 /* The forward-backward consistency check of Sundaram, Brox and Keutzer,
  * "Dense point trajectories by GPU-accelerated large displacement optical
  * flow" (ECCV 2010): with f the flow from A to B and b the flow

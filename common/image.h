@@ -98,6 +98,34 @@ int ts_image_probe_mem(const char *name, const void *data, size_t len,
 int ts_image_write(const char *path, const ts_image *img,
                    const ts_meta *meta_from, char *err);
 
+/* --- movies (texsyn video's --input and --preview) -------------------------
+ *
+ * Through OpenImageIO's FFmpeg reader (Debian's OpenImageIO has it): a
+ * movie's frames are its subimages, 0 the first. Only texsyn video reaches
+ * these, on a file the user names on its command line: ts_image_read and
+ * its kin never hand bytes to the movie reader. */
+typedef struct {
+  int frames; /* as the container says */
+  double fps; /* 0 if it does not say */
+  ts_image_info frame;
+} ts_movie_info;
+
+/* The movie's header: 0, or TS_ENOENT / TS_EFORMAT (not a movie FFmpeg
+ * reads, no frames) / TS_ETOOBIG (limits) with a message naming it. */
+int ts_movie_probe(const char *path, const ts_image_limits *limits, ts_movie_info *info, char *err);
+
+/* Decodes frames first..last in order, handing each to each(ctx, frame,
+ * image, err), whose non-zero return stops the reading and is returned.
+ * The image is freed after the call. 0, or an error naming the frame. */
+typedef int (*ts_movie_frame_fn)(void *ctx, long frame, const ts_image *img, char *err);
+int ts_movie_read(const char *path, long first, long last, const ts_image_limits *limits, ts_movie_frame_fn each,
+                  void *ctx, char *err);
+
+/* Writes n images of one size and channel count as an animation (GIF):
+ * frame k shown for 1/fps s, looping. 0, or TS_EINVAL / TS_EIO naming the
+ * file. Written to a temporary name and renamed, as ts_image_write. */
+int ts_image_write_animation(const char *path, const ts_image *frames, int n, double fps, char *err);
+
 /* Metadata value lookup for tests and reports: writes the attribute named
  * `name` as text into out (at most outlen bytes). 0 or TS_ENOENT. */
 int ts_meta_get(const ts_meta *meta, const char *name, char *out,

@@ -42,13 +42,17 @@ typedef struct {
   int (*meta_set)(ts_meta **meta, const char *name, const char *value);
   void (*meta_free)(ts_meta *meta);
   int (*meta_copy)(const ts_meta *from, ts_meta **to);
+  int (*movie_probe)(const char *path, const ts_image_limits *limits, ts_movie_info *info, char *err);
+  int (*movie_read)(const char *path, long first, long last, const ts_image_limits *limits, ts_movie_frame_fn each,
+                    void *ctx, char *err);
+  int (*write_animation)(const char *path, const ts_image *frames, int n, double fps, char *err);
 } ts_image_lib;
 
 /* The table's symbol carries a version: change it with any change to
  * ts_image_lib (or to the structs of image.h), so that a library built
  * from other sources fails to load, naming the symbol it lacks, instead
  * of being called through the wrong layout. */
-#define TS_IMAGE_LIB_TABLE ts_image_lib_v2
+#define TS_IMAGE_LIB_TABLE ts_image_lib_v3
 #define TS_IMAGE_LIB_STR_(x) #x
 #define TS_IMAGE_LIB_STR(x) TS_IMAGE_LIB_STR_(x)
 #define TS_IMAGE_LIB_TABLE_NAME TS_IMAGE_LIB_STR(TS_IMAGE_LIB_TABLE)

@@ -42,6 +42,22 @@ int ts_image_write(const char *path, const ts_image *img, const ts_meta *meta_fr
   return rc != 0 ? rc : ts_lib->write(path, img, meta_from, err);
 }
 
+int ts_movie_probe(const char *path, const ts_image_limits *limits, ts_movie_info *info, char *err) {
+  int rc = ts_image_lib_load(err);
+  return rc != 0 ? rc : ts_lib->movie_probe(path, limits, info, err);
+}
+
+int ts_movie_read(const char *path, long first, long last, const ts_image_limits *limits, ts_movie_frame_fn each,
+                  void *ctx, char *err) {
+  int rc = ts_image_lib_load(err);
+  return rc != 0 ? rc : ts_lib->movie_read(path, first, last, limits, each, ctx, err);
+}
+
+int ts_image_write_animation(const char *path, const ts_image *frames, int n, double fps, char *err) {
+  int rc = ts_image_lib_load(err);
+  return rc != 0 ? rc : ts_lib->write_animation(path, frames, n, fps, err);
+}
+
 /* Metadata only ever comes from the library: with some at hand it is
  * loaded; with none there is nothing to look up or free, and nothing is
  * loaded (every ts_image_free of an image without metadata lands in

@@ -645,8 +645,141 @@ extern "C" int ts_meta_copy(const ts_meta *from, ts_meta **to) {
   }
 }
 
+/* --- movies ------------------------------------------------------------- *
+ *
+ * OpenImageIO's FFmpeg reader, asked for by name: the sniffing of ts_open
+ * (four formats) is for files that may come from the network; a movie is
+ * only ever a file named on texsyn video's command line. */
+
+static int ts_movie_open(const char *path, const ts_image_limits *limits, std::unique_ptr<ImageInput> &in,
+                         int &frames, char *err) {
+  if (access(path, R_OK) != 0)
+    return ts_error(err, errno == ENOENT ? TS_ENOENT : TS_EFORMAT, "%s: %s", path, strerror(errno));
+  in = ImageInput::create("ffmpeg");
+  if (!in)
+    return ts_error(err, TS_EFORMAT, "%s: this OpenImageIO has no FFmpeg reader for movies: %s", path,
+                    ts_oneline(OIIO::geterror()).c_str());
+  ImageSpec spec;
+  if (!in->open(path, spec))
+    return ts_error(err, TS_EFORMAT, "%s: not a movie FFmpeg reads: %s", path, ts_oneline(in->geterror()).c_str());
+  in->geterror();
+  frames = in->spec().get_int_attribute("oiio:subimages", 0);
+  if (frames <= 0) return ts_error(err, TS_EFORMAT, "%s: a movie without frames", path);
+  return ts_check_spec(path, in->spec(), limits, err);
+}
+
+static int ts_movie_probe_(const char *path, const ts_image_limits *limits, ts_movie_info *info, char *err) {
+  std::unique_ptr<ImageInput> in;
+  int frames = 0;
+  int rc = ts_movie_open(path, limits, in, frames, err);
+  if (rc == 0 && info != nullptr) {
+    const ImageSpec &spec = in->spec();
+    info->frames = frames;
+    info->fps = spec.get_float_attribute("FramesPerSecond", 0.0f);
+    info->frame = ts_image_info{spec.width, spec.height, spec.nchannels, ts_spec_type(spec)};
+  }
+  return rc;
+}
+
+static int ts_movie_read_(const char *path, long first, long last, const ts_image_limits *limits,
+                          ts_movie_frame_fn each, void *ctx, char *err) {
+  std::unique_ptr<ImageInput> in;
+  int frames = 0;
+  int rc = ts_movie_open(path, limits, in, frames, err);
+  if (rc == 0 && (first < 0 || last >= frames || first > last))
+    return ts_error(err, TS_EINVAL, "%s: frames %ld..%ld asked for, the movie has 0..%d", path, first, last,
+                    frames - 1);
+  for (long f = first; rc == 0 && f <= last; f++) {
+    if (!in->seek_subimage((int)f, 0))
+      return ts_error(err, TS_EFORMAT, "%s: cannot reach frame %ld: %s", path, f, ts_oneline(in->geterror()).c_str());
+    const ImageSpec &spec = in->spec();
+    rc = ts_check_spec(path, spec, limits, err);
+    ts_image_holder h;
+    char why[TS_ERR_LEN];
+    ts_pixtype type = ts_spec_type(spec);
+    if (rc == 0 && (rc = ts_image_alloc(&h.img, spec.width, spec.height, spec.nchannels, type, why)) != 0)
+      return ts_error(err, rc, "%s frame %ld: %s", path, f, why);
+    if (rc == 0) {
+      bool ok = in->read_image((int)f, 0, 0, spec.nchannels, ts_oiio_type(type), h.img.pixels);
+      std::string reason = in->geterror();
+      if (!ok || !reason.empty())
+        return ts_error(err, TS_EFORMAT, "%s: frame %ld unreadable: %s", path, f, ts_oneline(reason).c_str());
+      rc = each(ctx, f, &h.img, err);
+    }
+  }
+  return rc;
+}
+
+extern "C" int ts_movie_probe(const char *path, const ts_image_limits *limits, ts_movie_info *info, char *err) {
+  if (path == nullptr || *path == '\0') return ts_error(err, TS_EINVAL, "no movie file name given");
+  return ts_guard(path, err, [&] { return ts_movie_probe_(path, limits, info, err); });
+}
+
+extern "C" int ts_movie_read(const char *path, long first, long last, const ts_image_limits *limits,
+                             ts_movie_frame_fn each, void *ctx, char *err) {
+  if (path == nullptr || *path == '\0') return ts_error(err, TS_EINVAL, "no movie file name given");
+  return ts_guard(path, err, [&] { return ts_movie_read_(path, first, last, limits, each, ctx, err); });
+}
+
+/* --- animations ------------------------------------------------------------ */
+
+static int ts_write_animation_(const char *path, const ts_image *frames, int n, double fps, char *err) {
+  if (n < 1) return ts_error(err, TS_EINVAL, "%s: no frames to write", path);
+  for (int k = 0; k < n; k++) {
+    int rc = ts_check_image(path, &frames[k], err);
+    if (rc != 0) return rc;
+    if (frames[k].width != frames[0].width || frames[k].height != frames[0].height ||
+        frames[k].channels != frames[0].channels || frames[k].type != frames[0].type)
+      return ts_error(err, TS_EINVAL, "%s: frame %d differs from frame 0 in size, channels or type", path, k);
+  }
+  ts_tmpfile tmp;
+  tmp.path =
+      std::string(path) + ".tmp-" + std::to_string(getpid()) + "-" + std::to_string(ts_tmp_seq++);
+  auto out = ImageOutput::create(path);
+  if (!out) return ts_error(err, TS_EINVAL, "%s: no image format for this file name; use .gif", path);
+  if (!out->supports("multiimage") || !out->supports("appendsubimage"))
+    return ts_error(err, TS_EINVAL, "%s: %s holds no animation; use .gif", path, out->format_name());
+  const ts_image &f0 = frames[0];
+  ImageSpec spec(f0.width, f0.height, f0.channels, ts_oiio_type(f0.type));
+  ts_out_channel_names(spec);
+  int num = (int)(fps * 1000.0 + 0.5);
+  spec.attribute("FramesPerSecond", TypeDesc::TypeRational, std::vector<int>{num > 0 ? num : 1, 1000}.data());
+  spec.attribute("oiio:LoopCount", 0); /* loop forever */
+  std::vector<ImageSpec> specs((size_t)n, spec);
+  OIIO::stride_t xstride = (OIIO::stride_t)(f0.channels * ts_pixtype_size(f0.type));
+  std::string why;
+  bool ok = out->open(tmp.path, n, specs.data());
+  for (int k = 0; ok && k < n; k++) {
+    ok = (k == 0 || out->open(tmp.path, specs[(size_t)k], ImageOutput::AppendSubimage)) &&
+         out->write_image(ts_oiio_type(f0.type), frames[k].pixels, xstride, xstride * f0.width);
+  }
+  ok = out->close() && ok;
+  if (!ok) why = ts_oneline(out->geterror());
+  ok = ok && ts_sync(tmp.path.c_str(), why) == 0;
+  if (ok && rename(tmp.path.c_str(), path) != 0) {
+    why = strerror(errno);
+    ok = false;
+  }
+  if (!ok) return ts_error(err, TS_EIO, "%s: cannot write the animation: %s", path, why.c_str());
+  tmp.keep = true;
+  return 0;
+}
+
+extern "C" int ts_image_write_animation(const char *path, const ts_image *frames, int n, double fps, char *err) {
+  if (path == nullptr || *path == '\0') return ts_error(err, TS_EINVAL, "no output file name given");
+  try {
+    ts_oiio_errscope scope;
+    return ts_write_animation_(path, frames, n, fps, err);
+  } catch (const std::bad_alloc &) {
+    return ts_error(err, TS_ENOMEM, "%s: out of memory writing the animation", path);
+  } catch (...) {
+    return ts_error(err, TS_EIO, "%s: cannot write the animation", path);
+  }
+}
+
 /* --- the library's one export -------------------------------------------- */
 
 extern "C" __attribute__((visibility("default"))) const ts_image_lib TS_IMAGE_LIB_TABLE = {
     ts_image_read, ts_image_read_mem, ts_image_probe_mem, ts_image_write,
-    ts_meta_get,   ts_meta_set,       ts_meta_free,       ts_meta_copy};
+    ts_meta_get,   ts_meta_set,       ts_meta_free,       ts_meta_copy,
+    ts_movie_probe, ts_movie_read,    ts_image_write_animation};

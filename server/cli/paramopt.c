@@ -6,6 +6,7 @@
 
 #include "error.h"
 #include "suggest.h"
+#include "video_guides.h"
 
 static size_t count_options(const struct option *t) {
   size_t n = 0;
@@ -101,10 +102,11 @@ double ts_paramopt_number(const ts_job_cmd *o, const char *key) {
   return p != NULL ? ts_param_number(p, &o->spec.params) : 0;
 }
 
-/* One engine's table: spec key, option, default, range, help. */
-static void print_table(const ts_engine *e) {
-  printf("engine %s\n", e->name);
-  for (const ts_param *p = e->params; p->key != NULL; p++) {
+/* One table, under its heading ("engine mrf", "command video"): spec key,
+ * option, default, range, help. */
+static void print_table(const char *kind, const char *name, const ts_param *params) {
+  printf("%s %s\n", kind, name);
+  for (const ts_param *p = params; p->key != NULL; p++) {
     char option[64] = "-", def[128] = "-";
     if (p->flag != NULL) snprintf(option, sizeof(option), "--%s", p->flag);
     if (p->def != NULL) snprintf(def, sizeof(def), "%s", p->def);
@@ -113,19 +115,35 @@ static void print_table(const ts_engine *e) {
   }
 }
 
+/* Commands with parameters of their own, beside their engine's: texsyn
+ * video's guide weights (video_guides.h). */
+static const struct {
+  const char *name;
+  const ts_param *params;
+} command_tables[] = {{"video", ts_video_params}};
+#define NCOMMAND_TABLES (sizeof(command_tables) / sizeof(command_tables[0]))
+
 int ts_cmd_params(int argc, char **argv) {
   if (argc > 2 || (argc == 2 && argv[1][0] == '-')) {
-    printf("usage: texsyn params [ENGINE]\n"
-           "Lists each engine's parameters (or ENGINE's): the job spec key, the command-line\n"
-           "option (- for a key set from the inputs), the default and what it does.\n");
+    printf("usage: texsyn params [ENGINE|COMMAND]\n"
+           "Lists each engine's parameters (or ENGINE's), then those of the commands that\n"
+           "have their own (or COMMAND's: video): the job spec key, the command-line option\n"
+           "(- for a key set from the inputs), the default and what it does.\n");
     return argc == 2 && (strcmp(argv[1], "--help") == 0 || strcmp(argv[1], "-h") == 0) ? 0 : 2;
   }
   const ts_engine *e;
+  for (size_t c = 0; argc == 2 && c < NCOMMAND_TABLES; c++)
+    if (strcmp(argv[1], command_tables[c].name) == 0) {
+      print_table("command", command_tables[c].name, command_tables[c].params);
+      return 0;
+    }
   if (argc == 2 && (e = ts_engine_find(argv[1])) == NULL) {
-    fprintf(stderr, "texsyn params: no engine '%s' (texsyn params lists them)\n", argv[1]);
+    fprintf(stderr, "texsyn params: no engine or command '%s' (texsyn params lists them)\n", argv[1]);
     return 2;
   }
-  if (argc == 2) print_table(e);
-  for (int i = 0; argc == 1 && (e = ts_engine_at(i)) != NULL; i++) print_table(e);
+  if (argc == 2) print_table("engine", e->name, e->params);
+  for (int i = 0; argc == 1 && (e = ts_engine_at(i)) != NULL; i++) print_table("engine", e->name, e->params);
+  for (size_t c = 0; argc == 1 && c < NCOMMAND_TABLES; c++)
+    print_table("command", command_tables[c].name, command_tables[c].params);
   return 0;
 }

@@ -1,6 +1,8 @@
 /* video.c - `texsyn video`'s options, the checks made before any work,
- * and the sequence put together from its chains (video_chain.h does the
- * stylizing).
+ * the input (frames, or a movie decoded into the work directory), and the
+ * sequence put together from its chains (video_chain.h does the
+ * stylizing; video_flow.h, video_mask.h and video_preview.h the given
+ * flows, masks and GIF).
  *
  * Between two keys K1 < K2 every frame t has two stylizations, from K1
  * forward (F) and from K2 backward (B); this increment blends them by the
@@ -17,6 +19,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -26,6 +29,9 @@
 #include "paramopt.h"
 #include "util.h"
 #include "video_chain.h"
+#include "video_flow.h"
+#include "video_mask.h"
+#include "video_preview.h"
 
 static void usage(FILE *f, const ts_engine *e) {
   fprintf(f,
@@ -42,7 +48,8 @@ static void usage(FILE *f, const ts_engine *e) {
           "bytes in-process and on any pool.\n"
           "\n"
           "  --input PATTERN      the input frames, the frame number as %%d or %%04d; one size\n"
-          "                       and channel count, at least %dx%d\n"
+          "                       and channel count, at least %dx%d. Or a movie (FFmpeg):\n"
+          "                       --frames then counts its frames from 0\n"
           "  --frames A..B        the frames to stylize (0..%d)\n"
           "  --key N KEY_IMG      frame N painted (within A..B, the frames' size); 1..%d keys,\n"
           "                       all with one channel count, which the output has (8-bit)\n"
@@ -51,41 +58,60 @@ static void usage(FILE *f, const ts_engine *e) {
           "                       is the pass at the key's frame; at most %d\n"
           "  --weight W           the weight of the --input or --pass just before it: 0 or\n"
           "                       0.01..100 (default 1)\n"
-          "  --edge-weight W      the edge guide's weight: 0 (off) or 0.01..100 (default 0.5)\n"
-          "  --position-weight W  the positional guide's: 0 (off) or 0.02..100 (default 1)\n"
-          "  --temporal-weight W  the temporal guide's: 0 (off) or 0.01..100 (default 1)\n"
+          "  --mask PATTERN       per frame, where to stylize: white stylized, black the\n"
+          "                       input frame as it is, grey between; colour masks by\n"
+          "                       their luminance. Also a guide (--mask-weight)\n"
+          "  --flow PATTERN       motion vectors per frame instead of computed flow: float\n"
+          "                       images (EXR), the first two channels x, y in pixels;\n"
+          "                       frame t's maps t to t+1 (content at p moves to p + flow)\n"
+          "  --flow-back PATTERN  with --flow, frame t's maps t to t-1 (else --flow inverted)\n"
+          "  --preview OUT.gif    the output frames also as an animated GIF (the movie's\n"
+          "                       frame rate, else 24 frames a second)\n"
           "  --write-guides DIR   keep the guides made (edges, positions, temporal, each\n"
           "                       chain's frames) in DIR, made if missing\n"
           "  --report F           one JSON object: the settings and every job's report\n",
           TS_FLOW_MIN_SIDE, TS_FLOW_MIN_SIDE, TS_FRAME_LAST, TS_VIDEO_MAX_KEYS, TS_VIDEO_MAX_PASSES);
+  ts_params_help(f, ts_video_params);
   ts_params_help(f, e->params);
   fprintf(f, "%s  (not --detach: each frame needs the one before, so the command follows its jobs)\n",
           TS_JOB_RUN_HELP);
 }
 
-enum { OPT_INPUT = TS_OPT_OWN, OPT_FRAMES, OPT_KEY, OPT_PASS, OPT_WEIGHT, OPT_EDGE, OPT_POSITION, OPT_TEMPORAL,
-       OPT_GUIDES };
+/* The command's own options; its guides' weights follow from
+ * ts_video_params (video_guides.h), OPT_WEIGHTS + their index. */
+enum { OPT_INPUT = TS_OPT_OWN, OPT_FRAMES, OPT_KEY, OPT_PASS, OPT_WEIGHT, OPT_GUIDES, OPT_MASK, OPT_FLOW, OPT_FLOW_BACK,
+       OPT_PREVIEW, OPT_WEIGHTS };
 
-static const struct option own_opts[] = {
-    {"input", required_argument, 0, OPT_INPUT},         {"frames", required_argument, 0, OPT_FRAMES},
-    {"key", required_argument, 0, OPT_KEY},             {"pass", required_argument, 0, OPT_PASS},
-    {"weight", required_argument, 0, OPT_WEIGHT},       {"edge-weight", required_argument, 0, OPT_EDGE},
-    {"position-weight", required_argument, 0, OPT_POSITION},
-    {"temporal-weight", required_argument, 0, OPT_TEMPORAL},
-    {"write-guides", required_argument, 0, OPT_GUIDES}, TS_JOB_LONGOPTS,
+static const struct option fixed_opts[] = {
+    {"input", required_argument, 0, OPT_INPUT},   {"frames", required_argument, 0, OPT_FRAMES},
+    {"key", required_argument, 0, OPT_KEY},       {"pass", required_argument, 0, OPT_PASS},
+    {"weight", required_argument, 0, OPT_WEIGHT}, {"write-guides", required_argument, 0, OPT_GUIDES},
+    {"mask", required_argument, 0, OPT_MASK},     {"flow", required_argument, 0, OPT_FLOW},
+    {"flow-back", required_argument, 0, OPT_FLOW_BACK}, {"preview", required_argument, 0, OPT_PREVIEW},
+    TS_JOB_LONGOPTS,
     {0, 0, 0, 0}};
 
 typedef struct {
   ts_video v;
   int weighs; /* what --weight sets: -1 nothing yet, 0 the input, p + 1 pass p */
   const char *frames, *report;
+  const char *movie;                    /* --input a movie: its path (v.input: its frames decoded) */
+  double fps;                           /* the movie's, for --preview (0: not a movie, or it does not say) */
+  const char *preview;                  /* --preview OUT.gif or NULL */
+  char movie_frames[TS_VIDEO_PATH + 32]; /* where they are decoded to, in the work directory */
 } video_opts;
 
-/* A weight: 0 or lo..100. */
-static int weight_arg(const char *opt, const char *arg, double lo, double *w, char *err) {
-  int rc = ts_arg_double(opt, arg, w, err);
-  if (rc == 0 && *w != 0 && (*w < lo || *w > 100)) rc = ts_error(err, TS_EINVAL, "%s %s: need 0 or %g..100", opt, arg, lo);
-  return rc;
+/* fixed_opts, then one option per entry of ts_video_params: 0, or
+ * TS_ETOOBIG when they do not fit in cap entries. */
+static int own_options(struct option *out, size_t cap) {
+  size_t n = 0;
+  for (; fixed_opts[n].name != NULL; n++) out[n] = fixed_opts[n];
+  for (int i = 0; ts_video_params[i].key != NULL; i++) {
+    if (n + 1 >= cap) return TS_ETOOBIG;
+    out[n++] = (struct option){ts_video_params[i].flag, required_argument, 0, OPT_WEIGHTS + i};
+  }
+  out[n] = (struct option){0, 0, 0, 0};
+  return 0;
 }
 
 /* --key N KEY_IMG: getopt hands over N; KEY_IMG is the next word. */
@@ -107,33 +133,50 @@ static int pass_option(video_opts *o, const char *arg, char *err) {
   return 0;
 }
 
+/* --weight W: 0 or 0.01..100, as stylize's --weight. */
 static int weight_option(video_opts *o, const char *arg, char *err) {
   if (o->weighs < 0) return ts_error(err, TS_EINVAL, "--weight %s: put it after the --input or --pass it weighs", arg);
-  return weight_arg("--weight", arg, 0.01, o->weighs == 0 ? &o->v.input_weight : &o->v.pass_weight[o->weighs - 1],
-                    err);
+  double *w = o->weighs == 0 ? &o->v.input_weight : &o->v.pass_weight[o->weighs - 1];
+  int rc = ts_arg_double("--weight", arg, w, err);
+  if (rc == 0 && *w != 0 && (*w < 0.01 || *w > 100))
+    rc = ts_error(err, TS_EINVAL, "--weight %s: need 0 or 0.01..100", arg);
+  return rc;
 }
 
-static int own_option(video_opts *o, int c, int argc, char **argv, char *err) {
+/* A guide's weight (ts_video_params); its range is checked after the
+ * loop, as an engine parameter's is. */
+static int weights_option(video_opts *o, int i, const char *arg, char *err) {
+  char what[64];
+  snprintf(what, sizeof(what), "--%s", ts_video_params[i].flag);
+  return ts_param_parse(&ts_video_params[i], &o->v.wt, arg, what, err);
+}
+
+/* The command's own options (ts_cmd_options.option): TS_ENOENT for the
+ * engine's and every job's. */
+static int video_option(void *ctx, int c, const char *arg, int argc, char **argv, char *err) {
+  video_opts *o = ctx;
   ts_video *v = &o->v;
+  if (c >= OPT_WEIGHTS && c < OPT_WEIGHTS + ts_param_count(ts_video_params))
+    return weights_option(o, c - OPT_WEIGHTS, arg, err);
+  if (c >= TS_OPT_SIDE) /* stylize's side outputs (--nnf): one file, which every frame would overwrite */
+    return ts_error(err, TS_EINVAL, "--%s: a stylize side output is one file, which every frame would overwrite: "
+                    "texsyn video does not take it", v->job.spec.engine->outputs[c - TS_OPT_SIDE].flag);
   switch (c) {
-  case OPT_INPUT: v->input = optarg; o->weighs = 0; return 0;
-  case OPT_FRAMES: o->frames = optarg; return ts_frames_parse(optarg, &v->fr, err);
-  case OPT_KEY: return key_option(o, argc, argv, optarg, err);
-  case OPT_PASS: return pass_option(o, optarg, err);
-  case OPT_WEIGHT: return weight_option(o, optarg, err);
-  case OPT_EDGE: return weight_arg("--edge-weight", optarg, 0.01, &v->edge_weight, err);
-  case OPT_POSITION: return weight_arg("--position-weight", optarg, 0.02, &v->position_weight, err);
-  case OPT_TEMPORAL: return weight_arg("--temporal-weight", optarg, 0.01, &v->temporal_weight, err);
-  case OPT_GUIDES: v->guides_dir = optarg; return 0;
-  case TS_OPT_REPORT: o->report = optarg; return ts_job_option(&v->job, c, optarg, err);
+  case OPT_INPUT: v->input = arg; o->weighs = 0; return 0;
+  case OPT_FRAMES: o->frames = arg; return ts_frames_parse(arg, &v->fr, err);
+  case OPT_KEY: return key_option(o, argc, argv, arg, err);
+  case OPT_PASS: return pass_option(o, arg, err);
+  case OPT_WEIGHT: return weight_option(o, arg, err);
+  case OPT_GUIDES: v->guides_dir = arg; return 0;
+  case OPT_MASK: v->mask = arg; return 0;
+  case OPT_FLOW: v->flow = arg; return 0;
+  case OPT_FLOW_BACK: v->flow_back = arg; return 0;
+  case OPT_PREVIEW: o->preview = arg; return 0;
+  case TS_OPT_REPORT: o->report = arg; return TS_ENOENT; /* noted, then taken as every job's --report */
   case TS_OPT_DETACH: return ts_error(err, TS_EINVAL, "--detach: each frame needs the one before, so texsyn video "
                                       "follows its jobs to the end");
-  default: break;
+  default: return TS_ENOENT;
   }
-  int rc = ts_paramopt_take(&v->job, c, optarg, err);
-  if (rc != TS_ENOENT) return rc;
-  rc = ts_job_option(&v->job, c, optarg, err);
-  return rc != TS_ENOENT ? rc : ts_error(err, TS_EINVAL, "unknown option (see texsyn video --help)");
 }
 
 static int key_order(const void *a, const void *b) {
@@ -147,6 +190,14 @@ static int parse_end(video_opts *o, char *err) {
   if (v->input == NULL || o->frames == NULL || v->nkeys == 0)
     return ts_error(err, TS_EINVAL, "--input PATTERN, --frames A..B and at least one --key N KEY_IMG are required "
                     "(see texsyn video --help)");
+  char msg[1024] = "";
+  int problems = 0;
+  ts_params_check(ts_video_params, &v->wt, msg, sizeof(msg), &problems);
+  if (problems > 0) return ts_error(err, TS_EINVAL, "%s", msg);
+  if (v->flow_back != NULL && v->flow == NULL)
+    return ts_error(err, TS_EINVAL, "--flow-back %s: give --flow too (the flow towards the next frame)", v->flow_back);
+  if (v->mask != NULL && v->wt.mask > 0 && v->npass == TS_VIDEO_MAX_PASSES)
+    return ts_error(err, TS_EINVAL, "--mask takes a guide: at most %d --pass with it", TS_VIDEO_MAX_PASSES - 1);
   qsort(v->key, (size_t)v->nkeys, sizeof(v->key[0]), key_order);
   for (int k = 0; k < v->nkeys; k++) {
     if (v->key[k].frame < v->fr.first || v->key[k].frame > v->fr.last)
@@ -165,44 +216,18 @@ static int parse_end(video_opts *o, char *err) {
   return rc == 0 ? ts_video_weigh(v, err) : rc;
 }
 
-/* Stylize's side outputs (--nnf) taken out of a built table: a frame's
- * field would be overwritten by the next. */
-static void without_side_outputs(struct option *t) {
-  size_t n = 0;
-  for (size_t i = 0; t[i].name != NULL; i++)
-    if (t[i].val < TS_OPT_SIDE) t[n++] = t[i];
-  t[n] = (struct option){0, 0, 0, 0};
-}
-
 /* '+': no reordering of argv, so the word after --key N is its image. */
 static int video_parse(int argc, char **argv, video_opts *o, char *err) {
   memset(o, 0, sizeof(*o));
   ts_job_cmd_init(&o->v.job, "video", ts_engine_find("stylize"));
   o->weighs = -1;
   o->v.input_weight = 1;
-  o->v.edge_weight = 0.5;
-  o->v.position_weight = 1;
-  o->v.temporal_weight = 1;
-  struct option longopts[TS_PARAMOPT_MAX];
-  if (ts_paramopt_build(o->v.job.spec.engine, own_opts, longopts, TS_PARAMOPT_MAX) != 0)
-    return ts_error(err, TS_EINVAL, "internal: too many options");
-  without_side_outputs(longopts);
-  optind = 1;
-  opterr = 0;
-  int c;
-  while ((c = getopt_long(argc, argv, "+o:h", longopts, NULL)) != -1) {
-    if (c == TS_OPT_HELP || c == 'h') {
-      usage(stdout, o->v.job.spec.engine);
-      exit(0);
-    }
-    if (c == '?' || c == ':')
-      return ts_error(err, TS_EINVAL, "%s: unknown option or missing value (see texsyn video --help)",
-                      argv[optind - 1]);
-    int rc = own_option(o, c, argc, argv, err);
-    if (rc != 0) return rc;
-  }
-  if (optind < argc) return ts_error(err, TS_EINVAL, "unexpected argument '%s'", argv[optind]);
-  return parse_end(o, err);
+  ts_params_default(ts_video_params, &o->v.wt);
+  struct option own[TS_PARAMOPT_MAX];
+  if (own_options(own, TS_PARAMOPT_MAX) != 0) return ts_error(err, TS_EINVAL, "internal: too many options");
+  ts_cmd_options cmd = {"+o:h", own, video_option, usage};
+  int rc = ts_paramopt_parse(&o->v.job, &cmd, o, argc, argv, err);
+  return rc != 0 ? rc : parse_end(o, err);
 }
 
 /* ---- before any work ------------------------------------------------- */
@@ -286,11 +311,54 @@ static int check_outputs(const ts_video *v, char *err) {
   return 0;
 }
 
+/* --input without a frame number: a movie, whose frames A..B are there
+ * (frame 0 its first); its frames' header in *first. */
+static int check_movie(video_opts *o, ts_image_info *first, char *err) {
+  ts_video *v = &o->v;
+  ts_movie_info mi;
+  ts_image_limits limits = {v->job.max_pixels, NULL};
+  int rc = ts_movie_probe(v->input, &limits, &mi, err);
+  if (rc != 0) {
+    char why[TS_ERR_LEN];
+    snprintf(why, sizeof(why), "%s", err);
+    return ts_error(err, rc, "--input: no frame number in the name (%%d or %%04d, e.g. shot/%%04d.png), and %s "
+                    "(nothing was stylized)", why);
+  }
+  if (mi.frames == 1)
+    return ts_error(err, TS_EINVAL, "--input %s: one image; put the frame number in the name (%%d or %%04d, e.g. "
+                    "shot/%%04d.png) or give a movie", v->input);
+  if (v->fr.last >= mi.frames)
+    return ts_error(err, TS_EINVAL, "--frames %s: the movie %s has %d frames, 0..%d", o->frames, v->input, mi.frames,
+                    mi.frames - 1);
+  *first = mi.frame;
+  o->movie = v->input;
+  o->fps = mi.fps;
+  return 0;
+}
+
+/* The --input sequence or movie: one size and channel count, *first. */
+static int check_input(video_opts *o, ts_image_info *first, char *err) {
+  int n = ts_frame_pattern(o->v.input, err);
+  if (n < 0) return n;
+  return n == 0 ? check_movie(o, first, err) : check_sequence("--input", o->v.input, &o->v, first, err);
+}
+
+/* --preview: a .gif, writable. */
+static int check_preview(const video_opts *o, char *err) {
+  size_t n = strlen(o->preview);
+  if (n < 4 || strcasecmp(o->preview + n - 4, ".gif") != 0)
+    return ts_error(err, TS_EINVAL, "--preview %s: an animated GIF, named .gif", o->preview);
+  ts_job_cmd job = o->v.job;
+  job.out = (ts_output_paths){0};
+  ts_output_set(&job.out, "output", o->preview);
+  return ts_job_check_outputs(&job, err);
+}
+
 static int check_all(video_opts *o, char *err) {
   ts_video *v = &o->v;
   ts_image_info first;
-  int rc = ts_flow_lib_load(err);
-  if (rc == 0) rc = check_sequence("--input", v->input, v, &first, err);
+  int rc = v->flow == NULL ? ts_flow_lib_load(err) : 0; /* given flows need no OpenCV */
+  if (rc == 0) rc = check_input(o, &first, err);
   if (rc != 0) return rc;
   v->w = first.width;
   v->h = first.height;
@@ -304,13 +372,39 @@ static int check_all(video_opts *o, char *err) {
       rc = ts_error(err, TS_EINVAL, "--pass %s: its frames are %dx%d, the input's %dx%d", v->pass[p], first.width,
                     first.height, v->w, v->h);
   }
+  if (rc == 0 && v->mask != NULL) {
+    rc = check_sequence("--mask", v->mask, v, &first, err);
+    if (rc == 0 && (first.width != v->w || first.height != v->h))
+      rc = ts_error(err, TS_EINVAL, "--mask %s: its frames are %dx%d, the input's %dx%d", v->mask, first.width,
+                    first.height, v->w, v->h);
+  }
+  if (rc == 0) rc = ts_video_flow_check(v, err);
   if (rc == 0) rc = check_outputs(v, err);
+  if (rc == 0 && o->preview != NULL) rc = check_preview(o, err);
   if (rc == 0 && o->report != NULL) {
     ts_job_cmd job = v->job;
     job.out = (ts_output_paths){0};
     ts_output_set(&job.out, "report", o->report);
     rc = ts_job_check_outputs(&job, err);
   }
+  return rc;
+}
+
+/* ---- the movie's frames ------------------------------------------------ */
+
+static int movie_frame(void *ctx, long frame, const ts_image *img, char *err) {
+  char path[TS_VIDEO_PATH + 64];
+  ts_frame_path(ctx, frame, path, sizeof(path)); /* fits: the work directory's */
+  return ts_image_write(path, img, NULL, err);
+}
+
+/* --input a movie: its frames A..B decoded into the work directory as
+ * lossless PNGs, which then are the input sequence. */
+static int movie_decode(video_opts *o, const char *dir, char *err) {
+  snprintf(o->movie_frames, sizeof(o->movie_frames), "%s/input_%%04d.png", dir);
+  ts_image_limits limits = {o->v.job.max_pixels, NULL};
+  int rc = ts_movie_read(o->movie, o->v.fr.first, o->v.fr.last, &limits, movie_frame, o->movie_frames, err);
+  o->v.input = o->movie_frames;
   return rc;
 }
 
@@ -392,6 +486,19 @@ static int write_sequence(const ts_video *v, const char *dir, char *err) {
   return rc;
 }
 
+/* The sequence written; with --mask first into dir, then composited into
+ * the outputs (video_mask.h). */
+static int sequence_out(ts_video *v, const char *dir, char *err) {
+  if (v->mask == NULL) return write_sequence(v, dir, err);
+  const char *out = v->out;
+  char stylized[TS_VIDEO_PATH + 32];
+  snprintf(stylized, sizeof(stylized), "%s/stylized_%%04d.png", dir);
+  v->out = stylized;
+  int rc = write_sequence(v, dir, err);
+  v->out = out;
+  return rc == 0 ? ts_video_mask_write(v, dir, stylized, err) : rc;
+}
+
 /* ---- the report ------------------------------------------------------ */
 
 /* Appends the file at path to f as it is (a job's JSON report). */
@@ -411,9 +518,11 @@ static int write_report(const ts_video *v, const char *dir, const char *path, ch
   FILE *f = fopen(path, "w");
   if (f == NULL) return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
   fprintf(f, "{\"frames\": [%ld, %ld], \"size\": [%d, %d], \"flow\": \"%s\", \"weights\": {\"input\": %g, "
-          "\"edge\": %g, \"position\": %g, \"temporal\": %g}, \"blend\": \"linear\", \"keys\": [",
-          v->fr.first, v->fr.last, v->w, v->h, ts_flow_method(), v->input_weight, v->edge_weight,
-          v->position_weight, v->temporal_weight);
+          "\"edge\": %g, \"position\": %g, \"temporal\": %g, \"mask\": %g}, \"blend\": \"linear\", \"keys\": [",
+          v->fr.first, v->fr.last, v->w, v->h,
+          v->flow == NULL ? ts_flow_method() : v->flow_back == NULL ? "given (--flow; backward: inverted)"
+                                                                   : "given (--flow, --flow-back)", v->input_weight, v->wt.edge,
+          v->wt.position, v->wt.temporal, v->mask != NULL ? v->wt.mask : 0);
   for (int k = 0; k < v->nkeys; k++) fprintf(f, "%s%ld", k ? ", " : "", v->key[k].frame);
   fprintf(f, "], \"jobs\": [");
   int rc = 0, first = 1;
@@ -444,10 +553,12 @@ int ts_cmd_video(int argc, char **argv) {
   if (rc == 0) rc = check_all(o, err);
   if (rc != 0 && status == 0) status = rc == TS_EINVAL ? 2 : 1;
   int made = rc == 0 && (rc = workdir_make(&o->v, dir, sizeof(dir), err)) == 0;
+  if (rc == 0 && o->movie != NULL) rc = movie_decode(o, dir, err);
   if (rc == 0) rc = ts_video_prepare(&o->v, dir, err);
   if (rc == TS_EINVAL && status == 0) status = 2;
   if (rc == 0) rc = ts_video_run_chains(&o->v, dir, err);
-  if (rc == 0) rc = write_sequence(&o->v, dir, err);
+  if (rc == 0) rc = sequence_out(&o->v, dir, err);
+  if (rc == 0 && o->preview != NULL) rc = ts_video_preview(&o->v, o->preview, o->fps > 0 ? o->fps : 24, err);
   if (rc == 0 && o->report != NULL) rc = write_report(&o->v, dir, o->report, err);
   if (made && o->v.guides_dir == NULL) workdir_remove(dir);
   if (rc != 0) fprintf(stderr, "texsyn video: %s\n", err);

@@ -8,7 +8,9 @@
 #include "error.h"
 #include "flow.h"
 #include "image.h"
+#include "video_flow.h"
 #include "video_guides.h"
+#include "video_mask.h"
 
 /* ---- the work directory's files ---------------------------------------- */
 
@@ -94,20 +96,24 @@ static int job_paths(const ts_video *v, const char *dir, long key, long t, char 
   key_file(dir, key, "", in[TS_STYLIT_IN_STYLE], TS_VIDEO_PATH);
   ts_frame_path(v->input, key, in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
   ts_frame_path(v->input, t, in[ts_stylit_in_tgt(g++)], TS_VIDEO_PATH);
-  if (v->edge_weight > 0) {
+  if (v->wt.edge > 0) {
     key_file(dir, key, "edge", in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
     ts_video_chain_file(dir, key, t, "edge.png", in[ts_stylit_in_tgt(g++)], TS_VIDEO_PATH);
   }
   static const char *const axes[2] = {"x", "y"};
-  for (int a = 0; a < 2 && v->position_weight > 0; a++) {
+  for (int a = 0; a < 2 && v->wt.position > 0; a++) {
     char what[32];
     snprintf(what, sizeof(what), "position_%s.png", axes[a]);
     identity_file(dir, axes[a], in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
     ts_video_chain_file(dir, key, t, what, in[ts_stylit_in_tgt(g++)], TS_VIDEO_PATH);
   }
-  if (v->temporal_weight > 0) {
+  if (v->wt.temporal > 0) {
     key_file(dir, key, "", in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
     ts_video_chain_file(dir, key, t, "temporal.png", in[ts_stylit_in_tgt(g++)], TS_VIDEO_PATH);
+  }
+  if (v->mask != NULL && v->wt.mask > 0) {
+    ts_video_mask_file(dir, key, in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
+    ts_video_mask_file(dir, t, in[ts_stylit_in_tgt(g++)], TS_VIDEO_PATH);
   }
   for (int p = 0; p < v->npass; p++) {
     ts_frame_path(v->pass[p], key, in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
@@ -122,9 +128,10 @@ int ts_video_weigh(ts_video *v, char *err) {
   double w[TS_STYLIT_MAX_GUIDES];
   int g = 0;
   w[g++] = v->input_weight;
-  if (v->edge_weight > 0) w[g++] = v->edge_weight;
-  for (int a = 0; a < 2 && v->position_weight > 0; a++) w[g++] = v->position_weight / 2; /* x and y */
-  if (v->temporal_weight > 0) w[g++] = v->temporal_weight;
+  if (v->wt.edge > 0) w[g++] = v->wt.edge;
+  for (int a = 0; a < 2 && v->wt.position > 0; a++) w[g++] = v->wt.position / 2; /* x and y */
+  if (v->wt.temporal > 0) w[g++] = v->wt.temporal;
+  if (v->mask != NULL && v->wt.mask > 0) w[g++] = v->wt.mask;
   for (int p = 0; p < v->npass; p++) w[g++] = v->pass_weight[p];
   char key[32], value[32];
   snprintf(value, sizeof(value), "%d", g);
@@ -150,7 +157,7 @@ static int prepare_key(const ts_video *v, const char *dir, int k, char *err) {
   if (rc == 0) rc = write_u8(path, px, v->w, v->h, v->channels, err); /* the key's own frame */
   free(px);
   key_file(dir, v->key[k].frame, "edge", path, sizeof(path));
-  if (rc == 0 && v->edge_weight > 0) rc = write_edges(v, v->key[k].frame, path, err);
+  if (rc == 0 && v->wt.edge > 0) rc = write_edges(v, v->key[k].frame, path, err);
   return rc;
 }
 
@@ -192,7 +199,7 @@ typedef struct {
 /* One step's scratch, shared by the chains (one step is made at a time). */
 typedef struct {
   uint8_t *luma, *occluded, *px;
-  float *back, *fwd, *pos, *warped;
+  float *back, *fwd, *pos, *warped, *scratch;
 } step_buf;
 
 static void chain_free(chain *c) {
@@ -228,7 +235,8 @@ static int step_buf_alloc(step_buf *b, const ts_video *v, char *err) {
   b->fwd = malloc(sizeof(float) * 2 * n);
   b->pos = malloc(sizeof(float) * 2 * n);
   b->warped = malloc(sizeof(float) * n * v->channels);
-  return b->luma && b->occluded && b->px && b->back && b->fwd && b->pos && b->warped
+  b->scratch = malloc(sizeof(float) * n);
+  return b->luma && b->occluded && b->px && b->back && b->fwd && b->pos && b->warped && b->scratch
              ? 0
              : ts_error(err, TS_ENOMEM, "out of memory for the flows of %dx%d frames", v->w, v->h);
 }
@@ -241,6 +249,7 @@ static void step_buf_free(step_buf *b) {
   free(b->fwd);
   free(b->pos);
   free(b->warped);
+  free(b->scratch);
 }
 
 static uint8_t round8(float v) { return v <= 0.0f ? 0 : v >= 255.0f ? 255 : (uint8_t)(v + 0.5f); }
@@ -259,22 +268,21 @@ static void temporal_guide(const ts_video *v, const chain *c, step_buf *b) {
  * and b->pos hold t's luminance and position guide. */
 static int make_guides(const ts_video *v, const char *dir, chain *c, long t, step_buf *b, char *err) {
   int rc = read_luma(v, t, b->luma, err);
-  if (rc == 0) rc = ts_flow_dis(b->luma, c->luma, v->w, v->h, b->back, err);
-  if (rc == 0) rc = ts_flow_dis(c->luma, b->luma, v->w, v->h, b->fwd, err);
+  if (rc == 0) rc = ts_video_flows(v, c->frame, t, c->luma, b->luma, b->back, b->fwd, b->scratch, err);
   if (rc != 0) return rc;
   ts_flow_occlusion(b->back, b->fwd, v->w, v->h, b->occluded);
   ts_guide_position_advect(c->pos, b->back, b->occluded, v->w, v->h, b->pos);
   char path[TS_VIDEO_PATH], path2[TS_VIDEO_PATH];
-  if (v->edge_weight > 0) {
+  if (v->wt.edge > 0) {
     ts_video_chain_file(dir, c->key, t, "edge.png", path, sizeof(path));
     rc = write_edges(v, t, path, err);
   }
-  if (rc == 0 && v->position_weight > 0) {
+  if (rc == 0 && v->wt.position > 0) {
     ts_video_chain_file(dir, c->key, t, "position_x.png", path, sizeof(path));
     ts_video_chain_file(dir, c->key, t, "position_y.png", path2, sizeof(path2));
     rc = write_position(b->pos, v->w, v->h, path, path2, err);
   }
-  if (rc == 0 && v->temporal_weight > 0) {
+  if (rc == 0 && v->wt.temporal > 0) {
     temporal_guide(v, c, b);
     ts_video_chain_file(dir, c->key, t, "temporal.png", path, sizeof(path));
     rc = write_u8(path, b->px, v->w, v->h, v->channels, err);
@@ -406,11 +414,11 @@ int ts_video_run_chains(const ts_video *v, const char *dir, char *err) {
 }
 
 int ts_video_prepare(const ts_video *v, const char *dir, char *err) {
-  int rc = 0;
+  int rc = v->mask != NULL ? ts_video_mask_prepare(v, dir, err) : 0;
   for (int k = 0; rc == 0 && k < v->nkeys; k++) rc = prepare_key(v, dir, k, err);
   float *pos = rc == 0 ? malloc(sizeof(float) * 2 * v->w * v->h) : NULL;
   if (rc == 0 && pos == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
-  if (rc == 0 && v->position_weight > 0) {
+  if (rc == 0 && v->wt.position > 0) {
     char px[TS_VIDEO_PATH], py[TS_VIDEO_PATH];
     identity_file(dir, "x", px, sizeof(px));
     identity_file(dir, "y", py, sizeof(py));

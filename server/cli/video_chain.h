@@ -9,8 +9,10 @@
  *                                     along the flow          (weight > 0)
  *   temporal   the key's painting   / the chain's frame t-1 (or t+1)
  *                                     warped onto t           (weight > 0)
+ *   mask       the mask at frame K  / the mask at frame t    (--mask, weight > 0)
  *   --pass P   P at frame K         / P at frame t
- * (Jamriška et al. 2019, built from video_guides.h and flow.h). The source
+ * (Jamriška et al. 2019, built from video_guides.h and flow.h; the flow
+ * computed, or given with --flow: video_flow.h). The source
  * side is the same for the whole chain, so on a coordinator the workers
  * keep the exemplar's sources from one frame to the next, as for
  * `stylize --frames` (frames.h).
@@ -35,9 +37,11 @@
 #include "frames.h"
 #include "jobcmd.h"
 #include "stylit.h"
+#include "video_guides.h"
 
 #define TS_VIDEO_MAX_KEYS 64
-/* Guides beyond the colour, edge, two position and temporal ones. */
+/* Guides beyond the colour, edge, two position and temporal ones (and
+ * the mask's, with --mask). */
 #define TS_VIDEO_MAX_PASSES (TS_STYLIT_MAX_GUIDES - 5)
 #define TS_VIDEO_PATH 4096
 
@@ -49,13 +53,15 @@ typedef struct {
 typedef struct {
   ts_job_cmd job; /* the stylize engine's parameters and where jobs run */
   const char *input, *out, *guides_dir;
+  const char *mask; /* --mask PATTERN or NULL (video_mask.h) */
+  const char *flow, *flow_back; /* --flow, --flow-back PATTERN or NULL (video_flow.h) */
   ts_frames fr;
   int nkeys; /* sorted by frame, distinct */
   ts_video_key key[TS_VIDEO_MAX_KEYS];
   int npass;
   const char *pass[TS_VIDEO_MAX_PASSES];
   double input_weight, pass_weight[TS_VIDEO_MAX_PASSES];
-  double edge_weight, position_weight, temporal_weight;
+  ts_video_weights wt; /* the made guides' (video_guides.h) */
   int w, h, channels; /* the frames' size, the keys' channels (checked) */
 } ts_video;
 

@@ -184,6 +184,7 @@ static void range_text(const ts_param *p, int message, char *buf, size_t cap) {
   const char *odd = !(p->flags & TS_PARAM_ODD) ? "" : message ? "an odd number in " : "odd, ";
   if (p->flags & TS_PARAM_UNBOUNDED) snprintf(buf, cap, "0..2^64-1");
   else if ((p->flags & TS_PARAM_ODD) && p->min == 0) snprintf(buf, cap, "0 or odd 1..%.15g", p->max);
+  else if (p->flags & TS_PARAM_ZERO_OFF) snprintf(buf, cap, "0: off, or %.15g..%.15g", p->min, p->max);
   else if (p->flags & TS_PARAM_MIN_OPEN) snprintf(buf, cap, "more than %.15g, at most %.15g", p->min, p->max);
   else snprintf(buf, cap, "%s%.15g..%.15g", odd, p->min, p->max);
 }
@@ -194,6 +195,7 @@ static int has_range(const ts_param *p) {
 
 static int in_range(const ts_param *p, double v) {
   if (p->flags & TS_PARAM_UNBOUNDED) return 1;
+  if ((p->flags & TS_PARAM_ZERO_OFF) && v == 0) return 1;
   if (p->flags & TS_PARAM_MIN_OPEN ? !(v > p->min) : !(v >= p->min)) return 0;
   if (!(v <= p->max)) return 0;
   return !(p->flags & TS_PARAM_ODD) || fmod(v, 2.0) != 0.0 || v == 0;

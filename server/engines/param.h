@@ -35,6 +35,8 @@ enum {
   TS_PARAM_EMBEDDED = 8,  /* a command-line setting the spec does not keep:
                              the job runs in-process only */
   TS_PARAM_NEGATE = 16,   /* FLAG: the option sets 0 (--no-self for self=1) */
+  TS_PARAM_ZERO_OFF = 32, /* DOUBLE: 0 too, meaning off (a guide's weight:
+                             "0 (off) or 0.01..100") */
 };
 
 /* A CUSTOM field's text form. */

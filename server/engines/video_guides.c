@@ -1,11 +1,26 @@
 /* video_guides.c - see video_guides.h. */
 #include "video_guides.h"
 
+#include <stddef.h>
 #include <stdlib.h>
 
 #include "error.h"
 #include "flow.h"
 #include "plane.h"
+
+/* The position weight's floor is twice the others': each of its two
+ * planes gets half, and a guide's weight is at least 0.01. */
+const ts_param ts_video_params[] = {
+    {"edge_weight", "edge-weight", "W", TS_PARAM_DOUBLE, offsetof(ts_video_weights, edge), 0.01, 100, "0.5",
+     "the edge guide's weight", .flags = TS_PARAM_ZERO_OFF},
+    {"position_weight", "position-weight", "W", TS_PARAM_DOUBLE, offsetof(ts_video_weights, position), 0.02, 100,
+     "1", "the positional guide's weight, split between its x and y planes", .flags = TS_PARAM_ZERO_OFF},
+    {"temporal_weight", "temporal-weight", "W", TS_PARAM_DOUBLE, offsetof(ts_video_weights, temporal), 0.01, 100,
+     "1", "the temporal guide's weight", .flags = TS_PARAM_ZERO_OFF},
+    {"mask_weight", "mask-weight", "W", TS_PARAM_DOUBLE, offsetof(ts_video_weights, mask), 0.01, 100, "1",
+     "with --mask, the mask's weight as a guide, which keeps the inside's patches from the key's inside",
+     .flags = TS_PARAM_ZERO_OFF},
+    {0}};
 
 /* Sobel magnitude at (x, y): |gx| + |gy| <= 2 * 4 * 255, scaled by 1/8
  * (rounded) to 0..255. */

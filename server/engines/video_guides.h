@@ -15,6 +15,17 @@
 
 #include <stdint.h>
 
+#include "param.h"
+
+/* The made guides' weights, each 0 (the guide is not made) or in its
+ * range; declared once in ts_video_params, from which `texsyn video`'s
+ * options, their --help, ranges and defaults and `texsyn params video`
+ * come. The position weight is split between its x and y planes. */
+typedef struct {
+  double edge, position, temporal, mask;
+} ts_video_weights;
+extern const ts_param ts_video_params[];
+
 /* The edge guide of a w x h luminance plane into out (w x h): the Sobel
  * gradient magnitude |gx| + |gy| scaled to 0..255, then blurred by the
  * binomial kernel (1 4 6 4 1)/16 across and down, so that an edge guides

@@ -21,10 +21,14 @@ COMMANDS = {
 }
 
 
-def table(texsyn, engine):
+# Commands with a parameter table of their own, beside their engine's.
+COMMAND_TABLES = {"video": ["video"]}
+
+
+def table(texsyn, engine, kind="engine"):
     """(key, option, default) of each parameter `texsyn params ENGINE` lists."""
     out = run(texsyn, "params", engine).stdout.splitlines()
-    assert out[0] == f"engine {engine}", out
+    assert out[0] == f"{kind} {engine}", out
     rows = [re.match(r"  (\S+)\s+(\S+)\s+(\S+)\s", line) for line in out[1:]]
     assert all(rows), out
     return [r.groups() for r in rows]
@@ -45,11 +49,25 @@ def test_every_declared_option_is_in_the_commands_help(texsyn, engine):
             assert re.search(r"[(;] ?default ", text), f"{opt}: no default in --help: {text}"
 
 
+@pytest.mark.parametrize("command", sorted(COMMAND_TABLES))
+def test_a_commands_own_table_is_in_its_help(texsyn, command):
+    """texsyn video's guide weights are declared once too: each is offered
+    with its range and default, and the range is enforced from the table."""
+    help_text = run(texsyn, *COMMAND_TABLES[command], "--help").stdout
+    rows = table(texsyn, command, kind="command")
+    assert rows, command
+    for key, opt, default in rows:
+        m = re.search(rf"^  {re.escape(opt)}\b(.*?)(?=^  -|\Z)", help_text, re.S | re.M)
+        assert m, f"{opt} ({command}.{key}) is not in texsyn {command} --help"
+        assert f"default {default})" in " ".join(m.group(1).split()), m.group(1)
+
+
 def test_params_lists_every_engine_and_refuses_an_unknown_one(texsyn):
     out = run(texsyn, "params").stdout
     assert re.findall(r"^engine (\S+)", out, re.M) == ["mrf", "stylize", "energy", "fill", "aerial", "segment"]
+    assert re.findall(r"^command (\S+)", out, re.M) == sorted(COMMAND_TABLES)
     p = run(texsyn, "params", "nope", check=False)
-    assert p.returncode == 2 and "no engine 'nope'" in p.stderr, p.stderr
+    assert p.returncode == 2 and "no engine or command 'nope'" in p.stderr, p.stderr
 
 
 def test_a_spec_only_key_is_no_option(texsyn):

@@ -13,7 +13,8 @@ import subprocess
 import pytest
 
 from conftest import REPO, modbus_registers, run
-from pnm import oiiotool, pixels_of
+from avi import write_avi, write_mjpeg_avi
+from pnm import oiiotool, pixels_of, read_pnm
 
 FRAMES = 10
 FAST = ["--levels", "3", "--iters", "2", "--quiet"]
@@ -115,5 +116,222 @@ def test_bad_input_is_refused_before_any_work(texsyn, shot, tmp_path):
     assert "--detach" in refused("--detach")
     assert "--nnf" in refused("--nnf", tmp_path / "n_%04d.raw")  # one file per frame: not an output here
     assert "--scale" in refused("--scale", "0.5")
+    # The guide weights' ranges come from their table (texsyn params video).
+    assert "--edge-weight 200: need 0: off, or 0.01..100" in refused("--edge-weight", "200")
+    assert "--position-weight 0.01: need 0: off, or 0.02..100" in refused("--position-weight", "0.01")
+    assert "--temporal-weight x: need a number" in refused("--temporal-weight", "x")
+    assert "did you mean --edge-weight" in refused("--edge-weigth", "1")
     err = refused("--pass", shot / "in_%04d.png", "--pass", tmp_path / "missing_%04d.png", code=1)
     assert "--pass frame 1" in err and "missing_0001.png" in err, err
+
+
+def halves(image, tmp_path):
+    """The left and right halves' rows of an image's 8-bit pixels."""
+    w, h, c, px = pixels_of(image, tmp_path)
+    rows = [px[y * w * c:(y + 1) * w * c] for y in range(h)]
+    return [r[:w // 2 * c] for r in rows], [r[w // 2 * c:] for r in rows]
+
+
+def test_mask_keeps_the_input_outside_and_stylizes_inside(texsyn, shot, tmp_path):
+    """White left half, black right half: the right half of every output
+    frame is the input frame's bytes, the left half stylized (on the key's
+    frame, the painting); the mask is also a guide of the jobs."""
+    oiiotool("--create", "96x72", "1", "--fill:color=1", "48x72+0+0", "-d", "uint8", "-o", tmp_path / "m.png")
+    for f in range(1, 5):
+        (tmp_path / f"mask_{f:04d}.png").write_bytes((tmp_path / "m.png").read_bytes())
+    video(texsyn, shot, tmp_path / "v_%04d.png", "--mask", tmp_path / "mask_%04d.png", "--report", tmp_path / "r.json",
+          frames="1..4", keys=(1,))
+    for f in range(1, 5):
+        left, right = halves(tmp_path / f"v_{f:04d}.png", tmp_path)
+        in_left, in_right = halves(shot / f"in_{f:04d}.png", tmp_path)
+        assert right == in_right, f
+        if f == 1:
+            assert left == halves(shot / "key1.png", tmp_path)[0]
+        else:
+            assert left != in_left, f
+    r = json.loads((tmp_path / "r.json").read_text())
+    # colour, edge, position x and y, temporal, the mask: 6 guides.
+    assert r["weights"]["mask"] == 1 and len(r["jobs"][0]["report"]["params"]["guide_weights"]) == 6, r
+
+
+@pytest.mark.sanitize
+def test_bad_masks_are_refused_before_any_work(texsyn, shot, tmp_path):
+    oiiotool("--create", "48x36", "1", "-d", "uint8", "-o", tmp_path / "small_0001.png")
+    for f in range(2, 4):
+        (tmp_path / f"small_{f:04d}.png").write_bytes((tmp_path / "small_0001.png").read_bytes())
+    for mask, words, code in ((tmp_path / "small_%04d.png", ["48x36", "96x72"], 2),
+                              (tmp_path / "none_%04d.png", ["--mask frame 1", "none_0001.png"], 1),
+                              (tmp_path / "small_%04d.png", ["--mask frame 4", "small_0004.png"], 1)):
+        frames = "1..4" if "frame 4" in words[0] else "1..3"
+        p = video(texsyn, shot, tmp_path / "o_%04d.png", "--mask", mask, frames=frames, check=False)
+        assert p.returncode == code and all(w in p.stderr for w in words), p.stderr
+        assert len(p.stderr.strip().splitlines()) == 1 and not list(tmp_path.glob("o_*")), p.stderr
+
+
+def flows(tmp_path, name, u, v, frames, size="96x72", channels=2, dtype="float", ext="exr"):
+    """A constant flow (u, v) per frame: name_%04d.ext."""
+    color = ",".join(str(x) for x in ([u, v] + [0] * (channels - 2))[:channels])
+    oiiotool("--create", size, channels, f"--fill:color={color}", size + "+0+0", "-d", dtype,
+             "-o", tmp_path / f"{name}_0001.{ext}")
+    for f in frames:
+        if f != 1:
+            (tmp_path / f"{name}_{f:04d}.{ext}").write_bytes((tmp_path / f"{name}_0001.{ext}").read_bytes())
+    return tmp_path / f"{name}_%04d.{ext}"
+
+
+def test_a_given_flow_is_used_its_sign_as_documented(texsyn, shot, tmp_path):
+    """--flow of +3 px in x per frame (content moves right): the positional
+    guide of frame t holds x - 3 (t - 1) where content came from the key,
+    and the pixel's own x on the columns it did not (occluded, reset); the
+    backward flow inverted from it gives the same guides, so the same
+    bytes, as a --flow-back of -3."""
+    fwd = flows(tmp_path, "f", 3, 0, (1, 2))
+    video(texsyn, shot, tmp_path / "v_%04d.png", "--flow", fwd, "--write-guides", tmp_path / "g",
+          "--report", tmp_path / "r.json", frames="1..3", keys=(1,))
+    assert json.loads((tmp_path / "r.json").read_text())["flow"] == "given (--flow; backward: inverted)"
+
+    def scale8(x):
+        return int(x * 255 / 95 + 0.5)
+    for t, expect in ((2, lambda x: x - 3 if x >= 3 else x), (3, lambda x: x - 6 if x >= 6 else x - 3 if x >= 3 else x)):
+        w, h, c, px = pixels_of(tmp_path / "g" / f"from_0001_{t:04d}_position_x.png", tmp_path)
+        assert (w, h, c) == (96, 72, 1)
+        assert px[:96] == bytes(scale8(expect(x)) for x in range(96)), (t, list(px[:96]))
+        assert px[96 * 71:] == px[:96]  # every row alike
+    # Backward from key 3: frame 2 takes the key's x + 3, but for the
+    # columns whose content leaves the frame by frame 3 (x >= 93).
+    run(texsyn, "video", "--input", shot / "in_%04d.png", "--frames", "1..3", "--key", "3", shot / "key5.png",
+        "-o", tmp_path / "k_%04d.png", "--flow", fwd, "--write-guides", tmp_path / "g3", *FAST)
+    px = pixels_of(tmp_path / "g3" / "from_0003_0002_position_x.png", tmp_path)[3]
+    assert px[:96] == bytes(scale8(x + 3 if x < 93 else x) for x in range(96)), list(px[:96])
+    back = flows(tmp_path, "b", -3, 0, (2, 3))
+    video(texsyn, shot, tmp_path / "w_%04d.png", "--flow", fwd, "--flow-back", back, frames="1..3", keys=(1,))
+    for f in (2, 3):
+        assert (tmp_path / f"w_{f:04d}.png").read_bytes() == (tmp_path / f"v_{f:04d}.png").read_bytes(), f
+    # Computed flow: other guides, other frames.
+    video(texsyn, shot, tmp_path / "c_%04d.png", frames="1..3", keys=(1,))
+    assert (tmp_path / "c_0003.png").read_bytes() != (tmp_path / "v_0003.png").read_bytes()
+
+
+@pytest.mark.sanitize
+def test_bad_flows_are_refused_before_any_work(texsyn, shot, tmp_path):
+    def refused(*args, frames="1..3", code=2):
+        p = video(texsyn, shot, tmp_path / "o_%04d.png", *args, frames=frames, check=False)
+        assert p.returncode == code, p.stderr
+        assert len(p.stderr.strip().splitlines()) == 1 and not list(tmp_path.glob("o_*")), p.stderr
+        return p.stderr
+
+    good = flows(tmp_path, "f", 1, 0, (1, 2))
+    err = refused("--flow", good, frames="1..4", code=1)  # frame 3 missing
+    assert "--flow frame 3" in err and "f_0003.exr" in err, err
+    err = refused("--flow", flows(tmp_path, "s", 1, 0, (1, 2), size="48x36"))
+    assert "--flow frame 1" in err and "48x36" in err and "96x72" in err, err
+    err = refused("--flow", flows(tmp_path, "one", 1, 0, (1, 2), channels=1))
+    assert "--flow frame 1" in err and "1 channel" in err and "two" in err, err
+    err = refused("--flow", flows(tmp_path, "u8", 1, 0, (1, 2), dtype="uint8", ext="png"))
+    assert "--flow frame 1" in err and "uint8" in err and "float" in err, err
+    err = refused("--flow", good, "--flow-back", flows(tmp_path, "bk", -1, 0, (2,)), code=1)  # frame 3 missing
+    assert "--flow-back frame 3" in err and "bk_0003.exr" in err, err
+    assert "give --flow too" in refused("--flow-back", good)
+    # Three channels (a renderer's with a spare one) are fine: the first two are used.
+    video(texsyn, shot, tmp_path / "ok_%04d.png", "--flow", flows(tmp_path, "three", 1, 0, (1,), channels=3),
+          frames="1..2")
+
+
+@pytest.mark.sanitize
+def test_a_movie_input_is_its_frames(texsyn, shot, tmp_path):
+    """The shot as an uncompressed AVI (frame 0 = in_0001.png): --input
+    clip.avi --frames 0..4 gives the bytes of --input in_%04d.png --frames
+    1..5, decoded frames being the pixels that went in."""
+    frames = [pixels_of(shot / f"in_{f:04d}.png", tmp_path)[3] for f in range(1, FRAMES + 1)]
+    write_avi(tmp_path / "clip.avi", frames, 96, 72)
+    key = ["--key", "0", shot / "key1.png"]
+    run(texsyn, "video", "--input", tmp_path / "clip.avi", "--frames", "0..4", *key, "-o", tmp_path / "m_%04d.png",
+        "--write-guides", tmp_path / "g", *FAST)
+    for f in range(5):
+        assert pixels_of(tmp_path / "g" / f"input_{f:04d}.png", tmp_path)[3] == frames[f], f
+    video(texsyn, shot, tmp_path / "s_%04d.png", frames="1..5", keys=(1,))
+    for f in range(5):
+        assert (tmp_path / f"m_{f:04d}.png").read_bytes() == (tmp_path / f"s_{f + 1:04d}.png").read_bytes(), f
+
+
+@pytest.mark.sanitize
+def test_bad_movies_are_refused_before_any_work(texsyn, shot, tmp_path):
+    frames = [pixels_of(shot / f"in_{f:04d}.png", tmp_path)[3] for f in range(1, 4)]
+    write_avi(tmp_path / "clip.avi", frames, 96, 72)
+    (tmp_path / "junk.mp4").write_bytes(b"\0\0\0\x18ftypmp42" + bytes(range(256)) * 4)
+
+    def refused(movie, frames, code):
+        p = run(texsyn, "video", "--input", movie, "--frames", frames, "--key", "0", shot / "key1.png",
+                "-o", tmp_path / "o_%04d.png", *FAST, check=False)
+        assert p.returncode == code and len(p.stderr.strip().splitlines()) == 1, p.stderr
+        assert not list(tmp_path.glob("o_*")), "work was done"
+        return p.stderr
+
+    err = refused(tmp_path / "junk.mp4", "0..2", 1)
+    assert "junk.mp4: not a movie FFmpeg reads" in err, err
+    err = refused(tmp_path / "none.mp4", "0..2", 1)
+    assert "none.mp4" in err and "No such file" in err, err
+    err = refused(tmp_path / "clip.avi", "0..3", 2)
+    assert "--frames 0..3: the movie" in err and "has 3 frames, 0..2" in err, err
+    err = refused(shot / "in_0001.png", "0..2", 1)  # an image, not a movie: the pattern forgotten
+    assert "--input: no frame number in the name" in err and "in_0001.png: not a movie" in err, err
+
+
+def test_preview_is_an_animated_gif_of_the_output(texsyn, shot, tmp_path):
+    video(texsyn, shot, tmp_path / "v_%04d.png", "--preview", tmp_path / "p.gif", frames="2..6", keys=(5,))
+    info = subprocess.run(["oiiotool", "--info", "-v", tmp_path / "p.gif"], capture_output=True, text=True,
+                          check=True).stdout
+    assert "96 x   72" in info and "5 subimages: 96x72" in info and "gif:LoopCount: 0" in info, info
+    # Each frame is its output frame in at most 256 colours: close (the
+    # keys' noise quantizes to a mean error of some 7 levels), and closer
+    # to its own output frame than to any other, in order.
+    outs = [pixels_of(tmp_path / f"v_{f:04d}.png", tmp_path)[3] for f in range(2, 7)]
+    for k in range(5):
+        oiiotool(tmp_path / "p.gif", "--subimage", k, "--ch", "R,G,B", "-o", tmp_path / f"p{k}.pnm")
+        got = read_pnm(tmp_path / f"p{k}.pnm")[3]
+        errors = [sum(abs(a - b) for a, b in zip(got, want)) / len(got) for want in outs]
+        assert len(got) == 96 * 72 * 3 and errors[k] < 12 and errors[k] == min(errors), (k, errors)
+    p = video(texsyn, shot, tmp_path / "o_%04d.png", "--preview", tmp_path / "p.png", frames="2..6", keys=(5,),
+              check=False)
+    assert p.returncode == 2 and "--preview" in p.stderr and ".gif" in p.stderr and not list(tmp_path.glob("o_*"))
+
+
+def test_a_grey_mask_blends_by_the_documented_rounding(texsyn, shot, tmp_path):
+    """Mask 128 everywhere, not a guide (--mask-weight 0): every output
+    sample is (S * 128 + I * 127 + 127) // 255 of the unmasked run's S and
+    the input I."""
+    oiiotool("--create", "96x72", "1", "--fill:color=0.50196", "96x72+0+0", "-d", "uint8", "-o", tmp_path / "g.png")
+    assert set(pixels_of(tmp_path / "g.png", tmp_path)[3]) == {128}
+    for f in range(1, 4):
+        (tmp_path / f"mask_{f:04d}.png").write_bytes((tmp_path / "g.png").read_bytes())
+    video(texsyn, shot, tmp_path / "s_%04d.png", frames="1..3", keys=(1,))
+    video(texsyn, shot, tmp_path / "m_%04d.png", "--mask", tmp_path / "mask_%04d.png", "--mask-weight", "0",
+          frames="1..3", keys=(1,))
+    for f in range(1, 4):
+        s = pixels_of(tmp_path / f"s_{f:04d}.png", tmp_path)[3]
+        i = pixels_of(shot / f"in_{f:04d}.png", tmp_path)[3]
+        m = pixels_of(tmp_path / f"m_{f:04d}.png", tmp_path)[3]
+        assert m == bytes((a * 128 + b * 127 + 127) // 255 for a, b in zip(s, i)), f
+
+
+@pytest.mark.sanitize
+def test_a_compressed_movie_decodes_to_the_same_bytes_every_run(texsyn, shot, tmp_path):
+    """Motion JPEG: FFmpeg's decoder, not the pixels that went in, but the
+    same bytes on every run, each frame nearest libjpeg's decoding of its
+    own JPEG. (Not equal: the FFmpeg reader's YUV to RGB conversion differs
+    from libjpeg's by 8.7 levels on average here, 8.5 of it an offset, as if
+    full-range JPEG YUV were taken for limited range.)"""
+    for f in range(1, 5):
+        oiiotool(shot / f"in_{f:04d}.png", "-o", tmp_path / f"f{f}.jpg")
+    write_mjpeg_avi(tmp_path / "clip.avi", [(tmp_path / f"f{f}.jpg").read_bytes() for f in range(1, 5)], 96, 72)
+    for run_dir in ("a", "b"):
+        run(texsyn, "video", "--input", tmp_path / "clip.avi", "--frames", "0..3", "--key", "0", shot / "key1.png",
+            "-o", tmp_path / f"{run_dir}_%04d.png", "--write-guides", tmp_path / run_dir, *FAST)
+    jpegs = [pixels_of(tmp_path / f"f{f}.jpg", tmp_path)[3] for f in range(1, 5)]
+    for f in range(4):
+        a = (tmp_path / "a" / f"input_{f:04d}.png").read_bytes()
+        assert a == (tmp_path / "b" / f"input_{f:04d}.png").read_bytes(), f
+        assert (tmp_path / f"a_{f:04d}.png").read_bytes() == (tmp_path / f"b_{f:04d}.png").read_bytes(), f
+        got = pixels_of(tmp_path / "a" / f"input_{f:04d}.png", tmp_path)[3]
+        errors = [sum(abs(x - y) for x, y in zip(got, j)) / len(got) for j in jpegs]
+        assert len(got) == 96 * 72 * 3 and errors[f] < 16 and errors[f] == min(errors), (f, errors)

@@ -1,7 +1,8 @@
 /* test_flow.c - optical flow (common/flow.h): the warp moves an image by
  * its flow and undoes a known shift exactly; the forward-backward check
  * marks the pixels that leave the frame and those whose flows disagree,
- * and no others; OpenCV's DIS flow (libtexsyn-flow.so) recovers a known
+ * and no others; the inverse of a shift is its negation, the uncovered
+ * pixels marked; OpenCV's DIS flow (libtexsyn-flow.so) recovers a known
  * shift of a real photograph, gives the same bytes as when this test was
  * written, and refuses frames too small for it. */
 #include "ts_test.h"
@@ -148,7 +149,31 @@ static void dis_refuses_frames_too_small(void **state) {
   assert_string_equal(err, "optical flow needs frames of at least 32x32 pixels, not 31x40");
 }
 
+/* A fractional constant shift inverts to its negation wherever content
+ * lands; the columns nothing lands on point out of the frame, so the check
+ * marks exactly them occluded. */
+static void invert_negates_a_shift_and_marks_the_uncovered_columns(void **state) {
+  (void)state;
+  enum { W = 24, H = 12 };
+  float *f = constant_flow(W, H, 2.5f, 0.0f), *inv = constant_flow(W, H, 0, 0), *wt = constant_flow(W, H, 0, 0);
+  uint8_t occ[W * H];
+  ts_flow_invert(f, W, H, wt, inv);
+  for (int y = 0; y < H; y++)
+    for (int x = 0; x < W; x++) {
+      const float *p = inv + 2 * (y * W + x);
+      if (x >= 3) assert_true(p[0] == -2.5f && p[1] == 0.0f); /* sources x - 2.5 +- 0.5 land here */
+      else assert_true(x + p[0] < 0.0f);                       /* nothing lands on columns 0..2 */
+    }
+  assert_int_equal(ts_flow_occlusion(inv, f, W, H, occ), 3 * H);
+  for (int y = 0; y < H; y++)
+    for (int x = 0; x < W; x++) assert_int_equal(occ[y * W + x], x < 3);
+  free(f);
+  free(inv);
+  free(wt);
+}
+
 static const struct CMUnitTest tests[] = {
+    cmocka_unit_test(invert_negates_a_shift_and_marks_the_uncovered_columns),
     cmocka_unit_test(warp_by_a_whole_shift_moves_every_inside_pixel),
     cmocka_unit_test(warping_a_shifted_image_by_its_flow_gives_the_original),
     cmocka_unit_test(occlusion_marks_the_pixels_that_leave_the_frame),

@@ -1,13 +1,15 @@
 /* test_params.c - the parameter tables (server/engines/param.h): every
  * declared parameter of every engine survives the spec (set off its
  * default, written, read back), a spec value out of range is refused,
- * range problems name the option, and --help's lines come from them. */
+ * range problems name the option, and --help's lines come from them; a
+ * "0: off, or lo..hi" range (texsyn video's weights) takes 0. */
 #include "ts_test.h"
 
 #include "engine.h"
 #include "error.h"
 #include "jobspec.h"
 #include "param.h"
+#include "video_guides.h"
 
 static const char *const kEngines[] = {"mrf", "fill", "aerial", "stylize", "energy", "segment"};
 
@@ -124,7 +126,32 @@ static void help_lines_show_range_and_default(void **state) {
   free(buf);
 }
 
+/* texsyn video's guide weights (video_guides.h): 0 turns a guide off, a
+ * value between 0 and the floor is refused, --help says both. */
+static void a_zero_off_range_takes_zero_and_its_range(void **state) {
+  (void)state;
+  ts_video_weights w;
+  ts_params_default(ts_video_params, &w);
+  assert_true(w.edge == 0.5 && w.position == 1 && w.temporal == 1 && w.mask == 1);
+  char err[TS_ERR_LEN], msg[1024] = "";
+  int n = 0;
+  assert_int_equal(ts_param_parse(ts_param_find(ts_video_params, "edge_weight"), &w, "0", "--edge-weight", err), 0);
+  assert_int_equal(ts_param_parse(ts_param_find(ts_video_params, "position_weight"), &w, "0.01", "--position-weight",
+                                  err), 0);
+  ts_params_check(ts_video_params, &w, msg, sizeof(msg), &n);
+  assert_int_equal(n, 1);
+  assert_string_equal(msg, "--position-weight 0.01: need 0: off, or 0.02..100");
+  char *buf = NULL;
+  size_t len = 0;
+  FILE *f = open_memstream(&buf, &len);
+  ts_params_help(f, ts_video_params);
+  fclose(f);
+  assert_non_null(strstr(buf, "  --edge-weight W      the edge guide's weight (0: off, or 0.01..100; default\n"));
+  free(buf);
+}
+
 static const struct CMUnitTest tests[] = {
+    cmocka_unit_test(a_zero_off_range_takes_zero_and_its_range),
     cmocka_unit_test(every_parameter_round_trips_through_the_spec),
     cmocka_unit_test(a_spec_value_out_of_range_is_refused),
     cmocka_unit_test(range_problems_name_the_option_and_the_range),
