@@ -63,6 +63,11 @@ int ts_paramopt_parse(ts_job_cmd *o, const ts_cmd_options *cmd, void *ctx, int a
   struct option longopts[TS_PARAMOPT_MAX];
   if (ts_paramopt_build(o->spec.engine, cmd->own, longopts, TS_PARAMOPT_MAX) != 0)
     return ts_error(err, TS_EINVAL, "internal: too many options");
+  for (const ts_param_default *d = cmd->defaults; d != NULL && d->key != NULL; d++) {
+    const ts_param *p = ts_param_find(o->spec.engine->params, d->key);
+    if (p == NULL || ts_param_parse(p, &o->spec.params, d->value, d->key, err) != 0)
+      return ts_error(err, TS_EINVAL, "internal: texsyn %s's default %s=%s", o->cmd, d->key, d->value);
+  }
   optind = 1;
   opterr = 0;
   int c;
@@ -88,7 +93,7 @@ int ts_paramopt_check(const ts_job_cmd *o, char *err) {
 }
 
 void ts_paramopt_help(FILE *f, const ts_engine *e) {
-  ts_params_help(f, e->params);
+  ts_params_help(f, e->params, NULL);
   for (int k = 0; k < e->noutputs; k++) {
     if (e->outputs[k].flag == NULL) continue;
     char option[64];
@@ -103,8 +108,10 @@ double ts_paramopt_number(const ts_job_cmd *o, const char *key) {
 }
 
 /* One table, under its heading ("engine mrf", "command video"): spec key,
- * option, default, range, help. */
-static void print_table(const char *kind, const char *name, const ts_param *params) {
+ * option, default, range, help; then the command's own defaults of its
+ * engine's parameters. */
+static void print_table(const char *kind, const char *name, const ts_param *params, const ts_engine *engine,
+                        const ts_param_default *own) {
   printf("%s %s\n", kind, name);
   for (const ts_param *p = params; p->key != NULL; p++) {
     char option[64] = "-", def[128] = "-";
@@ -113,14 +120,22 @@ static void print_table(const char *kind, const char *name, const ts_param *para
     printf("  %-18s %-20s %-10s %s%s\n", p->key, option, def, p->help,
            p->flags & TS_PARAM_EMBEDDED ? " [in-process only, not a spec key]" : "");
   }
+  for (; own != NULL && own->key != NULL; own++) {
+    const ts_param *p = ts_param_find(engine->params, own->key);
+    char option[64];
+    snprintf(option, sizeof(option), "--%s", p->flag);
+    printf("  %-18s %-20s %-10s %s's, with this default here\n", own->key, option, own->value, engine->name);
+  }
 }
 
 /* Commands with parameters of their own, beside their engine's: texsyn
- * video's guide weights (video_guides.h). */
+ * video's guide weights and its defaults (video_guides.h). */
 static const struct {
   const char *name;
   const ts_param *params;
-} command_tables[] = {{"video", ts_video_params}};
+  const char *engine; /* whose parameters the defaults are */
+  const ts_param_default *defaults;
+} command_tables[] = {{"video", ts_video_params, "stylize", ts_video_defaults}};
 #define NCOMMAND_TABLES (sizeof(command_tables) / sizeof(command_tables[0]))
 
 int ts_cmd_params(int argc, char **argv) {
@@ -134,16 +149,18 @@ int ts_cmd_params(int argc, char **argv) {
   const ts_engine *e;
   for (size_t c = 0; argc == 2 && c < NCOMMAND_TABLES; c++)
     if (strcmp(argv[1], command_tables[c].name) == 0) {
-      print_table("command", command_tables[c].name, command_tables[c].params);
+      print_table("command", command_tables[c].name, command_tables[c].params,
+                  ts_engine_find(command_tables[c].engine), command_tables[c].defaults);
       return 0;
     }
   if (argc == 2 && (e = ts_engine_find(argv[1])) == NULL) {
     fprintf(stderr, "texsyn params: no engine or command '%s' (texsyn params lists them)\n", argv[1]);
     return 2;
   }
-  if (argc == 2) print_table("engine", e->name, e->params);
-  for (int i = 0; argc == 1 && (e = ts_engine_at(i)) != NULL; i++) print_table("engine", e->name, e->params);
+  if (argc == 2) print_table("engine", e->name, e->params, NULL, NULL);
+  for (int i = 0; argc == 1 && (e = ts_engine_at(i)) != NULL; i++) print_table("engine", e->name, e->params, NULL, NULL);
   for (size_t c = 0; argc == 1 && c < NCOMMAND_TABLES; c++)
-    print_table("command", command_tables[c].name, command_tables[c].params);
+    print_table("command", command_tables[c].name, command_tables[c].params,
+                  ts_engine_find(command_tables[c].engine), command_tables[c].defaults);
   return 0;
 }

@@ -34,13 +34,15 @@ double ts_paramopt_number(const ts_job_cmd *o, const char *key);
  * over its own options and its engine's; --help printed by `usage` (and
  * exit 0); each option handed first to `option` (TS_ENOENT when it is not
  * the command's own; argc and argv for options that take two words), then
- * taken as an engine parameter or side output, then as every job's; a
+ * taken as an engine parameter or side output, then as every job's (the
+ * engine's parameters start from the command's own defaults, if any); a
  * mistyped one named with the closest option; no word left over. */
 typedef struct {
   const char *shortopts;    /* "o:h", or "+o:h" to keep the words in order */
   const struct option *own; /* the command's own long options, zero-terminated */
   int (*option)(void *ctx, int c, const char *arg, int argc, char **argv, char *err);
   void (*usage)(FILE *f, const ts_engine *e);
+  const ts_param_default *defaults; /* the command's own defaults (param.h), or NULL */
 } ts_cmd_options;
 int ts_paramopt_parse(ts_job_cmd *o, const ts_cmd_options *cmd, void *ctx, int argc, char **argv, char *err);
 

@@ -71,8 +71,8 @@ static void usage(FILE *f, const ts_engine *e) {
           "                       chain's frames) in DIR, made if missing\n"
           "  --report F           one JSON object: the settings and every job's report\n",
           TS_FLOW_MIN_SIDE, TS_FLOW_MIN_SIDE, TS_FRAME_LAST, TS_VIDEO_MAX_KEYS, TS_VIDEO_MAX_PASSES);
-  ts_params_help(f, ts_video_params);
-  ts_params_help(f, e->params);
+  ts_params_help(f, ts_video_params, NULL);
+  ts_params_help(f, e->params, ts_video_defaults);
   fprintf(f, "%s  (not --detach: each frame needs the one before, so the command follows its jobs)\n",
           TS_JOB_RUN_HELP);
 }
@@ -225,7 +225,7 @@ static int video_parse(int argc, char **argv, video_opts *o, char *err) {
   ts_params_default(ts_video_params, &o->v.wt);
   struct option own[TS_PARAMOPT_MAX];
   if (own_options(own, TS_PARAMOPT_MAX) != 0) return ts_error(err, TS_EINVAL, "internal: too many options");
-  ts_cmd_options cmd = {"+o:h", own, video_option, usage};
+  ts_cmd_options cmd = {"+o:h", own, video_option, usage, ts_video_defaults};
   int rc = ts_paramopt_parse(&o->v.job, &cmd, o, argc, argv, err);
   return rc != 0 ? rc : parse_end(o, err);
 }

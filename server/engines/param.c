@@ -265,12 +265,21 @@ static void entry_text(const ts_param *p, char *buf, size_t cap) {
   else snprintf(buf, cap, "%s", p->help);
 }
 
-void ts_params_help(FILE *f, const ts_param *t) {
+static const char *default_for(const ts_param_default *d, const char *key) {
+  for (; d != NULL && d->key != NULL; d++)
+    if (strcmp(d->key, key) == 0) return d->value;
+  return NULL;
+}
+
+void ts_params_help(FILE *f, const ts_param *t, const ts_param_default *defaults) {
   for (; t->key != NULL; t++) {
     if (t->flag == NULL) continue;
     char option[64], text[1024];
     snprintf(option, sizeof(option), "--%s%s%s", t->flag, t->arg ? " " : "", t->arg ? t->arg : "");
-    entry_text(t, text, sizeof(text));
+    ts_param shown = *t;
+    const char *own = default_for(defaults, t->key);
+    if (own != NULL) shown.def = own, shown.def_help = NULL;
+    entry_text(&shown, text, sizeof(text));
     ts_help_line(f, option, text);
   }
 }

@@ -96,8 +96,18 @@ double ts_param_number(const ts_param *p, const void *params);
  * naming it by its flag ("--refine 25: need 0..20"). */
 void ts_params_check(const ts_param *table, const void *params, char *msg, size_t len, int *n);
 
-/* The help lines of the table's flags, as --help prints them. */
-void ts_params_help(FILE *f, const ts_param *table);
+/* A command's own default for a parameter of its engine, as ffmpeg's
+ * per-codec defaults override an AVOption's: the parameter stays declared
+ * once, in the engine's table, and the command names the value it starts
+ * from (texsyn video's search budget: a sequence pays it on every frame).
+ * A list ends with a NULL key. */
+typedef struct {
+  const char *key, *value; /* spec key and spec text */
+} ts_param_default;
+
+/* The help lines of the table's flags, as --help prints them; defaults
+ * (NULL: none) replaces the default shown for the keys it names. */
+void ts_params_help(FILE *f, const ts_param *table, const ts_param_default *defaults);
 /* One option's help line(s): "  --flag ARG" then the text, wrapped. */
 void ts_help_line(FILE *f, const char *option, const char *text);
 

@@ -22,6 +22,8 @@ const ts_param ts_video_params[] = {
      .flags = TS_PARAM_ZERO_OFF},
     {0}};
 
+const ts_param_default ts_video_defaults[] = {{"budget", "0.1"}, {0}};
+
 /* Sobel magnitude at (x, y): |gx| + |gy| <= 2 * 4 * 255, scaled by 1/8
  * (rounded) to 0..255. */
 static int sobel(const uint8_t *p, int w, int h, int x, int y) {

@@ -25,6 +25,12 @@ typedef struct {
   double edge, position, temporal, mask;
 } ts_video_weights;
 extern const ts_param ts_video_params[];
+/* Where texsyn video starts the stylize engine's parameters elsewhere than
+ * stylize does: the search budget, 0.1 s an exact level at the reference
+ * speed instead of 1, since a sequence pays it on every frame (at 256x192
+ * with the video's guides, the second-finest level takes PatchMatch and a
+ * frame about a fifth of the time, at the same energy). */
+extern const ts_param_default ts_video_defaults[];
 
 /* The edge guide of a w x h luminance plane into out (w x h): the Sobel
  * gradient magnitude |gx| + |gy| scaled to 0..255, then blurred by the

@@ -118,7 +118,7 @@ static void help_lines_show_range_and_default(void **state) {
   char *buf = NULL;
   size_t len = 0;
   FILE *f = open_memstream(&buf, &len);
-  ts_params_help(f, ts_engine_find("segment")->params);
+  ts_params_help(f, ts_engine_find("segment")->params, NULL);
   fclose(f);
   assert_non_null(strstr(buf, "  --window N           window width (odd, 3..31; default 9)\n"));
   assert_non_null(strstr(buf, "  --rgb-search         compare the three colour channels instead of luminance\n"));
@@ -144,13 +144,32 @@ static void a_zero_off_range_takes_zero_and_its_range(void **state) {
   char *buf = NULL;
   size_t len = 0;
   FILE *f = open_memstream(&buf, &len);
-  ts_params_help(f, ts_video_params);
+  ts_params_help(f, ts_video_params, NULL);
   fclose(f);
   assert_non_null(strstr(buf, "  --edge-weight W      the edge guide's weight (0: off, or 0.01..100; default\n"));
   free(buf);
 }
 
+/* A command's own default of an engine parameter (texsyn video's budget)
+ * is what --help shows; the other entries keep the table's. */
+static void a_commands_default_replaces_the_one_shown(void **state) {
+  (void)state;
+  const ts_param *stylize = ts_engine_find("stylize")->params;
+  char *buf = NULL;
+  size_t len = 0;
+  FILE *f = open_memstream(&buf, &len);
+  ts_params_help(f, stylize, ts_video_defaults);
+  fclose(f);
+  assert_non_null(strstr(buf, "(0..1000000; default 0.1)"));
+  assert_null(strstr(buf, "(0..1000000; default 1)"));
+  assert_non_null(strstr(buf, "(odd, 3..15; default 5)")); /* --patch-size, untouched */
+  free(buf);
+  assert_non_null(ts_param_find(stylize, ts_video_defaults[0].key));
+  assert_string_equal(ts_param_find(stylize, "budget")->def, "1"); /* stylize's own stays */
+}
+
 static const struct CMUnitTest tests[] = {
+    cmocka_unit_test(a_commands_default_replaces_the_one_shown),
     cmocka_unit_test(a_zero_off_range_takes_zero_and_its_range),
     cmocka_unit_test(every_parameter_round_trips_through_the_spec),
     cmocka_unit_test(a_spec_value_out_of_range_is_refused),
