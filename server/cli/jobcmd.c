@@ -469,6 +469,7 @@ int ts_job_submit(ts_conn *c, const ts_job_cmd *o, uint64_t *id, char *err) {
   ts_jobspec js = o->spec;
   char spec[TS_SPEC_MAX];
   set_wants(o, &js);
+  ts_jobspec_set_name(&js, result_name(o)); /* for texsyn status */
   int n = ts_jobspec_format(&js, spec, sizeof(spec));
   if (n < 0) return ts_error(err, TS_ETOOBIG, "job spec too long");
   ts_engine_inputs names;
