@@ -64,7 +64,7 @@ def test_damaged_spool_files_after_a_restart(texsyn, data, cluster, tmp_path):
     run(BUILD / "texsyn", "modbus", cluster.server.modbus, "--set", "pause=1")
     queued = [submit(cluster, data) for _ in range(5)]
     assert queued == ["5", "6", "7", "8", "9"]
-    assert all(status(cluster, j)[0] == "queued" for j in queued)
+    assert all(status(cluster, j)[0] == "held" for j in queued)
     cluster.server.stop()
 
     spool = tmp_path / "spool"
