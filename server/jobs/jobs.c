@@ -238,7 +238,7 @@ uint32_t ts_jobs_list(ts_jobs *j, ts_job_status *out, uint32_t cap) {
   return n;
 }
 
-uint32_t ts_jobs_list_recent(ts_jobs *j, ts_job_status *out, const char **engines, uint32_t cap) {
+uint32_t ts_jobs_list_recent(ts_jobs *j, ts_job_status *out, uint32_t cap) {
   pthread_mutex_lock(&j->lock);
   uint64_t total = 0;
   for (const job *jb = j->head; jb != NULL; jb = jb->next) total++;
@@ -246,11 +246,7 @@ uint32_t ts_jobs_list_recent(ts_jobs *j, ts_job_status *out, const char **engine
   uint32_t n = 0;
   uint64_t i = 0;
   for (const job *jb = j->head; jb != NULL; jb = jb->next, i++)
-    if (i >= skip) {
-      jobs_record(j, jb, &out[n]);
-      /* A job reloaded without its spec (a damaged spool) has no engine. */
-      engines[n++] = jb->spec.engine != NULL ? jb->spec.engine->name : "unknown";
-    }
+    if (i >= skip) jobs_record(j, jb, &out[n++]);
   pthread_mutex_unlock(&j->lock);
   return n;
 }

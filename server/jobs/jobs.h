@@ -67,9 +67,9 @@ int ts_jobs_status(ts_jobs *j, uint64_t id, ts_job_status *out, uint64_t *versio
 int ts_jobs_wait(ts_jobs *j, uint64_t id, uint64_t *version, int timeout_ms, ts_job_status *out);
 /* Every job, oldest first; returns how many were written (<= cap). */
 uint32_t ts_jobs_list(ts_jobs *j, ts_job_status *out, uint32_t cap);
-/* The newest cap jobs, oldest first, with their engines' names (static
- * strings); returns how many were written. For the operations page. */
-uint32_t ts_jobs_list_recent(ts_jobs *j, ts_job_status *out, const char **engines, uint32_t cap);
+/* The newest cap jobs, oldest first; returns how many were written. For
+ * the operations page. */
+uint32_t ts_jobs_list_recent(ts_jobs *j, ts_job_status *out, uint32_t cap);
 int ts_jobs_cancel(ts_jobs *j, uint64_t id, char *err);
 /* Removes a finished (done, failed or canceled) job and its files from the
  * spool; its id is never given out again. The expirer removes jobs the
