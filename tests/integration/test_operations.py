@@ -4,6 +4,7 @@ and workers (texsyn status, texsyn workers), driven on real daemons and
 read from the printed text."""
 import os
 import re
+import subprocess
 import time
 
 from conftest import BUILD, STATUS_HEADER, jobs_listed, run, workers_listed
@@ -160,8 +161,14 @@ def test_status_shows_engine_owner_times_progress_and_output(data, cluster, tmp_
     full = dict(re.fullmatch(r"  (\w+) +(.*)", line).groups() for line in
                 cluster.texsyn("status", done).stdout.splitlines()[1:])
     assert re.fullmatch(when + r", ran [\d.]+s", full["ended"]) and full["progress"] == "100.0%", full
+    # A client following it says it is held, then that it runs once resumed.
+    watch = subprocess.Popen([str(BUILD / "texsyn"), "watch", held, "--server", cluster.server.addr],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert watch.stderr.readline() == f"texsyn watch: job {held} held: the coordinator's queue is paused\n"
     pause(cluster, False)
-    cluster.texsyn("watch", held, "--quiet")
+    out, err = watch.communicate(timeout=120)
+    assert watch.returncode == 0 and out == f"{held}      done\n", (out, err)
+    assert f"texsyn watch: job {held} level 1 of 2" in err, err
     assert listed(cluster)[held]["state"] == "done"
 
 
