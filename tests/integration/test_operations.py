@@ -7,6 +7,8 @@ import re
 import subprocess
 import time
 
+import pytest
+
 from conftest import BUILD, STATUS_HEADER, jobs_listed, run, workers_listed
 
 SMALL = ["--size", "48x32", "--levels", "2"]
@@ -44,6 +46,7 @@ def job_dir(cluster, job):
     return cluster.tmp / "spool" / "jobs" / job
 
 
+@pytest.mark.sanitize
 def test_keep_ended_removes_finished_jobs_and_never_a_queued_one(data, cluster, tmp_path):
     """--keep-ended 2: a finished job's status and spool directory go about
     2 s after its end (not before: its state file's time is the end), while
@@ -72,6 +75,7 @@ def test_keep_ended_removes_finished_jobs_and_never_a_queued_one(data, cluster, 
     assert not job_dir(cluster, held).exists()
 
 
+@pytest.mark.sanitize
 def test_keep_ended_counts_from_the_end_across_a_restart(data, cluster, tmp_path):
     """The end is the spool's (the state file's time), not the restart's: a
     job that ended an hour ago goes at once under --keep-ended 30m, one that
@@ -95,6 +99,7 @@ def test_keep_ended_counts_from_the_end_across_a_restart(data, cluster, tmp_path
     assert list(listed(cluster)) == [fresh] and job_dir(cluster, fresh).exists()
 
 
+@pytest.mark.sanitize
 def test_keep_ended_refuses_what_is_no_duration(tmp_path):
     for bad in ("5x", "0", "-3", "12hh", "", "forever"):
         p = run(BUILD / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", tmp_path / "spool", "--keep-ended",
@@ -106,6 +111,7 @@ def test_keep_ended_refuses_what_is_no_duration(tmp_path):
     assert "--keep-ended TIME" in help_text and "default: keep forever" in help_text
 
 
+@pytest.mark.sanitize
 def test_delete_ended_removes_every_ended_job_and_no_other(data, cluster, tmp_path):
     """delete --ended: the done and the canceled job go, with their files,
     and it says which; the held one stays. Again: nothing to delete."""
@@ -130,6 +136,7 @@ def test_delete_ended_removes_every_ended_job_and_no_other(data, cluster, tmp_pa
     assert p.returncode == 2 and p.stderr.startswith("texsyn delete: delete needs a job id (or --ended)\n")
 
 
+@pytest.mark.sanitize
 def test_status_shows_engine_owner_times_progress_and_output(data, cluster, tmp_path):
     """The listing: a header, then per job its id, state (held behind the
     paused queue), engine, owner (the client's USER@HOST), times, progress
@@ -172,6 +179,7 @@ def test_status_shows_engine_owner_times_progress_and_output(data, cluster, tmp_
     assert listed(cluster)[held]["state"] == "done"
 
 
+@pytest.mark.sanitize
 def test_workers_shows_names_draining_and_dead(data, cluster, tmp_path):
     """texsyn workers: a header, each worker's --name; a draining worker
     at share 0; a killed one listed as dead with when it was dropped,
