@@ -38,6 +38,9 @@ typedef struct {
 /* A spec for `engine` (NULL: the default engine) with its defaults and
  * only the result: an image as png, or a flag output. */
 void ts_jobspec_default(ts_jobspec *s, const ts_engine *engine);
+/* Sets s->name from a path's last part, other bytes than printable ASCII
+ * as '?' (cut to fit). */
+void ts_jobspec_set_name(ts_jobspec *s, const char *path);
 /* Writes the spec; returns its length, or TS_ETOOBIG if cap is too small. */
 int ts_jobspec_format(const ts_jobspec *s, char *buf, size_t cap);
 /* Parses len bytes (need not be NUL-terminated). Every line is checked;
@@ -47,9 +50,6 @@ int ts_jobspec_parse(const char *text, size_t len, ts_jobspec *s, char *err);
 /* 1 if ext is a non-empty extension a spec accepts (letters and digits,
  * shorter than TS_EXT_LEN), else 0. */
 int ts_ext_valid(const char *ext);
-/* Sets s->name from a path's last part, other bytes than printable ASCII
- * as '?' (cut to fit). */
-void ts_jobspec_set_name(ts_jobspec *s, const char *path);
 /* The extension of a path ("png" for "a/b.png"), or "" without one. */
 const char *ts_path_ext(const char *path);
 
