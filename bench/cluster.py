@@ -58,7 +58,7 @@ def stop(procs):
 def wait_ready(build, addr, n):
     for _ in range(1200):  # calibration of several workers on a loaded machine
         out = subprocess.run([build / "texsyn", "workers", "--server", addr], capture_output=True, text=True).stdout
-        if out.count(" ready ") >= n:
+        if out.count(" active ") >= n:
             return
         time.sleep(0.05)
     sys.exit(f"bench: {n} workers not ready at {addr}")

@@ -231,7 +231,7 @@ def cpu_seconds(pid):
 def wait_ready(build, addr, n):
     for _ in range(1200):
         out = sh(*in_ns(NS_C, build / "texsyn", "workers", "--server", addr), check=False).stdout
-        if out.count(" ready ") >= n:
+        if out.count(" active ") >= n:
             return
         time.sleep(0.05)
     raise RuntimeError(f"{n} workers not ready at {addr}")

@@ -572,8 +572,8 @@ class Soak:
         rows = []
         for line in p.stdout.splitlines()[1:]:
             f = line.split()
-            if len(f) == 8 and f[1].isdigit():
-                rows.append((f[0], f[6]))
+            if len(f) >= 9 and f[2].isdigit():
+                rows.append((f[1], f[7]))
         return rows
 
     def status(self, client="-", jid=None):
@@ -589,7 +589,7 @@ class Soak:
         rows = None
         while time.time() < deadline:
             rows = self.pool()
-            if rows is not None and sum(1 for _, s in rows if s == "ready") >= n:
+            if rows is not None and sum(1 for _, s in rows if s == "active") >= n:
                 return True
             time.sleep(0.2)
         self.problems.append(f"{when}: the pool did not get {n} ready workers back within {POOL_TIMEOUT} s: {rows}")

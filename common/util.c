@@ -20,6 +20,12 @@ double ts_now(void) {
   return ts.tv_sec + ts.tv_nsec * 1e-9;
 }
 
+uint64_t ts_clock_ms(void) {
+  struct timespec ts;
+  clock_gettime(CLOCK_REALTIME, &ts);
+  return (uint64_t)ts.tv_sec * 1000u + (uint64_t)(ts.tv_nsec / 1000000);
+}
+
 struct timespec ts_wait_until(double seconds) {
   struct timespec ts;
   clock_gettime(CLOCK_REALTIME, &ts);

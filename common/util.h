@@ -11,6 +11,10 @@
 /* Seconds on the monotonic clock (for durations and deadlines only). */
 double ts_now(void);
 
+/* Milliseconds since the epoch on the realtime clock: when something
+ * happened, as a restart or another host can read it. */
+uint64_t ts_clock_ms(void);
+
 /* The moment `seconds` from now on the realtime clock, as
  * pthread_cond_timedwait takes it. */
 struct timespec ts_wait_until(double seconds);

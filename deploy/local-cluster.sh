@@ -67,7 +67,7 @@ start() {
   # Ready when every worker is calibrated.
   for _ in $(seq 1 200); do
     local ready
-    ready=$(TEXSYN_SERVER=$addr "$bin/texsyn" workers 2>/dev/null | grep -c ' ready ' || true)
+    ready=$(TEXSYN_SERVER=$addr "$bin/texsyn" workers 2>/dev/null | grep -c ' active ' || true)
     [ "$ready" -ge "$n" ] && break
     sleep 0.05
   done

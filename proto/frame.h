@@ -24,7 +24,7 @@
 
 #include "cursor.h"
 
-#define TS_PROTO_VERSION 5
+#define TS_PROTO_VERSION 6
 #define TS_FRAME_HEADER 12
 #define TS_FRAME_DEFAULT_MAX (64u << 20) /* payload limit unless configured */
 #define TS_FRAME_LIMIT_MIN 1024u /* the smallest payload limit a daemon takes (--max-frame) */
@@ -38,7 +38,7 @@ typedef struct {
 } ts_frame;
 
 void ts_frame_header(uint8_t out[TS_FRAME_HEADER], uint8_t type, uint32_t id, uint32_t len);
-/* `PROGRAM --version`: "texsyn-worker 0.1.0 (wire protocol 5)" on stdout. */
+/* `PROGRAM --version`: "texsyn-worker 0.1.0 (wire protocol 6)" on stdout. */
 void ts_version_print(const char *program);
 
 typedef struct {

@@ -756,6 +756,13 @@ void ts_msg_status_write(ts_wr *w, const ts_job_status *s, uint32_t n) {
     ts_wr_u32(w, s[i].eta_ms);
     ts_wr_u16(w, s[i].workers);
     ts_wr_str(w, s[i].text);
+    ts_wr_u8(w, s[i].flags);
+    ts_wr_u64(w, s[i].submitted_ms);
+    ts_wr_u64(w, s[i].started_ms);
+    ts_wr_u64(w, s[i].ended_ms);
+    ts_wr_str(w, s[i].engine);
+    ts_wr_str(w, s[i].owner);
+    ts_wr_str(w, s[i].output);
   }
 }
 
@@ -773,8 +780,17 @@ int ts_msg_status_read(const ts_frame *f, ts_job_status *s, uint32_t cap, uint32
     s[i].eta_ms = ts_rd_u32(&r);
     s[i].workers = ts_rd_u16(&r);
     ts_rd_str(&r, s[i].text, sizeof(s[i].text));
+    s[i].flags = ts_rd_u8(&r);
+    s[i].submitted_ms = ts_rd_u64(&r);
+    s[i].started_ms = ts_rd_u64(&r);
+    s[i].ended_ms = ts_rd_u64(&r);
+    ts_rd_str(&r, s[i].engine, sizeof(s[i].engine));
+    ts_rd_str(&r, s[i].owner, sizeof(s[i].owner));
+    ts_rd_str(&r, s[i].output, sizeof(s[i].output));
     if (r.failed) break;
     if (s[i].state >= TS_JOB_STATE_COUNT || s[i].permille > 1000) return bad(err, 'W', "job state");
+    if (s[i].flags & ~TS_JOB_HELD || ((s[i].flags & TS_JOB_HELD) && s[i].state != TS_JOB_QUEUED))
+      return bad(err, 'W', "job flags");
   }
   return finish(&r, err, 'W');
 }
@@ -821,6 +837,8 @@ void ts_msg_pool_write(ts_wr *w, const ts_worker_info *wi, uint32_t n) {
     ts_wr_u64(w, wi[i].rate);
     ts_wr_u16(w, wi[i].share);
     ts_wr_u64(w, wi[i].batches);
+    ts_wr_str(w, wi[i].name);
+    ts_wr_u64(w, wi[i].died_ms);
   }
 }
 
@@ -838,8 +856,11 @@ int ts_msg_pool_read(const ts_frame *f, ts_worker_info *wi, uint32_t cap, uint32
     wi[i].rate = ts_rd_u64(&r);
     wi[i].share = ts_rd_u16(&r);
     wi[i].batches = ts_rd_u64(&r);
+    ts_rd_str(&r, wi[i].name, sizeof(wi[i].name));
+    wi[i].died_ms = ts_rd_u64(&r);
     if (r.failed) break;
     if (wi[i].state >= TS_WORKER_STATE_COUNT || wi[i].share > 1000) return bad(err, 'P', "worker record");
+    if ((wi[i].died_ms != 0) != (wi[i].state == TS_WORKER_FAILED)) return bad(err, 'P', "worker death time");
   }
   return finish(&r, err, 'P');
 }

@@ -331,6 +331,11 @@ typedef struct {
   uint8_t follow;
 } ts_msg_status_req;
 
+/* Flags of a job record. HELD: queued while the queue is paused (texsyn
+ * status says "held"): it starts only once the queue is resumed. */
+#define TS_JOB_HELD 0x1u
+#define TS_JOB_ENGINE_MAX 32
+
 typedef struct {
   uint64_t id;
   uint8_t state, level, levels;
@@ -338,6 +343,14 @@ typedef struct {
   uint32_t eta_ms; /* UINT32_MAX = unknown */
   uint16_t workers;
   char text[TS_ERR_LEN]; /* failure reason, or a short description */
+  uint8_t flags;         /* TS_JOB_HELD */
+  /* When it was submitted, started (the last time: a restart runs it
+   * again) and ended, in ms since the epoch on the coordinator's clock;
+   * 0 = not yet, or not known (a job ended before a restart has no start). */
+  uint64_t submitted_ms, started_ms, ended_ms;
+  char engine[TS_JOB_ENGINE_MAX];  /* "synth", "stylize", ...; "unknown" if its spec is damaged */
+  char owner[TS_MSG_NAME_MAX];     /* the submitting client, as it named itself: USER@HOST */
+  char output[TS_MSG_NAME_MAX];    /* the result's name: the file the client asked for, else the spool's */
 } ts_job_status;
 
 void ts_msg_status_req_write(ts_wr *w, const ts_msg_status_req *m);
@@ -371,11 +384,15 @@ typedef struct {
   uint64_t calibrated; /* bytes of vectors scanned per second at calibration */
   uint64_t rate;       /* bytes per second the slices are sized with
                           (calibrated, then measured on batches) */
-  uint16_t share;      /* slice share, per mille */
+  uint16_t share;      /* slice share, per mille (0 while draining or dead) */
   uint64_t batches;
+  char name[TS_MSG_NAME_MAX]; /* its --name; "" without one */
+  uint64_t died_ms; /* FAILED: when it was dropped (ms since the epoch); else 0 */
 } ts_worker_info;
 
-/* DRAINING: its Modbus `drain` coil is set; it holds and gets no slice. */
+/* DRAINING: its Modbus `drain` coil is set; it holds and gets no slice.
+ * FAILED: dropped from the pool (dead); listed until the coordinator
+ * forgets it (cluster.h). */
 enum { TS_WORKER_CALIBRATING = 0, TS_WORKER_READY, TS_WORKER_FAILED, TS_WORKER_DRAINING, TS_WORKER_STATE_COUNT };
 const char *ts_worker_state_name(int state);
 

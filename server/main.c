@@ -343,6 +343,10 @@ static void usage(FILE *f) {
           "                            (default 100; 0 = no limit)\n"
           "  --max-spool BYTES         disk the spool's jobs may use, e.g. 500M, 20G\n"
           "                            (default 16G; 0 = no limit); texsyn delete frees it\n"
+          "  --keep-ended TIME         remove a finished job (done, failed or canceled) and\n"
+          "                            its files this long after it ended: seconds, or with\n"
+          "                            a unit: 90s, 30m, 12h, 7d (default: keep forever;\n"
+          "                            texsyn delete ID or delete --ended removes them)\n"
           "  --checkpoint-interval S   checkpoint a running job inside a level every S\n"
           "                            seconds of work, 0..86400 (default 5; 0 = after\n"
           "                            whole levels only): a restart redoes at most that\n"
@@ -375,7 +379,7 @@ typedef struct {
   int jobs, quiet, modbus_control;
   uint64_t max_pixels, max_spool;
   uint32_t max_client_jobs;
-  double checkpoint_interval, stop_grace;
+  double checkpoint_interval, stop_grace, keep_ended;
   ts_cluster_opts co;
 } server_opts;
 
@@ -405,6 +409,31 @@ static int bytes_opt(const char *opt, const char *s, uint64_t *out) {
   return 0;
 }
 
+/* A duration: seconds, or a number with a unit s, m, h or d; more than 0
+ * and at most 100 years. */
+static int duration_opt(const char *opt, const char *s, double *out) {
+  static const struct {
+    char unit;
+    double seconds;
+  } units[] = {{'s', 1}, {'m', 60}, {'h', 3600}, {'d', 86400}};
+  char *end;
+  errno = 0;
+  double v = strtod(s, &end);
+  int ok = errno == 0 && end != s && (*end == '\0' || end[1] == '\0');
+  if (ok && *end != '\0') {
+    size_t i = 0;
+    while (i < sizeof(units) / sizeof(units[0]) && units[i].unit != *end) i++;
+    ok = i < sizeof(units) / sizeof(units[0]);
+    if (ok) v *= units[i].seconds;
+  }
+  if (!ok || !(v > 0 && v <= 100 * 365 * 86400.0)) {
+    fprintf(stderr, "texsyn-server: %s %s: need a duration above 0 such as 3600, 90s, 30m, 12h or 7d\n", opt, s);
+    return -1;
+  }
+  *out = v;
+  return 0;
+}
+
 static int rebalance_from(const char *s, int *out) {
   if (strcmp(s, "both") == 0) *out = TS_REBALANCE_BATCHES | TS_REBALANCE_MODBUS;
   else if (strcmp(s, "batches") == 0) *out = TS_REBALANCE_BATCHES;
@@ -417,7 +446,7 @@ static int rebalance_from(const char *s, int *out) {
 }
 
 static int parse_opts(int argc, char **argv, server_opts *o) {
-  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_MAX_WORKERS, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_CKPT, O_GRACE, O_SECRET, O_MODBUS, O_MB_CONTROL, O_MB_POLL, O_REBAL_FROM, O_HTTP, O_QUIET, O_HELP, O_VERSION };
+  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_MAX_WORKERS, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_KEEP, O_CKPT, O_GRACE, O_SECRET, O_MODBUS, O_MB_CONTROL, O_MB_POLL, O_REBAL_FROM, O_HTTP, O_QUIET, O_HELP, O_VERSION };
   static const struct option longopts[] = {
       {"listen", required_argument, 0, O_LISTEN}, {"workers", required_argument, 0, O_WORKERS},
       {"spool", required_argument, 0, O_SPOOL}, {"jobs", required_argument, 0, O_JOBS},
@@ -429,6 +458,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
       {"max-workers", required_argument, 0, O_MAX_WORKERS},
       {"max-frame", required_argument, 0, O_FRAME}, {"max-pixels", required_argument, 0, O_PIX},
       {"max-client-jobs", required_argument, 0, O_CLIENT_JOBS}, {"max-spool", required_argument, 0, O_SPOOL_MAX},
+      {"keep-ended", required_argument, 0, O_KEEP},
       {"checkpoint-interval", required_argument, 0, O_CKPT}, {"stop-grace", required_argument, 0, O_GRACE},
       {"secret-file", required_argument, 0, O_SECRET},
       {"modbus", required_argument, 0, O_MODBUS}, {"modbus-control", no_argument, 0, O_MB_CONTROL},
@@ -472,6 +502,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
     case O_PIX: rc = num("--max-pixels", optarg, 1, 1e15, &v); o->max_pixels = (uint64_t)v; break;
     case O_CLIENT_JOBS: rc = num("--max-client-jobs", optarg, 0, 1e6, &v); o->max_client_jobs = (uint32_t)v; break;
     case O_SPOOL_MAX: rc = bytes_opt("--max-spool", optarg, &o->max_spool); break;
+    case O_KEEP: rc = duration_opt("--keep-ended", optarg, &o->keep_ended); break;
     case O_CKPT: rc = num("--checkpoint-interval", optarg, 0, 86400, &o->checkpoint_interval); break;
     case O_GRACE: rc = num("--stop-grace", optarg, 0, 3600, &o->stop_grace); break;
     case O_SECRET: o->secret_file = optarg; break;
@@ -578,7 +609,7 @@ int main(int argc, char **argv) {
   }
   if (o.workers != NULL && add_workers(g_server.cluster, o.workers) != 0) return 2;
   ts_jobs_opts jo = {o.spool, o.jobs, o.max_pixels, o.max_client_jobs, o.max_spool, g_server.cluster,
-                     o.checkpoint_interval, o.stop_grace};
+                     o.checkpoint_interval, o.stop_grace, o.keep_ended};
   if (ts_jobs_create(&g_server.jobs, &jo, err) != 0) {
     fprintf(stderr, "texsyn-server: %s\n", err);
     return 1;

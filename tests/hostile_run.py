@@ -251,20 +251,22 @@ class Batch:
             if not self.hostile.alive():
                 self.revive()
             p = cli(self.build, "workers", "--server", self.server.addr, timeout=30)
-            if p.returncode == 0 and p.stdout.count(" ready ") >= 2:
+            if p.returncode == 0 and p.stdout.count(" active ") >= 2:
                 return True
             time.sleep(0.05)
         return False
 
     def history(self):
-        """{id: (state, text)} of every job (`texsyn status`)."""
+        """{id: (state, text)} of every job (`texsyn status`: under its
+        header, id, state and seven more columns, then the text two spaces
+        after the output's name)."""
         p = cli(self.build, "status", "--server", self.server.addr, timeout=30)
         jobs = {}
         for line in p.stdout.splitlines():
-            m = re.match(r"(\d+)\s+(\w+)\s*(.*)$", line)
-            if m:
-                assert int(m.group(1)) not in jobs, f"job {m.group(1)} listed twice"
-                jobs[int(m.group(1))] = (m.group(2), m.group(3).strip())
+            f = line.split(None, 8)
+            if len(f) == 9 and f[0].isdigit():
+                assert int(f[0]) not in jobs, f"job {f[0]} listed twice"
+                jobs[int(f[0])] = (f[1], f[8].partition("  ")[2].strip())
         return jobs
 
     def run(self, specs, want, counts):

@@ -268,8 +268,11 @@ static void remote_progress(progress_view *v, const ts_job_status *s) {
   double t = ts_now();
   unsigned long long id = (unsigned long long)s->id;
   if (s->state == TS_JOB_QUEUED) {
-    if (v->mode == TS_PROGRESS_LINES && line_due(v, 0, "", t)) fprintf(stderr, "texsyn %s: job %llu queued\n", v->cmd, id);
-    if (v->mode == TS_PROGRESS_BAR) fprintf(stderr, "\rjob %llu queued (%.0fs) ", id, t - v->start);
+    /* Held: the coordinator's queue is paused; a change of that is a new line. */
+    const char *what = s->flags & TS_JOB_HELD ? "held: the coordinator's queue is paused" : "queued";
+    if (v->mode == TS_PROGRESS_LINES && line_due(v, 0, what, t))
+      fprintf(stderr, "texsyn %s: job %llu %s\n", v->cmd, id, what);
+    if (v->mode == TS_PROGRESS_BAR) fprintf(stderr, "\rjob %llu %s (%.0fs) ", id, what, t - v->start);
     fflush(stderr);
     return;
   }
@@ -499,6 +502,7 @@ int ts_job_submit(ts_conn *c, const ts_job_cmd *o, uint64_t *id, char *err) {
   ts_jobspec js = o->spec;
   char spec[TS_SPEC_MAX];
   set_wants(o, &js);
+  ts_jobspec_set_name(&js, result_name(o)); /* for texsyn status */
   int n = ts_jobspec_format(&js, spec, sizeof(spec));
   if (n < 0) return ts_error(err, TS_ETOOBIG, "job spec too long");
   ts_engine_inputs names;

@@ -172,11 +172,19 @@ static int cmd_simd(void) {
 
 /* ---- job commands --------------------------------------------------------- */
 
+enum { OPT_ENDED = OPT_NNF + 1 }; /* delete --ended */
+
 static const char *kJobUsage =
-    "usage: texsyn status [ID] | watch ID | fetch ID -o OUT | cancel ID | delete ID | workers\n"
-    "              [--server HOST:PORT]\n"
+    "usage: texsyn status [ID] | watch ID | fetch ID -o OUT | cancel ID | delete ID|--ended\n"
+    "              | workers [--server HOST:PORT]\n"
     "\n"
-    "  status [ID]   one job, or every job the coordinator knows\n"
+    "  status [ID]   every job the coordinator knows, a line each under a header: id,\n"
+    "                state (queued, held: queued while the queue is paused, running,\n"
+    "                done, failed, canceled), engine, owner (the client's USER@HOST),\n"
+    "                when it was submitted, started and ended (local time today,\n"
+    "                else the date), progress, output (the -o name it was submitted\n"
+    "                with), then what it does or why it ended; with ID that job's\n"
+    "                line and every field in full\n"
     "  watch ID      follow a job (level, % of blocks, ETA, workers) until it ends\n"
     "  fetch ID      write a finished job's results: -o OUT (the image, or an energy\n"
     "                job's JSON) and those of the side outputs asked for when it\n"
@@ -187,9 +195,14 @@ static const char *kJobUsage =
     "  cancel ID     stop a queued or running job\n"
     "  delete ID     remove a finished, failed or canceled job and its files from the\n"
     "                coordinator's spool (frees space under its --max-spool limit)\n"
-    "  workers       the worker pool: address, threads, kernel, calibrated rate and the\n"
-    "                rate slices are sized with (bytes scanned/s; measured on batches once\n"
-    "                a lasting deviation rebalanced them), slice share, state, batches\n"
+    "  delete --ended  every job that has ended (texsyn-server --keep-ended does it\n"
+    "                after a time); prints how many and which\n"
+    "  workers       the worker pool under a header: name (--name), address, threads,\n"
+    "                kernel, calibrated rate and the rate slices are sized with (bytes\n"
+    "                scanned/s; measured on batches once a lasting deviation rebalanced\n"
+    "                them), slice share (0 while draining or dead), state (calibrating,\n"
+    "                active, draining, dead: dropped, shown with when for an hour or\n"
+    "                until it rejoins), batches\n"
     "\n"
     "  --server HOST:PORT   the coordinator (default: $TEXSYN_SERVER, else 127.0.0.1:7070)\n"
     "  --secret-file PATH   the shared secret the coordinator requires\n"
@@ -200,7 +213,7 @@ static const char *kJobUsage =
 typedef struct {
   const char *server, *secret_file;
   uint64_t id;
-  int have_id, quiet;
+  int have_id, quiet, ended;
   ts_output_paths t;
 } job_opts;
 
@@ -211,7 +224,7 @@ static int job_parse(int argc, char **argv, job_opts *o, char *err) {
       {"usage-map", required_argument, 0, OPT_USAGE_MAP}, {"report", required_argument, 0, TS_OPT_REPORT},
       {"nnf", required_argument, 0, OPT_NNF},             {"quiet", no_argument, 0, TS_OPT_QUIET},
       {"help", no_argument, 0, TS_OPT_HELP},              {"secret-file", required_argument, 0, TS_OPT_SECRET},
-      {0, 0, 0, 0}};
+      {"ended", no_argument, 0, OPT_ENDED},               {0, 0, 0, 0}};
   memset(o, 0, sizeof(*o));
   o->server = ts_env_server() ? ts_env_server() : ts_default_server;
   optind = 1;
@@ -222,6 +235,7 @@ static int job_parse(int argc, char **argv, job_opts *o, char *err) {
     case TS_OPT_SERVER: o->server = optarg; break;
     case TS_OPT_SECRET: o->secret_file = optarg; break;
     case TS_OPT_QUIET: o->quiet = 1; break;
+    case OPT_ENDED: o->ended = 1; break;
     case TS_OPT_HELP: case 'h': printf("%s", kJobUsage); exit(0);
     case 'o': ts_output_set(&o->t, "output", optarg); break;
     case TS_OPT_REPORT: ts_output_set(&o->t, "report", optarg); break;
@@ -240,34 +254,177 @@ static int job_parse(int argc, char **argv, job_opts *o, char *err) {
   return 0;
 }
 
-static void print_status(const ts_job_status *s) {
-  printf("%-6llu %-9s", (unsigned long long)s->id, ts_job_state_name(s->state));
-  if (s->state == TS_JOB_RUNNING) {
-    printf(" level %d of %d %5.1f%%", s->levels - s->level, s->levels, s->permille / 10.0);
-    if (s->eta_ms != UINT32_MAX) printf(" ETA %.1fs", s->eta_ms / 1000.0);
-    printf(" %u worker%s", s->workers, s->workers == 1 ? "" : "s");
+/* ---- what status and workers show ---------------------------------------- */
+
+/* A job's state as an operator reads it: a queued job behind a paused
+ * queue is held. */
+static const char *state_shown(const ts_job_status *s) {
+  return s->flags & TS_JOB_HELD ? "held" : ts_job_state_name(s->state);
+}
+
+/* A time in a listing: the clock time for today, the date before (local
+ * time); "-" for none. */
+static void time_compact(uint64_t ms, char *out, size_t cap) {
+  if (ms == 0) {
+    snprintf(out, cap, "-");
+    return;
   }
-  if (s->text[0]) printf(" %s", s->text);
+  time_t t = (time_t)(ms / 1000), now = time(NULL);
+  struct tm at, today;
+  localtime_r(&t, &at);
+  localtime_r(&now, &today);
+  int same_day = at.tm_year == today.tm_year && at.tm_yday == today.tm_yday;
+  strftime(out, cap, same_day ? "%H:%M:%S" : "%Y-%m-%d", &at);
+}
+
+/* A span of seconds as people say it: 0.4s, 12s, 3m05s, 2h10m, 3d04h. */
+static void span_of(double s, char *out, size_t cap) {
+  long v = (long)s;
+  if (s < 10) snprintf(out, cap, "%.1fs", s < 0 ? 0.0 : s);
+  else if (v < 60) snprintf(out, cap, "%lds", v);
+  else if (v < 3600) snprintf(out, cap, "%ldm%02lds", v / 60, v % 60);
+  else if (v < 86400) snprintf(out, cap, "%ldh%02ldm", v / 3600, v % 3600 / 60);
+  else snprintf(out, cap, "%ldd%02ldh", v / 86400, v % 86400 / 3600);
+}
+
+/* A time in detail: local date and time, how long ago. */
+static void time_full(uint64_t ms, char *out, size_t cap) {
+  if (ms == 0) {
+    snprintf(out, cap, "-");
+    return;
+  }
+  time_t t = (time_t)(ms / 1000);
+  struct tm at;
+  localtime_r(&t, &at);
+  char when[64], ago[32];
+  strftime(when, sizeof(when), "%Y-%m-%d %H:%M:%S %Z", &at);
+  span_of((double)time(NULL) - (double)t, ago, sizeof(ago));
+  snprintf(out, cap, "%s (%s ago)", when, ago);
+}
+
+/* How far a job got: "42.0%", or "-" before it ran. */
+static void progress_compact(const ts_job_status *s, char *out, size_t cap) {
+  if (s->state == TS_JOB_RUNNING || s->state == TS_JOB_DONE || s->permille > 0)
+    snprintf(out, cap, "%.1f%%", s->permille / 10.0);
+  else snprintf(out, cap, "-");
+}
+
+/* What a job is doing or why it ended, one line: the level, ETA and
+ * workers of a running job, then its text. */
+static void note_of(const ts_job_status *s, char *out, size_t cap) {
+  int n = 0;
+  if (s->state == TS_JOB_RUNNING) {
+    char eta[32] = "ETA ?";
+    if (s->eta_ms != UINT32_MAX) snprintf(eta, sizeof(eta), "ETA %.1fs", s->eta_ms / 1000.0);
+    n = snprintf(out, cap, "level %d of %d, %s, %u worker%s", s->levels - s->level, s->levels, eta, s->workers,
+                 s->workers == 1 ? "" : "s");
+  } else if (s->flags & TS_JOB_HELD) {
+    n = snprintf(out, cap, "the queue is paused; it starts once resumed (texsyn modbus ... --set pause=0)");
+  } else {
+    out[0] = '\0';
+  }
+  if (s->text[0] && n >= 0 && (size_t)n < cap) snprintf(out + n, cap - (size_t)n, "%s%s", n ? ": " : "", s->text);
+}
+
+/* One line per job: the summary `texsyn watch` ends with. */
+static void print_status(const ts_job_status *s) {
+  char note[TS_ERR_LEN + 128];
+  note_of(s, note, sizeof(note));
+  if (note[0]) printf("%-6llu %-9s %s\n", (unsigned long long)s->id, state_shown(s), note);
+  else printf("%-6llu %s\n", (unsigned long long)s->id, state_shown(s));
+}
+
+/* `texsyn status ID`: the summary, then every field. */
+static void print_detail(const ts_job_status *s) {
+  char buf[128], span[32];
+  print_status(s);
+  printf("  engine     %s\n  owner      %s\n  output     %s\n", s->engine, s->owner, s->output[0] ? s->output : "-");
+  time_full(s->submitted_ms, buf, sizeof(buf));
+  printf("  submitted  %s\n", buf);
+  time_full(s->started_ms, buf, sizeof(buf));
+  printf("  started    %s", buf);
+  if (s->started_ms >= s->submitted_ms && s->started_ms != 0 && s->submitted_ms != 0) {
+    span_of((double)(s->started_ms - s->submitted_ms) / 1000.0, span, sizeof(span));
+    printf(", %s after it was submitted", span);
+  }
+  time_full(s->ended_ms, buf, sizeof(buf));
+  printf("\n  ended      %s", buf);
+  if (s->ended_ms >= s->started_ms && s->started_ms != 0 && s->ended_ms != 0) {
+    span_of((double)(s->ended_ms - s->started_ms) / 1000.0, span, sizeof(span));
+    printf(", ran %s", span);
+  }
+  progress_compact(s, buf, sizeof(buf));
+  printf("\n  progress   %s", buf);
+  if (s->levels > 0 && s->state == TS_JOB_RUNNING) printf(" (level %d of %d)", s->levels - s->level, s->levels);
   printf("\n");
 }
 
-static int job_status(ts_conn *c, const job_opts *o, char *err) {
+/* Column widths of the listing: the widest of the header and the values. */
+typedef struct {
+  int state, engine, owner;
+} list_widths;
+
+static int widest(int w, const char *s) {
+  int n = (int)strlen(s);
+  return n > w ? n : w;
+}
+
+/* `texsyn status`: a header, then a line per job, oldest first. */
+static void print_list(const ts_job_status *s, uint32_t n) {
+  list_widths w = {5, 6, 5};
+  for (uint32_t i = 0; i < n; i++) {
+    w.state = widest(w.state, state_shown(&s[i]));
+    w.engine = widest(w.engine, s[i].engine);
+    w.owner = widest(w.owner, s[i].owner);
+  }
+  printf("%-6s %-*s %-*s %-*s %-10s %-10s %-10s %-8s %s\n", "ID", w.state, "STATE", w.engine, "ENGINE", w.owner,
+         "OWNER", "SUBMITTED", "STARTED", "ENDED", "PROGRESS", "OUTPUT");
+  for (uint32_t i = 0; i < n; i++) {
+    char sub[32], start[32], end[32], prog[32], note[TS_ERR_LEN + 128];
+    time_compact(s[i].submitted_ms, sub, sizeof(sub));
+    time_compact(s[i].started_ms, start, sizeof(start));
+    time_compact(s[i].ended_ms, end, sizeof(end));
+    progress_compact(&s[i], prog, sizeof(prog));
+    note_of(&s[i], note, sizeof(note));
+    printf("%-6llu %-*s %-*s %-*s %-10s %-10s %-10s %-8s %s%s%s\n", (unsigned long long)s[i].id, w.state,
+           state_shown(&s[i]), w.engine, s[i].engine, w.owner, s[i].owner, sub, start, end, prog,
+           s[i].output[0] ? s[i].output : "-", note[0] ? "  " : "", note);
+  }
+  if (n == 0) printf("(no jobs)\n");
+}
+
+/* The records of one job (id) or of every job (0): *out is malloc'd. */
+static int fetch_records(ts_conn *c, uint64_t id, ts_job_status **out, uint32_t *n, char *err) {
   ts_wr w;
   ts_wr_init(&w);
-  ts_msg_status_req req = {o->have_id ? o->id : 0, 0};
+  ts_msg_status_req req = {id, 0};
   ts_msg_status_req_write(&w, &req);
   ts_frame f;
   int rc = ts_client_call(c, TS_MSG_STATUS, &w, 30000, &f, err);
   ts_wr_free(&w);
-  /* As many records as the reply can hold: each takes at least 21 bytes. */
-  uint32_t cap = rc == 0 ? f.len / 21 + 1 : 0;
-  ts_job_status *s = rc == 0 ? malloc(sizeof(*s) * cap) : NULL;
-  uint32_t n = 0;
-  if (rc == 0 && s == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory for %u job records", cap);
-  if (rc == 0) rc = ts_msg_status_read(&f, s, cap, &n, err);
-  for (uint32_t i = 0; rc == 0 && i < n; i++) print_status(&s[i]);
+  /* As many records as the reply can hold: each takes at least 52 bytes. */
+  uint32_t cap = rc == 0 ? f.len / 52 + 1 : 0;
+  *out = rc == 0 ? malloc(sizeof(**out) * cap) : NULL;
+  *n = 0;
+  if (rc == 0 && *out == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory for %u job records", cap);
+  if (rc == 0) rc = ts_msg_status_read(&f, *out, cap, n, err);
+  return rc;
+}
+
+static int job_status(ts_conn *c, const job_opts *o, char *err) {
+  ts_job_status *s;
+  uint32_t n;
+  int rc = fetch_records(c, o->have_id ? o->id : 0, &s, &n, err);
+  if (rc == 0 && o->have_id && n != 1) rc = ts_error(err, TS_EPROTO, "%u records for one job", n);
+  if (rc == 0 && o->have_id) print_detail(s);
+  else if (rc == 0) print_list(s, n);
   free(s);
   return rc;
+}
+
+/* A worker's state as an operator reads it. */
+static const char *worker_state_shown(int state) {
+  return state == TS_WORKER_READY ? "active" : state == TS_WORKER_FAILED ? "dead" : ts_worker_state_name(state);
 }
 
 static int job_workers(ts_conn *c, const job_opts *o, char *err) {
@@ -280,13 +437,22 @@ static int job_workers(ts_conn *c, const job_opts *o, char *err) {
   uint32_t n = 0;
   if (rc == 0 && wi == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
   if (rc == 0) rc = ts_msg_pool_read(&f, wi, TS_POOL_MAX_REPORT, &n, err);
-  if (rc == 0) printf("%-24s %7s %-7s %12s %12s %6s %-11s %9s\n", "address", "threads", "simd", "calibrated", "rate",
-                      "share", "state", "batches");
+  int wn = 4;
+  for (uint32_t i = 0; rc == 0 && i < n; i++) wn = widest(wn, wi[i].name[0] ? wi[i].name : "-");
+  if (rc == 0)
+    printf("%-*s %-24s %7s %-7s %12s %12s %6s %-11s %9s\n", wn, "NAME", "ADDRESS", "THREADS", "SIMD", "CALIBRATED",
+           "RATE", "SHARE", "STATE", "BATCHES");
   for (uint32_t i = 0; rc == 0 && i < n; i++) {
     const ts_l1_impl *impl = ts_l1_impl_get((ts_simd)wi[i].simd);
-    printf("%-24s %7u %-7s %12.4g %12.4g %5.1f%% %-11s %9llu\n", wi[i].addr, wi[i].threads, impl ? impl->name : "?",
-           (double)wi[i].calibrated, (double)wi[i].rate, wi[i].share / 10.0, ts_worker_state_name(wi[i].state),
-           (unsigned long long)wi[i].batches);
+    printf("%-*s %-24s %7u %-7s %12.4g %12.4g %5.1f%% %-11s %9llu", wn, wi[i].name[0] ? wi[i].name : "-", wi[i].addr,
+           wi[i].threads, impl ? impl->name : "?", (double)wi[i].calibrated, (double)wi[i].rate, wi[i].share / 10.0,
+           worker_state_shown(wi[i].state), (unsigned long long)wi[i].batches);
+    if (wi[i].died_ms != 0) {
+      char when[128];
+      time_full(wi[i].died_ms, when, sizeof(when));
+      printf("  dropped %s", when);
+    }
+    printf("\n");
   }
   if (rc == 0 && n == 0) printf("(no workers: the coordinator scans by itself)\n");
   free(wi);
@@ -335,7 +501,42 @@ static int job_cancel(ts_conn *c, const job_opts *o, char *err) {
   return rc == 0 ? job_cancel_wait(c, o->id, err) : rc;
 }
 
-static int job_delete(ts_conn *c, const job_opts *o, char *err) { return job_request(c, TS_MSG_DELETE, o, err); }
+/* delete --ended: every job that has ended, each by its own request; one
+ * gone meanwhile (deleted by another client, expired) is not missed. */
+static int delete_ended(ts_conn *c, const job_opts *o, char *err) {
+  ts_job_status *s;
+  uint32_t n, deleted = 0;
+  int rc = fetch_records(c, 0, &s, &n, err);
+  char ids[1024] = "";
+  size_t len = 0;
+  for (uint32_t i = 0; rc == 0 && i < n; i++) {
+    if (s[i].state < TS_JOB_DONE) continue;
+    job_opts one = *o;
+    one.id = s[i].id;
+    rc = job_request(c, TS_MSG_DELETE, &one, err);
+    if (rc == TS_ENOENT) {
+      rc = 0;
+      continue;
+    }
+    if (rc != 0) break;
+    deleted++;
+    int k = snprintf(ids + len, sizeof(ids) - len, "%s%llu (%s)", len ? ", " : "", (unsigned long long)s[i].id,
+                     ts_job_state_name(s[i].state));
+    if (k > 0 && (size_t)k < sizeof(ids) - len) len += (size_t)k;
+    else if (len + 4 < sizeof(ids)) len += (size_t)snprintf(ids + len, sizeof(ids) - len, "...");
+  }
+  free(s);
+  if (deleted > 0) printf("deleted %u ended job%s: %s\n", deleted, deleted == 1 ? "" : "s", ids);
+  else if (rc == 0) printf("no ended jobs to delete\n");
+  return rc;
+}
+
+static int job_delete(ts_conn *c, const job_opts *o, char *err) {
+  if (o->ended) return delete_ended(c, o, err);
+  int rc = job_request(c, TS_MSG_DELETE, o, err);
+  if (rc == 0) printf("job %llu deleted\n", (unsigned long long)o->id);
+  return rc;
+}
 
 /* ---- the command table ------------------------------------------------ */
 
@@ -420,8 +621,14 @@ static int cmd_job(const command *cmd, int argc, char **argv) {
   char err[TS_ERR_LEN] = "";
   job_opts o;
   int rc = job_parse(argc, argv, &o, err);
-  if (rc == 0 && cmd->needs_id && !o.have_id)
-    rc = ts_error(err, TS_EINVAL, "%s needs a job id\n%s", cmd->name, kJobUsage);
+  int by_state = cmd->job == job_delete && o.ended; /* delete --ended takes no id */
+  if (rc == 0 && o.ended && cmd->job != job_delete)
+    rc = ts_error(err, TS_EINVAL, "--ended is an option of texsyn delete only");
+  else if (rc == 0 && by_state && o.have_id)
+    rc = ts_error(err, TS_EINVAL, "delete takes a job id or --ended, not both");
+  else if (rc == 0 && cmd->needs_id && !o.have_id && !by_state)
+    rc = ts_error(err, TS_EINVAL, "%s needs a job id%s\n%s", cmd->name, cmd->job == job_delete ? " (or --ended)" : "",
+                  kJobUsage);
   if (rc == 0 && cmd->job == job_fetch && ts_output_path(&o.t, "output") == NULL)
     rc = ts_error(err, TS_EINVAL, "fetch needs -o OUT");
   if (rc != 0) {

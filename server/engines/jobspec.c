@@ -28,6 +28,11 @@ int ts_jobspec_format(const ts_jobspec *s, char *buf, size_t cap) {
   int k = e->spec_format(&s->params, buf + n, cap - (size_t)n);
   if (k < 0) return k;
   n += k;
+  if (s->name[0] != '\0') {
+    k = snprintf(buf + n, cap - (size_t)n, "name=%s\n", s->name);
+    if (k < 0 || (size_t)k >= cap - (size_t)n) return TS_ETOOBIG;
+    n += k;
+  }
   for (int i = 0; i < e->noutputs; i++) {
     const char *v = s->wants.want[i];
     if (e->outputs[i].kind == TS_OUTPUT_FLAG) v = v[0] ? "1" : "0";
@@ -88,9 +93,30 @@ static int set_output(ts_jobspec *s, const char *k, const char *v) {
   return 0;
 }
 
+static int printable(unsigned char c) { return c >= 0x20 && c < 0x7f; }
+
+void ts_jobspec_set_name(ts_jobspec *s, const char *path) {
+  const char *slash = strrchr(path, '/');
+  const char *p = slash ? slash + 1 : path;
+  size_t n = 0;
+  for (; p[n] != '\0' && n + 1 < sizeof(s->name); n++) s->name[n] = printable((unsigned char)p[n]) ? p[n] : '?';
+  s->name[n] = '\0';
+}
+
+/* The result's name on the client: shown, never a path here. */
+static int set_name(ts_jobspec *s, const char *v) {
+  size_t n = strlen(v);
+  if (n == 0 || n >= sizeof(s->name)) return TS_EINVAL;
+  for (size_t i = 0; i < n; i++)
+    if (!printable((unsigned char)v[i])) return TS_EINVAL;
+  memcpy(s->name, v, n + 1);
+  return 0;
+}
+
 /* 0, TS_EINVAL for a bad value, TS_ENOENT for an unknown key. */
 static int set_key(ts_jobspec *s, const char *k, const char *v) {
   if (strcmp(k, "engine") == 0) return strcmp(v, s->engine->name) == 0 ? 0 : TS_EINVAL;
+  if (strcmp(k, "name") == 0) return set_name(s, v);
   int rc = set_output(s, k, v);
   return rc != TS_ENOENT ? rc : s->engine->spec_set(&s->params, k, v);
 }

@@ -14,7 +14,11 @@
  * An image output's value is a file extension (the format of the file the
  * coordinator writes), empty or absent meaning not wanted. A flag output is
  * 0 or 1. The engine's first output, its result (an image, or a flag
- * output such as energy's JSON), is required. */
+ * output such as energy's JSON), is required.
+ *
+ * `name` (optional, any engine) is the file name the client gave the
+ * result (-o's last part), for `texsyn status` to show; it changes
+ * nothing in the job. Printable ASCII, 1..TS_JOBSPEC_NAME_LEN - 1 bytes. */
 #ifndef TS_JOBSPEC_H
 #define TS_JOBSPEC_H
 
@@ -22,15 +26,21 @@
 
 #include "engine.h"
 
+#define TS_JOBSPEC_NAME_LEN 128
+
 typedef struct {
   const ts_engine *engine;
   ts_engine_params params; /* the engine's parameter struct */
   ts_engine_wants wants;   /* the outputs asked for */
+  char name[TS_JOBSPEC_NAME_LEN]; /* the result's file name on the client; "" if not given */
 } ts_jobspec;
 
 /* A spec for `engine` (NULL: the default engine) with its defaults and
  * only the result: an image as png, or a flag output. */
 void ts_jobspec_default(ts_jobspec *s, const ts_engine *engine);
+/* Sets s->name from a path's last part, other bytes than printable ASCII
+ * as '?' (cut to fit). */
+void ts_jobspec_set_name(ts_jobspec *s, const char *path);
 /* Writes the spec; returns its length, or TS_ETOOBIG if cap is too small. */
 int ts_jobspec_format(const ts_jobspec *s, char *buf, size_t cap);
 /* Parses len bytes (need not be NUL-terminated). Every line is checked;

@@ -83,11 +83,9 @@ static enum MHD_Result respond_text(struct MHD_Connection *c, ts_text *t, const 
 static int snapshot_take(ts_http_snapshot *s) {
   memset(s, 0, sizeof(*s));
   ts_job_status *jobs = malloc(sizeof(*jobs) * HTTP_MAX_JOBS);
-  const char **engines = malloc(sizeof(*engines) * HTTP_MAX_JOBS);
   ts_worker_info *workers = malloc(sizeof(*workers) * TS_POOL_MAX_REPORT);
-  if (jobs == NULL || engines == NULL || workers == NULL) {
+  if (jobs == NULL || workers == NULL) {
     free(jobs);
-    free(engines);
     free(workers);
     return TS_ENOMEM;
   }
@@ -98,17 +96,15 @@ static int snapshot_take(ts_http_snapshot *s) {
   ts_jobs_counts(g_http.jobs, s->counts);
   s->have_current = ts_jobs_current(g_http.jobs, &s->cur) == 0;
   s->paused = ts_jobs_paused(g_http.jobs);
-  s->njobs = ts_jobs_list_recent(g_http.jobs, jobs, engines, HTTP_MAX_JOBS);
+  s->njobs = ts_jobs_list_recent(g_http.jobs, jobs, HTTP_MAX_JOBS);
   s->nworkers = ts_cluster_info(g_http.cluster, workers, TS_POOL_MAX_REPORT);
   s->jobs = jobs;
-  s->engines = engines;
   s->workers = workers;
   return 0;
 }
 
 static void snapshot_free(ts_http_snapshot *s) {
   free((void *)s->jobs);
-  free((void *)s->engines);
   free((void *)s->workers);
 }
 

@@ -113,8 +113,7 @@ static void add_eta(ts_text *t, const ts_job_status *j) {
 }
 
 /* The newest job first: the order people read a queue in. */
-static const ts_job_status *nth_newest(const ts_http_snapshot *s, uint32_t i, const char **engine) {
-  *engine = s->engines[s->njobs - 1 - i];
+static const ts_job_status *nth_newest(const ts_http_snapshot *s, uint32_t i) {
   return &s->jobs[s->njobs - 1 - i];
 }
 
@@ -141,10 +140,10 @@ static void html_summary(ts_text *t, const ts_http_snapshot *s) {
               s->paused ? " &middot; <b>queue paused</b>" : "");
 }
 
-static void html_job(ts_text *t, const ts_job_status *j, const char *engine) {
+static void html_job(ts_text *t, const ts_job_status *j) {
   const char *state = ts_job_state_name(j->state);
   ts_text_add(t, "<tr class=\"job %s\" id=\"job-%" PRIu64 "\"><td class=n>%" PRIu64 "</td><td>", state, j->id, j->id);
-  add_html(t, engine);
+  add_html(t, j->engine);
   ts_text_add(t,
               "</td><td class=state>%s</td><td><progress max=\"1000\" value=\"%u\">%.1f%%</progress> "
               "<span class=percent>%.1f</span>%%</td><td>",
@@ -188,9 +187,7 @@ void ts_http_render_html(ts_text *t, const ts_http_snapshot *s, int refresh_s) {
   ts_text_add(t, "<h2>Jobs</h2>\n<table id=\"jobs\"><tr><th>job</th><th>engine</th><th>state</th><th>progress</th>"
                  "<th>stage</th><th>ETA</th><th>result</th></tr>\n");
   for (uint32_t i = 0; i < s->njobs; i++) {
-    const char *engine;
-    const ts_job_status *j = nth_newest(s, i, &engine);
-    html_job(t, j, engine);
+    html_job(t, nth_newest(s, i));
   }
   if (s->njobs == 0) ts_text_add(t, "<tr><td colspan=7>no jobs</td></tr>\n");
   ts_text_add(t, "</table>\n<h2>Pool</h2>\n<table id=\"pool\"><tr><th>worker</th><th>state</th><th>threads</th>"
@@ -204,9 +201,9 @@ void ts_http_render_html(ts_text *t, const ts_http_snapshot *s, int refresh_s) {
 
 /* ---- JSON ----------------------------------------------------------------------- */
 
-static void json_job(ts_text *t, const ts_job_status *j, const char *engine) {
+static void json_job(ts_text *t, const ts_job_status *j) {
   ts_text_add(t, "{\"id\":%" PRIu64 ",\"engine\":", j->id);
-  add_json_str(t, engine);
+  add_json_str(t, j->engine);
   ts_text_add(t, ",\"state\":\"%s\",\"permille\":%u,\"level\":%u,\"levels\":%u,\"workers\":%u,\"text\":",
               ts_job_state_name(j->state), j->permille, j->level, j->levels, j->workers);
   add_json_str(t, j->text);
@@ -234,10 +231,8 @@ void ts_http_render_json(ts_text *t, const ts_http_snapshot *s) {
     ts_text_add(t, "%s\"%s\":%u", i ? "," : "", ts_job_state_name(i), s->counts[i]);
   ts_text_add(t, "},\"jobs\":[");
   for (uint32_t i = 0; i < s->njobs; i++) {
-    const char *engine;
-    const ts_job_status *j = nth_newest(s, i, &engine);
     ts_text_add(t, i ? "," : "");
-    json_job(t, j, engine);
+    json_job(t, nth_newest(s, i));
   }
   ts_text_add(t, "],\"pool\":[");
   for (uint32_t i = 0; i < s->nworkers; i++) {

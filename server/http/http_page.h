@@ -35,7 +35,6 @@ typedef struct {
   ts_job_status cur;                        /* ts_jobs_current */
   int paused;                               /* the queue is held */
   const ts_job_status *jobs;                /* the newest jobs, oldest first */
-  const char *const *engines;               /* their engines */
   uint32_t njobs;
   const ts_worker_info *workers;            /* the pool */
   uint32_t nworkers;

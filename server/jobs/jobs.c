@@ -19,6 +19,8 @@
 _Static_assert(TS_ENGINE_MAX_INPUTS <= TS_MSG_MAX_INPUTS && TS_ENGINE_KEY_LEN == TS_MSG_KEY_MAX,
                "an engine's inputs must fit a submission");
 
+static void *expirer(void *arg);
+
 int ts_jobs_create(ts_jobs **out, const ts_jobs_opts *o, char *err) {
   *out = NULL;
   if (o->runners < 1 || o->runners > 64) return ts_error(err, TS_EINVAL, "--jobs %d: need 1..64", o->runners);
@@ -39,6 +41,10 @@ int ts_jobs_create(ts_jobs **out, const ts_jobs_opts *o, char *err) {
     if (pthread_create(&j->runners[i], NULL, jobs_runner, j) != 0) rc = ts_error(err, TS_ENOMEM, "cannot start job runners");
     else j->nrunners++;
   }
+  if (rc == 0 && o->keep_ended > 0) {
+    if (pthread_create(&j->expirer, NULL, expirer, j) != 0) rc = ts_error(err, TS_ENOMEM, "cannot start the expirer");
+    else j->expiring = 1;
+  }
   if (rc != 0) {
     ts_jobs_destroy(j);
     return rc;
@@ -53,6 +59,7 @@ void ts_jobs_destroy(ts_jobs *j) {
   jobs_stop_running(j);
   pthread_mutex_unlock(&j->lock);
   for (int i = 0; i < j->nrunners; i++) pthread_join(j->runners[i], NULL);
+  if (j->expiring) pthread_join(j->expirer, NULL);
   while (j->head != NULL) {
     job *n = j->head->next;
     free(j->head);
@@ -184,6 +191,8 @@ int ts_jobs_submit(ts_jobs *j, const char *client, const ts_msg_submit *m, uint6
   jb->st.state = TS_JOB_QUEUED;
   jb->st.levels = (uint8_t)jb->spec.engine->levels(&jb->spec.params);
   jb->st.eta_ms = UINT32_MAX;
+  jb->st.submitted_ms = ts_clock_ms();
+  jobs_describe(jb);
   pthread_mutex_lock(&j->lock);
   jobs_append(j, jb);
   jobs_changed(j, jb);
@@ -196,7 +205,7 @@ int ts_jobs_status(ts_jobs *j, uint64_t id, ts_job_status *out, uint64_t *versio
   pthread_mutex_lock(&j->lock);
   job *jb = jobs_find(j, id);
   if (jb != NULL) {
-    *out = jb->st;
+    jobs_record(j, jb, out);
     if (version) *version = jb->version;
   }
   pthread_mutex_unlock(&j->lock);
@@ -214,7 +223,7 @@ int ts_jobs_wait(ts_jobs *j, uint64_t id, uint64_t *version, int timeout_ms, ts_
     if (rc == ETIMEDOUT) break;
   }
   if (jb != NULL) {
-    *out = jb->st;
+    jobs_record(j, jb, out);
     *version = jb->version;
   }
   pthread_mutex_unlock(&j->lock);
@@ -224,12 +233,12 @@ int ts_jobs_wait(ts_jobs *j, uint64_t id, uint64_t *version, int timeout_ms, ts_
 uint32_t ts_jobs_list(ts_jobs *j, ts_job_status *out, uint32_t cap) {
   pthread_mutex_lock(&j->lock);
   uint32_t n = 0;
-  for (job *jb = j->head; jb != NULL && n < cap; jb = jb->next) out[n++] = jb->st;
+  for (job *jb = j->head; jb != NULL && n < cap; jb = jb->next) jobs_record(j, jb, &out[n++]);
   pthread_mutex_unlock(&j->lock);
   return n;
 }
 
-uint32_t ts_jobs_list_recent(ts_jobs *j, ts_job_status *out, const char **engines, uint32_t cap) {
+uint32_t ts_jobs_list_recent(ts_jobs *j, ts_job_status *out, uint32_t cap) {
   pthread_mutex_lock(&j->lock);
   uint64_t total = 0;
   for (const job *jb = j->head; jb != NULL; jb = jb->next) total++;
@@ -237,11 +246,7 @@ uint32_t ts_jobs_list_recent(ts_jobs *j, ts_job_status *out, const char **engine
   uint32_t n = 0;
   uint64_t i = 0;
   for (const job *jb = j->head; jb != NULL; jb = jb->next, i++)
-    if (i >= skip) {
-      out[n] = jb->st;
-      /* A job reloaded without its spec (a damaged spool) has no engine. */
-      engines[n++] = jb->spec.engine != NULL ? jb->spec.engine->name : "unknown";
-    }
+    if (i >= skip) jobs_record(j, jb, &out[n++]);
   pthread_mutex_unlock(&j->lock);
   return n;
 }
@@ -262,9 +267,25 @@ int ts_jobs_cancel(ts_jobs *j, uint64_t id, char *err) {
   return rc;
 }
 
+/* Removes a finished job (lock held): its directory out of the spool,
+ * then its record. What a delete and an expiry both do. */
+static int remove_job(ts_jobs *j, job *jb, char *err) {
+  int rc = jobs_discard_dir(j, jb, err);
+  if (rc != 0) return rc;
+  job *prev = NULL;
+  for (job *p = j->head; p != jb; p = p->next) prev = p;
+  if (prev) prev->next = jb->next;
+  else j->head = jb->next;
+  if (j->tail == jb) j->tail = prev;
+  j->spool_bytes -= jb->bytes;
+  free(jb);
+  pthread_cond_broadcast(&j->changed); /* watchers find it gone */
+  return 0;
+}
+
 int ts_jobs_delete(ts_jobs *j, uint64_t id, char *err) {
   pthread_mutex_lock(&j->lock);
-  job *jb = jobs_find(j, id), *prev = NULL;
+  job *jb = jobs_find(j, id);
   int rc = 0;
   if (jb == NULL) rc = ts_error(err, TS_ENOENT, "no job %" PRIu64, id);
   else if (!job_final(jb) && jb->cancel)
@@ -273,18 +294,53 @@ int ts_jobs_delete(ts_jobs *j, uint64_t id, char *err) {
   else if (!job_final(jb))
     rc = ts_error(err, TS_EINVAL, "job %" PRIu64 " is %s: cancel it first, or wait for it to end", id,
                   ts_job_state_name(jb->st.state));
-  else rc = jobs_discard_dir(j, jb, err);
-  if (rc == 0) {
-    for (job *p = j->head; p != jb; p = p->next) prev = p;
-    if (prev) prev->next = jb->next;
-    else j->head = jb->next;
-    if (j->tail == jb) j->tail = prev;
-    j->spool_bytes -= jb->bytes;
-    free(jb);
-    pthread_cond_broadcast(&j->changed); /* watchers find it gone */
-  }
+  else rc = remove_job(j, jb, err);
   pthread_mutex_unlock(&j->lock);
   return rc;
+}
+
+/* ---- retention ---------------------------------------------------------- */
+
+/* Removes the finished jobs that ended o.keep_ended seconds ago or more
+ * (lock held); returns when the next one is due (UINT64_MAX: none). */
+static uint64_t expire_due(ts_jobs *j, uint64_t now) {
+  uint64_t keep = (uint64_t)(j->o.keep_ended * 1000.0), next = UINT64_MAX;
+  for (job *jb = j->head, *after; jb != NULL; jb = after) {
+    after = jb->next;
+    if (!job_final(jb) || jb->kept) continue;
+    uint64_t due = jb->st.ended_ms + keep;
+    if (due > now) {
+      if (due < next) next = due;
+      continue;
+    }
+    char err[TS_ERR_LEN];
+    uint64_t id = jb->id;
+    if (remove_job(j, jb, err) == 0) {
+      jobs_log(j, "job %" PRIu64 " removed: it ended more than %g s ago (--keep-ended)", id, j->o.keep_ended);
+    } else {
+      jb->kept = 1;
+      jobs_log(j, "job %" PRIu64 " not removed after --keep-ended: %s; it stays until texsyn delete %" PRIu64
+               " or a restart", id, err, id);
+    }
+  }
+  return next;
+}
+
+/* The expirer: wakes when a job is due, on any change (a job that ends
+ * has a new due time), and at least every keep/10 seconds (1..60 s), so a
+ * step of the clock is caught up with. */
+static void *expirer(void *arg) {
+  ts_jobs *j = arg;
+  double period = j->o.keep_ended / 10 < 1 ? 1 : j->o.keep_ended / 10 > 60 ? 60 : j->o.keep_ended / 10;
+  pthread_mutex_lock(&j->lock);
+  while (!j->stop) {
+    uint64_t now = ts_clock_ms(), next = expire_due(j, now);
+    double wait = next == UINT64_MAX ? period : (double)(next - now) / 1000.0;
+    struct timespec until = ts_wait_until(wait < period ? wait : period);
+    pthread_cond_timedwait(&j->changed, &j->lock, &until);
+  }
+  pthread_mutex_unlock(&j->lock);
+  return NULL;
 }
 
 uint64_t ts_jobs_spool_bytes(ts_jobs *j) {
@@ -334,7 +390,7 @@ int ts_jobs_current(ts_jobs *j, ts_job_status *out) {
   for (const job *jb = j->head; jb != NULL; jb = jb->next)
     if (jb->st.state == TS_JOB_RUNNING && (first == NULL || jb->started < first->started)) first = jb;
   if (first == NULL) first = jobs_find(j, j->last_ended);
-  if (first != NULL) *out = first->st;
+  if (first != NULL) jobs_record(j, first, out);
   pthread_mutex_unlock(&j->lock);
   return first != NULL ? 0 : TS_ENOENT;
 }
@@ -342,6 +398,8 @@ int ts_jobs_current(ts_jobs *j, ts_job_status *out) {
 void ts_jobs_pause(ts_jobs *j, int paused) {
   pthread_mutex_lock(&j->lock);
   j->paused = paused != 0;
+  for (job *jb = j->head; jb != NULL; jb = jb->next) /* their records say held, or no longer */
+    if (jb->st.state == TS_JOB_QUEUED) jobs_changed(j, jb);
   pthread_cond_broadcast(&j->changed);
   pthread_mutex_unlock(&j->lock);
   jobs_log(j, "queue %s", paused ? "paused: queued jobs wait" : "resumed");

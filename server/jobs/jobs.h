@@ -15,7 +15,12 @@
  * Limits keep one client from crowding out the others: unfinished jobs per
  * client, and the spool's disk use (inputs, a reserve for the results,
  * checkpoints) - a submission past either is refused with the reason, and
- * deleting finished jobs gives the space back. */
+ * deleting finished jobs gives the space back.
+ *
+ * Retention: with keep_ended, an expirer thread removes each finished job
+ * that long after it ended. A job's end is its `state` file's modification
+ * time (its directory's for a job kept as failed without one), so a
+ * restart keeps counting from the same moment. */
 #ifndef TS_JOBS_H
 #define TS_JOBS_H
 
@@ -36,6 +41,8 @@ typedef struct {
                                  level (0: after whole levels only) */
   double stop_grace; /* ts_jobs_destroy waits this long for running jobs to
                         stop at a checkpoint of their own */
+  double keep_ended; /* seconds a finished job stays after it ended, then it
+                        is removed as ts_jobs_delete removes one (0: forever) */
 } ts_jobs_opts;
 
 typedef struct ts_jobs ts_jobs;
@@ -60,12 +67,13 @@ int ts_jobs_status(ts_jobs *j, uint64_t id, ts_job_status *out, uint64_t *versio
 int ts_jobs_wait(ts_jobs *j, uint64_t id, uint64_t *version, int timeout_ms, ts_job_status *out);
 /* Every job, oldest first; returns how many were written (<= cap). */
 uint32_t ts_jobs_list(ts_jobs *j, ts_job_status *out, uint32_t cap);
-/* The newest cap jobs, oldest first, with their engines' names (static
- * strings); returns how many were written. For the operations page. */
-uint32_t ts_jobs_list_recent(ts_jobs *j, ts_job_status *out, const char **engines, uint32_t cap);
+/* The newest cap jobs, oldest first; returns how many were written. For
+ * the operations page. */
+uint32_t ts_jobs_list_recent(ts_jobs *j, ts_job_status *out, uint32_t cap);
 int ts_jobs_cancel(ts_jobs *j, uint64_t id, char *err);
 /* Removes a finished (done, failed or canceled) job and its files from the
- * spool; its id is never given out again. */
+ * spool; its id is never given out again. The expirer removes jobs the
+ * same way. */
 int ts_jobs_delete(ts_jobs *j, uint64_t id, char *err);
 /* Bytes the spool's jobs use (or have reserved for their results). */
 uint64_t ts_jobs_spool_bytes(ts_jobs *j);
@@ -78,7 +86,8 @@ void ts_jobs_counts(ts_jobs *j, uint32_t counts[TS_JOB_STATE_COUNT]);
 /* The status of the running job that started first, else of the job that
  * ended last: 0, or TS_ENOENT. */
 int ts_jobs_current(ts_jobs *j, ts_job_status *out);
-/* Paused, no queued job starts (running ones go on); resumed, they do. */
+/* Paused, no queued job starts (running ones go on) and their records say
+ * held (TS_JOB_HELD); resumed, they do. */
 void ts_jobs_pause(ts_jobs *j, int paused);
 int ts_jobs_paused(ts_jobs *j);
 

@@ -22,6 +22,22 @@ void jobs_append(ts_jobs *j, job *jb) {
   j->tail = jb;
 }
 
+void jobs_describe(job *jb) {
+  ts_job_status *st = &jb->st;
+  const ts_jobspec *s = &jb->spec;
+  /* A job reloaded without its spec (a damaged spool) has no engine. */
+  snprintf(st->engine, sizeof(st->engine), "%s", s->engine != NULL ? s->engine->name : "unknown");
+  snprintf(st->owner, sizeof(st->owner), "%s", jb->client);
+  if (s->name[0] != '\0') snprintf(st->output, sizeof(st->output), "%s", s->name);
+  else if (s->engine != NULL) ts_engine_output_file(s->engine, 0, &s->wants, st->output, sizeof(st->output));
+  else st->output[0] = '\0';
+}
+
+void jobs_record(const ts_jobs *j, const job *jb, ts_job_status *out) {
+  *out = jb->st;
+  out->flags = j->paused && jb->st.state == TS_JOB_QUEUED ? TS_JOB_HELD : 0;
+}
+
 /* A client's record (lock held); NULL only when out of memory. */
 client_share *jobs_share_of(ts_jobs *j, const char *client) {
   for (client_share *s = j->shares; s != NULL; s = s->next)

@@ -190,6 +190,7 @@ void *jobs_runner(void *arg) {
     jb->st.workers = (uint16_t)ts_cluster_ready(j->o.cluster); /* for jobs that report no progress (energy) */
     jb->st.level = jb->st.levels > 0 ? jb->st.levels - 1 : 0;    /* the coarsest, until progress says more */
     jb->started = ts_now();
+    jb->st.started_ms = ts_clock_ms();
     j->running++;
     jobs_changed(j, jb);
     pthread_mutex_unlock(&j->lock);

@@ -138,6 +138,7 @@ void jobs_finish(ts_jobs *j, job *jb, int state, const char *text) {
   j->last_ended = jb->id;
   if (state == TS_JOB_DONE) jb->st.permille = 1000;
   jb->st.eta_ms = 0;
+  jb->st.ended_ms = ts_clock_ms(); /* about the state file's time, which a restart reads */
   snprintf(jb->st.text, sizeof(jb->st.text), "%s", text);
   jobs_changed(j, jb);
   pthread_mutex_unlock(&j->lock);
@@ -191,6 +192,28 @@ static int judge_job_dir(const char *dir, ts_spool_job *rec, char *err) {
   return rc;
 }
 
+/* Modification time of a job's file (NULL: of its directory), ms since
+ * the epoch; 0 if there is none. */
+static uint64_t file_ms(const job *jb, const char *name) {
+  char path[JOBS_PATH + 32];
+  struct stat st;
+  if (name != NULL) jobs_file_path(jb, name, path, sizeof(path));
+  else snprintf(path, sizeof(path), "%s", jb->dir);
+  if (stat(path, &st) != 0) return 0;
+  return (uint64_t)st.st_mtim.tv_sec * 1000u + (uint64_t)(st.st_mtim.tv_nsec / 1000000);
+}
+
+/* A reloaded job's times: submitted when its job.spec was written (last
+ * of a submission), ended when its state was (its directory's time for a
+ * job kept as failed without one: the spool says no better). When it
+ * started is not kept. */
+static void note_times(job *jb) {
+  jb->st.submitted_ms = file_ms(jb, "job.spec");
+  if (!job_final(jb)) return;
+  jb->st.ended_ms = file_ms(jb, "state");
+  if (jb->st.ended_ms == 0) jb->st.ended_ms = file_ms(jb, NULL);
+}
+
 /* Reloads one job directory; unfinished jobs queue again, damaged ones
  * are kept as spool.h says, with a log line. */
 static void load_job(ts_jobs *j, uint64_t id) {
@@ -228,6 +251,8 @@ static void load_job(ts_jobs *j, uint64_t id) {
   jb->st.eta_ms = UINT32_MAX;
   snprintf(jb->st.text, sizeof(jb->st.text), "%s", rec->text);
   free(rec);
+  note_times(jb);
+  jobs_describe(jb);
   jb->bytes = dir_bytes(jb->dir);
   j->spool_bytes += jb->bytes;
   client_share *cs = jobs_share_of(j, jb->client);

@@ -33,6 +33,7 @@ typedef struct job {
   ts_job_status st;
   uint64_t version;
   atomic_int cancel; /* set by a client's thread or the stop path, read by the job's */
+  int kept; /* its expiry failed (logged): kept until a delete or a restart */
   double started;
   uint64_t bytes; /* on disk, or reserved for results not written yet */
   struct job *next; /* all jobs, oldest first */
@@ -61,6 +62,8 @@ struct ts_jobs {
   uint64_t last_ended; /* id of the job that ended last */
   int nrunners;
   pthread_t runners[64];
+  pthread_t expirer; /* with o.keep_ended > 0 */
+  int expiring;
   int lock_fd; /* SPOOL/lock, flocked: this coordinator's spool */
 };
 

@@ -244,8 +244,58 @@ void cl_worker_fail(ts_cluster *c, cl_worker *w, const char *why) {
   if (w->state == TS_WORKER_FAILED) return;
   cl_log(c, "worker %d (%s) dropped: %s", w->id, w->conn.peer, why);
   w->state = TS_WORKER_FAILED;
+  w->died_ms = ts_clock_ms();
   shutdown(w->conn.fd, SHUT_RDWR);
   c->epoch++;
+}
+
+/* The worker's --name: its identity's words after the software and the
+ * version (PROTOCOL.md, 'I'); "" without one. */
+static void worker_name(const cl_worker *w, char *out, size_t cap) {
+  const char *p = w->ident.name;
+  for (int word = 0; word < 2 && p != NULL; word++) {
+    p = strchr(p, ' ');
+    if (p != NULL) p++;
+  }
+  snprintf(out, cap, "%s", p != NULL ? p : "");
+}
+
+/* What `texsyn workers` shows of a worker (lock held): a draining or
+ * failed one holds no slice, whatever its last share was. */
+static void worker_info(const cl_worker *w, ts_worker_info *o) {
+  memset(o, 0, sizeof(*o));
+  snprintf(o->addr, sizeof(o->addr), "%s", w->conn.peer);
+  worker_name(w, o->name, sizeof(o->name));
+  o->threads = w->ident.threads;
+  o->simd = w->ident.simd;
+  o->state = (uint8_t)w->state;
+  o->calibrated = (uint64_t)w->calib_rate;
+  o->rate = (uint64_t)w->slice_rate;
+  o->share = w->state == TS_WORKER_READY ? (uint16_t)w->share : 0;
+  o->batches = w->batches;
+  o->died_ms = w->state == TS_WORKER_FAILED ? w->died_ms : 0;
+}
+
+/* Drops the dead workers' records that are CL_DEAD_KEEP_MS old, and
+ * (name or addr non-NULL) those a joining worker of that name or address
+ * replaces (lock held). */
+static void forget_dead(ts_cluster *c, const char *name, const char *addr) {
+  uint64_t now = ts_clock_ms();
+  int k = 0;
+  for (int i = 0; i < c->ndead; i++) {
+    const ts_worker_info *d = &c->dead[i];
+    int same = (name != NULL && name[0] != '\0' && strcmp(d->name, name) == 0) ||
+               (addr != NULL && strcmp(d->addr, addr) == 0);
+    if (!same && now - d->died_ms < CL_DEAD_KEEP_MS) c->dead[k++] = *d;
+  }
+  c->ndead = k;
+}
+
+/* Keeps a failed worker's record as it leaves the list (lock held); the
+ * oldest goes when every slot is taken. */
+static void mourn(ts_cluster *c, const cl_worker *w) {
+  if (c->ndead == (int)c->o.max_workers) memmove(c->dead, c->dead + 1, sizeof(*c->dead) * (size_t)--c->ndead);
+  worker_info(w, &c->dead[c->ndead++]);
 }
 
 /* Removes failed workers from the list (under the lock, outside exchanges). */
@@ -258,9 +308,11 @@ static void reap_failed(ts_cluster *c) {
     }
     for (int a = 0; a < c->naddrs; a++)
       if (c->addrs[a].worker_id == c->w[i]->id) c->addrs[a].worker_id = 0;
+    mourn(c, c->w[i]);
     worker_free(c->w[i]);
   }
   c->nw = k;
+  forget_dead(c, NULL, NULL);
 }
 
 static int send_frame(ts_conn *conn, uint8_t type, uint32_t id, const ts_wr *w, char *err) {
@@ -350,6 +402,9 @@ static int admit(ts_cluster *c, ts_conn *conn, const ts_msg_ident *ident, int ad
     w->state = TS_WORKER_READY;
     w->heard_at = ts_now();
     c->w[c->nw++] = w;
+    char name[TS_MSG_NAME_MAX];
+    worker_name(w, name, sizeof(name));
+    forget_dead(c, name, w->conn.peer); /* back: no longer listed as dead */
     if (addr_slot >= 0) c->addrs[addr_slot].worker_id = w->id;
     c->epoch++;
     cl_log(c, "worker %d (%s, %u threads, %s) ready: scans %.3g bytes/s", w->id, w->conn.peer,
@@ -458,6 +513,7 @@ static void cluster_free(ts_cluster *c) {
   ts_pool_destroy(c->local_pool);
   for (int i = 0; i < CL_MAX_SOURCES; i++) free(c->sources[i].held);
   free(c->w);
+  free(c->dead);
   free(c->addrs);
   free(c);
 }
@@ -471,7 +527,8 @@ int ts_cluster_create(ts_cluster **out, const ts_cluster_opts *o, char *err) {
   c->o = *o;
   c->w = calloc(o->max_workers, sizeof(*c->w));
   c->addrs = calloc(TS_CLUSTER_MAX_WORKERS, sizeof(*c->addrs));
-  int ok = c->w != NULL && c->addrs != NULL;
+  c->dead = calloc(o->max_workers, sizeof(*c->dead));
+  int ok = c->w != NULL && c->addrs != NULL && c->dead != NULL;
   for (int i = 0; ok && i < CL_MAX_SOURCES; i++) ok = (c->sources[i].held = calloc(o->max_workers, sizeof(cl_holder))) != NULL;
   int rc = ok ? ts_l1_select(&c->simd, err) : ts_error(err, TS_ENOMEM, "out of memory");
   if (rc == 0 && ts_pool_create(&c->local_pool, o->local_threads) != 0)
@@ -524,19 +581,9 @@ int ts_cluster_add_address(ts_cluster *c, const char *addr, char *err) {
 uint32_t ts_cluster_info(ts_cluster *c, ts_worker_info *out, uint32_t cap) {
   pthread_mutex_lock(&c->lock);
   uint32_t n = 0;
-  for (int i = 0; i < c->nw && n < cap; i++) {
-    const cl_worker *w = c->w[i];
-    ts_worker_info *o = &out[n++];
-    memset(o, 0, sizeof(*o));
-    snprintf(o->addr, sizeof(o->addr), "%s", w->conn.peer);
-    o->threads = w->ident.threads;
-    o->simd = w->ident.simd;
-    o->state = (uint8_t)w->state;
-    o->calibrated = (uint64_t)w->calib_rate;
-    o->rate = (uint64_t)w->slice_rate;
-    o->share = (uint16_t)w->share;
-    o->batches = w->batches;
-  }
+  forget_dead(c, NULL, NULL);
+  for (int i = 0; i < c->nw && n < cap; i++) worker_info(c->w[i], &out[n++]);
+  for (int i = 0; i < c->ndead && n < cap; i++) out[n++] = c->dead[i];
   pthread_mutex_unlock(&c->lock);
   return n;
 }

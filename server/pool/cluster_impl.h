@@ -112,6 +112,7 @@ typedef struct {
   double ewma_bytes, ewma_secs; /* decayed sums behind ewma_rate */
   double ewma_weight; /* seconds of batches in the average (saturates) */
   uint64_t batches;
+  uint64_t died_ms; /* when it failed (ms since the epoch), else 0 */
   uint32_t share; /* per mille of the last set sliced */
   uint32_t max_payload; /* its frame limit: larger messages go in pieces */
   uint64_t max_message; /* the largest message it takes, in pieces or whole */
@@ -180,6 +181,10 @@ typedef struct {
   int nheld;
 } cl_source;
 
+/* How long a dropped worker stays listed (as failed: `texsyn workers`
+ * says dead) unless a worker of its name or address joins first. */
+#define CL_DEAD_KEEP_MS (3600u * 1000u)
+
 typedef struct {
   char addr[TS_NET_ADDR_LEN];
   int worker_id; /* live worker from this address, or 0 */
@@ -191,6 +196,8 @@ struct ts_cluster {
   ts_cluster_opts o;
   cl_worker **w; /* o.max_workers slots */
   int nw;
+  ts_worker_info *dead; /* dropped workers still listed, oldest first (o.max_workers slots) */
+  int ndead;
   int admitting; /* slots taken by workers being calibrated */
   cl_addr *addrs; /* --workers addresses (TS_CLUSTER_MAX_WORKERS slots; more
                      than the pool holds may be listed, as spares) */

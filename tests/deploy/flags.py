@@ -101,10 +101,10 @@ def wait_ready(build, addr, secret, server, worker, threads):
         if worker.poll() is not None:
             return f"the worker exited ({worker.returncode})"
         r = subprocess.run([f"{build}/texsyn", "workers"], env=env, capture_output=True, text=True)
-        lines = [l for l in r.stdout.splitlines() if " ready " in l]
+        lines = [l for l in r.stdout.splitlines() if " active " in l]
         if lines:
             cols = lines[0].split()
-            if len(lines) != 1 or cols[1] != threads:
+            if len(lines) != 1 or cols[2] != threads:
                 return f"expected one ready worker of {threads} threads, got: {lines}"
             return None
         time.sleep(0.2)

@@ -67,7 +67,7 @@ check_slurm() {
   local joined busy
   joined=$(grep -c ' ready: scans ' "$tmp"/job/texsyn-job-*/server.log)
   [ "$joined" -eq "$workers" ] || { echo "slurm: $joined of $workers workers joined"; return 1; }
-  busy=$(sed -n '/the pool after the job/,$p' "$tmp"/job/slurm-*.out | awk '/ ready / && $NF > 0' | wc -l)
+  busy=$(sed -n '/the pool after the job/,$p' "$tmp"/job/slurm-*.out | awk '/ active / && $NF > 0' | wc -l)
   [ "$busy" -eq "$workers" ] || { echo "slurm: $busy of $workers workers answered batches"; return 1; }
   local planes
   planes=$(cat "$tmp"/job/texsyn-job-*/{server,worker-*}.log | grep -c 'modbus plane on')

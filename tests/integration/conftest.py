@@ -12,7 +12,7 @@ DATA = Path(os.environ.get("TEXSYN_DATA", REPO.parent / "shared" / "data"))
 SANITIZED = os.environ.get("TEXSYN_SANITIZED") == "1"
 LONG = os.environ.get("TEXSYN_LONG_TESTS") == "1"
 # Frame header start: magic and the protocol version (proto/frame.h).
-FRAME_START = b"TS\x05"
+FRAME_START = b"TS\x06"
 
 
 def pytest_configure(config):
@@ -68,6 +68,42 @@ def run(exe, *args, env=None, check=True, timeout=600):
     if check and p.returncode != 0:
         raise AssertionError(f"texsyn {' '.join(map(str, args))} failed ({p.returncode}):\n{p.stderr}")
     return p
+
+
+STATUS_HEADER = ["ID", "STATE", "ENGINE", "OWNER", "SUBMITTED", "STARTED", "ENDED", "PROGRESS", "OUTPUT"]
+
+
+def jobs_listed(text):
+    """`texsyn status` (every job) as a list of dicts keyed by its header's
+    names in lower case, and "note": what follows the output, two spaces
+    after it. An empty listing says so under the header."""
+    lines = text.splitlines()
+    assert lines and lines[0].split() == STATUS_HEADER, text
+    if lines[1:] == ["(no jobs)"]:
+        return []
+    rows = []
+    for line in lines[1:]:
+        f = line.split(None, len(STATUS_HEADER) - 1)
+        output, _, note = f[-1].partition("  ")
+        rows.append(dict(zip([h.lower() for h in STATUS_HEADER], f[:-1] + [output]), note=note.strip()))
+    return rows
+
+
+def workers_listed(text):
+    """`texsyn workers` as a list of dicts: name, addr, threads, simd,
+    calibrated, rate, share, state, batches, and "dropped" (when a dead
+    worker was, as printed)."""
+    lines = text.splitlines()
+    assert lines and lines[0].split() == ["NAME", "ADDRESS", "THREADS", "SIMD", "CALIBRATED", "RATE", "SHARE",
+                                          "STATE", "BATCHES"], text
+    rows = []
+    for line in lines[1:]:
+        f = line.split(None, 9)
+        if len(f) >= 9 and f[2].isdigit():
+            rows.append({"name": f[0], "addr": f[1], "threads": int(f[2]), "simd": f[3], "calibrated": float(f[4]),
+                         "rate": float(f[5]), "share": float(f[6].rstrip("%")), "state": f[7],
+                         "batches": int(f[8]), "dropped": f[9].removeprefix("dropped ") if len(f) > 9 else ""})
+    return rows
 
 
 def modbus_registers(addr):
@@ -321,22 +357,15 @@ class Cluster:
                 "--workers", ",".join(w.addr for w in self.workers), *server_args]
         self.server = Daemon(args, self.tmp / log)
 
-    def pool(self):
-        """`texsyn workers` as a list of dicts."""
-        out = self.texsyn("workers").stdout.splitlines()
-        rows = []
-        for line in out[1:]:
-            f = line.split()
-            if len(f) == 8 and f[1].isdigit():
-                rows.append({"addr": f[0], "threads": int(f[1]), "simd": f[2], "calibrated": float(f[3]),
-                             "rate": float(f[4]), "share": float(f[5].rstrip("%")), "state": f[6],
-                             "batches": int(f[7])})
-        return rows
+    def pool(self, dead=False):
+        """`texsyn workers` as a list of dicts (workers_listed); the dead
+        ones, which are no longer in the pool, only with dead."""
+        return [w for w in workers_listed(self.texsyn("workers").stdout) if dead or w["state"] != "dead"]
 
     def wait_ready(self, n, timeout=30):
         deadline = time.time() + timeout
         while time.time() < deadline:
-            if sum(1 for w in self.pool() if w["state"] == "ready") >= n:
+            if sum(1 for w in self.pool() if w["state"] == "active") >= n:
                 return
             time.sleep(0.05)
         raise AssertionError(f"{n} workers not ready:\n{self.server.read_log()}")

@@ -14,7 +14,7 @@ import re
 import signal
 from pathlib import Path
 
-from conftest import BUILD, DAEMONS, Daemon, run, synth
+from conftest import BUILD, DAEMONS, Daemon, jobs_listed, run, synth
 
 SHIM = BUILD / "tests" / "libspool_fault.so"
 SERVER_ARGS = ["--jobs", "1", "--checkpoint-interval", "0"]
@@ -152,12 +152,7 @@ class Client:
 def listing(server):
     """`texsyn status` of a coordinator: {id: (state, text)}."""
     out = run(BUILD / "texsyn", "status", "--server", server.addr).stdout
-    rows = {}
-    for line in out.splitlines():
-        f = line.split(None, 2)
-        if f:
-            rows[f[0]] = (f[1], f[2] if len(f) > 2 else "")
-    return rows
+    return {r["id"]: (r["state"], r["note"]) for r in jobs_listed(out)}
 
 
 def job_of(point, spool):

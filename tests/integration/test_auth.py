@@ -130,7 +130,7 @@ def test_worker_with_wrong_secret_is_refused_listen_and_join(texsyn, data, clust
     assert f"join {cluster.server.addr} refused" in bad_join.read_log()
     assert "refused" in no_secret.read_log() and "no --secret-file" in no_secret.read_log()
     pool = cluster.pool()
-    assert [w["addr"] for w in pool] == [good.addr] and pool[0]["state"] == "ready", pool
+    assert [w["addr"] for w in pool] == [good.addr] and pool[0]["state"] == "active", pool
     out = tmp_path / "remote.png"
     remote(cluster.server.addr, data, out)
     assert out.read_bytes() == want
@@ -185,7 +185,7 @@ def test_protected_mode_admits_loopback_only(data, cluster, tmp_path):
 
 def ready_at(addr):
     """Workers ready on the coordinator at addr."""
-    return run(BUILD / "texsyn", "workers", "--server", addr).stdout.count(" ready ")
+    return run(BUILD / "texsyn", "workers", "--server", addr).stdout.count(" active ")
 
 
 def test_secret_lifts_protected_mode(data, cluster, tmp_path, monkeypatch):

@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from conftest import BUILD, Daemon, FRAME_START, LoopbackProxy, SANITIZED, run, shutdown_all, synth
+from conftest import BUILD, Daemon, FRAME_START, LoopbackProxy, SANITIZED, jobs_listed, run, shutdown_all, synth
 
 # Under ASan+UBSan (several times slower) a smaller job takes the same paths.
 SIZE = (192, 144) if SANITIZED else (256, 192)
@@ -293,7 +293,7 @@ def test_submission_cut_short_by_a_crash_does_not_block_the_next(texsyn, data, c
     assert job == "2", p.stdout
     assert not partial.exists(), "the cut-short submission's files stayed in the spool"
     cluster.texsyn("watch", job, "--quiet")
-    assert cluster.texsyn("status").stdout.split() == ["2", "done"]
+    assert [(r["id"], r["state"]) for r in jobs_listed(cluster.texsyn("status").stdout)] == [("2", "done")]
     cluster.texsyn("fetch", job, "-o", tmp_path / "f.png")
     run(texsyn, "synth", *args, "-o", tmp_path / "e.png", "--quiet", "--embedded")
     assert (tmp_path / "f.png").read_bytes() == (tmp_path / "e.png").read_bytes()
@@ -317,9 +317,9 @@ def test_status_lists_every_job_of_a_long_spool(data, cluster, tmp_path):
                             tmp_path / "server2.log")
     newest = cluster.texsyn("synth", *args, "--detach").stdout.strip()
     assert newest == "1501", newest
-    rows = [line.split() for line in cluster.texsyn("status").stdout.splitlines()]
-    assert [int(r[0]) for r in rows] == list(range(1, 1502)), rows[-3:]
-    assert all(r[1] == "done" for r in rows[:1500])
+    rows = jobs_listed(cluster.texsyn("status").stdout)
+    assert [int(r["id"]) for r in rows] == list(range(1, 1502)), rows[-3:]
+    assert all(r["state"] == "done" for r in rows[:1500])
 
 
 def test_cancel_a_running_job(data, cluster, tmp_path):

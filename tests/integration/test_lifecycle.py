@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from conftest import BUILD, Daemon, SANITIZED, shutdown_all, synth
+from conftest import BUILD, Daemon, SANITIZED, jobs_listed, shutdown_all, synth
 
 SIZE = (192, 144) if SANITIZED else (384, 288)
 JOB = ["--size", "%dx%d" % SIZE, "--usage-weight", "1"]
@@ -176,8 +176,8 @@ class HoldingProxy:
         shutdown_all(src, dst)  # a close() would wait for the other pump's recv
 
 
-def jobs_listed(cluster):
-    return [l for l in cluster.texsyn("status").stdout.splitlines()[1:] if l.strip()]
+def jobs_of(cluster):
+    return jobs_listed(cluster.texsyn("status").stdout)
 
 
 def test_client_killed_mid_upload_leaves_no_job(texsyn, data, cluster, tmp_path):
@@ -195,7 +195,7 @@ def test_client_killed_mid_upload_leaves_no_job(texsyn, data, cluster, tmp_path)
     cluster.server.wait_log(r"client \S+ \(.*\) went away in the middle of a message \(\d+ bytes of it received\): "
                             r"dropped, nothing of it was accepted", timeout=30)
     assert cluster.server.alive()
-    assert jobs_listed(cluster) == [], "a job appeared from a cut-off upload"
+    assert jobs_of(cluster) == [], "a job appeared from a cut-off upload"
     assert not list((cluster.tmp / "spool" / "jobs").iterdir())
     job_id = cluster.submit(ref_of(data), "--size", "128x96", "--levels", "3")
     assert cluster.texsyn("watch", job_id, "--quiet", check=False, timeout=120).returncode == 0
@@ -266,7 +266,7 @@ def test_full_spool_disk_refuses_or_fails_with_the_reason_and_recovers(texsyn, d
         disk.fill()
         p = cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "x.png", *JOB, "--detach", check=False)
         assert p.returncode != 0 and "No space left on device" in p.stderr, p.stderr
-        assert jobs_listed(cluster) == []
+        assert jobs_of(cluster) == []
         (disk.path / "filler").unlink()
         job_id = cluster.submit(ref_of(data), *JOB)
         disk.fill()  # while the job runs: its checkpoints and result find the disk full

@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from conftest import BUILD, run, FRAME_START
+from conftest import BUILD, jobs_listed, run, FRAME_START
 
 CLIENTS = 5
 JOBS_PER_CLIENT = 10
@@ -181,10 +181,10 @@ def test_fifty_jobs_five_clients_one_worker_killed(texsyn, data, cluster, tmp_pa
     assert len(set(ids)) == len(ids), f"an id was given twice: {sorted(ids)}"
     assert sorted(final) == sorted(ids), f"coordinator jobs {sorted(final)} != client jobs {sorted(ids)}"
     assert set(final.values()) == {"done"}, final
-    listing = cluster.texsyn("status").stdout.split("\n")
-    rows = [line.split() for line in listing if line.strip()]
-    assert sorted(int(r[0]) for r in rows) == sorted(ids), listing
-    assert all(r[1] == "done" for r in rows), listing
+    listing = cluster.texsyn("status").stdout
+    rows = jobs_listed(listing)
+    assert sorted(int(r["id"]) for r in rows) == sorted(ids), listing
+    assert all(r["state"] == "done" for r in rows), listing
     owner = {int(j): int(c) for j, c in re.findall(r"job (\d+) queued from \S+ \(load(\d+)@", log)}
     assert {jid: c for c, jid, _, _ in results} == owner, "a job is filed under another client"
 

@@ -42,7 +42,7 @@ def test_local_cluster_start_job_status_stop(texsyn, data, tmp_path):
             env={"TEXSYN_SERVER": addr})
         assert got.read_bytes() == want.read_bytes()
         status = script(env, "status")
-        assert status.count(" ready ") == 2 and "DEAD" not in status
+        assert status.count(" active ") == 2 and "DEAD" not in status
     finally:
         script(env, "stop")
     assert not any(alive(p) for p in started)

@@ -125,11 +125,11 @@ def test_drain_mid_job_keeps_the_bytes(data, cluster, tmp_path, expected):
     wait_until("the drained worker to hold nothing", lambda: modbus_registers(victim.modbus)["vectors"] == "0")
     assert modbus_registers(victim.modbus)["state"] == "draining"
     states = [w["state"] for w in cluster.pool()]
-    assert states.count("draining") == 1 and states.count("ready") == 2, states
+    assert states.count("draining") == 1 and states.count("active") == 2, states
     assert "draining: its slices are handed back" in cluster.server.read_log()
     # Cleared, it gets slices again: the next job runs on all three.
     run(BUILD / "texsyn", "modbus", victim.modbus, "--set", "drain=0")
-    wait_until("the worker to be back", lambda: [w["state"] for w in cluster.pool()].count("ready") == 3)
+    wait_until("the worker to be back", lambda: [w["state"] for w in cluster.pool()].count("active") == 3)
     job = submit(cluster, data, tmp_path / "again.png")
     assert job.wait(timeout=300) == 0
     job.stderr.close()
@@ -144,7 +144,7 @@ def test_pause_holds_the_queue(data, cluster, tmp_path, expected):
     p = cluster.texsyn("synth", "--ref", ref_of(data), "-o", tmp_path / "x.png", *JOB, "--detach")
     job = p.stdout.strip()
     time.sleep(1.0)
-    assert " queued" in cluster.texsyn("status", job).stdout
+    assert cluster.texsyn("status", job).stdout.splitlines()[0].split()[:2] == [job, "held"]
     assert modbus_registers(cluster.server.modbus)["queued"] == "1"
     run(BUILD / "texsyn", "modbus", cluster.server.modbus, "--set", "pause=0")
     cluster.texsyn("watch", job, "--quiet")
@@ -255,7 +255,7 @@ def test_worker_silent_on_both_planes_is_dropped(data, cluster, tmp_path, expect
                    lambda: "its Modbus and data planes are both silent" in cluster.server.read_log())
     finally:
         victim.proc.send_signal(signal.SIGCONT)
-    wait_until("the worker to be back", lambda: [w["state"] for w in cluster.pool()].count("ready") == 2)
+    wait_until("the worker to be back", lambda: [w["state"] for w in cluster.pool()].count("active") == 2)
     job = submit(cluster, data, tmp_path / "out.png")
     assert job.wait(timeout=300) == 0
     job.stderr.close()

@@ -10,7 +10,7 @@ import signal
 import socket
 import subprocess
 
-from conftest import BUILD, REPO, run
+from conftest import BUILD, REPO, jobs_listed, run
 
 SCRIPT = REPO / "deploy" / "local-cluster.sh"
 
@@ -45,7 +45,7 @@ texsyn status
     assert re.search(r"^texsyn: out.png in [\d.]+s \(job 1 on 127.0.0.1:\d+ with 2 workers\)$", p.stderr, re.M), p.stderr
     log = (tmp_path / "texsyn-run" / "server.log").read_text()
     assert re.search(r"job 1 done in ", log), log
-    assert p.stdout.count(" ready ") == 2, p.stdout
+    assert p.stdout.count(" active ") == 2, p.stdout
     assert re.search(r"^1 +done", p.stdout, re.M), p.stdout
     assert (tmp_path / "out.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "local-cluster: stopped" in p.stdout
@@ -92,7 +92,7 @@ def test_an_output_format_texsyn_does_not_write_is_refused_before_any_work(texsy
                     check=False)
             assert (p.returncode, p.stderr, p.stdout) == (2, f"texsyn synth: {message}\n", ""), (where, p.stderr)
     assert sorted(f.name for f in tmp_path.iterdir() if not f.name.endswith(".log")) == ["spool"]
-    assert cluster.texsyn("status").stdout == ""
+    assert jobs_listed(cluster.texsyn("status").stdout) == []
 
 
 def interrupt_after_submission(texsyn, ref, out, *where, env=None):
@@ -126,13 +126,13 @@ def test_ctrl_c_of_a_cluster_run_names_the_job_that_goes_on(texsyn, data, cluste
     assert (code, first) == (130, f"texsyn synth: job 2 on {addr}\n"), (code, first, rest)
     assert rest == (f"texsyn synth: interrupted; job 2 keeps running on {addr}: `texsyn watch 2` follows it, "
                     "`texsyn cancel 2` stops it\n"), rest
-    states = [line.split()[1] for line in cluster.texsyn("status").stdout.splitlines()]
+    states = [r["state"] for r in jobs_listed(cluster.texsyn("status").stdout)]
     assert len(states) == 2 and set(states) <= {"queued", "running"}, states
     for job in ("1", "2"):
         assert cluster.texsyn("cancel", job).stdout == f"job {job} canceled\n"
-        assert re.fullmatch(rf"{job} +canceled +canceled by a client\n", cluster.texsyn("status", job).stdout)
+        assert re.fullmatch(rf"{job} +canceled +canceled by a client", cluster.texsyn("status", job).stdout.splitlines()[0])
         cluster.texsyn("delete", job)
-    assert cluster.texsyn("status").stdout == ""
+    assert jobs_listed(cluster.texsyn("status").stdout) == []
     assert not (tmp_path / "a.png").exists() and not (tmp_path / "b.png").exists()
 
 
@@ -226,7 +226,7 @@ def test_a_refused_secret_or_an_address_without_port_says_so(texsyn, data, tmp_p
         p = run(texsyn, "status", env={"TEXSYN_SERVER": ""}, check=False)
     assert p.stderr == ("texsyn status: cannot connect to 127.0.0.1:7070: Connection refused (is texsyn-server "
                         "running at 127.0.0.1:7070, the default: no --server, no $TEXSYN_SERVER?)\n"), p.stderr
-    assert run(texsyn, "status", "--server", addr, "--secret-file", key).stdout == ""
+    assert jobs_listed(run(texsyn, "status", "--server", addr, "--secret-file", key).stdout) == []
     assert not (tmp_path / "o.png").exists()
 
 

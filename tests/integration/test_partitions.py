@@ -30,7 +30,7 @@ import time
 import pytest
 
 import netns
-from conftest import BUILD, Daemon, synth
+from conftest import BUILD, Daemon, synth, workers_listed
 
 BRICK = "textures/brick.png"
 # The long cases' job: long enough (about 20 s on 3 workers here, quiet)
@@ -142,16 +142,15 @@ class NsCluster:
     def pool(self):
         """{address: state} from `texsyn workers`."""
         rows = {}
-        for line in self.texsyn("workers").splitlines()[1:]:
-            f = line.split()
-            if len(f) == 8 and f[1].isdigit():
-                rows[f[0]] = f[6]
+        for w in workers_listed(self.texsyn("workers")):
+            if w["state"] != "dead":
+                rows[w["addr"]] = w["state"]
         return rows
 
     def wait_pool(self, n, timeout=60):
         deadline = time.time() + timeout
         while time.time() < deadline:
-            ready = sorted(a for a, s in self.pool().items() if s == "ready")
+            ready = sorted(a for a, s in self.pool().items() if s == "active")
             if len(ready) >= n:
                 return ready
             time.sleep(0.1)

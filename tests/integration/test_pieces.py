@@ -73,7 +73,7 @@ def test_a_slice_over_a_workers_message_limit_goes_to_the_others(texsyn, data, c
                      r"limit of 1024 \(texsyn-worker --max-message\)", log), log
     assert "dropped" not in log
     pool = {w["addr"]: w for w in cluster.pool()}
-    assert pool[tiny.addr]["state"] == "ready" and pool[tiny.addr]["share"] == 0
+    assert pool[tiny.addr]["state"] == "active" and pool[tiny.addr]["share"] == 0
     assert not pieces_logged(tiny)
 
 

@@ -12,7 +12,7 @@ import signal
 
 import pytest
 
-from conftest import BUILD, Daemon, run, synth
+from conftest import BUILD, Daemon, jobs_listed, run, synth
 
 ARGS = ["--size", "64x48", "--levels", "3"]
 
@@ -36,7 +36,7 @@ def submit(cluster, data):
 
 def status(cluster, job):
     """`texsyn status ID` as (state, text)."""
-    line = cluster.texsyn("status", job).stdout.strip()
+    line = cluster.texsyn("status", job).stdout.splitlines()[0]
     f = line.split(None, 2)
     assert f[0] == job, line
     return f[1], f[2] if len(f) > 2 else ""
@@ -64,7 +64,7 @@ def test_damaged_spool_files_after_a_restart(texsyn, data, cluster, tmp_path):
     run(BUILD / "texsyn", "modbus", cluster.server.modbus, "--set", "pause=1")
     queued = [submit(cluster, data) for _ in range(5)]
     assert queued == ["5", "6", "7", "8", "9"]
-    assert all(status(cluster, j)[0] == "queued" for j in queued)
+    assert all(status(cluster, j)[0] == "held" for j in queued)
     cluster.server.stop()
 
     spool = tmp_path / "spool"
@@ -122,8 +122,9 @@ def test_damaged_spool_files_after_a_restart(texsyn, data, cluster, tmp_path):
     assert status(cluster, "6") == ("failed", f"ref.ext in {d['6']} is damaged (it says 'p/g', not a file "
                                               "extension); the job's reference cannot be found, so the job cannot "
                                               "run: resubmit it")
-    listing = cluster.texsyn("status").stdout
-    assert f"5      failed    job.spec in {d['5']} is damaged (" in listing, listing
+    listing = {r["id"]: r for r in jobs_listed(cluster.texsyn("status").stdout)}
+    assert listing["5"]["state"] == "failed" and listing["5"]["engine"] == "unknown" and \
+        listing["5"]["note"].startswith(f"job.spec in {d['5']} is damaged ("), listing["5"]
     refused = cluster.texsyn("fetch", "1", "-o", tmp_path / "f1.png", check=False)
     assert refused.returncode == 1 and f"job.spec in {d['1']} is damaged" in refused.stderr
 

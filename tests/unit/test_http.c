@@ -137,7 +137,7 @@ static void auth_refuses_anything_else(void **state) {
 
 /* A queue with one done and one running job, and one worker whose address
  * carries characters every format must escape. */
-static void snapshot(ts_http_snapshot *s, ts_job_status jobs[2], const char *engines[2], ts_worker_info *w) {
+static void snapshot(ts_http_snapshot *s, ts_job_status jobs[2], ts_worker_info *w) {
   memset(s, 0, sizeof(*s));
   memset(jobs, 0, sizeof(ts_job_status) * 2);
   memset(w, 0, sizeof(*w));
@@ -145,7 +145,8 @@ static void snapshot(ts_http_snapshot *s, ts_job_status jobs[2], const char *eng
   jobs[1] = (ts_job_status){.id = 4, .state = TS_JOB_RUNNING, .level = 1, .levels = 4, .permille = 512,
                             .eta_ms = 61500, .workers = 1};
   snprintf(jobs[1].text, sizeof(jobs[1].text), "<script>\"x\"\n");
-  engines[0] = engines[1] = "mrf";
+  snprintf(jobs[0].engine, sizeof(jobs[0].engine), "mrf");
+  snprintf(jobs[1].engine, sizeof(jobs[1].engine), "mrf");
   snprintf(w->addr, sizeof(w->addr), "h\"o\\st\n:1");
   w->state = 1; /* ready */
   w->calibrated = 2500000000u;
@@ -161,7 +162,6 @@ static void snapshot(ts_http_snapshot *s, ts_job_status jobs[2], const char *eng
   s->have_current = 1;
   s->cur = jobs[1];
   s->jobs = jobs;
-  s->engines = engines;
   s->njobs = 2;
   s->workers = w;
   s->nworkers = 1;
@@ -171,9 +171,8 @@ static void metrics_are_prometheus_text(void **state) {
   (void)state;
   ts_http_snapshot s;
   ts_job_status jobs[2];
-  const char *engines[2];
   ts_worker_info w;
-  snapshot(&s, jobs, engines, &w);
+  snapshot(&s, jobs, &w);
   ts_text t;
   ts_text_init(&t);
   ts_http_render_metrics(&t, &s);
@@ -217,9 +216,8 @@ static void html_and_json_escape_what_they_show(void **state) {
   (void)state;
   ts_http_snapshot s;
   ts_job_status jobs[2];
-  const char *engines[2];
   ts_worker_info w;
-  snapshot(&s, jobs, engines, &w);
+  snapshot(&s, jobs, &w);
   ts_text t;
   ts_text_init(&t);
   ts_http_render_html(&t, &s, 2);

@@ -41,6 +41,14 @@ static int rd_answer(const ts_frame *f, void *o, char *e) { return ts_msg_answer
 static int rd_submit(const ts_frame *f, void *o, char *e) { return ts_msg_submit_read(f, o, e); }
 static int rd_files(const ts_frame *f, void *o, char *e) { return ts_msg_files_read(f, o, e); }
 static int rd_error(const ts_frame *f, void *o, char *e) { return ts_msg_error_read(f, o, e); }
+static int rd_status2(const ts_frame *f, void *o, char *e) {
+  uint32_t n;
+  return ts_msg_status_read(f, o, 2, &n, e);
+}
+static int rd_pool2(const ts_frame *f, void *o, char *e) {
+  uint32_t n;
+  return ts_msg_pool_read(f, o, 2, &n, e);
+}
 static int rd_auth(const ts_frame *f, void *o, char *e) { return ts_msg_auth_read(f, o, e); }
 static int rd_field(const ts_frame *f, void *o, char *e) { return ts_msg_field_read(f, o, e); }
 static int rd_pass(const ts_frame *f, void *o, char *e) { return ts_msg_pass_read(f, o, e); }
@@ -442,6 +450,98 @@ static void job_plane_round_trips(void **state) {
   assert_string_equal(e.text, "no job 9");
   assert_exact(&w, 'E', rd_error, &e);
   ts_wr_free(&w);
+}
+
+/* A job record's operator fields (engine, owner, output, times, held) and
+ * a worker's name and time of death travel whole, every byte needed; a
+ * held job that is not queued, an unknown flag, a dead worker without a
+ * time or a live one with one are refused. */
+static void operator_records(void **state) {
+  (void)state;
+  char err[TS_ERR_LEN];
+  ts_job_status st[2] = {{.id = 7, .state = TS_JOB_QUEUED, .eta_ms = UINT32_MAX, .flags = TS_JOB_HELD,
+                          .submitted_ms = 1764400000123ull, .engine = "stylize", .owner = "alice@vm",
+                          .output = "wall.png"},
+                         {.id = 8, .state = TS_JOB_DONE, .permille = 1000, .submitted_ms = 1, .started_ms = 2,
+                          .ended_ms = 1764400009999ull, .engine = "mrf", .owner = "?@h", .output = "out.png"}};
+  ts_job_status sto[2];
+  uint32_t n;
+  ts_wr w;
+  ts_wr_init(&w);
+  ts_msg_status_write(&w, st, 2);
+  ts_frame f = frame_of(&w, 'W');
+  assert_int_equal(ts_msg_status_read(&f, sto, 2, &n, err), 0);
+  assert_int_equal(n, 2);
+  assert_int_equal(sto[0].flags, TS_JOB_HELD);
+  assert_true(sto[0].submitted_ms == 1764400000123ull && sto[0].started_ms == 0 && sto[0].ended_ms == 0);
+  assert_string_equal(sto[0].engine, "stylize");
+  assert_string_equal(sto[0].owner, "alice@vm");
+  assert_string_equal(sto[0].output, "wall.png");
+  assert_true(sto[1].started_ms == 2 && sto[1].ended_ms == 1764400009999ull);
+  assert_exact(&w, 'W', rd_status2, sto);
+  ts_wr_free(&w);
+  for (int bad = 0; bad < 2; bad++) {
+    ts_job_status b = st[bad];
+    b.flags = bad == 0 ? 0x2 : TS_JOB_HELD; /* an unknown flag; a finished job held */
+    ts_wr_init(&w);
+    ts_msg_status_write(&w, &b, 1);
+    f = frame_of(&w, 'W');
+    assert_int_equal(ts_msg_status_read(&f, sto, 2, &n, err), TS_EPROTO);
+    assert_non_null(strstr(err, "job flags"));
+    ts_wr_free(&w);
+  }
+  ts_worker_info wi[2] = {{.addr = "127.0.0.1:7071", .threads = 2, .state = TS_WORKER_READY, .share = 500,
+                           .name = "rack1-a"},
+                          {.addr = "127.0.0.1:7072", .state = TS_WORKER_FAILED, .name = "",
+                           .died_ms = 1764400001000ull}};
+  ts_worker_info wo[2];
+  ts_wr_init(&w);
+  ts_msg_pool_write(&w, wi, 2);
+  f = frame_of(&w, 'P');
+  assert_int_equal(ts_msg_pool_read(&f, wo, 2, &n, err), 0);
+  assert_int_equal(n, 2);
+  assert_string_equal(wo[0].name, "rack1-a");
+  assert_true(wo[0].died_ms == 0 && wo[1].died_ms == 1764400001000ull);
+  assert_string_equal(wo[1].name, "");
+  assert_exact(&w, 'P', rd_pool2, wo);
+  ts_wr_free(&w);
+  for (int bad = 0; bad < 2; bad++) {
+    ts_worker_info b = wi[bad];
+    b.died_ms = bad == 0 ? 5 : 0; /* alive with a death; dead without one */
+    ts_wr_init(&w);
+    ts_msg_pool_write(&w, &b, 1);
+    f = frame_of(&w, 'P');
+    assert_int_equal(ts_msg_pool_read(&f, wo, 2, &n, err), TS_EPROTO);
+    assert_non_null(strstr(err, "worker death time"));
+    ts_wr_free(&w);
+  }
+}
+
+/* The result's name on the client rides in the spec (name=), shown by
+ * texsyn status: it survives format and parse; what could not be shown on
+ * one line is refused, and ts_jobspec_set_name keeps a path's last part,
+ * other bytes as '?'. */
+static void jobspec_name(void **state) {
+  (void)state;
+  char err[TS_ERR_LEN], text[TS_SPEC_MAX];
+  ts_jobspec s, back;
+  const char *spec = "engine=mrf\nsize=8x8\nname=castle wall.png\n";
+  assert_int_equal(ts_jobspec_parse(spec, strlen(spec), &s, err), 0);
+  assert_string_equal(s.name, "castle wall.png");
+  int n = ts_jobspec_format(&s, text, sizeof(text));
+  assert_true(n > 0);
+  assert_non_null(strstr(text, "name=castle wall.png\n"));
+  assert_int_equal(ts_jobspec_parse(text, (size_t)n, &back, err), 0);
+  assert_string_equal(back.name, "castle wall.png");
+  const char *bad[] = {"size=8x8\nname=\n", "size=8x8\nname=a\tb\n", "size=8x8\nname=\xc3\xa9.png\n"};
+  for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++)
+    assert_int_equal(ts_jobspec_parse(bad[i], strlen(bad[i]), &s, err), TS_EINVAL);
+  ts_jobspec_default(&s, NULL);
+  ts_jobspec_set_name(&s, "/tmp/out/caf\xc3\xa9.png");
+  assert_string_equal(s.name, "caf??.png");
+  n = ts_jobspec_format(&s, text, sizeof(text));
+  assert_true(n > 0);
+  assert_non_null(strstr(text, "name=caf??.png\n"));
 }
 
 static void strings_refuse_nul_and_overflow(void **state) {
@@ -850,6 +950,8 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(calib_reply_limits_are_optional_and_checked),
     cmocka_unit_test(job_plane_round_trips),
     cmocka_unit_test(strings_refuse_nul_and_overflow),
+    cmocka_unit_test(operator_records),
+    cmocka_unit_test(jobspec_name),
     cmocka_unit_test(jobspec_round_trip),
     cmocka_unit_test(stylize_spec_round_trip),
     cmocka_unit_test(energy_spec_round_trip),
