@@ -11,13 +11,19 @@
  *
  * Selection. d = pile(F) - pile(B), averaged over a box of radius
  * max(2, min(w, h) / 24) so that the choice is made per region, never per
- * pixel (no salt and pepper); where the mean is more than HYSTERESIS grey
- * levels in favour of one chain, that chain, elsewhere what the previous
- * frame chose there (its selection warped along F's flow, so the choice
- * moves with the content); one 3x3 majority pass trims what the warp
- * frays. Just after K1 every pixel holds F (the previous frame is the
- * key, F's own); as F's pile grows and B's shrinks towards K2, regions
- * switch to B, each once, as a whole.
+ * pixel (no salt and pepper). A pixel B took stays B: the previous
+ * frame's selection is warped along F's flow, so the choice moves with the
+ * content, and never flips back (no flicker between the chains). Then B's
+ * share grows to the frame's place, (t - K1) / (K2 - K1): the pixels that
+ * change over are those not yet B where d is greatest, where F has piled
+ * up the most error against B. Why a schedule, not a threshold on d: the
+ * piles grow by about a frame's error a frame, so a threshold moves almost
+ * every region over within a frame or two of the middle, and a whole
+ * frame's strokes changing at once is the step the blend must not show
+ * (measured: 1.6x the median step on a 10-frame shot, 1.1x with the
+ * schedule; bench/video_blend.py). One 3x3 majority pass trims what the
+ * warp frays. Just after K1 every pixel holds F (the frame before is the
+ * key, F's own).
  *
  * Blending: gradient-domain, a screened Poisson equation per channel:
  * the image u whose differences between 4-neighbours are the selected
@@ -35,9 +41,10 @@
  * strokes, and still cross-fades two stroke patterns.
  *
  * Solved by conjugate gradients from the hard composite, CG_ITERS
- * iterations whatever the residual, in doubles in one fixed order: the
- * same bytes on every run and machine (the blend runs in the CLI after the
- * chains, whose files are the same embedded and on any pool). */
+ * iterations whatever the residual, in doubles in one fixed order (and
+ * -std=c11 keeps the compiler from contracting into FMAs): the same bytes
+ * on every run and machine. The blend runs in the CLI after the chains,
+ * whose files are the same embedded and on any pool. */
 #include "video_blend.h"
 
 #include <math.h>
@@ -49,7 +56,6 @@
 #include "image.h"
 
 #define SMOOTH_DIV 24
-#define HYSTERESIS 2.0
 #define LAMBDA 0.05
 #define CG_ITERS 64
 
@@ -63,6 +69,7 @@ typedef struct {
   double *sat;           /* the summed-area table of pile(F) - pile(B) */
   float *mask, *warped;  /* the selection as floats (1: B), for the warp */
   uint8_t *sel, *maj;    /* the selection, 1: B */
+  uint32_t *order;       /* pixels not yet B, by their difference */
   double *x, *r, *p, *ap, *rhs;
 } blender;
 
@@ -90,19 +97,20 @@ static int blender_alloc(blender *bl, const ts_video *v, const char *dir, char *
   bl->warped = malloc(sizeof(float) * n);
   bl->sel = malloc(n);
   bl->maj = malloc(n);
+  bl->order = malloc(sizeof(uint32_t) * n);
   bl->x = malloc(sizeof(double) * n);
   bl->r = malloc(sizeof(double) * n);
   bl->p = malloc(sizeof(double) * n);
   bl->ap = malloc(sizeof(double) * n);
   bl->rhs = malloc(sizeof(double) * n);
   int ok = bl->f && bl->b && bl->af && bl->ab && bl->flow && bl->sat && bl->mask && bl->warped && bl->sel &&
-           bl->maj && bl->x && bl->r && bl->p && bl->ap && bl->rhs;
+           bl->maj && bl->order && bl->x && bl->r && bl->p && bl->ap && bl->rhs;
   return ok ? 0 : ts_error(err, TS_ENOMEM, "out of memory for the blend of %dx%d frames", v->w, v->h);
 }
 
 static void blender_free(blender *bl) {
   void *all[] = {bl->f, bl->b, bl->af, bl->ab, bl->flow, bl->sat, bl->mask, bl->warped, bl->sel, bl->maj,
-                 bl->x, bl->r, bl->p, bl->ap, bl->rhs};
+                 bl->order, bl->x, bl->r, bl->p, bl->ap, bl->rhs};
   for (size_t i = 0; i < sizeof(all) / sizeof(all[0]); i++) free(all[i]);
 }
 
@@ -133,18 +141,34 @@ static double box_mean(const blender *bl, int x, int y, int rad) {
   return s / ((double)(x1 - x0) * (y1 - y0));
 }
 
-/* The selection of frame t from the piles and the previous frame's
- * selection (bl->mask, warped here along F's flow); the share of B. */
-static double select_chains(blender *bl) {
+/* Orders pixel indices by their smoothed difference d, greatest first,
+ * ties by index: a total order, so the same selection everywhere. */
+static int by_difference(const void *a, const void *b, void *ctx) {
+  const double *d = ctx;
+  uint32_t i = *(const uint32_t *)a, j = *(const uint32_t *)b;
+  if (d[i] != d[j]) return d[i] > d[j] ? -1 : 1;
+  return i < j ? -1 : i > j;
+}
+
+/* The selection of frame t (share: B's share by the frame's place) from
+ * the piles and the previous frame's selection (bl->mask, warped here
+ * along F's flow); B's share of the result. */
+static double select_chains(blender *bl, double share) {
   int w = bl->w, h = bl->h, side = w < h ? w : h, rad = side / SMOOTH_DIV > 2 ? side / SMOOTH_DIV : 2;
   difference_table(bl);
   ts_flow_warp(bl->mask, w, h, 1, bl->flow, bl->warped);
+  size_t had = 0, open = 0;
   for (int y = 0; y < h; y++)
     for (int x = 0; x < w; x++) {
       size_t i = (size_t)y * w + x;
-      double d = box_mean(bl, x, y, rad);
-      bl->sel[i] = d > HYSTERESIS ? 1 : d < -HYSTERESIS ? 0 : bl->warped[i] >= 0.5f;
+      bl->x[i] = box_mean(bl, x, y, rad);
+      bl->sel[i] = bl->warped[i] >= 0.5f;
+      had += bl->sel[i];
+      if (!bl->sel[i]) bl->order[open++] = (uint32_t)i;
     }
+  size_t want = (size_t)ceil(share * (double)bl->n), more = want > had ? want - had : 0;
+  qsort_r(bl->order, open, sizeof(uint32_t), by_difference, bl->x);
+  for (size_t k = 0; k < more && k < open; k++) bl->sel[bl->order[k]] = 1;
   size_t taken = 0;
   for (int y = 0; y < h; y++)
     for (int x = 0; x < w; x++) {
@@ -260,7 +284,7 @@ static int blend_frame(blender *bl, long t, long k1, long k2, uint8_t *out, doub
   if (rc == 0) rc = ts_video_read_floats(path, bl->flow, 2 * bl->n, err);
   if (rc != 0) return rc;
   if (t == k1 + 1) memset(bl->mask, 0, sizeof(float) * bl->n); /* the frame before is K1's own: F */
-  *share = select_chains(bl);
+  *share = select_chains(bl, (double)(t - k1) / (double)(k2 - k1));
   for (int c = 0; c < bl->ch; c++) {
     poisson_setup(bl, c, t, k1, k2);
     poisson_solve(bl, c, out);
@@ -309,9 +333,9 @@ void ts_video_blend_free(ts_video_blend *b) {
 }
 
 void ts_video_blend_json(FILE *f, const ts_video_blend *b) {
-  fprintf(f, "{\"method\": \"screened Poisson\", \"selection\": \"accumulated error\", \"smoothing\": \"1/%d of the "
-          "shorter side\", \"hysteresis\": %g, \"lambda\": %g, \"iterations\": %d, \"frames\": [",
-          SMOOTH_DIV, HYSTERESIS, LAMBDA, CG_ITERS);
+  fprintf(f, "{\"method\": \"screened Poisson\", \"selection\": \"accumulated error, ranked; backward share by "
+          "place\", \"smoothing\": \"1/%d of the shorter side\", \"lambda\": %g, \"iterations\": %d, \"frames\": [",
+          SMOOTH_DIV, LAMBDA, CG_ITERS);
   for (long i = 0; i < b->nframes; i++)
     fprintf(f, "%s{\"frame\": %ld, \"backward\": %.4f}", i ? ", " : "", b->frame[i], b->backward[i]);
   fprintf(f, "]}");

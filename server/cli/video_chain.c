@@ -520,7 +520,8 @@ static int chain_resume(runner *r, chain *c, char *err) {
   if (rc == 0) rc = read_luma(v, t, c->luma, err);
   for (size_t i = 0; rc == 0 && i < n * v->channels; i++) c->sty[i] = r->b.px[i];
   if (rc != 0) return rc;
-  fprintf(stderr, "texsyn video: key %ld %s: frames %ld..%ld were finished before (kept in %s), going on %s\n",
+  if (!v->job.quiet)
+    fprintf(stderr, "texsyn video: key %ld %s: frames %ld..%ld were finished before (kept in %s), going on %s\n",
           c->key, direction(c), c->key + c->dir < t ? c->key + c->dir : t, c->key + c->dir < t ? t : c->key + c->dir,
           r->dir, t == c->last ? "with nothing left to do" : "from there");
   c->frame = t;

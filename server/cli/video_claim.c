@@ -114,7 +114,7 @@ int ts_video_claim(const ts_video *v, const char *dir, int *resume, char *err) {
   if (ts_file_read(path, 4096, &buf, &len, why) == 0 && len == strlen(want) && memcmp(buf, want, len) == 0)
     *resume = 1;
   free(buf);
-  if (!*resume && forget_frames(dir) > 0)
+  if (!*resume && forget_frames(dir) > 0 && !v->job.quiet)
     fprintf(stderr, "texsyn video: %s held frames of other settings, inputs or keys (its manifest differs); they "
             "were removed and the chains start afresh\n", dir);
   return *resume ? 0 : ts_file_write(path, want, strlen(want), err);
