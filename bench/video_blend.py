@@ -149,7 +149,7 @@ def main():
              f"{out['shot']}; default stylize parameters, {a.threads} threads; {cpu}, load {out['load']:.1f}. "
              f"Made by `bench/video_blend.py`.\n",
              "Temporal error: `texsyn flicker`. Steps at the blend: into frames whose selection changed. "
-             f"Two-key energy: `texsyn energy` (every {a.sample}th pixel) of frames 2..{n - 1} against both keys "
+             f"Two-key energy: `texsyn energy` (--sample {a.sample}) of frames 2..{n - 1} against both keys "
              "side by side as one exemplar, with the two input frames as its guide: a ghost (two keys' strokes "
              "mixed) matches neither key and raises it.\n",
              "| run | flicker mean | median step | worst step | worst step at the blend / median | "
