@@ -38,7 +38,8 @@ static void usage(FILE *f, const ts_engine *e) {
           "                       default (weights count whole images, whatever their channels)\n"
           "  --frames A..B        a sequence: frames A to B (0..%d, at most %d), each\n"
           "                       a job on the files whose names hold the frame number as\n"
-          "                       %%d or %%04d (target guides; -o, --nnf and --report must);\n"
+          "                       %%d or %%04d (target guides; -o and the side outputs\n"
+          "                       must);\n"
           "                       the exemplar and source guides are shared, sent to the\n"
           "                       workers once; frames run side by side on a coordinator\n",
           TS_STYLIT_MAX_GUIDES, TS_FRAME_LAST, TS_FRAMES_MAX);

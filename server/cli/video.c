@@ -1,17 +1,12 @@
 /* video.c - `texsyn video`'s options, the checks made before any work,
- * the input (frames, or a movie decoded into the work directory), and the
- * sequence put together from its chains (video_chain.h does the
- * stylizing; video_flow.h, video_mask.h and video_preview.h the given
- * flows, masks and GIF).
- *
- * Between two keys K1 < K2 every frame t has two stylizations, from K1
- * forward (F) and from K2 backward (B); this increment blends them by the
- * frame's place, (F * (K2 - t) + B * (t - K1)) / (K2 - K1) per sample,
- * rounded: deterministic and seamless at the keys, at the price of some
- * ghosting where the two disagree. (Jamriška et al. select per pixel by
- * the chains' accumulated error, with a temporally coherent selection,
- * and blend in the gradient domain: the next step.) Frames before the
- * first key and after the last come from the nearest key alone. */
+ * the input (frames, or a movie decoded into the work directory), the
+ * work directory, and the report. video_chain.h does the stylizing (and
+ * goes on where a run with the same --write-guides DIR stopped);
+ * video_flow.h, video_mask.h and video_preview.h the given flows, masks
+ * and GIF; video_blend.h puts the sequence together from the chains:
+ * between two keys the two chains merged by their piled-up error and
+ * blended in the gradient domain; before the first key and after the last
+ * the nearest key's chain alone. */
 #include "video.h"
 
 #include <dirent.h>
@@ -28,6 +23,7 @@
 #include "image.h"
 #include "paramopt.h"
 #include "util.h"
+#include "video_blend.h"
 #include "video_chain.h"
 #include "video_flow.h"
 #include "video_mask.h"
@@ -43,9 +39,10 @@ static void usage(FILE *f, const ts_engine *e) {
           "frame's colours and edges, by where its content was in the key (the key's pixel\n"
           "coordinates carried along the optical flow) and by the previous stylized frame\n"
           "warped along the flow. From each key a chain of such jobs runs forward to the\n"
-          "next key and backward to the previous; between two keys the two chains are\n"
-          "blended by the frame's place (linearly). Exact and deterministic: the same\n"
-          "bytes in-process and on any pool.\n"
+          "next key and backward to the previous; between two keys each pixel comes from\n"
+          "the chain with the least error piled up along the flow, blended in the\n"
+          "gradient domain (no seam, no ghost). Exact and deterministic: the same bytes\n"
+          "in-process and on any pool.\n"
           "\n"
           "  --input PATTERN      the input frames, the frame number as %%d or %%04d; one size\n"
           "                       and channel count, at least %dx%d. Or a movie (FFmpeg):\n"
@@ -68,7 +65,9 @@ static void usage(FILE *f, const ts_engine *e) {
           "  --preview OUT.gif    the output frames also as an animated GIF (the movie's\n"
           "                       frame rate, else 24 frames a second)\n"
           "  --write-guides DIR   keep the guides made (edges, positions, temporal, each\n"
-          "                       chain's frames) in DIR, made if missing\n"
+          "                       chain's frames) in DIR, made if missing; the same\n"
+          "                       command again goes on at each chain's next unfinished\n"
+          "                       frame\n"
           "  --report F           one JSON object: the settings and every job's report\n",
           TS_FLOW_MIN_SIDE, TS_FLOW_MIN_SIDE, TS_FRAME_LAST, TS_VIDEO_MAX_KEYS, TS_VIDEO_MAX_PASSES);
   ts_params_help(f, ts_video_params, NULL);
@@ -442,59 +441,15 @@ static void workdir_remove(const char *dir) {
 
 /* ---- the sequence ------------------------------------------------------ */
 
-/* The keys around frame t: *lo the last key at or before it (-1: none),
- * *hi the first at or after it (nkeys: none). */
-static void keys_around(const ts_video *v, long t, int *lo, int *hi) {
-  *lo = -1;
-  *hi = v->nkeys;
-  for (int k = 0; k < v->nkeys; k++) {
-    if (v->key[k].frame <= t) *lo = k;
-    if (v->key[k].frame >= t && *hi == v->nkeys) *hi = k;
-  }
-}
-
-/* Output frame t into px: from one chain, or the two blended by place. */
-static int frame_out(const ts_video *v, const char *dir, long t, uint8_t *px, uint8_t *other, char *err) {
-  int lo, hi;
-  keys_around(v, t, &lo, &hi);
-  char path[TS_VIDEO_PATH];
-  long k1 = lo >= 0 ? v->key[lo].frame : -1, k2 = hi < v->nkeys ? v->key[hi].frame : -1;
-  ts_video_chain_file(dir, lo >= 0 ? k1 : k2, t, "out.png", path, sizeof(path));
-  int rc = ts_video_read8(v, path, px, err);
-  if (rc != 0 || lo < 0 || hi == v->nkeys || k1 == k2) return rc;
-  ts_video_chain_file(dir, k2, t, "out.png", path, sizeof(path));
-  rc = ts_video_read8(v, path, other, err);
-  long span = k2 - k1;
-  for (size_t i = 0; rc == 0 && i < (size_t)v->w * v->h * v->channels; i++)
-    px[i] = (uint8_t)((px[i] * (k2 - t) + other[i] * (t - k1) + span / 2) / span);
-  return rc;
-}
-
-static int write_sequence(const ts_video *v, const char *dir, char *err) {
-  size_t n = (size_t)v->w * v->h * v->channels;
-  uint8_t *px = malloc(n), *other = malloc(n);
-  int rc = px != NULL && other != NULL ? 0 : ts_error(err, TS_ENOMEM, "out of memory");
-  char path[TS_VIDEO_PATH];
-  for (long t = v->fr.first; rc == 0 && t <= v->fr.last; t++) {
-    rc = frame_out(v, dir, t, px, other, err);
-    ts_image img = {v->w, v->h, v->channels, TS_PIX_U8, px, NULL};
-    ts_frame_path(v->out, t, path, sizeof(path)); /* fits: checked */
-    if (rc == 0) rc = ts_image_write(path, &img, NULL, err);
-  }
-  free(px);
-  free(other);
-  return rc;
-}
-
-/* The sequence written; with --mask first into dir, then composited into
- * the outputs (video_mask.h). */
-static int sequence_out(ts_video *v, const char *dir, char *err) {
-  if (v->mask == NULL) return write_sequence(v, dir, err);
+/* The sequence written (video_blend.h); with --mask first into dir, then
+ * composited into the outputs (video_mask.h). */
+static int sequence_out(ts_video *v, const char *dir, ts_video_blend *b, char *err) {
+  if (v->mask == NULL) return ts_video_blend_write(v, dir, b, err);
   const char *out = v->out;
   char stylized[TS_VIDEO_PATH + 32];
   snprintf(stylized, sizeof(stylized), "%s/stylized_%%04d.png", dir);
   v->out = stylized;
-  int rc = write_sequence(v, dir, err);
+  int rc = ts_video_blend_write(v, dir, b, err);
   v->out = out;
   return rc == 0 ? ts_video_mask_write(v, dir, stylized, err) : rc;
 }
@@ -514,15 +469,17 @@ static int append_file(FILE *f, const char *path, char *err) {
 
 /* One JSON object: the sequence, keys, weights, the flow, and each job's
  * report in chain order. */
-static int write_report(const ts_video *v, const char *dir, const char *path, char *err) {
+static int write_report(const ts_video *v, const char *dir, const ts_video_blend *b, const char *path, char *err) {
   FILE *f = fopen(path, "w");
   if (f == NULL) return ts_error(err, TS_EIO, "cannot write %s: %s", path, strerror(errno));
   fprintf(f, "{\"frames\": [%ld, %ld], \"size\": [%d, %d], \"flow\": \"%s\", \"weights\": {\"input\": %g, "
-          "\"edge\": %g, \"position\": %g, \"temporal\": %g, \"mask\": %g}, \"blend\": \"linear\", \"keys\": [",
+          "\"edge\": %g, \"position\": %g, \"temporal\": %g, \"mask\": %g}, \"blend\": ",
           v->fr.first, v->fr.last, v->w, v->h,
           v->flow == NULL ? ts_flow_method() : v->flow_back == NULL ? "given (--flow; backward: inverted)"
                                                                    : "given (--flow, --flow-back)", v->input_weight, v->wt.edge,
           v->wt.position, v->wt.temporal, v->mask != NULL ? v->wt.mask : 0);
+  ts_video_blend_json(f, b);
+  fprintf(f, ", \"keys\": [");
   for (int k = 0; k < v->nkeys; k++) fprintf(f, "%s%ld", k ? ", " : "", v->key[k].frame);
   fprintf(f, "], \"jobs\": [");
   int rc = 0, first = 1;
@@ -552,14 +509,17 @@ int ts_cmd_video(int argc, char **argv) {
   int status = rc == 0 ? 0 : 2;
   if (rc == 0) rc = check_all(o, err);
   if (rc != 0 && status == 0) status = rc == TS_EINVAL ? 2 : 1;
-  int made = rc == 0 && (rc = workdir_make(&o->v, dir, sizeof(dir), err)) == 0;
+  int made = rc == 0 && (rc = workdir_make(&o->v, dir, sizeof(dir), err)) == 0, resume = 0;
   if (rc == 0 && o->movie != NULL) rc = movie_decode(o, dir, err);
+  if (rc == 0 && o->v.guides_dir != NULL) rc = ts_video_claim(&o->v, dir, &resume, err);
   if (rc == 0) rc = ts_video_prepare(&o->v, dir, err);
   if (rc == TS_EINVAL && status == 0) status = 2;
-  if (rc == 0) rc = ts_video_run_chains(&o->v, dir, err);
-  if (rc == 0) rc = sequence_out(&o->v, dir, err);
+  if (rc == 0) rc = ts_video_run_chains(&o->v, dir, resume, err);
+  ts_video_blend blend = {0};
+  if (rc == 0) rc = sequence_out(&o->v, dir, &blend, err);
   if (rc == 0 && o->preview != NULL) rc = ts_video_preview(&o->v, o->preview, o->fps > 0 ? o->fps : 24, err);
-  if (rc == 0 && o->report != NULL) rc = write_report(&o->v, dir, o->report, err);
+  if (rc == 0 && o->report != NULL) rc = write_report(&o->v, dir, &blend, o->report, err);
+  ts_video_blend_free(&blend);
   if (made && o->v.guides_dir == NULL) workdir_remove(dir);
   if (rc != 0) fprintf(stderr, "texsyn video: %s\n", err);
   if (rc != 0 && status == 0) status = 1;

@@ -4,10 +4,13 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
+#include <unistd.h>
 
 #include "error.h"
 #include "flow.h"
 #include "image.h"
+#include "util.h"
 #include "video_flow.h"
 #include "video_guides.h"
 #include "video_mask.h"
@@ -31,6 +34,21 @@ static void identity_file(const char *dir, const char *axis, char *out, size_t c
 static int write_u8(const char *path, const uint8_t *px, int w, int h, int c, char *err) {
   ts_image img = {w, h, c, TS_PIX_U8, (void *)px, NULL};
   return ts_image_write(path, &img, NULL, err);
+}
+
+int ts_video_write_floats(const char *path, const float *f, size_t n, char *err) {
+  return ts_file_write(path, f, n * sizeof(float), err);
+}
+
+int ts_video_read_floats(const char *path, float *f, size_t n, char *err) {
+  uint8_t *buf = NULL;
+  size_t len = 0;
+  int rc = ts_file_read(path, n * sizeof(float) + 1, &buf, &len, err);
+  if (rc == 0 && len != n * sizeof(float))
+    rc = ts_error(err, TS_EFORMAT, "%s holds %zu bytes, not the %zu of %zu floats", path, len, n * sizeof(float), n);
+  if (rc == 0) memcpy(f, buf, len);
+  free(buf);
+  return rc;
 }
 
 int ts_video_read8(const ts_video *v, const char *path, uint8_t *px, char *err) {
@@ -190,10 +208,12 @@ typedef struct {
   uint8_t *luma;         /* input frame `frame` */
   float *pos;            /* the position guide at `frame` */
   float *sty;            /* the stylized frame `frame`, 8-bit values */
+  float *acc;            /* the error piled up along the chain to `frame` */
+  float *flow;           /* the flow from the frame under way to `frame` */
   uint64_t id;           /* the running job on a coordinator */
   ts_job_cmd job;
   char in[TS_ENGINE_MAX_INPUTS][TS_VIDEO_PATH];
-  char out[TS_VIDEO_PATH], report[TS_VIDEO_PATH], name[64];
+  char out[TS_VIDEO_PATH], report[TS_VIDEO_PATH], error[TS_VIDEO_PATH], name[64];
 } chain;
 
 /* One step's scratch, shared by the chains (one step is made at a time). */
@@ -207,6 +227,8 @@ static void chain_free(chain *c) {
   free(c->luma);
   free(c->pos);
   free(c->sty);
+  free(c->acc);
+  free(c->flow);
 }
 
 static int chain_init(const ts_video *v, const char *dir, long key, long last, chain *c, char *err) {
@@ -216,7 +238,10 @@ static int chain_init(const ts_video *v, const char *dir, long key, long last, c
   c->luma = malloc(n);
   c->pos = malloc(sizeof(float) * 2 * n);
   c->sty = malloc(sizeof(float) * n * v->channels);
-  if (!c->painting || !c->luma || !c->pos || !c->sty) return ts_error(err, TS_ENOMEM, "out of memory");
+  c->acc = calloc(n, sizeof(float)); /* the key's own frame: no error */
+  c->flow = malloc(sizeof(float) * 2 * n);
+  if (!c->painting || !c->luma || !c->pos || !c->sty || !c->acc || !c->flow)
+    return ts_error(err, TS_ENOMEM, "out of memory");
   char path[TS_VIDEO_PATH];
   key_file(dir, key, "", path, sizeof(path));
   int rc = ts_video_read8(v, path, c->painting, err);
@@ -270,6 +295,7 @@ static int make_guides(const ts_video *v, const char *dir, chain *c, long t, ste
   int rc = read_luma(v, t, b->luma, err);
   if (rc == 0) rc = ts_video_flows(v, c->frame, t, c->luma, b->luma, b->back, b->fwd, b->scratch, err);
   if (rc != 0) return rc;
+  memcpy(c->flow, b->back, sizeof(float) * 2 * (size_t)v->w * (size_t)v->h);
   ts_flow_occlusion(b->back, b->fwd, v->w, v->h, b->occluded);
   ts_guide_position_advect(c->pos, b->back, b->occluded, v->w, v->h, b->pos);
   char path[TS_VIDEO_PATH], path2[TS_VIDEO_PATH];
@@ -298,6 +324,8 @@ static int chain_job(const ts_video *v, const char *dir, chain *c, long t) {
   for (int k = 0; k < 1 + 2 * g; k++) c->job.in[k] = c->in[k];
   ts_video_chain_file(dir, c->key, t, "out.png", c->out, sizeof(c->out));
   ts_output_set(&c->job.out, "output", c->out);
+  ts_video_chain_file(dir, c->key, t, "error.tif", c->error, sizeof(c->error));
+  ts_output_set(&c->job.out, "error_map", c->error);
   if (ts_output_path(&v->job.out, "report") != NULL) {
     ts_video_chain_file(dir, c->key, t, "report.json", c->report, sizeof(c->report));
     ts_output_set(&c->job.out, "report", c->report);
@@ -309,6 +337,9 @@ static int chain_job(const ts_video *v, const char *dir, chain *c, long t) {
 
 /* ---- running the chains ------------------------------------------------ */
 
+/* How long a chain waits for a lost coordinator to come back. */
+#define RECONNECT_SECONDS 120
+
 typedef struct {
   const ts_video *v;
   const char *dir;
@@ -317,6 +348,8 @@ typedef struct {
   int connected;
   step_buf b;
 } runner;
+
+static const char *direction(const chain *c) { return c->dir > 0 ? "forward" : "backward"; }
 
 /* Reads a job's inputs and runs it here. */
 static int run_here(runner *r, const ts_job_cmd *job, char *err) {
@@ -330,10 +363,68 @@ static int run_here(runner *r, const ts_job_cmd *job, char *err) {
   return rc;
 }
 
+/* The coordinator lost (TS_ECONN): a new connection to the same address,
+ * tried for RECONNECT_SECONDS. A restarted coordinator takes its spooled
+ * jobs up again under their ids, so the chains go on where they were. */
+static int reconnect(runner *r, const char *why, char *err) {
+  const ts_job_cmd *job = &r->v->job;
+  ts_conn_close(&r->conn);
+  r->connected = 0;
+  fprintf(stderr, "texsyn video: lost the coordinator (%s); trying %s again for up to %d s\n", why, job->server,
+          RECONNECT_SECONDS);
+  char last[TS_ERR_LEN] = "";
+  for (double t0 = ts_now(); ts_now() - t0 < RECONNECT_SECONDS;) {
+    if (ts_job_connect(&r->conn, job->server, job->secret_file, last) == 0) {
+      r->connected = 1;
+      fprintf(stderr, "texsyn video: reconnected to %s\n", job->server);
+      return 0;
+    }
+    nanosleep(&(struct timespec){0, 200000000L}, NULL);
+  }
+  return ts_error(err, TS_ECONN, "the coordinator at %s did not come back within %d s (%s); the same command with "
+                  "the same --write-guides DIR goes on at the next unfinished frame of each chain", job->server,
+                  RECONNECT_SECONDS, last);
+}
+
+/* Submits the chain's job, again on a new connection if the coordinator
+ * went away meanwhile. */
+static int submit(runner *r, chain *c, char *err) {
+  int rc;
+  while ((rc = ts_job_submit(&r->conn, &c->job, &c->id, err)) == TS_ECONN) {
+    char why[TS_ERR_LEN];
+    snprintf(why, sizeof(why), "%s", err);
+    if ((rc = reconnect(r, why, err)) != 0) break;
+  }
+  return rc;
+}
+
+/* Follows the chain's job to its end and fetches its files, across
+ * coordinator restarts; a job the new coordinator does not know (its
+ * spool lost) is submitted again, once. */
+static int finish(runner *r, chain *c, char *err) {
+  int resubmitted = 0;
+  for (;;) {
+    int rc = ts_job_finish(&r->conn, &c->job, c->id, err);
+    char why[TS_ERR_LEN];
+    snprintf(why, sizeof(why), "%s", err);
+    if (rc == TS_ENOENT && !resubmitted && strncmp(err, "no job", 6) == 0) {
+      resubmitted = 1;
+      fprintf(stderr, "texsyn video: %s: submitting frame %ld from key %ld again\n", why, c->frame + c->dir, c->key);
+      rc = submit(r, c, err);
+      if (rc == 0) continue;
+    }
+    if (rc != TS_ECONN) return rc;
+    if ((rc = reconnect(r, why, err)) != 0) return rc;
+  }
+}
+
 /* The chain's next frame: its guides made, its job run (embedded) or
  * submitted (coordinator). */
 static int step_start(runner *r, chain *c, char *err) {
   long t = c->frame + c->dir;
+  if (!r->v->job.quiet)
+    fprintf(stderr, "texsyn video: key %ld %s, frame %ld (%ld of %ld)\n", c->key, direction(c), t,
+            labs(t - c->key), labs(c->last - c->key));
   int rc = make_guides(r->v, r->dir, c, t, &r->b, err);
   if (rc != 0) return rc;
   float *pos = c->pos;
@@ -343,20 +434,98 @@ static int step_start(runner *r, chain *c, char *err) {
   c->luma = r->b.luma;
   r->b.luma = luma;
   chain_job(r->v, r->dir, c, t);
-  return r->connected ? ts_job_submit(&r->conn, &c->job, &c->id, err) : run_here(r, &c->job, err);
+  return r->connected ? submit(r, c, err) : run_here(r, &c->job, err);
 }
 
-/* The chain's next frame done: fetched (coordinator) and taken as the
- * frame the following one is warped from. */
-static int step_end(runner *r, chain *c, char *err) {
-  int rc = r->connected ? ts_job_finish(&r->conn, &c->job, c->id, err) : 0;
-  uint8_t *px = rc == 0 ? malloc((size_t)r->v->w * r->v->h * r->v->channels) : NULL;
-  if (rc == 0 && px == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
-  if (rc == 0) rc = ts_video_read8(r->v, c->out, px, err);
-  for (size_t i = 0; rc == 0 && i < (size_t)r->v->w * r->v->h * r->v->channels; i++) c->sty[i] = px[i];
-  free(px);
-  c->frame += c->dir;
+/* ---- a finished frame on disk ------------------------------------------ */
+
+/* A finished frame's state beside its image and error map: its position
+ * guide and the error piled up to it (raw floats), which with the image
+ * are all the next frame needs, and the flow to the frame before (the
+ * blend's). The piled-up error goes last: its file says the frame is
+ * finished (files go in by rename, ts_file_write). */
+static int frame_save(const ts_video *v, const char *dir, const chain *c, char *err) {
+  size_t n = (size_t)v->w * (size_t)v->h;
+  char path[TS_VIDEO_PATH];
+  ts_video_chain_file(dir, c->key, c->frame, "pos.raw", path, sizeof(path));
+  int rc = ts_video_write_floats(path, c->pos, 2 * n, err);
+  ts_video_chain_file(dir, c->key, c->frame, "flow.raw", path, sizeof(path));
+  if (rc == 0) rc = ts_video_write_floats(path, c->flow, 2 * n, err);
+  ts_video_chain_file(dir, c->key, c->frame, "acc.raw", path, sizeof(path));
+  if (rc == 0) rc = ts_video_write_floats(path, c->acc, n, err);
   return rc;
+}
+
+static int frame_finished(const char *dir, long key, long t) {
+  static const char *const what[] = {"out.png", "error.tif", "pos.raw", "flow.raw", "acc.raw"};
+  char path[TS_VIDEO_PATH];
+  for (size_t k = 0; k < sizeof(what) / sizeof(what[0]); k++) {
+    ts_video_chain_file(dir, key, t, what[k], path, sizeof(path));
+    if (access(path, R_OK) != 0) return 0;
+  }
+  return 1;
+}
+
+/* An error map as floats (1 channel, the frames' size). */
+static int read_error(const ts_video *v, const char *path, float *e, char *err) {
+  ts_image img = {0};
+  ts_image_limits limits = {v->job.max_pixels, NULL};
+  int rc = ts_image_read(path, &img, &limits, err);
+  if (rc == 0 && (img.width != v->w || img.height != v->h || img.channels != 1 || img.type != TS_PIX_F32))
+    rc = ts_error(err, TS_EFORMAT, "%s is not a %dx%d float error map", path, v->w, v->h);
+  if (rc == 0) memcpy(e, img.pixels, sizeof(float) * (size_t)v->w * (size_t)v->h);
+  ts_image_free(&img);
+  return rc;
+}
+
+/* The chain's next frame done: fetched (coordinator), taken as the frame
+ * the following one is warped from, its error piled onto the chain's
+ * along the flow (Jamriška et al.: the blend's measure), saved. */
+static int step_end(runner *r, chain *c, char *err) {
+  const ts_video *v = r->v;
+  size_t n = (size_t)v->w * (size_t)v->h;
+  int rc = r->connected ? finish(r, c, err) : 0;
+  uint8_t *px = rc == 0 ? malloc(n * v->channels) : NULL;
+  float *e = rc == 0 ? malloc(sizeof(float) * n) : NULL;
+  if (rc == 0 && (px == NULL || e == NULL)) rc = ts_error(err, TS_ENOMEM, "out of memory");
+  if (rc == 0) rc = ts_video_read8(v, c->out, px, err);
+  if (rc == 0) rc = read_error(v, c->error, e, err);
+  for (size_t i = 0; rc == 0 && i < n * v->channels; i++) c->sty[i] = px[i];
+  if (rc == 0) {
+    ts_flow_warp(c->acc, v->w, v->h, 1, c->flow, r->b.warped);
+    for (size_t i = 0; i < n; i++) c->acc[i] = r->b.warped[i] + e[i];
+  }
+  free(px);
+  free(e);
+  c->frame += c->dir;
+  return rc == 0 ? frame_save(v, r->dir, c, err) : rc;
+}
+
+/* A rerun with the same work directory (ts_video_claim said it holds this
+ * job's frames): the chain goes on after the last frame of an unbroken
+ * run of finished ones from its key. */
+static int chain_resume(runner *r, chain *c, char *err) {
+  const ts_video *v = r->v;
+  size_t n = (size_t)v->w * (size_t)v->h;
+  long t = c->key;
+  while (t != c->last && frame_finished(r->dir, c->key, t + c->dir)) t += c->dir;
+  if (t == c->key) return 0;
+  char path[TS_VIDEO_PATH];
+  ts_video_chain_file(r->dir, c->key, t, "out.png", path, sizeof(path));
+  int rc = ts_video_read8(v, path, r->b.px, err);
+  ts_video_chain_file(r->dir, c->key, t, "pos.raw", path, sizeof(path));
+  if (rc == 0) rc = ts_video_read_floats(path, c->pos, 2 * n, err);
+  ts_video_chain_file(r->dir, c->key, t, "acc.raw", path, sizeof(path));
+  if (rc == 0) rc = ts_video_read_floats(path, c->acc, n, err);
+  if (rc == 0) rc = read_luma(v, t, c->luma, err);
+  for (size_t i = 0; rc == 0 && i < n * v->channels; i++) c->sty[i] = r->b.px[i];
+  if (rc != 0) return rc;
+  if (!v->job.quiet)
+    fprintf(stderr, "texsyn video: key %ld %s: frames %ld..%ld were finished before (kept in %s), going on %s\n",
+          c->key, direction(c), c->key + c->dir < t ? c->key + c->dir : t, c->key + c->dir < t ? t : c->key + c->dir,
+          r->dir, t == c->last ? "with nothing left to do" : "from there");
+  c->frame = t;
+  return 0;
 }
 
 /* The chains: per key, backward to the frame after the previous key (or
@@ -392,12 +561,13 @@ static int round_run(runner *r, chain *cs, int n, int *active, char *err) {
   return rc;
 }
 
-int ts_video_run_chains(const ts_video *v, const char *dir, char *err) {
+int ts_video_run_chains(const ts_video *v, const char *dir, int resume, char *err) {
   chain *cs = calloc(2 * (size_t)v->nkeys, sizeof(*cs));
   int n = 0, active = 1;
   runner r = {.v = v, .dir = dir};
   int rc = cs != NULL ? step_buf_alloc(&r.b, v, err) : ts_error(err, TS_ENOMEM, "out of memory");
   if (rc == 0) rc = chains_make(v, dir, cs, &n, err);
+  for (int i = 0; rc == 0 && resume && i < n; i++) rc = chain_resume(&r, &cs[i], err);
   if (rc == 0 && v->job.server != NULL) {
     rc = ts_job_open(&r.conn, &v->job, err);
     r.connected = rc == 0;

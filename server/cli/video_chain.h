@@ -82,8 +82,26 @@ int ts_video_weigh(ts_video *v, char *err);
 int ts_video_prepare(const ts_video *v, const char *dir, char *err);
 
 /* Runs every chain (ts_video_prepare first): the stylized frames are the
- * "out.png" files of dir (a key's own frame: its painting). 0 or an error
- * with its message. */
-int ts_video_run_chains(const ts_video *v, const char *dir, char *err);
+ * "out.png" files of dir (a key's own frame: its painting), each with its
+ * "error.tif" (the stylize job's error map), "acc.raw" (the error piled
+ * up along the chain, w*h floats), "flow.raw" (the flow from it to the
+ * chain's frame before, 2*w*h floats) and "pos.raw" (its position guide).
+ * resume: dir holds this job's frames from an earlier run (ts_video_claim):
+ * each chain goes on after its last finished frame. On a coordinator, a
+ * lost connection is made again (for up to two minutes) and the chains
+ * follow their jobs on the restarted coordinator. Prints per frame the
+ * chain and the frame unless quiet. 0 or an error with its message. */
+int ts_video_run_chains(const ts_video *v, const char *dir, int resume, char *err);
+
+/* Whether the work directory holds this job's frames from an earlier run
+ * (its manifest, video_claim.c): *resume = 1; else its chain files are
+ * removed (saying so when there were some) and the manifest written for
+ * this job. 0 or an error. */
+int ts_video_claim(const ts_video *v, const char *dir, int *resume, char *err);
+
+/* Raw native floats, n of them: a whole file (written by rename), or
+ * TS_EFORMAT when it holds another count. */
+int ts_video_write_floats(const char *path, const float *f, size_t n, char *err);
+int ts_video_read_floats(const char *path, float *f, size_t n, char *err);
 
 #endif

@@ -61,3 +61,18 @@ int ts_write_usage_map(const char *path, const uint32_t *usage, int w, int h, ch
   ts_image_free(&img);
   return rc;
 }
+
+int ts_write_float_map(const char *path, const float *map, int w, int h, char *err) {
+  ts_image img;
+  int rc = ts_image_alloc(&img, w, h, 1, TS_PIX_F32, err);
+  if (rc != 0) return rc;
+  int raw = has_ext(path, ".tif") || has_ext(path, ".tiff") || has_ext(path, ".exr");
+  float max = 0;
+  for (long i = 0; i < (long)w * h; i++)
+    if (map[i] > max) max = map[i];
+  float *px = img.pixels;
+  for (long i = 0; i < (long)w * h; i++) px[i] = raw || max == 0 ? map[i] : map[i] / max;
+  rc = ts_image_write(path, &img, NULL, err);
+  ts_image_free(&img);
+  return rc;
+}

@@ -162,6 +162,16 @@ int ts_stylit_energy_json(const ts_stylit_energy *e, char *buf, size_t cap);
  * the file a coordinator sent): 0, or TS_EFORMAT saying what is wrong. */
 int ts_stylit_energy_json_read(const char *text, size_t len, ts_stylit_energy *e, char *err);
 
+/* The error map (stylit_error.c): per output pixel of a finished run, the
+ * guided distance of its patch in res->image (with the target guides) to
+ * the exemplar patch res->nnf gave it, no uniformity penalty, divided by
+ * the window's one-grey-level distance: the weighted mean absolute
+ * difference per compared value, in grey levels, as the energy counts.
+ * in: the run's (checked) inputs; out: the result's width x height floats.
+ * 0 or TS_ENOMEM. */
+int ts_stylit_error_map(const ts_stylit_params *p, const ts_image *const *in, const ts_stylit_result *res,
+                        float *out, char *err);
+
 /* Apply-nnf: out (8-bit, src's channels, tw x th) = the engine's vote of
  * src's channels through nnf (tw x th source patch centres, x, y pairs),
  * patch p. Every entry must be the centre of a patch inside src. */

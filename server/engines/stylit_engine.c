@@ -1,6 +1,7 @@
 /* stylit_engine.c - guided stylization (stylit.h) as an engine (engine.h):
  * the scene's inputs and spec keys (stylit_engine.h, shared with the
- * energy engine), its own keys, result files and report. No checkpoints
+ * energy engine), its own keys, result files (the image, the NNF, the
+ * error map) and report. No checkpoints
  * yet: a job a coordinator restart interrupts runs again from its start,
  * which gives the same bytes. */
 #include <math.h>
@@ -19,13 +20,15 @@
 _Static_assert(sizeof(ts_stylit_params) <= TS_ENGINE_PARAMS_MAX, "stylize parameters outgrew ts_engine_params");
 _Static_assert(1 + 2 * TS_STYLIT_MAX_GUIDES <= TS_ENGINE_MAX_INPUTS, "stylize inputs outgrew ts_engine_inputs");
 
-enum { OUT_IMAGE, OUT_NNF, OUT_REPORT, OUT_COUNT };
+enum { OUT_IMAGE, OUT_NNF, OUT_REPORT, OUT_ERROR, OUT_COUNT };
 
 static const ts_engine_output stylit_outputs[OUT_COUNT] = {
     [OUT_IMAGE] = {"output", "out", TS_OUTPUT_IMAGE},
     [OUT_NNF] = {"nnf", "nnf", TS_OUTPUT_IMAGE,
                       "nnf", "the nearest-neighbour field: for each output pixel the exemplar pixel it comes from (.raw: little-endian uint32 x, y pairs; else a 16-bit image, red = x, green = y)", "raw"},
     [OUT_REPORT] = {"report", "report.json", TS_OUTPUT_FLAG},
+    [OUT_ERROR] = {"error_map", "errormap", TS_OUTPUT_IMAGE, "error-map",
+                   "per output pixel, the guided distance of its patch to the exemplar patch it took, in grey levels (.tif/.tiff/.exr: those floats; else scaled by the largest)"},
 };
 
 void ts_stylit_scene_inputs(const ts_stylit_params *p, ts_engine_inputs *out) {
@@ -137,7 +140,7 @@ static uint64_t stylit_result_bytes(const void *params, const ts_engine_wants *w
   const ts_stylit_params *p = params;
   const ts_image_info *t = &in[ts_stylit_in_tgt(0)];
   return (uint64_t)scaled_side(t->width, p->scale) * (uint64_t)scaled_side(t->height, p->scale) *
-         (4 + (w->want[OUT_NNF][0] ? 8 : 0));
+         (4 + (w->want[OUT_NNF][0] ? 8 : 0) + (w->want[OUT_ERROR][0] ? 4 : 0));
 }
 
 static int stylit_levels(const void *params) { return ((const ts_stylit_params *)params)->levels; }
@@ -147,6 +150,7 @@ static int stylit_levels(const void *params) { return ((const ts_stylit_params *
 struct ts_engine_run {
   const ts_stylit_params *p;
   const ts_search *search;
+  scaled_inputs in; /* what ran, kept for the error map */
   ts_stylit_result res;
 };
 
@@ -158,10 +162,8 @@ static int stylit_run(const void *params, const ts_image *const *in, ts_search *
   r->p = params;
   r->search = search;
   ts_progress_hooks sh = {h->progress, h->progress_ctx};
-  scaled_inputs s;
-  int rc = scaled_make(r->p, in, &s, err);
-  if (rc == 0) rc = ts_stylit_run(r->p, s.ptr, search, &sh, &r->res, err);
-  scaled_free(&s);
+  int rc = scaled_make(r->p, in, &r->in, err);
+  if (rc == 0) rc = ts_stylit_run(r->p, r->in.ptr, search, &sh, &r->res, err);
   return rc;
 }
 
@@ -215,11 +217,23 @@ static int write_nnf(const ts_stylit_result *res, const char *path, char *err) {
   return ts_write_copy_map_image(path, res->nnf, w, h, res->src_w, res->src_h, err);
 }
 
+/* The error map (stylit.h) as a float image, written as the usage map is. */
+static int write_error(const ts_engine_run *r, const char *path, char *err) {
+  int w = r->res.image.width, h = r->res.image.height;
+  float *e = malloc(sizeof(float) * (size_t)w * (size_t)h);
+  if (e == NULL) return ts_error(err, TS_ENOMEM, "out of memory for the error map");
+  int rc = ts_stylit_error_map(r->p, r->in.ptr, &r->res, e, err);
+  if (rc == 0) rc = ts_write_float_map(path, e, w, h, err);
+  free(e);
+  return rc;
+}
+
 static int stylit_write_output(const ts_engine_run *r, int k, const char *path, int threads, char *err) {
   switch (k) {
   case OUT_IMAGE: return ts_image_write(path, &r->res.image, NULL, err);
   case OUT_NNF: return write_nnf(&r->res, path, err);
   case OUT_REPORT: return write_report(r, path, threads, err);
+  case OUT_ERROR: return write_error(r, path, err);
   default: return ts_error(err, TS_EINVAL, "the stylize engine has no output %d", k);
   }
 }
@@ -227,6 +241,7 @@ static int stylit_write_output(const ts_engine_run *r, int k, const char *path, 
 static void stylit_run_free(ts_engine_run *r) {
   if (r == NULL) return;
   ts_stylit_result_free(&r->res);
+  scaled_free(&r->in);
   free(r);
 }
 

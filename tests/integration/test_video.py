@@ -83,7 +83,7 @@ def test_write_guides_and_the_report(texsyn, shot, tmp_path):
         assert f"from_0001_0003_{what}.png" in made, made
     assert "key_0001.png" in made and "key_0001_edge.png" in made and "position_x.png" in made, made
     r = json.loads((tmp_path / "r.json").read_text())
-    assert r["frames"] == [1, 4] and r["keys"] == [1] and r["blend"] == "linear", r
+    assert r["frames"] == [1, 4] and r["keys"] == [1] and r["blend"]["frames"] == [], r
     assert [(j["frame"], j["key"]) for j in r["jobs"]] == [(2, 1), (3, 1), (4, 1)], r["jobs"]
     # colour, edge, position x and y, temporal, the pass: 6 guides.
     assert r["jobs"][0]["report"]["params"]["guide_weights"] == [1, 0.5, 0.5, 0.5, 1, 0.5], r["jobs"][0]["report"]

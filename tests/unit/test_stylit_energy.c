@@ -2,7 +2,9 @@
  * against a brute-force scorer (plain loops over every source patch, the
  * weights worked out by hand), a copy of the exemplar covering all of
  * it, a wrong-sized image and a step of 0 refused; apply-nnf of a stylize run's NNF
- * over the style giving that run's output byte for byte; the energy's JSON
+ * over the style giving that run's output byte for byte; the error map of
+ * a run against the brute-force distance of each pixel's patch to the
+ * patch its NNF entry names, and never below the energy; the energy's JSON
  * line read back, and the energy engine giving the measure's line. */
 #include <math.h>
 
@@ -224,6 +226,42 @@ static void apply_nnf_of_a_run_gives_its_output(void **state) {
   scene_free(&s);
 }
 
+/* Each pixel's error is the brute-force distance of its patch in the
+ * run's output to the source patch of its NNF entry, in grey levels; the
+ * map's mean is at least the energy, the least such distance. */
+static void error_map_is_each_patch_distance_to_its_nnf_patch(void **state) {
+  (void)state;
+  scene s;
+  scene_make(&s, 3, 13);
+  s.p.iters = 2;
+  char err[TS_ERR_LEN];
+  ts_search *search;
+  assert_int_equal(ts_search_local_create(&search, 2, NULL, err), 0);
+  ts_stylit_result res;
+  assert_int_equal(ts_stylit_run(&s.p, s.in, search, NULL, &res, err), 0);
+  float map[TW * TH];
+  assert_int_equal(ts_stylit_error_map(&s.p, s.in, &res, map, err), 0);
+  channel ch[8];
+  int nch = channels_of(&s, &res.image, ch);
+  uint64_t unit = 0;
+  for (int k = 0; k < nch; k++) unit += ch[k].w * 9;
+  double sum = 0;
+  for (int y = 0; y < TH; y++)
+    for (int x = 0; x < TW; x++) {
+      const uint32_t *c = &res.nnf[2 * (y * TW + x)];
+      uint64_t d = patch_dist(ch, nch, 3, x, y, (int)c[0] - 1, (int)c[1] - 1);
+      assert_true(map[y * TW + x] == (float)((double)d / (double)unit));
+      sum += map[y * TW + x];
+    }
+  ts_stylit_energy en;
+  measure(&s, &res.image, 1, &en);
+  assert_true(sum / (TW * TH) >= en.energy - 1e-9);
+  assert_true(sum > 0);
+  ts_stylit_result_free(&res);
+  ts_search_destroy(search);
+  scene_free(&s);
+}
+
 /* The JSON line reads back to the same values, and only that very line
  * is taken: cut anywhere, spaced otherwise, with a NUL, a value of another
  * type or anything after it, it is refused with a message. */
@@ -337,6 +375,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(a_copy_of_the_exemplar_covers_it_all),
     cmocka_unit_test(an_image_of_the_wrong_size_is_refused),
     cmocka_unit_test(apply_nnf_of_a_run_gives_its_output),
+    cmocka_unit_test(error_map_is_each_patch_distance_to_its_nnf_patch),
     cmocka_unit_test(energy_json_reads_back_only_its_own_line),
     cmocka_unit_test(energy_engine_measures_and_lists_every_problem),
 };
