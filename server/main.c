@@ -31,6 +31,7 @@
 #include "smon.h"
 #include "msg.h"
 #include "net.h"
+#include "stop.h"
 #include "util.h"
 
 #define IDENT_TIMEOUT_MS 10000
@@ -567,11 +568,6 @@ static int start_http(const server_opts *o, char *at, char *err) {
   return 0;
 }
 
-static void on_signal(int sig) {
-  (void)sig;
-  atomic_store(&g_stop, 1);
-}
-
 int main(int argc, char **argv) {
   ts_log_init("texsyn-server", stderr, 0); /* --quiet drops the ready line only */
   server_opts o;
@@ -591,17 +587,14 @@ int main(int argc, char **argv) {
     fprintf(stderr, "texsyn-server: %s\n", err);
     return 1;
   }
-  struct sigaction sa;
-  memset(&sa, 0, sizeof(sa));
-  sa.sa_handler = on_signal; /* no SA_RESTART: accept() returns on a signal */
-  sigaction(SIGTERM, &sa, NULL);
-  sigaction(SIGINT, &sa, NULL);
+  ts_stop_on_signals(&g_stop);
   signal(SIGPIPE, SIG_IGN);
   int lfd, port;
   if (ts_net_listen(o.listen, &lfd, &port, err) != 0) {
     fprintf(stderr, "texsyn-server: %s\n", err);
     return 1;
   }
+  ts_stop_listener(lfd);
   g_server.max_frame = o.co.max_frame;
   if (ts_cluster_create(&g_server.cluster, &o.co, err) != 0) {
     fprintf(stderr, "texsyn-server: %s\n", err);
@@ -658,6 +651,7 @@ int main(int argc, char **argv) {
     pthread_detach(t);
   }
   ts_log("shutting down");
+  ts_stop_listener(-1); /* a second signal must not shut a reused fd number */
   close(lfd);
   ts_connset_close_all(&g_conns);
   if (o.modbus != NULL) ts_smon_stop();

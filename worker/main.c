@@ -32,6 +32,7 @@
 #include "pool.h"
 #include "replica.h"
 #include "slice.h"
+#include "stop.h"
 #include "util.h"
 
 #define WORKER_MAX_SLICES 64 /* per connection */
@@ -565,11 +566,6 @@ static int start_modbus(const char *arg, int control, char *at, char *err) {
   return 0;
 }
 
-static void on_signal(int sig) {
-  (void)sig;
-  atomic_store(&g_stop, 1);
-}
-
 int main(int argc, char **argv) {
   enum { O_LISTEN = 256, O_JOIN, O_THREADS, O_FRAME, O_MESSAGE, O_NAME, O_SECRET, O_MODBUS, O_MB_CONTROL, O_QUIET, O_HELP, O_VERSION };
   static const struct option longopts[] = {
@@ -639,11 +635,7 @@ int main(int argc, char **argv) {
     return 1;
   }
   ts_connset_init(&g_w.conns);
-  struct sigaction sa;
-  memset(&sa, 0, sizeof(sa));
-  sa.sa_handler = on_signal; /* no SA_RESTART: accept() returns on a signal */
-  sigaction(SIGTERM, &sa, NULL);
-  sigaction(SIGINT, &sa, NULL);
+  ts_stop_on_signals(&g_stop);
   signal(SIGPIPE, SIG_IGN);
   int lfd = -1;
   if (listen_addr != NULL) {
@@ -654,6 +646,7 @@ int main(int argc, char **argv) {
       fprintf(stderr, "texsyn-worker: %s\n", err);
       return 1;
     }
+    ts_stop_listener(lfd);
     ts_log("listening on %s:%d, %d threads, %s kernels, %s", host, port, g_w.threads, g_w.simd->name,
          g_w.auth.enabled ? "peers must prove the shared secret" : "no secret: loopback peers only");
     if (ts_auth_listen_warning(&g_w.auth, lfd, err)) ts_warn("%s", err);
@@ -686,6 +679,7 @@ int main(int argc, char **argv) {
     pthread_detach(t);
   }
   ts_log("shutting down");
+  ts_stop_listener(-1); /* a second signal must not shut a reused fd number */
   if (lfd >= 0) close(lfd);
   ts_connset_close_all(&g_w.conns);
   if (joining) pthread_join(joiner, NULL);

@@ -4,6 +4,9 @@ daemon exits; a restart resumes there) or killed while writing a result,
 clients killed mid-upload or while watching, a spool whose disk fills up,
 and a `--server` or `-o` that cannot work found before any synthesis.
 Each ends with nothing lost and a message that says what happened."""
+import ctypes
+import os
+import platform
 import re
 import signal
 import time
@@ -341,3 +344,41 @@ def test_unreachable_server_is_named_before_any_upload(texsyn, data, tmp_path, m
 def subprocess_run(exe, *args):
     import subprocess
     return subprocess.run([str(exe), *map(str, args)], capture_output=True, text=True, timeout=120)
+
+
+# ---- a stop signal that lands on any thread -------------------------------
+
+def tgkill(pid, tid, sig):
+    """Sends sig to one thread of another process (tgkill(2)): the kernel
+    may hand a `kill` to any thread, this picks which."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    SYS_tgkill = {"x86_64": 234, "aarch64": 131}[platform.machine()]
+    assert libc.syscall(SYS_tgkill, pid, tid, sig) == 0, os.strerror(ctypes.get_errno())
+
+
+def threads_taking(pid, sig):
+    """The threads of pid but its main one that do not block sig (a signal
+    sent to a thread that blocks it waits there; `kill` never picks one)."""
+    def blocks(tid):
+        status = open(f"/proc/{pid}/task/{tid}/status").read()
+        return int(re.search(r"SigBlk:\s*([0-9a-f]+)", status).group(1), 16) >> (sig - 1) & 1
+    return sorted(t for t in map(int, os.listdir(f"/proc/{pid}/task")) if t != pid and not blocks(t))
+
+
+@pytest.mark.parametrize("daemon", ["worker", "server"])
+def test_sigterm_on_any_thread_stops_the_daemon(cluster, daemon):
+    """SIGTERM delivered to a thread other than the one in accept() (a scan
+    thread of the worker, a pool or page thread of the coordinator) still
+    stops the daemon at once: the hostile run once saw a worker sleep in
+    accept() through it. The signal goes to the oldest such thread but main
+    (the worker's first scan thread)."""
+    if daemon == "worker":  # alone: a coordinator's connection would wake accept()
+        d = cluster.worker(2)
+    else:
+        d = cluster.start(1, 2, "--http", "127.0.0.1:0").server
+    tids = threads_taking(d.proc.pid, signal.SIGTERM)
+    assert tids, f"{daemon} runs no thread but its main one that takes SIGTERM"
+    d.expect_signal(signal.SIGTERM)
+    tgkill(d.proc.pid, tids[0], signal.SIGTERM)
+    assert d.proc.wait(timeout=10) == 0
+    assert "shutting down" in d.read_log()
