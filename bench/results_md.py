@@ -57,6 +57,11 @@ SECTIONS = [
     ("aerial", "Hole filling and aerial scenes", ["aerial.md", "aerial.json"], ["aerial-2048.png"],
      RUN.format("aerial.py")),
     ("mix", "Texture mixing", ["mix.md"], ["mix-brick.png", "mix-aerial.png"], RUN.format("mix.py")),
+    ("video", "Video with keyframes: texsyn video against stylize --frames and Ebsynth frame by frame",
+     ["video.md", "video.json"], ["video-strip-noise.png", "video-strip-painting.png"],
+     "/usr/bin/python3 bench/video.py --build build --out bench/results --ebsynth PATH --pool [--quick]"),
+    ("video_blend", "The blend between two keys: steps at the seam, ghosting", ["video-blend.md", "video-blend.json"],
+     ["video-blend-strip-painting.png"], RUN.format("video_blend.py")),
 ]
 
 # What the command line cannot say: where a section's prerequisites come from.
@@ -65,6 +70,9 @@ NOTES = {
                "`TEXSYN_EBSYNTH=DIR/ebsynth make bench` runs it.",
     "netem": "`make bench-netem` or `make bench-full` runs it.",
     "aerial": "`make bench-full` runs it.",
+    "video": "PATH: the Ebsynth peer, as for the stylization section; `TEXSYN_EBSYNTH=DIR/ebsynth make bench-full` "
+             "runs it.",
+    "video_blend": "`make bench-full` runs it.",
     "scaling_aerial": "The scaling section of `make bench-full` runs the same job over 1 to 16 workers; this "
                       "command runs it on 1 and 2 alone (about 9 minutes).",
 }

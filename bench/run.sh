@@ -10,11 +10,11 @@
 #          last run, marked with its date and commit in RESULTS.md;
 #   full:  all of it at full size, plus the cluster under added network
 #          latency (bench/netem.py, root; also `make bench-netem`), wire,
-#          latency, sequence, segmentation, aerial scenes, mixing pictures
-#          and the operations page.
+#          latency, sequence, segmentation, aerial scenes, mixing pictures,
+#          the operations page, and the blend between video keys.
 # texsyn stylize against Ebsynth runs (in both modes) only when
 # TEXSYN_EBSYNTH names the peer's binary (../shared/peers/build-ebsynth.sh DIR
-# builds DIR/ebsynth).
+# builds DIR/ebsynth); in full mode so does texsyn video against it.
 # Usage: [TEXSYN_EBSYNTH=PATH] bench/run.sh BUILD_DIR [--quick|--full]
 set -euo pipefail
 build=${1:-build}; shift || true
@@ -63,10 +63,14 @@ if [ "$mode" = full ]; then
   step aerial py aerial.py
   step mix py mix.py
   step ops_page py ops_page.py
+  step video_blend env TEXSYN_BUILD="$build" /usr/bin/python3 bench/video_blend.py --out "$out/video-blend"
 fi
 if [ -n "${TEXSYN_EBSYNTH:-}" ] && [ -x "$TEXSYN_EBSYNTH" ]; then
   step stylize /usr/bin/python3 bench/stylize.py --build "$build" --out "$out" --ebsynth "$TEXSYN_EBSYNTH" \
     "${quick[@]}"
+  if [ "$mode" = full ]; then
+    step video /usr/bin/python3 bench/video.py --build "$build" --out "$out" --ebsynth "$TEXSYN_EBSYNTH" --pool
+  fi
 else
   echo "== stylize against Ebsynth skipped: no Ebsynth binary; build it with ../shared/peers/build-ebsynth.sh DIR" \
     "and run TEXSYN_EBSYNTH=DIR/ebsynth make bench"
