@@ -238,6 +238,9 @@ def measure(build, ebsynth, tmp, n, runs, kind, out, cmds):
     for i in range(runs):
         for prog in (["texsyn", "ebsynth"] if i % 2 == 0 else ["ebsynth", "texsyn"]):
             if prog == "texsyn":
+                # A guides directory of an earlier run makes the same command
+                # resume there (nothing left to do): each run starts afresh.
+                shutil.rmtree(tmp / "g", ignore_errors=True)
                 texsyn_s.append(timed(one_cmd))
             elif ebsynth and (tmp / "g").exists():
                 peer_s.append(ebsynth_chain(ebsynth, tmp, tmp / "g", n, tmp / "eb"))
