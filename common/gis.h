@@ -32,6 +32,7 @@
 #include <stdint.h>
 
 #include "error.h"
+#include "json.h"
 
 /* Where a raster lies on the earth. */
 typedef struct {
@@ -65,6 +66,7 @@ void ts_gis_raster_close(ts_gis_raster *r);
 
 #define TS_GIS_MAX_RULES 64
 #define TS_GIS_NAME_LEN 64 /* a field name or matched value, bytes + NUL */
+#define TS_GIS_MAX_HIDDEN 16
 
 typedef enum { TS_GIS_UNIT_MAP = 0, TS_GIS_UNIT_PIXEL = 1 } ts_gis_unit;
 
@@ -75,6 +77,8 @@ typedef struct {
   double width;                /* full width, > 0, in unit */
   ts_gis_unit unit;            /* map units of the scene's CRS (metres for UTM) or pixels */
   int order;                   /* draw order: a higher order is burnt over a lower one */
+  int nhidden;                 /* the classes the line is hidden under (paths under forest): */
+  uint16_t hidden_under[TS_GIS_MAX_HIDDEN]; /* applied by ts_gis_lines_hide, not by the reads */
 } ts_gis_line_rule;
 
 /* Which rule each feature takes. With field "", every feature takes
@@ -94,15 +98,29 @@ typedef struct {
 /* The rules' JSON form (a catalogue's "lines" member may embed it):
  *   {"layer": "roads", "field": "kind", "width_field": "width",
  *    "rules": [{"match": "road", "value": 255, "width": 6, "unit": "map", "order": 2},
- *              {"match": "path", "value": 128, "width": 2, "unit": "px", "order": 1}]}
+ *              {"match": "path", "value": 128, "width": 2, "unit": "px", "order": 1,
+ *               "hidden_under": [1]}]}
  * layer, field, width_field optional; rules required, 1..TS_GIS_MAX_RULES;
  * match required with a field and refused without one, unique; value
  * 1..255; width a number > 0 and <= 10000; unit "map" (default) or "px";
- * order an integer -1000..1000 (default 0). Strict JSON (json.h); any other
- * key is an error. Parses len bytes (name for messages), touches no file.
- * 0, or TS_EFORMAT / TS_ELIMIT / TS_ENOMEM with "NAME:LINE:COL: ...";
- * *out is then zeroed. */
+ * order an integer -1000..1000 (default 0); hidden_under optional, up to
+ * TS_GIS_MAX_HIDDEN distinct class ids 0..65535. Strict JSON (json.h); any
+ * other key is an error. Parses len bytes (name for messages), touches no
+ * file. 0, or TS_EFORMAT / TS_ELIMIT / TS_ENOMEM with "NAME:LINE:COL:
+ * ..."; *out is then zeroed. */
 int ts_gis_line_rules_parse(const char *text, size_t len, const char *name, ts_gis_line_rules *out, char *err);
+/* The same from object node obj of a document already parsed (a
+ * catalogue's "lines" member): caller_keys (NULL-terminated, may be NULL)
+ * are keys of that object the caller reads itself ("vector", "colours"),
+ * passed over here; any other unknown key is an error. */
+int ts_gis_line_rules_read(const ts_json_doc *doc, int obj, const char *const *caller_keys, ts_gis_line_rules *out,
+                           char *err);
+/* Hides lines under classes: every pixel of lines whose value is a rule's
+ * with hidden_under holding the pixel's class id (ids, the class map's
+ * same region) becomes 0, so the class is synthesised over it. A value
+ * shared by several rules is hidden under the union of their classes. n
+ * pixels. */
+void ts_gis_lines_hide(const ts_gis_line_rules *rules, const uint16_t *ids, uint8_t *lines, size_t n);
 
 typedef struct ts_gis_lines ts_gis_lines;
 

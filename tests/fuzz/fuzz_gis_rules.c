@@ -36,6 +36,10 @@ static void check_rules(const ts_gis_line_rules *r) {
     if (u->value < 1 || !(u->width > 0 && u->width <= 1e4)) abort();
     if (u->unit != TS_GIS_UNIT_MAP && u->unit != TS_GIS_UNIT_PIXEL) abort();
     if (u->order < -1000 || u->order > 1000) abort();
+    if (u->nhidden < 0 || u->nhidden > TS_GIS_MAX_HIDDEN) abort();
+    for (int j = 0; j < u->nhidden; j++)
+      for (int k = 0; k < j; k++)
+        if (u->hidden_under[j] == u->hidden_under[k]) abort();
     for (int j = 0; j < i; j++)
       if (has_field && strcmp(r->rule[j].match, u->match) == 0) abort();
   }

@@ -605,11 +605,48 @@ static void rules_parse(void **state) {
   assert_int_equal(r.rule[0].value, 255);
   assert_true(r.rule[0].width == 6 && r.rule[0].unit == TS_GIS_UNIT_MAP && r.rule[0].order == 2);
   assert_true(r.rule[1].width == 2 && r.rule[1].unit == TS_GIS_UNIT_PIXEL && r.rule[1].order == 0);
+  assert_int_equal(r.rule[0].nhidden, 0);
   /* Without a field: one rule for every feature. */
   static const char one[] = "{\"rules\": [{\"value\": 9, \"width\": 1.5}]}";
   assert_int_equal(ts_gis_line_rules_parse(one, strlen(one), "cat.json", &r, err), 0);
   assert_int_equal(r.nrule, 1);
   assert_string_equal(r.rule[0].match, "");
+}
+
+/* Embedded in a catalogue's "lines" object, beside the catalogue's keys;
+ * paths hidden under forest (1) and wetland (8), roads nowhere. */
+static void rules_embedded_and_hidden(void **state) {
+  (void)state;
+  static const char text[] = "{\"lines\": {\"vector\": \"roads.geojson\", \"colours\": {\"128\": 100},\n"
+                             "  \"field\": \"kind\", \"rules\": [\n"
+                             "   {\"match\": \"road\", \"value\": 255, \"width\": 6},\n"
+                             "   {\"match\": \"path\", \"value\": 128, \"width\": 2, \"hidden_under\": [1, 8]}]}}";
+  ts_json_doc doc;
+  char err[TS_ERR_LEN] = "";
+  assert_int_equal(ts_json_parse(&doc, "cat.json", text, strlen(text), 1000, err), 0);
+  int lines = ts_json_member(&doc, 0, "lines");
+  static const char *const mine[] = {"vector", "colours", NULL};
+  ts_gis_line_rules r;
+  assert_int_equal(ts_gis_line_rules_read(&doc, lines, mine, &r, err), 0);
+  assert_int_equal(r.nrule, 2);
+  assert_int_equal(r.rule[1].nhidden, 2);
+  assert_int_equal(r.rule[1].hidden_under[1], 8);
+  /* Without the catalogue's keys declared, they are unknown. */
+  assert_int_equal(ts_gis_line_rules_read(&doc, lines, NULL, &r, err), TS_EFORMAT);
+  assert_string_equal(err, "cat.json:1:12: the line rules: unknown key \"vector\" (known: \"layer\", \"field\", "
+                           "\"width_field\", \"rules\")");
+  assert_int_equal(r.nrule, 0);
+  ts_json_free(&doc);
+  assert_int_equal(ts_gis_line_rules_parse(text + 11, strlen(text) - 12, "x", &r, err), TS_EFORMAT);
+  /* Hiding: paths vanish over classes 1 and 8, roads stay everywhere. */
+  assert_int_equal(ts_json_parse(&doc, "cat.json", text, strlen(text), 1000, err), 0);
+  assert_int_equal(ts_gis_line_rules_read(&doc, lines, mine, &r, err), 0);
+  ts_json_free(&doc);
+  uint16_t ids[] = {1, 8, 2, 1, 8, 2, 1};
+  uint8_t px[] = {128, 128, 128, 255, 255, 255, 0};
+  ts_gis_lines_hide(&r, ids, px, 7);
+  static const uint8_t want[] = {0, 0, 128, 255, 255, 255, 0};
+  assert_memory_equal(px, want, 7);
 }
 
 static void rules_refused(void **state) {
@@ -621,6 +658,9 @@ static void rules_refused(void **state) {
       {"{\"rules\": []}", "cat.json:1:11: the line rules: \"rules\" must be an array of 1..64 rules, got an array"},
       {"{\"feild\": \"kind\", \"rules\": []}", "cat.json:1:2: the line rules: unknown key \"feild\" (known: \"layer\", "
                                             "\"field\", \"width_field\", \"rules\")"},
+      {"{\"rules\": [{\"value\": 1, \"width\": 1, \"colour\": 1}]}",
+       "cat.json:1:37: line rule 1: unknown key \"colour\" (known: \"match\", \"value\", \"width\", \"unit\", \"order\", "
+       "\"hidden_under\")"},
       {"{\"rules\": [{\"value\": 1, \"width\": 1}, {\"value\": 2, \"width\": 1}]}",
        "cat.json:1:11: the line rules: 2 rules but no \"field\" to choose between them: give one rule, or a field"},
       {"{\"rules\": [{\"match\": \"road\", \"value\": 1, \"width\": 1}]}",
@@ -637,6 +677,10 @@ static void rules_refused(void **state) {
        "cat.json:1:76: line rule 2: \"match\" \"a\" is rule 1's too"},
       {"{\"field\": \"\", \"rules\": [{\"value\": 1, \"width\": 1}]}",
        "cat.json:1:11: the line rules: \"field\" must be a string of 1..63 bytes, got \"\""},
+      {"{\"rules\": [{\"value\": 1, \"width\": 1, \"hidden_under\": [3, 3]}]}",
+       "cat.json:1:57: line rule 1: class 3 is given twice"},
+      {"{\"rules\": [{\"value\": 1, \"width\": 1, \"hidden_under\": [-1]}]}",
+       "cat.json:1:54: line rule 1: \"hidden_under\" holds class ids, whole numbers 0..65535, got -1"},
       {"{\"rules\": [{\"value\": 1, \"width\": 1, \"order\": 0.5}]}",
        "cat.json:1:46: line rule 1: \"order\" must be a whole number -1000..1000, got 0.5"},
   };
@@ -672,6 +716,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(lines_without_crs),
     cmocka_unit_test(lines_refused),
     cmocka_unit_test(rules_parse),
+    cmocka_unit_test(rules_embedded_and_hidden),
     cmocka_unit_test(rules_refused),
     cmocka_unit_test(crs_definitions),
 };
