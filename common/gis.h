@@ -169,7 +169,7 @@ typedef struct ts_gis_writer ts_gis_writer;
  * finish as a Cloud-Optimised GeoTIFF with overviews (averaged, halving
  * down to one tile). Memory is GDAL's block cache (GDAL_CACHEMAX, set to
  * TS_GIS_CACHE_MB unless the environment sets it), not the image. */
-#define TS_GIS_CACHE_MB 256
+#define TS_GIS_CACHE_MB 64
 int ts_gis_writer_create(const char *path, int width, int height, int channels, int tile, const ts_gis_georef *geo,
                          int cog, ts_gis_writer **out, char *err);
 /* Writes region [x, x+rw) x [y, y+rh), inside the image, from px

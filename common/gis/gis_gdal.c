@@ -13,11 +13,16 @@
 #include "error.h"
 #include "gis_lib.h"
 
-/* GDAL's block cache is process-wide: 256 MiB bounds the writer's dirty
- * tiles and the readers' cached blocks together, whatever the scene's size.
- * GDAL's own default (5% of RAM) would be 1.2 GiB on a 24 GiB coordinator,
- * filled by a 32768² write before any block is flushed; GDAL_CACHEMAX in
- * the environment still wins (GDAL reads it itself). */
+/* GDAL's block cache is process-wide: TS_GIS_CACHE_MB bounds the writer's
+ * dirty tiles and the readers' cached blocks together, whatever the
+ * scene's size. GDAL's own default (5% of RAM) would be 1.2 GiB on a
+ * 24 GiB coordinator, filled by a large write before any block is
+ * flushed. The overviews and the COG copy size their buffers by it too:
+ * writing a 16384² COG peaked at 548 MiB with 256 MiB of cache and at
+ * 215 MiB with 64, and took no longer (bench/gis_write); every put of a
+ * tile of the block size completes its blocks, so a bigger cache buys
+ * nothing. GDAL_CACHEMAX in the environment still wins (GDAL reads it
+ * itself). */
 static void init_once(void) {
   GDALAllRegister();
   CPLSetErrorHandler(CPLQuietErrorHandler);

@@ -64,7 +64,8 @@ static int check_rules(const char *path, const ts_gis_line_rules *r, char *err) 
     return ts_error(err, TS_EINVAL, "%s: %d line rules but no field to choose between them", path, r->nrule);
   for (int i = 0; i < r->nrule; i++) {
     const ts_gis_line_rule *u = &r->rule[i];
-    if (u->value == 0 || !(u->width > 0 && u->width <= 1e4) || (u->unit != TS_GIS_UNIT_MAP && u->unit != TS_GIS_UNIT_PIXEL))
+    int unit_ok = u->unit == TS_GIS_UNIT_MAP || u->unit == TS_GIS_UNIT_PIXEL;
+    if (u->value == 0 || !(u->width > 0 && u->width <= 1e4) || !unit_ok)
       return ts_error(err, TS_EINVAL, "%s: line rule %d: need a value 1..255, a width in (0, 10000], a unit", path,
                       i + 1);
   }
@@ -274,7 +275,8 @@ int ts_gis_lines_open(const char *path, const ts_gis_georef *scene, int width, i
   if (rc != 0) return rc;
   CPLErrorReset();
   GDALDatasetH ds = GDALOpenEx(path, GDAL_OF_VECTOR | GDAL_OF_READONLY, NULL, NULL, NULL);
-  if (ds == NULL) return ts_error(err, TS_EFORMAT, "%s: not a vector source GDAL reads (%s)", path, ts_gis_last_error());
+  if (ds == NULL)
+    return ts_error(err, TS_EFORMAT, "%s: not a vector source GDAL reads (%s)", path, ts_gis_last_error());
   ts_gis_lines *l = calloc(1, sizeof(*l));
   OGRLayerH layer = NULL;
   int no_crs = 0;

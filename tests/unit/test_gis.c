@@ -341,24 +341,29 @@ static void vertex(double px, double py, OGRCoordinateTransformationH to_ll, dou
   if (to_ll != NULL) assert_true(OCTTransform(to_ll, 1, x, y, NULL));
 }
 
+/* UTM 32N to lon/lat, x east and y north both. */
+static OGRCoordinateTransformationH utm_to_lonlat(void) {
+  OGRSpatialReferenceH u = OSRNewSpatialReference(NULL), ll = OSRNewSpatialReference(NULL);
+  OSRImportFromEPSG(u, 32632);
+  OSRImportFromEPSG(ll, 4326);
+  OSRSetAxisMappingStrategy(u, OAMS_TRADITIONAL_GIS_ORDER);
+  OSRSetAxisMappingStrategy(ll, OAMS_TRADITIONAL_GIS_ORDER);
+  OGRCoordinateTransformationH t = OCTNewCoordinateTransformation(u, ll);
+  assert_non_null(t);
+  OSRDestroySpatialReference(u);
+  OSRDestroySpatialReference(ll);
+  return t;
+}
+
 /* The layer as GeoJSON: crs "" for none (GDAL then takes RFC 7946's
  * WGS 84), "EPSG::32632" with UTM vertices, "EPSG::4326" with lon/lat. */
 static void write_geojson(const char *path, const char *crs) {
-  OGRCoordinateTransformationH to_ll = NULL;
-  if (strcmp(crs, "EPSG::4326") == 0) {
-    OGRSpatialReferenceH u = OSRNewSpatialReference(NULL), ll = OSRNewSpatialReference(NULL);
-    OSRImportFromEPSG(u, 32632);
-    OSRImportFromEPSG(ll, 4326);
-    OSRSetAxisMappingStrategy(u, OAMS_TRADITIONAL_GIS_ORDER);
-    OSRSetAxisMappingStrategy(ll, OAMS_TRADITIONAL_GIS_ORDER);
-    to_ll = OCTNewCoordinateTransformation(u, ll);
-    OSRDestroySpatialReference(u);
-    OSRDestroySpatialReference(ll);
-  }
+  OGRCoordinateTransformationH to_ll = strcmp(crs, "EPSG::4326") == 0 ? utm_to_lonlat() : NULL;
   FILE *f = fopen(path, "w");
   assert_non_null(f);
   fprintf(f, "{\"type\": \"FeatureCollection\",\n");
-  if (crs[0] != '\0') fprintf(f, " \"crs\": {\"type\": \"name\", \"properties\": {\"name\": \"urn:ogc:def:crs:%s\"}},\n", crs);
+  if (crs[0] != '\0')
+    fprintf(f, " \"crs\": {\"type\": \"name\", \"properties\": {\"name\": \"urn:ogc:def:crs:%s\"}},\n", crs);
   fprintf(f, " \"features\": [\n");
   for (int i = 0; i < NLINES; i++) {
     fprintf(f, "  {\"type\": \"Feature\", \"properties\": {\"kind\": \"%s\"", lines[i].kind);
@@ -378,17 +383,7 @@ static void write_geojson(const char *path, const char *crs) {
 
 /* The layer as a Shapefile without .prj (no CRS), in UTM or in lon/lat. */
 static void write_shapefile(const char *path, int lonlat) {
-  OGRCoordinateTransformationH to_ll = NULL;
-  if (lonlat) {
-    OGRSpatialReferenceH u = OSRNewSpatialReference(NULL), ll = OSRNewSpatialReference(NULL);
-    OSRImportFromEPSG(u, 32632);
-    OSRImportFromEPSG(ll, 4326);
-    OSRSetAxisMappingStrategy(u, OAMS_TRADITIONAL_GIS_ORDER);
-    OSRSetAxisMappingStrategy(ll, OAMS_TRADITIONAL_GIS_ORDER);
-    to_ll = OCTNewCoordinateTransformation(u, ll);
-    OSRDestroySpatialReference(u);
-    OSRDestroySpatialReference(ll);
-  }
+  OGRCoordinateTransformationH to_ll = lonlat ? utm_to_lonlat() : NULL;
   GDALDatasetH ds = GDALCreate(GDALGetDriverByName("ESRI Shapefile"), path, 0, 0, 0, GDT_Unknown, NULL);
   assert_non_null(ds);
   OGRLayerH layer = GDALDatasetCreateLayer(ds, "roads", NULL, wkbLineString, NULL);
