@@ -203,9 +203,11 @@ static int check_inside(const ts_gis_lines *l, const opening *o, OGRLayerH layer
   double sx0 = t ? t[0] : 0, sy0 = t ? t[3] : 0;
   double sx1 = t ? t[0] + o->width * t[1] + o->height * t[2] : o->width;
   double sy1 = t ? t[3] + o->width * t[4] + o->height * t[5] : o->height;
-  return ts_error(err, TS_EFORMAT, "%s: the layer has no CRS, so it was taken to be in the class map's, but its "
-                  "extent %.6g,%.6g..%.6g,%.6g lies outside the scene's %.6g,%.6g..%.6g,%.6g: give the layer its "
-                  "CRS (a .prj, or ogr2ogr -a_srs)", o->path, e.MinX, e.MinY, e.MaxX, e.MaxY, sx0, sy0, sx1, sy1);
+  return ts_error(err, TS_EFORMAT,
+                  "%s: the layer has no CRS, so it was taken to be in the class map's, but its extent "
+                  "%.10g,%.10g..%.10g,%.10g lies outside the scene's %.10g,%.10g..%.10g,%.10g: give the layer "
+                  "its CRS (a .prj, or ogr2ogr -a_srs)",
+                  o->path, e.MinX, e.MinY, e.MaxX, e.MaxY, sx0, sy0, sx1, sy1);
 }
 
 /* Finds the layer and the rules' fields. */

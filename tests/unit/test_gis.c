@@ -542,7 +542,30 @@ static void lines_without_crs(void **state) {
   assert_int_equal(ts_gis_lines_open(in_dir("ll.shp"), &g, SW, SH, &rules, &l, err), TS_EFORMAT);
   assert_null(l);
   assert_non_null(strstr(err, "the layer has no CRS, so it was taken to be in the class map's"));
-  if (strstr(err, "lies outside the scene's 500000,5.7e+06..500128,5.6999e+06") == NULL) fail_msg("%s", err);
+  if (strstr(err, "lies outside the scene's 500000,5700000..500128,5699904") == NULL) fail_msg("%s", err);
+  remove_dir();
+}
+
+/* A layer in a CRS PROJ cannot relate to the scene's (a local site grid):
+ * refused, both named. */
+static void lines_without_transformation(void **state) {
+  (void)state;
+  make_dir();
+  write_shapefile(in_dir("site.shp"), 0);
+  FILE *f = fopen(in_dir("site.prj"), "w");
+  assert_non_null(f);
+  fputs("LOCAL_CS[\"site grid\",UNIT[\"metre\",1],AXIS[\"Easting\",EAST],AXIS[\"Northing\",NORTH]]", f);
+  fclose(f);
+  ts_gis_georef g;
+  utm_georef(&g);
+  ts_gis_line_rules rules;
+  test_rules(&rules);
+  char err[TS_ERR_LEN] = "";
+  ts_gis_lines *l;
+  assert_int_equal(ts_gis_lines_open(in_dir("site.shp"), &g, SW, SH, &rules, &l, err), TS_EFORMAT);
+  if (strstr(err, "the layer is in site grid, the class map in WGS 84 / UTM zone 32N, and PROJ has no "
+                  "transformation between them") == NULL || strstr(err, "ogr2ogr -t_srs") == NULL)
+    fail_msg("%s", err);
   remove_dir();
 }
 
@@ -709,6 +732,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(lines_tiles_stitch_to_whole),
     cmocka_unit_test(lines_reprojected),
     cmocka_unit_test(lines_without_crs),
+    cmocka_unit_test(lines_without_transformation),
     cmocka_unit_test(lines_refused),
     cmocka_unit_test(rules_parse),
     cmocka_unit_test(rules_embedded_and_hidden),
