@@ -13,6 +13,7 @@
 #include <gdal.h>
 #include <ogr_api.h>
 #include <ogr_srs_api.h>
+#include <pthread.h>
 #include <stdio.h>
 #include <sys/stat.h>
 
@@ -605,6 +606,71 @@ static void lines_refused(void **state) {
   remove_dir();
 }
 
+/* One handle of each kind read from 4 threads at once, each its own tiles
+ * (the tiled engine's tile jobs): every tile as the whole read has it. */
+typedef struct {
+  ts_gis_raster *r;
+  ts_gis_lines *l;
+  const uint16_t *ids;
+  const uint8_t *lines;
+  int first, bad;
+} reader_job;
+
+static void *read_tiles(void *arg) {
+  reader_job *j = arg;
+  char err[TS_ERR_LEN];
+  uint16_t ids[64 * 48];
+  uint8_t lines[64 * 48];
+  for (int k = j->first; k < (SW / 64) * (SH / 48); k += 4) {
+    int tx = k % (SW / 64) * 64, ty = k / (SW / 64) * 48;
+    for (int rep = 0; rep < 5; rep++) {
+      if (ts_gis_raster_read(j->r, tx, ty, 64, 48, ids, err) != 0 ||
+          ts_gis_lines_read(j->l, tx, ty, 64, 48, lines, err) != 0)
+        j->bad++;
+      for (int y = 0; y < 48; y++)
+        for (int x = 0; x < 64; x++)
+          j->bad += ids[y * 64 + x] != j->ids[(ty + y) * SW + tx + x] ||
+                    lines[y * 64 + x] != j->lines[(ty + y) * SW + tx + x];
+    }
+  }
+  return NULL;
+}
+
+static void concurrent_reads(void **state) {
+  (void)state;
+  make_dir();
+  ts_gis_georef g;
+  utm_georef(&g);
+  make_raster(in_dir("classes.tif"), SW, SH, 1, GDT_UInt16, classes, 0, 0);
+  write_geojson(in_dir("roads.geojson"), "EPSG::32632");
+  int rp, w, h;
+  uint8_t *lines = read_lines(in_dir("roads.geojson"), &g, &rp);
+  char err[TS_ERR_LEN] = "";
+  ts_gis_raster *r;
+  assert_int_equal(ts_gis_raster_open(in_dir("classes.tif"), &r, &w, &h, NULL, err), 0);
+  uint16_t *ids = malloc(SW * SH * 2);
+  assert_int_equal(ts_gis_raster_read(r, 0, 0, SW, SH, ids, err), 0);
+  ts_gis_line_rules rules;
+  test_rules(&rules);
+  ts_gis_lines *l;
+  assert_int_equal(ts_gis_lines_open(in_dir("roads.geojson"), &g, SW, SH, &rules, &l, err), 0);
+  pthread_t t[4];
+  reader_job jobs[4];
+  for (int i = 0; i < 4; i++) {
+    jobs[i] = (reader_job){r, l, ids, lines, i, 0};
+    assert_int_equal(pthread_create(&t[i], NULL, read_tiles, &jobs[i]), 0);
+  }
+  for (int i = 0; i < 4; i++) {
+    pthread_join(t[i], NULL);
+    assert_int_equal(jobs[i].bad, 0);
+  }
+  ts_gis_lines_close(l);
+  ts_gis_raster_close(r);
+  free(ids);
+  free(lines);
+  remove_dir();
+}
+
 /* --- the rules' JSON form ------------------------------------------------------ */
 
 static void rules_parse(void **state) {
@@ -734,6 +800,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(lines_without_crs),
     cmocka_unit_test(lines_without_transformation),
     cmocka_unit_test(lines_refused),
+    cmocka_unit_test(concurrent_reads),
     cmocka_unit_test(rules_parse),
     cmocka_unit_test(rules_embedded_and_hidden),
     cmocka_unit_test(rules_refused),
