@@ -2,6 +2,7 @@
 loaded by what touches GIS files and by nothing else: no program links
 GDAL, bench/mkscene loads it for --gis only, and a library that cannot be
 found or loaded gives one clear error before any work."""
+import json
 import os
 import subprocess
 
@@ -66,3 +67,23 @@ def test_a_gis_library_that_does_not_load_is_named(tmp_path):
     assert f"{other} (set by TEXSYN_GIS_LIB) is not the GIS library (GDAL) of this texsyn build" in p.stderr, p.stderr
     # Without --gis nothing needs it.
     assert mkscene(tmp_path, env={"TEXSYN_GIS_LIB": str(bad)}).returncode == 0
+
+
+@pytest.mark.sanitize
+def test_gdalinfo_reads_a_cog_written_tile_by_tile(tmp_path):
+    out = tmp_path / "cog.tif"
+    p = subprocess.run([str(BUILD / "bench" / "gis_write"), "-o", str(out), "--size", "600x400", "--tile", "128",
+                        "--cog"], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    assert "600x400 tile 128 COG: puts" in p.stdout
+    info = json.loads(subprocess.run(["gdalinfo", "-json", str(out)], capture_output=True, text=True,
+                                     check=True).stdout)
+    assert info["size"] == [600, 400]
+    assert info["geoTransform"] == [500000.0, 0.25, 0.0, 5700000.0, 0.0, -0.25]
+    assert 'PROJCRS["WGS 84 / UTM zone 32N"' in info["coordinateSystem"]["wkt"]
+    assert info["metadata"]["IMAGE_STRUCTURE"]["LAYOUT"] == "COG"
+    assert info["metadata"]["IMAGE_STRUCTURE"]["COMPRESSION"] == "DEFLATE"
+    for band in info["bands"]:
+        assert band["block"] == [128, 128]
+        assert [o["size"] for o in band["overviews"]] == [[300, 200], [150, 100], [75, 50]]  # down to one tile
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["cog.tif"]
