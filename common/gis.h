@@ -164,7 +164,8 @@ typedef struct ts_gis_writer ts_gis_writer;
  * GeoTIFF of width x height pixels, 8-bit, channels 1..4 interleaved
  * (3: RGB), tile x tile blocks (16..4096, a multiple of 16; pass the
  * engine's tile so each put fills whole blocks), BigTIFF when it may pass
- * 4 GiB, georeferenced by geo (may be NULL). Written to PATH.part and
+ * 4 GiB (GDAL's BIGTIFF=IF_SAFER: from about 2 GB of uncompressed pixels),
+ * georeferenced by geo (may be NULL). Tiles never put read as 0. Written to PATH.part and
  * renamed over path by finish, so path never holds half an image. cog:
  * finish as a Cloud-Optimised GeoTIFF with overviews (averaged, halving
  * down to one tile). Memory is GDAL's block cache (GDAL_CACHEMAX, set to

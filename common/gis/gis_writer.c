@@ -46,9 +46,13 @@ static char **part_options(int channels, int tile, int cog) {
   o = CSLSetNameValue(o, "BLOCKXSIZE", CPLSPrintf("%d", tile));
   o = CSLSetNameValue(o, "BLOCKYSIZE", CPLSPrintf("%d", tile));
   o = CSLSetNameValue(o, "INTERLEAVE", "PIXEL");
-  /* IF_SAFER: BigTIFF when the uncompressed image might pass 4 GiB (the
-   * compressed size is unknown until the end). */
+  /* IF_SAFER: BigTIFF when the file might pass 4 GiB; the compressed size
+   * being unknown until the end, GDAL 3.6 takes BigTIFF from about 2 GB of
+   * uncompressed pixels on (1647 MiB gave classic TIFF, 1934 MiB BigTIFF). */
   o = CSLSetNameValue(o, "BIGTIFF", "IF_SAFER");
+  /* A tile never put is left out of the file and reads as 0, rather than
+   * compressed as zeros at close. */
+  o = CSLSetNameValue(o, "SPARSE_OK", "TRUE");
   if (cog) {
     o = CSLSetNameValue(o, "COMPRESS", "ZSTD");
     o = CSLSetNameValue(o, "ZSTD_LEVEL", "1");

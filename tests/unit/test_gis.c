@@ -63,7 +63,7 @@ static void utm_georef(ts_gis_georef *g) {
 static void make_raster(const char *path, int w, int h, int bands, GDALDataType t, double (*value)(int, int),
                         int has_nodata, double nodata) {
   GDALDriverH d = GDALGetDriverByName("GTiff");
-  char *opts[] = {"TILED=YES", "BLOCKXSIZE=32", "BLOCKYSIZE=32", NULL};
+  char *opts[] = {"TILED=YES", "BLOCKXSIZE=32", "BLOCKYSIZE=32", "COMPRESS=DEFLATE", NULL};
   GDALDatasetH ds = GDALCreate(d, path, w, h, bands, t, opts);
   assert_non_null(ds);
   ts_gis_georef g;
@@ -289,6 +289,51 @@ static void writer_cog(void **state) {
   remove_dir();
 }
 
+/* The first 4 bytes of a TIFF: "II*\0" classic, "II+\0" BigTIFF. */
+static int is_bigtiff(const char *path) {
+  unsigned char b[4] = {0};
+  FILE *f = fopen(path, "rb");
+  assert_non_null(f);
+  assert_int_equal(fread(b, 1, 4, f), 4);
+  fclose(f);
+  assert_true(b[0] == 'I' && b[1] == 'I' && (b[2] == 42 || b[2] == 43));
+  return b[2] == 43;
+}
+
+/* A W x H RGB file with one tile put (the others read as 0). */
+static void write_one_tile(const char *path, int W, int H) {
+  char err[TS_ERR_LEN] = "";
+  ts_gis_writer *w;
+  assert_int_equal(ts_gis_writer_create(path, W, H, 3, 1024, NULL, 0, &w, err), 0);
+  uint8_t *px = malloc(1024 * 1024 * 3);
+  memset(px, 200, 1024 * 1024 * 3);
+  assert_int_equal(ts_gis_writer_put(w, 1024, 0, 1024, 1024, px, err), 0);
+  free(px);
+  assert_int_equal(ts_gis_writer_finish(w, err), 0);
+}
+
+/* BigTIFF for an image that may pass 4 GiB, classic TIFF for a small one;
+ * tiles never put take no room and read as 0. */
+static void writer_bigtiff_when_needed(void **state) {
+  (void)state;
+  make_dir();
+  write_one_tile(in_dir("big.tif"), 40000, 40000); /* 4.8 GB of RGB */
+  assert_true(is_bigtiff(in_dir("big.tif")));
+  write_one_tile(in_dir("small.tif"), 20000, 20000); /* 1.2 GB */
+  assert_false(is_bigtiff(in_dir("small.tif")));
+  struct stat st;
+  assert_int_equal(stat(in_dir("big.tif"), &st), 0);
+  assert_true(st.st_size < 1 << 20);
+  GDALDatasetH ds = GDALOpen(in_dir("big.tif"), GA_ReadOnly);
+  assert_non_null(ds);
+  uint8_t px[2 * 3];
+  assert_int_equal(GDALDatasetRasterIO(ds, GF_Read, 1023, 5, 2, 1, px, 2, 1, GDT_Byte, 3, NULL, 3, 6, 1), CE_None);
+  static const uint8_t want[] = {0, 0, 0, 200, 200, 200};
+  assert_memory_equal(px, want, 6);
+  GDALClose(ds);
+  remove_dir();
+}
+
 static void writer_abort_and_errors(void **state) {
   (void)state;
   make_dir();
@@ -382,9 +427,11 @@ static void write_geojson(const char *path, const char *crs) {
   if (to_ll != NULL) OCTDestroyCoordinateTransformation(to_ll);
 }
 
-/* The layer as a Shapefile without .prj (no CRS), in UTM or in lon/lat. */
-static void write_shapefile(const char *path, int lonlat) {
-  OGRCoordinateTransformationH to_ll = lonlat ? utm_to_lonlat() : NULL;
+/* The layer as a Shapefile without .prj (no CRS), in UTM, in lon/lat or
+ * in the scene's pixels. */
+enum { IN_UTM, IN_LONLAT, IN_PIXELS };
+static void write_shapefile(const char *path, int coords) {
+  OGRCoordinateTransformationH to_ll = coords == IN_LONLAT ? utm_to_lonlat() : NULL;
   GDALDatasetH ds = GDALCreate(GDALGetDriverByName("ESRI Shapefile"), path, 0, 0, 0, GDT_Unknown, NULL);
   assert_non_null(ds);
   OGRLayerH layer = GDALDatasetCreateLayer(ds, "roads", NULL, wkbLineString, NULL);
@@ -402,6 +449,7 @@ static void write_shapefile(const char *path, int lonlat) {
     for (int k = 0; k < lines[i].n; k++) {
       double x, y;
       vertex(lines[i].v[k][0], lines[i].v[k][1], to_ll, &x, &y);
+      if (coords == IN_PIXELS) x = lines[i].v[k][0], y = lines[i].v[k][1];
       OGR_G_AddPoint_2D(g, x, y);
     }
     OGR_F_SetGeometryDirectly(f, g);
@@ -423,12 +471,11 @@ static void test_rules(ts_gis_line_rules *r) {
 }
 
 /* The whole scene's lines of the layer at path (scene: UTM grid). */
-static uint8_t *read_lines(const char *path, const ts_gis_georef *scene, int *reprojected) {
+static uint8_t *read_lines_by(const char *path, const ts_gis_georef *scene, const ts_gis_line_rules *rules,
+                              int *reprojected) {
   char err[TS_ERR_LEN] = "";
-  ts_gis_line_rules rules;
-  test_rules(&rules);
   ts_gis_lines *l;
-  if (ts_gis_lines_open(path, scene, SW, SH, &rules, &l, err) != 0) fail_msg("%s", err);
+  if (ts_gis_lines_open(path, scene, SW, SH, rules, &l, err) != 0) fail_msg("%s", err);
   int n;
   ts_gis_lines_info(l, &n, reprojected);
   assert_int_equal(n, 3); /* the river takes no rule */
@@ -436,6 +483,12 @@ static uint8_t *read_lines(const char *path, const ts_gis_georef *scene, int *re
   assert_int_equal(ts_gis_lines_read(l, 0, 0, SW, SH, whole, err), 0);
   ts_gis_lines_close(l);
   return whole;
+}
+
+static uint8_t *read_lines(const char *path, const ts_gis_georef *scene, int *reprojected) {
+  ts_gis_line_rules rules;
+  test_rules(&rules);
+  return read_lines_by(path, scene, &rules, reprojected);
 }
 
 static void lines_tiles_stitch_to_whole(void **state) {
@@ -521,22 +574,34 @@ static void lines_reprojected(void **state) {
 }
 
 /* A layer without CRS: in the scene's CRS it is placed there; in lon/lat
- * it misses the scene and is refused, both extents named. */
+ * it misses the scene and is refused, both extents named; on a scene
+ * without georeferencing its coordinates are pixels. */
 static void lines_without_crs(void **state) {
   (void)state;
   make_dir();
   ts_gis_georef g;
   utm_georef(&g);
   write_geojson(in_dir("utm.geojson"), "EPSG::32632");
-  write_shapefile(in_dir("utm.shp"), 0);
-  write_shapefile(in_dir("ll.shp"), 1);
+  write_shapefile(in_dir("utm.shp"), IN_UTM);
+  write_shapefile(in_dir("ll.shp"), IN_LONLAT);
+  write_shapefile(in_dir("px.shp"), IN_PIXELS);
   int rp;
   uint8_t *want = read_lines(in_dir("utm.geojson"), &g, &rp), *got = read_lines(in_dir("utm.shp"), &g, &rp);
   assert_int_equal(rp, 0);
   assert_memory_equal(want, got, SW * SH);
   free(want);
   free(got);
+  /* On a scene without georeferencing, a layer without CRS is in pixels:
+   * with widths in pixels, the same lines as in UTM on the UTM scene. */
   ts_gis_line_rules rules;
+  test_rules(&rules);
+  rules.width_field[0] = '\0';
+  rules.rule[1].unit = TS_GIS_UNIT_PIXEL;
+  want = read_lines_by(in_dir("utm.shp"), &g, &rules, &rp);
+  got = read_lines_by(in_dir("px.shp"), NULL, &rules, &rp);
+  assert_memory_equal(want, got, SW * SH);
+  free(want);
+  free(got);
   test_rules(&rules);
   char err[TS_ERR_LEN] = "";
   ts_gis_lines *l = (ts_gis_lines *)1;
@@ -552,7 +617,7 @@ static void lines_without_crs(void **state) {
 static void lines_without_transformation(void **state) {
   (void)state;
   make_dir();
-  write_shapefile(in_dir("site.shp"), 0);
+  write_shapefile(in_dir("site.shp"), IN_UTM);
   FILE *f = fopen(in_dir("site.prj"), "w");
   assert_non_null(f);
   fputs("LOCAL_CS[\"site grid\",UNIT[\"metre\",1],AXIS[\"Easting\",EAST],AXIS[\"Northing\",NORTH]]", f);
@@ -638,6 +703,9 @@ static void *read_tiles(void *arg) {
 
 static void concurrent_reads(void **state) {
   (void)state;
+  /* A cache of 1 MiB, so the threads decode and evict blocks all along
+   * (GDAL reads the variable itself, at its first use in this process). */
+  setenv("GDAL_CACHEMAX", "1", 1);
   make_dir();
   ts_gis_georef g;
   utm_georef(&g);
@@ -794,6 +862,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(raster_bad_files),
     cmocka_unit_test(writer_round_trip),
     cmocka_unit_test(writer_cog),
+    cmocka_unit_test(writer_bigtiff_when_needed),
     cmocka_unit_test(writer_abort_and_errors),
     cmocka_unit_test(lines_tiles_stitch_to_whole),
     cmocka_unit_test(lines_reprojected),
