@@ -39,8 +39,26 @@ const char *ts_gis_last_error(void) {
   return m != NULL && m[0] != '\0' ? m : "no reason given";
 }
 
-void ts_gis_georef_of(GDALDatasetH ds, ts_gis_georef *geo) {
-  if (geo == NULL) return;
+/* srs as WKT2 into out (len bytes), or as WKT1 if WKT2 does not fit (some
+ * CRSs' WKT2 carries a long area of use; WKT1 describes the same CRS for
+ * every use here). 0, or the length of the shorter text if neither fits. */
+static size_t wkt_of(OGRSpatialReferenceH srs, char *out, size_t len) {
+  static const char *const formats[] = {"FORMAT=WKT2_2018", "FORMAT=WKT1_GDAL"};
+  size_t shortest = 0;
+  for (size_t i = 0; i < sizeof(formats) / sizeof(formats[0]); i++) {
+    char *wkt = NULL;
+    const char *opts[] = {formats[i], NULL};
+    size_t n = OSRExportToWktEx(srs, &wkt, opts) == OGRERR_NONE && wkt != NULL ? strlen(wkt) : 0;
+    if (n > 0 && n < len) strcpy(out, wkt);
+    CPLFree(wkt);
+    if (n > 0 && n < len) return 0;
+    if (n > 0 && (shortest == 0 || n < shortest)) shortest = n;
+  }
+  return shortest > 0 ? shortest : 1;
+}
+
+int ts_gis_georef_of(GDALDatasetH ds, const char *path, ts_gis_georef *geo, char *err) {
+  if (geo == NULL) return 0;
   memset(geo, 0, sizeof(*geo));
   geo->has_geo = GDALGetGeoTransform(ds, geo->transform) == CE_None;
   if (!geo->has_geo) {
@@ -49,12 +67,12 @@ void ts_gis_georef_of(GDALDatasetH ds, ts_gis_georef *geo) {
     memcpy(geo->transform, id, sizeof(id));
   }
   OGRSpatialReferenceH srs = GDALGetSpatialRef(ds);
-  char *wkt = NULL;
-  const char *opts[] = {"FORMAT=WKT2_2018", NULL};
-  if (srs != NULL && OSRExportToWktEx(srs, &wkt, opts) == OGRERR_NONE && wkt != NULL &&
-      strlen(wkt) < sizeof(geo->crs_wkt))
-    strcpy(geo->crs_wkt, wkt);
-  CPLFree(wkt);
+  size_t n = srs != NULL ? wkt_of(srs, geo->crs_wkt, sizeof(geo->crs_wkt)) : 0;
+  if (n != 0)
+    return ts_error(err, TS_ETOOBIG, "%s: its CRS (%s) takes %zu bytes of WKT, more than the %zu texsyn keeps: "
+                    "reproject it (gdalwarp -t_srs)", path, OSRGetName(srs) ? OSRGetName(srs) : "unnamed", n,
+                    sizeof(geo->crs_wkt) - 1);
+  return 0;
 }
 
 int ts_gis_check_region(const char *what, int x, int y, int w, int h, char *err) {
@@ -69,21 +87,15 @@ static int crs_wkt(const char *definition, char *wkt, size_t len, char *err) {
   ts_gis_init();
   OGRSpatialReferenceH srs = OSRNewSpatialReference(NULL);
   if (srs == NULL) return ts_error(err, TS_ENOMEM, "out of memory for a CRS");
-  char *text = NULL;
-  const char *opts[] = {"FORMAT=WKT2_2018", NULL};
   int rc = 0;
+  size_t n;
   CPLErrorReset();
   if (OSRSetFromUserInput(srs, definition) != OGRERR_NONE)
     rc = ts_error(err, TS_EINVAL, "%s is not a CRS GDAL knows (%s): give EPSG:CODE, a PROJ string or WKT",
                   definition, ts_gis_last_error());
-  else if (OSRExportToWktEx(srs, &text, opts) != OGRERR_NONE || text == NULL)
-    rc = ts_error(err, TS_EINVAL, "%s: cannot be written as WKT (%s)", definition, ts_gis_last_error());
-  else if (strlen(text) >= len)
-    rc = ts_error(err, TS_ETOOBIG, "%s: its WKT takes %zu bytes, more than the %zu allowed", definition,
-                  strlen(text), len - 1);
-  else
-    strcpy(wkt, text);
-  CPLFree(text);
+  else if ((n = wkt_of(srs, wkt, len)) != 0)
+    rc = ts_error(err, TS_ETOOBIG, "%s: its WKT takes %zu bytes, more than the %zu allowed", definition, n,
+                  len - 1);
   OSRDestroySpatialReference(srs);
   return rc;
 }

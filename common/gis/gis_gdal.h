@@ -15,8 +15,9 @@ void ts_gis_init(void);
 /* GDAL's last error on this thread, or "no reason given" (never NULL). */
 const char *ts_gis_last_error(void);
 
-/* The georeferencing of ds into geo (NULL: nothing). */
-void ts_gis_georef_of(GDALDatasetH ds, ts_gis_georef *geo);
+/* The georeferencing of ds (the file at path) into geo (NULL: nothing).
+ * 0, or TS_ETOOBIG for a CRS whose WKT does not fit ts_gis_georef. */
+int ts_gis_georef_of(GDALDatasetH ds, const char *path, ts_gis_georef *geo, char *err);
 
 /* Region arguments common to the read functions: w, h > 0, w*h within
  * TS_GIS_MAX_REGION, x + w and y + h within int. 0 or TS_EINVAL. */

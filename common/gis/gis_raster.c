@@ -59,6 +59,7 @@ int ts_gis_raster_open(const char *path, ts_gis_raster **out, int *width, int *h
   else if (!integer_type(type))
     rc = ts_error(err, TS_EFORMAT, "%s: its band is of type %s: class ids need an integer type (Byte, UInt16, ...)",
                   path, GDALGetDataTypeName(type));
+  if (rc == 0) rc = ts_gis_georef_of(ds, path, geo, err);
   ts_gis_raster *r = rc == 0 ? calloc(1, sizeof(*r)) : NULL;
   if (rc == 0 && r == NULL) rc = ts_error(err, TS_ENOMEM, "%s: out of memory", path);
   if (rc != 0) {
@@ -73,7 +74,6 @@ int ts_gis_raster_open(const char *path, ts_gis_raster **out, int *width, int *h
   r->height = GDALGetRasterYSize(ds);
   r->nodata = GDALGetRasterNoDataValue(r->band, &r->has_nodata);
   strcpy(r->path, path);
-  ts_gis_georef_of(ds, geo);
   *width = r->width;
   *height = r->height;
   *out = r;

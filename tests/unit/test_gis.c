@@ -851,7 +851,12 @@ static void crs_definitions(void **state) {
   char wkt[4096], err[TS_ERR_LEN] = "";
   assert_int_equal(ts_gis_crs_wkt("EPSG:32632", wkt, sizeof(wkt), err), 0);
   assert_non_null(strstr(wkt, "WGS 84 / UTM zone 32N"));
+  assert_true(strncmp(wkt, "PROJCRS[", 8) == 0); /* WKT2 */
+  /* WKT2 too long (1617 bytes), WKT1 fits (596): WKT1; neither: refused. */
+  assert_int_equal(ts_gis_crs_wkt("EPSG:32632", wkt, 1000, err), 0);
+  assert_true(strncmp(wkt, "PROJCS[\"WGS 84 / UTM zone 32N\"", 30) == 0);
   assert_int_equal(ts_gis_crs_wkt("EPSG:32632", wkt, 100, err), TS_ETOOBIG);
+  assert_non_null(strstr(err, "EPSG:32632: its WKT takes 596 bytes, more than the 99 allowed"));
   assert_int_equal(ts_gis_crs_wkt("not a crs", wkt, sizeof(wkt), err), TS_EINVAL);
   assert_non_null(strstr(err, "not a crs is not a CRS GDAL knows"));
 }
