@@ -135,11 +135,22 @@ FLOW_LIB = $(BUILD)/libtexsyn-flow.so
 FLOW_CFLAGS = -I/usr/include/opencv4
 FLOW_LIBS = -lopencv_video -lopencv_core
 
+# GIS rasters and vectors (common/gis.h, gis_lib.h) as a shared library
+# of its own, built like the others: GDAL's C API behind a table, loaded
+# by common/gis_load.c on the first GIS call. Its C sits in common/gis/,
+# a folder the static library does not take, and only it sees GDAL's headers.
+GIS_SRC = $(wildcard common/gis/*.c) common/error.c
+GIS_OBJ = $(GIS_SRC:%.c=%.o)
+GIS_LIB = $(BUILD)/libtexsyn-gis.so
+GDAL_CFLAGS := $(or $(shell pkg-config --cflags gdal 2>/dev/null),-I/usr/include/gdal)
+GDAL_LIBS := $(or $(shell pkg-config --libs gdal 2>/dev/null),-lgdal)
+INC_common/gis = $(INC_common) -Icommon/gis $(GDAL_CFLAGS)
+
 BINS = $(BUILD)/texsyn $(BUILD)/texsyn-server $(BUILD)/texsyn-worker
 UNIT_SRC = $(wildcard tests/unit/test_*.c)
 UNIT_BINS = $(UNIT_SRC:tests/unit/%.c=$(BUILD)/tests/%)
 # The libFuzzer targets' inputs replayed by a plain main() (tests/fuzz).
-FUZZ_TARGETS = frame msg jobspec image checkpoint modbus spool catalogue
+FUZZ_TARGETS = frame msg jobspec image checkpoint modbus spool catalogue gis_rules
 REPLAY_BINS = $(FUZZ_TARGETS:%=$(BUILD)/tests/replay_%)
 BENCH_SRC = $(wildcard bench/*.c)
 BENCH_BINS = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
@@ -150,7 +161,7 @@ BENCH_BINS = $(BENCH_SRC:bench/%.c=$(BUILD)/bench/%)
 PRELOADS = $(BUILD)/tests/libfail_poll.so $(BUILD)/tests/libkill_at_rename.so
 # ... and one that numbers the spool's writes, killing or failing one.
 PRELOADS += $(BUILD)/tests/libspool_fault.so
-all: $(BINS) $(IMAGE_LIB) $(FLOW_LIB) $(UNIT_BINS) $(BENCH_BINS) $(REPLAY_BINS) $(PRELOADS)
+all: $(BINS) $(IMAGE_LIB) $(FLOW_LIB) $(GIS_LIB) $(UNIT_BINS) $(BENCH_BINS) $(REPLAY_BINS) $(PRELOADS)
 
 $(BUILD)/%.o: %.c
 	@mkdir -p $(dir $@)
@@ -176,6 +187,9 @@ $(BUILD)/pic/common/flow_cv.o: CXXFLAGS_ALL += $(FLOW_CFLAGS)
 $(FLOW_LIB): $(FLOW_OBJ:%=$(BUILD)/pic/%)
 	$(CXX) -shared $(LDFLAGS_ALL) -Wl,-z,defs -o $@ $^ $(FLOW_LIBS)
 
+$(GIS_LIB): $(GIS_OBJ:%=$(BUILD)/pic/%)
+	$(CC) -shared $(LDFLAGS_ALL) -Wl,-z,defs -o $@ $^ $(GDAL_LIBS) -lpthread -lm
+
 $(BUILD)/texsyn: $(BUILD)/server/cli/main.o $(LIB)
 	$(CC) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
 
@@ -191,6 +205,11 @@ $(BUILD)/tests/%: $(BUILD)/tests/unit/%.o $(LIB)
 	@mkdir -p $(dir $@)
 	$(CC) $(LDFLAGS_ALL) -o $@ $^ $(LIBS) -lcmocka
 
+# test_gis makes its fixtures and checks its outputs with GDAL itself (an
+# independent reader), while what it tests goes through libtexsyn-gis.so.
+$(BUILD)/tests/unit/test_gis.o: CFLAGS_ALL += $(GDAL_CFLAGS)
+$(BUILD)/tests/test_gis: LIBS += $(GDAL_LIBS)
+
 $(BUILD)/tests/replay_%: $(BUILD)/tests/fuzz/fuzz_%.o $(BUILD)/tests/fuzz/replay.o $(LIB)
 	@mkdir -p $(dir $@)
 	$(CC) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
@@ -200,7 +219,8 @@ $(BUILD)/tests/lib%.so: tests/preload/%.c
 	@mkdir -p $(dir $@)
 	$(CC) -std=c11 -D_GNU_SOURCE $(WARN) -O2 -fPIC -shared -o $@ $< -ldl
 
-$(BUILD)/bench/%: $(BUILD)/bench/%.o $(LIB) | $(BUILD)/bench/$(notdir $(IMAGE_LIB))
+$(BUILD)/bench/%: $(BUILD)/bench/%.o $(LIB) | $(BUILD)/bench/$(notdir $(IMAGE_LIB)) \
+                                               $(BUILD)/bench/$(notdir $(GIS_LIB))
 	@mkdir -p $(dir $@)
 	$(CC) $(LDFLAGS_ALL) -o $@ $^ $(LIBS)
 
@@ -210,13 +230,17 @@ $(BUILD)/bench/$(notdir $(IMAGE_LIB)): $(IMAGE_LIB)
 	@mkdir -p $(dir $@)
 	ln -sf ../$(notdir $(IMAGE_LIB)) $@
 
+$(BUILD)/bench/$(notdir $(GIS_LIB)): $(GIS_LIB)
+	@mkdir -p $(dir $@)
+	ln -sf ../$(notdir $(GIS_LIB)) $@
+
 # The library goes to ../lib/texsyn from the programs' directory, where
 # they look for it (common/image_load.c); DESTDIR for staged installs.
 PREFIX ?= /usr/local
-install: $(BINS) $(IMAGE_LIB) $(FLOW_LIB) install-man
+install: $(BINS) $(IMAGE_LIB) $(FLOW_LIB) $(GIS_LIB) install-man
 	install -d $(DESTDIR)$(PREFIX)/bin $(DESTDIR)$(PREFIX)/lib/texsyn
 	install -m 755 $(BINS) $(DESTDIR)$(PREFIX)/bin/
-	install -m 644 $(IMAGE_LIB) $(FLOW_LIB) $(DESTDIR)$(PREFIX)/lib/texsyn/
+	install -m 644 $(IMAGE_LIB) $(FLOW_LIB) $(GIS_LIB) $(DESTDIR)$(PREFIX)/lib/texsyn/
 
 # The command pages (doc/texsyn*.md): `make doc` fills their options blocks
 # with what the programs' --help prints (doc/gen.py; test_manual.py fails on

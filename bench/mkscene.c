@@ -1,7 +1,7 @@
 /* mkscene.c - synthetic aerial scenes for the tests and benchmarks of
  * aerial synthesis (seed 002 §5.1): a land-use class map and a road
  * raster of the same size, made from a seed in seconds at any size from
- * 64x64 to 16384x16384.
+ * 64x64 to 16384x16384 (to 65536x65536 as GIS files, --gis).
  *
  *   PREFIX-classes.png  8-bit grey, each pixel a class id 1..K:
  *                       1 forest, 2 water, 3 town, 4 sand, 5 grassland,
@@ -29,10 +29,22 @@
  * +, -, *, /, floor and sqrt (exact in IEEE arithmetic), so no libm
  * difference can change a pixel.
  *
+ * GIS files (--gis, issue 28): the same map as a georeferenced tiled
+ * GeoTIFF, PREFIX-classes.tif, in --crs (default EPSG:32632, UTM zone 32N)
+ * at --pixel-size metres (default 0.25), made and written 512 rows at a
+ * time through the GIS library (common/gis.h), so a 32768x32768 map takes
+ * a strip of 16 MiB and GDAL's cache, not 1 GiB; the roads and paths, the
+ * same polylines the PNG raster draws, as a GeoJSON layer in that CRS,
+ * PREFIX-roads.geojson, each line with its kind ("road", "path") and
+ * width in metres; and PREFIX-lines.json, line rules (gis.h's JSON form)
+ * that draw them as the PNG does: roads 255 over paths 128. The PNG mode
+ * is unchanged, byte for byte.
+ *
  * Usage: mkscene -o PREFIX [--size N|WxH] [--seed S] [--classes K]
+ *                [--gis [--crs EPSG:N] [--pixel-size M]]
  * (defaults: 1024, 1, 4). Prints each class's share of the map and the
- * roads' and paths' share of the raster. Exit status 2 for bad options, 1
- * for a failure to write. */
+ * roads' and paths' share of the raster (with --gis, their counts). Exit
+ * status 2 for bad options, 1 for a failure to write. */
 #include <getopt.h>
 #include <limits.h>
 #include <math.h>
@@ -42,12 +54,14 @@
 #include <string.h>
 
 #include "error.h"
+#include "gis.h"
 #include "image.h"
 #include "rng.h"
 #include "util.h"
 
 #define MIN_SIDE 64
 #define MAX_SIDE 16384
+#define MAX_GIS_SIDE 65536 /* --gis: made by strips, never whole */
 #define CELLS_ACROSS 16  /* Voronoi cells along sqrt(W*H) */
 #define WARP 0.45        /* warp amplitude, in cells */
 #define ROAD 255
@@ -378,31 +392,44 @@ static void edge_point(const scene *s, int e, double f, double *x, double *y) {
   *y = e == 2 ? s->h : e == 0 ? 0 : f * s->h;
 }
 
+/* A road or path as a polyline in pixel coordinates, and its radius. */
+#define MAX_VERTICES 9
+typedef struct {
+  int is_road, n;
+  double x[MAX_VERTICES], y[MAX_VERTICES], radius;
+} polyline;
+
+/* What becomes of each line: drawn into the road raster, or written as a
+ * vector feature. */
+typedef int (*line_fn)(void *ctx, const polyline *p);
+
 /* A road from one edge to another (the opposite one, or a neighbour):
  * eight segments bending away from the straight line by a smoothed random
  * walk, 3, 5, 7 or 9 px wide. */
-static void draw_road(const scene *s, ts_rng *r, uint8_t *img) {
+static void road_line(const scene *s, ts_rng *r, polyline *p) {
   int e0 = (int)ts_rng_below(r, 4), e1 = (e0 + 1 + (int)ts_rng_below(r, 3)) % 4;
   double ax, ay, bx, by;
   edge_point(s, e0, 0.1 + 0.8 * uniform(r), &ax, &ay);
   edge_point(s, e1, 0.1 + 0.8 * uniform(r), &bx, &by);
   double dx = bx - ax, dy = by - ay, len = sqrt(dx * dx + dy * dy);
   double nx = -dy / len, ny = dx / len; /* unit normal */
-  double radius = (double)(3 + 2 * (int)ts_rng_below(r, 4)) / 2;
-  double off = 0, px = ax, py = ay;
+  p->is_road = 1;
+  p->radius = (double)(3 + 2 * (int)ts_rng_below(r, 4)) / 2;
+  p->n = 1;
+  p->x[0] = ax;
+  p->y[0] = ay;
+  double off = 0;
   const int nseg = 8;
   for (int k = 1; k <= nseg; k++) {
     double t = (double)k / nseg;
     off = k == nseg ? 0 : 0.6 * off + (2 * uniform(r) - 1) * 0.06 * len;
-    double qx = ax + t * dx + off * nx, qy = ay + t * dy + off * ny;
-    draw_segment(img, s->w, s->h, px, py, qx, qy, radius, ROAD);
-    px = qx;
-    py = qy;
+    p->x[p->n] = ax + t * dx + off * nx;
+    p->y[p->n++] = ay + t * dy + off * ny;
   }
 }
 
 /* A path: six segments from an inner point, turning a little at each. */
-static void draw_path(const scene *s, ts_rng *r, uint8_t *img) {
+static void path_line(const scene *s, ts_rng *r, polyline *p) {
   double side = sqrt((double)s->w * s->h);
   double x = (0.1 + 0.8 * uniform(r)) * s->w, y = (0.1 + 0.8 * uniform(r)) * s->h;
   double seg = (0.15 + 0.15 * uniform(r)) * side / 6, dx, dy, n;
@@ -414,26 +441,54 @@ static void draw_path(const scene *s, ts_rng *r, uint8_t *img) {
   n = sqrt(n);
   dx /= n;
   dy /= n;
+  p->is_road = 0;
+  p->radius = 1.0;
+  p->n = 1;
+  p->x[0] = x;
+  p->y[0] = y;
   for (int k = 0; k < 6; k++) {
     double tx = dx + (2 * uniform(r) - 1) * 0.6, ty = dy + (2 * uniform(r) - 1) * 0.6;
     n = sqrt(tx * tx + ty * ty);
     dx = tx / n;
     dy = ty / n;
-    draw_segment(img, s->w, s->h, x, y, x + dx * seg, y + dy * seg, 1.0, PATH);
     x += dx * seg;
     y += dy * seg;
+    p->x[p->n] = x;
+    p->y[p->n++] = y;
   }
 }
 
 /* Paths first, so roads cross them on top. */
-static void make_roads(const scene *s, uint8_t *img) {
+static int make_lines(const scene *s, line_fn each, void *ctx) {
   ts_rng r;
+  polyline p;
   int side = (int)sqrt((double)s->w * s->h);
-  int npath = 2 + side / 1024, nroad = 3 + side / 2048;
+  int npath = 2 + side / 1024, nroad = 3 + side / 2048, rc = 0;
   ts_rng_seed(&r, s->seed, 5);
-  for (int i = 0; i < npath; i++) draw_path(s, &r, img);
+  for (int i = 0; rc == 0 && i < npath; i++) {
+    path_line(s, &r, &p);
+    rc = each(ctx, &p);
+  }
   ts_rng_seed(&r, s->seed, 4);
-  for (int i = 0; i < nroad; i++) draw_road(s, &r, img);
+  for (int i = 0; rc == 0 && i < nroad; i++) {
+    road_line(s, &r, &p);
+    rc = each(ctx, &p);
+  }
+  return rc;
+}
+
+/* The road raster's line_fn: ctx is the scene's road image. */
+typedef struct {
+  const scene *s;
+  uint8_t *img;
+} raster_ctx;
+
+static int draw_line(void *ctx, const polyline *p) {
+  const raster_ctx *c = ctx;
+  for (int k = 1; k < p->n; k++)
+    draw_segment(c->img, c->s->w, c->s->h, p->x[k - 1], p->y[k - 1], p->x[k], p->y[k], p->radius,
+                 p->is_road ? ROAD : PATH);
+  return 0;
 }
 
 /* --- the scene --------------------------------------------------------------------------------- */
@@ -477,13 +532,19 @@ static void scene_free(scene *s) {
   free(s->river_hw);
 }
 
-/* --- output ------------------------------------------------------------------------------------- */
+/* --- output: PNGs ----------------------------------------------------------------------------- */
 
 static int write_plane(const char *prefix, const char *suffix, const ts_image *img, char *err) {
   char path[PATH_MAX];
   if (snprintf(path, sizeof(path), "%s-%s.png", prefix, suffix) >= (int)sizeof(path))
     return ts_error(err, TS_EINVAL, "-o %s: the path is too long", prefix);
   return ts_image_write(path, img, NULL, err);
+}
+
+static void print_classes(const scene *s, const uint64_t count[256]) {
+  double n = (double)s->w * s->h;
+  for (int k = 0; k < s->nclass; k++)
+    printf("class %d %-10s %5.1f%%\n", k + 1, classes[k].name, 100.0 * (double)count[k + 1] / n);
 }
 
 /* Each class's share of the map, the lines' share of the raster. */
@@ -494,40 +555,185 @@ static void print_shares(const scene *s, const uint8_t *map, const uint8_t *road
     count[map[i]]++;
     lines[roads[i]]++;
   }
-  for (int k = 0; k < s->nclass; k++)
-    printf("class %d %-10s %5.1f%%\n", k + 1, classes[k].name, 100.0 * (double)count[k + 1] / (double)n);
+  print_classes(s, count);
   printf("roads (255) %.2f%%, paths (128) %.2f%%\n", 100.0 * (double)lines[ROAD] / (double)n,
          100.0 * (double)lines[PATH] / (double)n);
+}
+
+/* The whole map and road raster in memory, written as PNGs. */
+static int write_pngs(const char *prefix, scene *s, char *err) {
+  ts_image map = {0}, roads = {0};
+  int rc;
+  if ((rc = ts_image_alloc(&map, s->w, s->h, 1, TS_PIX_U8, err)) != 0 ||
+      (rc = ts_image_alloc(&roads, s->w, s->h, 1, TS_PIX_U8, err)) != 0 || (rc = make_map(s, map.pixels)) != 0) {
+    rc = ts_error(err, TS_ENOMEM, "out of memory for a %dx%d scene", s->w, s->h);
+  } else {
+    raster_ctx ctx = {s, roads.pixels};
+    make_lines(s, draw_line, &ctx);
+    if ((rc = write_plane(prefix, "classes", &map, err)) == 0 && (rc = write_plane(prefix, "roads", &roads, err)) == 0)
+      print_shares(s, map.pixels, roads.pixels);
+  }
+  ts_image_free(&map);
+  ts_image_free(&roads);
+  return rc;
+}
+
+/* --- output: GIS files -------------------------------------------------------------------------- */
+
+/* Where the GIS scene lies: its top-left corner (a UTM zone's false
+ * easting, 5700 km north), the pixel size in the CRS's units. */
+#define ORIGIN_X 500000.0
+#define ORIGIN_Y 5700000.0
+#define GIS_TILE 512 /* the class map's GeoTIFF tiles, and the strips it is made in */
+
+typedef struct {
+  FILE *f;
+  double res;
+  int nroad, npath;
+} geojson_ctx;
+
+/* A line as a GeoJSON feature: kind road or path, width in metres. */
+static int write_feature(void *ctx, const polyline *p) {
+  geojson_ctx *c = ctx;
+  fprintf(c->f, "%s  {\"type\": \"Feature\", \"properties\": {\"kind\": \"%s\", \"width\": %g},\n"
+                "   \"geometry\": {\"type\": \"LineString\", \"coordinates\": [",
+          c->nroad + c->npath ? ",\n" : "", p->is_road ? "road" : "path", 2 * p->radius * c->res);
+  for (int k = 0; k < p->n; k++)
+    fprintf(c->f, "%s[%.4f, %.4f]", k ? ", " : "", ORIGIN_X + p->x[k] * c->res, ORIGIN_Y - p->y[k] * c->res);
+  fprintf(c->f, "]}}");
+  if (p->is_road) c->nroad++;
+  else c->npath++;
+  return 0;
+}
+
+/* PREFIX-SUFFIX into path, or an error. */
+static int gis_path(char path[PATH_MAX], const char *prefix, const char *suffix, char *err) {
+  if (snprintf(path, PATH_MAX, "%s-%s", prefix, suffix) >= PATH_MAX)
+    return ts_error(err, TS_EINVAL, "-o %s: the path is too long", prefix);
+  return 0;
+}
+
+/* The roads and paths as a GeoJSON layer in the scene's CRS (the 2008
+ * "crs" member, which GDAL honours; RFC 7946 would force WGS 84), and the
+ * line rules (gis.h) that draw them as mkscene's PNG does: roads 255 over
+ * paths 128, each its own width. */
+static int write_roads(const char *prefix, const scene *s, int epsg, double res, char *err) {
+  char path[PATH_MAX];
+  int rc = gis_path(path, prefix, "roads.geojson", err);
+  FILE *f = rc == 0 ? fopen(path, "w") : NULL;
+  if (rc == 0 && f == NULL) return ts_error(err, TS_EIO, "%s: cannot write it: %m", path);
+  if (rc != 0) return rc;
+  fprintf(f, "{\"type\": \"FeatureCollection\", \"name\": \"roads\",\n"
+             " \"crs\": {\"type\": \"name\", \"properties\": {\"name\": \"urn:ogc:def:crs:EPSG::%d\"}},\n"
+             " \"features\": [\n", epsg);
+  geojson_ctx c = {f, res, 0, 0};
+  make_lines(s, write_feature, &c);
+  fprintf(f, "\n]}\n");
+  if (fclose(f) != 0) return ts_error(err, TS_EIO, "%s: writing it failed: %m", path);
+  if ((rc = gis_path(path, prefix, "lines.json", err)) != 0) return rc;
+  if ((f = fopen(path, "w")) == NULL) return ts_error(err, TS_EIO, "%s: cannot write it: %m", path);
+  fprintf(f, "{\"layer\": \"roads\", \"field\": \"kind\", \"width_field\": \"width\",\n"
+             " \"rules\": [{\"match\": \"road\", \"value\": %d, \"width\": %g, \"order\": 2},\n"
+             "           {\"match\": \"path\", \"value\": %d, \"width\": %g, \"order\": 1}]}\n",
+          ROAD, 3 * res, PATH, 2 * res);
+  if (fclose(f) != 0) return ts_error(err, TS_EIO, "%s: writing it failed: %m", path);
+  printf("%d roads, %d paths as lines\n", c.nroad, c.npath);
+  return 0;
+}
+
+/* The class map as a tiled GeoTIFF, made and written GIS_TILE rows at a
+ * time: memory is one strip and GDAL's cache, whatever the size. */
+static int write_classes_tif(const char *prefix, const scene *s, const ts_gis_georef *geo, char *err) {
+  char path[PATH_MAX];
+  int rc = gis_path(path, prefix, "classes.tif", err);
+  if (rc != 0) return rc;
+  uint8_t *strip = malloc((size_t)s->w * GIS_TILE);
+  double *px = malloc((size_t)s->w * sizeof(double)), *py = malloc((size_t)s->w * sizeof(double));
+  ts_gis_writer *w = NULL;
+  uint64_t count[256] = {0};
+  if (strip == NULL || px == NULL || py == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory for a %d px row", s->w);
+  if (rc == 0) rc = ts_gis_writer_create(path, s->w, s->h, 1, GIS_TILE, geo, 0, &w, err);
+  for (int y0 = 0; rc == 0 && y0 < s->h; y0 += GIS_TILE) {
+    int rows = s->h - y0 < GIS_TILE ? s->h - y0 : GIS_TILE;
+    for (int j = 0; j < rows; j++) {
+      uint8_t *row = strip + (size_t)j * s->w;
+      warp_row(s, y0 + j, px, py);
+      map_row(s, y0 + j, px, py, row);
+      for (int x = 0; x < s->w; x++) count[row[x]]++;
+    }
+    rc = ts_gis_writer_put(w, 0, y0, s->w, rows, strip, err);
+  }
+  if (rc == 0) {
+    rc = ts_gis_writer_finish(w, err);
+    w = NULL;
+  }
+  ts_gis_writer_abort(w);
+  free(strip);
+  free(px);
+  free(py);
+  if (rc == 0) print_classes(s, count);
+  return rc;
+}
+
+static int write_gis(const char *prefix, scene *s, int epsg, double res, char *err) {
+  ts_gis_georef geo = {.has_geo = 1, .transform = {ORIGIN_X, res, 0, ORIGIN_Y, 0, -res}};
+  char crs[32];
+  snprintf(crs, sizeof(crs), "EPSG:%d", epsg);
+  int rc = ts_gis_crs_wkt(crs, geo.crs_wkt, sizeof(geo.crs_wkt), err);
+  if (rc == 0) rc = write_classes_tif(prefix, s, &geo, err);
+  if (rc == 0) rc = write_roads(prefix, s, epsg, res, err);
+  return rc;
 }
 
 /* --- options ----------------------------------------------------------------------------------- */
 
 typedef struct {
-  const char *prefix;
-  int w, h, nclass;
+  const char *prefix, *size;
+  int w, h, nclass, gis, epsg, placed; /* placed: --crs or --pixel-size given */
+  double res;
   uint64_t seed;
 } options;
 
 static int usage(const char *msg) {
   fprintf(stderr,
           "mkscene: %s\n"
-          "usage: mkscene -o PREFIX [--size N|WxH] [--seed S] [--classes K]\n"
+          "usage: mkscene -o PREFIX [--size N|WxH] [--seed S] [--classes K] [--gis [--crs EPSG:N] [--pixel-size M]]\n"
           "  -o PREFIX      writes PREFIX-classes.png and PREFIX-roads.png\n"
-          "  --size N|WxH   %d..%d a side (default 1024)\n"
+          "  --size N|WxH   %d..%d a side (default 1024; to %d with --gis)\n"
           "  --seed S       0..2^64-1 (default 1)\n"
           "  --classes K    1..%d: 1 forest, 2 water, 3 town, 4 sand, 5 grassland, 6 arable,\n"
-          "                 7 industrial, 8 wetland (default 4)\n",
-          msg, MIN_SIDE, MAX_SIDE, MAX_CLASSES);
+          "                 7 industrial, 8 wetland (default 4)\n"
+          "  --gis          writes GIS files instead, made by strips in bounded memory:\n"
+          "                 PREFIX-classes.tif (a tiled GeoTIFF, top-left at %.0f,%.0f),\n"
+          "                 PREFIX-roads.geojson (the roads and paths as lines, kind and width\n"
+          "                 in metres) and PREFIX-lines.json (line rules that draw them)\n"
+          "  --crs EPSG:N   a projected CRS in metres (default EPSG:32632, UTM zone 32N)\n"
+          "  --pixel-size M metres a pixel, 0.01..100 (default 0.25)\n",
+          msg, MIN_SIDE, MAX_SIDE, MAX_GIS_SIDE, MAX_CLASSES, ORIGIN_X, ORIGIN_Y);
   return 2;
+}
+
+static int parse_size(options *o, char *msg, size_t cap) {
+  int max = o->gis ? MAX_GIS_SIDE : MAX_SIDE;
+  if (ts_parse_int(o->size, MIN_SIDE, max, &o->w) == 0) {
+    o->h = o->w;
+    return 0;
+  }
+  if (ts_parse_size(o->size, max, &o->w, &o->h) == 0 && o->w >= MIN_SIDE && o->h >= MIN_SIDE) return 0;
+  snprintf(msg, cap, "--size %s: need N or WxH, %d..%d a side", o->size, MIN_SIDE, max);
+  return usage(msg);
 }
 
 static int parse_options(int argc, char **argv, options *o) {
   static const struct option longs[] = {{"size", required_argument, 0, 's'},
                                         {"seed", required_argument, 0, 'S'},
                                         {"classes", required_argument, 0, 'k'},
+                                        {"gis", no_argument, 0, 'g'},
+                                        {"crs", required_argument, 0, 'c'},
+                                        {"pixel-size", required_argument, 0, 'p'},
                                         {0, 0, 0, 0}};
   char msg[256];
-  *o = (options){NULL, 1024, 1024, 4, 1};
+  *o = (options){NULL, "1024", 1024, 1024, 4, 0, 32632, 0, 0.25, 1};
   int c;
   opterr = 0;
   while ((c = getopt_long(argc, argv, "o:", longs, NULL)) != -1) {
@@ -536,12 +742,7 @@ static int parse_options(int argc, char **argv, options *o) {
       o->prefix = optarg;
       break;
     case 's':
-      if (ts_parse_int(optarg, MIN_SIDE, MAX_SIDE, &o->w) == 0) {
-        o->h = o->w;
-      } else if (ts_parse_size(optarg, MAX_SIDE, &o->w, &o->h) != 0 || o->w < MIN_SIDE || o->h < MIN_SIDE) {
-        snprintf(msg, sizeof(msg), "--size %s: need N or WxH, %d..%d a side", optarg, MIN_SIDE, MAX_SIDE);
-        return usage(msg);
-      }
+      o->size = optarg;
       break;
     case 'S':
       if (ts_parse_u64(optarg, &o->seed) != 0) {
@@ -555,6 +756,23 @@ static int parse_options(int argc, char **argv, options *o) {
         return usage(msg);
       }
       break;
+    case 'g':
+      o->gis = 1;
+      break;
+    case 'c':
+      o->placed = 1;
+      if (strncmp(optarg, "EPSG:", 5) != 0 || ts_parse_int(optarg + 5, 1024, 999999, &o->epsg) != 0) {
+        snprintf(msg, sizeof(msg), "--crs %s: need EPSG:N", optarg);
+        return usage(msg);
+      }
+      break;
+    case 'p':
+      o->placed = 1;
+      if (ts_parse_double(optarg, &o->res) != 0 || !(o->res >= 0.01 && o->res <= 100)) {
+        snprintf(msg, sizeof(msg), "--pixel-size %s: need 0.01..100 (metres)", optarg);
+        return usage(msg);
+      }
+      break;
     default:
       snprintf(msg, sizeof(msg), "unknown option or missing value: %s", argv[optind - 1]);
       return usage(msg);
@@ -564,6 +782,9 @@ static int parse_options(int argc, char **argv, options *o) {
     snprintf(msg, sizeof(msg), "unexpected argument: %s", argv[optind]);
     return usage(msg);
   }
+  if (o->placed && !o->gis) return usage("--crs and --pixel-size place the --gis files: add --gis");
+  int rc = parse_size(o, msg, sizeof(msg));
+  if (rc != 0) return rc;
   if (o->prefix == NULL || o->prefix[0] == '\0') return usage("-o PREFIX is required");
   return 0;
 }
@@ -573,30 +794,27 @@ int main(int argc, char **argv) {
   char err[TS_ERR_LEN];
   int rc = parse_options(argc, argv, &o);
   if (rc != 0) return rc;
-  /* Fail before the work if no image can be written. */
-  if (ts_image_lib_load(err) != 0) {
+  /* Fail before the work if nothing can be written. */
+  if ((o.gis ? ts_gis_lib_load(err) : ts_image_lib_load(err)) != 0) {
     fprintf(stderr, "mkscene: %s\n", err);
     return 1;
   }
-  /* The map and the raster are made in the images' own (zeroed) pixels. */
-  scene s = {.w = o.w, .h = o.h, .nclass = o.nclass, .seed = o.seed};
-  ts_image map = {0}, roads = {0};
-  if ((rc = ts_image_alloc(&map, o.w, o.h, 1, TS_PIX_U8, err)) != 0 ||
-      (rc = ts_image_alloc(&roads, o.w, o.h, 1, TS_PIX_U8, err)) != 0 || (rc = scene_init(&s)) != 0 ||
-      (rc = make_map(&s, map.pixels)) != 0) {
-    fprintf(stderr, "mkscene: out of memory for a %dx%d scene\n", o.w, o.h);
-    rc = 1;
-  } else {
-    make_roads(&s, roads.pixels);
-    if (write_plane(o.prefix, "classes", &map, err) != 0 || write_plane(o.prefix, "roads", &roads, err) != 0) {
-      fprintf(stderr, "mkscene: %s\n", err);
-      rc = 1;
-    } else {
-      print_shares(&s, map.pixels, roads.pixels);
+  if (o.gis) { /* and for a CRS GDAL does not know, with the options' status */
+    char wkt[4096], crs[32];
+    snprintf(crs, sizeof(crs), "EPSG:%d", o.epsg);
+    if (ts_gis_crs_wkt(crs, wkt, sizeof(wkt), err) != 0) {
+      fprintf(stderr, "mkscene: --crs %s\n", err);
+      return 2;
     }
   }
+  scene s = {.w = o.w, .h = o.h, .nclass = o.nclass, .seed = o.seed};
+  if (scene_init(&s) != 0) {
+    fprintf(stderr, "mkscene: out of memory for a %dx%d scene\n", o.w, o.h);
+    rc = 1;
+  } else if ((o.gis ? write_gis(o.prefix, &s, o.epsg, o.res, err) : write_pngs(o.prefix, &s, err)) != 0) {
+    fprintf(stderr, "mkscene: %s\n", err);
+    rc = 1;
+  }
   scene_free(&s);
-  ts_image_free(&map);
-  ts_image_free(&roads);
   return rc;
 }

@@ -9,6 +9,9 @@ PACKAGES=(
   libopenimageio-dev openimageio-tools # image I/O (OpenImageIO) + oiiotool for tests
   libopencv-video-dev                  # optical flow (OpenCV's DIS) for texsyn flicker and video:
                                        # libtexsyn-flow.so, common/flow_cv.cpp
+  libgdal-dev gdal-bin                 # GIS rasters and vectors (GDAL): GeoTIFF/COG class maps and
+                                       # outputs, vector line layers; libtexsyn-gis.so, common/gis/;
+                                       # gdalinfo for the tests
   libmodbus-dev mbpoll                 # Modbus TCP monitoring plane; mbpoll reads it in tests
   libsodium-dev                        # HMAC-SHA-256 connection authentication
   libmicrohttpd-dev                    # the operations page (texsyn-server --http)

@@ -14,6 +14,7 @@ export TEXSYN_DATA
 # The test binaries sit in BUILD/tests/, not next to the image library.
 export TEXSYN_IMAGE_LIB=$(cd "$build" && pwd)/libtexsyn-image.so
 export TEXSYN_FLOW_LIB=$(cd "$build" && pwd)/libtexsyn-flow.so
+export TEXSYN_GIS_LIB=$(cd "$build" && pwd)/libtexsyn-gis.so
 mult=${TEXSYN_TEST_TIMEOUT_MULTIPLIER:-1}
 export timeout_s=$((120 * mult))
 logdir=$(mktemp -d)

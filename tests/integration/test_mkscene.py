@@ -3,6 +3,9 @@
 fair share and in many separate regions; the road raster holds roads and
 paths and nothing else; the same seed gives the same bytes, another seed
 other ones; a WxH size is kept; bad options are refused with status 2.
+With --gis, the same map as a georeferenced tiled GeoTIFF (read back with
+GDAL's own gdalinfo and oiiotool), the roads and paths as a GeoJSON layer
+in the same CRS with kind and width, and line rules for them.
 The images are read back through oiiotool (PGM), not through texsyn.
 Also bench/aerial_refs.sh, which cuts the references of a catalogue for
 these scenes from aero1.jpg."""
@@ -107,6 +110,12 @@ def test_a_rectangle_is_kept(tmp_path):
     (["--classes", "9"], "--classes 9: need 1..8"),
     (["--classes", "0"], "--classes 0: need 1..8"),
     (["--seed", "-1"], "--seed -1: need a whole number 0..2^64-1"),
+    (["--size", "20000"], "--size 20000: need N or WxH, 64..16384 a side"),
+    (["--gis", "--size", "70000"], "--size 70000: need N or WxH, 64..65536 a side"),
+    (["--gis", "--crs", "UTM32"], "--crs UTM32: need EPSG:N"),
+    (["--gis", "--crs", "EPSG:999999"], "--crs EPSG:999999 is not a CRS GDAL knows"),
+    (["--crs", "EPSG:32633"], "--crs and --pixel-size place the --gis files: add --gis"),
+    (["--gis", "--pixel-size", "0"], "--pixel-size 0: need 0.01..100 (metres)"),
     (["--colour"], "unknown option or missing value: --colour"),
     (["extra"], "unexpected argument: extra"),
 ])
@@ -143,3 +152,40 @@ def test_aerial_refs_cut_a_catalogue_for_the_scene(tmp_path, data):
                               text=True, check=True).stdout
         w, h = sizes[c["name"]]
         assert f"{w} x {h:4d}, 3 channel, uint8 png" in info, info
+
+
+@pytest.mark.sanitize
+def test_gis_files_hold_the_same_map_georeferenced_and_the_roads_as_lines(tmp_path):
+    mkscene("--size", "320x256", "--seed", 3, "--classes", 8, "-o", tmp_path / "png")
+    p = mkscene("--size", "320x256", "--seed", 3, "--classes", 8, "--gis", "--pixel-size", "0.5",
+                "-o", tmp_path / "g")
+    assert sorted(f.name for f in tmp_path.iterdir() if f.name.startswith("g-")) == [
+        "g-classes.tif", "g-lines.json", "g-roads.geojson"]
+    # The map: the PNG's pixels, placed in UTM 32N at 0.5 m, tiled, DEFLATE.
+    _, _, _, want = pixels_of(tmp_path / "png-classes.png", tmp_path)
+    w, h, ch, got = pixels_of(tmp_path / "g-classes.tif", tmp_path)
+    assert (w, h, ch) == (320, 256, 1) and got == want
+    info = json.loads(subprocess.run(["gdalinfo", "-json", str(tmp_path / "g-classes.tif")], capture_output=True,
+                                     text=True, check=True).stdout)
+    assert info["geoTransform"] == [500000.0, 0.5, 0.0, 5700000.0, 0.0, -0.5]
+    assert 'PROJCRS["WGS 84 / UTM zone 32N"' in info["coordinateSystem"]["wkt"]
+    assert info["bands"][0]["block"] == [512, 512] and info["bands"][0]["type"] == "Byte"
+    assert info["metadata"]["IMAGE_STRUCTURE"]["COMPRESSION"] == "DEFLATE"
+    # The lines: paths then roads, in the map's CRS and extent, widths in metres.
+    layer = json.loads((tmp_path / "g-roads.geojson").read_text())
+    assert layer["crs"]["properties"]["name"] == "urn:ogc:def:crs:EPSG::32632"
+    kinds = [f["properties"]["kind"] for f in layer["features"]]
+    assert kinds == ["path"] * kinds.count("path") + ["road"] * kinds.count("road")
+    assert kinds.count("road") == 3 and kinds.count("path") == 2
+    assert f"3 roads, 2 paths as lines" in p.stdout
+    for f in layer["features"]:
+        width = f["properties"]["width"]
+        assert width == 1.0 if f["properties"]["kind"] == "path" else width in (1.5, 2.5, 3.5, 4.5)
+        for x, y in f["geometry"]["coordinates"]:
+            assert 500000 - 40 <= x <= 500000 + 160 + 40 and 5700000 - 128 - 40 <= y <= 5700000 + 40
+    ogr = subprocess.run(["ogrinfo", "-so", "-al", str(tmp_path / "g-roads.geojson")], capture_output=True,
+                         text=True, check=True).stdout
+    assert "Feature Count: 5" in ogr and "UTM zone 32N" in ogr
+    rules = json.loads((tmp_path / "g-lines.json").read_text())
+    assert rules["field"] == "kind" and rules["width_field"] == "width"
+    assert [(r["match"], r["value"], r["order"]) for r in rules["rules"]] == [("road", 255, 2), ("path", 128, 1)]
