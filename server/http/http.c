@@ -20,6 +20,7 @@
 #include "util.h"
 
 #define HTTP_MAX_JOBS 100    /* the newest jobs listed; the spool may hold thousands */
+#define HTTP_MAX_FRAMES 2048 /* the newest jobs that are video frames, grouped as sequences */
 #define HTTP_REFRESH_S 2     /* the page reloads itself this often */
 #define HTTP_CONNECTIONS 32  /* at once; a page load takes a few */
 #define HTTP_TIMEOUT_S 10    /* an idle connection is closed after this */
@@ -84,9 +85,11 @@ static int snapshot_take(ts_http_snapshot *s) {
   memset(s, 0, sizeof(*s));
   ts_job_status *jobs = malloc(sizeof(*jobs) * HTTP_MAX_JOBS);
   ts_worker_info *workers = malloc(sizeof(*workers) * TS_POOL_MAX_REPORT);
-  if (jobs == NULL || workers == NULL) {
+  ts_job_frame *frames = malloc(sizeof(*frames) * HTTP_MAX_FRAMES);
+  if (jobs == NULL || workers == NULL || frames == NULL) {
     free(jobs);
     free(workers);
+    free(frames);
     return TS_ENOMEM;
   }
   s->uptime = ts_now() - g_http.started;
@@ -98,14 +101,17 @@ static int snapshot_take(ts_http_snapshot *s) {
   s->paused = ts_jobs_paused(g_http.jobs);
   s->njobs = ts_jobs_list_recent(g_http.jobs, jobs, HTTP_MAX_JOBS);
   s->nworkers = ts_cluster_info(g_http.cluster, workers, TS_POOL_MAX_REPORT);
+  s->nframes = ts_jobs_list_frames(g_http.jobs, frames, HTTP_MAX_FRAMES);
   s->jobs = jobs;
   s->workers = workers;
+  s->frames = frames;
   return 0;
 }
 
 static void snapshot_free(ts_http_snapshot *s) {
   free((void *)s->jobs);
   free((void *)s->workers);
+  free((void *)s->frames);
 }
 
 static enum MHD_Result serve_page(struct MHD_Connection *c, ts_http_route_kind page) {
