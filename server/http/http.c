@@ -36,21 +36,35 @@ static struct {
 
 /* ---- responses ----------------------------------------------------------------- */
 
-/* Queues body (malloc'ed; libmicrohttpd frees it) with status and type. */
-static enum MHD_Result respond(struct MHD_Connection *c, unsigned status, const char *type, void *body, size_t len) {
+/* How long a browser may keep a thumbnail: a finished job's result never
+ * changes and its id is never given to another job, so the page, which
+ * reloads every HTTP_REFRESH_S seconds with a strip of thumbnails per video
+ * sequence, does not fetch them again each time. Everything else is
+ * fetched afresh. */
+#define HTTP_THUMB_CACHE "private, max-age=3600"
+#define HTTP_NO_CACHE "no-store"
+
+/* Queues body (malloc'ed; libmicrohttpd frees it) with status, type and
+ * Cache-Control value. */
+static enum MHD_Result respond_cached(struct MHD_Connection *c, unsigned status, const char *type, const char *cache,
+                                      void *body, size_t len) {
   struct MHD_Response *r = MHD_create_response_from_buffer(len, body, MHD_RESPMEM_MUST_FREE);
   if (r == NULL) {
     free(body);
     return MHD_NO;
   }
   MHD_add_response_header(r, MHD_HTTP_HEADER_CONTENT_TYPE, type);
-  MHD_add_response_header(r, MHD_HTTP_HEADER_CACHE_CONTROL, "no-store");
+  MHD_add_response_header(r, MHD_HTTP_HEADER_CACHE_CONTROL, cache);
   if (status == MHD_HTTP_UNAUTHORIZED)
     MHD_add_response_header(r, MHD_HTTP_HEADER_WWW_AUTHENTICATE, "Basic realm=\"texsyn\", charset=\"UTF-8\"");
   if (status == MHD_HTTP_METHOD_NOT_ALLOWED) MHD_add_response_header(r, MHD_HTTP_HEADER_ALLOW, "GET, HEAD");
   enum MHD_Result rc = MHD_queue_response(c, status, r);
   MHD_destroy_response(r);
   return rc;
+}
+
+static enum MHD_Result respond(struct MHD_Connection *c, unsigned status, const char *type, void *body, size_t len) {
+  return respond_cached(c, status, type, HTTP_NO_CACHE, body, len);
 }
 
 /* A plain-text error naming the problem. */
@@ -144,7 +158,7 @@ static enum MHD_Result serve_thumb(struct MHD_Connection *c, uint64_t id) {
     ts_log("http: thumbnail of job %llu: %s", (unsigned long long)id, err);
     return respond_error(c, MHD_HTTP_INTERNAL_SERVER_ERROR, "%s", err);
   }
-  return respond(c, MHD_HTTP_OK, "image/png", png, len);
+  return respond_cached(c, MHD_HTTP_OK, "image/png", HTTP_THUMB_CACHE, png, len);
 }
 
 /* ---- requests ----------------------------------------------------------------------- */

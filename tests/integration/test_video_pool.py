@@ -116,5 +116,6 @@ def test_the_operations_page_shows_the_sequence_as_its_frames_finish(texsyn, dat
     for f, job in shown:
         code, headers, body = get(f"{base}/jobs/{job}/thumb.png")
         assert code == 200 and headers["Content-Type"] == "image/png", (f, code, body[:200])
+        assert headers["Cache-Control"] == "private, max-age=3600"  # a finished result never changes
         (tmp_path / "thumb.png").write_bytes(body)
         assert pixels_of(tmp_path / "thumb.png", tmp_path) == pixels_of(tmp_path / f"c_{f:04d}.png", tmp_path), f
