@@ -285,8 +285,9 @@ static int check_keys(ts_video *v, char *err) {
       return ts_error(err, TS_EINVAL, "--key %ld %s is %dx%d, the frames %dx%d: a key is a painted frame, of the "
                       "frames' size", v->key[k].frame, v->key[k].image, info.width, info.height, v->w, v->h);
     if (k > 0 && info.channels != v->channels)
-      return ts_error(err, TS_EINVAL, "--key %ld %s has %d channels, --key %ld %d: every key needs the same",
-                      v->key[k].frame, v->key[k].image, info.channels, v->key[0].frame, v->channels);
+      return ts_error(err, TS_EINVAL, "--key %ld %s has %d channels, but --key %ld %s has %d: every key needs the same "
+                      "count (the output's)", v->key[k].frame, v->key[k].image, info.channels, v->key[0].frame, v->key[0].image,
+                      v->channels);
     v->channels = info.channels;
   }
   return 0;
@@ -321,8 +322,8 @@ static int check_movie(video_opts *o, ts_image_info *first, char *err) {
   if (rc != 0) {
     char why[TS_ERR_LEN];
     snprintf(why, sizeof(why), "%s", err);
-    return ts_error(err, rc, "--input: no frame number in the name (%%d or %%04d, e.g. shot/%%04d.png), and %s "
-                    "(nothing was stylized)", why);
+    return ts_error(err, rc, "--input: %s; nothing was stylized (a sequence of images needs the frame number in "
+                    "the name: %%d or %%04d, e.g. shot/%%04d.png)", why);
   }
   if (mi.frames == 1)
     return ts_error(err, TS_EINVAL, "--input %s: one image; put the frame number in the name (%%d or %%04d, e.g. "

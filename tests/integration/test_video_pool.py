@@ -9,6 +9,8 @@ import re
 import signal
 import subprocess
 
+import pytest
+
 from conftest import BUILD, REPO, run
 from pnm import oiiotool, pixels_of
 from test_http import chromium_dom, get, http_addr, wait_until
@@ -74,6 +76,7 @@ def strip_of(dom, key, end):
                                                    r'src="/jobs/\2/thumb.png"', row.group(1))]
 
 
+@pytest.mark.sanitize
 def test_the_operations_page_shows_the_sequence_as_its_frames_finish(texsyn, data, cluster, tmp_path):
     """The client stopped after the chains' first frames: the page (in
     chromium) shows the one sequence with only its finished frames, each a
