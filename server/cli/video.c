@@ -286,8 +286,8 @@ static int check_keys(ts_video *v, char *err) {
                       "frames' size", v->key[k].frame, v->key[k].image, info.width, info.height, v->w, v->h);
     if (k > 0 && info.channels != v->channels)
       return ts_error(err, TS_EINVAL, "--key %ld %s has %d channels, but --key %ld %s has %d: every key needs the same "
-                      "count (the output's)", v->key[k].frame, v->key[k].image, info.channels, v->key[0].frame, v->key[0].image,
-                      v->channels);
+                      "count (the output's)", v->key[k].frame, v->key[k].image, info.channels, v->key[0].frame,
+                      v->key[0].image, v->channels);
     v->channels = info.channels;
   }
   return 0;

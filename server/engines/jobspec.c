@@ -124,9 +124,9 @@ static int parse_range(const char *v, long *a, long *b) {
   if (dots == NULL || (size_t)(dots - v) >= sizeof(first)) return TS_EINVAL;
   memcpy(first, v, (size_t)(dots - v));
   first[dots - v] = '\0';
-  return ts_parse_long(first, 0, TS_JOBSPEC_FRAME_MAX, a) == 0 && ts_parse_long(dots + 2, 0, TS_JOBSPEC_FRAME_MAX, b) == 0
-             ? 0
-             : TS_EINVAL;
+  int ok = ts_parse_long(first, 0, TS_JOBSPEC_FRAME_MAX, a) == 0 &&
+           ts_parse_long(dots + 2, 0, TS_JOBSPEC_FRAME_MAX, b) == 0;
+  return ok ? 0 : TS_EINVAL;
 }
 
 static int parse_seq_id(const char *v, char *out) {
@@ -178,8 +178,9 @@ static int within(long x, long a, long b) { return a <= b ? x >= a && x <= b : x
 static int seq_complete(const ts_jobspec_seq *q, char *err) {
   if (q->given == 0) return 0;
   for (size_t i = 0; i < SEQ_KEYS; i++)
-    if (!(q->given & 1u << i)) return ts_error(err, TS_EINVAL, "job spec: %s is missing (a sequence's frame needs all "
-                                               "of sequence, sequence_name, _frames, _jobs, _chain and _frame)", kSeqKeys[i]);
+    if (!(q->given & 1u << i))
+      return ts_error(err, TS_EINVAL, "job spec: %s is missing (a sequence's frame needs all of sequence, "
+                      "sequence_name, _frames, _jobs, _chain and _frame)", kSeqKeys[i]);
   if (!within(q->key, q->first, q->last) || !within(q->end, q->first, q->last) || q->frame == q->key ||
       !within(q->frame, q->key, q->end))
     return ts_error(err, TS_EINVAL, "job spec: sequence_chain=%ld..%ld and sequence_frame=%ld do not fit "

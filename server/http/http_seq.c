@@ -134,9 +134,10 @@ static void html_seq(ts_text *t, const ts_http_seqs *g, const ts_http_seq *s) {
   ts_text_add(t, "<section class=\"sequence\" data-id=\"%s\"><h3>", q->id);
   ts_text_html(t, q->name);
   ts_text_add(t,
-              "</h3>\n<p>frames %ld..%ld &middot; <progress max=\"%u\" value=\"%u\"></progress> <span class=\"done\">%u"
-              "</span> of <span class=\"jobs\">%u</span> frames stylized</p>\n<table class=\"chains\"><tr><th>chain</th>"
-              "<th>frames</th><th>finished</th><th>frames as they finish</th></tr>\n",
+              "</h3>\n<p>frames %ld..%ld &middot; <progress max=\"%u\" value=\"%u\"></progress> "
+              "<span class=\"done\">%u</span> of <span class=\"jobs\">%u</span> frames stylized</p>\n"
+              "<table class=\"chains\"><tr><th>chain</th><th>frames</th><th>finished</th><th>frames as they finish</th>"
+              "</tr>\n",
               q->first, q->last, q->jobs, s->done, s->done, q->jobs);
   for (uint32_t i = s->from; i < s->to;) {
     uint32_t end = chain_end(g, i, s->to);
