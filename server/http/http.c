@@ -148,11 +148,11 @@ static enum MHD_Result serve_page(struct MHD_Connection *c, ts_http_route_kind p
   return respond_text(c, &t, type);
 }
 
-static enum MHD_Result serve_thumb(struct MHD_Connection *c, uint64_t id) {
+static enum MHD_Result serve_thumb(struct MHD_Connection *c, uint64_t id, const char *name, int side) {
   uint8_t *png;
   size_t len;
   char err[TS_ERR_LEN];
-  int rc = ts_thumb_get(g_http.jobs, id, &png, &len, err);
+  int rc = ts_thumb_get(g_http.jobs, id, name, side, &png, &len, err);
   if (rc == TS_ENOENT || rc == TS_EINVAL) return respond_error(c, MHD_HTTP_NOT_FOUND, "%s", err);
   if (rc != 0) {
     ts_log("http: thumbnail of job %llu: %s", (unsigned long long)id, err);
@@ -190,8 +190,9 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *c, const cha
   switch (page) {
   case TS_HTTP_NOT_FOUND:
     return respond_error(c, MHD_HTTP_NOT_FOUND, "no page %s (there are /, /status.json, /metrics and "
-                                                "/jobs/ID/thumb.png)", url);
-  case TS_HTTP_THUMB: return serve_thumb(c, job);
+                                                "/jobs/ID/thumb.png, /jobs/ID/small.png)", url);
+  case TS_HTTP_THUMB: return serve_thumb(c, job, "thumb.png", TS_THUMB_SIDE);
+  case TS_HTTP_SMALL: return serve_thumb(c, job, "small.png", TS_THUMB_SMALL_SIDE);
   default: return serve_page(c, page);
   }
 }

@@ -379,10 +379,10 @@ ts_http_route_kind ts_http_route(const char *url, uint64_t *job) {
   if (strcmp(url, "/metrics") == 0) return TS_HTTP_METRICS;
   static const char kJobs[] = "/jobs/";
   const char *end;
-  if (strncmp(url, kJobs, sizeof(kJobs) - 1) == 0 && parse_job_id(url + sizeof(kJobs) - 1, &end, job) == 0 &&
-      strcmp(end, "/thumb.png") == 0)
-    return TS_HTTP_THUMB;
-  return TS_HTTP_NOT_FOUND;
+  if (strncmp(url, kJobs, sizeof(kJobs) - 1) != 0 || parse_job_id(url + sizeof(kJobs) - 1, &end, job) != 0)
+    return TS_HTTP_NOT_FOUND;
+  if (strcmp(end, "/thumb.png") == 0) return TS_HTTP_THUMB;
+  return strcmp(end, "/small.png") == 0 ? TS_HTTP_SMALL : TS_HTTP_NOT_FOUND;
 }
 
 int ts_http_listen_addr(const char *arg, char *out, size_t cap, char *host, size_t hostcap, char *err) {

@@ -63,6 +63,7 @@ typedef enum {
   TS_HTTP_STATUS,  /* /status.json */
   TS_HTTP_METRICS, /* /metrics */
   TS_HTTP_THUMB,   /* /jobs/ID/thumb.png: *job gets ID */
+  TS_HTTP_SMALL,   /* /jobs/ID/small.png: *job gets ID */
 } ts_http_route_kind;
 
 ts_http_route_kind ts_http_route(const char *url, uint64_t *job);

@@ -97,14 +97,14 @@ static const char *direction(const ts_jobspec_seq *q) { return q->end > q->key ?
 
 /* ---- HTML ---------------------------------------------------------------------- */
 
-/* A finished frame: its thumbnail, linked to the full-size thumbnail; an
+/* A finished frame: its small thumbnail, linked to the larger one; an
  * unfinished one: its number, its state in its class and title. */
 static void html_cell(ts_text *t, const ts_job_frame *f) {
   const char *state = ts_job_state_name(f->state);
   if (f->state == TS_JOB_DONE) {
     ts_text_add(t,
                 "<a href=\"/jobs/%" PRIu64 "/thumb.png\"><img class=\"frame\" data-frame=\"%ld\" data-job=\"%" PRIu64
-                "\" src=\"/jobs/%" PRIu64 "/thumb.png\" title=\"frame %ld (job %" PRIu64 ")\" alt=\"frame %ld\"></a>",
+                "\" src=\"/jobs/%" PRIu64 "/small.png\" title=\"frame %ld (job %" PRIu64 ")\" alt=\"frame %ld\"></a>",
                 f->id, f->seq.frame, f->id, f->id, f->seq.frame, f->id, f->seq.frame);
     return;
   }

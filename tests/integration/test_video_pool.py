@@ -72,17 +72,33 @@ def strip_of(dom, key, end):
     thumbnail, in the order shown."""
     row = re.search(rf'<tr class="chain" data-key="{key}" data-end="{end}">(.*?)</tr>', dom, re.S)
     assert row, dom
-    return [(int(f), int(j)) for f, j in re.findall(r'<img class="frame" data-frame="(\d+)" data-job="(\d+)" '
-                                                   r'src="/jobs/\2/thumb.png"', row.group(1))]
+    return [(int(f), int(j)) for f, j in re.findall(r'<a href="/jobs/(?:\d+)/thumb.png"><img class="frame" '
+                                                   r'data-frame="(\d+)" data-job="(\d+)" src="/jobs/\2/small.png"',
+                                                   row.group(1))]
+
+
+def box_average(image, w, h):
+    """image's (W, H, C, pixels) at w x h, each pixel the mean of the
+    source pixels whose box it is (server/http/thumb.c)."""
+    sw, sh, c, px = image
+    out = bytearray()
+    for y in range(h):
+        y0, y1 = y * sh // h, max((y + 1) * sh // h, y * sh // h + 1)
+        for x in range(w):
+            x0, x1 = x * sw // w, max((x + 1) * sw // w, x * sw // w + 1)
+            for k in range(c):
+                box = [px[(sy * sw + sx) * c + k] for sy in range(y0, y1) for sx in range(x0, x1)]
+                out.append((2 * sum(box) + len(box)) // (2 * len(box)))
+    return bytes(out)
 
 
 @pytest.mark.sanitize
 def test_the_operations_page_shows_the_sequence_as_its_frames_finish(texsyn, data, cluster, tmp_path):
     """The client stopped after the chains' first frames: the page (in
-    chromium) shows the one sequence with only its finished frames, each a
-    thumbnail that decodes to the frame itself (96x72 is under the
-    thumbnail's 160 px, so never scaled); once the client goes on, all 7
-    frames (3 backward from key 4, 4 forward), in frame order."""
+    chromium) shows the one sequence with only its finished frames; once
+    the client goes on, all 7 frames (3 backward from key 4, 4 forward) in
+    frame order, each a small thumbnail (64x48) linked to the larger one,
+    which decodes to the frame itself (96x72 is under its 160 px)."""
     make_shot(data, tmp_path)
     cluster.start(1, 1, "--http", "127.0.0.1:0")
     base = "http://" + http_addr(cluster.server)
@@ -117,8 +133,17 @@ def test_the_operations_page_shows_the_sequence_as_its_frames_finish(texsyn, dat
     shown = strip_of(dom, KEY, 1) + strip_of(dom, KEY, FRAMES)
     assert [f for f, _ in shown] == [1, 2, 3, 5, 6, 7, 8], shown
     for f, job in shown:
-        code, headers, body = get(f"{base}/jobs/{job}/thumb.png")
-        assert code == 200 and headers["Content-Type"] == "image/png", (f, code, body[:200])
-        assert headers["Cache-Control"] == "private, max-age=3600"  # a finished result never changes
-        (tmp_path / "thumb.png").write_bytes(body)
-        assert pixels_of(tmp_path / "thumb.png", tmp_path) == pixels_of(tmp_path / f"c_{f:04d}.png", tmp_path), f
+        for name in ("thumb", "small"):
+            code, headers, body = get(f"{base}/jobs/{job}/{name}.png")
+            assert code == 200 and headers["Content-Type"] == "image/png", (f, name, code, body[:200])
+            assert headers["Cache-Control"] == "private, max-age=3600"  # a finished result never changes
+            (tmp_path / f"{name}.png").write_bytes(body)
+            assert (tmp_path / "spool" / "jobs" / str(job) / f"{name}.png").read_bytes() == body  # kept, made once
+        # 96x72: the thumbnail is the frame itself (under 160 px, never
+        # scaled); the strip's is 64x48, each pixel its box of the frame
+        # averaged (within 1 for the rounding of a tie).
+        frame = pixels_of(tmp_path / f"c_{f:04d}.png", tmp_path)
+        assert pixels_of(tmp_path / "thumb.png", tmp_path) == frame, f
+        w, h, c, small = pixels_of(tmp_path / "small.png", tmp_path)
+        assert (w, h, c) == (64, 48, 3), (f, w, h, c)
+        assert max(abs(a - b) for a, b in zip(small, box_average(frame, 64, 48))) <= 1, f

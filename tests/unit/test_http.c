@@ -22,6 +22,8 @@ static void route_names_the_pages(void **state) {
   assert_int_equal(ts_http_route("/metrics", &id), TS_HTTP_METRICS);
   assert_int_equal(ts_http_route("/jobs/42/thumb.png", &id), TS_HTTP_THUMB);
   assert_int_equal(id, 42);
+  assert_int_equal(ts_http_route("/jobs/43/small.png", &id), TS_HTTP_SMALL);
+  assert_int_equal(id, 43);
   assert_int_equal(ts_http_route("/jobs/18446744073709551615/thumb.png", &id), TS_HTTP_THUMB);
   assert_true(id == UINT64_MAX);
 }
@@ -42,6 +44,8 @@ static void route_refuses_bad_paths_and_ids(void **state) {
                        "/jobs/18446744073709551616/thumb.png",
                        "/jobs/1/thumb.png/",
                        "/jobs/1/thumb.gif",
+                       "/jobs/1/small.png/",
+                       "/jobs/01/small.png",
                        "/jobs/1/../../etc/passwd"};
   for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++) {
     uint64_t id = 7;
@@ -335,7 +339,7 @@ static void sequences_on_the_page_and_in_json(void **state) {
       "<tr class=\"chain\" data-key=\"4\" data-end=\"1\"><td>key 4 backward</td><td>1..3</td><td class=n>1 of 3</td>"
       "<td class=strip><span class=\"frame queued\" data-frame=\"2\" data-job=\"5\" title=\"frame 2 (job 5): queued\">2"
       "</span><a href=\"/jobs/1/thumb.png\"><img class=\"frame\" data-frame=\"3\" data-job=\"1\" "
-      "src=\"/jobs/1/thumb.png\" title=\"frame 3 (job 1)\" alt=\"frame 3\"></a></td></tr>",
+      "src=\"/jobs/1/small.png\" title=\"frame 3 (job 1)\" alt=\"frame 3\"></a></td></tr>",
       "<td>key 4 forward</td><td>5..8</td><td class=n>1 of 4</td>",
       "<img class=\"frame\" data-frame=\"5\" data-job=\"2\"",
       "<span class=\"frame running\" data-frame=\"6\" data-job=\"6\" title=\"frame 6 (job 6): running 45.0%\">6</span>",
