@@ -1,9 +1,11 @@
 """texsyn video between two keys: the error-driven selection and the
 screened Poisson blend (server/cli/video_blend.c), and a sequence that goes
 on after an interruption: a rerun with the same --write-guides DIR resumes
-at each chain's next unfinished frame, and a client following its chains on
-a coordinator that is killed and restarted finishes them there, each with
-the frames alone, with --mask, with --flow and with a movie as --input. On
+at each chain's next unfinished frame (in-process, and on a coordinator,
+whose operations page then shows one sequence), and a client following its
+chains on a coordinator that is killed and restarted finishes them there,
+each with the frames alone, with --mask, with --flow and with a movie as
+--input. On
 the 10-frame shot of test_video.py, keys at its first and last frames
 (painted by adding noise: two independent stroke patterns, so a cross-fade
 shows as a ghost)."""
@@ -19,6 +21,7 @@ import pytest
 from avi import write_avi
 from conftest import BUILD, run
 from pnm import oiiotool, pixels_of
+from test_http import get, http_addr
 from test_video import FRAMES, flicker, flows, shot, video  # noqa: F401 (shot: the fixture)
 
 KEYS = (1, FRAMES)
@@ -197,3 +200,33 @@ def test_a_coordinator_killed_mid_sequence_and_restarted_finishes_the_chains(tex
     started = started_frames(stderr)
     assert sorted(started) == sorted(set(started)) and len(started) == 2 * (FRAMES - 2), started  # none twice
     assert frames_of(tmp_path, "v", v.first) == uninterrupted(name), "the bytes differ from the uninterrupted run"
+
+
+@pytest.mark.parametrize("name", VARIANTS)
+def test_a_client_killed_on_a_coordinator_and_run_again_goes_on_there(texsyn, shot, variants, uninterrupted,  # noqa: F811
+                                                                       cluster, tmp_path, name):
+    """The client killed while its jobs run on a coordinator (which goes
+    on with the frame under way), then run again: it goes on at each
+    chain's next unfinished frame there, with the uninterrupted run's
+    bytes, and the operations page shows one sequence, every frame once."""
+    v = variants[name]
+    k0, k1 = v.first, v.first + FRAMES - 1
+    cluster.worker(1)
+    cluster.start(0, 1, "--http", "127.0.0.1:0")
+    base = "http://" + http_addr(cluster.server)
+    args = [str(a) for a in video_args(shot, tmp_path / "v_%04d.png", "--server", cluster.server.addr,
+                                       "--write-guides", tmp_path / "g", variant=v)]
+    p = subprocess.Popen([str(texsyn), *args], stderr=subprocess.PIPE, text=True)
+    for line in p.stderr:
+        if f"key {k0} forward, frame {k0 + 3} " in line:
+            p.kill()
+            break
+    p.wait()
+    again = run(texsyn, *args)
+    assert f"key {k0} forward: frames {k0 + 1}..{k0 + 2} were finished before" in again.stderr, again.stderr
+    assert f"key {k1} backward: frames {k1 - 2}..{k1 - 1} were finished before" in again.stderr, again.stderr
+    assert frames_of(tmp_path, "v", k0) == uninterrupted(name), "the resumed sequence differs"
+    seqs = json.loads(get(base + "/status.json")[2])["sequences"]
+    assert len(seqs) == 1 and seqs[0]["jobs"] == seqs[0]["done"] == 2 * (FRAMES - 2), seqs
+    shown = {(c["key"], c["end"]): [f["frame"] for f in c["frames"]] for c in seqs[0]["chains"]}
+    assert shown == {(k0, k1 - 1): list(range(k0 + 1, k1)), (k1, k0 + 1): list(range(k0 + 1, k1))}, shown
