@@ -105,6 +105,16 @@ def test_the_operations_page_shows_the_sequence_as_its_frames_finish(texsyn, dat
     args = [str(a) for a in video_args(tmp_path, tmp_path / "c_%04d.png") if a != "--quiet"]
     p = subprocess.Popen([str(BUILD / "texsyn"), *args, "--server", cluster.server.addr], stderr=subprocess.PIPE,
                          text=True)
+    try:
+        check_the_page(p, base, tmp_path)
+    finally:
+        if p.poll() is None:  # a failed check leaves no client behind
+            p.kill()
+            p.wait()
+
+
+def check_the_page(p, base, tmp_path):
+    """The checks of the test above, on its running client p."""
     log = []
     for line in p.stderr:  # the second round starts: frames 3 and 5 are finished
         log.append(line)
