@@ -11,6 +11,7 @@
 
 #include <dirent.h>
 #include <errno.h>
+#include <inttypes.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -284,8 +285,9 @@ static int check_keys(ts_video *v, char *err) {
       return ts_error(err, TS_EINVAL, "--key %ld %s is %dx%d, the frames %dx%d: a key is a painted frame, of the "
                       "frames' size", v->key[k].frame, v->key[k].image, info.width, info.height, v->w, v->h);
     if (k > 0 && info.channels != v->channels)
-      return ts_error(err, TS_EINVAL, "--key %ld %s has %d channels, --key %ld %d: every key needs the same",
-                      v->key[k].frame, v->key[k].image, info.channels, v->key[0].frame, v->channels);
+      return ts_error(err, TS_EINVAL, "--key %ld %s has %d channels, but --key %ld %s has %d: every key needs the same "
+                      "count (the output's)", v->key[k].frame, v->key[k].image, info.channels, v->key[0].frame,
+                      v->key[0].image, v->channels);
     v->channels = info.channels;
   }
   return 0;
@@ -320,8 +322,8 @@ static int check_movie(video_opts *o, ts_image_info *first, char *err) {
   if (rc != 0) {
     char why[TS_ERR_LEN];
     snprintf(why, sizeof(why), "%s", err);
-    return ts_error(err, rc, "--input: no frame number in the name (%%d or %%04d, e.g. shot/%%04d.png), and %s "
-                    "(nothing was stylized)", why);
+    return ts_error(err, rc, "--input: %s; nothing was stylized (a sequence of images needs the frame number in "
+                    "the name: %%d or %%04d, e.g. shot/%%04d.png)", why);
   }
   if (mi.frames == 1)
     return ts_error(err, TS_EINVAL, "--input %s: one image; put the frame number in the name (%%d or %%04d, e.g. "
@@ -454,6 +456,20 @@ static int sequence_out(ts_video *v, const char *dir, ts_video_blend *b, char *e
   return rc == 0 ? ts_video_mask_write(v, dir, stylized, err) : rc;
 }
 
+/* ---- on a coordinator -------------------------------------------------- */
+
+/* What every job says of the sequence (video_chain.h): the id is the
+ * hash of the work, so a rerun that goes on where one stopped shows as
+ * the same sequence on the operations page. */
+static void sequence_tag(ts_video *v, uint64_t hash) {
+  ts_jobspec_seq *q = &v->seq;
+  snprintf(q->id, sizeof(q->id), "%016" PRIx64, hash);
+  ts_jobspec_name_of(v->out, q->name, sizeof(q->name));
+  q->first = v->fr.first;
+  q->last = v->fr.last;
+  q->jobs = ts_video_job_count(v);
+}
+
 /* ---- the report ------------------------------------------------------ */
 
 /* Appends the file at path to f as it is (a job's JSON report). */
@@ -511,7 +527,10 @@ int ts_cmd_video(int argc, char **argv) {
   if (rc != 0 && status == 0) status = rc == TS_EINVAL ? 2 : 1;
   int made = rc == 0 && (rc = workdir_make(&o->v, dir, sizeof(dir), err)) == 0, resume = 0;
   if (rc == 0 && o->movie != NULL) rc = movie_decode(o, dir, err);
-  if (rc == 0 && o->v.guides_dir != NULL) rc = ts_video_claim(&o->v, dir, &resume, err);
+  uint64_t hash = 0;
+  if (rc == 0 && (o->v.guides_dir != NULL || o->v.job.server != NULL)) rc = ts_video_hash(&o->v, &hash, err);
+  if (rc == 0 && o->v.guides_dir != NULL) rc = ts_video_claim(&o->v, dir, hash, &resume, err);
+  if (rc == 0 && o->v.job.server != NULL) sequence_tag(&o->v, hash);
   if (rc == 0) rc = ts_video_prepare(&o->v, dir, err);
   if (rc == TS_EINVAL && status == 0) status = 2;
   if (rc == 0) rc = ts_video_run_chains(&o->v, dir, resume, err);

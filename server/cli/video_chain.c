@@ -332,6 +332,13 @@ static int chain_job(const ts_video *v, const char *dir, chain *c, long t) {
   }
   snprintf(c->name, sizeof(c->name), "frame %ld from key %ld", t, c->key);
   c->job.result_name = c->name;
+  if (v->seq.id[0] != '\0' && t != c->key) {
+    ts_jobspec_seq *q = &c->job.spec.seq;
+    *q = v->seq;
+    q->key = c->key;
+    q->end = c->last;
+    q->frame = t;
+  }
   return 1 + 2 * g;
 }
 
@@ -528,14 +535,31 @@ static int chain_resume(runner *r, chain *c, char *err) {
   return 0;
 }
 
-/* The chains: per key, backward to the frame after the previous key (or
- * the first frame), forward to the frame before the next (or the last). */
+/* The frames of key k's chains: backward to lo, the frame after the
+ * previous key (or the first frame), forward to hi, the frame before the
+ * next (or the last). */
+static void chain_span(const ts_video *v, int k, long *lo, long *hi) {
+  *lo = k > 0 ? v->key[k - 1].frame + 1 : v->fr.first;
+  *hi = k + 1 < v->nkeys ? v->key[k + 1].frame - 1 : v->fr.last;
+}
+
+uint32_t ts_video_job_count(const ts_video *v) {
+  uint32_t n = 0;
+  for (int k = 0; k < v->nkeys; k++) {
+    long lo, hi, key = v->key[k].frame;
+    chain_span(v, k, &lo, &hi);
+    n += (uint32_t)((lo < key ? key - lo : 0) + (hi > key ? hi - key : 0));
+  }
+  return n;
+}
+
+/* The chains: per key, backward and forward over its span. */
 static int chains_make(const ts_video *v, const char *dir, chain *cs, int *n, char *err) {
   int rc = 0;
   *n = 0;
   for (int k = 0; rc == 0 && k < v->nkeys; k++) {
-    long key = v->key[k].frame;
-    long lo = k > 0 ? v->key[k - 1].frame + 1 : v->fr.first, hi = k + 1 < v->nkeys ? v->key[k + 1].frame - 1 : v->fr.last;
+    long lo, hi, key = v->key[k].frame;
+    chain_span(v, k, &lo, &hi);
     if (lo < key) rc = chain_init(v, dir, key, lo, &cs[(*n)++], err);
     if (rc == 0 && hi > key) rc = chain_init(v, dir, key, hi, &cs[(*n)++], err);
   }

@@ -63,6 +63,10 @@ typedef struct {
   double input_weight, pass_weight[TS_VIDEO_MAX_PASSES];
   ts_video_weights wt; /* the made guides' (video_guides.h) */
   int w, h, channels; /* the frames' size, the keys' channels (checked) */
+  /* On a coordinator, what every job says of the sequence it is a frame
+   * of (jobspec.h; its chain and frame set per job), for the operations
+   * page; id "" in-process. */
+  ts_jobspec_seq seq;
 } ts_video;
 
 /* The work directory's file for key `key` and frame t: what ("out.png",
@@ -93,11 +97,18 @@ int ts_video_prepare(const ts_video *v, const char *dir, char *err);
  * chain and the frame unless quiet. 0 or an error with its message. */
 int ts_video_run_chains(const ts_video *v, const char *dir, int resume, char *err);
 
+/* The stylize jobs the chains take: every chain's frames but its key's. */
+uint32_t ts_video_job_count(const ts_video *v);
+
+/* A 64-bit hash of everything the chains' bytes depend on (video_claim.c):
+ * 0 or an error reading an input. */
+int ts_video_hash(const ts_video *v, uint64_t *hash, char *err);
+
 /* Whether the work directory holds this job's frames from an earlier run
- * (its manifest, video_claim.c): *resume = 1; else its chain files are
- * removed (saying so when there were some) and the manifest written for
- * this job. 0 or an error. */
-int ts_video_claim(const ts_video *v, const char *dir, int *resume, char *err);
+ * (its manifest, holding hash, ts_video_hash): *resume = 1; else its chain
+ * files are removed (saying so when there were some) and the manifest
+ * written for this job. 0 or an error. */
+int ts_video_claim(const ts_video *v, const char *dir, uint64_t hash, int *resume, char *err);
 
 /* Raw native floats, n of them: a whole file (written by rename), or
  * TS_EFORMAT when it holds another count. */

@@ -55,8 +55,7 @@ static int fnv_sequence(uint64_t *h, const ts_video *v, const char *pattern, cha
   return rc;
 }
 
-/* The hash of what the chains' bytes depend on. */
-static int job_hash(const ts_video *v, uint64_t *out, char *err) {
+int ts_video_hash(const ts_video *v, uint64_t *out, char *err) {
   char spec[TS_SPEC_MAX], line[256];
   int n = ts_jobspec_format(&v->job.spec, spec, sizeof(spec));
   if (n < 0) return ts_error(err, TS_ETOOBIG, "job spec too long");
@@ -100,12 +99,9 @@ static int forget_frames(const char *dir) {
   return n;
 }
 
-int ts_video_claim(const ts_video *v, const char *dir, int *resume, char *err) {
-  uint64_t h = 0;
+int ts_video_claim(const ts_video *v, const char *dir, uint64_t h, int *resume, char *err) {
   char path[TS_VIDEO_PATH + 16], want[64];
   *resume = 0;
-  int rc = job_hash(v, &h, err);
-  if (rc != 0) return rc;
   snprintf(want, sizeof(want), "%s %016" PRIx64 "\n", MANIFEST_FORMAT, h);
   snprintf(path, sizeof(path), "%s/manifest", dir);
   uint8_t *buf = NULL;

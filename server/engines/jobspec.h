@@ -18,21 +18,48 @@
  *
  * `name` (optional, any engine) is the file name the client gave the
  * result (-o's last part), for `texsyn status` to show; it changes
- * nothing in the job. Printable ASCII, 1..TS_JOBSPEC_NAME_LEN - 1 bytes. */
+ * nothing in the job. Printable ASCII, 1..TS_JOBSPEC_NAME_LEN - 1 bytes.
+ *
+ * `sequence` and its five companions (optional, all or none) say that the
+ * job is one frame of a `texsyn video` sequence, for the operations page
+ * to show the sequence's frames together as they finish; like `name` they
+ * change nothing in the job:
+ *
+ *   sequence=0123456789abcdef   the run's id: 16 hex digits (a rerun of the
+ *                               same work has the same one)
+ *   sequence_name=out_%04d.png  the output pattern's last part
+ *   sequence_frames=1..48       the sequence's frames
+ *   sequence_jobs=68            the stylize jobs it takes: every chain's frames
+ *   sequence_chain=24..47       this job's chain: from key 24 towards 47
+ *   sequence_frame=30           this job's frame, past the key, up to 47 */
 #ifndef TS_JOBSPEC_H
 #define TS_JOBSPEC_H
 
 #include <stddef.h>
+#include <stdint.h>
 
 #include "engine.h"
 
 #define TS_JOBSPEC_NAME_LEN 128
+#define TS_JOBSPEC_SEQ_ID_LEN 17 /* 16 hex digits */
+#define TS_JOBSPEC_FRAME_MAX 999999L
+
+/* A frame of a sequence (above): id "" when the job is none. */
+typedef struct {
+  char id[TS_JOBSPEC_SEQ_ID_LEN];
+  char name[TS_JOBSPEC_NAME_LEN];
+  long first, last;     /* the sequence's frames */
+  uint32_t jobs;        /* the stylize jobs of all its chains */
+  long key, end, frame; /* the chain from key towards end; this job's frame */
+  unsigned given;       /* the parser's: which of the six keys were read */
+} ts_jobspec_seq;
 
 typedef struct {
   const ts_engine *engine;
   ts_engine_params params; /* the engine's parameter struct */
   ts_engine_wants wants;   /* the outputs asked for */
   char name[TS_JOBSPEC_NAME_LEN]; /* the result's file name on the client; "" if not given */
+  ts_jobspec_seq seq;             /* the sequence it is a frame of, if any */
 } ts_jobspec;
 
 /* A spec for `engine` (NULL: the default engine) with its defaults and
@@ -41,6 +68,8 @@ void ts_jobspec_default(ts_jobspec *s, const ts_engine *engine);
 /* Sets s->name from a path's last part, other bytes than printable ASCII
  * as '?' (cut to fit). */
 void ts_jobspec_set_name(ts_jobspec *s, const char *path);
+/* What ts_jobspec_set_name makes of a path, into out (cap bytes). */
+void ts_jobspec_name_of(const char *path, char *out, size_t cap);
 /* Writes the spec; returns its length, or TS_ETOOBIG if cap is too small. */
 int ts_jobspec_format(const ts_jobspec *s, char *buf, size_t cap);
 /* Parses len bytes (need not be NUL-terminated). Every line is checked;

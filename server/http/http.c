@@ -20,6 +20,7 @@
 #include "util.h"
 
 #define HTTP_MAX_JOBS 100    /* the newest jobs listed; the spool may hold thousands */
+#define HTTP_MAX_FRAMES 2048 /* the newest jobs that are video frames, grouped as sequences */
 #define HTTP_REFRESH_S 2     /* the page reloads itself this often */
 #define HTTP_CONNECTIONS 32  /* at once; a page load takes a few */
 #define HTTP_TIMEOUT_S 10    /* an idle connection is closed after this */
@@ -35,21 +36,35 @@ static struct {
 
 /* ---- responses ----------------------------------------------------------------- */
 
-/* Queues body (malloc'ed; libmicrohttpd frees it) with status and type. */
-static enum MHD_Result respond(struct MHD_Connection *c, unsigned status, const char *type, void *body, size_t len) {
+/* How long a browser may keep a thumbnail: a finished job's result never
+ * changes and its id is never given to another job, so the page, which
+ * reloads every HTTP_REFRESH_S seconds with a strip of thumbnails per video
+ * sequence, does not fetch them again each time. Everything else is
+ * fetched afresh. */
+#define HTTP_THUMB_CACHE "private, max-age=3600"
+#define HTTP_NO_CACHE "no-store"
+
+/* Queues body (malloc'ed; libmicrohttpd frees it) with status, type and
+ * Cache-Control value. */
+static enum MHD_Result respond_cached(struct MHD_Connection *c, unsigned status, const char *type, const char *cache,
+                                      void *body, size_t len) {
   struct MHD_Response *r = MHD_create_response_from_buffer(len, body, MHD_RESPMEM_MUST_FREE);
   if (r == NULL) {
     free(body);
     return MHD_NO;
   }
   MHD_add_response_header(r, MHD_HTTP_HEADER_CONTENT_TYPE, type);
-  MHD_add_response_header(r, MHD_HTTP_HEADER_CACHE_CONTROL, "no-store");
+  MHD_add_response_header(r, MHD_HTTP_HEADER_CACHE_CONTROL, cache);
   if (status == MHD_HTTP_UNAUTHORIZED)
     MHD_add_response_header(r, MHD_HTTP_HEADER_WWW_AUTHENTICATE, "Basic realm=\"texsyn\", charset=\"UTF-8\"");
   if (status == MHD_HTTP_METHOD_NOT_ALLOWED) MHD_add_response_header(r, MHD_HTTP_HEADER_ALLOW, "GET, HEAD");
   enum MHD_Result rc = MHD_queue_response(c, status, r);
   MHD_destroy_response(r);
   return rc;
+}
+
+static enum MHD_Result respond(struct MHD_Connection *c, unsigned status, const char *type, void *body, size_t len) {
+  return respond_cached(c, status, type, HTTP_NO_CACHE, body, len);
 }
 
 /* A plain-text error naming the problem. */
@@ -84,9 +99,11 @@ static int snapshot_take(ts_http_snapshot *s) {
   memset(s, 0, sizeof(*s));
   ts_job_status *jobs = malloc(sizeof(*jobs) * HTTP_MAX_JOBS);
   ts_worker_info *workers = malloc(sizeof(*workers) * TS_POOL_MAX_REPORT);
-  if (jobs == NULL || workers == NULL) {
+  ts_job_frame *frames = malloc(sizeof(*frames) * HTTP_MAX_FRAMES);
+  if (jobs == NULL || workers == NULL || frames == NULL) {
     free(jobs);
     free(workers);
+    free(frames);
     return TS_ENOMEM;
   }
   s->uptime = ts_now() - g_http.started;
@@ -98,14 +115,17 @@ static int snapshot_take(ts_http_snapshot *s) {
   s->paused = ts_jobs_paused(g_http.jobs);
   s->njobs = ts_jobs_list_recent(g_http.jobs, jobs, HTTP_MAX_JOBS);
   s->nworkers = ts_cluster_info(g_http.cluster, workers, TS_POOL_MAX_REPORT);
+  s->nframes = ts_jobs_list_frames(g_http.jobs, frames, HTTP_MAX_FRAMES);
   s->jobs = jobs;
   s->workers = workers;
+  s->frames = frames;
   return 0;
 }
 
 static void snapshot_free(ts_http_snapshot *s) {
   free((void *)s->jobs);
   free((void *)s->workers);
+  free((void *)s->frames);
 }
 
 static enum MHD_Result serve_page(struct MHD_Connection *c, ts_http_route_kind page) {
@@ -128,17 +148,17 @@ static enum MHD_Result serve_page(struct MHD_Connection *c, ts_http_route_kind p
   return respond_text(c, &t, type);
 }
 
-static enum MHD_Result serve_thumb(struct MHD_Connection *c, uint64_t id) {
+static enum MHD_Result serve_thumb(struct MHD_Connection *c, uint64_t id, const char *name, int side) {
   uint8_t *png;
   size_t len;
   char err[TS_ERR_LEN];
-  int rc = ts_thumb_get(g_http.jobs, id, &png, &len, err);
+  int rc = ts_thumb_get(g_http.jobs, id, name, side, &png, &len, err);
   if (rc == TS_ENOENT || rc == TS_EINVAL) return respond_error(c, MHD_HTTP_NOT_FOUND, "%s", err);
   if (rc != 0) {
     ts_log("http: thumbnail of job %llu: %s", (unsigned long long)id, err);
     return respond_error(c, MHD_HTTP_INTERNAL_SERVER_ERROR, "%s", err);
   }
-  return respond(c, MHD_HTTP_OK, "image/png", png, len);
+  return respond_cached(c, MHD_HTTP_OK, "image/png", HTTP_THUMB_CACHE, png, len);
 }
 
 /* ---- requests ----------------------------------------------------------------------- */
@@ -170,8 +190,9 @@ static enum MHD_Result on_request(void *cls, struct MHD_Connection *c, const cha
   switch (page) {
   case TS_HTTP_NOT_FOUND:
     return respond_error(c, MHD_HTTP_NOT_FOUND, "no page %s (there are /, /status.json, /metrics and "
-                                                "/jobs/ID/thumb.png)", url);
-  case TS_HTTP_THUMB: return serve_thumb(c, job);
+                                                "/jobs/ID/thumb.png, /jobs/ID/small.png)", url);
+  case TS_HTTP_THUMB: return serve_thumb(c, job, "thumb.png", TS_THUMB_SIDE);
+  case TS_HTTP_SMALL: return serve_thumb(c, job, "small.png", TS_THUMB_SMALL_SIDE);
   default: return serve_page(c, page);
   }
 }

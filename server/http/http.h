@@ -1,8 +1,8 @@
 /* http.h - the operations page (README, "Operations page"): a read-only
  * HTTP server (libmicrohttpd, its own threads) with the job queue and the
  * pool as a self-refreshing HTML page (/), the same as JSON
- * (/status.json), result thumbnails (/jobs/ID/thumb.png) and Prometheus
- * metrics (/metrics). It reads state only through the thread-safe
+ * (/status.json), result thumbnails (/jobs/ID/thumb.png, and small.png
+ * for the strips of video frames) and Prometheus metrics (/metrics). It reads state only through the thread-safe
  * snapshots of jobs.h and cluster.h.
  *
  * Who may look: without a secret, loopback peers only (403 for others), as

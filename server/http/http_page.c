@@ -8,6 +8,7 @@
 #include <string.h>
 
 #include "error.h"
+#include "http_seq.h"
 #include "l1.h"
 #include "net.h"
 
@@ -51,7 +52,7 @@ void ts_text_add(ts_text *t, const char *fmt, ...) {
 /* ---- escaping ---------------------------------------------------------------- */
 
 /* Text inside HTML elements and double-quoted attributes. */
-static void add_html(ts_text *t, const char *s) {
+void ts_text_html(ts_text *t, const char *s) {
   for (; *s; s++) {
     switch (*s) {
     case '&': ts_text_add(t, "&amp;"); break;
@@ -64,7 +65,7 @@ static void add_html(ts_text *t, const char *s) {
 }
 
 /* A JSON string, quotes included; control characters as \u escapes. */
-static void add_json_str(ts_text *t, const char *s) {
+void ts_text_json(ts_text *t, const char *s) {
   ts_text_add(t, "\"");
   for (; *s; s++) {
     unsigned char c = (unsigned char)*s;
@@ -125,7 +126,10 @@ static const char kStyle[] =
     "th,td{padding:.25em .7em;border-bottom:1px solid #ddd;text-align:left;vertical-align:middle}"
     "th{background:#f3f3f3}td.n{text-align:right;font-variant-numeric:tabular-nums}"
     "progress{width:12em}img{max-width:160px;max-height:160px;image-rendering:pixelated}"
-    ".failed td,.failed{color:#a00}.running{font-weight:600}";
+    ".failed td,.failed{color:#a00}.running{font-weight:600}"
+    ".strip img{height:48px;width:auto;max-width:none;margin:1px;vertical-align:middle}"
+    "span.frame{display:inline-block;min-width:2.5em;height:48px;line-height:48px;margin:1px;text-align:center;"
+    "background:#eee;color:#666;font-size:11px;vertical-align:middle}span.frame.running{background:#dde8f6}";
 
 static void html_summary(ts_text *t, const ts_http_snapshot *s) {
   ts_text_add(t, "<p id=\"summary\">up ");
@@ -143,7 +147,7 @@ static void html_summary(ts_text *t, const ts_http_snapshot *s) {
 static void html_job(ts_text *t, const ts_job_status *j) {
   const char *state = ts_job_state_name(j->state);
   ts_text_add(t, "<tr class=\"job %s\" id=\"job-%" PRIu64 "\"><td class=n>%" PRIu64 "</td><td>", state, j->id, j->id);
-  add_html(t, j->engine);
+  ts_text_html(t, j->engine);
   ts_text_add(t,
               "</td><td class=state>%s</td><td><progress max=\"1000\" value=\"%u\">%.1f%%</progress> "
               "<span class=percent>%.1f</span>%%</td><td>",
@@ -153,7 +157,7 @@ static void html_job(ts_text *t, const ts_job_status *j) {
     ts_text_add(t, "level %d of %u", j->levels - j->level, j->levels);
   if (j->text[0] != '\0') {
     ts_text_add(t, j->state == TS_JOB_RUNNING && j->levels > 0 ? ": " : "");
-    add_html(t, j->text);
+    ts_text_html(t, j->text);
   }
   ts_text_add(t, "</td><td class=n>");
   add_eta(t, j);
@@ -168,7 +172,7 @@ static void html_job(ts_text *t, const ts_job_status *j) {
 static void html_worker(ts_text *t, const ts_worker_info *w) {
   const char *state = ts_worker_state_name(w->state);
   ts_text_add(t, "<tr class=\"worker %s\"><td>", state);
-  add_html(t, w->addr);
+  ts_text_html(t, w->addr);
   ts_text_add(t, "</td><td class=state>%s</td><td class=n>%u</td><td>%s</td><td class=n>", state, w->threads,
               simd_name(w->simd));
   add_rate(t, w->calibrated);
@@ -184,6 +188,10 @@ void ts_http_render_html(ts_text *t, const ts_http_snapshot *s, int refresh_s) {
               "<body><h1>texsyn-server</h1>\n",
               refresh_s, kStyle);
   html_summary(t, s);
+  ts_http_seqs seqs;
+  if (ts_http_seqs_make(s->frames, s->nframes, &seqs) == 0) ts_http_seqs_html(t, &seqs);
+  else t->failed = 1;
+  ts_http_seqs_free(&seqs);
   ts_text_add(t, "<h2>Jobs</h2>\n<table id=\"jobs\"><tr><th>job</th><th>engine</th><th>state</th><th>progress</th>"
                  "<th>stage</th><th>ETA</th><th>result</th></tr>\n");
   for (uint32_t i = 0; i < s->njobs; i++) {
@@ -203,17 +211,17 @@ void ts_http_render_html(ts_text *t, const ts_http_snapshot *s, int refresh_s) {
 
 static void json_job(ts_text *t, const ts_job_status *j) {
   ts_text_add(t, "{\"id\":%" PRIu64 ",\"engine\":", j->id);
-  add_json_str(t, j->engine);
+  ts_text_json(t, j->engine);
   ts_text_add(t, ",\"state\":\"%s\",\"permille\":%u,\"level\":%u,\"levels\":%u,\"workers\":%u,\"text\":",
               ts_job_state_name(j->state), j->permille, j->level, j->levels, j->workers);
-  add_json_str(t, j->text);
+  ts_text_json(t, j->text);
   if (j->state == TS_JOB_RUNNING && j->eta_ms != UINT32_MAX) ts_text_add(t, ",\"eta_s\":%.1f}", j->eta_ms / 1000.0);
   else ts_text_add(t, ",\"eta_s\":null}");
 }
 
 static void json_worker(ts_text *t, const ts_worker_info *w) {
   ts_text_add(t, "{\"worker\":");
-  add_json_str(t, w->addr);
+  ts_text_json(t, w->addr);
   ts_text_add(t,
               ",\"state\":\"%s\",\"threads\":%u,\"simd\":\"%s\",\"calibrated\":%" PRIu64 ",\"rate\":%" PRIu64
               ",\"share_permille\":%u,\"batches\":%" PRIu64 "}",
@@ -234,7 +242,12 @@ void ts_http_render_json(ts_text *t, const ts_http_snapshot *s) {
     ts_text_add(t, i ? "," : "");
     json_job(t, nth_newest(s, i));
   }
-  ts_text_add(t, "],\"pool\":[");
+  ts_text_add(t, "],\"sequences\":");
+  ts_http_seqs seqs;
+  if (ts_http_seqs_make(s->frames, s->nframes, &seqs) == 0) ts_http_seqs_json(t, &seqs);
+  else t->failed = 1;
+  ts_http_seqs_free(&seqs);
+  ts_text_add(t, ",\"pool\":[");
   for (uint32_t i = 0; i < s->nworkers; i++) {
     ts_text_add(t, i ? "," : "");
     json_worker(t, &s->workers[i]);
@@ -366,10 +379,10 @@ ts_http_route_kind ts_http_route(const char *url, uint64_t *job) {
   if (strcmp(url, "/metrics") == 0) return TS_HTTP_METRICS;
   static const char kJobs[] = "/jobs/";
   const char *end;
-  if (strncmp(url, kJobs, sizeof(kJobs) - 1) == 0 && parse_job_id(url + sizeof(kJobs) - 1, &end, job) == 0 &&
-      strcmp(end, "/thumb.png") == 0)
-    return TS_HTTP_THUMB;
-  return TS_HTTP_NOT_FOUND;
+  if (strncmp(url, kJobs, sizeof(kJobs) - 1) != 0 || parse_job_id(url + sizeof(kJobs) - 1, &end, job) != 0)
+    return TS_HTTP_NOT_FOUND;
+  if (strcmp(end, "/thumb.png") == 0) return TS_HTTP_THUMB;
+  return strcmp(end, "/small.png") == 0 ? TS_HTTP_SMALL : TS_HTTP_NOT_FOUND;
 }
 
 int ts_http_listen_addr(const char *arg, char *out, size_t cap, char *host, size_t hostcap, char *err) {

@@ -10,6 +10,7 @@
 #include <stdint.h>
 
 #include "cluster.h"
+#include "jobs.h"
 #include "msg.h"
 
 /* A growing text buffer. After a failed allocation it stays as it was and
@@ -23,6 +24,10 @@ typedef struct {
 void ts_text_init(ts_text *t);
 void ts_text_add(ts_text *t, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 void ts_text_free(ts_text *t);
+/* s as text inside HTML elements and double-quoted attributes. */
+void ts_text_html(ts_text *t, const char *s);
+/* s as a JSON string, quotes included. */
+void ts_text_json(ts_text *t, const char *s);
 
 /* Everything the pages show, read through the thread-safe snapshots of
  * jobs.h and cluster.h at one moment. */
@@ -38,6 +43,8 @@ typedef struct {
   uint32_t njobs;
   const ts_worker_info *workers;            /* the pool */
   uint32_t nworkers;
+  const ts_job_frame *frames;               /* the newest jobs that are video frames, oldest first */
+  uint32_t nframes;
 } ts_http_snapshot;
 
 /* The HTML status page (no external resources; it reloads itself every
@@ -56,6 +63,7 @@ typedef enum {
   TS_HTTP_STATUS,  /* /status.json */
   TS_HTTP_METRICS, /* /metrics */
   TS_HTTP_THUMB,   /* /jobs/ID/thumb.png: *job gets ID */
+  TS_HTTP_SMALL,   /* /jobs/ID/small.png: *job gets ID */
 } ts_http_route_kind;
 
 ts_http_route_kind ts_http_route(const char *url, uint64_t *job);

@@ -71,11 +71,11 @@ static int result_path(ts_jobs *j, uint64_t id, char *path, size_t cap, char *er
   return rc;
 }
 
-static int make_thumb(const char *from, const char *to, char *err) {
+static int make_thumb(const char *from, const char *to, int side, char *err) {
   ts_image img, small;
   int rc = ts_image_read(from, &img, NULL, err);
   if (rc != 0) return rc;
-  rc = ts_thumb_scale(&img, TS_THUMB_SIDE, &small, err);
+  rc = ts_thumb_scale(&img, side, &small, err);
   ts_image_free(&img);
   if (rc != 0) return rc;
   rc = ts_image_write(to, &small, NULL, err);
@@ -83,15 +83,15 @@ static int make_thumb(const char *from, const char *to, char *err) {
   return rc;
 }
 
-int ts_thumb_get(ts_jobs *j, uint64_t id, uint8_t **png, size_t *len, char *err) {
-  char from[4096], to[4096 + 16];
+int ts_thumb_get(ts_jobs *j, uint64_t id, const char *name, int side, uint8_t **png, size_t *len, char *err) {
+  char from[4096], to[4096 + 64];
   int rc = result_path(j, id, from, sizeof(from), err);
   if (rc != 0) return rc;
   const char *slash = strrchr(from, '/');
   int dir_len = slash != NULL ? (int)(slash - from) : 1;
-  snprintf(to, sizeof(to), "%.*s/thumb.png", dir_len, slash != NULL ? from : ".");
+  snprintf(to, sizeof(to), "%.*s/%s", dir_len, slash != NULL ? from : ".", name);
   pthread_mutex_lock(&g_making);
-  if (access(to, F_OK) != 0) rc = make_thumb(from, to, err);
+  if (access(to, F_OK) != 0) rc = make_thumb(from, to, side, err);
   pthread_mutex_unlock(&g_making);
   if (rc == 0) rc = ts_file_read(to, THUMB_MAX_BYTES, png, len, err);
   return rc;

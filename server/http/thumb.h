@@ -9,7 +9,12 @@
 #include "image.h"
 #include "jobs.h"
 
-#define TS_THUMB_SIDE 160 /* pixels on the long side, at most */
+/* The sizes served, pixels on the long side at most, each kept in the
+ * job's spool directory under the name it is served by (/jobs/ID/NAME):
+ * thumb.png for a look at one result, small.png for the operations
+ * page's strips of video frames, a few KB each however many frames. */
+#define TS_THUMB_SIDE 160
+#define TS_THUMB_SMALL_SIDE 64
 
 /* A box-filtered copy of src, 8-bit, with src's channels (the first four
  * of more, as PNG holds no more), whose long side is
@@ -17,11 +22,11 @@
  * kept (each side at least 1 pixel). 0, TS_EINVAL or TS_ENOMEM. */
 int ts_thumb_scale(const ts_image *src, int max_side, ts_image *dst, char *err);
 
-/* The PNG bytes (malloc'ed into *png) of job id's thumbnail: thumb.png in
- * the job's spool directory, made from its result image (out.EXT) the
- * first time it is asked for, then served from there. TS_ENOENT when there
- * is no such job or it has no image result, TS_EINVAL when it is not done,
- * else the image library's error. */
-int ts_thumb_get(ts_jobs *j, uint64_t id, uint8_t **png, size_t *len, char *err);
+/* The PNG bytes (malloc'ed into *png) of job id's thumbnail of long side
+ * `side`: the file `name` in the job's spool directory, made from its
+ * result image (out.EXT) the first time it is asked for, then served from
+ * there. TS_ENOENT when there is no such job or it has no image result,
+ * TS_EINVAL when it is not done, else the image library's error. */
+int ts_thumb_get(ts_jobs *j, uint64_t id, const char *name, int side, uint8_t **png, size_t *len, char *err);
 
 #endif

@@ -251,6 +251,24 @@ uint32_t ts_jobs_list_recent(ts_jobs *j, ts_job_status *out, uint32_t cap) {
   return n;
 }
 
+uint32_t ts_jobs_list_frames(ts_jobs *j, ts_job_frame *out, uint32_t cap) {
+  pthread_mutex_lock(&j->lock);
+  uint64_t total = 0;
+  for (const job *jb = j->head; jb != NULL; jb = jb->next) total += jb->spec.seq.id[0] != '\0';
+  uint64_t skip = total > cap ? total - cap : 0;
+  uint32_t n = 0;
+  for (const job *jb = j->head; jb != NULL; jb = jb->next) {
+    if (jb->spec.seq.id[0] == '\0') continue;
+    if (skip > 0) {
+      skip--;
+      continue;
+    }
+    out[n++] = (ts_job_frame){jb->id, jb->st.state, jb->st.permille, jb->spec.seq};
+  }
+  pthread_mutex_unlock(&j->lock);
+  return n;
+}
+
 int ts_jobs_cancel(ts_jobs *j, uint64_t id, char *err) {
   pthread_mutex_lock(&j->lock);
   job *jb = jobs_find(j, id);

@@ -28,6 +28,7 @@
 #include <stdint.h>
 
 #include "cluster.h"
+#include "jobspec.h"
 #include "msg.h"
 
 typedef struct {
@@ -70,6 +71,17 @@ uint32_t ts_jobs_list(ts_jobs *j, ts_job_status *out, uint32_t cap);
 /* The newest cap jobs, oldest first; returns how many were written. For
  * the operations page. */
 uint32_t ts_jobs_list_recent(ts_jobs *j, ts_job_status *out, uint32_t cap);
+/* A job that is one frame of a `texsyn video` sequence (its spec's
+ * sequence keys, jobspec.h), for the operations page. */
+typedef struct {
+  uint64_t id;
+  uint8_t state;     /* ts_job_state */
+  uint16_t permille; /* its progress */
+  ts_jobspec_seq seq;
+} ts_job_frame;
+/* The newest cap jobs that are frames of a sequence, oldest first;
+ * returns how many were written. */
+uint32_t ts_jobs_list_frames(ts_jobs *j, ts_job_frame *out, uint32_t cap);
 int ts_jobs_cancel(ts_jobs *j, uint64_t id, char *err);
 /* Removes a finished (done, failed or canceled) job and its files from the
  * spool; its id is never given out again. The expirer removes jobs the

@@ -177,7 +177,7 @@ def test_secret_guards_every_page(data, cluster, tmp_path):
     assert base.startswith("http://127.0.0.1:")  # :PORT is loopback
     run(BUILD / "texsyn", "synth", "--server", cluster.server.addr, "--secret-file", key, "--ref", ref_of(data),
         "-o", tmp_path / "out.png", "--size", "96x64", "--levels", "3", "--quiet")
-    pages = ["/", "/status.json", "/metrics", "/jobs/1/thumb.png", "/jobs/99/thumb.png"]
+    pages = ["/", "/status.json", "/metrics", "/jobs/1/thumb.png", "/jobs/1/small.png", "/jobs/99/thumb.png"]
     for auth in (None, basic("wrong"), "Bearer wrong", "Bearer " + text + "x", "Digest abc", basic(text)[:-4]):
         for page in pages:
             code, headers, body = get(base + page, auth)
@@ -190,6 +190,8 @@ def test_secret_guards_every_page(data, cluster, tmp_path):
         assert [(j["id"], j["engine"], j["state"]) for j in st["jobs"]] == [(1, "mrf", "done")]
         code, _, body = get(base + "/jobs/1/thumb.png", auth)
         assert code == 200 and png_size(body) == (96, 64)
+        code, _, body = get(base + "/jobs/1/small.png", auth)
+        assert code == 200 and png_size(body) == (64, 43)  # 96x64 at 64 px long: 42.67 rounds to 43
         assert get(base + "/metrics", auth)[0] == 200
     for page, code in (("/nope", 404), ("/jobs/99/thumb.png", 404), ("/jobs/0/thumb.png", 404),
                        ("/jobs/01/thumb.png", 404), ("/jobs/x/thumb.png", 404), ("/jobs/1/thumb.gif", 404),

@@ -12,7 +12,7 @@ import subprocess
 
 import pytest
 
-from conftest import REPO, modbus_registers, run
+from conftest import REPO, jobs_listed, modbus_registers, run
 from avi import write_avi, write_mjpeg_avi
 from pnm import oiiotool, pixels_of, read_pnm
 
@@ -102,12 +102,8 @@ def test_bad_input_is_refused_before_any_work(texsyn, shot, tmp_path):
         assert len(lines) == 1 and lines[0].startswith("texsyn video: "), p.stderr
         return lines[0]
 
-    err = refused(frames=f"1..{FRAMES + 1}", code=1)
+    err = refused(frames=f"1..{FRAMES + 1}", code=1)  # the last frame missing
     assert f"--input frame {FRAMES + 1}" in err and f"in_{FRAMES + 1:04d}.png" in err and "nothing was stylized" in err
-    assert "--key 1 " in refused(frames="2..5") and "outside --frames 2..5" in refused(frames="2..5")
-    oiiotool(shot / "key1.png", "--resize", "48x36", "-o", tmp_path / "small.png")
-    err = refused("--key", "3", tmp_path / "small.png")
-    assert "--key 3" in err and "48x36" in err and "96x72" in err, err
     (tmp_path / "junk.png").write_bytes(b"not an image")
     err = refused("--key", "3", tmp_path / "junk.png", code=1)
     assert "--key 3" in err and "junk.png" in err, err
@@ -123,6 +119,64 @@ def test_bad_input_is_refused_before_any_work(texsyn, shot, tmp_path):
     assert "did you mean --edge-weight" in refused("--edge-weigth", "1")
     err = refused("--pass", shot / "in_%04d.png", "--pass", tmp_path / "missing_%04d.png", code=1)
     assert "--pass frame 1" in err and "missing_0001.png" in err, err
+
+
+def issue_bad_inputs(shot, tmp):
+    """Point 5 of issue 27, case by case: the arguments after `video`
+    (but -o), the exit status and the one line printed."""
+    for f in range(1, FRAMES + 1):  # frame 5 missing
+        if f != 5:
+            (tmp / f"gap_{f:04d}.png").write_bytes((shot / f"in_{f:04d}.png").read_bytes())
+    key1, small, rgba = shot / "key1.png", tmp / "small.png", tmp / "rgba.png"
+    oiiotool(key1, "--resize", "48x36", "-o", small)
+    oiiotool(key1, "--ch", "R,G,B,A=1.0", "-o", rgba)
+    sized, one = flows(tmp, "s", 1, 0, (1, 2), size="48x36"), flows(tmp, "one", 1, 0, (1, 2), channels=1)
+    movie = tmp / "junk.mp4"
+    movie.write_bytes(b"\0\0\0\x18ftypmp42" + bytes(range(256)) * 4)
+
+    def frames(first, last, *more):
+        return ["--input", shot / "in_%04d.png", "--frames", f"{first}..{last}", "--key", 1, key1, *more]
+    return {
+        "a missing frame": (["--input", tmp / "gap_%04d.png", "--frames", f"1..{FRAMES}", "--key", 1, key1], 1,
+                            f"--input frame 5: cannot read {tmp}/gap_0005.png: No such file or directory (nothing "
+                            "was stylized)"),
+        "a key outside --frames": (["--input", shot / "in_%04d.png", "--frames", "2..5", "--key", 1, key1], 2,
+                                   f"--key 1 {key1}: frame 1 is outside --frames 2..5"),
+        "a key of another size": (frames(1, FRAMES, "--key", 3, small), 2,
+                                  f"--key 3 {small} is 48x36, the frames 96x72: a key is a painted frame, of the "
+                                  "frames' size"),
+        "keys of other channel counts": (frames(1, FRAMES, "--key", 3, rgba), 2,
+                                         f"--key 3 {rgba} has 4 channels, but --key 1 {key1} has 3: every key needs "
+                                         "the same count (the output's)"),
+        "a flow of another size": (frames(1, 3, "--flow", sized), 2,
+                                   f"--flow frame 1 ({tmp}/s_0001.exr) is 48x36, the frames 96x72: a flow has the "
+                                   "frames' size"),
+        "a flow of one channel": (frames(1, 3, "--flow", one), 2,
+                                  f"--flow frame 1 ({tmp}/one_0001.exr) has 1 channel: a flow needs two (x, y; any "
+                                  "more are not used)"),
+        "an unreadable movie": (["--input", movie, "--frames", "0..2", "--key", 0, key1], 1,
+                                f'--input: {movie}: not a movie FFmpeg reads: "{movie}" could not open input; nothing '
+                                "was stylized (a sequence of images needs the frame number in the name: %d or %04d, "
+                                "e.g. shot/%04d.png)"),
+    }
+
+
+@pytest.mark.sanitize
+@pytest.mark.parametrize("where", ("embedded", "coordinator"))
+def test_the_issues_bad_inputs_get_one_exact_error_before_any_work(texsyn, shot, cluster, tmp_path, where):
+    """Each case of issue 27's point 5 prints its one line and exits, with
+    no output, no work directory and, on a coordinator, no job submitted."""
+    server = []
+    if where == "coordinator":
+        cluster.start(1, 1)
+        server = ["--server", cluster.server.addr]
+    for what, (args, code, line) in issue_bad_inputs(shot, tmp_path).items():
+        p = run(texsyn, "video", *args, "-o", tmp_path / "o_%04d.png", "--write-guides", tmp_path / "g", *FAST,
+                *server, check=False)
+        assert (p.returncode, p.stderr) == (code, f"texsyn video: {line}\n"), what
+        assert not list(tmp_path.glob("o_*")) and not (tmp_path / "g").exists(), what
+    if server:
+        assert jobs_listed(cluster.texsyn("status").stdout) == []
 
 
 def halves(image, tmp_path):
@@ -223,10 +277,7 @@ def test_bad_flows_are_refused_before_any_work(texsyn, shot, tmp_path):
     good = flows(tmp_path, "f", 1, 0, (1, 2))
     err = refused("--flow", good, frames="1..4", code=1)  # frame 3 missing
     assert "--flow frame 3" in err and "f_0003.exr" in err, err
-    err = refused("--flow", flows(tmp_path, "s", 1, 0, (1, 2), size="48x36"))
-    assert "--flow frame 1" in err and "48x36" in err and "96x72" in err, err
-    err = refused("--flow", flows(tmp_path, "one", 1, 0, (1, 2), channels=1))
-    assert "--flow frame 1" in err and "1 channel" in err and "two" in err, err
+    # Another size and one channel: test_the_issues_bad_inputs_get_one_exact_error_before_any_work.
     err = refused("--flow", flows(tmp_path, "u8", 1, 0, (1, 2), dtype="uint8", ext="png"))
     assert "--flow frame 1" in err and "uint8" in err and "float" in err, err
     err = refused("--flow", good, "--flow-back", flows(tmp_path, "bk", -1, 0, (2,)), code=1)  # frame 3 missing
@@ -258,7 +309,6 @@ def test_a_movie_input_is_its_frames(texsyn, shot, tmp_path):
 def test_bad_movies_are_refused_before_any_work(texsyn, shot, tmp_path):
     frames = [pixels_of(shot / f"in_{f:04d}.png", tmp_path)[3] for f in range(1, 4)]
     write_avi(tmp_path / "clip.avi", frames, 96, 72)
-    (tmp_path / "junk.mp4").write_bytes(b"\0\0\0\x18ftypmp42" + bytes(range(256)) * 4)
 
     def refused(movie, frames, code):
         p = run(texsyn, "video", "--input", movie, "--frames", frames, "--key", "0", shot / "key1.png",
@@ -267,14 +317,12 @@ def test_bad_movies_are_refused_before_any_work(texsyn, shot, tmp_path):
         assert not list(tmp_path.glob("o_*")), "work was done"
         return p.stderr
 
-    err = refused(tmp_path / "junk.mp4", "0..2", 1)
-    assert "junk.mp4: not a movie FFmpeg reads" in err, err
     err = refused(tmp_path / "none.mp4", "0..2", 1)
     assert "none.mp4" in err and "No such file" in err, err
     err = refused(tmp_path / "clip.avi", "0..3", 2)
     assert "--frames 0..3: the movie" in err and "has 3 frames, 0..2" in err, err
     err = refused(shot / "in_0001.png", "0..2", 1)  # an image, not a movie: the pattern forgotten
-    assert "--input: no frame number in the name" in err and "in_0001.png: not a movie" in err, err
+    assert err.startswith(f"texsyn video: --input: {shot}/in_0001.png: not a movie") and "frame number" in err, err
 
 
 def test_preview_is_an_animated_gif_of_the_output(texsyn, shot, tmp_path):

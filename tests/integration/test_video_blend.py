@@ -1,28 +1,71 @@
 """texsyn video between two keys: the error-driven selection and the
 screened Poisson blend (server/cli/video_blend.c), and a sequence that goes
 on after an interruption: a rerun with the same --write-guides DIR resumes
-at each chain's next unfinished frame, and a client following its chains on
-a coordinator that is killed and restarted finishes them there. On the
-10-frame shot of test_video.py, keys at 1 and 10 (painted by adding noise:
-two independent stroke patterns, so a cross-fade shows as a ghost)."""
+at each chain's next unfinished frame (in-process, and on a coordinator,
+whose operations page then shows one sequence), and a client following its
+chains on a coordinator that is killed and restarted finishes them there,
+each with the frames alone, with --mask, with --flow and with a movie as
+--input. On
+the 10-frame shot of test_video.py, keys at its first and last frames
+(painted by adding noise: two independent stroke patterns, so a cross-fade
+shows as a ghost)."""
 import json
 import re
 import signal
 import subprocess
 import time
+from collections import namedtuple
 
 import pytest
 
+from avi import write_avi
 from conftest import BUILD, run
 from pnm import oiiotool, pixels_of
-from test_video import FRAMES, flicker, shot, video  # noqa: F401 (shot: the fixture)
+from test_http import get, http_addr
+from test_video import FRAMES, flicker, flows, shot, video  # noqa: F401 (shot: the fixture)
 
 KEYS = (1, FRAMES)
 
+# How a sequence comes in: its first frame's number (a movie counts from
+# 0), --input (None: the shot's frames) and further options.
+Variant = namedtuple("Variant", "first input args")
+PLAIN = Variant(1, None, [])
+VARIANTS = ("frames", "mask", "flow", "movie")
 
-def video_args(shot, out, *extra):
-    return ["video", "--input", shot / "in_%04d.png", "--frames", f"1..{FRAMES}", "--key", 1, shot / "key1.png",
-            "--key", FRAMES, shot / f"key{FRAMES}.png", "-o", out, "--levels", "3", "--iters", "2", *extra]
+
+def video_args(shot, out, *extra, variant=PLAIN):
+    first, last = variant.first, variant.first + FRAMES - 1
+    return ["video", "--input", variant.input or shot / "in_%04d.png", "--frames", f"{first}..{last}",
+            "--key", first, shot / "key1.png", "--key", last, shot / f"key{FRAMES}.png", "-o", out,
+            "--levels", "3", "--iters", "2", *variant.args, *extra]
+
+
+@pytest.fixture(scope="module")
+def variants(shot, tmp_path_factory):  # noqa: F811
+    """The shot's frames alone; with a mask (the left half stylized); with a
+    given flow (1 px to the right a frame); as an uncompressed AVI."""
+    d = tmp_path_factory.mktemp("variants")
+    oiiotool("--create", "96x72", "1", "--fill:color=1", "48x72+0+0", "-d", "uint8", "-o", d / "m.png")
+    for f in range(1, FRAMES + 1):
+        (d / f"mask_{f:04d}.png").write_bytes((d / "m.png").read_bytes())
+    write_avi(d / "clip.avi", [pixels_of(shot / f"in_{f:04d}.png", d)[3] for f in range(1, FRAMES + 1)], 96, 72)
+    return {"frames": PLAIN, "mask": Variant(1, None, ["--mask", d / "mask_%04d.png"]),
+            "flow": Variant(1, None, ["--flow", flows(d, "f", 1, 0, range(1, FRAMES + 1))]),
+            "movie": Variant(0, d / "clip.avi", [])}
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(texsyn, shot, variants, tmp_path_factory):  # noqa: F811
+    """The frames of an uninterrupted run of a variant, made once."""
+    made = {}
+
+    def of(name):
+        if name not in made:
+            d, v = tmp_path_factory.mktemp("uninterrupted_" + name), variants[name]
+            run(texsyn, *video_args(shot, d / "v_%04d.png", "--quiet", variant=v))
+            made[name] = frames_of(d, "v", v.first)
+        return made[name]
+    return of
 
 
 @pytest.fixture(scope="module")
@@ -33,8 +76,8 @@ def reference(texsyn, shot, tmp_path_factory):  # noqa: F811
     return d
 
 
-def frames_of(pattern_dir, prefix):
-    return [(pattern_dir / f"{prefix}_{f:04d}.png").read_bytes() for f in range(1, FRAMES + 1)]
+def frames_of(pattern_dir, prefix, first=1):
+    return [(pattern_dir / f"{prefix}_{f:04d}.png").read_bytes() for f in range(first, first + FRAMES)]
 
 
 def energy(texsyn, shot, tmp, image, t):
@@ -96,43 +139,54 @@ def started_frames(stderr):
     return re.findall(r"texsyn video: key (\d+) (forward|backward), frame (\d+) \(", stderr)
 
 
-def test_a_rerun_with_the_same_work_directory_goes_on_where_it_stopped(texsyn, shot, reference, tmp_path):  # noqa: F811
-    args = [str(a) for a in video_args(shot, tmp_path / "v_%04d.png", "--write-guides", tmp_path / "g")]
+@pytest.mark.parametrize("name", VARIANTS)
+def test_a_rerun_with_the_same_work_directory_goes_on_where_it_stopped(texsyn, shot, variants, uninterrupted,  # noqa: F811
+                                                                       tmp_path, name):
+    v = variants[name]
+    k0, k1 = v.first, v.first + FRAMES - 1
+    args = [str(a) for a in video_args(shot, tmp_path / "v_%04d.png", "--write-guides", tmp_path / "g", variant=v)]
     p = subprocess.Popen([str(texsyn), *args], stderr=subprocess.PIPE, text=True)
     for line in p.stderr:  # killed as the third round starts: two frames of each chain are done
-        if "key 1 forward, frame 4 " in line:
+        if f"key {k0} forward, frame {k0 + 3} " in line:
             p.kill()
             break
     p.wait()
     again = run(texsyn, *args)
-    assert "key 1 forward: frames 2..3 were finished before" in again.stderr, again.stderr
-    assert f"key {FRAMES} backward: frames 8..9 were finished before" in again.stderr, again.stderr
+    assert f"key {k0} forward: frames {k0 + 1}..{k0 + 2} were finished before" in again.stderr, again.stderr
+    assert f"key {k1} backward: frames {k1 - 2}..{k1 - 1} were finished before" in again.stderr, again.stderr
     started = started_frames(again.stderr)
-    assert ("1", "forward", "4") in started and ("1", "forward", "3") not in started, started
-    assert (str(FRAMES), "backward", "9") not in started and (str(FRAMES), "backward", "7") in started, started
-    assert frames_of(tmp_path, "v") == frames_of(reference, "v"), "the resumed sequence differs"
+    assert (str(k0), "forward", str(k0 + 3)) in started and (str(k0), "forward", str(k0 + 2)) not in started, started
+    assert (str(k1), "backward", str(k1 - 1)) not in started and (str(k1), "backward", str(k1 - 3)) in started, started
+    assert frames_of(tmp_path, "v", k0) == uninterrupted(name), "the resumed sequence differs"
+    # The option is in force: a mask or a given flow makes other frames; the
+    # movie's frames decode to the shot's bytes, so its sequence is theirs.
+    assert (uninterrupted(name) == uninterrupted("frames")) == (name in ("frames", "movie")), name
+    if name != "frames":
+        return  # what follows does not depend on how the frames come in
     # Once more: everything is there, nothing is stylized again.
     third = run(texsyn, *args)
-    assert started_frames(third.stderr) == [] and frames_of(tmp_path, "v") == frames_of(reference, "v")
+    assert started_frames(third.stderr) == [] and frames_of(tmp_path, "v") == uninterrupted(name)
     # Other settings: the frames in DIR are not theirs; start afresh, say so.
     other = run(texsyn, *args, "--seed", "5")
     assert "held frames of other settings" in other.stderr
     assert len(started_frames(other.stderr)) == 2 * (FRAMES - 2), other.stderr
-    assert frames_of(tmp_path, "v") != frames_of(reference, "v")
+    assert frames_of(tmp_path, "v") != uninterrupted(name)
 
 
-def test_a_coordinator_killed_mid_sequence_and_restarted_finishes_the_chains(texsyn, shot, reference, cluster,
-                                                                              tmp_path):  # noqa: F811
+@pytest.mark.parametrize("name", VARIANTS)
+def test_a_coordinator_killed_mid_sequence_and_restarted_finishes_the_chains(texsyn, shot, variants, uninterrupted,  # noqa: F811
+                                                                              cluster, tmp_path, name):
+    v = variants[name]
     cluster.worker(1)
     cluster.start()
     addr = cluster.server.addr
     args = [str(a) for a in video_args(shot, tmp_path / "v_%04d.png", "--server", addr, "--write-guides",
-                                       tmp_path / "g")]
+                                       tmp_path / "g", variant=v)]
     p = subprocess.Popen([str(BUILD / "texsyn"), *args], stderr=subprocess.PIPE, text=True)
     log = []
     for line in p.stderr:
         log.append(line)
-        if "key 1 forward, frame 4 " in line:
+        if f"key {v.first} forward, frame {v.first + 3} " in line:
             cluster.server.proc.send_signal(signal.SIGKILL)
             cluster.server.proc.wait()
             cluster.server.stop()
@@ -145,4 +199,34 @@ def test_a_coordinator_killed_mid_sequence_and_restarted_finishes_the_chains(tex
     assert "lost the coordinator" in stderr and f"reconnected to {addr}" in stderr, stderr
     started = started_frames(stderr)
     assert sorted(started) == sorted(set(started)) and len(started) == 2 * (FRAMES - 2), started  # none twice
-    assert frames_of(tmp_path, "v") == frames_of(reference, "v"), "the bytes differ from the uninterrupted run"
+    assert frames_of(tmp_path, "v", v.first) == uninterrupted(name), "the bytes differ from the uninterrupted run"
+
+
+@pytest.mark.parametrize("name", VARIANTS)
+def test_a_client_killed_on_a_coordinator_and_run_again_goes_on_there(texsyn, shot, variants, uninterrupted,  # noqa: F811
+                                                                       cluster, tmp_path, name):
+    """The client killed while its jobs run on a coordinator (which goes
+    on with the frame under way), then run again: it goes on at each
+    chain's next unfinished frame there, with the uninterrupted run's
+    bytes, and the operations page shows one sequence, every frame once."""
+    v = variants[name]
+    k0, k1 = v.first, v.first + FRAMES - 1
+    cluster.worker(1)
+    cluster.start(0, 1, "--http", "127.0.0.1:0")
+    base = "http://" + http_addr(cluster.server)
+    args = [str(a) for a in video_args(shot, tmp_path / "v_%04d.png", "--server", cluster.server.addr,
+                                       "--write-guides", tmp_path / "g", variant=v)]
+    p = subprocess.Popen([str(texsyn), *args], stderr=subprocess.PIPE, text=True)
+    for line in p.stderr:
+        if f"key {k0} forward, frame {k0 + 3} " in line:
+            p.kill()
+            break
+    p.wait()
+    again = run(texsyn, *args)
+    assert f"key {k0} forward: frames {k0 + 1}..{k0 + 2} were finished before" in again.stderr, again.stderr
+    assert f"key {k1} backward: frames {k1 - 2}..{k1 - 1} were finished before" in again.stderr, again.stderr
+    assert frames_of(tmp_path, "v", k0) == uninterrupted(name), "the resumed sequence differs"
+    seqs = json.loads(get(base + "/status.json")[2])["sequences"]
+    assert len(seqs) == 1 and seqs[0]["jobs"] == seqs[0]["done"] == 2 * (FRAMES - 2), seqs
+    shown = {(c["key"], c["end"]): [f["frame"] for f in c["frames"]] for c in seqs[0]["chains"]}
+    assert shown == {(k0, k1 - 1): list(range(k0 + 1, k1)), (k1, k0 + 1): list(range(k0 + 1, k1))}, shown

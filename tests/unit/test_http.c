@@ -8,6 +8,7 @@
 #include "error.h"
 #include "http_auth.h"
 #include "http_page.h"
+#include "http_seq.h"
 #include "thumb.h"
 #include "ts_test.h"
 
@@ -21,6 +22,8 @@ static void route_names_the_pages(void **state) {
   assert_int_equal(ts_http_route("/metrics", &id), TS_HTTP_METRICS);
   assert_int_equal(ts_http_route("/jobs/42/thumb.png", &id), TS_HTTP_THUMB);
   assert_int_equal(id, 42);
+  assert_int_equal(ts_http_route("/jobs/43/small.png", &id), TS_HTTP_SMALL);
+  assert_int_equal(id, 43);
   assert_int_equal(ts_http_route("/jobs/18446744073709551615/thumb.png", &id), TS_HTTP_THUMB);
   assert_true(id == UINT64_MAX);
 }
@@ -41,6 +44,8 @@ static void route_refuses_bad_paths_and_ids(void **state) {
                        "/jobs/18446744073709551616/thumb.png",
                        "/jobs/1/thumb.png/",
                        "/jobs/1/thumb.gif",
+                       "/jobs/1/small.png/",
+                       "/jobs/01/small.png",
                        "/jobs/1/../../etc/passwd"};
   for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++) {
     uint64_t id = 7;
@@ -254,6 +259,107 @@ static void text_grows_past_its_first_block(void **state) {
   assert_null(t.buf);
 }
 
+/* --- sequences ------------------------------------------------------------------- */
+
+static ts_job_frame frame_job(uint64_t id, int state, const char *seq, long key, long end, long frame) {
+  ts_job_frame f = {.id = id, .state = (uint8_t)state, .permille = state == TS_JOB_RUNNING ? 450 : 0};
+  snprintf(f.seq.id, sizeof(f.seq.id), "%s", seq);
+  snprintf(f.seq.name, sizeof(f.seq.name), seq[15] == 'a' ? "<a>_%%04d.png" : "b_%%04d.png");
+  f.seq.first = 1;
+  f.seq.last = 8;
+  f.seq.jobs = 7;
+  f.seq.key = key;
+  f.seq.end = end;
+  f.seq.frame = frame;
+  return f;
+}
+
+#define SEQ_A "00000000000000aa"
+#define SEQ_B "00000000000000bb"
+
+/* Two runs' frames, oldest first as the jobs list them: run A's chains
+ * from key 4 (backward to 1, forward to 8), its frame 5 submitted again
+ * (job 9, queued) after it finished (job 2); run B, newer, one frame. */
+static void sequence_frames(ts_job_frame f[7]) {
+  f[0] = frame_job(1, TS_JOB_DONE, SEQ_A, 4, 1, 3);
+  f[1] = frame_job(2, TS_JOB_DONE, SEQ_A, 4, 8, 5);
+  f[2] = frame_job(5, TS_JOB_QUEUED, SEQ_A, 4, 1, 2);
+  f[3] = frame_job(6, TS_JOB_RUNNING, SEQ_A, 4, 8, 6);
+  f[4] = frame_job(9, TS_JOB_QUEUED, SEQ_A, 4, 8, 5);
+  f[5] = frame_job(10, TS_JOB_DONE, SEQ_B, 1, 8, 2);
+  f[6] = frame_job(11, TS_JOB_FAILED, SEQ_B, 1, 8, 3);
+}
+
+static void sequences_group_chains_and_frames(void **state) {
+  (void)state;
+  ts_job_frame f[7];
+  sequence_frames(f);
+  ts_http_seqs g;
+  assert_int_equal(ts_http_seqs_make(f, 7, &g), 0);
+  assert_int_equal(g.nseq, 2);
+  assert_int_equal(g.ncells, 6); /* frame 5 once */
+  assert_string_equal(g.cell[g.seq[0].from]->seq.id, SEQ_B); /* the newest run first */
+  assert_int_equal(g.seq[0].done, 1);
+  const ts_http_seq *a = &g.seq[1];
+  assert_int_equal(a->to - a->from, 4);
+  assert_int_equal(a->done, 2);
+  /* Chains by key, then end (backward first); frames in frame order; the
+   * finished job of a frame shown over a newer one. */
+  const uint64_t want[4] = {5, 1, 2, 6};
+  for (uint32_t i = 0; i < 4; i++) assert_int_equal(g.cell[a->from + i]->id, want[i]);
+  ts_http_seqs_free(&g);
+  assert_int_equal(ts_http_seqs_make(f, 0, &g), 0);
+  assert_int_equal(g.nseq, 0);
+}
+
+static void sequences_on_the_page_and_in_json(void **state) {
+  (void)state;
+  ts_http_snapshot s;
+  ts_job_status jobs[2];
+  ts_worker_info w;
+  ts_job_frame f[7];
+  snapshot(&s, jobs, &w);
+  ts_text t;
+  ts_text_init(&t);
+  ts_http_render_html(&t, &s, 2);
+  assert_null(strstr(t.buf, "Sequences")); /* none: no section */
+  ts_text_free(&t);
+  sequence_frames(f);
+  s.frames = f;
+  s.nframes = 7;
+  ts_http_render_html(&t, &s, 2);
+  assert_false(t.failed);
+  const char *b = strstr(t.buf, "<section class=\"sequence\" data-id=\"" SEQ_B "\"><h3>b_%04d.png</h3>");
+  const char *a = strstr(t.buf, "<section class=\"sequence\" data-id=\"" SEQ_A "\"><h3>&lt;a&gt;_%04d.png</h3>");
+  assert_non_null(a);
+  assert_non_null(b);
+  assert_true(b < a && a < strstr(t.buf, "<h2>Jobs</h2>"));
+  const char *want[] = {
+      "<span class=\"done\">2</span> of <span class=\"jobs\">7</span> frames stylized",
+      "<tr class=\"chain\" data-key=\"4\" data-end=\"1\"><td>key 4 backward</td><td>1..3</td><td class=n>1 of 3</td>"
+      "<td class=strip><span class=\"frame queued\" data-frame=\"2\" data-job=\"5\" title=\"frame 2 (job 5): queued\">2"
+      "</span><a href=\"/jobs/1/thumb.png\"><img class=\"frame\" data-frame=\"3\" data-job=\"1\" "
+      "src=\"/jobs/1/small.png\" title=\"frame 3 (job 1)\" alt=\"frame 3\"></a></td></tr>",
+      "<td>key 4 forward</td><td>5..8</td><td class=n>1 of 4</td>",
+      "<img class=\"frame\" data-frame=\"5\" data-job=\"2\"",
+      "<span class=\"frame running\" data-frame=\"6\" data-job=\"6\" title=\"frame 6 (job 6): running 45.0%\">6</span>",
+      "<span class=\"frame failed\" data-frame=\"3\" data-job=\"11\""};
+  for (size_t i = 0; i < sizeof(want) / sizeof(want[0]); i++)
+    if (strstr(t.buf, want[i]) == NULL) fail_msg("missing %s in:\n%s", want[i], t.buf);
+  assert_null(strstr(t.buf, "data-job=\"9\""));
+  ts_text_free(&t);
+  ts_http_render_json(&t, &s);
+  assert_false(t.failed);
+  const char *json = "\"sequences\":[{\"id\":\"" SEQ_B "\",\"name\":\"b_%04d.png\",\"frames\":[1,8],\"jobs\":7,"
+                     "\"done\":1,\"chains\":[{\"key\":1,\"end\":8,\"direction\":\"forward\",\"done\":1,\"frames\":["
+                     "{\"frame\":2,\"job\":10,\"state\":\"done\",\"permille\":0},"
+                     "{\"frame\":3,\"job\":11,\"state\":\"failed\",\"permille\":0}]}]},"
+                     "{\"id\":\"" SEQ_A "\",\"name\":\"<a>_%04d.png\",\"frames\":[1,8],\"jobs\":7,\"done\":2,"
+                     "\"chains\":[{\"key\":4,\"end\":1,\"direction\":\"backward\",\"done\":1,";
+  if (strstr(t.buf, json) == NULL) fail_msg("missing %s in:\n%s", json, t.buf);
+  ts_text_free(&t);
+}
+
 /* --- ts_thumb_scale -------------------------------------------------------------- */
 
 static void thumb_averages_boxes_and_keeps_the_aspect(void **state) {
@@ -324,6 +430,8 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(metrics_are_prometheus_text),
     cmocka_unit_test(html_and_json_escape_what_they_show),
     cmocka_unit_test(text_grows_past_its_first_block),
+    cmocka_unit_test(sequences_group_chains_and_frames),
+    cmocka_unit_test(sequences_on_the_page_and_in_json),
     cmocka_unit_test(thumb_averages_boxes_and_keeps_the_aspect),
     cmocka_unit_test(thumb_of_a_strip_keeps_a_pixel_and_channels),
     cmocka_unit_test(thumb_keeps_the_first_four_of_more_channels),

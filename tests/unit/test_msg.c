@@ -544,6 +544,52 @@ static void jobspec_name(void **state) {
   assert_non_null(strstr(text, "name=caf??.png\n"));
 }
 
+/* A video frame's sequence keys (jobspec.h) survive format and parse; a
+ * spec with some of them, or with a frame outside its chain, is refused
+ * naming what is wrong. */
+static void jobspec_sequence(void **state) {
+  (void)state;
+  char err[TS_ERR_LEN], text[TS_SPEC_MAX];
+  ts_jobspec s, back;
+  ts_jobspec_default(&s, ts_engine_find("stylize"));
+  s.seq = (ts_jobspec_seq){.id = "0123456789abcdef", .name = "out_%04d.png", .first = 1, .last = 48, .jobs = 68,
+                           .key = 24, .end = 2, .frame = 20};
+  int n = ts_jobspec_format(&s, text, sizeof(text));
+  assert_true(n > 0);
+  assert_non_null(strstr(text, "sequence=0123456789abcdef\nsequence_name=out_%04d.png\nsequence_frames=1..48\n"
+                               "sequence_jobs=68\nsequence_chain=24..2\nsequence_frame=20\n"));
+  assert_int_equal(ts_jobspec_parse(text, (size_t)n, &back, err), 0);
+  assert_string_equal(back.seq.id, s.seq.id);
+  assert_string_equal(back.seq.name, s.seq.name);
+  assert_true(back.seq.first == 1 && back.seq.last == 48 && back.seq.jobs == 68);
+  assert_true(back.seq.key == 24 && back.seq.end == 2 && back.seq.frame == 20);
+  ts_jobspec_default(&s, ts_engine_find("stylize"));
+  n = ts_jobspec_format(&s, text, sizeof(text));
+  assert_null(strstr(text, "sequence"));
+  const char *seq = "engine=stylize\nsequence=0123456789abcdef\nsequence_name=o\nsequence_frames=1..8\n"
+                    "sequence_jobs=7\nsequence_chain=4..8\n";
+  char spec[512];
+  snprintf(spec, sizeof(spec), "%s", seq); /* no sequence_frame */
+  assert_int_equal(ts_jobspec_parse(spec, strlen(spec), &s, err), TS_EINVAL);
+  assert_non_null(strstr(err, "sequence_frame is missing"));
+  const char *outside[] = {"sequence_frame=4\n", "sequence_frame=3\n", "sequence_frame=9\n"};
+  for (size_t i = 0; i < sizeof(outside) / sizeof(outside[0]); i++) {
+    snprintf(spec, sizeof(spec), "%s%s", seq, outside[i]);
+    assert_int_equal(ts_jobspec_parse(spec, strlen(spec), &s, err), TS_EINVAL);
+    assert_non_null(strstr(err, "do not fit sequence_frames=1..8"));
+  }
+  snprintf(spec, sizeof(spec), "%ssequence_frame=5\n", seq);
+  assert_int_equal(ts_jobspec_parse(spec, strlen(spec), &s, err), 0);
+  const char *bad[] = {"sequence=0123456789ABCDEF\n", "sequence=0123\n", "sequence_frames=8..1\n",
+                       "sequence_frames=1..\n", "sequence_chain=4..4\n", "sequence_jobs=0\n", "sequence_name=\n",
+                       "sequence_frame=-1\n", "sequence_frame=1000000\n"};
+  for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++) {
+    snprintf(spec, sizeof(spec), "engine=stylize\n%s", bad[i]);
+    assert_int_equal(ts_jobspec_parse(spec, strlen(spec), &s, err), TS_EINVAL);
+    assert_non_null(strstr(err, "bad value"));
+  }
+}
+
 static void strings_refuse_nul_and_overflow(void **state) {
   (void)state;
   ts_wr w;
@@ -952,6 +998,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(strings_refuse_nul_and_overflow),
     cmocka_unit_test(operator_records),
     cmocka_unit_test(jobspec_name),
+    cmocka_unit_test(jobspec_sequence),
     cmocka_unit_test(jobspec_round_trip),
     cmocka_unit_test(stylize_spec_round_trip),
     cmocka_unit_test(energy_spec_round_trip),
