@@ -1,0 +1,415 @@
+/* aerial_tiles.c - the aerial run, tile by tile (aerial.h).
+ *
+ * The scene is cut on the grid of tile_grid.h and its tiles synthesised in
+ * the wavefront order there: per even tile row r, phases 0 and 1 of row r,
+ * then phases 2 and 3 of row r - 1. A tile is one constrained synthesis
+ * (fill.h) over its area: its own pixels to fill (lines given in their
+ * colours' luminance, each class the work of its fill rank), the finished
+ * halo around them given. Its seed is ts_tile_seed(job seed, tile index).
+ *
+ * Memory holds three tile rows, "bands", each the whole scene's width: the
+ * pixel states read from the class map and the line raster by regions when
+ * the row is first needed, the finished pixels' luminance (what later
+ * tiles' halos give) and their colours. Rows are written to the output
+ * (a tile sink, region.h) top to bottom as they complete - an even row
+ * completes before the odd row above it, so it waits for that one - and a
+ * band is reused for the row three below once written: the even row r is
+ * read by the odd rows r - 1 and r + 1, odd rows by no other row. So the
+ * coordinator's memory is three bands and the tiles in flight, whatever
+ * the scene's height; a band is 6 bytes a pixel of the scene's width. */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "aerial.h"
+#include "error.h"
+#include "image_meta.h"
+#include "region.h"
+#include "tile_grid.h"
+#include "util.h"
+
+#define BANDS 3
+#define READ_ROWS 64 /* rows of the class map read at a time */
+#define NO_CLASS 0xFF
+
+typedef struct {
+  int row; /* the tile row held; -1: none */
+  int y0, h;
+  uint8_t *state; /* per pixel: 0 a line, else 1 + its class's fill rank */
+  uint8_t *luma;  /* finished pixels: the fill's plane; lines their colour's */
+  uint8_t *rgb;   /* finished pixels' colours */
+  size_t cap;     /* pixels the buffers hold */
+  int tiles_done, written;
+} band;
+
+typedef struct {
+  const aerial_job *p;
+  const ts_engine_hooks *h;
+  ts_search *search;
+  aerial_stats *st;
+  ts_tile_grid g;
+  int order[TS_FILL_MAX_CLASSES]; /* catalogue index of each fill rank */
+  /* Per fill rank: the reference as 8-bit RGB and its luminance. */
+  int rw[TS_FILL_MAX_CLASSES], rh[TS_FILL_MAX_CLASSES];
+  uint8_t *ref_rgb[TS_FILL_MAX_CLASSES], *ref_luma[TS_FILL_MAX_CLASSES];
+  uint8_t *rank_of_id;   /* class id -> fill rank, NO_CLASS */
+  int16_t *colour_of_id; /* line value -> colour index, -1 */
+  ts_region_source *map, *lines;
+  ts_meta *meta;
+  ts_tile_sink *sink;
+  int32_t *ids, *values; /* READ_ROWS rows of the map and the lines */
+  band bands[BANDS];
+  int next_write; /* the next tile row to write */
+  int tiles_done, row, phase; /* the step under way */
+} tiler;
+
+/* ---- the job's tables and references ------------------------------------------ */
+
+static uint8_t luma_of(const uint8_t *rgb) { return (uint8_t)((299 * rgb[0] + 587 * rgb[1] + 114 * rgb[2] + 500) / 1000); }
+
+static int build_tables(tiler *t, const ts_image *const *in, char *err) {
+  const aerial_job *p = t->p;
+  t->rank_of_id = malloc(AERIAL_MAX_ID + 1);
+  t->colour_of_id = malloc(sizeof(int16_t) * (AERIAL_MAX_ID + 1));
+  if (t->rank_of_id == NULL || t->colour_of_id == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+  memset(t->rank_of_id, NO_CLASS, AERIAL_MAX_ID + 1);
+  for (int v = 0; v <= AERIAL_MAX_ID; v++) t->colour_of_id[v] = -1;
+  for (int k = p->ncolours - 1; k >= 0; k--) t->colour_of_id[p->colour[k].value] = (int16_t)k;
+  ts_aerial_fill_order(p, t->order);
+  for (int r = 0; r < p->nclass; r++) {
+    t->rank_of_id[p->cls[t->order[r]].id] = (uint8_t)r;
+    const ts_image *ref = in[1 + t->order[r]];
+    size_t n = (size_t)ref->width * (size_t)ref->height;
+    t->rw[r] = ref->width;
+    t->rh[r] = ref->height;
+    t->ref_rgb[r] = malloc(3 * n);
+    t->ref_luma[r] = malloc(n);
+    if (t->ref_rgb[r] == NULL || t->ref_luma[r] == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+    ts_image_luma8(ref, t->ref_luma[r]);
+    for (int c = 0; c < 3; c++) {
+      uint8_t *plane = t->ref_rgb[r] + c * n; /* planar for now, interleaved below */
+      ts_image_channel8(ref, ref->channels >= 3 ? c : 0, plane);
+    }
+    uint8_t *planar = t->ref_rgb[r], *rgb = malloc(3 * n);
+    if (rgb == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+    for (size_t i = 0; i < n; i++)
+      for (int c = 0; c < 3; c++) rgb[3 * i + (size_t)c] = planar[(size_t)c * n + i];
+    free(planar);
+    t->ref_rgb[r] = rgb;
+  }
+  return 0;
+}
+
+/* ---- bands -------------------------------------------------------------------- */
+
+static band *band_of_row(tiler *t, int row) { return &t->bands[row % BANDS]; }
+
+/* A pixel's state from the map and the lines (lines drawn at once). */
+static int put_pixel(tiler *t, band *b, size_t o, int32_t id, int32_t value, int x, int y, char *err) {
+  int line = t->lines != NULL && value >= 0 ? t->colour_of_id[value] : -1;
+  if (line >= 0) {
+    const uint8_t *rgb = t->p->colour[line].rgb;
+    b->state[o] = 0;
+    b->luma[o] = luma_of(rgb);
+    memcpy(b->rgb + 3 * o, rgb, 3);
+    return 0;
+  }
+  int rank = id >= 0 ? t->rank_of_id[id] : NO_CLASS;
+  if (rank == NO_CLASS)
+    return ts_error(err, TS_EINVAL, "--classes: pixel (%d, %d) holds class id %d, which the catalogue has no entry "
+                    "for (did the file change since the job was checked?)", x, y, id);
+  b->state[o] = (uint8_t)(rank + 1);
+  return 0;
+}
+
+/* Reads tile row `row`'s states into its band. */
+static int band_load(tiler *t, int row, char *err) {
+  band *b = band_of_row(t, row);
+  if (b->row == row) return 0;
+  if (b->row >= 0 && !b->written)
+    return ts_error(err, TS_EINVAL, "internal: tile row %d is needed while row %d is not yet written", row, b->row);
+  int y1, w = t->g.w;
+  ts_tile_span(t->g.h, t->g.tile, t->g.ny, row, &b->y0, &y1);
+  b->h = y1 - b->y0;
+  size_t npx = (size_t)w * (size_t)b->h;
+  if (npx > b->cap) {
+    free(b->state);
+    free(b->luma);
+    free(b->rgb);
+    b->state = malloc(npx);
+    b->luma = malloc(npx);
+    b->rgb = malloc(3 * npx);
+    b->cap = b->state && b->luma && b->rgb ? npx : 0;
+    if (b->cap == 0) return ts_error(err, TS_ENOMEM, "out of memory for a row of tiles (%dx%d)", w, b->h);
+  }
+  b->row = row;
+  b->tiles_done = b->written = 0;
+  for (int y = 0; y < b->h; y += READ_ROWS) {
+    int n = b->h - y < READ_ROWS ? b->h - y : READ_ROWS;
+    int rc = t->map->read(t->map, 0, b->y0 + y, w, n, t->ids, err);
+    if (rc == 0 && t->lines != NULL) rc = t->lines->read(t->lines, 0, b->y0 + y, w, n, t->values, err);
+    for (size_t i = 0; rc == 0 && i < (size_t)w * (size_t)n; i++)
+      rc = put_pixel(t, b, (size_t)y * (size_t)w + i, t->ids[i], t->lines != NULL ? t->values[i] : -1,
+                     (int)(i % (size_t)w), b->y0 + y + (int)(i / (size_t)w), err);
+    if (rc != 0) return rc;
+  }
+  return 0;
+}
+
+/* Writes every completed row whose turn it is. */
+static int write_rows(tiler *t, char *err) {
+  while (t->next_write < t->g.ny) {
+    band *b = band_of_row(t, t->next_write);
+    if (b->row != t->next_write || b->tiles_done < t->g.nx) return 0;
+    int rc = t->sink->put(t->sink, 0, b->y0, t->g.w, b->h, b->rgb, err);
+    if (rc != 0) return rc;
+    b->written = 1;
+    t->next_write++;
+  }
+  return 0;
+}
+
+/* ---- one tile ------------------------------------------------------------------- */
+
+/* A tile's fill: its area's planes and states, the classes present. */
+typedef struct {
+  ts_tile_rect core, area;
+  int w, h;
+  uint8_t *plane, *state;
+  int nclass;
+  int rank[TS_FILL_MAX_CLASSES]; /* fill rank of each of its classes */
+  ts_fill_class cls[TS_FILL_MAX_CLASSES];
+  const char *names[TS_FILL_MAX_CLASSES];
+} tile_fill;
+
+static void tile_fill_free(tile_fill *f) {
+  free(f->plane);
+  free(f->state);
+}
+
+/* The band pixel (x, y) of the scene is in. */
+static size_t band_pixel(tiler *t, int x, int y, band **b) {
+  int row = y / t->g.tile < t->g.ny ? y / t->g.tile : t->g.ny - 1;
+  *b = band_of_row(t, row);
+  return (size_t)(y - (*b)->y0) * (size_t)t->g.w + (size_t)x;
+}
+
+/* The area's states: the core's from its band, its classes renumbered in
+ * fill order (1..nclass); the halo given, with its finished luminance. */
+static int tile_build(tiler *t, int tx, int ty, tile_fill *f) {
+  memset(f, 0, sizeof(*f));
+  f->core = ts_tile_core(&t->g, tx, ty);
+  f->area = ts_tile_area(&t->g, tx, ty);
+  f->w = f->area.x1 - f->area.x0;
+  f->h = f->area.y1 - f->area.y0;
+  size_t npx = (size_t)f->w * (size_t)f->h;
+  f->plane = malloc(npx);
+  f->state = malloc(npx);
+  if (f->plane == NULL || f->state == NULL) return TS_ENOMEM;
+  int present[TS_FILL_MAX_CLASSES] = {0}, local[TS_FILL_MAX_CLASSES];
+  band *b = band_of_row(t, ty);
+  for (int y = f->core.y0; y < f->core.y1; y++)
+    for (int x = f->core.x0; x < f->core.x1; x++) {
+      int s = b->state[(size_t)(y - b->y0) * (size_t)t->g.w + (size_t)x];
+      if (s > 0) present[s - 1] = 1;
+    }
+  for (int r = 0; r < t->p->nclass; r++) {
+    if (!present[r]) continue;
+    local[r] = ++f->nclass;
+    f->rank[f->nclass - 1] = r;
+    f->cls[f->nclass - 1] = (ts_fill_class){1, {{.w = t->rw[r], .h = t->rh[r], .planes = {t->ref_luma[r]}}},
+                                            t->p->cls[t->order[r]].usage_weight};
+    f->names[f->nclass - 1] = t->p->cls[t->order[r]].name;
+  }
+  for (int y = f->area.y0; y < f->area.y1; y++)
+    for (int x = f->area.x0; x < f->area.x1; x++) {
+      band *pb;
+      size_t o = band_pixel(t, x, y, &pb), i = (size_t)(y - f->area.y0) * (size_t)f->w + (size_t)(x - f->area.x0);
+      int core = x >= f->core.x0 && x < f->core.x1 && y >= f->core.y0 && y < f->core.y1;
+      int s = core ? pb->state[o] : 0;
+      f->state[i] = (uint8_t)(s > 0 ? local[s - 1] : 0);
+      f->plane[i] = s > 0 ? 0 : pb->luma[o];
+    }
+  return 0;
+}
+
+/* Sums a tile's statistics into the run's. */
+static void add_stats(tiler *t, const tile_fill *f, const ts_fill_result *res) {
+  aerial_stats *st = t->st;
+  for (int l = 0; l < t->p->fill.levels; l++) {
+    ts_fill_level_stats *a = &st->level[l];
+    const ts_fill_level_stats *b = &res->level[l];
+    a->seconds += b->seconds;
+    a->blocks += b->blocks;
+    a->steps += b->steps;
+    a->seeds += b->seeds;
+    a->pairs += b->pairs;
+    a->wire_bytes += b->wire_bytes;
+    a->round_trips += b->round_trips;
+    a->w = ((t->g.w - 1) >> l) + 1;
+    a->h = ((t->g.h - 1) >> l) + 1;
+  }
+  for (int c = 0; c < f->nclass; c++) {
+    int r = f->rank[c];
+    const ts_fill_class_stats *s = &res->cls[c];
+    uint64_t n = st->blocks[r] + s->blocks;
+    if (n == 0) continue;
+    double wa = (double)st->blocks[r] / (double)n, wb = (double)s->blocks / (double)n;
+    st->usage_mean[r] = wa * st->usage_mean[r] + wb * s->usage_mean;
+    st->usage_variance[r] = wa * st->usage_variance[r] + wb * s->usage_variance;
+    st->blocks[r] = n;
+  }
+  st->tiles_filled++;
+}
+
+/* The filled core into its band: luminance for later halos, colour
+ * through the copy map. */
+static void tile_store(tiler *t, int ty, const tile_fill *f, const ts_fill_result *res) {
+  band *b = band_of_row(t, ty);
+  for (int y = f->core.y0; y < f->core.y1; y++)
+    for (int x = f->core.x0; x < f->core.x1; x++) {
+      size_t i = (size_t)(y - f->area.y0) * (size_t)f->w + (size_t)(x - f->area.x0);
+      if (f->state[i] == 0) continue;
+      size_t o = (size_t)(y - b->y0) * (size_t)t->g.w + (size_t)x;
+      int r = f->rank[f->state[i] - 1];
+      size_t src = (size_t)res->copy[2 * i + 1] * (size_t)t->rw[r] + (size_t)res->copy[2 * i];
+      b->luma[o] = res->planes[0][i];
+      memcpy(b->rgb + 3 * o, t->ref_rgb[r] + 3 * src, 3);
+    }
+}
+
+/* The fill's progress as the run's: done and total count tiles, the work
+ * is the tiles done plus the share of the one under way; the stage names
+ * the step (a line per step in a client's log, not one per class of every
+ * tile). */
+static void on_fill_progress(void *ctx, const ts_progress *fp) {
+  tiler *t = ctx;
+  int total = ts_tile_count(&t->g);
+  ts_progress p = {.level = 0, .levels = 1, .done = (uint64_t)t->tiles_done, .total = (uint64_t)total,
+                   .work_done = t->tiles_done + (fp->work_total > 0 ? fp->work_done / fp->work_total : 0),
+                   .work_total = total};
+  snprintf(p.stage, sizeof(p.stage), "%d tiles: row %d of %d, phase %d of 4", total, t->row + 1, t->g.ny,
+           t->phase + 1);
+  t->h->progress(t->h->progress_ctx, &p);
+}
+
+static int run_tile(tiler *t, int tx, int ty, char *err) {
+  tile_fill f;
+  int rc = tile_build(t, tx, ty, &f);
+  if (rc != 0) {
+    tile_fill_free(&f);
+    return ts_error(err, rc, "out of memory for tile (%d, %d)", tx, ty);
+  }
+  t->row = ty;
+  t->phase = ts_tile_phase(tx, ty);
+  if (f.nclass > 0) {
+    ts_fill_params fp = t->p->fill;
+    fp.seed = ts_tile_seed(t->p->fill.seed, (uint32_t)ts_tile_index(&t->g, tx, ty));
+    ts_fill_input in = {.w = f.w, .h = f.h, .nplanes = 1, .planes = {f.plane}, .state = f.state,
+                        .nclass = f.nclass, .cls = f.cls, .names = f.names};
+    ts_progress_hooks ph = {t->h->progress ? on_fill_progress : NULL, t};
+    ts_fill_result res;
+    rc = ts_fill_synthesize(&fp, &in, t->search, &ph, &res, err);
+    if (rc == 0) {
+      tile_store(t, ty, &f, &res);
+      add_stats(t, &f, &res);
+      ts_fill_result_free(&res);
+    }
+  }
+  tile_fill_free(&f);
+  if (rc == 0) {
+    band_of_row(t, ty)->tiles_done++;
+    t->tiles_done++;
+  }
+  return rc;
+}
+
+/* ---- the run ------------------------------------------------------------------- */
+
+/* The output file's tiles: the largest power of two from 16 to 512 that
+ * divides the grid's tile, so every band is whole file tiles. */
+static int file_tile(int tile) {
+  int ft = 512;
+  while (ft > 16 && tile % ft != 0) ft /= 2;
+  return ft;
+}
+
+static int open_io(tiler *t, const ts_image *const *in, const char *out_path, char *err) {
+  const aerial_job *p = t->p;
+  if (out_path == NULL) return ts_error(err, TS_EINVAL, "the aerial engine needs its output's path to stream it to");
+  int rc = ts_region_source_open(ts_engine_file_of(in[0])->path, &t->meta, &t->map, err);
+  if (rc == 0 && p->lines)
+    rc = ts_region_source_open(ts_engine_file_of(in[ts_aerial_lines_input(p)])->path, NULL, &t->lines, err);
+  if (rc != 0) return rc;
+  if (ts_tile_grid_init(&t->g, t->map->width, t->map->height, p->tile, ts_aerial_halo(p)) != 0)
+    return ts_error(err, TS_EINVAL, "--classes: an empty class map");
+  size_t row = (size_t)t->g.w * READ_ROWS;
+  t->ids = malloc(sizeof(int32_t) * row);
+  t->values = malloc(sizeof(int32_t) * row);
+  if (t->ids == NULL || t->values == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+  return ts_tile_sink_open(out_path, t->g.w, t->g.h, file_tile(p->tile), t->meta, &t->sink, err);
+}
+
+static void tiler_free(tiler *t, int ok) {
+  for (int r = 0; r < TS_FILL_MAX_CLASSES; r++) {
+    free(t->ref_rgb[r]);
+    free(t->ref_luma[r]);
+  }
+  for (int k = 0; k < BANDS; k++) {
+    free(t->bands[k].state);
+    free(t->bands[k].luma);
+    free(t->bands[k].rgb);
+  }
+  free(t->rank_of_id);
+  free(t->colour_of_id);
+  free(t->ids);
+  free(t->values);
+  if (t->map != NULL) t->map->close(t->map);
+  if (t->lines != NULL) t->lines->close(t->lines);
+  ts_meta_free(t->meta);
+  if (!ok && t->sink != NULL) t->sink->abort(t->sink);
+}
+
+/* One step: the tiles of a row of one column parity. */
+static int run_step(tiler *t, const ts_tile_step *s, char *err) {
+  int rc = band_load(t, s->row, err);
+  if (rc == 0 && s->row & 1) { /* phases 2 and 3 read the even rows around */
+    if (s->row > 0) rc = band_load(t, s->row - 1, err);
+    if (rc == 0 && s->row + 1 < t->g.ny) rc = band_load(t, s->row + 1, err);
+  }
+  for (int tx = s->xpar; rc == 0 && tx < t->g.nx; tx += 2) {
+    if (t->h->stop != NULL && atomic_load(t->h->stop)) return ts_error(err, TS_ESTOPPED, "stopped");
+    rc = run_tile(t, tx, s->row, err);
+  }
+  return rc == 0 ? write_rows(t, err) : rc;
+}
+
+int ts_aerial_run_tiles(const aerial_job *p, const ts_image *const *in, ts_search *search,
+                        const ts_engine_hooks *hooks, aerial_stats *st, char *err) {
+  double t0 = ts_now();
+  tiler t;
+  memset(&t, 0, sizeof(t));
+  memset(st, 0, sizeof(*st));
+  t.p = p;
+  t.h = hooks;
+  t.search = search;
+  t.st = st;
+  for (int k = 0; k < BANDS; k++) t.bands[k].row = -1;
+  const char *out_path = hooks->output_paths ? hooks->output_paths[AERIAL_OUT_IMAGE] : NULL;
+  int rc = build_tables(&t, in, err);
+  if (rc == 0) rc = open_io(&t, in, out_path, err);
+  ts_tile_step *steps = rc == 0 ? malloc(sizeof(*steps) * 2 * (size_t)t.g.ny) : NULL;
+  if (rc == 0 && steps == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
+  int nsteps = rc == 0 ? ts_tile_schedule(&t.g, steps) : 0;
+  st->nx = t.g.nx;
+  st->ny = t.g.ny;
+  st->halo = t.g.halo;
+  st->tile_jobs = 1;
+  for (int k = 0; rc == 0 && k < nsteps; k++) rc = run_step(&t, &steps[k], err);
+  if (rc == 0 && t.next_write != t.g.ny) rc = ts_error(err, TS_EINVAL, "internal: %d of %d tile rows written", t.next_write, t.g.ny);
+  if (rc == 0) rc = t.sink->finish(t.sink, err);
+  free(steps);
+  tiler_free(&t, rc == 0);
+  st->seconds = ts_now() - t0;
+  return rc;
+}
