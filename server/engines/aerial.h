@@ -68,6 +68,33 @@ typedef struct {
   double usage_mean[TS_FILL_MAX_CLASSES], usage_variance[TS_FILL_MAX_CLASSES];
 } aerial_stats;
 
+/* ---- a finished tile as a checkpoint piece (aerial_piece.c) ----------------
+ *
+ * Saved through hooks->save_piece as its tile finishes, found again by a
+ * run of the same job after a restart: the tile's own pixels (their
+ * luminance, which later tiles' halos give, and their colours) and its
+ * share of the report's figures. Self-checking (a checksum, the job's
+ * tag, the tile's place): anything else is refused and the tile made
+ * again, which gives the same bytes. */
+typedef struct {
+  uint32_t index;            /* the tile's (ts_tile_index) */
+  int x0, y0, w, h;          /* its core */
+  const uint8_t *luma, *rgb; /* w * h and 3 * w * h bytes, rows `stride` pixels apart */
+  size_t stride;
+  int nclass;                                /* classes filled in it */
+  int rank[TS_FILL_MAX_CLASSES];             /* their fill ranks */
+  ts_fill_class_stats cls[TS_FILL_MAX_CLASSES];
+  ts_fill_level_stats level[TS_FILL_MAX_LEVELS]; /* blocks, steps, seeds, comparisons */
+} aerial_piece;
+
+/* The piece's bytes (malloc'd) for a job of `levels` levels tagged `tag`. */
+int ts_aerial_piece_encode(const aerial_piece *pc, int levels, uint64_t tag, uint8_t **buf, size_t *len);
+/* Decodes a piece of tile `index` with core (x0, y0, w, h) of that job:
+ * 0 with pc's pixels pointing into buf (stride w), or TS_EPROTO with the
+ * reason in err. */
+int ts_aerial_piece_decode(const uint8_t *buf, size_t len, int levels, uint64_t tag, uint32_t index, int x0, int y0,
+                           int w, int h, aerial_piece *pc, char *err);
+
 /* Runs the job tile by tile (aerial_tiles.c), streaming the image to
  * hooks->output_paths[AERIAL_OUT_IMAGE]. in[] as run gets them. */
 int ts_aerial_run_tiles(const aerial_job *p, const ts_image *const *in, ts_search *search,

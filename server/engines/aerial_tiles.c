@@ -61,6 +61,7 @@ typedef struct {
   band bands[BANDS];
   int next_write; /* the next tile row to write */
   int tiles_done, row, phase; /* the step under way */
+  int resumed, told;          /* tiles from earlier runs' pieces */
 } tiler;
 
 /* ---- the job's tables and references ------------------------------------------ */
@@ -233,12 +234,12 @@ static int tile_build(tiler *t, int tx, int ty, tile_fill *f) {
   return 0;
 }
 
-/* Sums a tile's statistics into the run's. */
-static void add_stats(tiler *t, const tile_fill *f, const ts_fill_result *res) {
+/* Sums a tile's figures (a piece's) into the run's. */
+static void add_stats(tiler *t, const aerial_piece *pc) {
   aerial_stats *st = t->st;
   for (int l = 0; l < t->p->fill.levels; l++) {
     ts_fill_level_stats *a = &st->level[l];
-    const ts_fill_level_stats *b = &res->level[l];
+    const ts_fill_level_stats *b = &pc->level[l];
     a->seconds += b->seconds;
     a->blocks += b->blocks;
     a->steps += b->steps;
@@ -249,9 +250,9 @@ static void add_stats(tiler *t, const tile_fill *f, const ts_fill_result *res) {
     a->w = ((t->g.w - 1) >> l) + 1;
     a->h = ((t->g.h - 1) >> l) + 1;
   }
-  for (int c = 0; c < f->nclass; c++) {
-    int r = f->rank[c];
-    const ts_fill_class_stats *s = &res->cls[c];
+  for (int c = 0; c < pc->nclass; c++) {
+    int r = pc->rank[c];
+    const ts_fill_class_stats *s = &pc->cls[c];
     uint64_t n = st->blocks[r] + s->blocks;
     if (n == 0) continue;
     double wa = (double)st->blocks[r] / (double)n, wb = (double)s->blocks / (double)n;
@@ -259,7 +260,69 @@ static void add_stats(tiler *t, const tile_fill *f, const ts_fill_result *res) {
     st->usage_variance[r] = wa * st->usage_variance[r] + wb * s->usage_variance;
     st->blocks[r] = n;
   }
-  st->tiles_filled++;
+  if (pc->nclass > 0) st->tiles_filled++;
+}
+
+/* The tile's piece: its core in its band, and its figures. */
+static void piece_of(tiler *t, int tx, int ty, const tile_fill *f, const ts_fill_result *res, aerial_piece *pc) {
+  band *b = band_of_row(t, ty);
+  memset(pc, 0, sizeof(*pc));
+  size_t o = (size_t)(f->core.y0 - b->y0) * (size_t)t->g.w + (size_t)f->core.x0;
+  *pc = (aerial_piece){(uint32_t)ts_tile_index(&t->g, tx, ty), f->core.x0, f->core.y0, f->core.x1 - f->core.x0,
+                       f->core.y1 - f->core.y0, b->luma + o, b->rgb + 3 * o, (size_t)t->g.w, f->nclass};
+  if (res == NULL) return;
+  memcpy(pc->rank, f->rank, sizeof(pc->rank));
+  memcpy(pc->cls, res->cls, sizeof(pc->cls));
+  memcpy(pc->level, res->level, sizeof(pc->level));
+}
+
+/* Saves a finished tile as a checkpoint piece (hooks->save_piece). */
+static int save_piece(tiler *t, const aerial_piece *pc, char *err) {
+  uint8_t *buf;
+  size_t len;
+  char name[32];
+  if (ts_aerial_piece_encode(pc, t->p->fill.levels, t->h->tag, &buf, &len) != 0)
+    return ts_error(err, TS_ENOMEM, "out of memory for a tile's checkpoint");
+  snprintf(name, sizeof(name), "tile-%u", pc->index);
+  int rc = t->h->save_piece(t->h->save_ctx, name, buf, len, err);
+  free(buf);
+  return rc;
+}
+
+/* A tile an earlier run of the job finished: 1 with its core in its band
+ * and its figures counted, 0 if there is none that fits (it is made). */
+static int load_piece(tiler *t, int tx, int ty) {
+  uint8_t *buf = NULL;
+  size_t len = 0;
+  char name[32], why[TS_ERR_LEN];
+  ts_tile_rect c = ts_tile_core(&t->g, tx, ty);
+  uint32_t index = (uint32_t)ts_tile_index(&t->g, tx, ty);
+  snprintf(name, sizeof(name), "tile-%u", index);
+  if (t->h->load_piece(t->h->save_ctx, name, &buf, &len, why) != 0) return 0;
+  aerial_piece pc;
+  int ok = ts_aerial_piece_decode(buf, len, t->p->fill.levels, t->h->tag, index, c.x0, c.y0, c.x1 - c.x0, c.y1 - c.y0,
+                                  &pc, why) == 0;
+  if (ok) {
+    band *b = band_of_row(t, ty);
+    for (int y = 0; y < pc.h; y++) {
+      size_t o = (size_t)(c.y0 + y - b->y0) * (size_t)t->g.w + (size_t)c.x0;
+      memcpy(b->luma + o, pc.luma + (size_t)y * (size_t)pc.w, (size_t)pc.w);
+      memcpy(b->rgb + 3 * o, pc.rgb + 3 * (size_t)y * (size_t)pc.w, 3 * (size_t)pc.w);
+    }
+    add_stats(t, &pc);
+    t->resumed++;
+  }
+  free(buf);
+  return ok;
+}
+
+/* Tells the hooks, once, that the run goes on from earlier runs' tiles. */
+static void tell_resumed(tiler *t) {
+  if (t->resumed == 0 || t->told || t->h->resumed == NULL) return;
+  char where[96];
+  snprintf(where, sizeof(where), "after %d of its %d tiles", t->resumed, ts_tile_count(&t->g));
+  t->h->resumed(t->h->save_ctx, where, 0);
+  t->told = 1;
 }
 
 /* The filled core into its band: luminance for later halos, colour
@@ -293,15 +356,15 @@ static void on_fill_progress(void *ctx, const ts_progress *fp) {
   t->h->progress(t->h->progress_ctx, &p);
 }
 
-static int run_tile(tiler *t, int tx, int ty, char *err) {
+/* Synthesises a tile into its band and saves it as a piece. */
+static int make_tile(tiler *t, int tx, int ty, char *err) {
   tile_fill f;
   int rc = tile_build(t, tx, ty, &f);
   if (rc != 0) {
     tile_fill_free(&f);
     return ts_error(err, rc, "out of memory for tile (%d, %d)", tx, ty);
   }
-  t->row = ty;
-  t->phase = ts_tile_phase(tx, ty);
+  aerial_piece pc;
   if (f.nclass > 0) {
     ts_fill_params fp = t->p->fill;
     fp.seed = ts_tile_seed(t->p->fill.seed, (uint32_t)ts_tile_index(&t->g, tx, ty));
@@ -312,11 +375,26 @@ static int run_tile(tiler *t, int tx, int ty, char *err) {
     rc = ts_fill_synthesize(&fp, &in, t->search, &ph, &res, err);
     if (rc == 0) {
       tile_store(t, ty, &f, &res);
-      add_stats(t, &f, &res);
+      piece_of(t, tx, ty, &f, &res, &pc);
       ts_fill_result_free(&res);
     }
+  } else {
+    piece_of(t, tx, ty, &f, NULL, &pc); /* lines only */
   }
   tile_fill_free(&f);
+  if (rc != 0) return rc;
+  add_stats(t, &pc);
+  return t->h->save_piece != NULL ? save_piece(t, &pc, err) : 0;
+}
+
+static int run_tile(tiler *t, int tx, int ty, char *err) {
+  t->row = ty;
+  t->phase = ts_tile_phase(tx, ty);
+  int rc = 0;
+  if (t->h->load_piece == NULL || !load_piece(t, tx, ty)) {
+    tell_resumed(t);
+    rc = make_tile(t, tx, ty, err);
+  }
   if (rc == 0) {
     band_of_row(t, ty)->tiles_done++;
     t->tiles_done++;

@@ -120,6 +120,15 @@ typedef struct {
   /* Where each streamed output goes (ts_engine_output.streamed), by
    * output index; NULL (the array or an entry): not wanted. */
   const char *const *output_paths;
+  /* Checkpoints in pieces, for work made of many units each finished for
+   * good (a tiled scene's tiles): save_piece keeps one under its name
+   * (1..31 letters, digits, '-'), atomically, beside the job until it
+   * ends; load_piece gives back (malloc'd) one an earlier run of the job
+   * saved, or TS_ENOENT. Both with save_ctx; NULL: no pieces (embedded
+   * runs). Pieces carry their own checks: the engine refuses one that is
+   * damaged or foreign and makes that unit again. */
+  int (*save_piece)(void *ctx, const char *name, const uint8_t *buf, size_t len, char *err);
+  int (*load_piece)(void *ctx, const char *name, uint8_t **buf, size_t *len, char *err);
 } ts_engine_hooks;
 
 typedef struct ts_engine_run ts_engine_run;

@@ -89,6 +89,38 @@ static int on_checkpoint(void *arg, const uint8_t *buf, size_t len, const char *
   return 0;
 }
 
+/* A checkpoint piece, "piece-NAME" in the job's directory, written
+ * atomically; like a checkpoint, one that cannot be written does not fail
+ * the job. */
+static int piece_path(const checkpoint_ctx *cc, const char *name, char *path, size_t cap, char *err) {
+  char file[64];
+  size_t n = strlen(name);
+  if (n < 1 || n > 31 || strspn(name, "abcdefghijklmnopqrstuvwxyz0123456789-") != n)
+    return ts_error(err, TS_EINVAL, "checkpoint piece name '%.40s': need 1..31 of a-z, 0-9, '-'", name);
+  snprintf(file, sizeof(file), JOBS_PIECE_PREFIX "%s", name);
+  jobs_file_path(cc->jb, file, path, cap);
+  return 0;
+}
+
+static int on_save_piece(void *arg, const char *name, const uint8_t *buf, size_t len, char *err) {
+  checkpoint_ctx *cc = arg;
+  char path[JOBS_PATH + 64], why[TS_ERR_LEN];
+  int rc = piece_path(cc, name, path, sizeof(path), err);
+  if (rc != 0) return rc;
+  if (ts_file_write(path, buf, len, why) != 0)
+    jobs_log(cc->j, "job %" PRIu64 ": no checkpoint piece %s: %s; the job goes on without it", cc->jb->id, name, why);
+  return 0;
+}
+
+static int on_load_piece(void *arg, const char *name, uint8_t **buf, size_t *len, char *err) {
+  checkpoint_ctx *cc = arg;
+  char path[JOBS_PATH + 64];
+  int rc = piece_path(cc, name, path, sizeof(path), err);
+  if (rc != 0) return rc;
+  if (access(path, F_OK) != 0) return TS_ENOENT;
+  return ts_file_read(path, SIZE_MAX, buf, len, err);
+}
+
 /* A damaged or foreign checkpoint: the job starts over, which gives the
  * same bytes, only later. */
 static void on_checkpoint_refused(void *arg, const char *why) {
@@ -140,7 +172,9 @@ static int run_engine(ts_jobs *j, job *jb, const ts_image *const *in, ts_search 
                            .resume_refused = on_checkpoint_refused,
                            .resumed = on_resumed,
                            .stop = &j->stopping,
-                           .output_paths = out_paths};
+                           .output_paths = out_paths,
+                           .save_piece = on_save_piece,
+                           .load_piece = on_load_piece};
   int rc = jb->spec.engine->run(&jb->spec.params, in, search, &hooks, run, err);
   free(resume);
   return rc;

@@ -1,0 +1,152 @@
+"""texsyn aerial in tiles (server/engines/tile_grid.h, aerial_tiles.c):
+scenes cut into tiles on a fixed grid, synthesised in four phases, each
+joined to its finished neighbours through a halo; the class map read by
+regions and the output streamed band by band. Checked on small scenes with
+small tiles: every pixel still comes from its own class's reference or is a
+line; the decoded bytes do not depend on where the job runs (embedded, 1 or
+2 workers); a tiled TIFF holds the same pixels as a PNG; a coordinator
+killed mid-scene resumes at its unfinished tiles with the same bytes; grid
+parameters that do not fit are refused before any work."""
+import json
+import signal
+import struct
+import time
+
+import pytest
+
+from conftest import BUILD, REPO, SANITIZED, run
+from pnm import oiiotool, pixels_of, read_pnm
+
+TILE = ["--tile", "64"]
+
+
+def scene(d, size, seed=7):
+    run(BUILD / "bench/mkscene", "--size", size, "--seed", seed, "-o", d / "scene")
+    run("bash", REPO / "bench/aerial_refs.sh", d)
+    return d / "scene-classes.png", d / "catalogue.json"
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    return scene(tmp_path_factory.mktemp("tiles"), 256)
+
+
+def aerial(texsyn, classes, cat, out, *extra, check=True):
+    return run(texsyn, "aerial", "--classes", classes, "--catalogue", cat, "-o", out, "--quiet", *extra, check=check)
+
+
+def test_every_pixel_of_a_tiled_scene_is_a_line_or_its_class(texsyn, small, tmp_path):
+    classes, cat = small
+    out, report = tmp_path / "out.png", tmp_path / "r.json"
+    aerial(texsyn, classes, cat, out, *TILE, "--report", report)
+    r = json.loads(report.read_text())
+    assert r["tiles"]["grid"] == [4, 4] and r["tiles"]["halo"] == 16 and r["tiles"]["tile"] == 64, r["tiles"]
+    w, h, _, px = pixels_of(out, tmp_path)
+    _, _, _, ids = pixels_of(classes, tmp_path)
+    _, _, _, roads = pixels_of(classes.parent / "scene-roads.png", tmp_path)
+    c = json.loads(cat.read_text())
+    colours = {int(k): bytes(v) for k, v in c["lines"]["colours"].items()}
+    refs = {}
+    for k in c["classes"]:
+        _, _, _, rpx = pixels_of(cat.parent / k["reference"], tmp_path)
+        refs[k["id"]] = {rpx[i:i + 3] for i in range(0, len(rpx), 3)}
+    for i in range(w * h):
+        rgb = px[3 * i:3 * i + 3]
+        if roads[i] in colours:
+            assert rgb == colours[roads[i]], f"line pixel {i % w},{i // w}"
+        else:
+            assert rgb in refs[ids[i]], f"pixel {i % w},{i // w} of class {ids[i]} is no colour of its reference"
+    assert sum(k["blocks"] for k in r["classes"]) == r["levels"][-1]["blocks"]
+
+
+def test_a_scene_within_one_tile_is_one_tile(texsyn, small, tmp_path):
+    classes, cat = small
+    aerial(texsyn, classes, cat, tmp_path / "a.png", "--report", tmp_path / "r.json")
+    r = json.loads((tmp_path / "r.json").read_text())
+    assert r["tiles"]["grid"] == [1, 1], r["tiles"]
+    # The tile's seed is the job's mixed with tile 0: without lines (which
+    # give every area a context) areas start from drawn blocks, and another
+    # job seed gives other bytes; the same seed, the same bytes.
+    c = json.loads(cat.read_text())
+    del c["lines"]
+    for k in c["classes"]:
+        k["reference"] = str(cat.parent / k["reference"])
+    bare = tmp_path / "bare.json"
+    bare.write_text(json.dumps(c))
+    got = []
+    for name, seed in (("s1", "1"), ("s2", "2"), ("s1b", "1")):
+        aerial(texsyn, classes, bare, tmp_path / f"{name}.png", "--seed", seed)
+        got.append(pixels_of(tmp_path / f"{name}.png", tmp_path)[3])
+    assert got[0] != got[1] and got[0] == got[2]
+
+
+def test_a_tiled_tiff_holds_the_pixels_of_the_png(texsyn, small, tmp_path):
+    classes, cat = small
+    aerial(texsyn, classes, cat, tmp_path / "o.png", *TILE)
+    aerial(texsyn, classes, cat, tmp_path / "o.tif", *TILE)
+    aerial(texsyn, classes, cat, tmp_path / "o.exr", *TILE)
+    data = (tmp_path / "o.tif").read_bytes()
+    assert data[:4] == b"II*\0"
+    (ifd,) = struct.unpack_from("<I", data, 4)
+    (n,) = struct.unpack_from("<H", data, ifd)
+    tags = {struct.unpack_from("<HHII", data, ifd + 2 + 12 * i)[0]: struct.unpack_from("<HHII", data, ifd + 2 + 12 * i)
+            for i in range(n)}
+    assert 322 in tags and 323 in tags, "not a tiled TIFF"  # TileWidth, TileLength
+    assert tags[259][3] & 0xFFFF in (8, 32946), "not zip-compressed"  # Compression: Adobe deflate
+    png = pixels_of(tmp_path / "o.png", tmp_path)[3]
+    assert pixels_of(tmp_path / "o.tif", tmp_path)[3] == png
+    oiiotool(tmp_path / "o.exr", "-d", "uint8", "-o", tmp_path / "exr.ppm")
+    assert read_pnm(tmp_path / "exr.ppm")[3] == png
+
+
+def test_grid_parameters_that_do_not_fit_are_refused(texsyn, small, tmp_path):
+    classes, cat = small
+    p = aerial(texsyn, classes, cat, tmp_path / "x.png", "--tile", "100", check=False)
+    assert p.returncode == 2 and "--tile 100: need a multiple of 16" in p.stderr, p.stderr
+    p = aerial(texsyn, classes, cat, tmp_path / "x.png", "--tile", "16", check=False)
+    assert p.returncode == 2 and "--halo 16: at most half a tile (--tile 16)" in p.stderr, p.stderr
+    p = aerial(texsyn, classes, cat, tmp_path / "x.png", "--tile", "96", "--max-pixels", "20000", check=False)
+    assert p.returncode == 2 and "176x176 pixels exceeds the limit of 20000" in p.stderr, p.stderr
+    assert not (tmp_path / "x.png").exists()
+
+
+@pytest.mark.sanitize
+def test_the_same_bytes_embedded_and_on_1_and_2_workers(texsyn, small, cluster, tmp_path):
+    classes, cat = small
+    aerial(texsyn, classes, cat, tmp_path / "e.png", *TILE, "--threads", "1")
+    expected = pixels_of(tmp_path / "e.png", tmp_path)[3]
+    cluster.start(2, 1)
+    cluster.texsyn("aerial", "--classes", classes, "--catalogue", cat, "-o", tmp_path / "c2.png", "--quiet", *TILE)
+    assert pixels_of(tmp_path / "c2.png", tmp_path)[3] == expected
+    cluster.workers[1].proc.kill()
+    cluster.texsyn("aerial", "--classes", classes, "--catalogue", cat, "-o", tmp_path / "c1.png", "--quiet", *TILE)
+    assert pixels_of(tmp_path / "c1.png", tmp_path)[3] == expected
+
+
+def test_a_killed_coordinator_resumes_at_its_unfinished_tiles(texsyn, cluster, tmp_path):
+    """512x512 in 64 tiles of 64x64 on one worker; the coordinator is
+    killed (SIGKILL) once a dozen tiles are saved as checkpoint pieces."""
+    classes, cat = scene(tmp_path, 384 if SANITIZED else 512, seed=3)
+    aerial(texsyn, classes, cat, tmp_path / "e.png", *TILE)
+    cluster.start(1, 1)
+    p = cluster.texsyn("aerial", "--classes", classes, "--catalogue", cat, "-o", tmp_path / "unused.png", *TILE,
+                       "--detach")
+    job_id = p.stdout.split()[-1]
+    jobdir = cluster.tmp / "spool" / "jobs" / job_id
+    deadline = time.time() + 120
+    while len(list(jobdir.glob("piece-tile-*"))) < 12:
+        assert time.time() < deadline, cluster.server.read_log()
+        time.sleep(0.01)
+    cluster.server.proc.send_signal(signal.SIGKILL)
+    cluster.server.proc.wait()
+    cluster.server.stop()
+    saved = len(list(jobdir.glob("piece-tile-*")))
+    assert saved < 64, "the job ended before the kill"
+    cluster.restart_server()
+    w = cluster.texsyn("watch", job_id, "--quiet", check=False, timeout=300)
+    log = cluster.server.read_log()
+    assert w.returncode == 0, w.stderr + log
+    assert f"job {job_id}: resuming after " in log and " of its 64 tiles from its checkpoint" in log, log
+    cluster.texsyn("fetch", job_id, "-o", tmp_path / "r.png")
+    assert pixels_of(tmp_path / "r.png", tmp_path)[3] == pixels_of(tmp_path / "e.png", tmp_path)[3]
+    assert not list(jobdir.glob("piece-*")), "pieces left behind a finished job"
