@@ -17,9 +17,12 @@
  * read by the odd rows r - 1 and r + 1, odd rows by no other row. So the
  * coordinator's memory is three bands and the tiles in flight, whatever
  * the scene's height; a band is 6 bytes a pixel of the scene's width. */
+#include <pthread.h>
+#include <stdatomic.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "aerial.h"
 #include "error.h"
@@ -31,6 +34,7 @@
 #define BANDS 3
 #define READ_ROWS 64 /* rows of the class map read at a time */
 #define NO_CLASS 0xFF
+#define AERIAL_MAX_TILE_JOBS 256
 
 typedef struct {
   int row; /* the tile row held; -1: none */
@@ -60,8 +64,15 @@ typedef struct {
   int32_t *ids, *values; /* READ_ROWS rows of the map and the lines */
   band bands[BANDS];
   int next_write; /* the next tile row to write */
-  int tiles_done, row, phase; /* the step under way */
-  int resumed, told;          /* tiles from earlier runs' pieces */
+  int row, phase; /* the step under way */
+  /* Tiles of a step run on `jobs` threads, each with a search session of
+   * its own (search.h; sessions[0] is the run's search). Under `lock`:
+   * the progress, the resumed count, the first error. */
+  int jobs;
+  ts_search *sessions[AERIAL_MAX_TILE_JOBS];
+  pthread_mutex_t lock;
+  int tiles_done, resumed, told;
+  double share[AERIAL_MAX_TILE_JOBS]; /* of each thread's tile under way */
 } tiler;
 
 /* ---- the job's tables and references ------------------------------------------ */
@@ -290,8 +301,8 @@ static int save_piece(tiler *t, const aerial_piece *pc, char *err) {
 }
 
 /* A tile an earlier run of the job finished: 1 with its core in its band
- * and its figures counted, 0 if there is none that fits (it is made). */
-static int load_piece(tiler *t, int tx, int ty) {
+ * and its figures in *fig, 0 if there is none that fits (it is made). */
+static int load_piece(tiler *t, int tx, int ty, aerial_piece *fig) {
   uint8_t *buf = NULL;
   size_t len = 0;
   char name[32], why[TS_ERR_LEN];
@@ -299,18 +310,19 @@ static int load_piece(tiler *t, int tx, int ty) {
   uint32_t index = (uint32_t)ts_tile_index(&t->g, tx, ty);
   snprintf(name, sizeof(name), "tile-%u", index);
   if (t->h->load_piece(t->h->save_ctx, name, &buf, &len, why) != 0) return 0;
-  aerial_piece pc;
   int ok = ts_aerial_piece_decode(buf, len, t->p->fill.levels, t->h->tag, index, c.x0, c.y0, c.x1 - c.x0, c.y1 - c.y0,
-                                  &pc, why) == 0;
+                                  fig, why) == 0;
   if (ok) {
     band *b = band_of_row(t, ty);
-    for (int y = 0; y < pc.h; y++) {
+    for (int y = 0; y < fig->h; y++) {
       size_t o = (size_t)(c.y0 + y - b->y0) * (size_t)t->g.w + (size_t)c.x0;
-      memcpy(b->luma + o, pc.luma + (size_t)y * (size_t)pc.w, (size_t)pc.w);
-      memcpy(b->rgb + 3 * o, pc.rgb + 3 * (size_t)y * (size_t)pc.w, 3 * (size_t)pc.w);
+      memcpy(b->luma + o, fig->luma + (size_t)y * (size_t)fig->w, (size_t)fig->w);
+      memcpy(b->rgb + 3 * o, fig->rgb + 3 * (size_t)y * (size_t)fig->w, 3 * (size_t)fig->w);
     }
-    add_stats(t, &pc);
+    fig->luma = fig->rgb = NULL; /* in buf, freed below */
+    pthread_mutex_lock(&t->lock);
     t->resumed++;
+    pthread_mutex_unlock(&t->lock);
   }
   free(buf);
   return ok;
@@ -318,11 +330,14 @@ static int load_piece(tiler *t, int tx, int ty) {
 
 /* Tells the hooks, once, that the run goes on from earlier runs' tiles. */
 static void tell_resumed(tiler *t) {
-  if (t->resumed == 0 || t->told || t->h->resumed == NULL) return;
-  char where[96];
-  snprintf(where, sizeof(where), "after %d of its %d tiles", t->resumed, ts_tile_count(&t->g));
-  t->h->resumed(t->h->save_ctx, where, 0);
-  t->told = 1;
+  pthread_mutex_lock(&t->lock);
+  if (t->resumed > 0 && !t->told && t->h->resumed != NULL) {
+    char where[96];
+    snprintf(where, sizeof(where), "after %d of its %d tiles", t->resumed, ts_tile_count(&t->g));
+    t->h->resumed(t->h->save_ctx, where, 0);
+    t->told = 1;
+  }
+  pthread_mutex_unlock(&t->lock);
 }
 
 /* The filled core into its band: luminance for later halos, colour
@@ -341,66 +356,111 @@ static void tile_store(tiler *t, int ty, const tile_fill *f, const ts_fill_resul
     }
 }
 
-/* The fill's progress as the run's: done and total count tiles, the work
- * is the tiles done plus the share of the one under way; the stage names
- * the step (a line per step in a client's log, not one per class of every
- * tile). */
-static void on_fill_progress(void *ctx, const ts_progress *fp) {
-  tiler *t = ctx;
+/* One thread of a step: its session, its slot in the progress. */
+typedef struct {
+  tiler *t;
+  int slot;
+  ts_search *search;
+  ts_tile_step step;
+  atomic_int *next;     /* the step's next tile to take */
+  aerial_piece *figs;   /* per tile of the step, its figures */
+  char *err;            /* the step's first error (under t->lock) */
+  int *rc;
+} tile_worker;
+
+/* Progress (under t->lock, so the hook is called by one thread at a
+ * time): done and total count tiles, the work is the tiles done plus the
+ * shares of those under way; the stage names the step (a line per step in
+ * a client's log, not one per class of every tile). */
+static void report_progress(tiler *t) {
+  if (t->h->progress == NULL) return;
   int total = ts_tile_count(&t->g);
+  double work = t->tiles_done;
+  for (int i = 0; i < t->jobs; i++) work += t->share[i];
   ts_progress p = {.level = 0, .levels = 1, .done = (uint64_t)t->tiles_done, .total = (uint64_t)total,
-                   .work_done = t->tiles_done + (fp->work_total > 0 ? fp->work_done / fp->work_total : 0),
-                   .work_total = total};
+                   .work_done = work, .work_total = total};
   snprintf(p.stage, sizeof(p.stage), "%d tiles: row %d of %d, phase %d of 4", total, t->row + 1, t->g.ny,
            t->phase + 1);
   t->h->progress(t->h->progress_ctx, &p);
 }
 
-/* Synthesises a tile into its band and saves it as a piece. */
-static int make_tile(tiler *t, int tx, int ty, char *err) {
+static void on_fill_progress(void *ctx, const ts_progress *fp) {
+  tile_worker *w = ctx;
+  pthread_mutex_lock(&w->t->lock);
+  w->t->share[w->slot] = fp->work_total > 0 ? fp->work_done / fp->work_total : 0;
+  report_progress(w->t);
+  pthread_mutex_unlock(&w->t->lock);
+}
+
+/* Synthesises a tile into its band and saves it as a piece; its figures
+ * into *fig. */
+static int make_tile(tile_worker *w, int tx, int ty, aerial_piece *fig, char *err) {
+  tiler *t = w->t;
   tile_fill f;
   int rc = tile_build(t, tx, ty, &f);
   if (rc != 0) {
     tile_fill_free(&f);
     return ts_error(err, rc, "out of memory for tile (%d, %d)", tx, ty);
   }
-  aerial_piece pc;
   if (f.nclass > 0) {
     ts_fill_params fp = t->p->fill;
     fp.seed = ts_tile_seed(t->p->fill.seed, (uint32_t)ts_tile_index(&t->g, tx, ty));
     ts_fill_input in = {.w = f.w, .h = f.h, .nplanes = 1, .planes = {f.plane}, .state = f.state,
                         .nclass = f.nclass, .cls = f.cls, .names = f.names};
-    ts_progress_hooks ph = {t->h->progress ? on_fill_progress : NULL, t};
+    ts_progress_hooks ph = {t->h->progress ? on_fill_progress : NULL, w};
     ts_fill_result res;
-    rc = ts_fill_synthesize(&fp, &in, t->search, &ph, &res, err);
+    rc = ts_fill_synthesize(&fp, &in, w->search, &ph, &res, err);
     if (rc == 0) {
       tile_store(t, ty, &f, &res);
-      piece_of(t, tx, ty, &f, &res, &pc);
+      piece_of(t, tx, ty, &f, &res, fig);
       ts_fill_result_free(&res);
     }
   } else {
-    piece_of(t, tx, ty, &f, NULL, &pc); /* lines only */
+    piece_of(t, tx, ty, &f, NULL, fig); /* lines only */
   }
   tile_fill_free(&f);
-  if (rc != 0) return rc;
-  add_stats(t, &pc);
-  return t->h->save_piece != NULL ? save_piece(t, &pc, err) : 0;
-}
-
-static int run_tile(tiler *t, int tx, int ty, char *err) {
-  t->row = ty;
-  t->phase = ts_tile_phase(tx, ty);
-  int rc = 0;
-  if (t->h->load_piece == NULL || !load_piece(t, tx, ty)) {
-    tell_resumed(t);
-    rc = make_tile(t, tx, ty, err);
-  }
-  if (rc == 0) {
-    band_of_row(t, ty)->tiles_done++;
-    t->tiles_done++;
-  }
+  if (rc == 0 && t->h->save_piece != NULL) rc = save_piece(t, fig, err);
   return rc;
 }
+
+/* A tile: from an earlier run's piece, or made. */
+static int run_tile(tile_worker *w, int tx, int ty, aerial_piece *fig, char *err) {
+  tiler *t = w->t;
+  if (t->h->load_piece != NULL && load_piece(t, tx, ty, fig)) return 0;
+  tell_resumed(t);
+  return make_tile(w, tx, ty, fig, err);
+}
+
+/* A thread of a step: takes the step's tiles in turn until none is left
+ * or a tile failed. Which thread makes which tile changes no pixel: a
+ * tile reads only tiles of earlier steps. */
+static void *step_worker(void *arg) {
+  tile_worker *w = arg;
+  tiler *t = w->t;
+  char err[TS_ERR_LEN];
+  for (;;) {
+    int k = atomic_fetch_add(w->next, 1), tx = w->step.xpar + 2 * k;
+    if (tx >= t->g.nx) break;
+    pthread_mutex_lock(&t->lock);
+    int failed = *w->rc != 0;
+    pthread_mutex_unlock(&t->lock);
+    if (failed) break;
+    int rc = t->h->stop != NULL && atomic_load(t->h->stop) ? ts_error(err, TS_ESTOPPED, "stopped")
+                                                           : run_tile(w, tx, w->step.row, &w->figs[k], err);
+    pthread_mutex_lock(&t->lock);
+    if (rc != 0 && *w->rc == 0) {
+      *w->rc = rc;
+      memcpy(w->err, err, TS_ERR_LEN);
+    }
+    if (rc == 0) t->tiles_done++;
+    t->share[w->slot] = 0;
+    report_progress(t);
+    pthread_mutex_unlock(&t->lock);
+  }
+  return NULL;
+}
+
+/* ---- the run ------------------------------------------------------------------- */
 
 /* ---- the run ------------------------------------------------------------------- */
 
@@ -448,18 +508,56 @@ static void tiler_free(tiler *t, int ok) {
   if (!ok && t->sink != NULL) t->sink->abort(t->sink);
 }
 
-/* One step: the tiles of a row of one column parity. */
+/* One step: the tiles of a row of one column parity, side by side on the
+ * run's threads; their figures counted in tile order, the rows finished
+ * written. */
 static int run_step(tiler *t, const ts_tile_step *s, char *err) {
   int rc = band_load(t, s->row, err);
   if (rc == 0 && s->row & 1) { /* phases 2 and 3 read the even rows around */
     if (s->row > 0) rc = band_load(t, s->row - 1, err);
     if (rc == 0 && s->row + 1 < t->g.ny) rc = band_load(t, s->row + 1, err);
   }
-  for (int tx = s->xpar; rc == 0 && tx < t->g.nx; tx += 2) {
-    if (t->h->stop != NULL && atomic_load(t->h->stop)) return ts_error(err, TS_ESTOPPED, "stopped");
-    rc = run_tile(t, tx, s->row, err);
+  int ntiles = (t->g.nx - s->xpar + 1) / 2, nthreads = t->jobs < ntiles ? t->jobs : ntiles;
+  aerial_piece *figs = rc == 0 ? calloc((size_t)(ntiles > 0 ? ntiles : 1), sizeof(*figs)) : NULL;
+  if (rc == 0 && figs == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
+  if (rc != 0 || ntiles == 0) {
+    free(figs);
+    return rc;
   }
+  t->row = s->row;
+  t->phase = ts_tile_phase(s->xpar, s->row);
+  atomic_int next = 0;
+  tile_worker w[AERIAL_MAX_TILE_JOBS];
+  pthread_t th[AERIAL_MAX_TILE_JOBS];
+  int started = 0;
+  for (int i = 0; i < nthreads; i++)
+    w[i] = (tile_worker){t, i, t->sessions[i], *s, &next, figs, err, &rc};
+  /* Thread 0 is this one; the others are started for the step. */
+  for (int i = 1; i < nthreads; i++, started++)
+    if (pthread_create(&th[i], NULL, step_worker, &w[i]) != 0) break;
+  step_worker(&w[0]);
+  for (int i = 1; i <= started; i++) pthread_join(th[i], NULL);
+  for (int k = 0; rc == 0 && k < ntiles; k++) add_stats(t, &figs[k]);
+  free(figs);
+  if (rc == 0) band_of_row(t, s->row)->tiles_done += ntiles;
   return rc == 0 ? write_rows(t, err) : rc;
+}
+
+/* The threads of the run and their sessions: --tile-jobs, or the cores,
+ * at most the tiles of a step; one if the backend has no sessions. */
+static int open_sessions(tiler *t, ts_search *search, char *err) {
+  int want = t->p->tile_jobs > 0 ? t->p->tile_jobs : (int)sysconf(_SC_NPROCESSORS_ONLN);
+  int most = (t->g.nx + 1) / 2;
+  want = want < 1 ? 1 : want > most ? most : want > AERIAL_MAX_TILE_JOBS ? AERIAL_MAX_TILE_JOBS : want;
+  t->sessions[0] = search;
+  t->jobs = 1;
+  for (int i = 1; i < want; i++) {
+    int rc = ts_search_session(search, &t->sessions[i], err);
+    if (rc == TS_ENOTSUP) break;
+    if (rc != 0) return rc;
+    t->jobs++;
+  }
+  return 0;
 }
 
 int ts_aerial_run_tiles(const aerial_job *p, const ts_image *const *in, ts_search *search,
@@ -474,20 +572,24 @@ int ts_aerial_run_tiles(const aerial_job *p, const ts_image *const *in, ts_searc
   t.st = st;
   for (int k = 0; k < BANDS; k++) t.bands[k].row = -1;
   const char *out_path = hooks->output_paths ? hooks->output_paths[AERIAL_OUT_IMAGE] : NULL;
+  pthread_mutex_init(&t.lock, NULL);
   int rc = build_tables(&t, in, err);
   if (rc == 0) rc = open_io(&t, in, out_path, err);
+  if (rc == 0) rc = open_sessions(&t, search, err);
   ts_tile_step *steps = rc == 0 ? malloc(sizeof(*steps) * 2 * (size_t)t.g.ny) : NULL;
   if (rc == 0 && steps == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
   int nsteps = rc == 0 ? ts_tile_schedule(&t.g, steps) : 0;
   st->nx = t.g.nx;
   st->ny = t.g.ny;
   st->halo = t.g.halo;
-  st->tile_jobs = 1;
+  st->tile_jobs = t.jobs;
   for (int k = 0; rc == 0 && k < nsteps; k++) rc = run_step(&t, &steps[k], err);
   if (rc == 0 && t.next_write != t.g.ny) rc = ts_error(err, TS_EINVAL, "internal: %d of %d tile rows written", t.next_write, t.g.ny);
   if (rc == 0) rc = t.sink->finish(t.sink, err);
   free(steps);
+  for (int i = 1; i < t.jobs; i++) ts_search_destroy(t.sessions[i]);
   tiler_free(&t, rc == 0);
+  pthread_mutex_destroy(&t.lock);
   st->seconds = ts_now() - t0;
   return rc;
 }

@@ -3,8 +3,8 @@ scenes cut into tiles on a fixed grid, synthesised in four phases, each
 joined to its finished neighbours through a halo; the class map read by
 regions and the output streamed band by band. Checked on small scenes with
 small tiles: every pixel still comes from its own class's reference or is a
-line; the decoded bytes do not depend on where the job runs (embedded, 1 or
-2 workers); a tiled TIFF holds the same pixels as a PNG; a coordinator
+line; the decoded bytes depend neither on where the job runs (embedded, 1,
+2 or 3 workers) nor on how many tiles run side by side; a tiled TIFF holds the same pixels as a PNG; a coordinator
 killed mid-scene resumes at its unfinished tiles with the same bytes; grid
 parameters that do not fit are refused before any work."""
 import json
@@ -111,16 +111,22 @@ def test_grid_parameters_that_do_not_fit_are_refused(texsyn, small, tmp_path):
 
 
 @pytest.mark.sanitize
-def test_the_same_bytes_embedded_and_on_1_and_2_workers(texsyn, small, cluster, tmp_path):
+def test_the_same_bytes_embedded_and_on_3_2_1_workers_with_1_or_2_tile_jobs(texsyn, small, cluster, tmp_path):
     classes, cat = small
-    aerial(texsyn, classes, cat, tmp_path / "e.png", *TILE, "--threads", "1")
+    aerial(texsyn, classes, cat, tmp_path / "e.png", *TILE, "--threads", "1", "--tile-jobs", "1")
     expected = pixels_of(tmp_path / "e.png", tmp_path)[3]
-    cluster.start(2, 1)
-    cluster.texsyn("aerial", "--classes", classes, "--catalogue", cat, "-o", tmp_path / "c2.png", "--quiet", *TILE)
-    assert pixels_of(tmp_path / "c2.png", tmp_path)[3] == expected
-    cluster.workers[1].proc.kill()
-    cluster.texsyn("aerial", "--classes", classes, "--catalogue", cat, "-o", tmp_path / "c1.png", "--quiet", *TILE)
-    assert pixels_of(tmp_path / "c1.png", tmp_path)[3] == expected
+    aerial(texsyn, classes, cat, tmp_path / "e2.png", *TILE, "--tile-jobs", "2", "--report", tmp_path / "r.json")
+    assert json.loads((tmp_path / "r.json").read_text())["tiles"]["tile_jobs"] == 2
+    assert pixels_of(tmp_path / "e2.png", tmp_path)[3] == expected, "embedded, 2 tile jobs"
+    cluster.start(3, 1)
+    runs = [(3, "1"), (3, "2"), (2, "2"), (1, "2"), (1, "1")]
+    for n, jobs in runs:
+        while len([w for w in cluster.workers if w.proc.poll() is None]) > n:
+            next(w for w in cluster.workers if w.proc.poll() is None).proc.kill()
+        out = tmp_path / f"c{n}-{jobs}.png"
+        cluster.texsyn("aerial", "--classes", classes, "--catalogue", cat, "-o", out, "--quiet", *TILE,
+                       "--tile-jobs", jobs)
+        assert pixels_of(out, tmp_path)[3] == expected, f"{n} workers, {jobs} tile jobs"
 
 
 def test_a_killed_coordinator_resumes_at_its_unfinished_tiles(texsyn, cluster, tmp_path):
