@@ -56,8 +56,9 @@ static const ts_param aerial_param_table[] = {
      "one tile. Memory follows it: three rows of tiles are alive at once"},
     {"halo", "halo", "N", TS_PARAM_INT, F(halo), 0, TS_TILE_MAX / 2, "0",
      "finished pixels around a tile that its synthesis joins (at most half a tile)",
-     .def_help = "(wn/2 + 1) * 2^(levels-1), what the coarsest level's neighbourhood reaches: 16 for the "
-                 "defaults"},
+     .def_help = "(wn/2 + 1) * 2^(levels-1), what the coarsest level's neighbourhood reaches, raised to the "
+                 "next multiple of 2^(levels-1) one short of a multiple of --wb (a block then straddles the "
+                 "border): 20 for the defaults"},
     {"tile_jobs", "tile-jobs", "N", TS_PARAM_INT, F(tile_jobs), 0, 256, "0",
      "tiles of one phase synthesised side by side on the coordinator; never changes a pixel",
      .def_help = "the coordinator's cores"},
@@ -185,7 +186,7 @@ void ts_aerial_fill_order(const aerial_job *p, int *order) {
 }
 
 int ts_aerial_halo(const aerial_job *p) {
-  return p->halo > 0 ? p->halo : ts_tile_default_halo(p->fill.levels, p->fill.wn);
+  return p->halo > 0 ? p->halo : ts_tile_default_halo(p->fill.levels, p->fill.wn, p->fill.wb);
 }
 
 /* ---- checks ---------------------------------------------------------------- */

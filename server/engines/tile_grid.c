@@ -3,7 +3,11 @@
 
 #include "error.h"
 
-int ts_tile_default_halo(int levels, int wn) { return (wn / 2 + 1) << (levels - 1); }
+int ts_tile_default_halo(int levels, int wn, int wb) {
+  int unit = 1 << (levels - 1), h = (wn / 2 + 1) * unit;
+  while (wb > 1 && h % wb != wb - 1) h += unit; /* wb odd: found within wb steps */
+  return h;
+}
 
 /* Tiles along a side: the remainder makes a tile of its own only when it
  * is at least half a tile. */

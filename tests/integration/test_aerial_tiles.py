@@ -40,7 +40,7 @@ def test_every_pixel_of_a_tiled_scene_is_a_line_or_its_class(texsyn, small, tmp_
     out, report = tmp_path / "out.png", tmp_path / "r.json"
     aerial(texsyn, classes, cat, out, *TILE, "--report", report)
     r = json.loads(report.read_text())
-    assert r["tiles"]["grid"] == [4, 4] and r["tiles"]["halo"] == 16 and r["tiles"]["tile"] == 64, r["tiles"]
+    assert r["tiles"]["grid"] == [4, 4] and r["tiles"]["halo"] == 20 and r["tiles"]["tile"] == 64, r["tiles"]
     w, h, _, px = pixels_of(out, tmp_path)
     _, _, _, ids = pixels_of(classes, tmp_path)
     _, _, _, roads = pixels_of(classes.parent / "scene-roads.png", tmp_path)
@@ -104,9 +104,9 @@ def test_grid_parameters_that_do_not_fit_are_refused(texsyn, small, tmp_path):
     p = aerial(texsyn, classes, cat, tmp_path / "x.png", "--tile", "100", check=False)
     assert p.returncode == 2 and "--tile 100: need a multiple of 16" in p.stderr, p.stderr
     p = aerial(texsyn, classes, cat, tmp_path / "x.png", "--tile", "16", check=False)
-    assert p.returncode == 2 and "--halo 16: at most half a tile (--tile 16)" in p.stderr, p.stderr
+    assert p.returncode == 2 and "--halo 20: at most half a tile (--tile 16)" in p.stderr, p.stderr
     p = aerial(texsyn, classes, cat, tmp_path / "x.png", "--tile", "96", "--max-pixels", "20000", check=False)
-    assert p.returncode == 2 and "176x176 pixels exceeds the limit of 20000" in p.stderr, p.stderr
+    assert p.returncode == 2 and "184x184 pixels exceeds the limit of 20000" in p.stderr, p.stderr
     assert not (tmp_path / "x.png").exists()
 
 

@@ -140,11 +140,21 @@ static void seeds_differ_by_tile_and_job(void **state) {
   assert_true(ts_tile_seed(1, 0) == ts_tile_seed(1, 0)); /* a function of its arguments */
 }
 
+/* (wn/2 + 1) * 2^(levels-1), raised in steps of 2^(levels-1) until one
+ * short of a multiple of wb. */
 static void the_default_halo_reaches_the_coarsest_neighbourhood(void **state) {
   (void)state;
-  assert_int_equal(ts_tile_default_halo(3, 7), 16); /* (7/2 + 1) * 4 */
-  assert_int_equal(ts_tile_default_halo(1, 5), 3);
-  assert_int_equal(ts_tile_default_halo(4, 9), 40);
+  assert_int_equal(ts_tile_default_halo(3, 7, 3), 20); /* 16, 20 */
+  assert_int_equal(ts_tile_default_halo(1, 5, 3), 5);  /* 3, 4, 5 */
+  assert_int_equal(ts_tile_default_halo(4, 9, 3), 56); /* 40, 48, 56 */
+  assert_int_equal(ts_tile_default_halo(4, 9, 1), 40);
+  for (int l = 1; l <= 6; l++)
+    for (int wb = 1; wb <= 15; wb += 2) {
+      int h = ts_tile_default_halo(l, wb + 2, wb);
+      assert_int_equal(h % (1 << (l - 1)), 0);
+      assert_int_equal(h % wb, wb - 1 == 0 ? 0 : wb - 1);
+      assert_true(h >= ((wb + 2) / 2 + 1) << (l - 1));
+    }
 }
 
 static const struct CMUnitTest tests[] = {
