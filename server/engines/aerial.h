@@ -59,7 +59,8 @@ int ts_aerial_by_regions(const void *params, int k);
 /* What a run did, summed over its tiles, for the report. */
 typedef struct {
   int nx, ny, halo, tile_jobs;
-  uint64_t tiles_filled; /* tiles with anything to synthesise */
+  uint64_t tiles_filled;  /* tiles with anything to synthesise */
+  uint64_t tiles_resumed; /* tiles taken from an earlier run's pieces */
   double seconds;
   ts_fill_level_stats level[TS_FILL_MAX_LEVELS];
   uint64_t blocks[TS_FILL_MAX_CLASSES]; /* per rank, level 0 */

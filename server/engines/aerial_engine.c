@@ -382,8 +382,10 @@ static int write_report(const ts_engine_run *r, const char *path, int threads, c
              "\"simd\": \"%s\", \"threads\": %d},\n  \"params\": {",
           r->search->ops->name, r->search->simd->name, threads);
   ts_fill_report_params(f, &p->fill);
-  fprintf(f, "},\n  \"tiles\": {\"tile\": %d, \"halo\": %d, \"grid\": [%d, %d], \"filled\": %llu, \"tile_jobs\": %d},\n",
-          p->tile, st->halo, st->nx, st->ny, (unsigned long long)st->tiles_filled, st->tile_jobs);
+  fprintf(f, "},\n  \"tiles\": {\"tile\": %d, \"halo\": %d, \"grid\": [%d, %d], \"filled\": %llu, \"resumed\": %llu, "
+             "\"tile_jobs\": %d},\n",
+          p->tile, st->halo, st->nx, st->ny, (unsigned long long)st->tiles_filled,
+          (unsigned long long)st->tiles_resumed, st->tile_jobs);
   fprintf(f, "  \"seconds\": %.4f,\n  \"classes\": [\n", st->seconds);
   for (int c = 0; c < p->nclass; c++) {
     const aerial_class *k = &p->cls[r->order[c]];

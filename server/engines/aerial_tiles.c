@@ -333,7 +333,8 @@ static void tell_resumed(tiler *t) {
   pthread_mutex_lock(&t->lock);
   if (t->resumed > 0 && !t->told && t->h->resumed != NULL) {
     char where[96];
-    snprintf(where, sizeof(where), "after %d of its %d tiles", t->resumed, ts_tile_count(&t->g));
+    /* Tiles of the step under way may still be found on other threads. */
+    snprintf(where, sizeof(where), "with at least %d of its %d tiles finished", t->resumed, ts_tile_count(&t->g));
     t->h->resumed(t->h->save_ctx, where, 0);
     t->told = 1;
   }
@@ -587,6 +588,7 @@ int ts_aerial_run_tiles(const aerial_job *p, const ts_image *const *in, ts_searc
   if (rc == 0 && t.next_write != t.g.ny) rc = ts_error(err, TS_EINVAL, "internal: %d of %d tile rows written", t.next_write, t.g.ny);
   if (rc == 0) rc = t.sink->finish(t.sink, err);
   free(steps);
+  st->tiles_resumed = (uint64_t)t.resumed;
   for (int i = 1; i < t.jobs; i++) ts_search_destroy(t.sessions[i]);
   tiler_free(&t, rc == 0);
   pthread_mutex_destroy(&t.lock);
