@@ -26,4 +26,4 @@ t=tests/integration
 /usr/bin/python3 -m pytest -q -rs -p no:cacheprovider --durations=8 -m "not asan_only" \
   -k "not test_slow_worker_gets_a_proportionally_smaller_slice and not test_one_second_spike_does_not_rebalance" \
   $t/test_cluster.py $t/test_faults.py $t/test_local_cluster.py $t/test_redispatch.py $t/test_wrong_answers.py \
-  $t/test_lifecycle.py $t/test_modbus.py $t/test_http.py "$@"
+  $t/test_lifecycle.py $t/test_modbus.py $t/test_http.py $t/test_aerial_tiles.py "$@"
