@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The integration tests that drive the cluster's threads (the coordinator's
 # job, exchange, supervision, Modbus and HTTP threads; the workers' scan
-# pools and planes; the client) on the ThreadSanitizer build (make
+# pools and planes; the client; a tiled aerial job's tile threads and their
+# search sessions) on the ThreadSanitizer build (make
 # test-tsan, build-tsan/). A daemon's race report fails its test
 # (conftest.check_daemons reads "WARNING: ThreadSanitizer" in its log), a
 # client's makes it exit 66. The jobs are the sanitized stage's smaller ones
