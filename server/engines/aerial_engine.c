@@ -344,10 +344,15 @@ static int aerial_check(const void *params, const ts_image *const *in, char *msg
 
 static void aerial_set_max_pixels(void *params, uint64_t max_pixels) { ((aerial_job *)params)->max_pixels = max_pixels; }
 
-/* 8-bit RGB. */
+/* 8-bit RGB, and on a coordinator the finished tiles' checkpoint pieces
+ * (their luminance and colour, kept until the job ends): 7 bytes a pixel,
+ * and a piece's header per tile. */
 static uint64_t aerial_result_bytes(const void *params, const ts_engine_wants *w, const ts_image_info *in) {
-  (void)params, (void)w;
-  return (uint64_t)in[0].width * (uint64_t)in[0].height * 3 + 4096;
+  const aerial_job *p = params;
+  (void)w;
+  uint64_t px = (uint64_t)in[0].width * (uint64_t)in[0].height;
+  uint64_t tiles = ((uint64_t)in[0].width / (uint64_t)p->tile + 1) * ((uint64_t)in[0].height / (uint64_t)p->tile + 1);
+  return px * 7 + tiles * 4096 + 4096;
 }
 
 static int aerial_levels(const void *params) { return ((const aerial_job *)params)->fill.levels; }

@@ -17,6 +17,7 @@ import pytest
 
 from conftest import BUILD, REPO, SANITIZED, run
 from pnm import oiiotool, pixels_of, read_pnm
+from test_aerial import GEO_TAGS, read_tiff_tags, write_geotiff
 
 TILE = ["--tile", "64"]
 
@@ -98,6 +99,24 @@ def test_a_tiled_tiff_holds_the_pixels_of_the_png(texsyn, small, tmp_path):
     assert pixels_of(tmp_path / "o.tif", tmp_path)[3] == png
     oiiotool(tmp_path / "o.exr", "-d", "uint8", "-o", tmp_path / "exr.ppm")
     assert read_pnm(tmp_path / "exr.ppm")[3] == png
+
+
+def test_a_tiled_geotiff_keeps_the_class_maps_georeferencing(texsyn, small, tmp_path):
+    classes, cat = small
+    w, h, _, ids = pixels_of(classes, tmp_path)
+    write_geotiff(tmp_path / "map.tif", w, h, ids)
+    c = json.loads(cat.read_text())
+    for k in c["classes"]:
+        k["reference"] = str(cat.parent / k["reference"])
+    del c["lines"]
+    (tmp_path / "cat.json").write_text(json.dumps(c))
+    aerial(texsyn, tmp_path / "map.tif", tmp_path / "cat.json", tmp_path / "out.tif", *TILE)
+    got = read_tiff_tags(tmp_path / "out.tif")
+    assert 322 in got, "not a tiled TIFF"
+    for tag, (typ, vals) in GEO_TAGS.items():
+        fmt = {3: "H", 12: "d"}[typ]
+        assert tag in got, f"GeoTIFF tag {tag} lost"
+        assert list(struct.unpack(f"<{len(vals)}{fmt}", got[tag])) == vals, tag
 
 
 def test_grid_parameters_that_do_not_fit_are_refused(texsyn, small, tmp_path):
