@@ -49,7 +49,6 @@ typedef struct {
 typedef struct {
   const aerial_job *p;
   const ts_engine_hooks *h;
-  ts_search *search;
   aerial_stats *st;
   ts_tile_grid g;
   int order[TS_FILL_MAX_CLASSES]; /* catalogue index of each fill rank */
@@ -96,18 +95,17 @@ static int build_tables(tiler *t, const ts_image *const *in, char *err) {
     t->rh[r] = ref->height;
     t->ref_rgb[r] = malloc(3 * n);
     t->ref_luma[r] = malloc(n);
-    if (t->ref_rgb[r] == NULL || t->ref_luma[r] == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
-    ts_image_luma8(ref, t->ref_luma[r]);
-    for (int c = 0; c < 3; c++) {
-      uint8_t *plane = t->ref_rgb[r] + c * n; /* planar for now, interleaved below */
-      ts_image_channel8(ref, ref->channels >= 3 ? c : 0, plane);
+    uint8_t *plane = malloc(n);
+    if (t->ref_rgb[r] == NULL || t->ref_luma[r] == NULL || plane == NULL) {
+      free(plane);
+      return ts_error(err, TS_ENOMEM, "out of memory");
     }
-    uint8_t *planar = t->ref_rgb[r], *rgb = malloc(3 * n);
-    if (rgb == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
-    for (size_t i = 0; i < n; i++)
-      for (int c = 0; c < 3; c++) rgb[3 * i + (size_t)c] = planar[(size_t)c * n + i];
-    free(planar);
-    t->ref_rgb[r] = rgb;
+    ts_image_luma8(ref, t->ref_luma[r]);
+    for (int c = 0; c < 3; c++) { /* grey references give all three */
+      ts_image_channel8(ref, ref->channels >= 3 ? c : 0, plane);
+      for (size_t i = 0; i < n; i++) t->ref_rgb[r][3 * i + (size_t)c] = plane[i];
+    }
+    free(plane);
   }
   return 0;
 }
@@ -569,7 +567,6 @@ int ts_aerial_run_tiles(const aerial_job *p, const ts_image *const *in, ts_searc
   memset(st, 0, sizeof(*st));
   t.p = p;
   t.h = hooks;
-  t.search = search;
   t.st = st;
   for (int k = 0; k < BANDS; k++) t.bands[k].row = -1;
   const char *out_path = hooks->output_paths ? hooks->output_paths[AERIAL_OUT_IMAGE] : NULL;

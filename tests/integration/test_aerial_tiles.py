@@ -82,6 +82,21 @@ def test_a_scene_within_one_tile_is_one_tile(texsyn, small, tmp_path):
     assert got[0] != got[1] and got[0] == got[2]
 
 
+def test_an_odd_grid_with_a_merged_last_row(texsyn, tmp_path):
+    """320x200 in tiles of 64: 5 columns, and 3 rows, the last 72 high
+    (the 8 rows left are merged into it); the same pixels whether 1 or 2
+    tiles run at once, and the lines where the line raster has them."""
+    classes, cat = scene(tmp_path, "320x200")
+    aerial(texsyn, classes, cat, tmp_path / "a.png", *TILE, "--tile-jobs", "1", "--report", tmp_path / "r.json")
+    assert json.loads((tmp_path / "r.json").read_text())["tiles"]["grid"] == [5, 3]
+    aerial(texsyn, classes, cat, tmp_path / "b.png", *TILE, "--tile-jobs", "2")
+    w, h, _, a = pixels_of(tmp_path / "a.png", tmp_path)
+    assert (w, h) == (320, 200) and a == pixels_of(tmp_path / "b.png", tmp_path)[3]
+    _, _, _, roads = pixels_of(classes.parent / "scene-roads.png", tmp_path)
+    colours = {int(k): bytes(v) for k, v in json.loads(cat.read_text())["lines"]["colours"].items()}
+    assert all(a[3 * i:3 * i + 3] == colours[v] for i, v in enumerate(roads) if v in colours)
+
+
 def test_a_tiled_tiff_holds_the_pixels_of_the_png(texsyn, small, tmp_path):
     classes, cat = small
     aerial(texsyn, classes, cat, tmp_path / "o.png", *TILE)
