@@ -18,9 +18,9 @@
  * aerial_tiles.c); the class map and the lines are read by regions and the
  * image streamed to its file band by band (region.h), so memory follows the
  * tiles in flight, not the scene. A scene no larger than a tile is one
- * tile. This file: the parameters, the spec, the checks and the report.
- * No checkpoints yet: a job a restart interrupts runs again, with the same
- * bytes. */
+ * tile. Each finished tile is saved as a checkpoint piece (aerial_piece.c):
+ * a restarted coordinator makes only the tiles not saved, with the same
+ * bytes. This file: the parameters, the spec, the checks and the report. */
 #include <math.h>
 #include <stddef.h>
 #include <stdio.h>
