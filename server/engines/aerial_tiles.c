@@ -542,6 +542,17 @@ static int run_step(tiler *t, const ts_tile_step *s, char *err) {
   return rc == 0 ? write_rows(t, err) : rc;
 }
 
+static void add_search_stats(ts_search_stats *to, const ts_search_stats *s) {
+  to->batches += s->batches;
+  to->queries += s->queries;
+  to->pairs += s->pairs;
+  to->full_pairs += s->full_pairs;
+  to->scan_seconds += s->scan_seconds;
+  to->bytes_out += s->bytes_out;
+  to->bytes_in += s->bytes_in;
+  to->round_trips += s->round_trips;
+}
+
 /* The threads of the run and their sessions: --tile-jobs, or the cores,
  * at most the tiles of a step; one if the backend has no sessions. */
 static int open_sessions(tiler *t, ts_search *search, char *err) {
@@ -586,7 +597,10 @@ int ts_aerial_run_tiles(const aerial_job *p, const ts_image *const *in, ts_searc
   if (rc == 0) rc = t.sink->finish(t.sink, err);
   free(steps);
   st->tiles_resumed = (uint64_t)t.resumed;
-  for (int i = 1; i < t.jobs; i++) ts_search_destroy(t.sessions[i]);
+  for (int i = 1; i < t.jobs; i++) {
+    add_search_stats(&search->stats, &t.sessions[i]->stats); /* the run's figures are its sessions' too */
+    ts_search_destroy(t.sessions[i]);
+  }
   tiler_free(&t, rc == 0);
   pthread_mutex_destroy(&t.lock);
   st->seconds = ts_now() - t0;
