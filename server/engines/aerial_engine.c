@@ -55,10 +55,10 @@ static const ts_param aerial_param_table[] = {
      "column and row take the rest (merged into the one before when under half a tile); a scene no larger is "
      "one tile. Memory follows it: three rows of tiles are alive at once"},
     {"halo", "halo", "N", TS_PARAM_INT, F(halo), 0, TS_TILE_MAX / 2, "0",
-     "finished pixels around a tile that its synthesis joins (at most half a tile)",
-     .def_help = "(wn/2 + 1) * 2^(levels-1), what the coarsest level's neighbourhood reaches, raised to the "
-                 "next multiple of 2^(levels-1) one short of a multiple of --wb (a block then straddles the "
-                 "border): 20 for the defaults"},
+     "finished pixels around a tile that its synthesis joins, at most half a tile; 0: the default, the coarsest "
+     "neighbourhood's reach (wn/2 + 1) * 2^(levels-1) raised to a multiple of 2^(levels-1) one short of a "
+     "multiple of --wb, so a block straddles each border",
+     .def_help = "20 for the other defaults"},
     {"tile_jobs", "tile-jobs", "N", TS_PARAM_INT, F(tile_jobs), 0, 256, "0",
      "tiles of one phase synthesised side by side on the coordinator; never changes a pixel",
      .def_help = "the coordinator's cores"},
