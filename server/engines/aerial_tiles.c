@@ -8,8 +8,8 @@
  * halo around them given. Its seed is ts_tile_seed(job seed, tile index).
  *
  * Memory holds three tile rows, "bands", each the whole scene's width: the
- * pixel states read from the class map and the line raster by regions when
- * the row is first needed, the finished pixels' luminance (what later
+ * pixel states read from the class map and the line raster by regions, top
+ * to bottom, when the row is first needed, the finished pixels' luminance (what later
  * tiles' halos give) and their colours. Rows are written to the output
  * (a tile sink, region.h) top to bottom as they complete - an even row
  * completes before the odd row above it, so it waits for that one - and a
@@ -511,11 +511,12 @@ static void tiler_free(tiler *t, int ok) {
  * run's threads; their figures counted in tile order, the rows finished
  * written. */
 static int run_step(tiler *t, const ts_tile_step *s, char *err) {
-  int rc = band_load(t, s->row, err);
-  if (rc == 0 && s->row & 1) { /* phases 2 and 3 read the even rows around */
-    if (s->row > 0) rc = band_load(t, s->row - 1, err);
-    if (rc == 0 && s->row + 1 < t->g.ny) rc = band_load(t, s->row + 1, err);
-  }
+  /* The rows the step reads: its own, and for phases 2 and 3 the even
+   * rows around. Read top to bottom - an even row's step reads the odd row
+   * above it first - so the class map is read forwards only (a PNG decodes
+   * no other way; reading back would decode it again from its start). */
+  int rc = 0, last = s->row + (s->row & 1) < t->g.ny ? s->row + (s->row & 1) : t->g.ny - 1;
+  for (int r = s->row > 0 ? s->row - 1 : 0; rc == 0 && r <= last; r++) rc = band_load(t, r, err);
   int ntiles = (t->g.nx - s->xpar + 1) / 2, nthreads = t->jobs < ntiles ? t->jobs : ntiles;
   aerial_piece *figs = rc == 0 ? calloc((size_t)(ntiles > 0 ? ntiles : 1), sizeof(*figs)) : NULL;
   if (rc == 0 && figs == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
