@@ -4,7 +4,8 @@ joined to its finished neighbours through a halo; the class map read by
 regions and the output streamed band by band. Checked on small scenes with
 small tiles: every pixel still comes from its own class's reference or is a
 line; the decoded bytes depend neither on where the job runs (embedded, 1,
-2 or 3 workers) nor on how many tiles run side by side; a tiled TIFF holds the same pixels as a PNG; a coordinator
+2 or 3 workers, a worker killed mid-scene) nor on how many tiles run side by
+side; a tiled TIFF holds the same pixels as a PNG; a coordinator
 killed mid-scene resumes at its unfinished tiles with the same bytes; grid
 parameters that do not fit are refused before any work."""
 import json
@@ -15,7 +16,7 @@ import time
 
 import pytest
 
-from conftest import BUILD, REPO, SANITIZED, run
+from conftest import BUILD, REPO, SANITIZED, dropped_during_the_job, run
 from pnm import oiiotool, pixels_of, read_pnm
 from test_aerial import GEO_TAGS, read_tiff_tags, write_geotiff
 
@@ -164,6 +165,35 @@ def test_the_same_bytes_embedded_and_on_3_2_1_workers_with_1_or_2_tile_jobs(texs
         assert pixels_of(out, tmp_path)[3] == expected, f"{n} workers, {jobs} tile jobs"
 
 
+def whole_pieces(jobdir):
+    """The tiles saved as checkpoint pieces (a piece is written to a
+    temporary name, then renamed)."""
+    return [f for f in jobdir.glob("piece-tile-*") if ".tmp" not in f.name]
+
+
+def test_a_worker_killed_mid_scene_changes_nothing(texsyn, cluster, tmp_path):
+    """512x512 in 64 tiles (sanitized: 384x384, 36) on 2 workers, 2 tiles
+    at a time; one worker is killed once a dozen tiles are finished."""
+    classes, cat = scene(tmp_path, 384 if SANITIZED else 512, seed=3)
+    aerial(texsyn, classes, cat, tmp_path / "e.png", *TILE)
+    cluster.start(2, 1)
+    p = cluster.texsyn("aerial", "--classes", classes, "--catalogue", cat, "-o", tmp_path / "unused.png", *TILE,
+                       "--tile-jobs", "2", "--detach")
+    job_id = p.stdout.split()[-1]
+    jobdir = cluster.tmp / "spool" / "jobs" / job_id
+    deadline = time.time() + 120
+    while len(whole_pieces(jobdir)) < 12:
+        assert time.time() < deadline, cluster.server.read_log()
+        time.sleep(0.01)
+    victim = cluster.workers[1]
+    victim.proc.kill()
+    w = cluster.texsyn("watch", job_id, "--quiet", check=False, timeout=300)
+    assert w.returncode == 0, w.stderr + cluster.server.read_log()
+    dropped_during_the_job(cluster.server.read_log(), victim.addr)
+    cluster.texsyn("fetch", job_id, "-o", tmp_path / "c.png")
+    assert pixels_of(tmp_path / "c.png", tmp_path)[3] == pixels_of(tmp_path / "e.png", tmp_path)[3]
+
+
 def test_a_killed_coordinator_resumes_at_its_unfinished_tiles(texsyn, cluster, tmp_path):
     """512x512 in 64 tiles of 64x64 (sanitized: 384x384, 36) on one
     worker; the coordinator is killed (SIGKILL) once a dozen tiles are
@@ -178,16 +208,13 @@ def test_a_killed_coordinator_resumes_at_its_unfinished_tiles(texsyn, cluster, t
     job_id = p.stdout.split()[-1]
     jobdir = cluster.tmp / "spool" / "jobs" / job_id
     deadline = time.time() + 120
-    def pieces():  # whole ones: a piece is written to a temporary name, then renamed
-        return [f for f in jobdir.glob("piece-tile-*") if ".tmp" not in f.name]
-
-    while len(pieces()) < 12:
+    while len(whole_pieces(jobdir)) < 12:
         assert time.time() < deadline, cluster.server.read_log()
         time.sleep(0.01)
     cluster.server.proc.send_signal(signal.SIGKILL)
     cluster.server.proc.wait()
     cluster.server.stop()
-    saved = len(pieces())
+    saved = len(whole_pieces(jobdir))
     assert saved < tiles, "the job ended before the kill"
     cluster.restart_server()
     w = cluster.texsyn("watch", job_id, "--quiet", check=False, timeout=300)
