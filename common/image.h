@@ -98,6 +98,47 @@ int ts_image_probe_mem(const char *name, const void *data, size_t len,
 int ts_image_write(const char *path, const ts_image *img,
                    const ts_meta *meta_from, char *err);
 
+/* --- large images by regions (tiled aerial scenes) -------------------------
+ *
+ * A scene too large to hold whole is read a region at a time and written a
+ * band of rows at a time (server/engines/region.h builds its sources and
+ * sinks on these). */
+
+typedef struct ts_image_regions ts_image_regions; /* a file open for reading */
+
+/* Opens path (the four formats of ts_image_read, the same sniffing and
+ * header checks, limits on its size included) without decoding pixels:
+ * info as the header says, except that half floats read as float (region
+ * reads give U8, U16 or F32 samples); *meta (may be NULL: not wanted) the
+ * file's metadata, GeoTIFF tags included, for outputs to pass on. */
+int ts_image_regions_open(const char *path, const ts_image_limits *limits, ts_image_info *info, ts_meta **meta,
+                          ts_image_regions **out, char *err);
+/* Channel 0 of [x, x + w) x [y, y + h), which must lie in the image, into
+ * dst: w * h samples of info.type, row-major. Reads whole rows (strips or
+ * tiles as the file has them) and keeps none. 0, or TS_EFORMAT naming the
+ * file (a truncated or damaged file), TS_EINVAL, TS_ENOMEM. */
+int ts_image_regions_read(ts_image_regions *r, int x, int y, int w, int h, void *dst, char *err);
+void ts_image_regions_close(ts_image_regions *r);
+
+typedef struct ts_image_writer ts_image_writer; /* a file written by bands */
+
+/* Starts a w x h, `channels`-channel 8-bit image at path (the format from
+ * the extension, as ts_image_write), written to a temporary name until
+ * ts_image_writer_finish. TIFF and OpenEXR are tiled (tile x tile, a
+ * multiple of 16) and compressed (zip), a TIFF BigTIFF when its pixels
+ * pass 4 GiB; PNG and JPEG are written by scanlines. meta_from: metadata
+ * to pass on (as ts_image_write; GeoTIFF tags to a TIFF). */
+int ts_image_writer_create(const char *path, int w, int h, int channels, int tile, const ts_meta *meta_from,
+                           ts_image_writer **out, char *err);
+/* Rows [y, y + h), whole width, interleaved; bands come top to bottom, each
+ * once, h a multiple of the tile size but for the last one. */
+int ts_image_writer_put(ts_image_writer *wr, int y, int h, const uint8_t *px, char *err);
+/* Closes the file, syncs it and gives it its name; frees wr (on failure
+ * too, removing the temporary file). */
+int ts_image_writer_finish(ts_image_writer *wr, char *err);
+/* Removes the temporary file and frees wr (NULL: nothing). */
+void ts_image_writer_abort(ts_image_writer *wr);
+
 /* --- movies (texsyn video's --input and --preview) -------------------------
  *
  * Through OpenImageIO's FFmpeg reader (Debian's OpenImageIO has it): a

@@ -46,13 +46,22 @@ typedef struct {
   int (*movie_read)(const char *path, long first, long last, const ts_image_limits *limits, ts_movie_frame_fn each,
                     void *ctx, char *err);
   int (*write_animation)(const char *path, const ts_image *frames, int n, double fps, char *err);
+  int (*regions_open)(const char *path, const ts_image_limits *limits, ts_image_info *info, ts_meta **meta,
+                      ts_image_regions **out, char *err);
+  int (*regions_read)(ts_image_regions *r, int x, int y, int w, int h, void *dst, char *err);
+  void (*regions_close)(ts_image_regions *r);
+  int (*writer_create)(const char *path, int w, int h, int channels, int tile, const ts_meta *meta_from,
+                       ts_image_writer **out, char *err);
+  int (*writer_put)(ts_image_writer *wr, int y, int h, const uint8_t *px, char *err);
+  int (*writer_finish)(ts_image_writer *wr, char *err);
+  void (*writer_abort)(ts_image_writer *wr);
 } ts_image_lib;
 
 /* The table's symbol carries a version: change it with any change to
  * ts_image_lib (or to the structs of image.h), so that a library built
  * from other sources fails to load, naming the symbol it lacks, instead
  * of being called through the wrong layout. */
-#define TS_IMAGE_LIB_TABLE ts_image_lib_v3
+#define TS_IMAGE_LIB_TABLE ts_image_lib_v4
 #define TS_IMAGE_LIB_STR_(x) #x
 #define TS_IMAGE_LIB_STR(x) TS_IMAGE_LIB_STR_(x)
 #define TS_IMAGE_LIB_TABLE_NAME TS_IMAGE_LIB_STR(TS_IMAGE_LIB_TABLE)

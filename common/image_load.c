@@ -58,6 +58,40 @@ int ts_image_write_animation(const char *path, const ts_image *frames, int n, do
   return rc != 0 ? rc : ts_lib->write_animation(path, frames, n, fps, err);
 }
 
+int ts_image_regions_open(const char *path, const ts_image_limits *limits, ts_image_info *info, ts_meta **meta,
+                          ts_image_regions **out, char *err) {
+  *out = NULL;
+  if (meta != NULL) *meta = NULL;
+  int rc = ts_image_lib_load(err);
+  return rc != 0 ? rc : ts_lib->regions_open(path, limits, info, meta, out, err);
+}
+
+/* A reader or writer exists only if the library loaded. */
+int ts_image_regions_read(ts_image_regions *r, int x, int y, int w, int h, void *dst, char *err) {
+  return ts_lib->regions_read(r, x, y, w, h, dst, err);
+}
+
+void ts_image_regions_close(ts_image_regions *r) {
+  if (r != NULL) ts_lib->regions_close(r);
+}
+
+int ts_image_writer_create(const char *path, int w, int h, int channels, int tile, const ts_meta *meta_from,
+                           ts_image_writer **out, char *err) {
+  *out = NULL;
+  int rc = ts_image_lib_load(err);
+  return rc != 0 ? rc : ts_lib->writer_create(path, w, h, channels, tile, meta_from, out, err);
+}
+
+int ts_image_writer_put(ts_image_writer *wr, int y, int h, const uint8_t *px, char *err) {
+  return ts_lib->writer_put(wr, y, h, px, err);
+}
+
+int ts_image_writer_finish(ts_image_writer *wr, char *err) { return ts_lib->writer_finish(wr, err); }
+
+void ts_image_writer_abort(ts_image_writer *wr) {
+  if (wr != NULL) ts_lib->writer_abort(wr);
+}
+
 /* Metadata only ever comes from the library: with some at hand it is
  * loaded; with none there is nothing to look up or free, and nothing is
  * loaded (every ts_image_free of an image without metadata lands in

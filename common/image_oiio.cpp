@@ -777,9 +777,221 @@ extern "C" int ts_image_write_animation(const char *path, const ts_image *frames
   }
 }
 
+/* --- large images by regions ------------------------------------------------ *
+ *
+ * A reader keeps the file open and reads whole rows on demand (OpenImageIO
+ * reads a tiled file's tiles for them); a writer is ts_write spread over
+ * calls: a temporary name, bands in order, then sync and rename. */
+
+struct ts_image_regions {
+  std::string name;
+  ts_input io;
+  ts_pixtype type; /* of the samples read: U8, U16 or F32 */
+  std::vector<unsigned char> rows; /* scratch for reads narrower than the image */
+};
+
+static int ts_regions_open_(const char *path, const ts_image_limits *limits, ts_image_info *info, ts_meta **meta,
+                            ts_image_regions **out, char *err) {
+  std::unique_ptr<ts_image_regions> r(new ts_image_regions);
+  r->name = path;
+  ts_image_src src{path, path, nullptr, 0};
+  int rc = ts_open(src, limits, r->io, err);
+  if (rc != 0) return rc;
+  const ImageSpec &spec = r->io.in->spec();
+  r->type = ts_spec_type(spec);
+  if (r->type == TS_PIX_F16) r->type = TS_PIX_F32;
+  *info = ts_image_info{spec.width, spec.height, spec.nchannels, r->type};
+  if (meta != nullptr) {
+    std::unique_ptr<ts_meta> m(new ts_meta);
+    m->attribs = spec.extra_attribs;
+    if (OIIO::Strutil::iequals(r->io.in->format_name(), "tiff")) {
+      ts_file f(ts_image_src_open(&src));
+      if (f) ts_geo_read_attrs(f.get(), m->attribs);
+    }
+    *meta = m.release();
+  }
+  *out = r.release();
+  return 0;
+}
+
+/* Rows [y, y + h) of channel 0 into dst (the whole width). */
+static int ts_regions_rows(ts_image_regions *r, int y, int h, void *dst, char *err) {
+  bool ok = r->io.in->read_scanlines(0, 0, y, y + h, 0, 0, 1, ts_oiio_type(r->type), dst);
+  std::string reason = r->io.in->geterror();
+  if (!ok || !reason.empty())
+    return ts_error(err, TS_EFORMAT, "%s: unreadable or truncated image at rows %d..%d: %s", r->name.c_str(), y,
+                    y + h - 1, ts_oneline(reason).c_str());
+  return 0;
+}
+
+/* Rows at a time when the region is narrower than the image: the scratch
+ * holds at most this many bytes (or one row). */
+#define TS_REGION_SCRATCH (16u << 20)
+
+static int ts_regions_read_(ts_image_regions *r, int x, int y, int w, int h, void *dst, char *err) {
+  const ImageSpec &spec = r->io.in->spec();
+  if (x < 0 || y < 0 || w < 1 || h < 1 || x > spec.width - w || y > spec.height - h)
+    return ts_error(err, TS_EINVAL, "%s: region %dx%d at (%d, %d) outside the %dx%d image", r->name.c_str(), w, h,
+                    x, y, spec.width, spec.height);
+  size_t px = ts_pixtype_size(r->type), row = (size_t)spec.width * px;
+  if (x == 0 && w == spec.width) return ts_regions_rows(r, y, h, dst, err);
+  int chunk = (int)std::max<size_t>(1, TS_REGION_SCRATCH / row);
+  for (int y0 = 0; y0 < h; y0 += chunk) {
+    int n = std::min(chunk, h - y0);
+    r->rows.resize(row * (size_t)n);
+    int rc = ts_regions_rows(r, y + y0, n, r->rows.data(), err);
+    if (rc != 0) return rc;
+    for (int j = 0; j < n; j++)
+      memcpy((unsigned char *)dst + ((size_t)(y0 + j) * (size_t)w) * px, r->rows.data() + (size_t)j * row + (size_t)x * px,
+             (size_t)w * px);
+  }
+  return 0;
+}
+
+extern "C" int ts_image_regions_open(const char *path, const ts_image_limits *limits, ts_image_info *info,
+                                     ts_meta **meta, ts_image_regions **out, char *err) {
+  *out = nullptr;
+  if (meta != nullptr) *meta = nullptr;
+  if (path == nullptr || *path == '\0') return ts_error(err, TS_EINVAL, "no image file name given");
+  return ts_guard(path, err, [&] { return ts_regions_open_(path, limits, info, meta, out, err); });
+}
+
+extern "C" int ts_image_regions_read(ts_image_regions *r, int x, int y, int w, int h, void *dst, char *err) {
+  return ts_guard(r->name.c_str(), err, [&] { return ts_regions_read_(r, x, y, w, h, dst, err); });
+}
+
+extern "C" void ts_image_regions_close(ts_image_regions *r) { delete r; }
+
+struct ts_image_writer {
+  ts_tmpfile tmp; /* declared first: removed after the writer is closed */
+  std::string path, fmt;
+  std::vector<unsigned char> bytes; /* PNG and JPEG, encoded in memory (ts_write_file) */
+  std::unique_ptr<OIIO::Filesystem::IOVecOutput> sink;
+  std::unique_ptr<ImageOutput> out;
+  ParamValueList geo; /* GeoTIFF tags to append to a TIFF */
+  int w = 0, h = 0, channels = 0, next_y = 0;
+  bool tiled = false, open = false;
+};
+
+/* Classic TIFF offsets are 32 bits: past this many bytes of pixels (before
+ * compression, so a file near the limit never overflows) BigTIFF. */
+#define TS_BIGTIFF_FROM 0xF0000000ull
+
+static int ts_writer_create_(const char *path, int w, int h, int channels, int tile, const ts_meta *meta_from,
+                             ts_image_writer **out, char *err) {
+  if (w < 1 || h < 1 || channels < 1 || channels > TS_IMAGE_MAX_CHANNELS || tile < 16 || tile % 16 != 0)
+    return ts_error(err, TS_EINVAL, "%s: cannot write a %dx%d image of %d channels in %d-pixel tiles", path, w, h,
+                    channels, tile);
+  std::unique_ptr<ts_image_writer> wr(new ts_image_writer);
+  wr->path = path;
+  wr->tmp.path = wr->path + ".tmp-" + std::to_string(getpid()) + "-" + std::to_string(ts_tmp_seq++);
+  wr->out = ImageOutput::create(path);
+  if (!wr->out)
+    return ts_error(err, TS_EINVAL, "%s: no image format for this file name; use .tif, .exr, .png or .jpg", path);
+  wr->fmt = wr->out->format_name();
+  wr->w = w, wr->h = h, wr->channels = channels;
+  ImageSpec spec(w, h, ts_out_channels(wr->fmt, channels), ts_out_type(wr->fmt, TS_PIX_U8));
+  ts_out_channel_names(spec);
+  if (meta_from != nullptr)
+    for (const ParamValue &p : meta_from->attribs)
+      if (ts_meta_passes(p.name().string())) spec.extra_attribs.add_or_replace(p);
+  ts_out_defaults(wr->fmt, spec, meta_from);
+  wr->tiled = (wr->fmt == "tiff" || wr->fmt == "openexr") && wr->out->supports("tiles");
+  if (wr->tiled) {
+    spec.tile_width = spec.tile_height = tile;
+    spec.tile_depth = 1;
+  }
+  if (wr->fmt == "tiff" && (uint64_t)w * (uint64_t)h * (uint64_t)channels >= TS_BIGTIFF_FROM)
+    spec.attribute("tiff:bigtiff", 1);
+  if (wr->fmt == "tiff" && meta_from != nullptr && ts_has_geo(meta_from->attribs)) wr->geo = meta_from->attribs;
+  bool in_memory = wr->fmt == "png" || wr->fmt == "jpeg";
+  if (in_memory) wr->sink.reset(new OIIO::Filesystem::IOVecOutput(wr->bytes));
+  if ((in_memory && !wr->out->set_ioproxy(wr->sink.get())) || !wr->out->open(wr->tmp.path, spec))
+    return ts_error(err, TS_EIO, "%s: cannot write image: %s", path, ts_oneline(wr->out->geterror()).c_str());
+  wr->open = true;
+  *out = wr.release();
+  return 0;
+}
+
+static int ts_writer_put_(ts_image_writer *wr, int y, int h, const uint8_t *px, char *err) {
+  if (y != wr->next_y || h < 1 || h > wr->h - y)
+    return ts_error(err, TS_EINVAL, "%s: rows %d..%d written out of order (next: row %d of %d)", wr->path.c_str(), y,
+                    y + h - 1, wr->next_y, wr->h);
+  OIIO::stride_t xs = wr->channels;
+  bool ok = wr->tiled ? wr->out->write_tiles(0, wr->w, y, y + h, 0, 1, TypeDesc::UINT8, px, xs, xs * wr->w)
+                      : wr->out->write_scanlines(y, y + h, 0, TypeDesc::UINT8, px, xs, xs * wr->w);
+  if (!ok)
+    return ts_error(err, TS_EIO, "%s: cannot write rows %d..%d: %s", wr->path.c_str(), y, y + h - 1,
+                    ts_oneline(wr->out->geterror()).c_str());
+  wr->next_y = y + h;
+  return 0;
+}
+
+static int ts_writer_finish_(ts_image_writer *wr, char *err) {
+  if (wr->next_y != wr->h)
+    return ts_error(err, TS_EINVAL, "%s: finished at row %d of %d", wr->path.c_str(), wr->next_y, wr->h);
+  std::string why;
+  bool ok = wr->out->close();
+  wr->open = false;
+  if (!ok) why = ts_oneline(wr->out->geterror());
+  if (ok && wr->sink && ts_write_file(wr->tmp.path, wr->bytes, why) != 0) ok = false;
+  if (ok && !wr->geo.empty()) ok = ts_geo_write_attrs(wr->tmp.path.c_str(), wr->geo, why);
+  ok = ok && ts_sync(wr->tmp.path.c_str(), why) == 0;
+  if (ok && rename(wr->tmp.path.c_str(), wr->path.c_str()) != 0) {
+    why = strerror(errno);
+    ok = false;
+  }
+  if (!ok) return ts_error(err, TS_EIO, "%s: cannot write image: %s", wr->path.c_str(), why.c_str());
+  wr->tmp.keep = true;
+  return 0;
+}
+
+/* Writer calls behind the C boundary: exceptions become TS_EIO. */
+template <typename F>
+static int ts_guard_write(const char *path, char *err, F body) {
+  try {
+    ts_oiio_errscope scope;
+    return body();
+  } catch (const std::bad_alloc &) {
+    return ts_error(err, TS_ENOMEM, "%s: out of memory writing the image", path);
+  } catch (const std::exception &e) {
+    return ts_error(err, TS_EIO, "%s: cannot write image: %s", path, ts_oneline(e.what()).c_str());
+  } catch (...) {
+    return ts_error(err, TS_EIO, "%s: cannot write image", path);
+  }
+}
+
+extern "C" int ts_image_writer_create(const char *path, int w, int h, int channels, int tile,
+                                      const ts_meta *meta_from, ts_image_writer **out, char *err) {
+  *out = nullptr;
+  if (path == nullptr || *path == '\0') return ts_error(err, TS_EINVAL, "no output file name given");
+  return ts_guard_write(path, err, [&] { return ts_writer_create_(path, w, h, channels, tile, meta_from, out, err); });
+}
+
+extern "C" int ts_image_writer_put(ts_image_writer *wr, int y, int h, const uint8_t *px, char *err) {
+  return ts_guard_write(wr->path.c_str(), err, [&] { return ts_writer_put_(wr, y, h, px, err); });
+}
+
+extern "C" void ts_image_writer_abort(ts_image_writer *wr) {
+  if (wr == nullptr) return;
+  try {
+    if (wr->open) wr->out->close();
+  } catch (...) {
+  }
+  delete wr;
+}
+
+extern "C" int ts_image_writer_finish(ts_image_writer *wr, char *err) {
+  int rc = ts_guard_write(wr->path.c_str(), err, [&] { return ts_writer_finish_(wr, err); });
+  ts_image_writer_abort(wr);
+  return rc;
+}
+
 /* --- the library's one export -------------------------------------------- */
 
 extern "C" __attribute__((visibility("default"))) const ts_image_lib TS_IMAGE_LIB_TABLE = {
     ts_image_read, ts_image_read_mem, ts_image_probe_mem, ts_image_write,
     ts_meta_get,   ts_meta_set,       ts_meta_free,       ts_meta_copy,
-    ts_movie_probe, ts_movie_read,    ts_image_write_animation};
+    ts_movie_probe, ts_movie_read,    ts_image_write_animation,
+    ts_image_regions_open, ts_image_regions_read, ts_image_regions_close,
+    ts_image_writer_create, ts_image_writer_put, ts_image_writer_finish, ts_image_writer_abort};

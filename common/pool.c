@@ -9,6 +9,7 @@
 struct ts_pool {
   int n;
   pthread_t *threads;
+  pthread_mutex_t run_mu; /* one run at a time: callers on other threads wait */
   pthread_mutex_t mu;
   pthread_cond_t start, done;
   ts_pool_fn *fn;
@@ -56,6 +57,7 @@ int ts_pool_create(ts_pool **out, int nthreads) {
     free(pool);
     return TS_ENOMEM;
   }
+  pthread_mutex_init(&pool->run_mu, NULL);
   pthread_mutex_init(&pool->mu, NULL);
   pthread_cond_init(&pool->start, NULL);
   pthread_cond_init(&pool->done, NULL);
@@ -80,6 +82,7 @@ void ts_pool_run(ts_pool *pool, ts_pool_fn *fn, void *arg) {
     fn(arg, 0, 1);
     return;
   }
+  pthread_mutex_lock(&pool->run_mu);
   pthread_mutex_lock(&pool->mu);
   pool->fn = fn;
   pool->arg = arg;
@@ -91,6 +94,7 @@ void ts_pool_run(ts_pool *pool, ts_pool_fn *fn, void *arg) {
   pthread_mutex_lock(&pool->mu);
   while (pool->pending > 0) pthread_cond_wait(&pool->done, &pool->mu);
   pthread_mutex_unlock(&pool->mu);
+  pthread_mutex_unlock(&pool->run_mu);
 }
 
 void ts_pool_destroy(ts_pool *pool) {
@@ -101,6 +105,7 @@ void ts_pool_destroy(ts_pool *pool) {
   pthread_mutex_unlock(&pool->mu);
   for (int i = 1; i < pool->n; i++) pthread_join(pool->threads[i], NULL);
   pthread_mutex_destroy(&pool->mu);
+  pthread_mutex_destroy(&pool->run_mu);
   pthread_cond_destroy(&pool->start);
   pthread_cond_destroy(&pool->done);
   free(pool->threads);

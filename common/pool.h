@@ -13,7 +13,9 @@ typedef void ts_pool_fn(void *arg, int worker, int nworkers);
 int ts_pool_create(ts_pool **pool, int nthreads);
 int ts_pool_size(const ts_pool *pool);
 /* Runs fn(arg, w, n) for every worker w in [0, n) and returns when all are
- * done. Not reentrant. */
+ * done. Callers on several threads take turns, each run on all the pool's
+ * threads (concurrent jobs scanning on the coordinator's pool, a tiled
+ * scene's tiles on one machine's); fn must not run the pool again. */
 void ts_pool_run(ts_pool *pool, ts_pool_fn *fn, void *arg);
 void ts_pool_destroy(ts_pool *pool);
 

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The integration tests that drive the cluster's threads (the coordinator's
 # job, exchange, supervision, Modbus and HTTP threads; the workers' scan
-# pools and planes; the client) on the ThreadSanitizer build (make
+# pools and planes; the client; a tiled aerial job's tile threads and their
+# search sessions) on the ThreadSanitizer build (make
 # test-tsan, build-tsan/). A daemon's race report fails its test
 # (conftest.check_daemons reads "WARNING: ThreadSanitizer" in its log), a
 # client's makes it exit 66. The jobs are the sanitized stage's smaller ones
@@ -26,4 +27,4 @@ t=tests/integration
 /usr/bin/python3 -m pytest -q -rs -p no:cacheprovider --durations=8 -m "not asan_only" \
   -k "not test_slow_worker_gets_a_proportionally_smaller_slice and not test_one_second_spike_does_not_rebalance" \
   $t/test_cluster.py $t/test_faults.py $t/test_local_cluster.py $t/test_redispatch.py $t/test_wrong_answers.py \
-  $t/test_lifecycle.py $t/test_modbus.py $t/test_http.py "$@"
+  $t/test_lifecycle.py $t/test_modbus.py $t/test_http.py $t/test_aerial_tiles.py "$@"

@@ -154,6 +154,11 @@ typedef struct {
   double (*rate)(ts_search *s);
   void (*release)(ts_search *s, int id);
   void (*destroy)(ts_search *s);
+  /* Optional: a new search on the same backend (the same threads, the
+   * same pool of workers) for another thread of the job to use at the
+   * same time as s - its own images, sets and statistics, answers as
+   * exact as s's. Destroyed before s. NULL: s serves one thread only. */
+  int (*session)(ts_search *s, ts_search **out, char *err);
 } ts_search_ops;
 
 struct ts_search {
@@ -205,6 +210,12 @@ static inline double ts_search_rate(ts_search *s) {
 }
 static inline void ts_search_release(ts_search *s, int id) {
   s->ops->release(s, id);
+}
+/* A search for another thread (ts_search_ops.session), or TS_ENOTSUP. */
+static inline int ts_search_session(ts_search *s, ts_search **out, char *err) {
+  *out = NULL;
+  if (s->ops->session == NULL) return ts_error(err, TS_ENOTSUP, "the %s search backend serves one thread", s->ops->name);
+  return s->ops->session(s, out, err);
 }
 static inline void ts_search_destroy(ts_search *s) {
   if (s != NULL) s->ops->destroy(s);

@@ -33,6 +33,7 @@ static uint64_t inline_threshold(const ts_l1_impl *simd, uint32_t vbytes) {
 typedef struct {
   ts_search base;
   ts_pool *pool;
+  int owns_pool; /* 0: a session's, the pool of the search it came from */
   int inline_small; /* 0: every batch goes through the pool (tests) */
   ts_slice *sets[LOCAL_MAX_SETS];
   /* PatchMatch sets, and the image (by generation) whose target each
@@ -215,7 +216,7 @@ static void local_destroy(ts_search *s) {
   for (int i = 0; i < LOCAL_MAX_SETS; i++) local_release(s, i);
   for (int i = 0; i < LOCAL_MAX_IMAGES; i++) ts_replica_free(&ls->images[i]);
   ts_query_scratch_free(&ls->scratch);
-  ts_pool_destroy(ls->pool);
+  if (ls->owns_pool) ts_pool_destroy(ls->pool);
   free(ls);
 }
 
@@ -230,6 +231,8 @@ static double local_rate(ts_search *s) {
   return ls->rate;
 }
 
+static int local_session(ts_search *s, ts_search **out, char *err);
+
 static const ts_search_ops local_ops = {
     .name = "local",
     .prepare = local_prepare,
@@ -242,7 +245,23 @@ static const ts_search_ops local_ops = {
     .rate = local_rate,
     .release = local_release,
     .destroy = local_destroy,
+    .session = local_session,
 };
+
+/* A session scans on the same threads: its sets and images are its own,
+ * small batches run on its caller's thread, and the pool takes the big
+ * ones of all sessions in turns (pool.h). */
+static int local_session(ts_search *s, ts_search **out, char *err) {
+  local_search *from = (local_search *)s, *ls = calloc(1, sizeof(*ls));
+  *out = NULL;
+  if (ls == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+  ls->base.ops = &local_ops;
+  ls->base.simd = s->simd;
+  ls->pool = from->pool;
+  ls->inline_small = from->inline_small;
+  *out = &ls->base;
+  return 0;
+}
 
 void ts_search_local_set_inline(ts_search *s, int enabled) { ((local_search *)s)->inline_small = enabled; }
 
@@ -262,6 +281,7 @@ int ts_search_local_create(ts_search **out, int nthreads, const ts_l1_impl *simd
   }
   ls->base.ops = &local_ops;
   ls->base.simd = simd;
+  ls->owns_pool = 1;
   ls->inline_small = 1;
   *out = &ls->base;
   return 0;

@@ -39,6 +39,11 @@ static void usage(FILE *f, const ts_engine *e) {
           "classes filled before it, and matches them at its edges. The output is 8-bit\n"
           "RGB at MAP's size. Exact: the same bytes in-process and on any pool.\n"
           "\n"
+          "Scenes of any size: the scene is cut into --tile tiles, made in four phases\n"
+          "(a 2x2 checkerboard) so each joins its finished neighbours through a --halo;\n"
+          "MAP is read by regions and OUT written band by band (TIFF and OpenEXR tiled),\n"
+          "so memory follows three rows of tiles, not the scene.\n"
+          "\n"
           "  --classes MAP        the class map\n"
           "  --catalogue F        the catalogue (JSON, as above)\n");
   ts_paramopt_help(f, e);

@@ -185,12 +185,12 @@ static void set_wants(const ts_job_cmd *o, ts_jobspec *spec) {
 
 /* Reads the first n inputs (within --max-pixels); on failure the ones
  * read are freed. */
-static int read_inputs(const ts_job_cmd *o, int n, ts_image *in, char *err) {
+static int read_inputs(const ts_job_cmd *o, int n, ts_engine_file *in, char *err) {
   ts_image_limits limits = {o->max_pixels, NULL};
   for (int k = 0; k < n; k++) {
-    int rc = ts_image_read(o->in[k], &in[k], &limits, err);
+    int rc = ts_engine_input_read(o->spec.engine, &o->spec.params, k, o->in[k], &limits, &in[k], err);
     if (rc != 0) {
-      while (k-- > 0) ts_image_free(&in[k]);
+      for (int i = 0; i <= k; i++) ts_image_free(&in[i].img);
       return rc;
     }
   }
@@ -299,7 +299,7 @@ static int write_outputs(const ts_job_cmd *o, const ts_engine_run *run, char *er
   int rc = 0;
   for (int k = 0; rc == 0 && k < e->noutputs; k++) {
     const char *path = ts_output_path(&o->out, e->outputs[k].key);
-    if (path != NULL) rc = e->write_output(run, k, path, o->threads, err);
+    if (path != NULL && !e->outputs[k].streamed) rc = e->write_output(run, k, path, o->threads, err);
   }
   return rc;
 }
@@ -314,7 +314,10 @@ int ts_job_embedded(const ts_job_cmd *o, const ts_image *const *in, ts_search *s
   ts_engine_run *run = NULL;
   progress_view pv;
   view_init(&pv, ts_progress_mode(o->quiet), o->cmd);
-  ts_engine_hooks hooks = {.progress = progress_draw, .progress_ctx = &pv};
+  const char *out_paths[TS_ENGINE_MAX_OUTPUTS] = {0};
+  for (int k = 0; k < e->noutputs; k++)
+    if (e->outputs[k].streamed) out_paths[k] = ts_output_path(&o->out, e->outputs[k].key);
+  ts_engine_hooks hooks = {.progress = progress_draw, .progress_ctx = &pv, .output_paths = out_paths};
   double t0 = ts_now();
   uint64_t pairs = search->stats.pairs;
   int rc = e->run(&o->spec.params, in, search, &hooks, &run, err);
@@ -639,24 +642,26 @@ int ts_job_run(ts_job_cmd *o) {
   }
   ts_engine_inputs names;
   e->inputs(&o->spec.params, &names);
-  ts_image in[TS_ENGINE_MAX_INPUTS] = {0};
+  ts_engine_file *in = calloc(TS_ENGINE_MAX_INPUTS, sizeof(*in)); /* 4 KB of path each */
   const ts_image *inp[TS_ENGINE_MAX_INPUTS];
-  if (read_inputs(o, names.n, in, err) != 0) {
-    fprintf(stderr, "texsyn %s: %s\n", o->cmd, err);
+  if (in == NULL || read_inputs(o, names.n, in, err) != 0) {
+    fprintf(stderr, "texsyn %s: %s\n", o->cmd, in == NULL ? "out of memory" : err);
+    free(in);
     return 1;
   }
-  for (int k = 0; k < names.n; k++) inp[k] = &in[k];
+  for (int k = 0; k < names.n; k++) inp[k] = &in[k].img;
   int status = 0;
   if (e->check(&o->spec.params, inp, msg, sizeof(msg)) != 0) {
-    fprintf(stderr, "texsyn %s: invalid parameters for %s (%dx%d):\n%s\n", o->cmd, o->in[0], in[0].width,
-            in[0].height, msg);
+    fprintf(stderr, "texsyn %s: invalid parameters for %s (%dx%d):\n%s\n", o->cmd, o->in[0], in[0].img.width,
+            in[0].img.height, msg);
     status = 2;
   } else if (o->server == NULL) {
     int rc = run_embedded(o, inp, err);
     if (rc != 0) fprintf(stderr, "texsyn %s: %s\n", o->cmd, err);
     status = rc == 0 ? 0 : 1;
   }
-  for (int k = 0; k < names.n; k++) ts_image_free(&in[k]);
+  for (int k = 0; k < names.n; k++) ts_image_free(&in[k].img);
+  free(in);
   return status != 0 || o->server == NULL ? status : run_remote(o);
 }
 

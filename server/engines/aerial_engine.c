@@ -11,55 +11,36 @@
  * and the classes before it known, the later classes unknown). Colour is
  * gathered from the references through the copy map (§3.8); the output is
  * 8-bit RGB, written with the class map's metadata (a GeoTIFF's
- * georeferencing stays). No checkpoints: a job a restart interrupts runs
- * again, with the same bytes. */
+ * georeferencing stays).
+ *
+ * Scenes of any size: the scene is cut into tiles synthesised in phases,
+ * each joined to its finished neighbours through a halo (tile_grid.h,
+ * aerial_tiles.c); the class map and the lines are read by regions and the
+ * image streamed to its file band by band (region.h), so memory follows the
+ * tiles in flight, not the scene. A scene no larger than a tile is one
+ * tile. Each finished tile is saved as a checkpoint piece (aerial_piece.c):
+ * a restarted coordinator makes only the tiles not saved, with the same
+ * bytes. This file: the parameters, the spec, the checks and the report. */
 #include <math.h>
 #include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "engine.h"
+#include "aerial.h"
 #include "error.h"
-#include "fill.h"
+#include "region.h"
+#include "tile_grid.h"
 #include "util.h"
 
-#define AERIAL_NAME_LEN 64
-#define AERIAL_MAX_COLOURS 256
-#define AERIAL_MAX_ID 65535
-
-enum { KIND_STOCHASTIC = 0, KIND_STRUCTURED = 1 };
-
-typedef struct {
-  int id, kind;
-  double usage_weight;
-  char name[AERIAL_NAME_LEN];
-} aerial_class;
-
-typedef struct {
-  int value;
-  uint8_t rgb[3];
-} aerial_colour;
-
-typedef struct {
-  ts_fill_params fill;
-  int nclass; /* in the catalogue's order */
-  aerial_class cls[TS_FILL_MAX_CLASSES];
-  int lines;  /* a line raster is an input */
-  int ncolours;
-  aerial_colour colour[AERIAL_MAX_COLOURS];
-  uint64_t max_pixels;
-} aerial_job;
-
 _Static_assert(sizeof(aerial_job) <= TS_ENGINE_PARAMS_MAX, "aerial parameters outgrew ts_engine_params");
-/* The class map, a reference per class and the lines are the inputs. */
-#define AERIAL_MAX_CLASSES (TS_ENGINE_MAX_INPUTS - 2)
 _Static_assert(AERIAL_MAX_CLASSES <= TS_FILL_MAX_CLASSES, "aerial classes outgrew the fill's");
 
-enum { OUT_IMAGE, OUT_REPORT, OUT_COUNT };
+enum { OUT_IMAGE = AERIAL_OUT_IMAGE, OUT_REPORT = AERIAL_OUT_REPORT, OUT_COUNT = AERIAL_OUT_COUNT };
 
+/* The image is streamed, band by band, while the run goes. */
 static const ts_engine_output aerial_outputs[OUT_COUNT] = {
-    [OUT_IMAGE] = {"output", "out", TS_OUTPUT_IMAGE},
+    [OUT_IMAGE] = {"output", "out", TS_OUTPUT_IMAGE, .streamed = 1},
     [OUT_REPORT] = {"report", "report.json", TS_OUTPUT_FLAG},
 };
 
@@ -69,8 +50,20 @@ static const ts_engine_output aerial_outputs[OUT_COUNT] = {
  * come from the catalogue, after them. */
 static const ts_param aerial_param_table[] = {
     TS_FILL_PARAMS(F(fill), "3", "7"),
-    {"max_pixels", NULL, NULL, TS_PARAM_U64, F(max_pixels), 0, 0, "268435456", "image size limit",
-     .flags = TS_PARAM_UNBOUNDED},
+    {"tile", "tile", "N", TS_PARAM_INT, F(tile), 16, TS_TILE_MAX, "512",
+     "side of the tiles the scene is cut into, a fixed grid: a multiple of 16 and of 2^(levels-1); the last "
+     "column and row take the rest (merged into the one before when under half a tile); a scene no larger is "
+     "one tile. Memory follows it: three rows of tiles are alive at once"},
+    {"halo", "halo", "N", TS_PARAM_INT, F(halo), 0, TS_TILE_MAX / 2, "0",
+     "finished pixels around a tile that its synthesis joins, at most half a tile; 0: the default, the coarsest "
+     "neighbourhood's reach (wn/2 + 1) * 2^(levels-1) raised to a multiple of 2^(levels-1) one short of a "
+     "multiple of --wb, so a block straddles each border",
+     .def_help = "20 for the other defaults"},
+    {"tile_jobs", "tile-jobs", "N", TS_PARAM_INT, F(tile_jobs), 0, 256, "0",
+     "tiles of one phase synthesised side by side on the coordinator; never changes a pixel",
+     .def_help = "the coordinator's cores"},
+    {"max_pixels", NULL, NULL, TS_PARAM_U64, F(max_pixels), 0, 0, "268435456",
+     "size limit of a tile's synthesis area (the scene's limit is the disk)", .flags = TS_PARAM_UNBOUNDED},
     {"classes", NULL, NULL, TS_PARAM_INT, F(nclass), 1, AERIAL_MAX_CLASSES, NULL, "classes of the catalogue"},
     {"lines", NULL, NULL, TS_PARAM_FLAG, F(lines), 0, 1, "0", "a line raster is an input"},
     {"colours", NULL, NULL, TS_PARAM_INT, F(ncolours), 0, AERIAL_MAX_COLOURS, "0", "colours of the line raster"},
@@ -93,8 +86,8 @@ static int class_set(aerial_job *p, int k, const char *v) {
   char kind[16];
   int used = 0;
   if (sscanf(v, "%d %15s %lf %n", &c->id, kind, &c->usage_weight, &used) != 3 || used == 0) return TS_EINVAL;
-  if (strcmp(kind, "stochastic") == 0) c->kind = KIND_STOCHASTIC;
-  else if (strcmp(kind, "structured") == 0) c->kind = KIND_STRUCTURED;
+  if (strcmp(kind, "stochastic") == 0) c->kind = AERIAL_STOCHASTIC;
+  else if (strcmp(kind, "structured") == 0) c->kind = AERIAL_STRUCTURED;
   else return TS_EINVAL;
   if (c->id < 0 || c->id > AERIAL_MAX_ID || strlen(v + used) == 0 || strlen(v + used) >= AERIAL_NAME_LEN)
     return TS_EINVAL;
@@ -147,7 +140,7 @@ static int aerial_spec_format(const void *params, char *buf, size_t cap) {
   for (int k = 0; n >= 0 && (size_t)n < cap && k < p->nclass; k++) {
     const aerial_class *c = &p->cls[k];
     n += snprintf(buf + n, cap - (size_t)n, "class%d=%d %s %.17g %s\n", k + 1, c->id,
-                  c->kind == KIND_STRUCTURED ? "structured" : "stochastic", c->usage_weight, c->name);
+                  c->kind == AERIAL_STRUCTURED ? "structured" : "stochastic", c->usage_weight, c->name);
   }
   for (int k = 0; n >= 0 && (size_t)n < cap && k < p->ncolours; k++) {
     const aerial_colour *c = &p->colour[k];
@@ -166,121 +159,70 @@ static void aerial_inputs(const void *params, ts_engine_inputs *out) {
   if (p->lines) snprintf(out->name[out->n++], TS_ENGINE_KEY_LEN, "lines");
 }
 
-/* ---- from the images ------------------------------------------------------ */
-
-/* The integer value of an image's first channel at pixel i (a class id or
- * a line value). */
-static int value_at(const ts_image *img, size_t i) {
-  size_t o = i * (size_t)img->channels;
-  switch (img->type) {
-  case TS_PIX_U8: return ((const uint8_t *)img->pixels)[o];
-  case TS_PIX_U16: return ((const uint16_t *)img->pixels)[o];
-  default: {
-    float v = ts_image_sample(img, (int)(i % (size_t)img->width), (int)(i / (size_t)img->width), 0);
-    return v >= 0 && v <= AERIAL_MAX_ID ? (int)lrintf(v) : -1;
-  }
-  }
+int ts_aerial_by_regions(const void *params, int k) {
+  const aerial_job *p = params;
+  return k == 0 || (p->lines && k == ts_aerial_lines_input(p));
 }
 
-/* The colour index of a line value, or -1. */
-static int colour_of(const aerial_job *p, int v) {
+/* ---- the catalogue ---------------------------------------------------------- */
+
+int ts_aerial_colour_of(const aerial_job *p, int v) {
   for (int k = 0; k < p->ncolours; k++)
     if (p->colour[k].value == v) return k;
   return -1;
 }
 
-/* The catalogue index of a class id, or -1. */
-static int class_of(const aerial_job *p, int id) {
+int ts_aerial_class_of(const aerial_job *p, int id) {
   for (int k = 0; k < p->nclass; k++)
     if (p->cls[k].id == id) return k;
   return -1;
 }
 
-/* Classes in the order they are filled: stochastic first, then structured,
- * each in the catalogue's order. order[c - 1] is the catalogue index of
- * fill class c. */
-static void fill_order(const aerial_job *p, int *order) {
+void ts_aerial_fill_order(const aerial_job *p, int *order) {
   int n = 0;
-  for (int kind = KIND_STOCHASTIC; kind <= KIND_STRUCTURED; kind++)
+  for (int kind = AERIAL_STOCHASTIC; kind <= AERIAL_STRUCTURED; kind++)
     for (int k = 0; k < p->nclass; k++)
       if (p->cls[k].kind == kind) order[n++] = k;
 }
 
-static const ts_image *lines_of(const aerial_job *p, const ts_image *const *in) {
-  return p->lines ? in[1 + p->nclass] : NULL;
-}
-
-/* 8-bit luminance (BT.601) of an 8-bit RGB pixel. */
-static uint8_t luma_of(const uint8_t *rgb) { return (uint8_t)((299 * rgb[0] + 587 * rgb[1] + 114 * rgb[2] + 500) / 1000); }
-
-typedef struct {
-  ts_fill_input in;
-  ts_fill_class cls[TS_FILL_MAX_CLASSES];
-  const char *names[TS_FILL_MAX_CLASSES];
-  int order[TS_FILL_MAX_CLASSES];
-  uint8_t *canvas, *state;
-  uint8_t *ref_luma[TS_FILL_MAX_CLASSES];
-} aerial_fill;
-
-static void aerial_fill_free(aerial_fill *a) {
-  free(a->canvas);
-  free(a->state);
-  for (int k = 0; k < TS_FILL_MAX_CLASSES; k++) free(a->ref_luma[k]);
-  memset(a, 0, sizeof(*a));
-}
-
-/* The fill's input: lines given in their colours' luminance, every other
- * pixel the work area of its class (in fill order). */
-static int aerial_fill_build(const aerial_job *p, const ts_image *const *in, aerial_fill *a) {
-  memset(a, 0, sizeof(*a));
-  const ts_image *map = in[0], *lines = lines_of(p, in);
-  size_t npx = (size_t)map->width * (size_t)map->height;
-  int rank[TS_FILL_MAX_CLASSES];
-  fill_order(p, a->order);
-  for (int c = 0; c < p->nclass; c++) rank[a->order[c]] = c;
-  a->canvas = calloc(npx, 1);
-  a->state = malloc(npx);
-  if (a->canvas == NULL || a->state == NULL) return TS_ENOMEM;
-  for (size_t i = 0; i < npx; i++) {
-    int line = lines != NULL ? colour_of(p, value_at(lines, i)) : -1;
-    if (line >= 0) {
-      a->state[i] = 0;
-      a->canvas[i] = luma_of(p->colour[line].rgb);
-    } else {
-      a->state[i] = (uint8_t)(rank[class_of(p, value_at(map, i))] + 1);
-    }
-  }
-  for (int c = 0; c < p->nclass; c++) {
-    int k = a->order[c];
-    const ts_image *ref = in[1 + k];
-    if ((a->ref_luma[c] = malloc((size_t)ref->width * (size_t)ref->height)) == NULL) return TS_ENOMEM;
-    ts_image_luma8(ref, a->ref_luma[c]);
-    a->cls[c].nsources = 1;
-    a->cls[c].src[0] = (ts_fill_source){.w = ref->width, .h = ref->height, .planes = {a->ref_luma[c]}};
-    a->cls[c].usage_weight = p->cls[k].usage_weight;
-    a->names[c] = p->cls[k].name;
-  }
-  a->in = (ts_fill_input){.w = map->width, .h = map->height, .nplanes = 1, .planes = {a->canvas}, .state = a->state,
-                          .nclass = p->nclass, .cls = a->cls, .names = a->names};
-  return 0;
+int ts_aerial_halo(const aerial_job *p) {
+  return p->halo > 0 ? p->halo : ts_tile_default_halo(p->fill.levels, p->fill.wn, p->fill.wb);
 }
 
 /* ---- checks ---------------------------------------------------------------- */
 
+/* Rows read at a time by the checks. */
+#define CHECK_ROWS 64
+
 /* Class ids in the map without a catalogue entry, named with their pixel
- * counts (lines cover pixels of any class). */
-static void check_ids(const aerial_job *p, const ts_image *const *in, char *msg, size_t len, int *n) {
-  const ts_image *map = in[0], *lines = lines_of(p, in);
-  size_t npx = (size_t)map->width * (size_t)map->height;
-  uint64_t *count = calloc(AERIAL_MAX_ID + 2, sizeof(uint64_t));
-  if (count == NULL) {
-    ts_problem(msg, len, n, "out of memory");
-    return;
+ * counts (lines cover pixels of any class), read by regions. */
+static int count_missing(const aerial_job *p, ts_region_source *map, ts_region_source *lines, uint64_t *count,
+                         char *err) {
+  size_t w = (size_t)map->width;
+  int32_t *ids = malloc(sizeof(int32_t) * w * CHECK_ROWS), *ln = lines ? malloc(sizeof(int32_t) * w * CHECK_ROWS) : NULL;
+  int rc = ids == NULL || (lines != NULL && ln == NULL) ? ts_error(err, TS_ENOMEM, "out of memory") : 0;
+  for (int y = 0; rc == 0 && y < map->height; y += CHECK_ROWS) {
+    int h = map->height - y < CHECK_ROWS ? map->height - y : CHECK_ROWS;
+    rc = map->read(map, 0, y, map->width, h, ids, err);
+    if (rc == 0 && lines != NULL) rc = lines->read(lines, 0, y, lines->width, h, ln, err);
+    for (size_t i = 0; rc == 0 && i < w * (size_t)h; i++) {
+      if (ln != NULL && ts_aerial_colour_of(p, ln[i]) >= 0) continue;
+      if (ids[i] < 0 || ts_aerial_class_of(p, ids[i]) < 0) count[ids[i] < 0 ? AERIAL_MAX_ID + 1 : ids[i]]++;
+    }
   }
-  for (size_t i = 0; i < npx; i++) {
-    if (lines != NULL && colour_of(p, value_at(lines, i)) >= 0) continue;
-    int v = value_at(map, i);
-    if (v < 0 || class_of(p, v) < 0) count[v < 0 ? AERIAL_MAX_ID + 1 : v]++;
+  free(ids);
+  free(ln);
+  return rc;
+}
+
+static void check_ids(const aerial_job *p, ts_region_source *map, ts_region_source *lines, char *msg, size_t len,
+                      int *n) {
+  char err[TS_ERR_LEN];
+  uint64_t *count = calloc(AERIAL_MAX_ID + 2, sizeof(uint64_t));
+  if (count == NULL || count_missing(p, map, lines, count, err) != 0) {
+    ts_problem(msg, len, n, "%s", count == NULL ? "out of memory" : err);
+    free(count);
+    return;
   }
   char list[512] = "";
   size_t used = 0;
@@ -298,37 +240,119 @@ static void check_ids(const aerial_job *p, const ts_image *const *in, char *msg,
   free(count);
 }
 
+/* The grid's own problems: alignment with the pyramid, the halo, the
+ * pixel limit on a tile's area. */
+static void check_grid(const aerial_job *p, const ts_tile_grid *g, char *msg, size_t len, int *n) {
+  int unit = 1 << (p->fill.levels - 1), halo = ts_aerial_halo(p);
+  if (p->tile % 16 != 0 || p->tile % unit != 0)
+    ts_problem(msg, len, n, "--tile %d: need a multiple of 16 and of 2^(levels-1) = %d, e.g. %d", p->tile, unit,
+               (p->tile + (unit > 16 ? unit : 16) - 1) / (unit > 16 ? unit : 16) * (unit > 16 ? unit : 16));
+  if (2 * halo > p->tile)
+    ts_problem(msg, len, n, "--halo %d: at most half a tile (--tile %d); give a larger --tile or a smaller --halo%s",
+               halo, p->tile, p->halo == 0 ? " (the default follows --levels and --wn)" : "");
+  /* The largest area: a merged tile (under 1.5 tiles) with halos. */
+  uint64_t side = (uint64_t)p->tile + (uint64_t)p->tile / 2 + 2 * (uint64_t)halo;
+  uint64_t aw = side < (uint64_t)g->w ? side : (uint64_t)g->w, ah = side < (uint64_t)g->h ? side : (uint64_t)g->h;
+  if (aw * ah > p->max_pixels)
+    ts_problem(msg, len, n, "--tile %d: a tile's area of up to %llux%llu pixels exceeds the limit of %llu (raise "
+               "--max-pixels or use a smaller --tile)", p->tile, (unsigned long long)aw, (unsigned long long)ah,
+               (unsigned long long)p->max_pixels);
+}
+
+/* The smallest tile of the grid (its last column and row may be). */
+static void smallest_tile(const ts_tile_grid *g, int *w, int *h) {
+  int x0, x1, y0, y1;
+  ts_tile_span(g->w, g->tile, g->nx, g->nx - 1, &x0, &x1);
+  ts_tile_span(g->h, g->tile, g->ny, g->ny - 1, &y0, &y1);
+  *w = x1 - x0 < g->tile ? x1 - x0 : g->tile;
+  *h = y1 - y0 < g->tile ? y1 - y0 : g->tile;
+}
+
+/* The fill's checks of the parameters and the references, on a work area
+ * of the smallest tile's size: each tile is one fill. */
+static void check_fill(const aerial_job *p, const ts_image *const *in, const ts_tile_grid *g, char *msg, size_t len,
+                       int *n) {
+  int w, h, order[TS_FILL_MAX_CLASSES];
+  smallest_tile(g, &w, &h);
+  ts_aerial_fill_order(p, order);
+  uint8_t *state = malloc((size_t)w * (size_t)h), *zero = calloc((size_t)w * (size_t)h, 1);
+  ts_fill_class cls[TS_FILL_MAX_CLASSES];
+  const char *names[TS_FILL_MAX_CLASSES];
+  uint8_t *luma[TS_FILL_MAX_CLASSES] = {0};
+  int ok = state != NULL && zero != NULL;
+  for (int c = 0; ok && c < p->nclass; c++) {
+    const ts_image *ref = in[1 + order[c]];
+    ok = (luma[c] = malloc((size_t)ref->width * (size_t)ref->height)) != NULL;
+    if (!ok) break;
+    ts_image_luma8(ref, luma[c]);
+    cls[c] = (ts_fill_class){1, {{.w = ref->width, .h = ref->height, .planes = {luma[c]}}}, p->cls[order[c]].usage_weight};
+    names[c] = p->cls[order[c]].name;
+  }
+  if (ok) {
+    memset(state, 1, (size_t)w * (size_t)h);
+    ts_fill_input fi = {.w = w, .h = h, .nplanes = 1, .planes = {zero}, .state = state, .nclass = p->nclass,
+                        .cls = cls, .names = names};
+    char part[2048];
+    if (ts_fill_check(&p->fill, &fi, names, part, sizeof(part)) != 0) ts_problem(msg, len, n, "%s", part);
+  } else {
+    ts_problem(msg, len, n, "out of memory");
+  }
+  for (int c = 0; c < p->nclass; c++) free(luma[c]);
+  free(state);
+  free(zero);
+}
+
+/* Opens the class map and the lines by regions. */
+static int open_sources(const aerial_job *p, const ts_image *const *in, ts_region_source **map,
+                        ts_region_source **lines, char *err) {
+  *lines = NULL;
+  int rc = ts_region_source_open(ts_engine_file_of(in[0])->path, NULL, map, err);
+  if (rc == 0 && p->lines) rc = ts_region_source_open(ts_engine_file_of(in[ts_aerial_lines_input(p)])->path, NULL, lines, err);
+  if (rc != 0 && *map != NULL) (*map)->close(*map);
+  return rc;
+}
+
 static int aerial_check(const void *params, const ts_image *const *in, char *msg, size_t len) {
   const aerial_job *p = params;
-  const ts_image *map = in[0], *lines = lines_of(p, in);
+  const ts_image *map = in[0], *lines = p->lines ? in[ts_aerial_lines_input(p)] : NULL;
   int n = 0;
   msg[0] = '\0';
   ts_fill_check_params(&p->fill, msg, len, &n);
-  if ((uint64_t)map->width * (uint64_t)map->height > p->max_pixels)
-    ts_problem(msg, len, &n, "--classes: %dx%d pixels exceed the limit of %llu (raise --max-pixels)", map->width,
-               map->height, (unsigned long long)p->max_pixels);
+  ts_tile_grid g;
+  if (ts_tile_grid_init(&g, map->width, map->height, p->tile, ts_aerial_halo(p)) != 0)
+    ts_problem(msg, len, &n, "--classes: an empty class map");
+  else if (n == 0) check_grid(p, &g, msg, len, &n);
   if (lines != NULL && (lines->width != map->width || lines->height != map->height))
     ts_problem(msg, len, &n, "the line raster is %dx%d, the class map %dx%d: they must be the same size", lines->width,
                lines->height, map->width, map->height);
   for (int k = 0; k < p->nclass; k++)
     for (int j = 0; j < k; j++)
       if (p->cls[j].id == p->cls[k].id) ts_problem(msg, len, &n, "class id %d is given twice", p->cls[k].id);
-  if (n == 0) check_ids(p, in, msg, len, &n);
+  if (n == 0) check_fill(p, in, &g, msg, len, &n);
   if (n > 0) return TS_EINVAL;
-  aerial_fill a;
-  int rc = aerial_fill_build(p, in, &a);
-  if (rc != 0) ts_problem(msg, len, &n, "out of memory");
-  else rc = ts_fill_check(&p->fill, &a.in, a.names, msg, len);
-  aerial_fill_free(&a);
-  return rc;
+  ts_region_source *ms = NULL, *ls = NULL;
+  char err[TS_ERR_LEN];
+  if (open_sources(p, in, &ms, &ls, err) != 0) {
+    ts_problem(msg, len, &n, "%s", err);
+    return TS_EINVAL;
+  }
+  check_ids(p, ms, ls, msg, len, &n);
+  ms->close(ms);
+  if (ls != NULL) ls->close(ls);
+  return n > 0 ? TS_EINVAL : 0;
 }
 
 static void aerial_set_max_pixels(void *params, uint64_t max_pixels) { ((aerial_job *)params)->max_pixels = max_pixels; }
 
-/* 8-bit RGB. */
+/* 8-bit RGB, and on a coordinator the finished tiles' checkpoint pieces
+ * (their luminance and colour, kept until the job ends): 7 bytes a pixel,
+ * and a piece's header per tile. */
 static uint64_t aerial_result_bytes(const void *params, const ts_engine_wants *w, const ts_image_info *in) {
-  (void)params, (void)w;
-  return (uint64_t)in[0].width * (uint64_t)in[0].height * 3 + 4096;
+  const aerial_job *p = params;
+  (void)w;
+  uint64_t px = (uint64_t)in[0].width * (uint64_t)in[0].height;
+  uint64_t tiles = ((uint64_t)in[0].width / (uint64_t)p->tile + 1) * ((uint64_t)in[0].height / (uint64_t)p->tile + 1);
+  return px * 7 + tiles * 4096 + 4096;
 }
 
 static int aerial_levels(const void *params) { return ((const aerial_job *)params)->fill.levels; }
@@ -337,10 +361,9 @@ static int aerial_levels(const void *params) { return ((const aerial_job *)param
 
 struct ts_engine_run {
   const aerial_job *p;
-  const ts_image *const *in;
   const ts_search *search;
   int order[TS_FILL_MAX_CLASSES];
-  ts_fill_result res;
+  aerial_stats st;
 };
 
 static int aerial_run(const void *params, const ts_image *const *in, ts_search *search, const ts_engine_hooks *h,
@@ -349,48 +372,9 @@ static int aerial_run(const void *params, const ts_image *const *in, ts_search *
   *out = r;
   if (r == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
   r->p = params;
-  r->in = in;
   r->search = search;
-  aerial_fill a;
-  if (aerial_fill_build(r->p, in, &a) != 0) {
-    aerial_fill_free(&a);
-    return ts_error(err, TS_ENOMEM, "out of memory");
-  }
-  memcpy(r->order, a.order, sizeof(r->order));
-  ts_progress_hooks fh = {.progress = h->progress, .progress_ctx = h->progress_ctx};
-  int rc = ts_fill_synthesize(&r->p->fill, &a.in, search, &fh, &r->res, err);
-  aerial_fill_free(&a);
-  return rc;
-}
-
-/* Channel c (0..2) of pixel (x, y) as 8 bits: grey images give it to all
- * three. */
-static uint8_t rgb8(const ts_image *img, int x, int y, int c) {
-  float v = ts_image_sample(img, x, y, img->channels >= 3 ? c : 0);
-  return (uint8_t)lrintf((v < 0 ? 0 : v > 1 ? 1 : v) * 255.0f);
-}
-
-static int write_image(const ts_engine_run *r, const char *path, char *err) {
-  const aerial_job *p = r->p;
-  const ts_image *map = r->in[0], *lines = lines_of(p, r->in);
-  ts_image img;
-  int rc = ts_image_alloc(&img, map->width, map->height, 3, TS_PIX_U8, err);
-  if (rc != 0) return rc;
-  uint8_t *px = img.pixels;
-  const ts_fill_result *res = &r->res;
-  for (size_t i = 0; i < (size_t)map->width * (size_t)map->height; i++) {
-    uint8_t *o = px + 3 * i;
-    if (res->source[i] == TS_FILL_NO_SOURCE) {
-      memcpy(o, p->colour[colour_of(p, value_at(lines, i))].rgb, 3);
-      continue;
-    }
-    int k = class_of(p, value_at(map, i));
-    const ts_image *ref = r->in[1 + k];
-    for (int c = 0; c < 3; c++) o[c] = rgb8(ref, (int)res->copy[2 * i], (int)res->copy[2 * i + 1], c);
-  }
-  rc = ts_image_write(path, &img, map->meta, err);
-  ts_image_free(&img);
-  return rc;
+  ts_aerial_fill_order(r->p, r->order);
+  return ts_aerial_run_tiles(r->p, in, search, h, &r->st, err);
 }
 
 static int write_report(const ts_engine_run *r, const char *path, int threads, char *err) {
@@ -398,40 +382,41 @@ static int write_report(const ts_engine_run *r, const char *path, int threads, c
   FILE *f = ts_file_create(path, tmp, err);
   if (f == NULL) return TS_EIO;
   const aerial_job *p = r->p;
+  const aerial_stats *st = &r->st;
   fprintf(f, "{\n  \"engine\": \"aerial\",\n  \"search\": {\"mode\": \"exact\", \"lossy\": [], \"backend\": \"%s\", "
              "\"simd\": \"%s\", \"threads\": %d},\n  \"params\": {",
           r->search->ops->name, r->search->simd->name, threads);
   ts_fill_report_params(f, &p->fill);
-  fprintf(f, "},\n  \"seconds\": %.4f,\n  \"classes\": [\n", r->res.seconds);
+  fprintf(f, "},\n  \"tiles\": {\"tile\": %d, \"halo\": %d, \"grid\": [%d, %d], \"filled\": %llu, \"resumed\": %llu, "
+             "\"tile_jobs\": %d},\n",
+          p->tile, st->halo, st->nx, st->ny, (unsigned long long)st->tiles_filled,
+          (unsigned long long)st->tiles_resumed, st->tile_jobs);
+  fprintf(f, "  \"seconds\": %.4f,\n  \"classes\": [\n", st->seconds);
   for (int c = 0; c < p->nclass; c++) {
     const aerial_class *k = &p->cls[r->order[c]];
-    const ts_fill_class_stats *s = &r->res.cls[c];
     fprintf(f, "    {\"order\": %d, \"id\": %d, \"name\": \"", c + 1, k->id);
     for (const char *q = k->name; *q; q++) fprintf(f, *q == '"' || *q == '\\' ? "\\%c" : "%c", *q);
     fprintf(f, "\", \"kind\": \"%s\", \"usage_weight\": %g, \"blocks\": %llu, \"usage_mean\": %.6f, "
                "\"usage_variance\": %.6f}%s\n",
-            k->kind == KIND_STRUCTURED ? "structured" : "stochastic", k->usage_weight, (unsigned long long)s->blocks,
-            s->usage_mean, s->usage_variance, c + 1 < p->nclass ? "," : "");
+            k->kind == AERIAL_STRUCTURED ? "structured" : "stochastic", k->usage_weight,
+            (unsigned long long)st->blocks[c], st->usage_mean[c], st->usage_variance[c], c + 1 < p->nclass ? "," : "");
   }
   fprintf(f, "  ],\n");
-  ts_fill_report_levels(f, &p->fill, &r->res);
+  ts_fill_result res = {0};
+  memcpy(res.level, st->level, sizeof(res.level));
+  ts_fill_report_levels(f, &p->fill, &res);
   fprintf(f, "}\n");
   return ts_file_commit(f, tmp, path, 1, err);
 }
 
 static int aerial_write_output(const ts_engine_run *r, int k, const char *path, int threads, char *err) {
   switch (k) {
-  case OUT_IMAGE: return write_image(r, path, err);
   case OUT_REPORT: return write_report(r, path, threads, err);
-  default: return ts_error(err, TS_EINVAL, "the aerial engine has no output %d", k);
+  default: return ts_error(err, TS_EINVAL, "the aerial engine writes no output %d after its run", k);
   }
 }
 
-static void aerial_run_free(ts_engine_run *r) {
-  if (r == NULL) return;
-  ts_fill_result_free(&r->res);
-  free(r);
-}
+static void aerial_run_free(ts_engine_run *r) { free(r); }
 
 const ts_engine ts_engine_aerial = {
     .name = "aerial",
@@ -443,6 +428,7 @@ const ts_engine ts_engine_aerial = {
     .spec_complete = aerial_spec_complete,
     .spec_format = aerial_spec_format,
     .inputs = aerial_inputs,
+    .input_by_regions = ts_aerial_by_regions,
     .check = aerial_check,
     .set_max_pixels = aerial_set_max_pixels,
     .result_bytes = aerial_result_bytes,

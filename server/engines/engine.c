@@ -5,6 +5,9 @@
 #include <stdio.h>
 #include <string.h>
 
+#include "error.h"
+#include "region.h"
+
 extern const ts_engine ts_engine_mrf, ts_engine_stylize, ts_engine_energy, ts_engine_fill, ts_engine_aerial,
     ts_engine_segment;
 
@@ -54,4 +57,23 @@ const ts_engine_output *ts_engine_output_of_file(const char *name) {
     if (k >= 0) return &registry[i]->outputs[k];
   }
   return NULL;
+}
+
+int ts_engine_input_by_regions(const ts_engine *e, const void *params, int k) {
+  return e->input_by_regions != NULL && e->input_by_regions(params, k);
+}
+
+int ts_engine_input_read(const ts_engine *e, const void *params, int k, const char *path,
+                         const ts_image_limits *limits, ts_engine_file *f, char *err) {
+  memset(f, 0, sizeof(*f));
+  if ((size_t)snprintf(f->path, sizeof(f->path), "%s", path) >= sizeof(f->path))
+    return ts_error(err, TS_EINVAL, "%.64s...: the path is too long", path);
+  if (!ts_engine_input_by_regions(e, params, k)) return ts_image_read(path, &f->img, limits, err);
+  ts_region_source *src;
+  int rc = ts_region_source_open(path, NULL, &src, err);
+  if (rc != 0) return rc;
+  f->img.width = src->width;
+  f->img.height = src->height;
+  src->close(src);
+  return 0;
 }

@@ -56,7 +56,25 @@ typedef struct {
   /* An image output's format of its own besides the image formats
    * (jobspec.h), as an extension: "raw" for stylize's NNF; else NULL. */
   const char *own_ext;
+  /* 1: run writes it itself, as it goes, to hooks->output_paths[k] (and
+   * leaves nothing under that name if it fails); write_output is never
+   * called for it. 0: written after the run by write_output. */
+  int streamed;
 } ts_engine_output;
+
+/* An input the engine reads itself, by regions (input_by_regions): run
+ * and check get, as in[k], the `img` member of one of these - its width
+ * and height, pixels and meta NULL - and reach the
+ * path with ts_engine_file_of. Decoded inputs come in one too (callers
+ * keep one array), img then holding the pixels. */
+typedef struct {
+  ts_image img; /* first: in[k] points here */
+  char path[4096];
+} ts_engine_file;
+
+static inline const ts_engine_file *ts_engine_file_of(const ts_image *img) {
+  return (const ts_engine_file *)(const void *)img;
+}
 
 /* The input images of a job, in the order run and check receive them.
  * Names are 1..31 lower-case letters, digits and '_' (they name files in
@@ -99,6 +117,18 @@ typedef struct {
    * way, with a checkpoint saved there: the run returns TS_ESTOPPED. A
    * daemon shutting down sets it. NULL: never. */
   const atomic_int *stop;
+  /* Where each streamed output goes (ts_engine_output.streamed), by
+   * output index; NULL (the array or an entry): not wanted. */
+  const char *const *output_paths;
+  /* Checkpoints in pieces, for work made of many units each finished for
+   * good (a tiled scene's tiles): save_piece keeps one under its name
+   * (1..31 letters, digits, '-'), atomically, beside the job until it
+   * ends; load_piece gives back (malloc'd) one an earlier run of the job
+   * saved, or TS_ENOENT. Both with save_ctx; NULL: no pieces (embedded
+   * runs). Pieces carry their own checks: the engine refuses one that is
+   * damaged or foreign and makes that unit again. */
+  int (*save_piece)(void *ctx, const char *name, const uint8_t *buf, size_t len, char *err);
+  int (*load_piece)(void *ctx, const char *name, uint8_t **buf, size_t *len, char *err);
 } ts_engine_hooks;
 
 typedef struct ts_engine_run ts_engine_run;
@@ -122,6 +152,11 @@ typedef struct ts_engine {
   int (*spec_format)(const void *params, char *buf, size_t cap);
   /* The inputs a job with these parameters takes. */
   void (*inputs)(const void *params, ts_engine_inputs *out);
+  /* Optional (NULL: every input decoded whole): 1 if the engine reads
+   * input k itself, by regions (ts_engine_file), not decoded by the
+   * caller; no pixel limit applies to such an input (see
+   * ts_engine_input_read). */
+  int (*input_by_regions)(const void *params, int k);
   /* Checks parameters against the inputs (in[k] is input k of `inputs`):
    * 0, or TS_EINVAL with every problem listed in msg, one per line. */
   int (*check)(const void *params, const ts_image *const *in, char *msg, size_t len);
@@ -158,5 +193,14 @@ int ts_engine_output_index(const ts_engine *e, const char *key);
 const ts_engine_output *ts_engine_output_of_file(const char *name);
 /* The spool file name of output k as wanted ("out.png", "report.json"). */
 void ts_engine_output_file(const ts_engine *e, int k, const ts_engine_wants *w, char *out, size_t cap);
+/* Whether the engine reads input k of a job with these parameters by
+ * regions. */
+int ts_engine_input_by_regions(const ts_engine *e, const void *params, int k);
+/* Input k of a job from path into f, as run and check take it: decoded
+ * whole within limits, or, for an input read by regions, its header only
+ * (no pixel limit: the engine's own limits apply). 0 or an error naming the
+ * file; f is freed with ts_image_free(&f->img) either way. */
+int ts_engine_input_read(const ts_engine *e, const void *params, int k, const char *path,
+                         const ts_image_limits *limits, ts_engine_file *f, char *err);
 
 #endif

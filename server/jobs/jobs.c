@@ -144,14 +144,16 @@ static int check_input_names(const ts_jobspec *spec, const ts_msg_submit *m, con
 
 /* Checks a file name's extension and the image header it names, so a
  * file that is no image or is over the limit is refused to its sender at
- * once, not queued to fail later. The extension into ext. */
-static int check_input(ts_jobs *j, const char *name, const uint8_t *data, size_t len, char ext[TS_EXT_LEN],
-                       ts_image_info *info, char *err) {
+ * once, not queued to fail later. The extension into ext. An input the
+ * engine reads by regions (a tiled scene's class map) has no pixel limit:
+ * the engine's own limit is on a tile. */
+static int check_input(ts_jobs *j, const char *name, const uint8_t *data, size_t len, int by_regions,
+                       char ext[TS_EXT_LEN], ts_image_info *info, char *err) {
   const char *e = ts_path_ext(name);
   /* The spec's extension rule: letters and digits only. */
   if (!ts_ext_valid(e)) return ts_error(err, TS_EINVAL, "input name '%s' needs a plain extension (.png, .tif, ...)", name);
   snprintf(ext, TS_EXT_LEN, "%s", e);
-  ts_image_limits limits = {j->o.max_pixels, JOBS_MAX_PIXELS_OPTION};
+  ts_image_limits limits = {by_regions ? UINT64_MAX : j->o.max_pixels, JOBS_MAX_PIXELS_OPTION};
   return ts_image_probe_mem(name, data, len, &limits, info, err);
 }
 
@@ -166,9 +168,14 @@ int ts_jobs_submit(ts_jobs *j, const char *client, const ts_msg_submit *m, uint6
   }
   size_t bytes = m->ref_len;
   ts_image_info info[TS_ENGINE_MAX_INPUTS];
-  if (rc == 0) rc = check_input(j, m->ref_name, m->ref, m->ref_len, jb->ref_ext, &info[0], err);
+  const ts_engine *e = jb->spec.engine;
+  const void *params = &jb->spec.params;
+  if (rc == 0)
+    rc = check_input(j, m->ref_name, m->ref, m->ref_len, ts_engine_input_by_regions(e, params, 0), jb->ref_ext,
+                     &info[0], err);
   for (uint32_t k = 0; rc == 0 && k < m->nmore; k++) {
-    rc = check_input(j, m->more[k].name, m->more[k].data, m->more[k].len, jb->more_ext[k], &info[k + 1], err);
+    rc = check_input(j, m->more[k].name, m->more[k].data, m->more[k].len,
+                     ts_engine_input_by_regions(e, params, (int)k + 1), jb->more_ext[k], &info[k + 1], err);
     bytes += m->more[k].len;
   }
   snprintf(jb->client, sizeof(jb->client), "%s", client);

@@ -47,7 +47,7 @@ static int write_results(job *jb, const ts_engine_run *run, char *err) {
   const ts_jobspec *s = &jb->spec;
   int rc = 0;
   for (int k = 0; rc == 0 && k < s->engine->noutputs; k++) {
-    if (s->wants.want[k][0] == '\0') continue;
+    if (s->wants.want[k][0] == '\0' || s->engine->outputs[k].streamed) continue;
     char name[64], path[JOBS_PATH + 64];
     ts_engine_output_file(s->engine, k, &s->wants, name, sizeof(name));
     jobs_file_path(jb, name, path, sizeof(path));
@@ -89,6 +89,38 @@ static int on_checkpoint(void *arg, const uint8_t *buf, size_t len, const char *
   return 0;
 }
 
+/* A checkpoint piece, "piece-NAME" in the job's directory, written
+ * atomically; like a checkpoint, one that cannot be written does not fail
+ * the job. */
+static int piece_path(const checkpoint_ctx *cc, const char *name, char *path, size_t cap, char *err) {
+  char file[64];
+  size_t n = strlen(name);
+  if (n < 1 || n > 31 || strspn(name, "abcdefghijklmnopqrstuvwxyz0123456789-") != n)
+    return ts_error(err, TS_EINVAL, "checkpoint piece name '%.40s': need 1..31 of a-z, 0-9, '-'", name);
+  snprintf(file, sizeof(file), JOBS_PIECE_PREFIX "%s", name);
+  jobs_file_path(cc->jb, file, path, cap);
+  return 0;
+}
+
+static int on_save_piece(void *arg, const char *name, const uint8_t *buf, size_t len, char *err) {
+  checkpoint_ctx *cc = arg;
+  char path[JOBS_PATH + 64], why[TS_ERR_LEN];
+  int rc = piece_path(cc, name, path, sizeof(path), err);
+  if (rc != 0) return rc;
+  if (ts_file_write(path, buf, len, why) != 0)
+    jobs_log(cc->j, "job %" PRIu64 ": no checkpoint piece %s: %s; the job goes on without it", cc->jb->id, name, why);
+  return 0;
+}
+
+static int on_load_piece(void *arg, const char *name, uint8_t **buf, size_t *len, char *err) {
+  checkpoint_ctx *cc = arg;
+  char path[JOBS_PATH + 64];
+  int rc = piece_path(cc, name, path, sizeof(path), err);
+  if (rc != 0) return rc;
+  if (access(path, F_OK) != 0) return TS_ENOENT;
+  return ts_file_read(path, SIZE_MAX, buf, len, err);
+}
+
 /* A damaged or foreign checkpoint: the job starts over, which gives the
  * same bytes, only later. */
 static void on_checkpoint_refused(void *arg, const char *why) {
@@ -118,6 +150,17 @@ static int run_engine(ts_jobs *j, job *jb, const ts_image *const *in, ts_search 
   uint8_t *resume = NULL;
   size_t resume_len = 0;
   if (ts_file_read(path, SIZE_MAX, &resume, &resume_len, NULL) != 0) resume = NULL;
+  /* Streamed outputs go straight to their files in the job's directory. */
+  const ts_jobspec *s = &jb->spec;
+  char out_path[TS_ENGINE_MAX_OUTPUTS][JOBS_PATH + 64];
+  const char *out_paths[TS_ENGINE_MAX_OUTPUTS] = {0};
+  for (int k = 0; k < s->engine->noutputs; k++) {
+    if (s->wants.want[k][0] == '\0' || !s->engine->outputs[k].streamed) continue;
+    char name[64];
+    ts_engine_output_file(s->engine, k, &s->wants, name, sizeof(name));
+    jobs_file_path(jb, name, out_path[k], sizeof(out_path[k]));
+    out_paths[k] = out_path[k];
+  }
   ts_engine_hooks hooks = {.progress = on_progress,
                            .progress_ctx = &pc,
                            .save = on_checkpoint,
@@ -128,23 +171,28 @@ static int run_engine(ts_jobs *j, job *jb, const ts_image *const *in, ts_search 
                            .tag = cc.tag,
                            .resume_refused = on_checkpoint_refused,
                            .resumed = on_resumed,
-                           .stop = &j->stopping};
+                           .stop = &j->stopping,
+                           .output_paths = out_paths,
+                           .save_piece = on_save_piece,
+                           .load_piece = on_load_piece};
   int rc = jb->spec.engine->run(&jb->spec.params, in, search, &hooks, run, err);
   free(resume);
   return rc;
 }
 
-/* Reads every input of a job; on failure the ones read are freed. */
-static int read_inputs(ts_jobs *j, const job *jb, ts_image *in, int *n, char *err) {
+/* Reads every input of a job (ts_engine_input_read: decoded, or the
+ * header of one the engine reads by regions); on failure the ones read are
+ * freed. */
+static int read_inputs(ts_jobs *j, const job *jb, ts_engine_file *in, int *n, char *err) {
   ts_engine_inputs names;
   jb->spec.engine->inputs(&jb->spec.params, &names);
   ts_image_limits limits = {j->o.max_pixels, JOBS_MAX_PIXELS_OPTION};
   char path[JOBS_PATH + 64];
   for (int k = 0; k < names.n; k++) {
     jobs_input_path(jb, &names, k, path, sizeof(path));
-    int rc = ts_image_read(path, &in[k], &limits, err);
+    int rc = ts_engine_input_read(jb->spec.engine, &jb->spec.params, k, path, &limits, &in[k], err);
     if (rc != 0) {
-      while (k-- > 0) ts_image_free(&in[k]);
+      for (int i = 0; i <= k; i++) ts_image_free(&in[i].img);
       return rc;
     }
   }
@@ -154,17 +202,21 @@ static int read_inputs(ts_jobs *j, const job *jb, ts_image *in, int *n, char *er
 
 static int run_job(ts_jobs *j, job *jb, char *err) {
   jobs_remove_temporaries(jb->dir);
-  ts_image in[TS_ENGINE_MAX_INPUTS] = {0};
+  ts_engine_file *in = calloc(TS_ENGINE_MAX_INPUTS, sizeof(*in)); /* 4 KB of path each */
   const ts_image *inp[TS_ENGINE_MAX_INPUTS];
   int n;
+  if (in == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
   int rc = read_inputs(j, jb, in, &n, err);
-  if (rc != 0) return rc;
-  for (int k = 0; k < n; k++) inp[k] = &in[k];
+  if (rc != 0) {
+    free(in);
+    return rc;
+  }
+  for (int k = 0; k < n; k++) inp[k] = &in[k].img;
   const ts_engine *e = jb->spec.engine;
   char msg[2048];
   e->set_max_pixels(&jb->spec.params, j->o.max_pixels);
   if (e->check(&jb->spec.params, inp, msg, sizeof(msg)) != 0)
-    rc = ts_error(err, TS_EINVAL, "invalid parameters for the %dx%d %s: %s", in[0].width, in[0].height,
+    rc = ts_error(err, TS_EINVAL, "invalid parameters for the %dx%d %s: %s", in[0].img.width, in[0].img.height,
                   n == 1 ? "reference" : "inputs", msg);
   ts_search *search = NULL;
   ts_engine_run *run = NULL;
@@ -173,7 +225,8 @@ static int run_job(ts_jobs *j, job *jb, char *err) {
   if (rc == 0) rc = write_results(jb, run, err);
   e->run_free(run);
   ts_search_destroy(search);
-  for (int k = 0; k < n; k++) ts_image_free(&in[k]);
+  for (int k = 0; k < n; k++) ts_image_free(&in[k].img);
+  free(in);
   return rc;
 }
 

@@ -99,13 +99,22 @@ int jobs_remove_dir(const char *dir) {
   return first != 0 ? -1 : 0;
 }
 
-/* A checkpoint left behind only takes room: the job is final. */
+/* A checkpoint left behind only takes room: the job is final. So do its
+ * checkpoint pieces (a tiled scene's finished tiles). */
 static void drop_job_checkpoint(ts_jobs *j, job *jb) {
   char path[JOBS_PATH + 32];
   jobs_file_path(jb, JOBS_CHECKPOINT, path, sizeof(path));
   if (unlink(path) != 0 && errno != ENOENT)
     jobs_log(j, "job %" PRIu64 ": cannot remove its checkpoint %s: %s; it stays until the job is deleted", jb->id,
              path, strerror(errno));
+  DIR *d = opendir(jb->dir);
+  if (d == NULL) return;
+  struct dirent *e;
+  while ((e = readdir(d)) != NULL)
+    if (strncmp(e->d_name, JOBS_PIECE_PREFIX, strlen(JOBS_PIECE_PREFIX)) == 0 && unlinkat(dirfd(d), e->d_name, 0) != 0)
+      jobs_log(j, "job %" PRIu64 ": cannot remove its checkpoint piece %s: %s; it stays until the job is deleted",
+               jb->id, e->d_name, strerror(errno));
+  closedir(d);
 }
 
 /* Records a final state on disk, then in memory. A "done" that cannot be

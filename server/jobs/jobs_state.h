@@ -72,6 +72,8 @@ struct ts_jobs {
 
 /* The state after a job's last checkpoint (jobs_runner.c, on_checkpoint). */
 #define JOBS_CHECKPOINT "checkpoint"
+/* Checkpoint pieces (engine.h's save_piece): "piece-NAME" files. */
+#define JOBS_PIECE_PREFIX "piece-"
 
 /* A job that ended: done, failed or canceled. */
 static inline int job_final(const job *jb) { return jb->st.state >= TS_JOB_DONE; }

@@ -40,6 +40,8 @@ static double cluster_rate(ts_search *s) {
   return rate;
 }
 
+static int cluster_session(ts_search *s, ts_search **out, char *err);
+
 static const ts_search_ops cluster_ops = {
     .name = "cluster",
     .prepare = cl_set_prepare,
@@ -53,7 +55,16 @@ static const ts_search_ops cluster_ops = {
     .rate = cluster_rate,
     .release = cl_set_release,
     .destroy = cluster_destroy,
+    .session = cluster_session,
 };
+
+/* Another search on the pool, as a concurrent job's is: batches lease
+ * their workers (cluster_impl.h), so sessions take turns on each
+ * connection, and their images and sets are their own. */
+static int cluster_session(ts_search *s, ts_search **out, char *err) {
+  cluster_search *cs = (cluster_search *)s;
+  return ts_search_cluster_create(out, cs->c, cs->cancel, err);
+}
 
 int ts_search_cluster_create(ts_search **out, ts_cluster *c, const atomic_int *cancel, char *err) {
   cluster_search *cs = calloc(1, sizeof(*cs));
