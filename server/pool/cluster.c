@@ -216,7 +216,14 @@ static int fill_out(cl_worker *w, char *err) {
   while (w->qhead < w->nqueue && w->out.len < CL_OUT_HIGH) {
     cl_msg *e = &w->queue[w->qhead];
     size_t len0 = w->out.len;
-    int rc = ts_outmsg_produce(&e->m, e->write, &e->arg, &w->out, CL_OUT_CHUNK, err);
+    /* A sealed connection's bytes are produced plain, then sealed. */
+    ts_wr *to = w->conn.seal != NULL ? &w->plain : &w->out;
+    w->plain.len = 0;
+    int rc = ts_outmsg_produce(&e->m, e->write, &e->arg, to, CL_OUT_CHUNK, err);
+    if (rc >= 0 && to == &w->plain) {
+      int sr = ts_conn_wrap(&w->conn, &w->out, w->plain.buf, w->plain.len, err);
+      if (sr < 0) rc = sr;
+    }
     if (rc < 0) return rc;
     w->produced += w->out.len - len0;
     if (rc == 1) {
@@ -233,6 +240,7 @@ static int fill_out(cl_worker *w, char *err) {
 static void worker_free(cl_worker *w) {
   ts_conn_close(&w->conn);
   ts_wr_free(&w->out);
+  ts_wr_free(&w->plain);
   free(w->queue);
   free(w->frames);
   free(w->reqs);
@@ -317,7 +325,7 @@ static void reap_failed(ts_cluster *c) {
 
 static int send_frame(ts_conn *conn, uint8_t type, uint32_t id, const ts_wr *w, char *err) {
   if (ts_wr_status(w) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
-  return ts_net_send(conn->fd, type, id, w->buf, w->len, err);
+  return ts_conn_send(conn, type, id, w->buf, w->len, err);
 }
 
 /* Waits for the reply of the given type to request `id` (no lock held). */
@@ -389,6 +397,7 @@ static int admit(ts_cluster *c, ts_conn *conn, const ts_msg_ident *ident, int ad
   w->state = TS_WORKER_CALIBRATING;
   w->next_id = 2; /* 1 is the calibration's */
   ts_wr_init(&w->out);
+  ts_wr_init(&w->plain);
   /* A slot first: a full pool refuses before spending a calibration. */
   pthread_mutex_lock(&c->lock);
   int rc = pool_full(c, err);
