@@ -218,6 +218,25 @@ int ts_conn_wrap(ts_conn *c, ts_wr *out, const void *plain, size_t n, char *err)
   return ts_wr_status(out) != 0 ? ts_error(err, TS_ENOMEM, "out of memory for an outgoing message") : 0;
 }
 
+/* Opens the whole sealed frames received into the frame reader. */
+static int open_sealed(ts_conn *c, char *err) {
+  for (;;) {
+    ts_frame f;
+    const uint8_t *plain;
+    size_t n;
+    int rc = ts_frame_reader_next(&c->seal->in, &f, err);
+    if (rc == 1) rc = ts_seal_open(c->seal, &f, &plain, &n, err);
+    if (rc == 0) return 0;
+    if (rc < 0) {
+      char why[TS_ERR_LEN];
+      snprintf(why, sizeof(why), "%s", err);
+      return ts_error(err, rc, "%s: %s%s", c->peer, strncmp(why, "sealed link", 11) == 0 ? "" : "sealed link: ",
+                      why);
+    }
+    if (ts_frame_reader_feed(&c->rd, plain, n) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
+  }
+}
+
 int ts_conn_start_seal(ts_conn *c, const uint8_t tx_key[TS_SEAL_KEY], const uint8_t rx_key[TS_SEAL_KEY], char *err) {
   ts_seal *s = malloc(sizeof(*s));
   if (s == NULL || ts_seal_init(s, tx_key, rx_key) != 0) {
@@ -234,7 +253,7 @@ int ts_conn_start_seal(ts_conn *c, const uint8_t tx_key[TS_SEAL_KEY], const uint
   }
   rd->len = from;
   c->seal = s;
-  return 0;
+  return open_sealed(c, err);
 }
 
 void ts_conn_init(ts_conn *c, int fd, uint32_t max_payload, const char *peer) {
@@ -284,25 +303,6 @@ int ts_conn_next(ts_conn *c, ts_frame *f, char *err) {
       return ts_error(err, rc, "%s: %s", c->peer, why);
     }
     return rc;
-  }
-}
-
-/* Opens the whole sealed frames received into the frame reader. */
-static int open_sealed(ts_conn *c, char *err) {
-  for (;;) {
-    ts_frame f;
-    const uint8_t *plain;
-    size_t n;
-    int rc = ts_frame_reader_next(&c->seal->in, &f, err);
-    if (rc == 1) rc = ts_seal_open(c->seal, &f, &plain, &n, err);
-    if (rc == 0) return 0;
-    if (rc < 0) {
-      char why[TS_ERR_LEN];
-      snprintf(why, sizeof(why), "%s", err);
-      return ts_error(err, rc, "%s: %s%s", c->peer, strncmp(why, "sealed link", 11) == 0 ? "" : "sealed link: ",
-                      why);
-    }
-    if (ts_frame_reader_feed(&c->rd, plain, n) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
   }
 }
 
