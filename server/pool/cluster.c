@@ -88,6 +88,12 @@ static cl_request *req_by_id(cl_worker *w, uint32_t id) {
  * connection (which it then leaves): 0 and *rq, or TS_EPROTO naming what
  * is wrong. */
 static int req_match(cl_worker *w, const ts_frame *f, cl_request *rq, char *err) {
+  /* An 'E' of id 0 answers no request: the worker ends the connection and
+   * says why (a sealed frame it refused, say). Its reason is the one to log. */
+  if (f->type == TS_MSG_ERROR && f->id == 0) {
+    int rc = cl_reply_error(f, err);
+    return rc < 0 ? rc : ts_error(err, TS_EPROTO, "protocol: an 'E' frame id 0 of code %d", rc);
+  }
   if (w->nreqs == 0)
     return ts_error(err, TS_EPROTO, "protocol: unsolicited '%c' frame id %u (no request outstanding)", f->type, f->id);
   const cl_request *r = req_at(w, 0);

@@ -10,7 +10,6 @@ meanwhile end with the embedded run's bytes. A capture of a whole job's
 traffic, client link and worker link, holds none of the input image's
 bytes - and the same capture without a secret does (the check can fail)."""
 import os
-import queue
 import random
 import re
 import socket
@@ -29,11 +28,10 @@ REASONS = {
     "alter": r"sealed link: (sealed frame \d+ failed authentication \(altered|a plain|sealed frame \d+ arrived)",
     "replay": r"sealed link: sealed frame \d+ arrived again where \d+ was due \(replayed or reordered\)",
     "reorder": r"sealed link: sealed frame \d+ arrived where \d+ was due \(1 dropped, or reordered\)",
-    # A dropped frame shows when the next one comes; a dropped request
-    # with nothing after it (a heartbeat between jobs) leaves its answer
-    # missing, and the coordinator says so at the deadline.
-    "drop": r"sealed link: sealed frame \d+ arrived where \d+ was due \(1 dropped, or reordered\)|"
-            r"no answer|heartbeat",
+    # A frame is dropped when another follows it (the relay holds it until
+    # then): a request dropped with nothing after it would leave its answer
+    # missing until the batch deadline, which names that instead.
+    "drop": r"sealed link: sealed frame \d+ arrived where \d+ was due \(1 dropped, or reordered\)",
     "ident": r"sealed link: sealed frame 0 failed authentication",
 }
 
@@ -51,49 +49,94 @@ def ref_of(data):
 
 class Trial:
     """One alteration: `action` on the nth sealed frame (n from 0) that
-    `way` carries ("c2w" coordinator to worker, "w2c" back), or for
-    "ident", one byte of the name in that way's 'I' frame."""
+    `way` carries ("c2w" coordinator to worker, "w2c" back) from the moment
+    it is armed, or for "ident", one byte of the name in the next 'I' frame
+    that way (outside every MAC: only the keys cover it)."""
 
     def __init__(self, action, way, n, rng):
         self.action, self.way, self.n, self.rng = action, way, n, rng
+        self.seen, self.link, self.held = 0, None, None
         self.fired = threading.Event()
         self.closed = threading.Event()
 
     def __repr__(self):
         return f"{self.action} {self.way} #{self.n}"
 
+    def on_frame(self, frame, link):
+        """The frames to forward in frame's place."""
+        kind = frame[3:4]
+        if self.action == "ident":
+            if kind != b"I":
+                return [frame]
+            f = bytearray(frame)
+            f[HEADER.size + 10 + self.rng.randrange(6)] ^= 0x20  # the name: "texsyn" -> "teXsyn"
+            return self.fire(link, [bytes(f)])
+        if kind != b"Z":
+            return [frame]
+        if self.held is not None:  # the next one first, or alone
+            held, self.held = self.held, None
+            return self.fire(link, [frame, held] if self.action == "reorder" else [frame])
+        self.seen += 1
+        if self.seen - 1 != self.n:
+            return [frame]
+        if self.action in ("reorder", "drop"):  # held until the next one comes
+            self.held = frame
+            return []
+        if self.action == "replay":
+            return self.fire(link, [frame, frame])
+        # alter: one bit of the type, the id (the counter), the ciphertext
+        # or the tag; never magic, version or length, which the frame
+        # reader refuses before anything is opened.
+        f = bytearray(frame)
+        pos = self.rng.choice([3, *range(8, 12), *range(HEADER.size, len(f))])
+        f[pos] ^= 1 << self.rng.randrange(8)
+        return self.fire(link, [bytes(f)])
+
+    def fire(self, link, out):
+        self.link = link
+        self.fired.set()
+        return out
+
+    def on_idle(self):
+        """Nothing came after a held frame: it goes on, the next one is
+        held instead."""
+        held, self.held = self.held, None
+        self.n = self.seen
+        return held
+
 
 class SealRelay(LoopbackProxy):
-    """Forwards whole frames both ways; each new connection takes the next
-    trial armed (none: it only forwards). Every byte is also recorded in
+    """Forwards whole frames both ways, each through the trial armed (arm)
+    while it has not fired. Every byte forwarded is also recorded in
     `capture` (way -> bytearray)."""
 
     def __init__(self, target):
-        self.trials = queue.Queue()
+        self.armed = None
         self.capture = {"c2w": bytearray(), "w2c": bytearray()}
         super().__init__(target)
 
-    def forward(self, a, b):
-        try:
-            trial = self.trials.get_nowait()
-        except queue.Empty:
-            trial = None
-        socks = (a, b)
-        done = threading.Barrier(2, action=lambda: trial and trial.closed.set())
-        threading.Thread(target=self.pump, args=(a, b, "c2w", trial, socks, done), daemon=True).start()
-        threading.Thread(target=self.pump, args=(b, a, "w2c", trial, socks, done), daemon=True).start()
+    def arm(self, trial):
+        self.armed = trial
 
-    def pump(self, src, dst, way, trial, socks, done):
-        mine = trial if trial is not None and trial.way == way else None
-        buf, sealed, held = bytearray(), 0, None
+    def forward(self, a, b):
+        link = {"socks": (a, b), "ends": 0, "lock": threading.Lock()}
+        threading.Thread(target=self.pump, args=(a, b, "c2w", link), daemon=True).start()
+        threading.Thread(target=self.pump, args=(b, a, "w2c", link), daemon=True).start()
+
+    def trial_for(self, way):
+        t = self.armed
+        return t if t is not None and t.way == way and not t.fired.is_set() else None
+
+    def pump(self, src, dst, way, link):
+        buf = bytearray()
         try:
             while True:
-                src.settimeout(0.5 if held is not None else None)
+                t = self.trial_for(way)
+                src.settimeout(0.5 if t is not None and t.held is not None else None)
                 try:
                     data = src.recv(65536)
                 except socket.timeout:
-                    dst.sendall(held)  # nothing came after it: not reordered; the next one is
-                    held, mine.n = None, sealed
+                    dst.sendall(t.on_idle())
                     continue
                 if not data:
                     break
@@ -105,55 +148,20 @@ class SealRelay(LoopbackProxy):
                     frame = bytes(buf[:HEADER.size + length])
                     del buf[:HEADER.size + length]
                     self.capture[way] += frame
-                    out = [frame]
-                    kind = frame[3:4]
-                    if mine is not None and not mine.fired.is_set():
-                        if mine.action == "ident" and kind == b"I":
-                            name_at = HEADER.size + 10  # role, caps, threads, simd, u16 length
-                            f = bytearray(frame)
-                            f[name_at + mine.rng.randrange(6)] ^= 0x20  # "texsyn" -> "teXsyn"
-                            out = [bytes(f)]
-                            mine.fired.set()
-                        elif kind == b"Z" and held is not None:
-                            out = [frame, held]  # the next one first
-                            held = None
-                            mine.fired.set()
-                        elif kind == b"Z" and sealed == mine.n:
-                            out = self.act(mine, frame)
-                            if mine.action == "reorder":
-                                held, out = frame, []
-                    if kind == b"Z":
-                        sealed += 1
-                    for f in out:
+                    t = self.trial_for(way)
+                    for f in (t.on_frame(frame, link) if t is not None else [frame]):
                         dst.sendall(f)
         except OSError:
             pass
-        for s in socks:
+        for s in link["socks"]:
             try:
                 s.shutdown(socket.SHUT_RDWR)
             except OSError:
                 pass
-        try:
-            done.wait(timeout=30)
-        except threading.BrokenBarrierError:
-            pass
-
-    @staticmethod
-    def act(trial, frame):
-        if trial.action == "reorder":
-            return []
-        trial.fired.set()
-        if trial.action == "drop":
-            return []
-        if trial.action == "replay":
-            return [frame, frame]
-        # alter: one bit of the type, the id (the counter), the ciphertext
-        # or the tag; never magic, version or length, which the frame
-        # reader refuses before anything is opened.
-        f = bytearray(frame)
-        pos = trial.rng.choice([3, *range(8, 12), *range(HEADER.size, len(f))])
-        f[pos] ^= 1 << trial.rng.randrange(8)
-        return [bytes(f)]
+        with link["lock"]:
+            link["ends"] += 1
+            if link["ends"] == 2 and self.armed is not None and self.armed.link is link:
+                self.armed.closed.set()
 
 
 class JobLoop:
@@ -206,7 +214,7 @@ def test_every_altered_dropped_replayed_or_reordered_frame_is_detected(texsyn, d
         for t in trials:
             logs = cluster.server.read_log() + worker.read_log()
             before = reasons(logs, REASONS[t.action])
-            relay.trials.put(t)
+            relay.arm(t)
             assert t.fired.wait(60), f"{t}: never fired\n{cluster.server.read_log()}"
             assert t.closed.wait(60), f"{t}: the connection did not end\n{cluster.server.read_log()}"
             deadline = time.time() + 10
