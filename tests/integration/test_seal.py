@@ -22,6 +22,9 @@ from pnm import pixels_of
 
 HEADER = struct.Struct("<2sBcII")  # magic, version, type, payload length, id
 SIZE = ("96x64", "--levels", "3")
+# Rounds of every action both ways (TEXSYN_SEAL_ROUNDS: more for a
+# longer measurement; each trial takes about a second).
+ROUNDS = int(os.environ.get("TEXSYN_SEAL_ROUNDS", "2"))
 # What the receiving side logs for each action (the coordinator for frames
 # the worker sent, the worker for frames the coordinator sent).
 REASONS = {
@@ -207,7 +210,7 @@ def test_every_altered_dropped_replayed_or_reordered_frame_is_detected(texsyn, d
                              "--heartbeat", 0.3, "--threads", 1], tmp_path / "server.log")
     rng = random.Random(29)
     trials = [Trial(action, way, rng.randrange(1, 6), random.Random(rng.random()))
-              for seed in range(2) for action in ("alter", "drop", "replay", "reorder") for way in ("c2w", "w2c")]
+              for seed in range(ROUNDS) for action in ("alter", "drop", "replay", "reorder") for way in ("c2w", "w2c")]
     trials += [Trial("ident", way, 0, random.Random(way)) for way in ("c2w", "w2c")]
     jobs = JobLoop(cluster.server.addr, data, tmp_path, want, env)
     try:
