@@ -208,7 +208,7 @@ int ts_conn_send(ts_conn *c, uint8_t type, uint32_t id, const void *payload, siz
   ts_frame_header(first, type, id, (uint32_t)len);
   if (head > 0) memcpy(first + TS_FRAME_HEADER, payload, head);
   int rc = send_sealed(c, first, TS_FRAME_HEADER + head, err);
-  if (rc == 0) rc = send_sealed(c, (const uint8_t *)payload + head, len - head, err);
+  if (rc == 0 && len > head) rc = send_sealed(c, (const uint8_t *)payload + head, len - head, err);
   return rc;
 }
 
