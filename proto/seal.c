@@ -39,6 +39,9 @@ static void nonce_of(uint64_t seq, uint8_t n[crypto_aead_xchacha20poly1305_ietf_
 }
 
 int ts_seal_one(ts_seal *s, const void *plain, size_t n, char *err) {
+  if (n == 0 || n > TS_SEAL_CHUNK)
+    return ts_error(err, TS_EINVAL, "sealed link: %zu plain bytes do not make a sealed frame (1..%u)", n,
+                    TS_SEAL_CHUNK);
   if (s->tx_seq == UINT64_MAX) return ts_error(err, TS_ELIMIT, "sealed link: 2^64 frames sent, the counter is spent");
   uint8_t nonce[crypto_aead_xchacha20poly1305_ietf_NPUBBYTES];
   nonce_of(s->tx_seq, nonce);

@@ -51,7 +51,7 @@ void ts_seal_free(ts_seal *s);
  * with a message. */
 int ts_seal_append(ts_seal *s, ts_wr *out, const void *plain, size_t n, char *err);
 /* Seals n (1..TS_SEAL_CHUNK) plain bytes into s->tx_buf: its length, or
- * TS_ELIMIT with a message. */
+ * TS_EINVAL (n out of range) / TS_ELIMIT with a message. */
 int ts_seal_one(ts_seal *s, const void *plain, size_t n, char *err);
 
 /* Opens the sealed frame f, which must be the one due: 1 and the plain
