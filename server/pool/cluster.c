@@ -338,7 +338,7 @@ static int send_frame(ts_conn *conn, uint8_t type, uint32_t id, const ts_wr *w, 
 static int await_reply(ts_conn *conn, uint8_t type, uint32_t id, int timeout_ms, ts_frame *f, char *err) {
   int rc = ts_conn_recv(conn, f, timeout_ms, err);
   if (rc < 0) return rc;
-  if (f->id != id)
+  if (f->id != id && !(f->type == TS_MSG_ERROR && f->id == 0)) /* id 0: why the worker ends the connection */
     return ts_error(err, TS_EPROTO, "%s: protocol: '%c' frame id %u answers no request (awaiting '%c' frame id %u)",
                     conn->peer, f->type, f->id, type, id);
   if (f->type == TS_MSG_ERROR) {
