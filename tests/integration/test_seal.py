@@ -114,15 +114,25 @@ class SealRelay(LoopbackProxy):
     `capture` (way -> bytearray)."""
 
     def __init__(self, target):
-        self.armed = None
+        self.armed, self.links = None, []
         self.capture = {"c2w": bytearray(), "w2c": bytearray()}
         super().__init__(target)
 
     def arm(self, trial):
+        """Arms trial; one on an 'I' frame cuts the links up, so that the
+        coordinator dials again and a new start comes."""
         self.armed = trial
+        if trial.action == "ident":
+            for link in self.links:
+                for s in link["socks"]:
+                    try:
+                        s.shutdown(socket.SHUT_RDWR)
+                    except OSError:
+                        pass
 
     def forward(self, a, b):
         link = {"socks": (a, b), "ends": 0, "lock": threading.Lock()}
+        self.links = [x for x in self.links if x["ends"] < 2] + [link]
         threading.Thread(target=self.pump, args=(a, b, "c2w", link), daemon=True).start()
         threading.Thread(target=self.pump, args=(b, a, "w2c", link), daemon=True).start()
 
