@@ -52,12 +52,15 @@ class SecretPool:
         return subprocess.run([str(self.build / "texsyn"), *map(str, args)], capture_output=True, text=True, env=env)
 
     def run(self, out):
+        """The job's wall time and the bytes its frames took on the worker
+        links (the report's wire_bytes, before sealing)."""
+        rep = out.with_suffix(".json")
         t0 = time.monotonic()
-        p = self.cli([*table33_args(), "-o", out, "--quiet", "--server", self.addr])
+        p = self.cli([*table33_args(), "-o", out, "--report", rep, "--quiet", "--server", self.addr])
         wall = time.monotonic() - t0
         if p.returncode != 0:
             sys.exit(f"bench: the job failed on {self.build}:\n{p.stderr}")
-        return wall
+        return wall, sum(lv.get("wire_bytes", 0) for lv in json.loads(rep.read_text()).get("levels", []))
 
     def down(self):
         stop([*self.procs, self.server])
@@ -77,12 +80,13 @@ def main():
         secret.chmod(0o600)
         pools = {"base": SecretPool(a.base.resolve(), tmp, "base", secret),
                  "sealed": SecretPool(a.build.resolve(), tmp, "sealed", secret)}
-        walls, want = {"base": [], "sealed": []}, None
+        walls, wire, want = {"base": [], "sealed": []}, 0, None
         try:
             for r in range(a.reps):
                 for name, pool in pools.items():
                     out = tmp / f"{name}-{r}.png"
-                    walls[name].append(pool.run(out))
+                    wall, wire = pool.run(out)
+                    walls[name].append(wall)
                     data = out.read_bytes()
                     want = want or data
                     if data != want:
@@ -93,10 +97,10 @@ def main():
                 p.down()
     med = {k: statistics.median(v) for k, v in walls.items()}
     res = {"reps": a.reps, "workers": WORKERS, "walls": walls, "median": med,
-           "ratio": med["sealed"] / med["base"], "identical_bytes": True}
+           "ratio": med["sealed"] / med["base"], "identical_bytes": True, "wire_bytes": wire}
     print(f"median base {med['base']:.2f} s (spread {min(walls['base']):.2f}-{max(walls['base']):.2f}), sealed "
           f"{med['sealed']:.2f} s (spread {min(walls['sealed']):.2f}-{max(walls['sealed']):.2f}): ratio "
-          f"{res['ratio']:.3f}; outputs identical")
+          f"{res['ratio']:.3f}; outputs identical; {wire / 1e6:.1f} MB on the worker links per job")
     if a.json:
         a.json.write_text(json.dumps(res, indent=1) + "\n")
 
