@@ -347,3 +347,22 @@ def test_a_peer_of_protocol_6_is_refused_with_the_version_message(cluster, tmp_p
     want = "the peer speaks texsyn protocol version 6, this build 7: run the same release on both sides"
     assert want.encode() in reply[HEADER.size:HEADER.size + length], reply
     assert want in cluster.server.read_log()
+
+
+def test_messages_in_pieces_cross_a_sealed_link(texsyn, data, cluster, tmp_path, monkeypatch):
+    """A worker with a small frame limit takes its slices in 'M' pieces,
+    produced as the socket drains and sealed as they go."""
+    want_path = tmp_path / "embedded.png"
+    synth(texsyn, ref_of(data), want_path, (96, 64), "--levels", "3")
+    key = secret(tmp_path)
+    monkeypatch.setenv("TEXSYN_SECRET_FILE", str(key))
+    cluster.worker(1, "--secret-file", key, "--max-frame", 4096)
+    cluster.server = Daemon([BUILD / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", tmp_path / "spool",
+                             "--secret-file", key, "--workers", cluster.workers[0].addr], tmp_path / "server.log")
+    cluster.wait_ready(1)
+    out = tmp_path / "out.png"
+    run(BUILD / "texsyn", "synth", "--server", cluster.server.addr, "--ref", ref_of(data), "-o", out,
+        "--size", *SIZE, "--quiet")
+    assert out.read_bytes() == want_path.read_bytes()
+    assert all(w["batches"] > 0 for w in cluster.pool())
+    assert "dropped" not in cluster.server.read_log()
