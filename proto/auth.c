@@ -153,56 +153,101 @@ int ts_auth_listen_warning(const ts_auth *a, int lfd, char *msg) {
   return 1;
 }
 
+/* ---- session keys ------------------------------------------------------------ */
+
+/* Signed before the transcript: keys for sealing mean nothing to any
+ * other use of the secret. */
+static const char kSealDomain[] = "texsyn-seal-v1";
+#define KDF_CONTEXT "tsseal01" /* crypto_kdf's 8-byte context */
+enum { KDF_CONNECTOR_TO_ACCEPTOR = 1, KDF_ACCEPTOR_TO_CONNECTOR = 2 };
+
+void ts_auth_session_keys(const ts_auth *a, const uint8_t transcript[TS_AUTH_TRANSCRIPT], int connector,
+                          uint8_t tx[TS_SEAL_KEY], uint8_t rx[TS_SEAL_KEY]) {
+  uint8_t msg[sizeof(kSealDomain) - 1 + TS_AUTH_TRANSCRIPT], master[crypto_kdf_KEYBYTES];
+  memcpy(msg, kSealDomain, sizeof(kSealDomain) - 1);
+  memcpy(msg + sizeof(kSealDomain) - 1, transcript, TS_AUTH_TRANSCRIPT);
+  _Static_assert(TS_AUTH_MAC == crypto_kdf_KEYBYTES, "the master key is an HMAC");
+  ts_auth_hmac(a, msg, sizeof(msg), master);
+  crypto_kdf_derive_from_key(connector ? tx : rx, TS_SEAL_KEY, KDF_CONNECTOR_TO_ACCEPTOR, KDF_CONTEXT, master);
+  crypto_kdf_derive_from_key(connector ? rx : tx, TS_SEAL_KEY, KDF_ACCEPTOR_TO_CONNECTOR, KDF_CONTEXT, master);
+  sodium_memzero(master, sizeof(master));
+}
+
 /* ---- the exchange ----------------------------------------------------------------- */
+
+/* One connection start: the connection, the secret, and the hash of every
+ * frame of the start, both ways, as it travelled (header and payload). */
+typedef struct {
+  ts_conn *c;
+  const ts_auth *a;
+  int timeout_ms;
+  crypto_generichash_state th;
+} hs;
+
+static void hash_frame(hs *h, uint8_t type, uint32_t id, const void *payload, size_t len) {
+  uint8_t head[TS_FRAME_HEADER];
+  ts_frame_header(head, type, id, (uint32_t)len);
+  crypto_generichash_update(&h->th, head, sizeof(head));
+  crypto_generichash_update(&h->th, payload, len);
+}
 
 static const char *role_noun(uint8_t role) { return role == TS_ROLE_WORKER ? "worker" : "server"; }
 
+/* The next frame, into the transcript. */
+static int recv_frame(hs *h, ts_frame *f, char *err) {
+  int rc = ts_conn_recv(h->c, f, h->timeout_ms, err);
+  if (rc < 0) return rc;
+  hash_frame(h, f->type, f->id, f->payload, f->len);
+  return 0;
+}
+
 /* The next frame, which must be of type `type`; an 'E' becomes its code
  * and text. */
-static int expect(ts_conn *c, uint8_t type, int timeout_ms, ts_frame *f, char *err) {
-  int rc = ts_conn_recv(c, f, timeout_ms, err);
+static int expect(hs *h, uint8_t type, ts_frame *f, char *err) {
+  int rc = recv_frame(h, f, err);
   if (rc < 0) return rc;
   if (f->type == TS_MSG_ERROR) {
     ts_msg_error e;
     if (ts_msg_error_read(f, &e, err) != 0) return TS_EPROTO;
-    return ts_error(err, e.code, "%s: %s", c->peer, e.text);
+    return ts_error(err, e.code, "%s: %s", h->c->peer, e.text);
   }
   if (f->type != type)
-    return ts_error(err, TS_EPROTO, "%s: expected '%c' while connecting, got 0x%02x", c->peer, type, f->type);
+    return ts_error(err, TS_EPROTO, "%s: expected '%c' while connecting, got 0x%02x", h->c->peer, type, f->type);
   return 0;
 }
 
 /* The next 'A' frame, which must be of the given step. */
-static int expect_auth(ts_conn *c, uint8_t step, int timeout_ms, ts_msg_auth *m, char *err) {
+static int expect_auth(hs *h, uint8_t step, ts_msg_auth *m, char *err) {
   ts_frame f;
-  int rc = expect(c, TS_MSG_AUTH, timeout_ms, &f, err);
+  int rc = expect(h, TS_MSG_AUTH, &f, err);
   if (rc == 0) rc = ts_msg_auth_read(&f, m, err);
   if (rc == 0 && m->step != step)
-    rc = ts_error(err, TS_EPROTO, "%s: authentication step %u where %u was due", c->peer, m->step, step);
+    rc = ts_error(err, TS_EPROTO, "%s: authentication step %u where %u was due", h->c->peer, m->step, step);
   return rc;
 }
 
-static int send_msg(ts_conn *c, uint8_t type, uint32_t id, ts_wr *w, char *err) {
+static int send_msg(hs *h, uint8_t type, uint32_t id, ts_wr *w, char *err) {
   int rc = ts_wr_status(w) != 0 ? ts_error(err, TS_ENOMEM, "out of memory")
-                                 : ts_net_send(c->fd, type, id, w->buf, w->len, err);
+                                 : ts_conn_send(h->c, type, id, w->buf, w->len, err);
+  if (rc == 0) hash_frame(h, type, id, w->buf, w->len);
   ts_wr_free(w);
   return rc;
 }
 
-static int send_ident(ts_conn *c, const ts_auth *a, const ts_msg_ident *me, uint32_t id, char *err) {
+static int send_ident(hs *h, const ts_msg_ident *me, uint32_t id, char *err) {
   ts_msg_ident m = *me;
-  if (enabled(a)) m.caps |= TS_CAP_AUTH;
+  if (enabled(h->a)) m.caps |= TS_CAP_AUTH;
   ts_wr w;
   ts_wr_init(&w);
   ts_msg_ident_write(&w, &m);
-  return send_msg(c, TS_MSG_IDENT, id, &w, err);
+  return send_msg(h, TS_MSG_IDENT, id, &w, err);
 }
 
-static int send_auth(ts_conn *c, const ts_msg_auth *m, char *err) {
+static int send_auth(hs *h, const ts_msg_auth *m, char *err) {
   ts_wr w;
   ts_wr_init(&w);
   ts_msg_auth_write(&w, m);
-  return send_msg(c, TS_MSG_AUTH, 0, &w, err);
+  return send_msg(h, TS_MSG_AUTH, 0, &w, err);
 }
 
 /* Both sides must agree on having a secret: refusing here gives the user
@@ -221,93 +266,105 @@ static int accept_policy(const ts_auth *a, const ts_msg_ident *me, const ts_msg_
 }
 
 /* Challenge, check the response, prove ourselves. */
-static int accept_exchange(ts_conn *c, const ts_auth *a, uint8_t peer_role, uint8_t my_role, int timeout_ms,
-                           char *err) {
+static int accept_exchange(hs *h, uint8_t peer_role, uint8_t my_role, char *err) {
   ts_msg_auth ch = {TS_AUTH_CHALLENGE, {0}, {0}}, resp;
   randombytes_buf(ch.nonce, sizeof(ch.nonce));
-  int rc = send_auth(c, &ch, err);
-  if (rc == 0) rc = expect_auth(c, TS_AUTH_RESPONSE, timeout_ms, &resp, err);
+  int rc = send_auth(h, &ch, err);
+  if (rc == 0) rc = expect_auth(h, TS_AUTH_RESPONSE, &resp, err);
   if (rc != 0) return rc;
-  if (ts_auth_verify(a, TS_AUTH_BY_CONNECTOR, peer_role, my_role, ch.nonce, resp.nonce, resp.mac) != 0)
+  if (ts_auth_verify(h->a, TS_AUTH_BY_CONNECTOR, peer_role, my_role, ch.nonce, resp.nonce, resp.mac) != 0)
     return ts_error(err, TS_EAUTH,
                     "authentication failed: wrong secret (every server, worker and client needs the same "
                     "--secret-file)");
   ts_msg_auth proof = {TS_AUTH_PROOF, {0}, {0}};
-  ts_auth_mac(a, TS_AUTH_BY_ACCEPTOR, peer_role, my_role, ch.nonce, resp.nonce, proof.mac);
-  return send_auth(c, &proof, err);
+  ts_auth_mac(h->a, TS_AUTH_BY_ACCEPTOR, peer_role, my_role, ch.nonce, resp.nonce, proof.mac);
+  return send_auth(h, &proof, err);
 }
 
-static int accept_steps(ts_conn *c, const ts_auth *a, const ts_msg_ident *me, ts_msg_ident *peer, int timeout_ms,
-                        char *err) {
+static int accept_steps(hs *h, const ts_msg_ident *me, ts_msg_ident *peer, char *err) {
   ts_frame f;
-  int rc = ts_conn_recv(c, &f, timeout_ms, err);
+  int rc = recv_frame(h, &f, err);
   if (rc < 0) return rc;
   if (f.type != TS_MSG_IDENT) return ts_error(err, TS_EPROTO, "first message must be 'I' (identify)");
   rc = ts_msg_ident_read(&f, peer, err);
-  if (rc == 0) rc = accept_policy(a, me, peer, err);
-  if (rc == 0) rc = send_ident(c, a, me, f.id, err);
-  if (rc == 0 && enabled(a)) rc = accept_exchange(c, a, peer->role, me->role, timeout_ms, err);
+  if (rc == 0) rc = accept_policy(h->a, me, peer, err);
+  if (rc == 0) rc = send_ident(h, me, f.id, err);
+  if (rc == 0 && enabled(h->a)) rc = accept_exchange(h, peer->role, me->role, err);
   return rc;
 }
 
 /* Answer the challenge, check the proof. */
-static int connect_exchange(ts_conn *c, const ts_auth *a, uint8_t my_role, uint8_t peer_role, int timeout_ms,
-                            char *err) {
+static int connect_exchange(hs *h, uint8_t my_role, uint8_t peer_role, char *err) {
   ts_msg_auth ch, resp = {TS_AUTH_RESPONSE, {0}, {0}}, proof;
-  int rc = expect_auth(c, TS_AUTH_CHALLENGE, timeout_ms, &ch, err);
+  int rc = expect_auth(h, TS_AUTH_CHALLENGE, &ch, err);
   if (rc != 0) return rc;
   randombytes_buf(resp.nonce, sizeof(resp.nonce));
-  ts_auth_mac(a, TS_AUTH_BY_CONNECTOR, my_role, peer_role, ch.nonce, resp.nonce, resp.mac);
-  rc = send_auth(c, &resp, err);
-  if (rc == 0) rc = expect_auth(c, TS_AUTH_PROOF, timeout_ms, &proof, err);
-  if (rc == 0 && ts_auth_verify(a, TS_AUTH_BY_ACCEPTOR, my_role, peer_role, ch.nonce, resp.nonce, proof.mac) != 0)
+  ts_auth_mac(h->a, TS_AUTH_BY_CONNECTOR, my_role, peer_role, ch.nonce, resp.nonce, resp.mac);
+  rc = send_auth(h, &resp, err);
+  if (rc == 0) rc = expect_auth(h, TS_AUTH_PROOF, &proof, err);
+  if (rc == 0 && ts_auth_verify(h->a, TS_AUTH_BY_ACCEPTOR, my_role, peer_role, ch.nonce, resp.nonce, proof.mac) != 0)
     rc = ts_error(err, TS_EAUTH,
                   "authentication failed: %s could not prove it knows the secret (a different --secret-file there?)",
-                  c->peer);
+                  h->c->peer);
   return rc;
 }
 
-static int connect_steps(ts_conn *c, const ts_auth *a, const ts_msg_ident *me, ts_msg_ident *peer, int timeout_ms,
-                         char *err) {
+static int connect_steps(hs *h, const ts_msg_ident *me, ts_msg_ident *peer, char *err) {
   ts_frame f;
-  int rc = send_ident(c, a, me, 0, err);
-  if (rc == 0) rc = expect(c, TS_MSG_IDENT, timeout_ms, &f, err);
+  int rc = send_ident(h, me, 0, err);
+  if (rc == 0) rc = expect(h, TS_MSG_IDENT, &f, err);
   if (rc == 0) rc = ts_msg_ident_read(&f, peer, err);
   if (rc != 0) return rc;
   int theirs = (peer->caps & TS_CAP_AUTH) != 0;
-  if (enabled(a) && !theirs)
+  if (enabled(h->a) && !theirs)
     return ts_error(err, TS_EAUTH,
                     "authentication failed: %s does not authenticate (started without --secret-file, or an older "
                     "texsyn); refusing to use it",
-                    c->peer);
-  if (!enabled(a) && theirs)
-    return ts_error(err, TS_EAUTH, "%s requires authentication: pass --secret-file with the shared secret", c->peer);
-  return enabled(a) ? connect_exchange(c, a, me->role, peer->role, timeout_ms, err) : 0;
+                    h->c->peer);
+  if (!enabled(h->a) && theirs)
+    return ts_error(err, TS_EAUTH, "%s requires authentication: pass --secret-file with the shared secret",
+                    h->c->peer);
+  return enabled(h->a) ? connect_exchange(h, me->role, peer->role, err) : 0;
 }
 
-typedef int handshake_steps(ts_conn *c, const ts_auth *a, const ts_msg_ident *me, ts_msg_ident *peer,
-                            int timeout_ms, char *err);
+typedef int handshake_steps(hs *h, const ts_msg_ident *me, ts_msg_ident *peer, char *err);
 
 /* Both directions run under the small handshake frame limit, and take no
- * message in pieces (which could be larger). */
-static int under_handshake_limit(handshake_steps *steps, ts_conn *c, const ts_auth *a, const ts_msg_ident *me,
-                                 ts_msg_ident *peer, int timeout_ms, char *err) {
+ * message in pieces (which could be larger). With a secret, a start that
+ * succeeded seals the connection with keys from its whole transcript: an
+ * 'I' altered on the way (its capabilities, name or Modbus port, which no
+ * proof covers) leaves the two sides with different keys, and the first
+ * sealed frame fails. Without one the link stays plain: keys derived from
+ * public nonces alone would hide nothing from whoever saw them. */
+static int handshake(handshake_steps *steps, int connector, ts_conn *c, const ts_auth *a, const ts_msg_ident *me,
+                     ts_msg_ident *peer, int timeout_ms, char *err) {
   uint32_t max = c->rd.max_payload;
   uint64_t max_message = c->pieces.max_message;
   c->rd.max_payload = max < HANDSHAKE_MAX_FRAME ? max : HANDSHAKE_MAX_FRAME;
   ts_conn_accept_pieces(c, 0);
-  int rc = steps(c, a, me, peer, timeout_ms, err);
+  hs h = {c, a, timeout_ms, {{0}}};
+  crypto_generichash_init(&h.th, NULL, 0, TS_AUTH_TRANSCRIPT);
+  int rc = steps(&h, me, peer, err);
   c->rd.max_payload = max;
   ts_conn_accept_pieces(c, max_message);
+  uint8_t transcript[TS_AUTH_TRANSCRIPT], tx[TS_SEAL_KEY], rx[TS_SEAL_KEY];
+  crypto_generichash_final(&h.th, transcript, sizeof(transcript));
+  if (rc == 0 && enabled(a)) {
+    ts_auth_session_keys(a, transcript, connector, tx, rx);
+    rc = ts_conn_start_seal(c, tx, rx, err);
+    sodium_memzero(tx, sizeof(tx));
+    sodium_memzero(rx, sizeof(rx));
+  }
+  sodium_memzero(&h, sizeof(h));
   return rc;
 }
 
 int ts_auth_accept(ts_conn *c, const ts_auth *a, const ts_msg_ident *me, ts_msg_ident *peer, int timeout_ms,
                    char *err) {
-  return under_handshake_limit(accept_steps, c, a, me, peer, timeout_ms, err);
+  return handshake(accept_steps, 0, c, a, me, peer, timeout_ms, err);
 }
 
 int ts_auth_connect(ts_conn *c, const ts_auth *a, const ts_msg_ident *me, ts_msg_ident *peer, int timeout_ms,
                     char *err) {
-  return under_handshake_limit(connect_steps, c, a, me, peer, timeout_ms, err);
+  return handshake(connect_steps, 1, c, a, me, peer, timeout_ms, err);
 }

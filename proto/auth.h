@@ -13,9 +13,12 @@
  * Without a secret a daemon is in protected mode (like Redis): it talks
  * to loopback peers only.
  *
- * The exchange authenticates the start of a connection. It does not
- * encrypt the frames that follow nor protect them from someone on the
- * path; that needs a private network or a tunnel. */
+ * After the exchange each direction gets its own key, derived from the
+ * secret and a hash of every frame of the start (both 'I' frames in full,
+ * the three 'A' steps), and every later frame travels sealed (seal.h):
+ * someone on the path can neither read, alter, drop, replay nor reorder
+ * frames without the connection ending. Without a secret (loopback only)
+ * the link stays plain. */
 #ifndef TS_AUTH_H
 #define TS_AUTH_H
 
@@ -25,8 +28,10 @@
 
 #include "msg.h"
 #include "net.h"
+#include "seal.h"
 
 #define TS_AUTH_SECRET_MAX 1024 /* bytes of a secret file (one newline more) */
+#define TS_AUTH_TRANSCRIPT 64   /* BLAKE2b-512 of the connection start's frames */
 
 /* Who proves in a transcript: part of what is signed, so a proof cannot
  * be reflected back to the side that made it. */
@@ -59,6 +64,14 @@ int ts_auth_verify(const ts_auth *a, int by, uint8_t connector_role, uint8_t acc
                    const uint8_t challenge[TS_AUTH_NONCE], const uint8_t nonce[TS_AUTH_NONCE],
                    const uint8_t mac[TS_AUTH_MAC]);
 
+/* The session keys of a connection whose start hashed to `transcript`:
+ * master = HMAC-SHA-256(secret, "texsyn-seal-v1" || transcript), then
+ * crypto_kdf subkeys 1 (connector to acceptor) and 2 (the other way),
+ * context "tsseal01". tx is the key this side seals with, rx the one it
+ * opens with. */
+void ts_auth_session_keys(const ts_auth *a, const uint8_t transcript[TS_AUTH_TRANSCRIPT], int connector,
+                          uint8_t tx[TS_SEAL_KEY], uint8_t rx[TS_SEAL_KEY]);
+
 /* Protected mode: 0 if a peer at this address may connect (there is a
  * secret, or the peer is on loopback), else TS_EAUTH and the message to
  * send it. a may be NULL (no secret). */
@@ -73,12 +86,13 @@ int ts_auth_listen_warning(const ts_auth *a, int lfd, char *msg);
  * secret, challenges the peer and proves ourselves. On failure the caller
  * sends an 'E' with err (the peer can act on it), logs it and closes:
  * TS_EAUTH for a wrong or missing secret, else a protocol error. a may be
- * NULL (no secret). */
+ * NULL (no secret). With a secret, c is sealed from then on. */
 int ts_auth_accept(ts_conn *c, const ts_auth *a, const ts_msg_ident *me, ts_msg_ident *peer, int timeout_ms,
                    char *err);
 /* Connection start on the connecting side: sends our 'I' (me), reads the
  * peer's into *peer and, with a secret, answers its challenge and checks
- * its proof. An 'E' from the peer becomes its code and text. */
+ * its proof. An 'E' from the peer becomes its code and text. With a
+ * secret, c is sealed from then on. */
 int ts_auth_connect(ts_conn *c, const ts_auth *a, const ts_msg_ident *me, ts_msg_ident *peer, int timeout_ms,
                     char *err);
 

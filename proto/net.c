@@ -184,8 +184,81 @@ fail:
   return ts_error(err, TS_ECONN, "send failed: %s", strerror(errno));
 }
 
+/* Sends n plain bytes as sealed frames. */
+static int send_sealed(ts_conn *c, const uint8_t *p, size_t n, char *err) {
+  while (n > 0) {
+    size_t k = n < TS_SEAL_CHUNK ? n : TS_SEAL_CHUNK;
+    int len = ts_seal_one(c->seal, p, k, err);
+    if (len < 0) return len;
+    if (send_all(c->fd, c->seal->tx_buf, (size_t)len) != 0)
+      return ts_error(err, TS_ECONN, "send failed: %s", strerror(errno));
+    p += k;
+    n -= k;
+  }
+  return 0;
+}
+
+int ts_conn_send(ts_conn *c, uint8_t type, uint32_t id, const void *payload, size_t len, char *err) {
+  if (c->seal == NULL) return ts_net_send(c->fd, type, id, payload, len, err);
+  if (len > UINT32_MAX) return ts_error(err, TS_ETOOBIG, "message of %zu bytes is too large", len);
+  /* The header and the start of the payload in one sealed frame (a small
+   * message in one), the rest straight from the payload. */
+  uint8_t first[4096];
+  size_t head = len < sizeof(first) - TS_FRAME_HEADER ? len : sizeof(first) - TS_FRAME_HEADER;
+  ts_frame_header(first, type, id, (uint32_t)len);
+  if (head > 0) memcpy(first + TS_FRAME_HEADER, payload, head);
+  int rc = send_sealed(c, first, TS_FRAME_HEADER + head, err);
+  if (rc == 0 && len > head) rc = send_sealed(c, (const uint8_t *)payload + head, len - head, err);
+  return rc;
+}
+
+int ts_conn_wrap(ts_conn *c, ts_wr *out, const void *plain, size_t n, char *err) {
+  if (c->seal != NULL) return ts_seal_append(c->seal, out, plain, n, err);
+  ts_wr_bytes(out, plain, n);
+  return ts_wr_status(out) != 0 ? ts_error(err, TS_ENOMEM, "out of memory for an outgoing message") : 0;
+}
+
+/* Opens the whole sealed frames received into the frame reader. */
+static int open_sealed(ts_conn *c, char *err) {
+  for (;;) {
+    ts_frame f;
+    const uint8_t *plain;
+    size_t n;
+    int rc = ts_frame_reader_next(&c->seal->in, &f, err);
+    if (rc == 1) rc = ts_seal_open(c->seal, &f, &plain, &n, err);
+    if (rc == 0) return 0;
+    if (rc < 0) {
+      char why[TS_ERR_LEN];
+      snprintf(why, sizeof(why), "%s", err);
+      return ts_error(err, rc, "%s: %s%s", c->peer, strncmp(why, "sealed link", 11) == 0 ? "" : "sealed link: ",
+                      why);
+    }
+    if (ts_frame_reader_feed(&c->rd, plain, n) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
+  }
+}
+
+int ts_conn_start_seal(ts_conn *c, const uint8_t tx_key[TS_SEAL_KEY], const uint8_t rx_key[TS_SEAL_KEY], char *err) {
+  ts_seal *s = malloc(sizeof(*s));
+  if (s == NULL || ts_seal_init(s, tx_key, rx_key) != 0) {
+    free(s);
+    return ts_error(err, TS_ENOMEM, "out of memory for a sealed link");
+  }
+  /* What came after the last handshake frame is sealed already. */
+  ts_frame_reader *rd = &c->rd;
+  size_t from = rd->consumed;
+  if (rd->len > from && ts_frame_reader_feed(&s->in, rd->buf + from, rd->len - from) != 0) {
+    ts_seal_free(s);
+    free(s);
+    return ts_error(err, TS_ENOMEM, "out of memory for a sealed link");
+  }
+  rd->len = from;
+  c->seal = s;
+  return open_sealed(c, err);
+}
+
 void ts_conn_init(ts_conn *c, int fd, uint32_t max_payload, const char *peer) {
   c->fd = fd;
+  c->seal = NULL;
   ts_frame_reader_init(&c->rd, max_payload);
   ts_pieces_init(&c->pieces, 0);
   snprintf(c->peer, sizeof(c->peer), "%s", peer ? peer : "?");
@@ -198,6 +271,11 @@ void ts_conn_close(ts_conn *c) {
   c->fd = -1;
   ts_frame_reader_free(&c->rd);
   ts_pieces_free(&c->pieces);
+  if (c->seal != NULL) {
+    ts_seal_free(c->seal);
+    free(c->seal);
+    c->seal = NULL;
+  }
 }
 
 void ts_conn_close_after_error(ts_conn *c, int timeout_ms) {
@@ -232,10 +310,18 @@ int ts_conn_next(ts_conn *c, ts_frame *f, char *err) {
 static int fill(ts_conn *c, int dontwait, char *err) {
   uint8_t buf[65536];
   ssize_t k = recv(c->fd, buf, sizeof(buf), dontwait ? MSG_DONTWAIT : 0);
+  if (k == 0 && c->seal != NULL && c->seal->in.len > c->seal->in.consumed)
+    return ts_error(err, TS_ECONN, "%s closed the connection inside sealed frame %u (truncated)", c->peer,
+                    (uint32_t)c->seal->rx_seq);
   if (k == 0) return ts_error(err, TS_ECONN, "%s closed the connection", c->peer);
   if (k < 0) {
     if (errno == EAGAIN || errno == EINTR) return 0;
     return ts_error(err, TS_ECONN, "%s: %s", c->peer, strerror(errno));
+  }
+  if (c->seal != NULL) {
+    if (ts_frame_reader_feed(&c->seal->in, buf, (size_t)k) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
+    int rc = open_sealed(c, err);
+    return rc < 0 ? rc : 1;
   }
   if (ts_frame_reader_feed(&c->rd, buf, (size_t)k) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
   return 1;

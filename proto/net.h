@@ -13,6 +13,7 @@
 
 #include "frame.h"
 #include "pieces.h"
+#include "seal.h"
 #include "util.h"
 
 #define TS_NET_ADDR_LEN 128
@@ -36,6 +37,7 @@ typedef struct {
   int fd;
   ts_frame_reader rd;
   ts_pieces pieces; /* reassembles messages in pieces: refused unless enabled */
+  ts_seal *seal;    /* after an authenticated handshake: every frame sealed (seal.h); NULL: plain */
   char peer[TS_NET_ADDR_LEN];
 } ts_conn;
 
@@ -44,6 +46,16 @@ void ts_conn_init(ts_conn *c, int fd, uint32_t max_payload, const char *peer);
 /* Takes messages in pieces of up to max_message bytes from now on (0:
  * none); the frames receive hands out are then whole messages. */
 void ts_conn_accept_pieces(ts_conn *c, uint64_t max_message);
+/* Seals every frame from now on, both ways (seal.h), with the keys the
+ * handshake derived; bytes already received past the handshake are opened
+ * as sealed frames. 0 or TS_ENOMEM. */
+int ts_conn_start_seal(ts_conn *c, const uint8_t tx_key[TS_SEAL_KEY], const uint8_t rx_key[TS_SEAL_KEY], char *err);
+/* Sends one frame whole (blocking; no SIGPIPE), sealed if the connection is. */
+int ts_conn_send(ts_conn *c, uint8_t type, uint32_t id, const void *payload, size_t len, char *err);
+/* Appends n bytes of whole or partial frames to out as the socket must
+ * carry them: sealed if the connection is, else as they are. For senders
+ * that produce frames into a buffer as the socket drains. */
+int ts_conn_wrap(ts_conn *c, ts_wr *out, const void *plain, size_t n, char *err);
 /* Closes the socket and frees the reader. */
 void ts_conn_close(ts_conn *c);
 /* Closes after a final 'E' to a refused peer: half-closes, then discards

@@ -62,7 +62,7 @@ static ts_connset g_conns;
 
 static int reply(ts_conn *c, uint8_t type, uint32_t id, ts_wr *w) {
   char err[TS_ERR_LEN];
-  int rc = ts_wr_status(w) != 0 ? TS_ENOMEM : ts_net_send(c->fd, type, id, w->buf, w->len, err);
+  int rc = ts_wr_status(w) != 0 ? TS_ENOMEM : ts_conn_send(c, type, id, w->buf, w->len, err);
   ts_wr_free(w);
   return rc;
 }

@@ -82,7 +82,7 @@ typedef struct {
 
 static int send_reply(session *s, uint8_t type, uint32_t id, ts_wr *w) {
   char err[TS_ERR_LEN];
-  int rc = ts_wr_status(w) != 0 ? TS_ENOMEM : ts_net_send(s->conn.fd, type, id, w->buf, w->len, err);
+  int rc = ts_wr_status(w) != 0 ? TS_ENOMEM : ts_conn_send(&s->conn, type, id, w->buf, w->len, err);
   ts_wr_free(w);
   return rc;
 }

@@ -42,7 +42,7 @@ int ts_client_next(ts_conn *c, uint8_t type, int timeout_ms, ts_frame *f, char *
 
 int ts_client_call(ts_conn *c, uint8_t type, const ts_wr *payload, int timeout_ms, ts_frame *f, char *err) {
   if (ts_wr_status(payload) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
-  int rc = ts_net_send(c->fd, type, 1, payload->buf, payload->len, err);
+  int rc = ts_conn_send(c, type, 1, payload->buf, payload->len, err);
   if (rc != 0) return rc;
   return ts_client_next(c, type, timeout_ms, f, err);
 }

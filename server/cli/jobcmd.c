@@ -474,7 +474,7 @@ int ts_job_watch(ts_conn *c, uint64_t id, const char *cmd, int mode, ts_job_stat
   ts_wr_init(&w);
   ts_msg_status_req req = {id, 1};
   ts_msg_status_req_write(&w, &req);
-  int rc = ts_wr_status(&w) ? TS_ENOMEM : ts_net_send(c->fd, TS_MSG_STATUS, 1, w.buf, w.len, err);
+  int rc = ts_wr_status(&w) ? TS_ENOMEM : ts_conn_send(c, TS_MSG_STATUS, 1, w.buf, w.len, err);
   ts_wr_free(&w);
   progress_view pv;
   view_init(&pv, mode, cmd);

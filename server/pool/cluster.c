@@ -88,6 +88,12 @@ static cl_request *req_by_id(cl_worker *w, uint32_t id) {
  * connection (which it then leaves): 0 and *rq, or TS_EPROTO naming what
  * is wrong. */
 static int req_match(cl_worker *w, const ts_frame *f, cl_request *rq, char *err) {
+  /* An 'E' of id 0 answers no request: the worker ends the connection and
+   * says why (a sealed frame it refused, say). Its reason is the one to log. */
+  if (f->type == TS_MSG_ERROR && f->id == 0) {
+    int rc = cl_reply_error(f, err);
+    return rc < 0 ? rc : ts_error(err, TS_EPROTO, "protocol: an 'E' frame id 0 of code %d", rc);
+  }
   if (w->nreqs == 0)
     return ts_error(err, TS_EPROTO, "protocol: unsolicited '%c' frame id %u (no request outstanding)", f->type, f->id);
   const cl_request *r = req_at(w, 0);
@@ -216,7 +222,14 @@ static int fill_out(cl_worker *w, char *err) {
   while (w->qhead < w->nqueue && w->out.len < CL_OUT_HIGH) {
     cl_msg *e = &w->queue[w->qhead];
     size_t len0 = w->out.len;
-    int rc = ts_outmsg_produce(&e->m, e->write, &e->arg, &w->out, CL_OUT_CHUNK, err);
+    /* A sealed connection's bytes are produced plain, then sealed. */
+    ts_wr *to = w->conn.seal != NULL ? &w->plain : &w->out;
+    w->plain.len = 0;
+    int rc = ts_outmsg_produce(&e->m, e->write, &e->arg, to, CL_OUT_CHUNK, err);
+    if (rc >= 0 && to == &w->plain) {
+      int sr = ts_conn_wrap(&w->conn, &w->out, w->plain.buf, w->plain.len, err);
+      if (sr < 0) rc = sr;
+    }
     if (rc < 0) return rc;
     w->produced += w->out.len - len0;
     if (rc == 1) {
@@ -233,6 +246,7 @@ static int fill_out(cl_worker *w, char *err) {
 static void worker_free(cl_worker *w) {
   ts_conn_close(&w->conn);
   ts_wr_free(&w->out);
+  ts_wr_free(&w->plain);
   free(w->queue);
   free(w->frames);
   free(w->reqs);
@@ -317,14 +331,14 @@ static void reap_failed(ts_cluster *c) {
 
 static int send_frame(ts_conn *conn, uint8_t type, uint32_t id, const ts_wr *w, char *err) {
   if (ts_wr_status(w) != 0) return ts_error(err, TS_ENOMEM, "out of memory");
-  return ts_net_send(conn->fd, type, id, w->buf, w->len, err);
+  return ts_conn_send(conn, type, id, w->buf, w->len, err);
 }
 
 /* Waits for the reply of the given type to request `id` (no lock held). */
 static int await_reply(ts_conn *conn, uint8_t type, uint32_t id, int timeout_ms, ts_frame *f, char *err) {
   int rc = ts_conn_recv(conn, f, timeout_ms, err);
   if (rc < 0) return rc;
-  if (f->id != id)
+  if (f->id != id && !(f->type == TS_MSG_ERROR && f->id == 0)) /* id 0: why the worker ends the connection */
     return ts_error(err, TS_EPROTO, "%s: protocol: '%c' frame id %u answers no request (awaiting '%c' frame id %u)",
                     conn->peer, f->type, f->id, type, id);
   if (f->type == TS_MSG_ERROR) {
@@ -389,6 +403,7 @@ static int admit(ts_cluster *c, ts_conn *conn, const ts_msg_ident *ident, int ad
   w->state = TS_WORKER_CALIBRATING;
   w->next_id = 2; /* 1 is the calibration's */
   ts_wr_init(&w->out);
+  ts_wr_init(&w->plain);
   /* A slot first: a full pool refuses before spending a calibration. */
   pthread_mutex_lock(&c->lock);
   int rc = pool_full(c, err);

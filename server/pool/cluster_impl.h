@@ -123,6 +123,7 @@ typedef struct {
   cl_msg *queue; /* messages to send, produced into out as it drains */
   uint32_t nqueue, qhead, cap_queue;
   ts_wr out;
+  ts_wr plain; /* a sealed connection's frames before they are sealed into out */
   size_t out_off;
   int expect; /* requests of the lease holder's exchange not answered yet */
   /* The connection's requests outstanding, oldest first (a ring), and
