@@ -60,6 +60,11 @@ SECTIONS = [
     ("video", "Video with keyframes: texsyn video against stylize --frames and Ebsynth frame by frame",
      ["video.md", "video.json"], ["video-strip-noise.png", "video-strip-painting.png"],
      "/usr/bin/python3 bench/video.py --build build --out bench/results --ebsynth PATH --pool [--quick]"),
+    ("seal_cost", "Sealed frames: the Table 3.3 job on 3 workers against a build without them",
+     ["seal_cost.md", "seal_cost.json"], [],
+     "/usr/bin/python3 bench/seal_cost.py --base BASE_BUILD --build build --reps 5 --json bench/results/seal_cost.json"),
+    ("tile_seams", "Aerial tiles: borders against interior pairs", ["tile_seams.md", "tile_seams.json"],
+     ["tile_seams-crop.png"], "/usr/bin/python3 bench/tile_seams.py --build build"),
     ("video_blend", "The blend between two keys: steps at the seam, ghosting", ["video-blend.md", "video-blend.json"],
      ["video-blend-strip-painting.png"], RUN.format("video_blend.py")),
 ]
@@ -73,6 +78,7 @@ NOTES = {
     "video": "PATH: the Ebsynth peer, as for the stylization section; `TEXSYN_EBSYNTH=DIR/ebsynth make bench-full` "
              "runs it.",
     "video_blend": "`make bench-full` runs it.",
+    "seal_cost": "BASE_BUILD: a build of the commit before sealed frames (protocol 6), e.g. 428eedf.",
     "scaling_aerial": "The scaling section of `make bench-full` runs the same job over 1 to 16 workers; this "
                       "command runs it on 1 and 2 alone (about 9 minutes).",
 }
