@@ -15,7 +15,7 @@
 set -u
 cd "$(dirname "$0")/.."
 mode=${1:-}
-targets="frame msg jobspec image checkpoint modbus spool catalogue"
+targets=$(sed -n "s/^FUZZ_TARGETS = //p" Makefile) # declared once, in the Makefile
 pass=0; fail=0
 inputs() { # the committed inputs of target $1 that exist
   local d
