@@ -23,6 +23,8 @@
 #                   bench/results/netem.{json,md,png}
 #   make test-hostile  SCHEDULES (2000) seeded schedules of a hostile worker over every engine;
 #                   writes bench/results/hostile.{json,md}
+#   make test-seal  SEAL_ROUNDS (125) rounds of the man-in-the-middle relay altering,
+#                   dropping, replaying and reordering sealed frames (1,000 trials)
 #   make soak       SOAK_MINUTES (default 10) of small jobs on 3 workers that are killed,
 #                   stalled, partitioned and replaced, the coordinator killed and its spool's
 #                   disk filled or made read-only (root); writes bench/results/soak.{json,txt}
@@ -298,6 +300,15 @@ test-faults: all
 	  tests/integration/test_disk_faults.py tests/integration/test_partitions.py
 	TEXSYN_DATA=$$(bash tests/test-data.sh) TEXSYN_BUILD=$(abspath $(BUILD)) TEXSYN_LONG_TESTS=1 /usr/bin/python3 -m pytest \
 	  -q -p no:cacheprovider --durations=5 -m long tests/integration/test_hostile.py tests/integration/test_phases.py
+
+# The man-in-the-middle relay of tests/integration/test_seal.py for
+# SEAL_ROUNDS rounds of 8 sealed-frame alterations (default 125: 1,000
+# trials, about 70 minutes on 2 cores; `make test` runs one round).
+SEAL_ROUNDS ?= 125
+.PHONY: test-seal
+test-seal: all
+	TEXSYN_DATA=$$(bash tests/test-data.sh) TEXSYN_BUILD=$(abspath $(BUILD)) TEXSYN_SEAL_ROUNDS=$(SEAL_ROUNDS) \
+	  /usr/bin/python3 -m pytest -q -p no:cacheprovider --durations=5 tests/integration/test_seal.py
 
 # Seeded random schedules of a hostile worker (issue 25) over every engine:
 # SCHEDULES (default 2000, about 35 minutes on 2 cores), the seed printed and
