@@ -40,6 +40,7 @@ typedef struct {
   int ncolours;
   aerial_colour colour[AERIAL_MAX_COLOURS];
   uint64_t max_pixels; /* of a tile's synthesis area */
+  int cog;             /* the output, a .tif, as a Cloud-Optimised GeoTIFF */
 } aerial_job;
 
 /* The halo a job uses: its own, or the one its pyramid needs. */

@@ -64,6 +64,9 @@ static const ts_param aerial_param_table[] = {
      .def_help = "the coordinator's cores"},
     {"max_pixels", NULL, NULL, TS_PARAM_U64, F(max_pixels), 0, 0, "268435456",
      "size limit of a tile's synthesis area (the scene's limit is the disk)", .flags = TS_PARAM_UNBOUNDED},
+    {"cog", "cog", NULL, TS_PARAM_FLAG, F(cog), 0, 1, "0",
+     "write OUT, a .tif, as a Cloud-Optimised GeoTIFF (GDAL's COG driver, as gdal_translate -of COG): "
+     "DEFLATE tiles and averaged overviews halving down to one tile, georeferenced like MAP"},
     {"classes", NULL, NULL, TS_PARAM_INT, F(nclass), 1, AERIAL_MAX_CLASSES, NULL, "classes of the catalogue"},
     {"lines", NULL, NULL, TS_PARAM_FLAG, F(lines), 0, 1, "0", "a line raster is an input"},
     {"colours", NULL, NULL, TS_PARAM_INT, F(ncolours), 0, AERIAL_MAX_COLOURS, "0", "colours of the line raster"},

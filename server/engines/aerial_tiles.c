@@ -22,11 +22,14 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
+#include <sys/statvfs.h>
 #include <unistd.h>
 
 #include "aerial.h"
 #include "error.h"
 #include "image_meta.h"
+#include "jobspec.h"
 #include "region.h"
 #include "tile_grid.h"
 #include "util.h"
@@ -471,6 +474,31 @@ static int file_tile(int tile) {
   return ft;
 }
 
+/* The output's room, before any tile is made: the bytes the file may take
+ * at most against the free space of its file system (statvfs, blocks free
+ * to unprivileged users). The bound is the uncompressed samples - 3 bytes
+ * a pixel, 6 for OpenEXR (half floats) - plus 1/64 for DEFLATE's stored
+ * blocks and the TIFF's tile index: DEFLATE never grows data by more, and
+ * a scene is refused only when even incompressible pixels would not fit
+ * (aerial scenes compress to about half, so most refused would have
+ * fitted only by luck). A COG also holds overviews (1/3 more) and, while
+ * GDAL's COG driver copies it, two files at once: twice that. */
+static int check_disk(const char *path, int w, int h, int cog, char *err) {
+  char dir[4096];
+  snprintf(dir, sizeof(dir), "%s", path);
+  char *slash = strrchr(dir, '/');
+  if (slash == NULL) snprintf(dir, sizeof(dir), ".");
+  else slash[slash == dir] = '\0';
+  struct statvfs fs;
+  if (statvfs(dir, &fs) != 0) return 0; /* the output's creation names the problem */
+  double raw = (double)w * (double)h * (strcasecmp(ts_path_ext(path), "exr") == 0 ? 6 : 3);
+  double need = (raw + raw / 64 + (1 << 20)) * (cog ? 2.0 * 4 / 3 : 1), avail = (double)fs.f_bavail * (double)fs.f_frsize;
+  if (need <= avail) return 0;
+  return ts_error(err, TS_ETOOBIG, "%s: the %dx%d scene may take up to %.1f MB (its samples uncompressed%s), and "
+                  "%s has %.1f MB free: free some space or write the output elsewhere", path, w, h, need / 1e6,
+                  cog ? ", with overviews, twice while the COG is copied" : "", dir, avail / 1e6);
+}
+
 static int open_io(tiler *t, const ts_image *const *in, const char *out_path, char *err) {
   const aerial_job *p = t->p;
   if (out_path == NULL) return ts_error(err, TS_EINVAL, "the aerial engine needs its output's path to stream it to");
@@ -484,7 +512,8 @@ static int open_io(tiler *t, const ts_image *const *in, const char *out_path, ch
   t->ids = malloc(sizeof(int32_t) * row);
   t->values = malloc(sizeof(int32_t) * row);
   if (t->ids == NULL || t->values == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
-  return ts_tile_sink_open(out_path, t->g.w, t->g.h, file_tile(p->tile), t->meta, &t->sink, err);
+  if ((rc = check_disk(out_path, t->g.w, t->g.h, p->cog, err)) != 0) return rc;
+  return ts_tile_sink_open(out_path, t->g.w, t->g.h, file_tile(p->tile), t->map, t->meta, p->cog, &t->sink, err);
 }
 
 static void tiler_free(tiler *t, int ok) {
