@@ -61,6 +61,7 @@ typedef struct {
   uint8_t *rank_of_id;   /* class id -> fill rank, NO_CLASS */
   int16_t *colour_of_id; /* line value -> colour index, -1 */
   ts_region_source *map, *lines;
+  ts_gis_line_rules *rules; /* a vector layer's, NULL for a line raster */
   ts_meta *meta;
   ts_tile_sink *sink;
   int32_t *ids, *values; /* READ_ROWS rows of the map and the lines */
@@ -161,6 +162,7 @@ static int band_load(tiler *t, int row, char *err) {
     int n = b->h - y < READ_ROWS ? b->h - y : READ_ROWS;
     int rc = t->map->read(t->map, 0, b->y0 + y, w, n, t->ids, err);
     if (rc == 0 && t->lines != NULL) rc = t->lines->read(t->lines, 0, b->y0 + y, w, n, t->values, err);
+    if (rc == 0 && t->rules != NULL) ts_aerial_lines_hide(t->rules, t->ids, t->values, (size_t)w * (size_t)n);
     for (size_t i = 0; rc == 0 && i < (size_t)w * (size_t)n; i++)
       rc = put_pixel(t, b, (size_t)y * (size_t)w + i, t->ids[i], t->lines != NULL ? t->values[i] : -1,
                      (int)(i % (size_t)w), b->y0 + y + (int)(i / (size_t)w), err);
@@ -502,9 +504,7 @@ static int check_disk(const char *path, int w, int h, int cog, char *err) {
 static int open_io(tiler *t, const ts_image *const *in, const char *out_path, char *err) {
   const aerial_job *p = t->p;
   if (out_path == NULL) return ts_error(err, TS_EINVAL, "the aerial engine needs its output's path to stream it to");
-  int rc = ts_region_source_open(ts_engine_file_of(in[0])->path, &t->meta, &t->map, err);
-  if (rc == 0 && p->lines)
-    rc = ts_region_source_open(ts_engine_file_of(in[ts_aerial_lines_input(p)])->path, NULL, &t->lines, err);
+  int rc = ts_aerial_open_sources(p, in, &t->meta, &t->map, &t->lines, &t->rules, err);
   if (rc != 0) return rc;
   if (ts_tile_grid_init(&t->g, t->map->width, t->map->height, p->tile, ts_aerial_halo(p)) != 0)
     return ts_error(err, TS_EINVAL, "--classes: an empty class map");
@@ -532,6 +532,7 @@ static void tiler_free(tiler *t, int ok) {
   free(t->values);
   if (t->map != NULL) t->map->close(t->map);
   if (t->lines != NULL) t->lines->close(t->lines);
+  free(t->rules);
   ts_meta_free(t->meta);
   if (!ok && t->sink != NULL) t->sink->abort(t->sink);
 }

@@ -72,6 +72,14 @@ int ts_tile_sink_open(const char *path, int w, int h, int tile, const ts_region_
 int ts_tile_sink_open_image(const char *path, int w, int h, int tile, const ts_meta *meta_from, ts_tile_sink **out,
                             char *err);
 
+/* A vector layer's lines rasterised by regions (gis.h's ts_gis_lines) at
+ * the grid of `scene` (its size, and its ->geo: NULL for map coordinates
+ * that are pixel coordinates): each pixel's line value, 0 for none. The
+ * layer is reprojected into the scene's CRS; ts_gis_lines_open says when
+ * it is refused. rules are read at the opening only. */
+int ts_region_source_open_lines(const char *path, const ts_region_source *scene, const ts_gis_line_rules *rules,
+                                ts_region_source **out, char *err);
+
 /* 1 if path names a TIFF (.tif, .tiff, any case). */
 int ts_region_is_tiff(const char *path);
 

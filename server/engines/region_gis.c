@@ -80,6 +80,51 @@ int ts_region_source_open(const char *path, ts_meta **meta, ts_region_source **o
   return ts_region_source_open_image(path, meta, out, err);
 }
 
+/* ---- vector lines through GDAL ---------------------------------------------- */
+
+typedef struct {
+  ts_region_source ops;
+  ts_gis_lines *l;
+  uint8_t *scratch; /* the values of the last read */
+  size_t cap;       /* its pixels */
+} lines_source;
+
+static int lines_read(ts_region_source *s, int x, int y, int w, int h, int32_t *dst, char *err) {
+  lines_source *l = (lines_source *)s;
+  size_t n = (size_t)w * (size_t)h;
+  if (n > l->cap) {
+    free(l->scratch);
+    l->cap = 0;
+    if ((l->scratch = malloc(n)) == NULL) return ts_error(err, TS_ENOMEM, "out of memory reading a region");
+    l->cap = n;
+  }
+  int rc = ts_gis_lines_read(l->l, x, y, w, h, l->scratch, err);
+  for (size_t i = 0; rc == 0 && i < n; i++) dst[i] = l->scratch[i];
+  return rc;
+}
+
+static void lines_close(ts_region_source *s) {
+  lines_source *l = (lines_source *)s;
+  ts_gis_lines_close(l->l);
+  free(l->scratch);
+  free(l);
+}
+
+int ts_region_source_open_lines(const char *path, const ts_region_source *scene, const ts_gis_line_rules *rules,
+                                ts_region_source **out, char *err) {
+  *out = NULL;
+  lines_source *l = calloc(1, sizeof(*l));
+  if (l == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
+  int rc = ts_gis_lines_open(path, scene->geo, scene->width, scene->height, rules, &l->l, err);
+  if (rc != 0) {
+    free(l);
+    return rc;
+  }
+  l->ops = (ts_region_source){scene->width, scene->height, lines_read, lines_close, scene->geo};
+  *out = &l->ops;
+  return 0;
+}
+
 /* ---- the image through GDAL ------------------------------------------------- */
 
 typedef struct {
