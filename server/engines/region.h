@@ -50,7 +50,7 @@ struct ts_tile_sink {
  * GDAL refuses (several bands, floating point) or without GDAL; any other
  * format through the image library (region_gis.c says why). meta (may be
  * NULL): the file's metadata as the image library reads it, for an output
- * it writes (NULL when GDAL read the file); the caller frees it with
+ * it writes (NULL if it cannot read the file); the caller frees it with
  * ts_meta_free. No pixel limit applies: the scene's limit is the disk. */
 int ts_region_source_open(const char *path, ts_meta **meta, ts_region_source **out, char *err);
 /* The same through the image library only (any format ts_image_read

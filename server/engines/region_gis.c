@@ -69,13 +69,24 @@ static int gis_source_open(const char *path, ts_region_source **out, char *err) 
   return 0;
 }
 
+/* The metadata the image library reads from path, for an output it
+ * writes (an OpenEXR keeps a GeoTIFF's tags as attributes); none if it
+ * cannot read the file, which GDAL could. */
+static int image_meta(const char *path, ts_meta **meta) {
+  if (meta == NULL) return 0;
+  ts_region_source *s;
+  char why[TS_ERR_LEN];
+  if (ts_region_source_open_image(path, meta, &s, why) == 0) s->close(s);
+  return 0;
+}
+
 int ts_region_source_open(const char *path, ts_meta **meta, ts_region_source **out, char *err) {
   *out = NULL;
   if (meta != NULL) *meta = NULL;
   if (ts_region_is_tiff(path)) {
     int rc = gis_source_open(path, out, err);
     /* A TIFF GDAL takes for no class map, or no GDAL: the image library's. */
-    if (rc != TS_EFORMAT && rc != TS_ENOTSUP) return rc;
+    if (rc != TS_EFORMAT && rc != TS_ENOTSUP) return rc == 0 ? image_meta(path, meta) : rc;
   }
   return ts_region_source_open_image(path, meta, out, err);
 }
