@@ -139,7 +139,8 @@ typedef struct ts_gis_lines ts_gis_lines;
  *     scene: taken to be in the scene's CRS, since nothing else can be
  *     assumed; a wrong guess shows as a layer lying outside the scene,
  *     which is refused (TS_EFORMAT, both extents named) rather than giving
- *     an empty line raster;
+ *     an empty line raster; so is a layer with a CRS none of whose lines
+ *     crosses the scene (the wrong layer, or the wrong scene);
  *   - a layer with a CRS on a scene without one: refused (TS_EFORMAT),
  *     there is nothing to place it against.
  * Also TS_ENOENT (no such file, no such layer or field), TS_EFORMAT (not a

@@ -190,10 +190,12 @@ static int by_draw_order(const void *a, const void *b) {
   return p->seq < q->seq ? -1 : p->seq > q->seq;
 }
 
-/* A layer without CRS whose lines all miss the scene was most likely in
- * another CRS (gis.h): refused, both extents named. */
+/* A layer whose lines all miss the scene is refused, both extents named
+ * (gis.h): without a CRS it was most likely in another one; with one, it
+ * is the wrong layer or the wrong scene, and an empty line raster would
+ * hide that. The extent is the layer's own, in its own CRS. */
 static int check_inside(const ts_gis_lines *l, const opening *o, OGRLayerH layer, const ts_gis_georef *scene,
-                        char *err) {
+                        int no_crs, char *err) {
   for (int i = 0; i < l->n; i++)
     if (l->item[i].x1 > 0 && l->item[i].x0 < o->width && l->item[i].y1 > 0 && l->item[i].y0 < o->height) return 0;
   if (l->n == 0) return 0;
@@ -203,6 +205,11 @@ static int check_inside(const ts_gis_lines *l, const opening *o, OGRLayerH layer
   double sx0 = t ? t[0] : 0, sy0 = t ? t[3] : 0;
   double sx1 = t ? t[0] + o->width * t[1] + o->height * t[2] : o->width;
   double sy1 = t ? t[3] + o->width * t[4] + o->height * t[5] : o->height;
+  if (!no_crs)
+    return ts_error(err, TS_EFORMAT,
+                    "%s: no line of the layer (extent %.10g,%.10g..%.10g,%.10g in its CRS) crosses the scene "
+                    "%.10g,%.10g..%.10g,%.10g: is it the layer of this class map?",
+                    o->path, e.MinX, e.MinY, e.MaxX, e.MaxY, sx0, sy0, sx1, sy1);
   return ts_error(err, TS_EFORMAT,
                   "%s: the layer has no CRS, so it was taken to be in the class map's, but its extent "
                   "%.10g,%.10g..%.10g,%.10g lies outside the scene's %.10g,%.10g..%.10g,%.10g: give the layer "
@@ -291,7 +298,7 @@ int ts_gis_lines_open(const char *path, const ts_gis_georef *scene, int width, i
     l->reprojected = o.ct != NULL;
     rc = read_features(l, &o, layer, err);
   }
-  if (rc == 0 && no_crs) rc = check_inside(l, &o, layer, scene, err);
+  if (rc == 0) rc = check_inside(l, &o, layer, scene, no_crs, err);
   if (o.ct != NULL) OCTDestroyCoordinateTransformation(o.ct);
   GDALClose(ds);
   if (rc != 0) {

@@ -21,8 +21,9 @@ static void usage(FILE *f, const ts_engine *e) {
           "usage: texsyn aerial --classes MAP --catalogue CAT.json -o OUT [options]\n"
           "\n"
           "Builds a synthetic aerial image from a land-use map (Stahlhut 2004, ch. 5.1):\n"
-          "MAP is a single-channel raster whose pixel values are class ids (any format\n"
-          "OpenImageIO reads; a GeoTIFF keeps its georeferencing in OUT). The catalogue\n"
+          "MAP is a single-channel raster whose pixel values are class ids (a .tif is read\n"
+          "through GDAL, other formats through OpenImageIO; a GeoTIFF keeps its\n"
+          "georeferencing and CRS in OUT). The catalogue\n"
           "names each class's reference texture, its kind and usage weight, and\n"
           "optionally a line raster (roads, paths, rivers) and the colours its values\n"
           "are drawn in:\n"
@@ -33,6 +34,20 @@ static void usage(FILE *f, const ts_engine *e) {
           "     {\"id\": 2, \"name\": \"town\", \"reference\": \"town.png\", \"kind\": \"structured\"}],\n"
           "   \"lines\": {\"raster\": \"roads.png\", \"colours\": {\"255\": [90, 90, 90]}}}\n"
           "\n"
+          "or lines as a vector layer (GeoJSON, GeoPackage: one file; any OGR reads),\n"
+          "rasterised at the scene's grid by rules giving each feature's line value,\n"
+          "width and draw order, and the classes a line is hidden under:\n"
+          "\n"
+          "   \"lines\": {\"vector\": \"roads.geojson\", \"field\": \"kind\", \"width_field\": \"width\",\n"
+          "     \"rules\": [{\"match\": \"road\", \"value\": 255, \"width\": 6, \"unit\": \"map\", \"order\": 2},\n"
+          "               {\"match\": \"path\", \"value\": 128, \"width\": 2, \"unit\": \"px\",\n"
+          "                \"hidden_under\": [1]}],\n"
+          "     \"colours\": {\"255\": [90, 90, 90], \"128\": [150, 130, 100]}}\n"
+          "\n"
+          "A layer in another CRS than MAP's is reprojected into MAP's (refused when PROJ\n"
+          "has no transformation); a layer without a CRS is taken to be in MAP's; a layer\n"
+          "lying outside the scene is refused.\n"
+          "\n"
           "Paths are relative to the catalogue. Lines are drawn first; then each class is\n"
           "filled by constrained MRF synthesis from its own reference, stochastic classes\n"
           "first, structured after, level by level: every class sees the lines and the\n"
@@ -42,7 +57,10 @@ static void usage(FILE *f, const ts_engine *e) {
           "Scenes of any size: the scene is cut into --tile tiles, made in four phases\n"
           "(a 2x2 checkerboard) so each joins its finished neighbours through a --halo;\n"
           "MAP is read by regions and OUT written band by band (TIFF and OpenEXR tiled),\n"
-          "so memory follows three rows of tiles, not the scene.\n"
+          "so memory follows three rows of tiles, not the scene. A .tif OUT is a tiled\n"
+          "DEFLATE GeoTIFF written through GDAL (BigTIFF when large), a Cloud-Optimised\n"
+          "GeoTIFF with --cog; EXR, PNG and JPEG through OpenImageIO. A scene OUT's file\n"
+          "system may lack room for (its pixels uncompressed) is refused before any work.\n"
           "\n"
           "  --classes MAP        the class map\n"
           "  --catalogue F        the catalogue (JSON, as above)\n");
@@ -77,7 +95,7 @@ static int option(void *ctx, int c, const char *arg, int argc, char **argv, char
  * order, then the line raster. */
 static int take_catalogue(aerial_opts *o, char *err) {
   const ts_catalogue *cat = o->cat;
-  int max = TS_ENGINE_MAX_INPUTS - 2;
+  int max = TS_ENGINE_MAX_INPUTS - (cat->line_vector ? 3 : 2); /* the map, the lines, the rules */
   if (cat->nclass > max)
     return ts_error(err, TS_EINVAL, "%s: %d classes; texsyn aerial takes at most %d", o->catalogue, cat->nclass, max);
   char key[32], value[160];
@@ -93,6 +111,7 @@ static int take_catalogue(aerial_opts *o, char *err) {
   if (rc != 0 || !cat->has_lines) return rc;
   snprintf(value, sizeof(value), "%d", cat->ncolours);
   rc = ts_job_set_key(&o->job, "lines", "1", "lines", err);
+  if (rc == 0 && cat->line_vector) rc = ts_job_set_key(&o->job, "vector", "1", "lines", err);
   if (rc == 0) rc = ts_job_set_key(&o->job, "colours", value, "colours", err);
   for (int k = 0; rc == 0 && k < cat->ncolours; k++) {
     const ts_cat_colour *c = &cat->colour[k];
@@ -101,6 +120,7 @@ static int take_catalogue(aerial_opts *o, char *err) {
     rc = ts_job_set_key(&o->job, key, value, "colour", err);
   }
   o->job.in[1 + cat->nclass] = cat->line_raster;
+  if (cat->line_vector) o->job.in[2 + cat->nclass] = o->catalogue; /* the engine reads the rules from it */
   return rc;
 }
 

@@ -12,6 +12,7 @@
 #include <sys/stat.h>
 
 #include "error.h"
+#include "gis.h"
 #include "json.h"
 #include "suggest.h"
 #include "util.h"
@@ -289,23 +290,49 @@ static int read_colours(reader *r, int obj) {
   return 0;
 }
 
+/* A vector layer's rules (gis.h's JSON form, beside "vector" and
+ * "colours"), each value given a colour: a line without one would not be
+ * drawn. The engine reads the rules again from the catalogue itself. */
+static int read_vector_rules(reader *r, int obj) {
+  static const char *const mine[] = {"vector", "colours", NULL};
+  ts_gis_line_rules *rules = malloc(sizeof(*rules));
+  if (rules == NULL) return ts_error(r->err, TS_ENOMEM, "out of memory");
+  int rc = ts_gis_line_rules_read(r->doc, obj, mine, rules, r->err);
+  for (int k = 0; rc == 0 && k < rules->nrule; k++) {
+    int c = 0;
+    while (c < r->cat->ncolours && r->cat->colour[c].value != rules->rule[k].value) c++;
+    if (c == r->cat->ncolours)
+      rc = bad(r, obj, 0, "rule %d (\"%s\") draws value %u, which \"colours\" gives no colour; add \"%u\": [R, G, B]",
+               k + 1, rules->rule[k].match, rules->rule[k].value, rules->rule[k].value);
+  }
+  free(rules);
+  return rc;
+}
+
 static int read_lines(reader *r, int obj) {
-  static const char *const known[] = {"raster", "colours", NULL};
+  static const char *const raster_keys[] = {"raster", "colours", NULL};
+  static const char *const vector_keys[] = {"vector", "colours", "layer", "field", "width_field", "rules", NULL};
   const ts_json_node *nodes = r->doc->nodes;
   char g[64];
-  int raster, colours, rc;
+  int path, colours, rc, vector = ts_json_member(r->doc, obj, "vector") >= 0;
   snprintf(r->what, sizeof(r->what), "lines");
   if (nodes[obj].type != TS_JSON_OBJECT)
-    return bad(r, obj, 0, "must be an object {\"raster\": ..., \"colours\": {...}}, %s", got(r, obj, g, sizeof(g)));
-  if ((rc = only_known_keys(r, obj, known)) != 0) return rc;
-  if ((rc = required(r, obj, "raster", "the path of the line raster", &raster)) != 0 ||
-      (rc = path_value(r, raster, "raster", r->cat->line_raster)) != 0)
+    return bad(r, obj, 0, "must be an object {\"raster\": ..., \"colours\": {...}} or {\"vector\": ..., \"rules\": "
+               "[...], \"colours\": {...}}, %s", got(r, obj, g, sizeof(g)));
+  if (vector && ts_json_member(r->doc, obj, "raster") >= 0)
+    return bad(r, obj, 0, "give either \"raster\" (a line raster) or \"vector\" (a vector layer), not both");
+  if ((rc = only_known_keys(r, obj, vector ? vector_keys : raster_keys)) != 0) return rc;
+  const char *key = vector ? "vector" : "raster";
+  if ((rc = required(r, obj, key, vector ? "the path of the vector layer" : "the path of the line raster", &path)) != 0 ||
+      (rc = path_value(r, path, key, r->cat->line_raster)) != 0)
     return rc;
-  ts_json_where(r->doc, nodes[raster].off, &r->cat->raster_line, &r->cat->raster_col);
+  ts_json_where(r->doc, nodes[path].off, &r->cat->raster_line, &r->cat->raster_col);
   if ((rc = required(r, obj, "colours", "pixel values to colours, e.g. {\"255\": [90, 90, 90]}", &colours)) != 0 ||
       (rc = read_colours(r, colours)) != 0)
     return rc;
+  if (vector && (rc = read_vector_rules(r, obj)) != 0) return rc;
   r->cat->has_lines = 1;
+  r->cat->line_vector = vector;
   return 0;
 }
 
@@ -359,7 +386,8 @@ static int check_files(const char *path, const ts_catalogue *cat, char *err) {
     int rc = check_file(path, c->line, c->col, what, c->reference, err);
     if (rc != 0) return rc;
   }
-  return cat->has_lines ? check_file(path, cat->raster_line, cat->raster_col, "lines: raster", cat->line_raster, err)
+  return cat->has_lines ? check_file(path, cat->raster_line, cat->raster_col,
+                                    cat->line_vector ? "lines: vector" : "lines: raster", cat->line_raster, err)
                         : 0;
 }
 

@@ -77,8 +77,9 @@ typedef struct {
   int nclass;
   ts_cat_class cls[TS_CAT_MAX_CLASSES]; /* in the file's order */
   int has_lines;
-  char line_raster[PATH_MAX];
-  int raster_line, raster_col;          /* where "raster" is given */
+  int line_vector;                      /* line_raster names a vector layer ("vector") */
+  char line_raster[PATH_MAX];           /* the line raster or vector layer */
+  int raster_line, raster_col;          /* where "raster" or "vector" is given */
   int ncolours;
   ts_cat_colour colour[TS_CAT_MAX_COLOURS]; /* in the file's order */
 } ts_catalogue;

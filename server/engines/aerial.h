@@ -9,6 +9,8 @@
 
 #include "engine.h"
 #include "fill.h"
+#include "gis.h"
+#include "region.h"
 
 #define AERIAL_NAME_LEN 64
 #define AERIAL_MAX_COLOURS 256
@@ -36,10 +38,12 @@ typedef struct {
   int tile_jobs;  /* tiles of one step at once; 0: the machine's cores */
   int nclass;     /* in the catalogue's order */
   aerial_class cls[TS_FILL_MAX_CLASSES];
-  int lines; /* a line raster is an input */
+  int lines;  /* a line raster is an input */
+  int vector; /* the lines are a vector layer, drawn by the catalogue's rules */
   int ncolours;
   aerial_colour colour[AERIAL_MAX_COLOURS];
   uint64_t max_pixels; /* of a tile's synthesis area */
+  int cog;             /* the output, a .tif, as a Cloud-Optimised GeoTIFF */
 } aerial_job;
 
 /* The halo a job uses: its own, or the one its pyramid needs. */
@@ -55,6 +59,19 @@ void ts_aerial_fill_order(const aerial_job *p, int *order);
  * read by regions (the class map and the line raster). */
 static inline int ts_aerial_lines_input(const aerial_job *p) { return 1 + p->nclass; }
 int ts_aerial_by_regions(const void *params, int k);
+/* With p->vector, the catalogue the line rules are read from is the input
+ * after the vector layer; both are files the engine opens itself. */
+static inline int ts_aerial_rules_input(const aerial_job *p) { return 2 + p->nclass; }
+
+/* The class map and the lines opened by regions: the lines a line raster,
+ * or a vector layer rasterised at the map's grid and georeferencing by
+ * the rules (*rules, malloc'd, NULL without a vector layer). meta as
+ * ts_region_source_open's (may be NULL). On failure nothing is left open. */
+int ts_aerial_open_sources(const aerial_job *p, const ts_image *const *in, ts_meta **meta, ts_region_source **map,
+                           ts_region_source **lines, ts_gis_line_rules **rules, char *err);
+/* Lines hidden under classes (the rules' hidden_under): values[i] becomes
+ * 0 where the line is hidden under class ids[i]. n pixels. */
+void ts_aerial_lines_hide(const ts_gis_line_rules *rules, const int32_t *ids, int32_t *values, size_t n);
 
 /* What a run did, summed over its tiles, for the report. */
 typedef struct {

@@ -29,6 +29,8 @@
 
 #include "aerial.h"
 #include "error.h"
+#include "image_meta.h"
+#include "json.h"
 #include "region.h"
 #include "tile_grid.h"
 #include "util.h"
@@ -64,8 +66,13 @@ static const ts_param aerial_param_table[] = {
      .def_help = "the coordinator's cores"},
     {"max_pixels", NULL, NULL, TS_PARAM_U64, F(max_pixels), 0, 0, "268435456",
      "size limit of a tile's synthesis area (the scene's limit is the disk)", .flags = TS_PARAM_UNBOUNDED},
+    {"cog", "cog", NULL, TS_PARAM_FLAG, F(cog), 0, 1, "0",
+     "write OUT, a .tif, as a Cloud-Optimised GeoTIFF (GDAL's COG driver, as gdal_translate -of COG): "
+     "DEFLATE tiles and averaged overviews halving down to one tile, georeferenced like MAP"},
     {"classes", NULL, NULL, TS_PARAM_INT, F(nclass), 1, AERIAL_MAX_CLASSES, NULL, "classes of the catalogue"},
     {"lines", NULL, NULL, TS_PARAM_FLAG, F(lines), 0, 1, "0", "a line raster is an input"},
+    {"vector", NULL, NULL, TS_PARAM_FLAG, F(vector), 0, 1, "0",
+     "the lines are a vector layer, drawn by the rules of the catalogue (an input too)"},
     {"colours", NULL, NULL, TS_PARAM_INT, F(ncolours), 0, AERIAL_MAX_COLOURS, "0", "colours of the line raster"},
     {NULL}};
 
@@ -131,6 +138,9 @@ static int aerial_spec_complete(const void *params, char *err) {
   for (int k = 0; k < p->nclass; k++)
     if (p->cls[k].name[0] == '\0') return ts_error(err, TS_EINVAL, "job spec: class%d is missing", k + 1);
   if (p->lines && p->ncolours < 1) return ts_error(err, TS_EINVAL, "job spec: lines=1 needs colours=M and colour1..M");
+  if (p->vector && !p->lines) return ts_error(err, TS_EINVAL, "job spec: vector=1 needs lines=1");
+  if (p->vector && p->nclass > AERIAL_MAX_CLASSES - 1)
+    return ts_error(err, TS_EINVAL, "job spec: with a vector layer, at most %d classes", AERIAL_MAX_CLASSES - 1);
   return 0;
 }
 
@@ -157,11 +167,79 @@ static void aerial_inputs(const void *params, ts_engine_inputs *out) {
   for (int k = 0; k < p->nclass && k < AERIAL_MAX_CLASSES; k++)
     snprintf(out->name[out->n++], TS_ENGINE_KEY_LEN, "ref%d", k + 1);
   if (p->lines) snprintf(out->name[out->n++], TS_ENGINE_KEY_LEN, "lines");
+  if (p->lines && p->vector) snprintf(out->name[out->n++], TS_ENGINE_KEY_LEN, "line_rules");
 }
 
 int ts_aerial_by_regions(const void *params, int k) {
   const aerial_job *p = params;
-  return k == 0 || (p->lines && k == ts_aerial_lines_input(p));
+  return k == 0 || (p->lines && !p->vector && k == ts_aerial_lines_input(p));
+}
+
+/* The vector layer and the catalogue its rules are in: no images. */
+static int aerial_is_file(const void *params, int k) {
+  const aerial_job *p = params;
+  return p->lines && p->vector && (k == ts_aerial_lines_input(p) || k == ts_aerial_rules_input(p));
+}
+
+/* ---- sources ------------------------------------------------------------------- */
+
+/* The rules of the catalogue at path: its "lines" object, read as gis.h's
+ * JSON form beside the keys the client read itself. */
+static int read_rules(const char *path, ts_gis_line_rules **out, char *err) {
+  static const char *const mine[] = {"vector", "colours", NULL};
+  uint8_t *text;
+  size_t len;
+  ts_json_doc doc;
+  int rc = ts_file_read(path, 1 << 20, &text, &len, err);
+  if (rc != 0) return rc;
+  rc = ts_json_parse(&doc, path, (const char *)text, len, 16384, err);
+  free(text);
+  if (rc != 0) return rc;
+  int lines = doc.nodes[0].type == TS_JSON_OBJECT ? ts_json_member(&doc, 0, "lines") : -1;
+  if (lines < 0) rc = ts_error(err, TS_EFORMAT, "%s: no \"lines\" object to read the line rules from", path);
+  else if ((*out = malloc(sizeof(**out))) == NULL) rc = ts_error(err, TS_ENOMEM, "out of memory");
+  else rc = ts_gis_line_rules_read(&doc, lines, mine, *out, err);
+  ts_json_free(&doc);
+  return rc;
+}
+
+int ts_aerial_open_sources(const aerial_job *p, const ts_image *const *in, ts_meta **meta, ts_region_source **map,
+                           ts_region_source **lines, ts_gis_line_rules **rules, char *err) {
+  *map = *lines = NULL;
+  *rules = NULL;
+  const char *lines_path = p->lines ? ts_engine_file_of(in[ts_aerial_lines_input(p)])->path : NULL;
+  int rc = ts_region_source_open(ts_engine_file_of(in[0])->path, meta, map, err);
+  if (rc == 0 && p->vector) rc = read_rules(ts_engine_file_of(in[ts_aerial_rules_input(p)])->path, rules, err);
+  if (rc == 0 && p->vector) rc = ts_region_source_open_lines(lines_path, *map, *rules, lines, err);
+  else if (rc == 0 && p->lines) rc = ts_region_source_open(lines_path, NULL, lines, err);
+  if (rc == 0) return 0;
+  if (*map != NULL) (*map)->close(*map);
+  if (meta != NULL) ts_meta_free(*meta), *meta = NULL;
+  free(*rules);
+  *map = NULL, *rules = NULL;
+  return rc;
+}
+
+/* Chunks of ts_gis_lines_hide's 16- and 8-bit rows. */
+#define HIDE_CHUNK 4096
+
+void ts_aerial_lines_hide(const ts_gis_line_rules *rules, const int32_t *ids, int32_t *values, size_t n) {
+  int any = 0;
+  for (int k = 0; k < rules->nrule; k++) any |= rules->rule[k].nhidden > 0;
+  if (!any) return;
+  uint16_t id[HIDE_CHUNK];
+  uint8_t v[HIDE_CHUNK];
+  for (size_t o = 0; o < n; o += HIDE_CHUNK) {
+    size_t m = n - o < HIDE_CHUNK ? n - o : HIDE_CHUNK;
+    for (size_t i = 0; i < m; i++) {
+      /* An id out of range is refused later, line or not. */
+      id[i] = ids[o + i] >= 0 && ids[o + i] <= AERIAL_MAX_ID ? (uint16_t)ids[o + i] : 0;
+      v[i] = values[o + i] > 0 && values[o + i] <= 255 ? (uint8_t)values[o + i] : 0;
+    }
+    ts_gis_lines_hide(rules, id, v, m);
+    for (size_t i = 0; i < m; i++)
+      if (v[i] == 0 && values[o + i] > 0 && values[o + i] <= 255) values[o + i] = 0;
+  }
 }
 
 /* ---- the catalogue ---------------------------------------------------------- */
@@ -196,8 +274,8 @@ int ts_aerial_halo(const aerial_job *p) {
 
 /* Class ids in the map without a catalogue entry, named with their pixel
  * counts (lines cover pixels of any class), read by regions. */
-static int count_missing(const aerial_job *p, ts_region_source *map, ts_region_source *lines, uint64_t *count,
-                         char *err) {
+static int count_missing(const aerial_job *p, ts_region_source *map, ts_region_source *lines,
+                         const ts_gis_line_rules *rules, uint64_t *count, char *err) {
   size_t w = (size_t)map->width;
   int32_t *ids = malloc(sizeof(int32_t) * w * CHECK_ROWS), *ln = lines ? malloc(sizeof(int32_t) * w * CHECK_ROWS) : NULL;
   int rc = ids == NULL || (lines != NULL && ln == NULL) ? ts_error(err, TS_ENOMEM, "out of memory") : 0;
@@ -205,6 +283,7 @@ static int count_missing(const aerial_job *p, ts_region_source *map, ts_region_s
     int h = map->height - y < CHECK_ROWS ? map->height - y : CHECK_ROWS;
     rc = map->read(map, 0, y, map->width, h, ids, err);
     if (rc == 0 && lines != NULL) rc = lines->read(lines, 0, y, lines->width, h, ln, err);
+    if (rc == 0 && rules != NULL) ts_aerial_lines_hide(rules, ids, ln, w * (size_t)h);
     for (size_t i = 0; rc == 0 && i < w * (size_t)h; i++) {
       if (ln != NULL && ts_aerial_colour_of(p, ln[i]) >= 0) continue;
       if (ids[i] < 0 || ts_aerial_class_of(p, ids[i]) < 0) count[ids[i] < 0 ? AERIAL_MAX_ID + 1 : ids[i]]++;
@@ -215,11 +294,11 @@ static int count_missing(const aerial_job *p, ts_region_source *map, ts_region_s
   return rc;
 }
 
-static void check_ids(const aerial_job *p, ts_region_source *map, ts_region_source *lines, char *msg, size_t len,
-                      int *n) {
+static void check_ids(const aerial_job *p, ts_region_source *map, ts_region_source *lines,
+                      const ts_gis_line_rules *rules, char *msg, size_t len, int *n) {
   char err[TS_ERR_LEN];
   uint64_t *count = calloc(AERIAL_MAX_ID + 2, sizeof(uint64_t));
-  if (count == NULL || count_missing(p, map, lines, count, err) != 0) {
+  if (count == NULL || count_missing(p, map, lines, rules, count, err) != 0) {
     ts_problem(msg, len, n, "%s", count == NULL ? "out of memory" : err);
     free(count);
     return;
@@ -302,19 +381,9 @@ static void check_fill(const aerial_job *p, const ts_image *const *in, const ts_
   free(zero);
 }
 
-/* Opens the class map and the lines by regions. */
-static int open_sources(const aerial_job *p, const ts_image *const *in, ts_region_source **map,
-                        ts_region_source **lines, char *err) {
-  *lines = NULL;
-  int rc = ts_region_source_open(ts_engine_file_of(in[0])->path, NULL, map, err);
-  if (rc == 0 && p->lines) rc = ts_region_source_open(ts_engine_file_of(in[ts_aerial_lines_input(p)])->path, NULL, lines, err);
-  if (rc != 0 && *map != NULL) (*map)->close(*map);
-  return rc;
-}
-
 static int aerial_check(const void *params, const ts_image *const *in, char *msg, size_t len) {
   const aerial_job *p = params;
-  const ts_image *map = in[0], *lines = p->lines ? in[ts_aerial_lines_input(p)] : NULL;
+  const ts_image *map = in[0], *lines = p->lines && !p->vector ? in[ts_aerial_lines_input(p)] : NULL;
   int n = 0;
   msg[0] = '\0';
   ts_fill_check_params(&p->fill, msg, len, &n);
@@ -330,15 +399,18 @@ static int aerial_check(const void *params, const ts_image *const *in, char *msg
       if (p->cls[j].id == p->cls[k].id) ts_problem(msg, len, &n, "class id %d is given twice", p->cls[k].id);
   if (n == 0) check_fill(p, in, &g, msg, len, &n);
   if (n > 0) return TS_EINVAL;
+  /* The vector layer's CRS and extent are checked at its opening. */
   ts_region_source *ms = NULL, *ls = NULL;
+  ts_gis_line_rules *rules = NULL;
   char err[TS_ERR_LEN];
-  if (open_sources(p, in, &ms, &ls, err) != 0) {
+  if (ts_aerial_open_sources(p, in, NULL, &ms, &ls, &rules, err) != 0) {
     ts_problem(msg, len, &n, "%s", err);
     return TS_EINVAL;
   }
-  check_ids(p, ms, ls, msg, len, &n);
+  check_ids(p, ms, ls, rules, msg, len, &n);
   ms->close(ms);
   if (ls != NULL) ls->close(ls);
+  free(rules);
   return n > 0 ? TS_EINVAL : 0;
 }
 
@@ -429,6 +501,7 @@ const ts_engine ts_engine_aerial = {
     .spec_format = aerial_spec_format,
     .inputs = aerial_inputs,
     .input_by_regions = ts_aerial_by_regions,
+    .input_is_file = aerial_is_file,
     .check = aerial_check,
     .set_max_pixels = aerial_set_max_pixels,
     .result_bytes = aerial_result_bytes,

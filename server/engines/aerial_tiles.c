@@ -22,11 +22,14 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
+#include <sys/statvfs.h>
 #include <unistd.h>
 
 #include "aerial.h"
 #include "error.h"
 #include "image_meta.h"
+#include "jobspec.h"
 #include "region.h"
 #include "tile_grid.h"
 #include "util.h"
@@ -58,6 +61,7 @@ typedef struct {
   uint8_t *rank_of_id;   /* class id -> fill rank, NO_CLASS */
   int16_t *colour_of_id; /* line value -> colour index, -1 */
   ts_region_source *map, *lines;
+  ts_gis_line_rules *rules; /* a vector layer's, NULL for a line raster */
   ts_meta *meta;
   ts_tile_sink *sink;
   int32_t *ids, *values; /* READ_ROWS rows of the map and the lines */
@@ -158,6 +162,7 @@ static int band_load(tiler *t, int row, char *err) {
     int n = b->h - y < READ_ROWS ? b->h - y : READ_ROWS;
     int rc = t->map->read(t->map, 0, b->y0 + y, w, n, t->ids, err);
     if (rc == 0 && t->lines != NULL) rc = t->lines->read(t->lines, 0, b->y0 + y, w, n, t->values, err);
+    if (rc == 0 && t->rules != NULL) ts_aerial_lines_hide(t->rules, t->ids, t->values, (size_t)w * (size_t)n);
     for (size_t i = 0; rc == 0 && i < (size_t)w * (size_t)n; i++)
       rc = put_pixel(t, b, (size_t)y * (size_t)w + i, t->ids[i], t->lines != NULL ? t->values[i] : -1,
                      (int)(i % (size_t)w), b->y0 + y + (int)(i / (size_t)w), err);
@@ -471,12 +476,35 @@ static int file_tile(int tile) {
   return ft;
 }
 
+/* The output's room, before any tile is made: the bytes the file may take
+ * at most against the free space of its file system (statvfs, blocks free
+ * to unprivileged users). The bound is the uncompressed samples - 3 bytes
+ * a pixel, 6 for OpenEXR (half floats) - plus 1/64 for DEFLATE's stored
+ * blocks and the TIFF's tile index: DEFLATE never grows data by more, and
+ * a scene is refused only when even incompressible pixels would not fit
+ * (aerial scenes compress to about half, so most refused would have
+ * fitted only by luck). A COG also holds overviews (1/3 more) and, while
+ * GDAL's COG driver copies it, two files at once: twice that. */
+static int check_disk(const char *path, int w, int h, int cog, char *err) {
+  char dir[4096];
+  snprintf(dir, sizeof(dir), "%s", path);
+  char *slash = strrchr(dir, '/');
+  if (slash == NULL) snprintf(dir, sizeof(dir), ".");
+  else slash[slash == dir] = '\0';
+  struct statvfs fs;
+  if (statvfs(dir, &fs) != 0) return 0; /* the output's creation names the problem */
+  double raw = (double)w * (double)h * (strcasecmp(ts_path_ext(path), "exr") == 0 ? 6 : 3);
+  double need = (raw + raw / 64 + (1 << 20)) * (cog ? 2.0 * 4 / 3 : 1), avail = (double)fs.f_bavail * (double)fs.f_frsize;
+  if (need <= avail) return 0;
+  return ts_error(err, TS_ETOOBIG, "%s: the %dx%d scene may take up to %.1f MB (its samples uncompressed%s), and "
+                  "%s has %.1f MB free: free some space or write the output elsewhere", path, w, h, need / 1e6,
+                  cog ? ", with overviews, twice while the COG is copied" : "", dir, avail / 1e6);
+}
+
 static int open_io(tiler *t, const ts_image *const *in, const char *out_path, char *err) {
   const aerial_job *p = t->p;
   if (out_path == NULL) return ts_error(err, TS_EINVAL, "the aerial engine needs its output's path to stream it to");
-  int rc = ts_region_source_open(ts_engine_file_of(in[0])->path, &t->meta, &t->map, err);
-  if (rc == 0 && p->lines)
-    rc = ts_region_source_open(ts_engine_file_of(in[ts_aerial_lines_input(p)])->path, NULL, &t->lines, err);
+  int rc = ts_aerial_open_sources(p, in, &t->meta, &t->map, &t->lines, &t->rules, err);
   if (rc != 0) return rc;
   if (ts_tile_grid_init(&t->g, t->map->width, t->map->height, p->tile, ts_aerial_halo(p)) != 0)
     return ts_error(err, TS_EINVAL, "--classes: an empty class map");
@@ -484,7 +512,8 @@ static int open_io(tiler *t, const ts_image *const *in, const char *out_path, ch
   t->ids = malloc(sizeof(int32_t) * row);
   t->values = malloc(sizeof(int32_t) * row);
   if (t->ids == NULL || t->values == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
-  return ts_tile_sink_open(out_path, t->g.w, t->g.h, file_tile(p->tile), t->meta, &t->sink, err);
+  if ((rc = check_disk(out_path, t->g.w, t->g.h, p->cog, err)) != 0) return rc;
+  return ts_tile_sink_open(out_path, t->g.w, t->g.h, file_tile(p->tile), t->map, t->meta, p->cog, &t->sink, err);
 }
 
 static void tiler_free(tiler *t, int ok) {
@@ -503,6 +532,7 @@ static void tiler_free(tiler *t, int ok) {
   free(t->values);
   if (t->map != NULL) t->map->close(t->map);
   if (t->lines != NULL) t->lines->close(t->lines);
+  free(t->rules);
   ts_meta_free(t->meta);
   if (!ok && t->sink != NULL) t->sink->abort(t->sink);
 }

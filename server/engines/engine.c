@@ -63,11 +63,16 @@ int ts_engine_input_by_regions(const ts_engine *e, const void *params, int k) {
   return e->input_by_regions != NULL && e->input_by_regions(params, k);
 }
 
+int ts_engine_input_is_file(const ts_engine *e, const void *params, int k) {
+  return e->input_is_file != NULL && e->input_is_file(params, k);
+}
+
 int ts_engine_input_read(const ts_engine *e, const void *params, int k, const char *path,
                          const ts_image_limits *limits, ts_engine_file *f, char *err) {
   memset(f, 0, sizeof(*f));
   if ((size_t)snprintf(f->path, sizeof(f->path), "%s", path) >= sizeof(f->path))
     return ts_error(err, TS_EINVAL, "%.64s...: the path is too long", path);
+  if (ts_engine_input_is_file(e, params, k)) return 0;
   if (!ts_engine_input_by_regions(e, params, k)) return ts_image_read(path, &f->img, limits, err);
   ts_region_source *src;
   int rc = ts_region_source_open(path, NULL, &src, err);

@@ -157,6 +157,11 @@ typedef struct ts_engine {
    * caller; no pixel limit applies to such an input (see
    * ts_engine_input_read). */
   int (*input_by_regions)(const void *params, int k);
+  /* Optional (NULL: none): 1 if input k is a file in no image format that
+   * the engine opens itself (a vector layer, a JSON document): neither
+   * probed nor decoded; run and check get its path as a ts_engine_file of
+   * width and height 0. */
+  int (*input_is_file)(const void *params, int k);
   /* Checks parameters against the inputs (in[k] is input k of `inputs`):
    * 0, or TS_EINVAL with every problem listed in msg, one per line. */
   int (*check)(const void *params, const ts_image *const *in, char *msg, size_t len);
@@ -196,6 +201,9 @@ void ts_engine_output_file(const ts_engine *e, int k, const ts_engine_wants *w, 
 /* Whether the engine reads input k of a job with these parameters by
  * regions. */
 int ts_engine_input_by_regions(const ts_engine *e, const void *params, int k);
+/* Whether input k of a job with these parameters is a file the engine
+ * opens itself, of no image format. */
+int ts_engine_input_is_file(const ts_engine *e, const void *params, int k);
 /* Input k of a job from path into f, as run and check take it: decoded
  * whole within limits, or, for an input read by regions, its header only
  * (no pixel limit: the engine's own limits apply). 0 or an error naming the

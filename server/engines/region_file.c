@@ -48,7 +48,7 @@ static void file_close(ts_region_source *s) {
   free(f);
 }
 
-int ts_region_source_open(const char *path, ts_meta **meta, ts_region_source **out, char *err) {
+int ts_region_source_open_image(const char *path, ts_meta **meta, ts_region_source **out, char *err) {
   *out = NULL;
   file_source *f = calloc(1, sizeof(*f));
   if (f == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
@@ -60,7 +60,7 @@ int ts_region_source_open(const char *path, ts_meta **meta, ts_region_source **o
     return rc;
   }
   f->type = info.type;
-  f->ops = (ts_region_source){info.width, info.height, file_read, file_close};
+  f->ops = (ts_region_source){info.width, info.height, file_read, file_close, NULL};
   *out = &f->ops;
   return 0;
 }
@@ -87,8 +87,8 @@ static void sink_abort(ts_tile_sink *s) {
   free(s);
 }
 
-int ts_tile_sink_open(const char *path, int w, int h, int tile, const ts_meta *meta_from, ts_tile_sink **out,
-                      char *err) {
+int ts_tile_sink_open_image(const char *path, int w, int h, int tile, const ts_meta *meta_from, ts_tile_sink **out,
+                            char *err) {
   *out = NULL;
   file_sink *f = calloc(1, sizeof(*f));
   if (f == NULL) return ts_error(err, TS_ENOMEM, "out of memory");

@@ -147,12 +147,14 @@ static int check_input_names(const ts_jobspec *spec, const ts_msg_submit *m, con
  * once, not queued to fail later. The extension into ext. An input the
  * engine reads by regions (a tiled scene's class map) has no pixel limit:
  * the engine's own limit is on a tile. */
-static int check_input(ts_jobs *j, const char *name, const uint8_t *data, size_t len, int by_regions,
+static int check_input(ts_jobs *j, const char *name, const uint8_t *data, size_t len, int by_regions, int is_file,
                        char ext[TS_EXT_LEN], ts_image_info *info, char *err) {
   const char *e = ts_path_ext(name);
   /* The spec's extension rule: letters and digits only. */
   if (!ts_ext_valid(e)) return ts_error(err, TS_EINVAL, "input name '%s' needs a plain extension (.png, .tif, ...)", name);
   snprintf(ext, TS_EXT_LEN, "%s", e);
+  memset(info, 0, sizeof(*info));
+  if (is_file) return 0; /* no image: the engine's check reads it */
   ts_image_limits limits = {by_regions ? UINT64_MAX : j->o.max_pixels, JOBS_MAX_PIXELS_OPTION};
   return ts_image_probe_mem(name, data, len, &limits, info, err);
 }
@@ -171,11 +173,12 @@ int ts_jobs_submit(ts_jobs *j, const char *client, const ts_msg_submit *m, uint6
   const ts_engine *e = jb->spec.engine;
   const void *params = &jb->spec.params;
   if (rc == 0)
-    rc = check_input(j, m->ref_name, m->ref, m->ref_len, ts_engine_input_by_regions(e, params, 0), jb->ref_ext,
-                     &info[0], err);
+    rc = check_input(j, m->ref_name, m->ref, m->ref_len, ts_engine_input_by_regions(e, params, 0),
+                     ts_engine_input_is_file(e, params, 0), jb->ref_ext, &info[0], err);
   for (uint32_t k = 0; rc == 0 && k < m->nmore; k++) {
     rc = check_input(j, m->more[k].name, m->more[k].data, m->more[k].len,
-                     ts_engine_input_by_regions(e, params, (int)k + 1), jb->more_ext[k], &info[k + 1], err);
+                     ts_engine_input_by_regions(e, params, (int)k + 1), ts_engine_input_is_file(e, params, (int)k + 1),
+                     jb->more_ext[k], &info[k + 1], err);
     bytes += m->more[k].len;
   }
   snprintf(jb->client, sizeof(jb->client), "%s", client);

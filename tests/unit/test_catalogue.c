@@ -340,7 +340,8 @@ static void lines_need_a_raster_and_colours(void **state) {
   static const struct {
     const char *lines, *want;
   } bad[] = {
-      {"\"lines\": []}", "cat.json:1:70: lines: must be an object {\"raster\": ..., \"colours\": {...}}, got an array"},
+      {"\"lines\": []}", "cat.json:1:70: lines: must be an object {\"raster\": ..., \"colours\": {...}} or "
+                         "{\"vector\": ..., \"rules\": [...], \"colours\": {...}}, got an array"},
       {"\"lines\": {\"colours\": {\"1\": 2}}}", "cat.json:1:70: lines: no \"raster\" (the path of the line raster)"},
       {"\"lines\": {\"raster\": \"r.png\"}}",
        "cat.json:1:70: lines: no \"colours\" (pixel values to colours, e.g. {\"255\": [90, 90, 90]})"},
@@ -351,6 +352,36 @@ static void lines_need_a_raster_and_colours(void **state) {
   };
   for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++) {
     char text[512];
+    snprintf(text, sizeof(text), "%s%s", cls, bad[i].lines);
+    refused(text, TS_EFORMAT, bad[i].want);
+  }
+}
+
+/* A vector layer's lines: its rules read as gis.h's JSON form, each rule's
+ * value given a colour; the raster's keys and the rules' keys not mixed. */
+static void vector_lines_take_rules_with_colours(void **state) {
+  (void)state;
+  const char *cls = "{\"classes\": [{\"id\": 1, \"name\": \"f\", \"reference\": \"f.png\"}], ";
+  ts_catalogue *c = calloc(1, sizeof(*c));
+  char err[TS_ERR_LEN], text[512];
+  snprintf(text, sizeof(text), "%s\"lines\": {\"vector\": \"roads.geojson\", \"field\": \"kind\", \"rules\": "
+           "[{\"match\": \"road\", \"value\": 255, \"width\": 6}], \"colours\": {\"255\": [90, 90, 90]}}}", cls);
+  assert_int_equal(ts_catalogue_parse(text, strlen(text), "cat.json", "/d", c, err), 0);
+  assert_int_equal(c->has_lines, 1);
+  assert_int_equal(c->line_vector, 1);
+  assert_string_equal(c->line_raster, "/d/roads.geojson");
+  free(c);
+  static const struct {
+    const char *lines, *want;
+  } bad[] = {
+      {"\"lines\": {\"vector\": \"r.geojson\", \"rules\": [{\"value\": 128, \"width\": 2}], \"colours\": {\"255\": 1}}}",
+       "cat.json:1:70: lines: rule 1 (\"\") draws value 128, which \"colours\" gives no colour; add \"128\": [R, G, B]"},
+      {"\"lines\": {\"vector\": \"r.geojson\", \"raster\": \"r.png\", \"colours\": {\"1\": 2}}}",
+       "cat.json:1:70: lines: give either \"raster\" (a line raster) or \"vector\" (a vector layer), not both"},
+      {"\"lines\": {\"raster\": \"r.png\", \"rules\": [], \"colours\": {\"1\": 2}}}",
+       "cat.json:1:90: lines: unknown key \"rules\" (known: \"raster\", \"colours\")"},
+  };
+  for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++) {
     snprintf(text, sizeof(text), "%s%s", cls, bad[i].lines);
     refused(text, TS_EFORMAT, bad[i].want);
   }
@@ -545,6 +576,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(kinds_and_usage_weights_are_checked),
     cmocka_unit_test(ids_and_names_are_unique),
     cmocka_unit_test(lines_need_a_raster_and_colours),
+    cmocka_unit_test(vector_lines_take_rules_with_colours),
     cmocka_unit_test(colour_keys_are_pixel_values),
     cmocka_unit_test(colour_values_are_rgb_or_grey),
     cmocka_unit_test(too_many_colours_are_refused),
