@@ -30,26 +30,8 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-def oiiotool(*args):
-    subprocess.run(["oiiotool", *map(str, args)], check=True, capture_output=True, timeout=600)
-
-
-def read_pnm(path):
-    """(width, height, channels, bytes) of a binary 8-bit PGM or PPM."""
-    data = Path(path).read_bytes()
-    fields, pos = [], 0
-    while len(fields) < 4:
-        while data[pos:pos + 1].isspace():
-            pos += 1
-        end = pos
-        while not data[end:end + 1].isspace():
-            end += 1
-        fields.append(data[pos:end])
-        pos = end
-    w, h, ch = int(fields[1]), int(fields[2]), 1 if fields[0] == b"P5" else 3
-    return w, h, ch, data[pos + 1:pos + 1 + w * h * ch]
+sys.path.insert(0, str(REPO / "tests" / "integration"))
+from pnm import oiiotool, read_pnm  # noqa: E402  (the tests' reader, one copy)
 
 
 def pixels(image, tmp):
