@@ -24,15 +24,11 @@ typedef struct {
 
 /* "NAME:LINE:COL: WHAT: message" at node's value (its key, if key_pos). */
 __attribute__((format(printf, 4, 5))) static int bad_at(reader *r, int node, int key_pos, const char *fmt, ...) {
-  char msg[TS_ERR_LEN];
   va_list ap;
   va_start(ap, fmt);
-  vsnprintf(msg, sizeof(msg), fmt, ap);
+  int rc = ts_json_error_at(r->doc, node, key_pos, r->what, r->err, fmt, ap);
   va_end(ap);
-  const ts_json_node *n = &r->doc->nodes[node];
-  int line, col;
-  ts_json_where(r->doc, key_pos ? n->key_off : n->off, &line, &col);
-  return ts_error(r->err, TS_EFORMAT, "%s:%d:%d: %s: %s", r->doc->name, line, col, r->what, msg);
+  return rc;
 }
 #define bad(r, node, ...) bad_at(r, node, 0, __VA_ARGS__)
 

@@ -611,3 +611,13 @@ int ts_json_member(const ts_json_doc *doc, int obj, const char *key) {
     if (doc->nodes[m].klen == n && memcmp(doc->nodes[m].key, key, n) == 0) return m;
   return -1;
 }
+
+int ts_json_error_at(const ts_json_doc *doc, int node, int key_pos, const char *what, char *err, const char *fmt,
+                     va_list ap) {
+  char msg[TS_ERR_LEN];
+  vsnprintf(msg, sizeof(msg), fmt, ap);
+  const ts_json_node *n = &doc->nodes[node];
+  int line, col;
+  ts_json_where(doc, key_pos ? n->key_off : n->off, &line, &col);
+  return ts_error(err, TS_EFORMAT, "%s:%d:%d: %s: %s", doc->name, line, col, what, msg);
+}

@@ -23,6 +23,7 @@
 #ifndef TS_JSON_H
 #define TS_JSON_H
 
+#include <stdarg.h>
 #include <stddef.h>
 
 #define TS_JSON_MAX_DEPTH 64
@@ -73,6 +74,12 @@ int ts_json_member(const ts_json_doc *doc, int obj, const char *key);
 
 /* Line and column (both from 1, see above) of byte offset off. */
 void ts_json_where(const ts_json_doc *doc, size_t off, int *line, int *col);
+
+/* TS_EFORMAT with "NAME:LINE:COL: WHAT: message" in err, placed at node's
+ * value (at its key, if key_pos): the readers of JSON files (the catalogue,
+ * line rules) say where a problem is the same way. */
+int ts_json_error_at(const ts_json_doc *doc, int node, int key_pos, const char *what, char *err, const char *fmt,
+                     va_list ap);
 
 /* "a string", "a number", "an object", ... for messages. */
 const char *ts_json_type_name(ts_json_type type);
