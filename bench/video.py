@@ -24,7 +24,7 @@ The ways, each a whole command with 2 threads:
   video, keys 1, N   texsyn video with two keys (chains both ways, blended);
   ebsynth            Ebsynth run once per frame 2..N with the guides
                      `texsyn video --write-guides` wrote in the key-1 run
-                     (colour, edges, positions x and y, temporal) and the
+                     (colour, edges, positions x and y, the temporal pair) and the
                      same weights. Two things favour the peer here: its
                      temporal guide is texsyn's previous frame warped (it
                      follows texsyn's coherent sequence, not its own), and
@@ -121,7 +121,8 @@ def ebsynth_frame_cmd(ebsynth, tmp, g, t, out):
             "-guide", g / "key_0001_edge.png", f("edge.png"), "-weight", w["edge"],
             "-guide", g / "position_x.png", f("position_x.png"), "-weight", w["position"] / 2,
             "-guide", g / "position_y.png", f("position_y.png"), "-weight", w["position"] / 2,
-            "-guide", g / "key_0001.png", f("temporal.png"), "-weight", w["temporal"],
+            "-guide", g / "key_0001.png", f("temporal.png"), "-weight", w["temporal"] / 2,
+            "-guide", g / "key_0001_complement.png", f("temporal_complement.png"), "-weight", w["temporal"] / 2,
             "-output", out]
 
 

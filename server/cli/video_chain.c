@@ -21,7 +21,8 @@ void ts_video_chain_file(const char *dir, long key, long t, const char *what, ch
   snprintf(out, cap, "%s/from_%04ld_%04ld_%s", dir, key, t, what);
 }
 
-/* The key's 8-bit painting ("" what) or source guide ("edge"). */
+/* The key's 8-bit painting ("" what) or source guide ("edge", and
+ * "complement": 255 - the painting, ts_guide_temporal_pair's). */
 static void key_file(const char *dir, long key, const char *what, char *out, size_t cap) {
   snprintf(out, cap, "%s/key_%04ld%s%s.png", dir, key, what[0] ? "_" : "", what);
 }
@@ -125,9 +126,11 @@ static int job_paths(const ts_video *v, const char *dir, long key, long t, char 
     identity_file(dir, axes[a], in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
     ts_video_chain_file(dir, key, t, what, in[ts_stylit_in_tgt(g++)], TS_VIDEO_PATH);
   }
-  if (v->wt.temporal > 0) {
+  if (v->wt.temporal > 0) { /* a pair: ts_guide_temporal_pair */
     key_file(dir, key, "", in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
     ts_video_chain_file(dir, key, t, "temporal.png", in[ts_stylit_in_tgt(g++)], TS_VIDEO_PATH);
+    key_file(dir, key, "complement", in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
+    ts_video_chain_file(dir, key, t, "temporal_complement.png", in[ts_stylit_in_tgt(g++)], TS_VIDEO_PATH);
   }
   if (v->mask != NULL && v->wt.mask > 0) {
     ts_video_mask_file(dir, key, in[ts_stylit_in_src(g)], TS_VIDEO_PATH);
@@ -148,7 +151,7 @@ int ts_video_weigh(ts_video *v, char *err) {
   w[g++] = v->input_weight;
   if (v->wt.edge > 0) w[g++] = v->wt.edge;
   for (int a = 0; a < 2 && v->wt.position > 0; a++) w[g++] = v->wt.position / 2; /* x and y */
-  if (v->wt.temporal > 0) w[g++] = v->wt.temporal;
+  for (int a = 0; a < 2 && v->wt.temporal > 0; a++) w[g++] = v->wt.temporal / 2; /* it and its complement */
   if (v->mask != NULL && v->wt.mask > 0) w[g++] = v->wt.mask;
   for (int p = 0; p < v->npass; p++) w[g++] = v->pass_weight[p];
   char key[32], value[32];
@@ -173,6 +176,9 @@ static int prepare_key(const ts_video *v, const char *dir, int k, char *err) {
   if (rc == 0) rc = write_u8(path, px, v->w, v->h, v->channels, err);
   ts_video_chain_file(dir, v->key[k].frame, v->key[k].frame, "out.png", path, sizeof(path));
   if (rc == 0) rc = write_u8(path, px, v->w, v->h, v->channels, err); /* the key's own frame */
+  key_file(dir, v->key[k].frame, "complement", path, sizeof(path));
+  ts_guide_complement(px, (size_t)v->w * (size_t)v->h * (size_t)v->channels, px);
+  if (rc == 0 && v->wt.temporal > 0) rc = write_u8(path, px, v->w, v->h, v->channels, err);
   free(px);
   key_file(dir, v->key[k].frame, "edge", path, sizeof(path));
   if (rc == 0 && v->wt.edge > 0) rc = write_edges(v, v->key[k].frame, path, err);
@@ -218,7 +224,7 @@ typedef struct {
 
 /* One step's scratch, shared by the chains (one step is made at a time). */
 typedef struct {
-  uint8_t *luma, *occluded, *px;
+  uint8_t *luma, *occluded, *px, *px2;
   float *back, *fwd, *pos, *warped, *scratch;
 } step_buf;
 
@@ -256,12 +262,13 @@ static int step_buf_alloc(step_buf *b, const ts_video *v, char *err) {
   b->luma = malloc(n);
   b->occluded = malloc(n);
   b->px = malloc(n * v->channels);
+  b->px2 = malloc(n * v->channels);
   b->back = malloc(sizeof(float) * 2 * n);
   b->fwd = malloc(sizeof(float) * 2 * n);
   b->pos = malloc(sizeof(float) * 2 * n);
   b->warped = malloc(sizeof(float) * n * v->channels);
   b->scratch = malloc(sizeof(float) * n);
-  return b->luma && b->occluded && b->px && b->back && b->fwd && b->pos && b->warped && b->scratch
+  return b->luma && b->occluded && b->px && b->px2 && b->back && b->fwd && b->pos && b->warped && b->scratch
              ? 0
              : ts_error(err, TS_ENOMEM, "out of memory for the flows of %dx%d frames", v->w, v->h);
 }
@@ -270,6 +277,7 @@ static void step_buf_free(step_buf *b) {
   free(b->luma);
   free(b->occluded);
   free(b->px);
+  free(b->px2);
   free(b->back);
   free(b->fwd);
   free(b->pos);
@@ -277,16 +285,12 @@ static void step_buf_free(step_buf *b) {
   free(b->scratch);
 }
 
-static uint8_t round8(float v) { return v <= 0.0f ? 0 : v >= 255.0f ? 255 : (uint8_t)(v + 0.5f); }
-
-/* The temporal guide of frame t: the chain's last frame warped onto t,
- * the key's painting where t's pixel is occluded (video_chain.h). */
+/* The temporal guide pair of frame t: the chain's last frame warped onto
+ * t, and its complement, both 0 where t's pixel is occluded
+ * (ts_guide_temporal_pair: weighted out there). */
 static void temporal_guide(const ts_video *v, const chain *c, step_buf *b) {
-  int ch = v->channels;
-  ts_flow_warp(c->sty, v->w, v->h, ch, b->back, b->warped);
-  for (size_t i = 0; i < (size_t)v->w * v->h; i++)
-    for (int k = 0; k < ch; k++)
-      b->px[i * ch + k] = b->occluded[i] ? c->painting[i * ch + k] : round8(b->warped[i * ch + k]);
+  ts_flow_warp(c->sty, v->w, v->h, v->channels, b->back, b->warped);
+  ts_guide_temporal_pair(b->warped, b->occluded, (size_t)v->w * (size_t)v->h, v->channels, b->px, b->px2);
 }
 
 /* The made guides of the chain's next frame t, written to dir; b->luma
@@ -312,6 +316,8 @@ static int make_guides(const ts_video *v, const char *dir, chain *c, long t, ste
     temporal_guide(v, c, b);
     ts_video_chain_file(dir, c->key, t, "temporal.png", path, sizeof(path));
     rc = write_u8(path, b->px, v->w, v->h, v->channels, err);
+    ts_video_chain_file(dir, c->key, t, "temporal_complement.png", path, sizeof(path));
+    if (rc == 0) rc = write_u8(path, b->px2, v->w, v->h, v->channels, err);
   }
   return rc;
 }

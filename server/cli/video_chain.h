@@ -9,6 +9,8 @@
  *                                     along the flow          (weight > 0)
  *   temporal   the key's painting   / the chain's frame t-1 (or t+1)
  *                                     warped onto t           (weight > 0)
+ *              and 255 - each         (half the weight each, 0 where occluded:
+ *                                     ts_guide_temporal_pair)
  *   mask       the mask at frame K  / the mask at frame t    (--mask, weight > 0)
  *   --pass P   P at frame K         / P at frame t
  * (Jamriška et al. 2019, built from video_guides.h and flow.h; the flow
@@ -19,12 +21,12 @@
  *
  * Where the flow check finds a pixel occluded (its content is not in the
  * previous frame) the positional guide restarts at the pixel's own place
- * (video_guides.h) and the temporal guide takes the key's painting there,
- * which is what the positional guide points at: the paper weights the
- * temporal guide out at such pixels, which the engine's per-image weights
- * cannot, and the previous frame warped from elsewhere would vote for
- * whatever occluded it. So the temporal guide adds nothing there that the
- * positional guide does not already say.
+ * (video_guides.h) and the temporal guide is weighted out there, as in
+ * the paper: its pair adds the same to every candidate, so the previous
+ * frame warped from elsewhere cannot vote for whatever occluded it. The
+ * error map keeps that constant (255 per channel at half the temporal
+ * weight, per occluded pixel of the patch): a chain that had to invent
+ * the content there piles up more error, and the blend trusts it less.
  *
  * Every guide is written as an 8-bit PNG to a work directory and the job
  * reads it back, embedded or on a coordinator alike: the same bytes go in
@@ -40,9 +42,9 @@
 #include "video_guides.h"
 
 #define TS_VIDEO_MAX_KEYS 64
-/* Guides beyond the colour, edge, two position and temporal ones (and
- * the mask's, with --mask). */
-#define TS_VIDEO_MAX_PASSES (TS_STYLIT_MAX_GUIDES - 5)
+/* Guides beyond the colour, edge, two position and two temporal ones
+ * (and the mask's, with --mask). */
+#define TS_VIDEO_MAX_PASSES (TS_STYLIT_MAX_GUIDES - 6)
 #define TS_VIDEO_PATH 4096
 
 typedef struct {

@@ -8,15 +8,15 @@
 #include "flow.h"
 #include "plane.h"
 
-/* The position weight's floor is twice the others': each of its two
- * planes gets half, and a guide's weight is at least 0.01. */
+/* The position and temporal weights' floor is twice the others': each
+ * of their two guides gets half, and a guide's weight is at least 0.01. */
 const ts_param ts_video_params[] = {
     {"edge_weight", "edge-weight", "W", TS_PARAM_DOUBLE, offsetof(ts_video_weights, edge), 0.01, 100, "0.5",
      "the edge guide's weight", .flags = TS_PARAM_ZERO_OFF},
     {"position_weight", "position-weight", "W", TS_PARAM_DOUBLE, offsetof(ts_video_weights, position), 0.02, 100,
      "1", "the positional guide's weight, split between its x and y planes", .flags = TS_PARAM_ZERO_OFF},
-    {"temporal_weight", "temporal-weight", "W", TS_PARAM_DOUBLE, offsetof(ts_video_weights, temporal), 0.01, 100,
-     "1", "the temporal guide's weight", .flags = TS_PARAM_ZERO_OFF},
+    {"temporal_weight", "temporal-weight", "W", TS_PARAM_DOUBLE, offsetof(ts_video_weights, temporal), 0.02, 100,
+     "1", "the temporal guide's weight, split between it and its complement", .flags = TS_PARAM_ZERO_OFF},
     {"mask_weight", "mask-weight", "W", TS_PARAM_DOUBLE, offsetof(ts_video_weights, mask), 0.01, 100, "1",
      "with --mask, the mask's weight as a guide, which keeps the inside's patches from the key's inside",
      .flags = TS_PARAM_ZERO_OFF},
@@ -93,4 +93,21 @@ void ts_guide_position_planes(const float *pos, int w, int h, uint8_t *px, uint8
     px[i] = scale8(pos[2 * i], w);
     py[i] = scale8(pos[2 * i + 1], h);
   }
+}
+
+static uint8_t round8(float v) { return v <= 0.0f ? 0 : v >= 255.0f ? 255 : (uint8_t)(v + 0.5f); }
+
+void ts_guide_temporal_pair(const float *warped, const uint8_t *occluded, size_t npx, int ch, uint8_t *a,
+                            uint8_t *b) {
+  for (size_t i = 0; i < npx; i++)
+    for (int k = 0; k < ch; k++) {
+      size_t j = i * (size_t)ch + (size_t)k;
+      uint8_t v = round8(warped[j]);
+      a[j] = occluded[i] ? 0 : v;
+      b[j] = occluded[i] ? 0 : (uint8_t)(255 - v);
+    }
+}
+
+void ts_guide_complement(const uint8_t *in, size_t n, uint8_t *out) {
+  for (size_t i = 0; i < n; i++) out[i] = (uint8_t)(255 - in[i]);
 }

@@ -13,6 +13,7 @@
 #ifndef TS_VIDEO_GUIDES_H
 #define TS_VIDEO_GUIDES_H
 
+#include <stddef.h>
 #include <stdint.h>
 
 #include "param.h"
@@ -56,5 +57,22 @@ void ts_guide_position_advect(const float *prev, const float *back, const uint8_
  * span 0..255 (rounded, clamped: content carried beyond the key's edge
  * stays at the edge value). */
 void ts_guide_position_planes(const float *pos, int w, int h, uint8_t *px, uint8_t *py);
+
+/* The temporal guide, weighted out per pixel where occluded (Jamriška et
+ * al. 2019 weigh it out there: the previous frame warped from elsewhere
+ * would vote for whatever occluded the content). A stylize job weighs
+ * whole images, so the guide is a pair with half the weight each:
+ *   a = the warped frame (rounded to 8 bits), b = 255 - a,
+ * against the key's painting s and its complement 255 - s
+ * (ts_guide_complement). Where visible, |s - a| + |(255 - s) - b| =
+ * 2 |s - a|: the single guide at full weight. Where occluded, a = b = 0
+ * and the pair adds s + (255 - s) = 255 to every candidate alike, so the
+ * choice of match is exactly that without the guide there, on every
+ * search mode and backend. warped and a, b: npx pixels of ch interleaved
+ * channels; occluded: 1 per occluded pixel. */
+void ts_guide_temporal_pair(const float *warped, const uint8_t *occluded, size_t npx, int ch, uint8_t *a,
+                            uint8_t *b);
+/* out[i] = 255 - in[i]. */
+void ts_guide_complement(const uint8_t *in, size_t n, uint8_t *out);
 
 #endif

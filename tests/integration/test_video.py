@@ -79,14 +79,27 @@ def test_write_guides_and_the_report(texsyn, shot, tmp_path):
     video(texsyn, shot, tmp_path / "v_%04d.png", "--pass", tmp_path / "pass_%04d.png", "--weight", "0.5",
           "--write-guides", tmp_path / "g", "--report", tmp_path / "r.json", frames="1..4", keys=(1,))
     made = sorted(p.name for p in (tmp_path / "g").iterdir())
-    for what in ("edge", "position_x", "position_y", "temporal", "out"):
+    for what in ("edge", "position_x", "position_y", "temporal", "temporal_complement", "out"):
         assert f"from_0001_0003_{what}.png" in made, made
     assert "key_0001.png" in made and "key_0001_edge.png" in made and "position_x.png" in made, made
+    assert "key_0001_complement.png" in made, made
+    # The temporal guide is weighted out where occluded: it and its
+    # complement are both 0 there (content that came in at the shot's
+    # edge), and sum to 255 everywhere else.
+    a = pixels_of(tmp_path / "g" / "from_0001_0003_temporal.png", tmp_path)
+    b = pixels_of(tmp_path / "g" / "from_0001_0003_temporal_complement.png", tmp_path)
+    sums = {x + y for x, y in zip(a[3], b[3])}
+    assert sums == {0, 255}, sums
+    out = sum(1 for x, y in zip(a[3], b[3]) if x + y == 0)
+    assert 0 < out < len(a[3]) // 4, out
+    key = pixels_of(tmp_path / "g" / "key_0001.png", tmp_path)
+    comp = pixels_of(tmp_path / "g" / "key_0001_complement.png", tmp_path)
+    assert [255 - v for v in key[3]] == list(comp[3])
     r = json.loads((tmp_path / "r.json").read_text())
     assert r["frames"] == [1, 4] and r["keys"] == [1] and r["blend"]["frames"] == [], r
     assert [(j["frame"], j["key"]) for j in r["jobs"]] == [(2, 1), (3, 1), (4, 1)], r["jobs"]
-    # colour, edge, position x and y, temporal, the pass: 6 guides.
-    assert r["jobs"][0]["report"]["params"]["guide_weights"] == [1, 0.5, 0.5, 0.5, 1, 0.5], r["jobs"][0]["report"]
+    # colour, edge, position x and y, temporal and its complement, the pass: 7 guides.
+    assert r["jobs"][0]["report"]["params"]["guide_weights"] == [1, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5], r["jobs"][0]["report"]
     # Without --write-guides the work directory goes away.
     before = set((tmp_path).iterdir())
     video(texsyn, shot, tmp_path / "w_%04d.png", frames="1..2", keys=(1,), check=True)
@@ -204,8 +217,8 @@ def test_mask_keeps_the_input_outside_and_stylizes_inside(texsyn, shot, tmp_path
         else:
             assert left != in_left, f
     r = json.loads((tmp_path / "r.json").read_text())
-    # colour, edge, position x and y, temporal, the mask: 6 guides.
-    assert r["weights"]["mask"] == 1 and len(r["jobs"][0]["report"]["params"]["guide_weights"]) == 6, r
+    # colour, edge, position x and y, temporal and its complement, the mask: 7 guides.
+    assert r["weights"]["mask"] == 1 and len(r["jobs"][0]["report"]["params"]["guide_weights"]) == 7, r
 
 
 @pytest.mark.sanitize

@@ -70,11 +70,35 @@ static void the_position_follows_the_content_and_restarts_where_occluded(void **
     }
 }
 
+/* The pair against the key's painting and its complement: twice the
+ * single guide's distance where visible, the same 255 for every source
+ * value where occluded (so the search's choice ignores it there). */
+static void the_temporal_pair_weighs_the_guide_out_where_occluded(void **state) {
+  (void)state;
+  float warped[2 * 3] = {-4.0f, 17.4f, 128.5f, 254.6f, 300.0f, 9.0f};
+  uint8_t occluded[2] = {0, 1}, a[6], b[6];
+  ts_guide_temporal_pair(warped, occluded, 2, 3, a, b);
+  static const uint8_t va[6] = {0, 17, 129, 0, 0, 0}, vb[6] = {255, 238, 126, 0, 0, 0};
+  assert_memory_equal(a, va, 6);
+  assert_memory_equal(b, vb, 6);
+  uint8_t s[256], sc[256];
+  for (int v = 0; v < 256; v++) s[v] = (uint8_t)v;
+  ts_guide_complement(s, 256, sc);
+  for (int v = 0; v < 256; v++) {
+    assert_int_equal(sc[v], 255 - v);
+    for (int k = 0; k < 6; k++) {
+      int pair = abs(s[v] - a[k]) + abs(sc[v] - b[k]);
+      assert_int_equal(pair, k < 3 ? 2 * abs(v - a[k]) : 255);
+    }
+  }
+}
+
 static const struct CMUnitTest tests[] = {
     cmocka_unit_test(a_flat_frame_has_no_edges),
     cmocka_unit_test(a_step_peaks_on_its_edge_and_fades_away),
     cmocka_unit_test(the_key_position_is_each_pixels_own_place),
     cmocka_unit_test(the_position_follows_the_content_and_restarts_where_occluded),
+    cmocka_unit_test(the_temporal_pair_weighs_the_guide_out_where_occluded),
 };
 
 TS_TEST_MAIN(tests)
