@@ -30,6 +30,7 @@
 #include "error.h"
 #include "image_meta.h"
 #include "jobspec.h"
+#include "preview.h"
 #include "region.h"
 #include "tile_grid.h"
 #include "util.h"
@@ -64,6 +65,7 @@ typedef struct {
   ts_gis_line_rules *rules; /* a vector layer's, NULL for a line raster */
   ts_meta *meta;
   ts_tile_sink *sink;
+  ts_preview *preview; /* NULL: none, or given up after a failed write */
   int32_t *ids, *values; /* READ_ROWS rows of the map and the lines */
   band bands[BANDS];
   int next_write; /* the next tile row to write */
@@ -171,6 +173,16 @@ static int band_load(tiler *t, int row, char *err) {
   return 0;
 }
 
+/* The preview is for the operations page only: one that cannot be
+ * written is dropped, and the job goes on. */
+static void preview_rows(tiler *t, const band *b) {
+  char perr[TS_ERR_LEN];
+  if (t->preview != NULL && ts_preview_rows(t->preview, b->y0, b->h, b->rgb, perr) != 0) {
+    ts_preview_close(t->preview);
+    t->preview = NULL;
+  }
+}
+
 /* Writes every completed row whose turn it is. */
 static int write_rows(tiler *t, char *err) {
   while (t->next_write < t->g.ny) {
@@ -178,6 +190,7 @@ static int write_rows(tiler *t, char *err) {
     if (b->row != t->next_write || b->tiles_done < t->g.nx) return 0;
     int rc = t->sink->put(t->sink, 0, b->y0, t->g.w, b->h, b->rgb, err);
     if (rc != 0) return rc;
+    preview_rows(t, b);
     b->written = 1;
     t->next_write++;
   }
@@ -513,6 +526,8 @@ static int open_io(tiler *t, const ts_image *const *in, const char *out_path, ch
   t->values = malloc(sizeof(int32_t) * row);
   if (t->ids == NULL || t->values == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
   if ((rc = check_disk(out_path, t->g.w, t->g.h, p->cog, err)) != 0) return rc;
+  if (t->h->preview_path != NULL && (rc = ts_preview_open(&t->preview, t->h->preview_path, t->g.w, t->g.h, 3, err)) != 0)
+    return rc;
   return ts_tile_sink_open(out_path, t->g.w, t->g.h, file_tile(p->tile), t->map, t->meta, p->cog, &t->sink, err);
 }
 
@@ -533,6 +548,7 @@ static void tiler_free(tiler *t, int ok) {
   if (t->map != NULL) t->map->close(t->map);
   if (t->lines != NULL) t->lines->close(t->lines);
   free(t->rules);
+  ts_preview_close(t->preview);
   ts_meta_free(t->meta);
   if (!ok && t->sink != NULL) t->sink->abort(t->sink);
 }

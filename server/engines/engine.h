@@ -120,6 +120,10 @@ typedef struct {
   /* Where each streamed output goes (ts_engine_output.streamed), by
    * output index; NULL (the array or an entry): not wanted. */
   const char *const *output_paths;
+  /* Where an engine that streams a large result keeps a small picture of
+   * it, growing as it goes (preview.h): what the operations page shows of
+   * a running job, and its thumbnail once done. NULL: none (embedded). */
+  const char *preview_path;
   /* Checkpoints in pieces, for work made of many units each finished for
    * good (a tiled scene's tiles): save_piece keeps one under its name
    * (1..31 letters, digits, '-'), atomically, beside the job until it

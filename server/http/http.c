@@ -152,13 +152,14 @@ static enum MHD_Result serve_thumb(struct MHD_Connection *c, uint64_t id, const 
   uint8_t *png;
   size_t len;
   char err[TS_ERR_LEN];
-  int rc = ts_thumb_get(g_http.jobs, id, name, side, &png, &len, err);
+  int growing = 0;
+  int rc = ts_thumb_get(g_http.jobs, id, name, side, &png, &len, &growing, err);
   if (rc == TS_ENOENT || rc == TS_EINVAL) return respond_error(c, MHD_HTTP_NOT_FOUND, "%s", err);
   if (rc != 0) {
     ts_log("http: thumbnail of job %llu: %s", (unsigned long long)id, err);
     return respond_error(c, MHD_HTTP_INTERNAL_SERVER_ERROR, "%s", err);
   }
-  return respond_cached(c, MHD_HTTP_OK, "image/png", HTTP_THUMB_CACHE, png, len);
+  return respond_cached(c, MHD_HTTP_OK, "image/png", growing ? "no-store" : HTTP_THUMB_CACHE, png, len);
 }
 
 /* ---- requests ----------------------------------------------------------------------- */

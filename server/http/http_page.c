@@ -162,8 +162,9 @@ static void html_job(ts_text *t, const ts_job_status *j) {
   ts_text_add(t, "</td><td class=n>");
   add_eta(t, j);
   ts_text_add(t, "</td><td>");
-  /* Engines without an image result have no thumbnail: the 404 removes it. */
-  if (j->state == TS_JOB_DONE)
+  /* Engines without an image result have no thumbnail, nor running jobs
+   * without a growing preview (preview.h): the 404 removes it. */
+  if (j->state == TS_JOB_DONE || j->state == TS_JOB_RUNNING)
     ts_text_add(t, "<img src=\"/jobs/%" PRIu64 "/thumb.png\" alt=\"job %" PRIu64 " result\" onerror=\"this.remove()\">",
                 j->id, j->id);
   ts_text_add(t, "</td></tr>\n");

@@ -83,16 +83,31 @@ static int make_thumb(const char *from, const char *to, int side, char *err) {
   return rc;
 }
 
-int ts_thumb_get(ts_jobs *j, uint64_t id, const char *name, int side, uint8_t **png, size_t *len, char *err) {
+/* The thumbnail's source: the job's preview when it has one (a running
+ * job's growing picture; a done tiled scene's, far cheaper than its
+ * result), else its result image. *growing: it may still change. */
+static int source_path(ts_jobs *j, uint64_t id, char *path, size_t cap, int *growing, char *err) {
+  int running = 0;
+  *growing = 0;
+  if (ts_jobs_preview(j, id, path, cap, &running, err) == 0) {
+    *growing = running;
+    return 0;
+  }
+  return result_path(j, id, path, cap, err);
+}
+
+int ts_thumb_get(ts_jobs *j, uint64_t id, const char *name, int side, uint8_t **png, size_t *len, int *growing,
+                 char *err) {
   char from[4096], to[4096 + 64];
-  int rc = result_path(j, id, from, sizeof(from), err);
+  int rc = source_path(j, id, from, sizeof(from), growing, err);
   if (rc != 0) return rc;
   const char *slash = strrchr(from, '/');
   int dir_len = slash != NULL ? (int)(slash - from) : 1;
-  snprintf(to, sizeof(to), "%.*s/%s", dir_len, slash != NULL ? from : ".", name);
+  /* A growing one is made afresh each time, under a name of its own. */
+  snprintf(to, sizeof(to), "%.*s/%s%s", dir_len, slash != NULL ? from : ".", *growing ? "live-" : "", name);
   pthread_mutex_lock(&g_making);
-  if (access(to, F_OK) != 0) rc = make_thumb(from, to, side, err);
-  pthread_mutex_unlock(&g_making);
+  if (*growing || access(to, F_OK) != 0) rc = make_thumb(from, to, side, err);
   if (rc == 0) rc = ts_file_read(to, THUMB_MAX_BYTES, png, len, err);
+  pthread_mutex_unlock(&g_making);
   return rc;
 }

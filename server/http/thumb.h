@@ -24,9 +24,13 @@ int ts_thumb_scale(const ts_image *src, int max_side, ts_image *dst, char *err);
 
 /* The PNG bytes (malloc'ed into *png) of job id's thumbnail of long side
  * `side`: the file `name` in the job's spool directory, made from its
- * result image (out.EXT) the first time it is asked for, then served from
- * there. TS_ENOENT when there is no such job or it has no image result,
- * TS_EINVAL when it is not done, else the image library's error. */
-int ts_thumb_get(ts_jobs *j, uint64_t id, const char *name, int side, uint8_t **png, size_t *len, char *err);
+ * result image (out.EXT), or from its preview when it has one
+ * (preview.h: a tiled scene's), the first time it is asked for, then
+ * served from there. A running job's preview is scaled afresh at every
+ * call, and *growing set: the picture may change. TS_ENOENT when there is
+ * no such job or nothing to show, TS_EINVAL when it is neither done nor
+ * showing a preview, else the image library's error. */
+int ts_thumb_get(ts_jobs *j, uint64_t id, const char *name, int side, uint8_t **png, size_t *len, int *growing,
+                 char *err);
 
 #endif

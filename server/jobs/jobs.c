@@ -14,6 +14,7 @@
 #include "jobs_queue.h"
 #include "jobs_runner.h"
 #include "jobs_spool.h"
+#include "preview.h"
 #include "util.h"
 
 _Static_assert(TS_ENGINE_MAX_INPUTS <= TS_MSG_MAX_INPUTS && TS_ENGINE_KEY_LEN == TS_MSG_KEY_MAX,
@@ -403,6 +404,18 @@ int ts_jobs_files(ts_jobs *j, uint64_t id, char names[][TS_MSG_NAME_MAX], char p
   }
   pthread_mutex_unlock(&j->lock);
   return rc;
+}
+
+int ts_jobs_preview(ts_jobs *j, uint64_t id, char *path, size_t cap, int *running, char *err) {
+  pthread_mutex_lock(&j->lock);
+  job *jb = jobs_find(j, id);
+  if (jb != NULL) {
+    snprintf(path, cap, "%s/%s", jb->dir, TS_PREVIEW_FILE);
+    *running = jb->st.state == TS_JOB_RUNNING;
+  }
+  pthread_mutex_unlock(&j->lock);
+  if (jb == NULL) return ts_error(err, TS_ENOENT, "no job %" PRIu64, id);
+  return access(path, R_OK) == 0 ? 0 : ts_error(err, TS_ENOENT, "job %" PRIu64 " has no preview", id);
 }
 
 void ts_jobs_counts(ts_jobs *j, uint32_t counts[TS_JOB_STATE_COUNT]) {

@@ -93,6 +93,10 @@ uint64_t ts_jobs_spool_bytes(ts_jobs *j);
  * their paths in the spool. */
 int ts_jobs_files(ts_jobs *j, uint64_t id, char names[][TS_MSG_NAME_MAX], char paths[][4096],
                   uint32_t *n, char *err);
+/* The path of a job's growing preview (preview.h), in any state, and
+ * whether the job is running (the picture may still change): 0, or
+ * TS_ENOENT when there is no such job or it has no preview. */
+int ts_jobs_preview(ts_jobs *j, uint64_t id, char *path, size_t cap, int *running, char *err);
 /* Jobs queued / running / done / failed (for monitoring). */
 void ts_jobs_counts(ts_jobs *j, uint32_t counts[TS_JOB_STATE_COUNT]);
 /* The status of the running job that started first, else of the job that

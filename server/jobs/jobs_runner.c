@@ -13,6 +13,7 @@
 #include "checkpoint.h"
 #include "error.h"
 #include "image.h"
+#include "preview.h"
 #include "jobs_queue.h"
 #include "jobs_spool.h"
 #include "util.h"
@@ -161,6 +162,8 @@ static int run_engine(ts_jobs *j, job *jb, const ts_image *const *in, ts_search 
     jobs_file_path(jb, name, out_path[k], sizeof(out_path[k]));
     out_paths[k] = out_path[k];
   }
+  char preview[JOBS_PATH + 64];
+  jobs_file_path(jb, TS_PREVIEW_FILE, preview, sizeof(preview));
   ts_engine_hooks hooks = {.progress = on_progress,
                            .progress_ctx = &pc,
                            .save = on_checkpoint,
@@ -173,6 +176,7 @@ static int run_engine(ts_jobs *j, job *jb, const ts_image *const *in, ts_search 
                            .resumed = on_resumed,
                            .stop = &j->stopping,
                            .output_paths = out_paths,
+                           .preview_path = preview,
                            .save_piece = on_save_piece,
                            .load_piece = on_load_piece};
   int rc = jb->spec.engine->run(&jb->spec.params, in, search, &hooks, run, err);

@@ -224,3 +224,46 @@ def test_a_killed_coordinator_resumes_at_its_unfinished_tiles(texsyn, cluster, t
     assert json.loads((tmp_path / "r.json").read_text())["tiles"]["resumed"] == saved, "a saved tile made again"
     assert pixels_of(tmp_path / "r.png", tmp_path)[3] == pixels_of(tmp_path / "e.png", tmp_path)[3]
     assert not list(jobdir.glob("piece-*")), "pieces left behind a finished job"
+
+
+def planes(png, tmp, name):
+    """(colour bytes, alpha bytes) of an RGBA PNG."""
+    oiiotool(png, "--ch", "R,G,B", "-o", tmp / f"{name}-rgb.pnm")
+    oiiotool(png, "--ch", "A", "-o", tmp / f"{name}-a.pgm")
+    return read_pnm(tmp / f"{name}-rgb.pnm"), read_pnm(tmp / f"{name}-a.pgm")
+
+
+def test_a_running_scene_shows_a_growing_preview_on_the_page(texsyn, cluster, tmp_path):
+    """The operations page's thumbnail of a running tiled scene is its
+    preview as far as the rows written (preview.h): opaque above,
+    transparent below, never cached; once done, the whole scene's."""
+    import urllib.request
+    size = 384 if SANITIZED else 512
+    classes, cat = scene(tmp_path, size, seed=5)
+    cluster.start(1, 1, "--http", "127.0.0.1:0")
+    base = "http://" + cluster.server.wait_log(r"http page on (\S+?),").group(1)
+    p = cluster.texsyn("aerial", "--classes", classes, "--catalogue", cat, "-o", tmp_path / "unused.png", *TILE,
+                       "--detach")
+    job_id = p.stdout.split()[-1]
+    preview = cluster.tmp / "spool" / "jobs" / job_id / "preview.png"
+    deadline = time.time() + 120
+    while not preview.exists():
+        assert time.time() < deadline, cluster.server.read_log()
+        time.sleep(0.01)
+    with urllib.request.urlopen(f"{base}/jobs/{job_id}/thumb.png", timeout=30) as r:
+        assert r.status == 200 and r.headers["Cache-Control"] == "no-store", r.headers
+        (tmp_path / "live.png").write_bytes(r.read())
+    (w, h, _, rgb), (_, _, _, alpha) = planes(tmp_path / "live.png", tmp_path, "live")
+    assert (w, h) == (160, 160)
+    assert set(alpha[:w]) == {255}, "the first rows written are not shown"
+    assert set(alpha[-w:]) == {0}, "rows not written yet are shown"
+    assert cluster.texsyn("watch", job_id, "--quiet").returncode == 0
+    cluster.texsyn("fetch", job_id, "-o", tmp_path / "r.png")
+    with urllib.request.urlopen(f"{base}/jobs/{job_id}/thumb.png", timeout=30) as r:
+        assert r.headers["Cache-Control"] != "no-store", r.headers
+        (tmp_path / "done.png").write_bytes(r.read())
+    (w, h, _, rgb), (_, _, _, alpha) = planes(tmp_path / "done.png", tmp_path, "done")
+    assert set(alpha) == {255}
+    full = pixels_of(tmp_path / "r.png", tmp_path)[3]
+    for k in range(3):  # the preview averages the result: the same mean colour
+        assert abs(sum(rgb[k::3]) / (w * h) - sum(full[k::3]) / (size * size)) < 1.5
