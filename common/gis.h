@@ -156,6 +156,12 @@ int ts_gis_lines_read(ts_gis_lines *l, int x, int y, int w, int h, uint8_t *dst,
  * logs and tests); either may be NULL. */
 void ts_gis_lines_info(const ts_gis_lines *l, int *nfeatures, int *reprojected);
 void ts_gis_lines_close(ts_gis_lines *l);
+/* A vector source as one file, to send as a job's input: path itself
+ * when GDAL reads it from one file (GeoJSON, GeoPackage), else (a
+ * Shapefile and its side files, ...) the same layers translated into the
+ * GeoPackage dir/STEM.gpkg, into out (cap bytes). 0, TS_EFORMAT (not a
+ * vector source), TS_EIO (the GeoPackage not written). */
+int ts_gis_vector_single(const char *path, const char *dir, char *out, size_t cap, char *err);
 
 /* --- output by regions ---------------------------------------------------- */
 

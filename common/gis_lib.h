@@ -33,12 +33,13 @@ typedef struct {
   int (*writer_finish)(ts_gis_writer *w, char *err);
   void (*writer_abort)(ts_gis_writer *w);
   int (*crs_wkt)(const char *definition, char *wkt, size_t len, char *err);
+  int (*vector_single)(const char *path, const char *dir, char *out, size_t cap, char *err);
 } ts_gis_lib;
 
 /* Versioned like image_lib.h's table: change the name with any change to
  * ts_gis_lib or to the structs of gis.h, so that a library built from
  * other sources fails to load instead of being called wrongly. */
-#define TS_GIS_LIB_TABLE ts_gis_lib_v1
+#define TS_GIS_LIB_TABLE ts_gis_lib_v2
 #define TS_GIS_LIB_STR_(x) #x
 #define TS_GIS_LIB_STR(x) TS_GIS_LIB_STR_(x)
 #define TS_GIS_LIB_TABLE_NAME TS_GIS_LIB_STR(TS_GIS_LIB_TABLE)

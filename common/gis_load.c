@@ -69,3 +69,8 @@ int ts_gis_crs_wkt(const char *definition, char *wkt, size_t len, char *err) {
   int rc = ts_gis_lib_load(err);
   return rc != 0 ? rc : gis_table->crs_wkt(definition, wkt, len, err);
 }
+
+int ts_gis_vector_single(const char *path, const char *dir, char *out, size_t cap, char *err) {
+  int rc = ts_gis_lib_load(err);
+  return rc != 0 ? rc : gis_table->vector_single(path, dir, out, cap, err);
+}

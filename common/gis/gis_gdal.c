@@ -104,4 +104,5 @@ __attribute__((visibility("default"))) const ts_gis_lib TS_GIS_LIB_TABLE = {
     ts_gis_raster_open, ts_gis_raster_read,   ts_gis_raster_close,  ts_gis_lines_open,
     ts_gis_lines_read,  ts_gis_lines_info,    ts_gis_lines_close,   ts_gis_writer_create,
     ts_gis_writer_put,  ts_gis_writer_finish, ts_gis_writer_abort, crs_wkt,
+    ts_gis_vector_single,
 };

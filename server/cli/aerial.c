@@ -4,14 +4,17 @@
  * raster's colours. */
 #include "aerial.h"
 
+#include <errno.h>
 #include <getopt.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "catalogue.h"
 #include "error.h"
 #include "fill.h"
+#include "gis.h"
 #include "jobcmd.h"
 #include "paramopt.h"
 #include "util.h"
@@ -34,7 +37,7 @@ static void usage(FILE *f, const ts_engine *e) {
           "     {\"id\": 2, \"name\": \"town\", \"reference\": \"town.png\", \"kind\": \"structured\"}],\n"
           "   \"lines\": {\"raster\": \"roads.png\", \"colours\": {\"255\": [90, 90, 90]}}}\n"
           "\n"
-          "or lines as a vector layer (GeoJSON, GeoPackage: one file; any OGR reads),\n"
+          "or lines as a vector layer (GeoJSON, GeoPackage, Shapefile: any OGR reads),\n"
           "rasterised at the scene's grid by rules giving each feature's line value,\n"
           "width and draw order, and the classes a line is hidden under:\n"
           "\n"
@@ -79,6 +82,8 @@ typedef struct {
   ts_job_cmd job;
   const char *catalogue;
   ts_catalogue *cat;
+  char pack_dir[64];    /* "": none; else holds the layer as one file */
+  char packed[4096 + 64];
 } aerial_opts;
 
 static int option(void *ctx, int c, const char *arg, int argc, char **argv, char *err) {
@@ -136,6 +141,31 @@ static int parse(int argc, char **argv, aerial_opts *o, char *err) {
   return rc != 0 ? rc : ts_job_parse_end(&o->job, err);
 }
 
+/* A vector layer sent to a coordinator goes as one file: a Shapefile and
+ * its side files as one GeoPackage made in a temporary directory
+ * (ts_gis_vector_single); a one-file source as it is. */
+static int pack_layer(aerial_opts *o, char *err) {
+  const ts_catalogue *cat = o->cat;
+  if (o->job.server == NULL || !cat->line_vector) return 0;
+  const char *tmp = getenv("TMPDIR");
+  snprintf(o->pack_dir, sizeof(o->pack_dir), "%.40s/texsyn-XXXXXX", tmp != NULL && tmp[0] ? tmp : "/tmp");
+  if (mkdtemp(o->pack_dir) == NULL) {
+    int rc = ts_error(err, TS_EIO, "cannot make a directory in %s to pack %s: %s (set TMPDIR)",
+                      tmp != NULL && tmp[0] ? tmp : "/tmp", cat->line_raster, strerror(errno));
+    o->pack_dir[0] = '\0';
+    return rc;
+  }
+  int rc = ts_gis_vector_single(cat->line_raster, o->pack_dir, o->packed, sizeof(o->packed), err);
+  if (rc == 0) o->job.in[1 + cat->nclass] = o->packed;
+  return rc;
+}
+
+static void unpack_layer(aerial_opts *o) {
+  if (o->pack_dir[0] == '\0') return;
+  if (strcmp(o->packed, o->cat->line_raster) != 0) unlink(o->packed);
+  rmdir(o->pack_dir);
+}
+
 int ts_cmd_aerial(int argc, char **argv) {
   char err[TS_ERR_LEN] = "";
   aerial_opts *o = calloc(1, sizeof(*o));
@@ -148,8 +178,9 @@ int ts_cmd_aerial(int argc, char **argv) {
   }
   o->cat = cat;
   int status = 2;
-  if (parse(argc, argv, o, err) != 0) fprintf(stderr, "texsyn aerial: %s\n", err);
+  if (parse(argc, argv, o, err) != 0 || pack_layer(o, err) != 0) fprintf(stderr, "texsyn aerial: %s\n", err);
   else status = ts_job_run(&o->job);
+  unpack_layer(o);
   free(cat);
   free(o);
   return status;

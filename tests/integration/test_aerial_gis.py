@@ -9,6 +9,7 @@ GDAL's own rasterisation of the buffered lines puts them (paths hidden
 under forest), the same bytes embedded and on 2 workers, a COG with
 overviews and the same pixels, and bad input refused before any work."""
 import json
+from pathlib import Path
 import math
 import subprocess
 
@@ -203,6 +204,36 @@ def test_bad_input_is_refused_before_any_work(texsyn, scene, tmp_path):
     refused(p, out, "class ids the catalogue has no entry for: 4 (")
     counted = int(p.stderr.split("no entry for: 4 (")[1].split(" ")[0])
     assert 0 < counted <= sand, (counted, sand)  # the roads cover some sand
+    # A layer in a CRS PROJ has no transformation from (a local engineering
+    # one): refused with both CRSs named, not drawn in the wrong place.
+    local = 'ENGCRS["site grid",EDATUM["site"],CS[Cartesian,2],AXIS["x",east,LENGTHUNIT["metre",1]],' \
+            'AXIS["y",north,LENGTHUNIT["metre",1]]]'
+    run("ogr2ogr", "-a_srs", local, tmp_path / "local.gpkg", d / "s-roads.geojson")
+    p = aerial(texsyn, d / "s-classes.tif", catalogue_with(d, tmp_path, vector=str(tmp_path / "local.gpkg")), out,
+               *TILE, check=False)
+    refused(p, out, "local.gpkg", "site grid", "UTM zone 32N")
+
+
+def test_a_shapefile_goes_to_a_coordinator_as_one_file(texsyn, scene, cluster, tmp_path):
+    """A Shapefile is four files (.shp, .shx, .dbf, .prj); sent to a
+    coordinator it goes as one GeoPackage the client makes (gis_pack.c),
+    and draws the same roads as the GeoJSON it came from, embedded and on
+    a worker."""
+    d, _ = scene
+    run("ogr2ogr", tmp_path / "roads.shp", d / "s-roads.geojson")
+    assert {f.suffix for f in tmp_path.glob("roads.*")} >= {".shp", ".shx", ".dbf", ".prj"}
+    cat = catalogue_with(d, tmp_path, vector=str(tmp_path / "roads.shp"))
+    aerial(texsyn, d / "s-classes.tif", d / "vcat.json", tmp_path / "json.tif", *TILE)
+    aerial(texsyn, d / "s-classes.tif", cat, tmp_path / "shp.tif", *TILE)
+    expected = rgb_of(tmp_path / "json.tif")
+    assert rgb_of(tmp_path / "shp.tif") == expected, "embedded"
+    cluster.start(1, 1)
+    cluster.texsyn("aerial", "--classes", d / "s-classes.tif", "--catalogue", cat, "-o", tmp_path / "c.tif",
+                   "--quiet", *TILE)
+    assert rgb_of(tmp_path / "c.tif") == expected, "on a coordinator"
+    sent = list((cluster.tmp / "spool" / "jobs").glob("*/lines.*"))
+    assert [f.suffix for f in sent] == [".gpkg"], sent
+    assert not list(Path("/tmp").glob("texsyn-*/roads.gpkg")), "the packed layer left behind"
 
 
 def test_a_scene_larger_than_the_free_disk_is_refused_before_any_work(texsyn, scene, tmp_path):
