@@ -7,8 +7,12 @@
  *
  * The pixels are aerial-like for the compressor: smooth colour fields
  * with 3-bit noise, from integer hashing (the same bytes every run).
+ * With --noise every byte is the hash's (incompressible: the file is as
+ * large as the pixels, which takes a file past 4 GiB, where only BigTIFF's
+ * 64-bit offsets reach; bench/bigtiff.py reads it back): byte c of pixel
+ * (x, y) is bits 8c..8c+7 of hash(x * 0x9e3779b1 ^ y).
  *
- *   gis_write -o OUT.tif [--size N|WxH] [--tile T] [--cog]
+ *   gis_write -o OUT.tif [--size N|WxH] [--tile T] [--cog] [--noise]
  *
  * Prints "puts S s, finish S s, peak RSS N MiB, file N MiB". Exit status
  * 2 for bad options, 1 for a failure. */
@@ -39,12 +43,16 @@ static uint32_t hash(uint32_t x) {
   return x ^ (x >> 16);
 }
 
-static void fill_tile(uint8_t *px, int tx, int ty, int rw, int rh) {
+static void fill_tile(uint8_t *px, int tx, int ty, int rw, int rh, int noise) {
   for (int y = 0; y < rh; y++)
     for (int x = 0; x < rw; x++) {
       uint32_t gx = (uint32_t)(tx + x), gy = (uint32_t)(ty + y);
       uint32_t n = hash(gx * 0x9e3779b1u ^ gy);
       uint8_t *p = px + ((size_t)y * rw + x) * 3;
+      if (noise) {
+        p[0] = (uint8_t)n, p[1] = (uint8_t)(n >> 8), p[2] = (uint8_t)(n >> 16);
+        continue;
+      }
       p[0] = (uint8_t)(((gx >> 6) + (gy >> 7)) * 5 + (n & 7));
       p[1] = (uint8_t)(((gx >> 7) * 3 + (gy >> 6)) * 2 + ((n >> 3) & 7));
       p[2] = (uint8_t)(((gx ^ gy) >> 8) * 7 + ((n >> 6) & 7));
@@ -52,7 +60,7 @@ static void fill_tile(uint8_t *px, int tx, int ty, int rw, int rh) {
 }
 
 static int usage(const char *msg) {
-  fprintf(stderr, "gis_write: %s\nusage: gis_write -o OUT.tif [--size N|WxH] [--tile T] [--cog]\n", msg);
+  fprintf(stderr, "gis_write: %s\nusage: gis_write -o OUT.tif [--size N|WxH] [--tile T] [--cog] [--noise]\n", msg);
   return 2;
 }
 
@@ -60,9 +68,10 @@ int main(int argc, char **argv) {
   static const struct option longs[] = {{"size", required_argument, 0, 's'},
                                         {"tile", required_argument, 0, 't'},
                                         {"cog", no_argument, 0, 'c'},
+                                        {"noise", no_argument, 0, 'n'},
                                         {0, 0, 0, 0}};
   const char *out = NULL;
-  int w = 4096, h = 4096, tile = 1024, cog = 0, c;
+  int w = 4096, h = 4096, tile = 1024, cog = 0, noise = 0, c;
   opterr = 0;
   while ((c = getopt_long(argc, argv, "o:", longs, NULL)) != -1) {
     if (c == 'o') out = optarg;
@@ -70,6 +79,7 @@ int main(int argc, char **argv) {
     else if (c == 's' && ts_parse_size(optarg, 1 << 20, &w, &h) == 0) continue;
     else if (c == 't' && ts_parse_int(optarg, 16, 4096, &tile) == 0) continue;
     else if (c == 'c') cog = 1;
+    else if (c == 'n') noise = 1;
     else return usage("bad option or value");
   }
   if (out == NULL || optind < argc) return usage("-o OUT.tif is required, and nothing else");
@@ -86,7 +96,7 @@ int main(int argc, char **argv) {
   for (int ty = 0; ty < h; ty += tile)
     for (int tx = 0; tx < w; tx += tile) {
       int rw = w - tx < tile ? w - tx : tile, rh = h - ty < tile ? h - ty : tile;
-      fill_tile(px, tx, ty, rw, rh);
+      fill_tile(px, tx, ty, rw, rh, noise);
       if (ts_gis_writer_put(wr, tx, ty, rw, rh, px, err) != 0) {
         fprintf(stderr, "gis_write: %s\n", err);
         ts_gis_writer_abort(wr);
