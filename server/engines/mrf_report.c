@@ -6,6 +6,7 @@
 #include <string.h>
 
 #include "error.h"
+#include "repetition.h"
 #include "util.h"
 
 /* The copy-map shortcut (§3.6.6), per level from the coarsest: what it
@@ -107,6 +108,22 @@ static void report_lbg_level(FILE *f, const ts_mrf_lbg_stats *s) {
   fprintf(f, "]}");
 }
 
+/* The repetition score of the result's copy map (repetition.h), when the
+ * run reached the finest level (the copy map is the output's then). */
+static void report_repetition(FILE *f, const ts_mrf_params *p, const ts_mrf_result *res) {
+  ts_repetition r;
+  char err[TS_ERR_LEN];
+  if (p->stop_level != 0 || res->copy_map == NULL ||
+      ts_repetition_score(res->copy_map, NULL, 1, res->image.width, res->image.height, res->ref_w, res->ref_h,
+                          TS_REPETITION_SIDE, &r, err) != 0)
+    return;
+  fprintf(f,
+          "  \"repetition\": {\"side\": %d, \"share\": %.6f, \"repeated\": %llu, \"in_large\": %llu, "
+          "\"patches\": %llu, \"large_patches\": %llu},\n",
+          r.side, r.share, (unsigned long long)r.repeated, (unsigned long long)r.large, (unsigned long long)r.patches,
+          (unsigned long long)r.large_patches);
+}
+
 int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const ts_search *search,
                     const ts_mrf_result *res, char *err) {
   char tmp[TS_FILE_TMP_LEN];
@@ -125,6 +142,7 @@ int ts_write_report(const char *path, const ts_mrf_params *p, int threads, const
   if (p->copy_accel) report_copy_map(f, p, res);
   fprintf(f, "  \"seconds\": %.4f,\n  \"usage\": {\"mean\": %.6f, \"variance\": %.6f},\n",
           res->seconds, res->usage_mean, res->usage_variance);
+  report_repetition(f, p, res);
   const ts_mrf_resume *rs = &res->resume;
   if (res->resumed)
     fprintf(f, "  \"resumed\": {\"level\": %d, \"step\": %llu, \"steps\": %llu, \"level_done\": %.4f, "

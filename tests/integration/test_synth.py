@@ -1,4 +1,6 @@
 """End-to-end synthesis through the real CLI, on the shared CC0 textures."""
+import collections
+import struct
 import subprocess
 
 import pytest
@@ -110,6 +112,53 @@ def test_usage_weight_lowers_usage_variance(texsyn, data, tmp_path):
     on = synth(texsyn, ref, tmp_path / "on.png", (192, 192), "--levels", "4", "--usage-weight", "4")
     assert on["usage"]["variance"] < off["usage"]["variance"]
     assert on["usage"]["mean"] == pytest.approx(off["usage"]["mean"])
+
+
+def repetition_of(raw, w, h, side=16):
+    """The repetition score (server/engines/repetition.h) recomputed from a
+    raw copy map: 4-connected pieces of one offset, large from side²
+    pixels, a large piece's pixel repeated when another large piece uses
+    its source pixel too."""
+    xy = struct.unpack(f"<{2 * w * h}I", raw)
+    parent = list(range(w * h))
+
+    def find(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    def off(i):
+        return xy[2 * i] - i % w, xy[2 * i + 1] - i // w
+    for i in range(w * h):
+        for j in ((i + 1) if i % w + 1 < w else None, (i + w) if i + w < w * h else None):
+            if j is not None and off(i) == off(j):
+                a, b = find(i), find(j)
+                parent[max(a, b)] = min(a, b)
+    roots = [find(i) for i in range(w * h)]
+    size = collections.Counter(roots)
+    large = [i for i in range(w * h) if size[roots[i]] >= side * side]
+    uses = collections.Counter((xy[2 * i], xy[2 * i + 1]) for i in large)
+    repeated = sum(1 for i in large if uses[(xy[2 * i], xy[2 * i + 1])] >= 2)
+    return {"repeated": repeated, "in_large": len(large), "patches": len(size),
+            "large_patches": sum(1 for r, n in size.items() if n >= side * side)}
+
+
+def test_the_repetition_score_counts_large_pieces_copied_twice(texsyn, data, tmp_path):
+    """The report's repetition score is the copy map's (recomputed here),
+    and the usage penalty, which spreads the copies, lowers it."""
+    ref = data / "textures" / "brick.png"
+    scores = {}
+    for u in ("0", "4"):
+        r = synth(texsyn, ref, tmp_path / f"o{u}.png", (192, 192), "--levels", "4", "--usage-weight", u,
+                  "--copy-map-raw", tmp_path / f"c{u}.raw")
+        rep = r["repetition"]
+        assert rep["side"] == 16
+        assert {k: rep[k] for k in ("repeated", "in_large", "patches", "large_patches")} == \
+            repetition_of((tmp_path / f"c{u}.raw").read_bytes(), 192, 192)
+        assert rep["share"] == pytest.approx(rep["repeated"] / 192 ** 2, abs=1e-6)
+        scores[u] = rep["share"]
+    assert scores["0"] > 0.05 and scores["4"] < scores["0"] / 2, scores
 
 
 @pytest.mark.sanitize
