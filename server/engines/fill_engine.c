@@ -19,6 +19,7 @@
 #include "error.h"
 #include "fill.h"
 #include "outputs.h"
+#include "repetition.h"
 #include "util.h"
 
 #define FILL_MAX_REFS (TS_FILL_MAX_SOURCES - 1)
@@ -282,6 +283,35 @@ static int write_copy_map(const ts_engine_run *r, int raw, const char *path, cha
   return rc;
 }
 
+/* The repetition score of the filled pixels (repetition.h; given ones
+ * left out), each source image a reference of its own. */
+static void report_repetition(FILE *f, const ts_engine_run *r) {
+  const ts_fill_result *res = &r->res;
+  size_t npx = (size_t)res->w * (size_t)res->h;
+  uint32_t *map = malloc(sizeof(uint32_t) * 2 * npx);
+  int nsrc = 0, rw = 1, rh = 1;
+  for (size_t i = 0; map != NULL && i < npx; i++) {
+    int s = res->source[i];
+    map[2 * i] = s == TS_FILL_NO_SOURCE ? UINT32_MAX : res->copy[2 * i];
+    map[2 * i + 1] = res->copy[2 * i + 1];
+    if (s != TS_FILL_NO_SOURCE && s >= nsrc) nsrc = s + 1;
+  }
+  for (int s = 0; s < nsrc; s++) {
+    const ts_image *img = source_image(r, s);
+    rw = img->width > rw ? img->width : rw;
+    rh = img->height > rh ? img->height : rh;
+  }
+  ts_repetition rep;
+  char err[TS_ERR_LEN];
+  if (map != NULL && nsrc > 0 &&
+      ts_repetition_score(map, res->source, nsrc, res->w, res->h, rw, rh, TS_REPETITION_SIDE, &rep, err) == 0)
+    fprintf(f, "  \"repetition\": {\"side\": %d, \"share\": %.6f, \"repeated\": %llu, \"in_large\": %llu, "
+               "\"filled\": %llu},\n",
+            rep.side, rep.share, (unsigned long long)rep.repeated, (unsigned long long)rep.large,
+            (unsigned long long)rep.pixels);
+  free(map);
+}
+
 static int write_report(const ts_engine_run *r, const char *path, int threads, char *err) {
   char tmp[TS_FILE_TMP_LEN];
   FILE *f = ts_file_create(path, tmp, err);
@@ -295,6 +325,7 @@ static int write_report(const ts_engine_run *r, const char *path, int threads, c
   ts_fill_report_params(f, &p->fill);
   fprintf(f, "},\n  \"seconds\": %.4f,\n  \"usage\": {\"mean\": %.6f, \"variance\": %.6f},\n", r->res.seconds,
           r->res.cls[0].usage_mean, r->res.cls[0].usage_variance);
+  report_repetition(f, r);
   ts_fill_report_levels(f, &p->fill, &r->res);
   fprintf(f, "}\n");
   return ts_file_commit(f, tmp, path, 1, err);

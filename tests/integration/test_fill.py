@@ -97,6 +97,10 @@ def test_an_external_reference_is_used(texsyn, scene, tmp_path):
     assert r["engine"] == "fill" and r["params"]["self"] is False and r["params"]["refs"] == 1
     assert r["search"]["mode"] == "exact" and r["search"]["lossy"] == []
     assert sum(level["blocks"] for level in r["levels"]) > 0
+    # The repetition score counts the filled pixels only: the hole's.
+    hole = sum(1 for v in pixels_of(scene / "rect.png", tmp_path)[3] if v > 127)
+    rep = r["repetition"]
+    assert rep["side"] == 16 and rep["filled"] == hole and 0 <= rep["repeated"] <= rep["in_large"] <= hole, rep
 
 
 def test_every_problem_in_one_error(texsyn, scene, data, tmp_path):
