@@ -25,6 +25,7 @@
 #include "aerial.h"
 #include "engine.h"
 #include "fillcmd.h"
+#include "catalogue_cmd.h"
 #include "flicker.h"
 #include "mrf.h"
 #include "paramopt.h"
@@ -580,6 +581,7 @@ static const command kCommands[] = {
     {"synth", ts_cmd_synth, NULL, 0, "synthesise a texture from a reference (alias: run), or fill a hole"},
     {"run", ts_cmd_synth, NULL, 0, NULL},
     {"aerial", ts_cmd_aerial, NULL, 0, "build an aerial image from a land-use class map and a catalogue"},
+    {"catalogue", ts_cmd_catalogue, NULL, 0, "cut an aerial catalogue's references from an orthophoto and its class map"},
     {"stylize", ts_cmd_stylize, NULL, 0, "paint a target in the style of an exemplar, guided by image pairs"},
     {"energy", ts_cmd_energy, NULL, 0, "score a stylized image: mean exact best guided patch distance, coverage"},
     {"apply-nnf", ts_cmd_apply_nnf, NULL, 0, "vote a stylize --nnf field over another layer of the exemplar"},
