@@ -801,6 +801,7 @@ void ts_msg_files_write(ts_wr *w, const ts_msg_files *m) {
   ts_wr_u32(w, m->n);
   for (uint32_t i = 0; i < m->n; i++) {
     ts_wr_str(w, m->name[i]);
+    ts_wr_u64(w, m->size[i]);
     ts_wr_u32(w, m->len[i]);
     ts_wr_bytes(w, m->data[i], m->len[i]);
   }
@@ -813,10 +814,36 @@ int ts_msg_files_read(const ts_frame *f, ts_msg_files *m, char *err) {
   if (m->n > TS_FETCH_MAX_FILES) return bad(err, 'F', "too many files");
   for (uint32_t i = 0; i < m->n; i++) {
     ts_rd_str(&r, m->name[i], sizeof(m->name[i]));
+    m->size[i] = ts_rd_u64(&r);
     m->len[i] = ts_rd_u32(&r);
-    m->data[i] = ts_rd_bytes(&r, m->len[i]);
+    m->data[i] = m->len[i] > 0 ? ts_rd_bytes(&r, m->len[i]) : NULL;
+    /* Whole inline, or none of it: a small file in ranges, or a partial one, is a lie. */
+    if (m->size[i] <= TS_FETCH_INLINE ? m->len[i] != m->size[i] : m->len[i] != 0)
+      return bad(err, 'F', "a file's inline bytes do not match its size");
   }
   return finish(&r, err, 'F');
+}
+
+/* ---- B ------------------------------------------------------------------ */
+
+void ts_msg_range_write(ts_wr *w, const ts_msg_range *m) {
+  ts_wr_u64(w, m->id);
+  ts_wr_str(w, m->name);
+  ts_wr_u64(w, m->offset);
+  ts_wr_u32(w, m->len);
+}
+
+int ts_msg_range_read(const ts_frame *f, ts_msg_range *m, char *err) {
+  ts_rd r;
+  ts_rd_init(&r, f->payload, f->len);
+  m->id = ts_rd_u64(&r);
+  ts_rd_str(&r, m->name, sizeof(m->name));
+  m->offset = ts_rd_u64(&r);
+  m->len = ts_rd_u32(&r);
+  int rc = finish(&r, err, 'B');
+  if (rc == 0 && (m->len == 0 || m->len > TS_RANGE_MAX || m->offset > UINT64_MAX - m->len))
+    return bad(err, 'B', "range length or offset");
+  return rc;
 }
 
 /* ---- P ------------------------------------------------------------------ */

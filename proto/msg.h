@@ -37,6 +37,7 @@ enum {
   TS_MSG_SUBMIT = 'S',
   TS_MSG_STATUS = 'W',
   TS_MSG_FETCH = 'F',
+  TS_MSG_RANGE = 'B',
   TS_MSG_CANCEL = 'X',
   TS_MSG_POOL = 'P',
   TS_MSG_DELETE = 'D',
@@ -363,17 +364,37 @@ int ts_msg_status_read(const ts_frame *f, ts_job_status *s, uint32_t cap,
 
 /* ---- F: fetch ----------------------------------------------------------- */
 
-/* Reply: named files (output image, copy maps, usage map, report). */
+/* Reply: named files (output image, copy maps, usage map, report), each
+ * with its size; a file of up to TS_FETCH_INLINE bytes comes whole in the
+ * reply, a larger one (a tiled scene of gigabytes) with no bytes: the
+ * client takes it in 'B' ranges, so neither side holds it whole. */
 #define TS_FETCH_MAX_FILES 8
+#define TS_FETCH_INLINE (16u << 20)
 typedef struct {
   uint32_t n;
   char name[TS_FETCH_MAX_FILES][TS_MSG_NAME_MAX];
-  const uint8_t *data[TS_FETCH_MAX_FILES];
-  uint32_t len[TS_FETCH_MAX_FILES];
+  uint64_t size[TS_FETCH_MAX_FILES];
+  const uint8_t *data[TS_FETCH_MAX_FILES]; /* NULL: a file taken in ranges */
+  uint32_t len[TS_FETCH_MAX_FILES];        /* bytes inline: size, or 0 */
 } ts_msg_files;
 
 void ts_msg_files_write(ts_wr *w, const ts_msg_files *m);
 int ts_msg_files_read(const ts_frame *f, ts_msg_files *m, char *err);
+
+/* ---- B: a range of a fetched file ---------------------------------------- */
+
+/* Request: bytes [offset, offset + len) of a finished job's file (a name
+ * of its 'F' reply); reply: those bytes. len 1..TS_RANGE_MAX. */
+#define TS_RANGE_MAX (16u << 20)
+typedef struct {
+  uint64_t id;
+  char name[TS_MSG_NAME_MAX];
+  uint64_t offset;
+  uint32_t len;
+} ts_msg_range;
+
+void ts_msg_range_write(ts_wr *w, const ts_msg_range *m);
+int ts_msg_range_read(const ts_frame *f, ts_msg_range *m, char *err);
 
 /* ---- P: pool ------------------------------------------------------------ */
 

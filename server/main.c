@@ -7,6 +7,7 @@
  * that answers their requests against the job queue (jobs.c). A bad peer
  * loses its own connection, never the daemon. */
 #include <errno.h>
+#include <fcntl.h>
 #include <getopt.h>
 #include <inttypes.h>
 #include <pthread.h>
@@ -16,6 +17,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "auth.h"
@@ -131,6 +133,22 @@ static int serve_status(ts_conn *c, const ts_frame *f) {
   return rc;
 }
 
+/* Reads file i of a fetch: whole when it is small enough to go inline,
+ * else only its size (the client takes it in 'B' ranges). */
+static int fetch_file(const char *path, ts_msg_files *m, uint32_t i, uint8_t **buf, char *err) {
+  struct stat st;
+  if (stat(path, &st) != 0) return ts_error(err, TS_EIO, "%s: %s", path, strerror(errno));
+  m->size[i] = (uint64_t)st.st_size;
+  if (m->size[i] > TS_FETCH_INLINE) return 0;
+  size_t len;
+  int rc = ts_file_read(path, TS_FETCH_INLINE, buf, &len, err);
+  if (rc == 0 && len != m->size[i]) rc = ts_error(err, TS_EIO, "%s changed while it was read", path);
+  m->data[i] = *buf;
+  m->len[i] = (uint32_t)len;
+  m->size[i] = len;
+  return rc;
+}
+
 static int serve_fetch(ts_conn *c, const ts_frame *f) {
   char err[TS_ERR_LEN];
   uint64_t id;
@@ -141,12 +159,7 @@ static int serve_fetch(ts_conn *c, const ts_frame *f) {
   if (p == NULL) return reply_error(c, f->id, TS_ENOMEM, "out of memory");
   int rc = ts_jobs_files(g_server.jobs, id, m.name, p, &m.n, err);
   uint8_t *bufs[TS_FETCH_MAX_FILES] = {0};
-  for (uint32_t i = 0; rc == 0 && i < m.n; i++) {
-    size_t len;
-    rc = ts_file_read(p[i], UINT32_MAX - 1, &bufs[i], &len, err);
-    m.data[i] = bufs[i];
-    m.len[i] = (uint32_t)len; /* fits when read: the limit is below 4 GiB */
-  }
+  for (uint32_t i = 0; rc == 0 && i < m.n; i++) rc = fetch_file(p[i], &m, i, &bufs[i], err);
   if (rc == 0) {
     ts_wr w;
     ts_wr_init(&w);
@@ -156,6 +169,46 @@ static int serve_fetch(ts_conn *c, const ts_frame *f) {
     rc = reply_error(c, f->id, rc, err);
   }
   for (uint32_t i = 0; i < TS_FETCH_MAX_FILES; i++) free(bufs[i]);
+  free(p);
+  return rc;
+}
+
+/* The bytes of a range of a finished job's file (pread: the coordinator
+ * holds one range, never the file). */
+static int read_range(const ts_msg_range *m, const char *path, uint8_t *buf, char *err) {
+  int fd = open(path, O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return ts_error(err, TS_EIO, "%s: %s", path, strerror(errno));
+  struct stat st;
+  int rc = fstat(fd, &st) != 0 ? ts_error(err, TS_EIO, "%s: %s", path, strerror(errno)) : 0;
+  if (rc == 0 && m->offset + m->len > (uint64_t)st.st_size)
+    rc = ts_error(err, TS_EINVAL, "job %" PRIu64 "'s %s has %lld bytes: no range [%" PRIu64 ", %" PRIu64 ")", m->id,
+                  m->name, (long long)st.st_size, m->offset, m->offset + m->len);
+  for (uint32_t got = 0; rc == 0 && got < m->len;) {
+    ssize_t n = pread(fd, buf + got, m->len - got, (off_t)(m->offset + got));
+    if (n <= 0) rc = ts_error(err, TS_EIO, "%s: %s", path, n < 0 ? strerror(errno) : "shorter than it was");
+    else got += (uint32_t)n;
+  }
+  close(fd);
+  return rc;
+}
+
+static int serve_range(ts_conn *c, const ts_frame *f) {
+  char err[TS_ERR_LEN];
+  ts_msg_range m;
+  if (ts_msg_range_read(f, &m, err) != 0) return reply_error(c, f->id, TS_EPROTO, err);
+  char names[TS_FETCH_MAX_FILES][TS_MSG_NAME_MAX];
+  char (*p)[4096] = malloc(sizeof(char[TS_FETCH_MAX_FILES][4096]));
+  uint8_t *buf = malloc(m.len);
+  uint32_t n = 0;
+  int rc = p != NULL && buf != NULL ? ts_jobs_files(g_server.jobs, m.id, names, p, &n, err)
+                                    : ts_error(err, TS_ENOMEM, "out of memory");
+  uint32_t i = 0;
+  while (rc == 0 && i < n && strcmp(names[i], m.name) != 0) i++;
+  if (rc == 0 && i == n) rc = ts_error(err, TS_ENOENT, "job %" PRIu64 " has no file %s", m.id, m.name);
+  if (rc == 0) rc = read_range(&m, p[i], buf, err);
+  if (rc == 0) rc = ts_conn_send(c, TS_MSG_RANGE, f->id, buf, m.len, err);
+  else rc = reply_error(c, f->id, rc, err);
+  free(buf);
   free(p);
   return rc;
 }
@@ -204,6 +257,7 @@ static int serve_request(ts_conn *c, const ts_frame *f, const char *client) {
   case TS_MSG_SUBMIT: return serve_submit(c, f, client);
   case TS_MSG_STATUS: return serve_status(c, f);
   case TS_MSG_FETCH: return serve_fetch(c, f);
+  case TS_MSG_RANGE: return serve_range(c, f);
   case TS_MSG_CANCEL: return serve_cancel(c, f);
   case TS_MSG_DELETE: return serve_delete(c, f);
   case TS_MSG_POOL: return serve_pool(c, f);

@@ -418,11 +418,16 @@ static int check_fetched(uint64_t id, const ts_msg_files *m, const ts_output_pat
  * written. */
 static int check_conversions(uint64_t id, const ts_msg_files *m, const ts_output_paths *t, char *err) {
   for (int i = 0; i < t->n; i++) {
-    const char *name = m->name[fetched_file(m, t->key[i])], *want = ts_path_ext(t->path[i]);
+    int k = fetched_file(m, t->key[i]);
+    const char *name = m->name[k], *want = ts_path_ext(t->path[i]);
     const ts_engine_output *out = ts_engine_output_of_file(name);
     if (out->kind != TS_OUTPUT_IMAGE || ts_ext_same_format(ts_path_ext(name), want)) continue;
     char opt[64];
     output_option(t->key[i], opt, sizeof(opt));
+    if (m->data[k] == NULL) /* taken in ranges: never held whole, so never decoded whole */
+      return ts_error(err, TS_EINVAL, "%s %s: job %llu made %s of %.1f GB, too large to convert here: fetch it as "
+                      ".%s and convert it with gdal_translate or oiiotool (nothing was written)", opt, t->path[i],
+                      (unsigned long long)id, name, (double)m->size[k] / 1e9, ts_path_ext(name));
     if (!ts_output_ext_ok(out, want))
       return ts_error(err, TS_EINVAL, "%s %s: texsyn does not write .%s images; use " TS_IMAGE_EXTS_HELP
                       " (nothing was written)", opt, t->path[i], want);
@@ -450,6 +455,32 @@ static int write_fetched(const char *name, const uint8_t *data, size_t len, cons
   return rc;
 }
 
+/* A file too large for the 'F' reply, taken range by range ('B') into a
+ * temporary file renamed to path at the end: neither side holds it. */
+static int fetch_ranges(ts_conn *c, uint64_t id, const char *name, uint64_t size, const char *path, char *err) {
+  char tmp[TS_FILE_TMP_LEN];
+  FILE *out = ts_file_create(path, tmp, err);
+  if (out == NULL) return TS_EIO;
+  int rc = 0;
+  for (uint64_t at = 0; rc == 0 && at < size;) {
+    ts_msg_range r = {.id = id, .offset = at, .len = (uint32_t)(size - at < TS_RANGE_MAX ? size - at : TS_RANGE_MAX)};
+    snprintf(r.name, sizeof(r.name), "%s", name);
+    ts_wr w;
+    ts_wr_init(&w);
+    ts_msg_range_write(&w, &r);
+    ts_frame f;
+    rc = ts_client_call(c, TS_MSG_RANGE, &w, 600000, &f, err);
+    ts_wr_free(&w);
+    if (rc == 0 && f.len != r.len)
+      rc = ts_error(err, TS_EPROTO, "job %llu's %s: %u bytes at %llu instead of %u", (unsigned long long)id, name,
+                    f.len, (unsigned long long)at, r.len);
+    if (rc == 0 && fwrite(f.payload, 1, f.len, out) != f.len) rc = ts_error(err, TS_EIO, "%s: %s", path, strerror(errno));
+    at += r.len;
+  }
+  int crc = ts_file_commit(out, tmp, path, rc == 0, err);
+  return rc != 0 ? rc : crc;
+}
+
 int ts_job_fetch(ts_conn *c, uint64_t id, const ts_output_paths *t, char *err) {
   ts_wr w;
   ts_wr_init(&w);
@@ -461,11 +492,16 @@ int ts_job_fetch(ts_conn *c, uint64_t id, const ts_output_paths *t, char *err) {
   if (rc == 0) rc = ts_msg_files_read(&f, &m, err);
   if (rc == 0) rc = check_fetched(id, &m, t, err);
   if (rc == 0) rc = check_conversions(id, &m, t, err);
-  for (uint32_t i = 0; rc == 0 && i < m.n; i++) {
-    const ts_engine_output *out = ts_engine_output_of_file(m.name[i]);
-    const char *path = out != NULL ? ts_output_path(t, out->key) : NULL;
-    if (path != NULL) rc = write_fetched(m.name[i], m.data[i], m.len[i], path, err);
-  }
+  /* The inline files first: their bytes live in the reply's frame, which
+   * the next call ('B') replaces. */
+  for (int ranged = 0; ranged < 2; ranged++)
+    for (uint32_t i = 0; rc == 0 && i < m.n; i++) {
+      const ts_engine_output *out = ts_engine_output_of_file(m.name[i]);
+      const char *path = out != NULL ? ts_output_path(t, out->key) : NULL;
+      if (path == NULL || (m.data[i] == NULL) != ranged) continue;
+      rc = ranged ? fetch_ranges(c, id, m.name[i], m.size[i], path, err)
+                  : write_fetched(m.name[i], m.data[i], m.len[i], path, err);
+    }
   return rc;
 }
 

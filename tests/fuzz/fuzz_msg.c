@@ -30,9 +30,10 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   if (size == 0) return 0;
   ts_frame f = {data[0], 1, (uint32_t)(size - 1), data + 1};
   char err[TS_ERR_LEN];
-  /* 0xF0 and 0xF1 pick the PatchMatch messages (added after the seeds of
-   * the others, whose first bytes keep their meaning). */
-  switch (data[0] == 0xF0 ? 14 : data[0] == 0xF1 ? 15 : data[0] % 14) {
+  /* 0xF0 and 0xF1 pick the PatchMatch messages, 0xF2 the fetch range
+   * (added after the seeds of the others, whose first bytes keep their
+   * meaning). */
+  switch (data[0] == 0xF0 ? 14 : data[0] == 0xF1 ? 15 : data[0] == 0xF2 ? 16 : data[0] % 14) {
   case 0: { ts_msg_ident m; ts_msg_ident_read(&f, &m, err); break; }
   case 1: { ts_msg_calib_req m; ts_msg_calib_req_read(&f, &m, err); ts_msg_calib c; ts_msg_calib_read(&f, &c, err); break; }
   case 2: {
@@ -88,7 +89,13 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
     ts_msg_jobid_read(&f, &id, err);
     break;
   }
-  case 9: { ts_msg_files m; ts_msg_files_read(&f, &m, err); break; }
+  case 9: {
+    ts_msg_files m;
+    if (ts_msg_files_read(&f, &m, err) == 0)
+      for (uint32_t i = 0; i < m.n; i++) check_inside(m.data[i], m.len[i], f.payload, f.len);
+    break;
+  }
+  case 16: { ts_msg_range m; ts_msg_range_read(&f, &m, err); break; }
   case 10: { ts_worker_info w[4]; uint32_t n; ts_msg_pool_read(&f, w, 4, &n, err); break; }
   case 11: { ts_jobspec s; ts_jobspec_parse((const char *)f.payload, f.len, &s, err); break; }
   case 12: { ts_msg_auth m; ts_msg_auth_read(&f, &m, err); break; }

@@ -40,6 +40,7 @@ static int rd_query(const ts_frame *f, void *o, char *e) { return ts_msg_query_r
 static int rd_answer(const ts_frame *f, void *o, char *e) { return ts_msg_answer_read(f, o, e); }
 static int rd_submit(const ts_frame *f, void *o, char *e) { return ts_msg_submit_read(f, o, e); }
 static int rd_files(const ts_frame *f, void *o, char *e) { return ts_msg_files_read(f, o, e); }
+static int rd_range(const ts_frame *f, void *o, char *e) { return ts_msg_range_read(f, o, e); }
 static int rd_error(const ts_frame *f, void *o, char *e) { return ts_msg_error_read(f, o, e); }
 static int rd_status2(const ts_frame *f, void *o, char *e) {
   uint32_t n;
@@ -431,14 +432,39 @@ static void job_plane_round_trips(void **state) {
   assert_int_equal(ts_msg_status_read(&f, sto, 1, &n, err), TS_EPROTO); /* more than the caller holds */
   ts_wr_free(&w);
   /* files */
-  ts_msg_files fl = {2, {"out.png", "report.json"}, {ref, (const uint8_t *)spec}, {4, 3}}, flo;
+  ts_msg_files fl = {3, {"out.png", "report.json", "out.tif"}, {4, 3, 5ull << 30}, {ref, (const uint8_t *)spec, NULL},
+                     {4, 3, 0}}, flo;
   ts_wr_init(&w);
   ts_msg_files_write(&w, &fl);
   f = frame_of(&w, 'F');
   assert_int_equal(ts_msg_files_read(&f, &flo, err), 0);
   assert_string_equal(flo.name[1], "report.json");
   assert_memory_equal(flo.data[1], spec, 3);
+  assert_true(flo.size[2] == 5ull << 30 && flo.data[2] == NULL && flo.len[2] == 0); /* taken in ranges */
   assert_exact(&w, 'F', rd_files, &flo);
+  ts_wr_free(&w);
+  /* a small file not inline, or a large one partly inline: refused */
+  fl.size[1] = 10;
+  ts_wr_init(&w);
+  ts_msg_files_write(&w, &fl);
+  f = frame_of(&w, 'F');
+  assert_int_equal(ts_msg_files_read(&f, &flo, err), TS_EPROTO);
+  ts_wr_free(&w);
+  /* range */
+  ts_msg_range rg = {7, "out.tif", 5ull << 30, TS_RANGE_MAX}, rgo;
+  ts_wr_init(&w);
+  ts_msg_range_write(&w, &rg);
+  f = frame_of(&w, 'B');
+  assert_int_equal(ts_msg_range_read(&f, &rgo, err), 0);
+  assert_true(rgo.id == 7 && rgo.offset == 5ull << 30 && rgo.len == TS_RANGE_MAX);
+  assert_string_equal(rgo.name, "out.tif");
+  assert_exact(&w, 'B', rd_range, &rgo);
+  ts_wr_free(&w);
+  rg.len = TS_RANGE_MAX + 1;
+  ts_wr_init(&w);
+  ts_msg_range_write(&w, &rg);
+  f = frame_of(&w, 'B');
+  assert_int_equal(ts_msg_range_read(&f, &rgo, err), TS_EPROTO);
   ts_wr_free(&w);
   /* error */
   ts_msg_error e;
