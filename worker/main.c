@@ -414,7 +414,7 @@ static int handshake(session *s, const struct sockaddr *addr, char *err) {
     rc = ts_auth_connect(&s->conn, &g_w.auth, &me, &peer, HANDSHAKE_MS, err);
   } else {
     rc = ts_auth_peer_allowed(&g_w.auth, addr, err);
-    if (rc == 0) rc = ts_auth_accept(&s->conn, &g_w.auth, &me, &peer, HANDSHAKE_MS, err);
+    if (rc == 0) rc = ts_auth_accept(&s->conn, &g_w.auth, &me, &peer, NULL, HANDSHAKE_MS, err);
   }
   if (rc == 0 && peer.role != TS_ROLE_COORD) rc = ts_error(err, TS_EPROTO, "peer is not a coordinator");
   if (rc == 0) s->peer_caps = peer.caps;
@@ -617,6 +617,11 @@ int main(int argc, char **argv) {
   }
   if (ts_auth_init(err) != 0 || (secret_file != NULL && ts_auth_load(&g_w.auth, secret_file, err) != 0)) {
     fprintf(stderr, "texsyn-worker: %s\n", err);
+    return 2;
+  }
+  if (g_w.auth.enabled && !ts_auth_kind_allows(g_w.auth.who.kind, TS_ROLE_WORKER)) {
+    fprintf(stderr, "texsyn-worker: --secret-file %s is a %s key; a worker needs a worker key (texsyn-server "
+            "--gen-secret worker PATH) or an admin key\n", secret_file, ts_auth_kind_name(g_w.auth.who.kind));
     return 2;
   }
   if (ts_l1_select(&g_w.simd, err) != 0) {

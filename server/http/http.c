@@ -4,6 +4,7 @@
 #include "http.h"
 
 #include <microhttpd.h>
+#include <sodium.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -22,8 +23,11 @@
 #define HTTP_MAX_JOBS 100    /* the newest jobs listed; the spool may hold thousands */
 #define HTTP_MAX_FRAMES 2048 /* the newest jobs that are video frames, grouped as sequences */
 #define HTTP_REFRESH_S 2     /* the page reloads itself this often */
-#define HTTP_CONNECTIONS 32  /* at once; a page load takes a few */
-#define HTTP_TIMEOUT_S 10    /* an idle connection is closed after this */
+#define HTTP_CONNECTIONS 512 /* at once: each costs a socket, not a thread */
+#define HTTP_PER_ADDRESS 16  /* at once from one address; a page load takes a few */
+#define HTTP_THREADS 4       /* poll every connection; a thumbnail being made holds up one */
+#define HTTP_TIMEOUT_S 10    /* a connection silent this long is closed */
+#define HTTP_PEM_MAX (1 << 20)
 
 static struct {
   struct MHD_Daemon *daemon;
@@ -32,7 +36,15 @@ static struct {
   ts_cluster *cluster;
   int threads, simd;
   double started;
+  char *cert_pem, *key_pem;
 } g_http;
+
+static void free_pems(void) {
+  free(g_http.cert_pem);
+  if (g_http.key_pem) sodium_memzero(g_http.key_pem, strlen(g_http.key_pem));
+  free(g_http.key_pem);
+  g_http.cert_pem = g_http.key_pem = NULL;
+}
 
 /* ---- responses ----------------------------------------------------------------- */
 
@@ -172,6 +184,7 @@ static int allowed(struct MHD_Connection *c, unsigned *status, char *err) {
   if (ci == NULL || ci->client_addr == NULL) return ts_error(err, TS_EAUTH, "peer address unknown");
   int rc = ts_auth_peer_allowed(g_http.auth, ci->client_addr, err);
   if (rc != 0 || !g_http.auth->enabled) return rc;
+  /* Only a page or an admin key: a client's or worker's key is for the data plane. */
   *status = MHD_HTTP_UNAUTHORIZED;
   const char *h = MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_AUTHORIZATION);
   return ts_http_auth_check(g_http.auth, h, err);
@@ -206,14 +219,56 @@ static void on_mhd_log(void *cls, const char *fmt, va_list ap) {
   ts_log("http: %s", msg);
 }
 
-int ts_http_start(const char *listen, const ts_auth *auth, ts_jobs *jobs, ts_cluster *cluster, int threads,
-                  int *port, char *err) {
+/* A PEM file read whole, NUL-terminated (what libmicrohttpd takes). */
+static int read_pem(const char *opt, const char *path, char **out, char *err) {
+  uint8_t *buf;
+  size_t len;
+  char why[TS_ERR_LEN];
+  if (ts_file_read(path, HTTP_PEM_MAX, &buf, &len, why) != 0) return ts_error(err, TS_EIO, "%s %s: %s", opt, path, why);
+  char *s = realloc(buf, len + 1);
+  if (s == NULL) {
+    free(buf);
+    return ts_error(err, TS_ENOMEM, "out of memory");
+  }
+  s[len] = '\0';
+  *out = s;
+  return 0;
+}
+
+/* With keys, a page beyond loopback needs HTTPS: a page key or an admin
+ * key sent in the clear would be anyone's who watches the network. */
+static int check_exposure(const ts_auth *auth, int lfd, int tls, char *err) {
+  struct sockaddr_storage ss;
+  socklen_t sl = sizeof(ss);
+  if (!auth->enabled || tls || getsockname(lfd, (struct sockaddr *)&ss, &sl) != 0 ||
+      ts_auth_is_loopback((struct sockaddr *)&ss))
+    return 0;
+  return ts_error(err, TS_EINVAL,
+                  "the page would send its keys in the clear beyond loopback: give --http-cert and --http-key "
+                  "(HTTPS), or keep --http on loopback behind a TLS reverse proxy (README, \"Operations page\")");
+}
+
+int ts_http_start(const char *listen, const ts_auth *auth, const char *cert, const char *key, ts_jobs *jobs,
+                  ts_cluster *cluster, int threads, int *port, char *err) {
   const ts_l1_impl *simd;
   int rc = ts_l1_select(&simd, err);
   if (rc != 0) return rc;
-  int lfd;
-  rc = ts_net_listen(listen, &lfd, port, err);
-  if (rc != 0) return rc;
+  if (cert != NULL && MHD_is_feature_supported(MHD_FEATURE_TLS) != MHD_YES)
+    return ts_error(err, TS_ENOTSUP, "this libmicrohttpd has no TLS: use a TLS reverse proxy in front of a loopback "
+                    "--http (README, \"Operations page\")");
+  char *cert_pem = NULL, *key_pem = NULL;
+  if (cert != NULL && (rc = read_pem("--http-cert", cert, &cert_pem, err)) == 0)
+    rc = read_pem("--http-key", key, &key_pem, err);
+  int lfd = -1;
+  if (rc == 0) rc = ts_net_listen(listen, &lfd, port, err);
+  if (rc == 0) rc = check_exposure(auth, lfd, cert != NULL, err);
+  if (rc != 0) {
+    if (lfd >= 0) close(lfd);
+    free(cert_pem);
+    if (key_pem) sodium_memzero(key_pem, strlen(key_pem));
+    free(key_pem);
+    return rc;
+  }
   char warning[TS_ERR_LEN];
   if (ts_auth_listen_warning(auth, lfd, warning)) ts_log("http: %s", warning);
   g_http.auth = auth;
@@ -222,15 +277,24 @@ int ts_http_start(const char *listen, const ts_auth *auth, ts_jobs *jobs, ts_clu
   g_http.threads = threads;
   g_http.simd = simd->id;
   g_http.started = ts_now();
-  /* A thread per connection: a thumbnail being made holds up no page. */
+  unsigned flags = MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_AUTO | MHD_USE_ERROR_LOG | (cert ? MHD_USE_TLS : 0);
+  struct MHD_OptionItem tls[] = {{MHD_OPTION_HTTPS_MEM_CERT, 0, cert_pem},
+                                 {MHD_OPTION_HTTPS_MEM_KEY, 0, key_pem},
+                                 {MHD_OPTION_END, 0, NULL}};
   g_http.daemon = MHD_start_daemon(
-      MHD_USE_POLL_INTERNAL_THREAD | MHD_USE_THREAD_PER_CONNECTION | MHD_USE_ERROR_LOG, 0, NULL, NULL, on_request,
-      NULL, MHD_OPTION_EXTERNAL_LOGGER, on_mhd_log, NULL, MHD_OPTION_LISTEN_SOCKET, lfd,
-      MHD_OPTION_CONNECTION_LIMIT, (unsigned)HTTP_CONNECTIONS, MHD_OPTION_CONNECTION_TIMEOUT,
-      (unsigned)HTTP_TIMEOUT_S, MHD_OPTION_END);
+      flags, 0, NULL, NULL, on_request, NULL, MHD_OPTION_EXTERNAL_LOGGER, on_mhd_log, NULL, MHD_OPTION_LISTEN_SOCKET,
+      lfd, MHD_OPTION_THREAD_POOL_SIZE, (unsigned)HTTP_THREADS, MHD_OPTION_CONNECTION_LIMIT,
+      (unsigned)HTTP_CONNECTIONS, MHD_OPTION_PER_IP_CONNECTION_LIMIT, (unsigned)HTTP_PER_ADDRESS,
+      MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)HTTP_TIMEOUT_S, MHD_OPTION_ARRAY, cert ? tls : tls + 2,
+      MHD_OPTION_END);
+  /* libmicrohttpd reads them at start; they stay until it stops. */
+  g_http.cert_pem = cert_pem;
+  g_http.key_pem = key_pem;
   if (g_http.daemon == NULL) {
+    free_pems();
     close(lfd);
-    return ts_error(err, TS_EIO, "libmicrohttpd could not start on %s (see the log above)", listen);
+    return ts_error(err, TS_EIO, "libmicrohttpd could not start on %s%s (see the log above)", listen,
+                    cert ? " with that certificate and key" : "");
   }
   return 0;
 }
@@ -239,4 +303,5 @@ void ts_http_stop(void) {
   if (g_http.daemon == NULL) return;
   MHD_stop_daemon(g_http.daemon); /* joins its threads, closes the socket */
   g_http.daemon = NULL;
+  free_pems();
 }
