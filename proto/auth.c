@@ -441,6 +441,10 @@ static int accept_check(hs *h, const ts_msg_auth *ch, const ts_msg_auth *resp, u
   if (found < 0) {
     const char *kind = ts_auth_kind_name(resp->key_kind);
     if (resp->key_kind == TS_KEY_ADMIN && strcmp(resp->key_name, "admin") == 0) return ts_error(err, TS_EAUTH, "%s", kWrongKey);
+    if (h->a->ring == NULL)
+      return ts_error(err, TS_EAUTH, "authentication failed: wrong secret, or not the %s key '%s' this %s holds",
+                      ts_auth_kind_name(h->a->who.kind),
+                      h->a->who.name, role_noun(my_role));
     return ts_error(err, TS_EAUTH,
                     "authentication failed: wrong secret, or no %s key '%s' here (the coordinator's --keys "
                     "directory must hold that key's file)",

@@ -682,7 +682,7 @@ static int start_http(const server_opts *o, char *at, char *err) {
   if (rc != 0) return rc;
   /* An IPv6 host in brackets: the address is a URL's authority. */
   snprintf(at, TS_NET_ADDR_LEN, strchr(host, ':') ? "[%s]:%d" : "%s:%d", host, port);
-  ts_log("http page on %s%s%s", o->http_cert ? "https://" : "http://", at,
+  ts_log("http page on %s%s%s", at, o->http_cert ? " over HTTPS" : "",
          g_server.auth.enabled ? ", pages need a page or admin key" : ", loopback peers only");
   return 0;
 }
