@@ -21,6 +21,7 @@ import ssl
 import stat
 import struct
 import subprocess
+import threading
 import time
 import urllib.error
 import urllib.request
@@ -374,3 +375,83 @@ def test_slow_connections_do_not_keep_the_page_from_a_fresh_client(cluster, tmp_
     finally:
         for s in socks:
             s.close()
+
+
+# ---- what a worker may claim --------------------------------------------------
+
+class ClaimsFourfold:
+    """Between the coordinator and one worker: passes everything, but
+    multiplies the comparisons every 'V' answer reports by four, as a
+    worker that wants most of the reference would."""
+
+    def __init__(self, target):
+        from hostile import FrameReader
+        self.FrameReader, self.target = FrameReader, target
+        self.lsock = socket.create_server(("127.0.0.1", 0))
+        self.addr = f"127.0.0.1:{self.lsock.getsockname()[1]}"
+        self.socks = []
+        threading.Thread(target=self.accept, daemon=True).start()
+
+    def accept(self):
+        while True:
+            try:
+                coord, _ = self.lsock.accept()
+            except OSError:
+                return
+            host, port = self.target.rsplit(":", 1)
+            worker = socket.create_connection((host, int(port)))
+            self.socks += [coord, worker]
+            threading.Thread(target=self.copy, args=(coord, worker), daemon=True).start()
+            threading.Thread(target=self.answers, args=(worker, coord), daemon=True).start()
+
+    @staticmethod
+    def copy(src, dst):
+        try:
+            while data := src.recv(1 << 16):
+                dst.sendall(data)
+        except OSError:
+            pass
+        for s in (src, dst):
+            s.close()
+
+    def answers(self, src, dst):
+        reader = self.FrameReader()
+        try:
+            while data := src.recv(1 << 16):
+                reader.feed(data)
+                for f in reader.frames():
+                    if f.type != "V":
+                        dst.sendall(f.raw)
+                        continue
+                    p = bytearray(f.payload)
+                    pairs = struct.unpack_from("<Q", p, 20)[0]  # after set, gen, count, scan time
+                    struct.pack_into("<Q", p, 20, pairs * 4)
+                    dst.sendall(frame_bytes("V", f.id, bytes(p)))
+        except OSError:
+            pass
+        for s in (src, dst):
+            s.close()
+
+    def close(self):
+        self.lsock.close()
+        for s in self.socks:
+            s.close()
+
+
+def test_a_worker_cannot_claim_more_than_calibration_measured(data, cluster, tmp_path):
+    honest, liar = cluster.worker(1), cluster.worker(1)
+    relay = ClaimsFourfold(liar.addr)
+    try:
+        cluster.server = Daemon([BUILD / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", tmp_path / "spool",
+                                 "--workers", f"{honest.addr},{relay.addr}", "--rebalance-after", "0.5",
+                                 "--rebalance-tolerance", "0.05",
+                                 "--rebalance-from", "batches"], tmp_path / "server.log")
+        cluster.wait_ready(2)
+        run(BUILD / "texsyn", "synth", "--server", cluster.server.addr, "--ref", ref_of(data), "-o",
+            tmp_path / "out.png", "--size", "400x300", "--quiet")
+        log = cluster.server.read_log()
+        assert "rebalance 1: rates deviated" in log, log  # the claim was acted on
+        w = {x["addr"]: x for x in cluster.pool()}[relay.addr]
+        assert w["rate"] <= 1.25 * w["calibrated"] * 1.001, w
+    finally:
+        relay.close()
