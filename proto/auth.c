@@ -431,10 +431,21 @@ static int accept_check(hs *h, const ts_msg_auth *ch, const ts_msg_auth *resp, u
     cand[0] = *h->a;
     n = 1;
   }
+  /* A name we do not hold is checked against a random key: the same work
+   * as a wrong secret, and never a match. */
+  int unknown = n == 0;
+  if (unknown) {
+    memset(&cand[0], 0, sizeof(cand[0]));
+    randombytes_buf(cand[0].secret, TS_AUTH_SECRET_MIN);
+    cand[0].len = TS_AUTH_SECRET_MIN;
+    cand[0].who.kind = resp->key_kind;
+    snprintf(cand[0].who.name, sizeof(cand[0].who.name), "%s", resp->key_name);
+    n = 1;
+  }
   int found = -1;
   for (int i = 0; i < n; i++)
     if (ts_auth_verify(&cand[i], TS_AUTH_BY_CONNECTOR, peer_role, my_role, ch->nonce, resp->nonce, resp->mac) == 0 &&
-        found < 0)
+        found < 0 && !unknown)
       found = i;
   if (found >= 0) h->key = cand[found];
   sodium_memzero(cand, sizeof(cand));

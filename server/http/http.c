@@ -245,7 +245,7 @@ static int check_exposure(const ts_auth *auth, int lfd, int tls, char *err) {
     return 0;
   return ts_error(err, TS_EINVAL,
                   "the page would send its keys in the clear beyond loopback: give --http-cert and --http-key "
-                  "(HTTPS), or keep --http on loopback behind a TLS reverse proxy (README, \"Operations page\")");
+                  "(HTTPS), or keep --http on loopback behind a TLS reverse proxy (deploy/README.md, \"Who may look\")");
 }
 
 int ts_http_start(const char *listen, const ts_auth *auth, const char *cert, const char *key, ts_jobs *jobs,
@@ -255,7 +255,7 @@ int ts_http_start(const char *listen, const ts_auth *auth, const char *cert, con
   if (rc != 0) return rc;
   if (cert != NULL && MHD_is_feature_supported(MHD_FEATURE_TLS) != MHD_YES)
     return ts_error(err, TS_ENOTSUP, "this libmicrohttpd has no TLS: use a TLS reverse proxy in front of a loopback "
-                    "--http (README, \"Operations page\")");
+                    "--http (deploy/README.md, \"Who may look\")");
   char *cert_pem = NULL, *key_pem = NULL;
   if (cert != NULL && (rc = read_pem("--http-cert", cert, &cert_pem, err)) == 0)
     rc = read_pem("--http-key", key, &key_pem, err);

@@ -329,7 +329,7 @@ def test_the_page_beyond_loopback_needs_https_when_keys_guard_it(data, cluster, 
             "--http", "0.0.0.0:0", check=False, timeout=30)
     assert p.returncode == 1, p.stdout
     assert ("--http 0.0.0.0:0: the page would send its keys in the clear beyond loopback: give --http-cert and "
-            "--http-key (HTTPS), or keep --http on loopback behind a TLS reverse proxy (README, \"Operations page\")"
+            "--http-key (HTTPS), or keep --http on loopback behind a TLS reverse proxy (deploy/README.md, \"Who may look\")"
             in p.stderr), p.stderr
     cert, key = self_signed(tmp_path)
     server = start(cluster, keys, "--http", "0.0.0.0:0", "--http-cert", cert, "--http-key", key)
