@@ -13,6 +13,7 @@
 
 #include "error.h"
 #include "http_auth.h"
+#include "http_deadline.h"
 #include "http_page.h"
 #include "l1.h"
 #include "log.h"
@@ -27,6 +28,7 @@
 #define HTTP_PER_ADDRESS 16  /* at once from one address; a page load takes a few */
 #define HTTP_THREADS 4       /* poll every connection; a thumbnail being made holds up one */
 #define HTTP_TIMEOUT_S 10    /* a connection silent this long is closed */
+#define HTTP_REQUEST_S 10    /* and one whose request is not in this long after it opened */
 #define HTTP_PEM_MAX (1 << 20)
 
 static struct {
@@ -39,10 +41,15 @@ static struct {
   char *cert_pem, *key_pem;
 } g_http;
 
+/* The private key is wiped before it goes back to the allocator. */
+static void free_pems_of(char *cert, char *key) {
+  free(cert);
+  if (key != NULL) sodium_memzero(key, strlen(key));
+  free(key);
+}
+
 static void free_pems(void) {
-  free(g_http.cert_pem);
-  if (g_http.key_pem) sodium_memzero(g_http.key_pem, strlen(g_http.key_pem));
-  free(g_http.key_pem);
+  free_pems_of(g_http.cert_pem, g_http.key_pem);
   g_http.cert_pem = g_http.key_pem = NULL;
 }
 
@@ -193,6 +200,7 @@ static int allowed(struct MHD_Connection *c, unsigned *status, char *err) {
 static enum MHD_Result on_request(void *cls, struct MHD_Connection *c, const char *url, const char *method,
                                   const char *version, const char *upload, size_t *upload_len, void **state) {
   (void)cls, (void)version, (void)upload, (void)upload_len, (void)state;
+  ts_http_deadline_request_in(c);
   if (strcmp(method, MHD_HTTP_METHOD_GET) != 0 && strcmp(method, MHD_HTTP_METHOD_HEAD) != 0)
     return respond_error(c, MHD_HTTP_METHOD_NOT_ALLOWED, "%s: this server is read-only (GET and HEAD)", method);
   char err[TS_ERR_LEN];
@@ -264,9 +272,7 @@ int ts_http_start(const char *listen, const ts_auth *auth, const char *cert, con
   if (rc == 0) rc = check_exposure(auth, lfd, cert != NULL, err);
   if (rc != 0) {
     if (lfd >= 0) close(lfd);
-    free(cert_pem);
-    if (key_pem) sodium_memzero(key_pem, strlen(key_pem));
-    free(key_pem);
+    free_pems_of(cert_pem, key_pem);
     return rc;
   }
   char warning[TS_ERR_LEN];
@@ -277,6 +283,11 @@ int ts_http_start(const char *listen, const ts_auth *auth, const char *cert, con
   g_http.threads = threads;
   g_http.simd = simd->id;
   g_http.started = ts_now();
+  if ((rc = ts_http_deadline_start(HTTP_REQUEST_S, err)) != 0) {
+    close(lfd);
+    free_pems_of(cert_pem, key_pem);
+    return rc;
+  }
   unsigned flags = MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_AUTO | MHD_USE_ERROR_LOG | (cert ? MHD_USE_TLS : 0);
   struct MHD_OptionItem tls[] = {{MHD_OPTION_HTTPS_MEM_CERT, 0, cert_pem},
                                  {MHD_OPTION_HTTPS_MEM_KEY, 0, key_pem},
@@ -285,12 +296,15 @@ int ts_http_start(const char *listen, const ts_auth *auth, const char *cert, con
       flags, 0, NULL, NULL, on_request, NULL, MHD_OPTION_EXTERNAL_LOGGER, on_mhd_log, NULL, MHD_OPTION_LISTEN_SOCKET,
       lfd, MHD_OPTION_THREAD_POOL_SIZE, (unsigned)HTTP_THREADS, MHD_OPTION_CONNECTION_LIMIT,
       (unsigned)HTTP_CONNECTIONS, MHD_OPTION_PER_IP_CONNECTION_LIMIT, (unsigned)HTTP_PER_ADDRESS,
-      MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)HTTP_TIMEOUT_S, MHD_OPTION_ARRAY, cert ? tls : tls + 2,
+      MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)HTTP_TIMEOUT_S, MHD_OPTION_NOTIFY_CONNECTION,
+      ts_http_deadline_notify, NULL, MHD_OPTION_NOTIFY_COMPLETED, ts_http_deadline_completed, NULL,
+      MHD_OPTION_ARRAY, cert ? tls : tls + 2,
       MHD_OPTION_END);
   /* libmicrohttpd reads them at start; they stay until it stops. */
   g_http.cert_pem = cert_pem;
   g_http.key_pem = key_pem;
   if (g_http.daemon == NULL) {
+    ts_http_deadline_stop();
     free_pems();
     close(lfd);
     return ts_error(err, TS_EIO, "libmicrohttpd could not start on %s%s (see the log above)", listen,
@@ -303,5 +317,6 @@ void ts_http_stop(void) {
   if (g_http.daemon == NULL) return;
   MHD_stop_daemon(g_http.daemon); /* joins its threads, closes the socket */
   g_http.daemon = NULL;
+  ts_http_deadline_stop();
   free_pems();
 }

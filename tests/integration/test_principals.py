@@ -455,3 +455,33 @@ def test_a_worker_cannot_claim_more_than_calibration_measured(data, cluster, tmp
         assert w["rate"] <= 1.25 * w["calibrated"] * 1.001, w
     finally:
         relay.close()
+
+
+def test_a_request_trickled_in_is_cut_at_its_deadline(cluster, tmp_path):
+    """A byte every 2 s never lets the idle timeout fire; the request's own
+    deadline (10 s from the connection) does."""
+    cluster.server = Daemon([BUILD / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", tmp_path / "spool",
+                             "--http", ":0"], tmp_path / "server.log")
+    port = int(http_addr(cluster.server).rsplit(":", 1)[1])
+    s = socket.create_connection(("127.0.0.1", port), timeout=30)
+    t0 = time.monotonic()
+    trickle = b"GET /status.json HTTP/1.1\r\nX-Slow: " + b"a" * 100
+    closed = None
+    for i in range(len(trickle)):
+        try:
+            s.sendall(trickle[i:i + 1])
+            s.settimeout(2)
+            if s.recv(100) == b"":
+                closed = time.monotonic() - t0
+                break
+        except socket.timeout:
+            continue
+        except OSError:
+            closed = time.monotonic() - t0
+            break
+        if time.monotonic() - t0 > 25:
+            break
+    s.close()
+    assert closed is not None and 9.5 < closed < 13, closed
+    cluster.server.wait_log(r"http: closed 1 connection that sent no whole request within 10 s")
+    assert get(f"http://127.0.0.1:{port}/metrics")[0] == 200
