@@ -11,9 +11,10 @@
  * files), so no key crosses a network in the clear.
  *
  * Slow or silent connections cost a socket each, not a thread: a small
- * pool of threads polls them all, each address may hold a few at once
- * and an idle one is closed after HTTP_TIMEOUT_S, so a fresh client is
- * still served while others trickle bytes in. */
+ * pool of threads polls them all, each address may hold a few at once,
+ * an idle one is closed after HTTP_TIMEOUT_S and one whose request is not
+ * in after HTTP_REQUEST_S (http_deadline.h), so a fresh client is still
+ * served while others trickle bytes in. */
 #ifndef TS_HTTP_H
 #define TS_HTTP_H
 
