@@ -131,6 +131,7 @@ def handshake(addr, key, role):
 
 # ---- keys ------------------------------------------------------------------
 
+@pytest.mark.sanitize
 def test_gen_secret_writes_an_owner_only_key_once(tmp_path):
     path = tmp_path / "alice.key"
     assert gen(path, "client") == f"wrote client key 'alice' to {path}\n"
@@ -149,6 +150,7 @@ def test_gen_secret_writes_an_owner_only_key_once(tmp_path):
     assert p.returncode == 2 and "give the key file's PATH" in p.stderr, p.stderr
 
 
+@pytest.mark.sanitize
 def test_a_secret_shorter_than_32_bytes_is_refused_everywhere(data, tmp_path):
     short = tmp_path / "short"
     short.write_text("x" * 31 + "\n")
@@ -165,6 +167,7 @@ def test_a_secret_shorter_than_32_bytes_is_refused_everywhere(data, tmp_path):
 
 # ---- who may do what on the data plane -------------------------------------
 
+@pytest.mark.sanitize
 def test_each_key_only_in_its_own_role(data, cluster, keys, tmp_path):
     server = start(cluster, keys, workers=1)
     cluster.wait_ready(1)
@@ -200,6 +203,7 @@ def test_each_key_only_in_its_own_role(data, cluster, keys, tmp_path):
     assert re.search(r"worker joining from \S+ \(texsyn-worker [^)]*\), worker key pool", log), log
 
 
+@pytest.mark.sanitize
 def test_only_the_owner_or_an_admin_acts_on_a_job(data, cluster, keys, tmp_path):
     server = start(cluster, keys, workers=1)
     job = submit(server, keys / "alice.key", data, tmp_path, env={"USER": "mallory"})
@@ -292,6 +296,7 @@ def http_addr(server):
     return server.wait_log(r"http page on (\S+?)[, ]").group(1)
 
 
+@pytest.mark.sanitize
 def test_the_page_takes_a_page_or_admin_key_never_a_data_plane_key(data, cluster, keys, tmp_path):
     server = start(cluster, keys, "--http", ":0")
     base = "http://" + http_addr(server)
@@ -311,6 +316,7 @@ def self_signed(tmp_path):
     return cert, key
 
 
+@pytest.mark.sanitize
 def test_the_page_over_https(data, cluster, keys, tmp_path):
     cert, key = self_signed(tmp_path)
     server = start(cluster, keys, "--http", "127.0.0.1:0", "--http-cert", cert, "--http-key", key)
