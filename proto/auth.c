@@ -109,7 +109,8 @@ static int parse_typed(ts_auth *a, const char *s, size_t n, const char *what, ch
   return 0;
 }
 
-int ts_auth_parse(ts_auth *a, const uint8_t *buf, size_t n, const char *what, char *err) {
+/* A secret file's bytes; `what` names them in err. */
+static int parse_secret(ts_auth *a, const uint8_t *buf, size_t n, const char *what, char *err) {
   ts_auth_clear(a);
   if (n > 0 && buf[n - 1] == '\n') n--;
   if (n > 0 && buf[n - 1] == '\r') n--;
@@ -148,7 +149,7 @@ int ts_auth_load(ts_auth *a, const char *path, char *err) {
   if (rc == 0 && read_upto(fd, buf, sizeof(buf), &n) != 0)
     rc = ts_error(err, TS_EIO, "cannot read secret file %s: %s", path, strerror(errno));
   close(fd);
-  if (rc == 0) rc = ts_auth_parse(a, buf, n, path, err);
+  if (rc == 0) rc = parse_secret(a, buf, n, path, err);
   sodium_memzero(buf, sizeof(buf));
   return rc;
 }
@@ -225,6 +226,15 @@ void ts_auth_mac(const ts_auth *a, int by, uint8_t connector_role, uint8_t accep
   memcpy(p + TS_AUTH_NONCE, nonce, TS_AUTH_NONCE);
   ts_auth_hmac(a, t, (size_t)(p + 2 * TS_AUTH_NONCE - t), out);
   sodium_memzero(t, sizeof(t));
+}
+
+int ts_auth_same_secret(const ts_auth *a, const void *given, size_t n) {
+  uint8_t want[TS_AUTH_MAC], got[TS_AUTH_MAC];
+  ts_auth_hmac(a, a->secret, a->len, want);
+  ts_auth_hmac(a, given, n, got);
+  int same = sodium_memcmp(want, got, sizeof(want)) == 0;
+  sodium_memzero(want, sizeof(want));
+  return same;
 }
 
 int ts_auth_verify(const ts_auth *a, int by, uint8_t connector_role, uint8_t acceptor_role,

@@ -74,8 +74,6 @@ int ts_auth_init(char *err);
  * name; any other secret is an admin key named "admin". On success
  * a->enabled is 1. */
 int ts_auth_load(ts_auth *a, const char *path, char *err);
-/* The same from bytes (what ts_auth_load read); `what` names them in err. */
-int ts_auth_parse(ts_auth *a, const uint8_t *bytes, size_t n, const char *what, char *err);
 /* Writes a fresh typed key of `kind` (admin, worker, client, page; with
  * ":NAME", else the file's name without ".key") to path: mode 0600, never
  * over an existing file. *who gets its kind and name. */
@@ -89,6 +87,10 @@ int ts_auth_kind_allows(uint8_t kind, uint8_t role);
 /* Wipes the secret from memory. */
 void ts_auth_clear(ts_auth *a);
 
+/* 1 if given (n bytes) is a's whole secret. Compares HMACs of both under
+ * the secret rather than the bytes: equal-size values, so neither the
+ * time taken nor an early exit on length says how long the secret is. */
+int ts_auth_same_secret(const ts_auth *a, const void *given, size_t n);
 /* HMAC-SHA-256 of msg keyed with the secret. */
 void ts_auth_hmac(const ts_auth *a, const void *msg, size_t n, uint8_t out[TS_AUTH_MAC]);
 /* The proof `by` (TS_AUTH_BY_*) sends: HMAC over the domain string, by, the

@@ -152,24 +152,12 @@ int ts_keyring_find(ts_keyring *r, uint8_t kind, const char *name, ts_auth *out,
   return got;
 }
 
-/* HMACs of both under the key itself, compared: equal-size values, so
- * neither the time taken nor an early exit on length says how long the
- * key is. */
-static int same(const ts_auth *k, const void *token, size_t n) {
-  uint8_t want[TS_AUTH_MAC], got[TS_AUTH_MAC];
-  ts_auth_hmac(k, k->secret, k->len, want);
-  ts_auth_hmac(k, token, n, got);
-  int eq = sodium_memcmp(want, got, sizeof(want)) == 0;
-  sodium_memzero(want, sizeof(want));
-  return eq;
-}
-
 int ts_keyring_match(ts_keyring *r, const void *token, size_t n, unsigned kinds, ts_principal *who) {
   int found = 0;
   pthread_mutex_lock(&r->lock);
   for (int i = 0; i < r->n; i++) {
     const ts_auth *k = &r->keys[i].key;
-    if ((kinds & (1u << k->who.kind)) && same(k, token, n) && !found) {
+    if ((kinds & (1u << k->who.kind)) && ts_auth_same_secret(k, token, n) && !found) {
       found = 1;
       *who = k->who;
     }

@@ -8,18 +8,6 @@
 #include "error.h"
 #include "keyring.h"
 
-/* Compares HMACs of both under the secret itself rather than the bytes:
- * equal-size values, so neither the time taken nor an early exit on
- * length says how long the secret is. */
-static int same_secret(const ts_auth *a, const char *given, size_t n) {
-  uint8_t want[TS_AUTH_MAC], got[TS_AUTH_MAC];
-  ts_auth_hmac(a, a->secret, a->len, want);
-  ts_auth_hmac(a, given, n, got);
-  int same = sodium_memcmp(want, got, sizeof(want)) == 0;
-  sodium_memzero(want, sizeof(want));
-  return same;
-}
-
 /* A page key or an admin key; a client's or a worker's key is for the
  * data plane only, and one sent here (a browser, a scrape config) must not
  * be worth more than the page. */
@@ -27,7 +15,7 @@ static int page_key(const ts_auth *a, const char *given, size_t n) {
   ts_principal who;
   if (a->ring != NULL)
     return ts_keyring_match(a->ring, given, n, (1u << TS_KEY_ADMIN) | (1u << TS_KEY_PAGE), &who);
-  return (a->who.kind == 0 || a->who.kind == TS_KEY_ADMIN || a->who.kind == TS_KEY_PAGE) && same_secret(a, given, n);
+  return (a->who.kind == 0 || a->who.kind == TS_KEY_ADMIN || a->who.kind == TS_KEY_PAGE) && ts_auth_same_secret(a, given, n);
 }
 
 /* Basic auth: base64("user:password"); the password is the secret. */
