@@ -15,7 +15,8 @@ static int page_key(const ts_auth *a, const char *given, size_t n) {
   ts_principal who;
   if (a->ring != NULL)
     return ts_keyring_match(a->ring, given, n, (1u << TS_KEY_ADMIN) | (1u << TS_KEY_PAGE), &who);
-  return (a->who.kind == 0 || a->who.kind == TS_KEY_ADMIN || a->who.kind == TS_KEY_PAGE) && ts_auth_same_secret(a, given, n);
+  int kind_ok = a->who.kind == 0 || a->who.kind == TS_KEY_ADMIN || a->who.kind == TS_KEY_PAGE;
+  return kind_ok && ts_auth_same_secret(a, given, n);
 }
 
 /* Basic auth: base64("user:password"); the password is the secret. */
