@@ -28,7 +28,7 @@ import urllib.request
 
 import pytest
 
-from conftest import BUILD, Daemon, jobs_listed, run
+from conftest import BUILD, Daemon, jobs_listed, run, synth
 from hostile import HEADER, frame_bytes
 
 SIZE = ("--size", "96x64", "--levels", "3")
@@ -196,10 +196,11 @@ def test_each_key_only_in_its_own_role(data, cluster, keys, tmp_path):
     p = subprocess.run([str(BUILD / "texsyn-worker"), "--join", server.addr, "--secret-file", str(keys / "bob.key")],
                        capture_output=True, text=True, timeout=30)
     assert p.returncode == 2 and "is a client key; a worker needs a worker key" in p.stderr, p.stderr
-    # And the worker key did its job.
-    out = tmp_path / "a.png"
+    # And the worker key did its job: the embedded run's bytes.
+    out, want = tmp_path / "a.png", tmp_path / "embedded.png"
     cli(server, keys / "alice.key", "synth", "--ref", ref_of(data), "-o", out, *SIZE, "--quiet", check=True)
-    assert out.stat().st_size > 0
+    synth(BUILD / "texsyn", ref_of(data), want, (96, 64), "--levels", "3")
+    assert out.read_bytes() == want.read_bytes()
     assert re.search(r"worker joining from \S+ \(texsyn-worker [^)]*\), worker key pool", log), log
 
 
@@ -319,6 +320,9 @@ def self_signed(tmp_path):
 @pytest.mark.sanitize
 def test_the_page_over_https(data, cluster, keys, tmp_path):
     cert, key = self_signed(tmp_path)
+    for args in (["--http-cert", cert, "--http-key", key], ["--http", ":0", "--http-cert", cert]):
+        p = run(BUILD / "texsyn-server", "--spool", tmp_path / "spool", *args, check=False, timeout=30)
+        assert p.returncode == 2 and "--http-cert and --http-key go together, with --http" in p.stderr, p.stderr
     server = start(cluster, keys, "--http", "127.0.0.1:0", "--http-cert", cert, "--http-key", key)
     addr = http_addr(server)
     assert f"http page on {addr} over HTTPS, pages need a page or admin key" in server.read_log()
