@@ -27,7 +27,7 @@ from wire import DATA, REPO  # noqa: E402
 
 JOB = ["--ref", DATA / "textures/brick.png", "--size", "1024x1024", "--levels", 5, "--wn", 7, "--wb", 3]
 CALLS = 20
-PROTO_VERSION = 7
+PROTO_VERSION = 8
 
 
 def frame(kind, payload, fid=1):

@@ -15,7 +15,8 @@ PACKAGES=(
   libmodbus-dev mbpoll                 # Modbus TCP monitoring plane; mbpoll reads it in tests
   libsodium-dev                        # HMAC-SHA-256 connection authentication
   libmicrohttpd-dev                    # the operations page (texsyn-server --http)
-  chromium python3-prometheus-client   # its tests: a headless browser, Prometheus' parser
+  chromium python3-prometheus-client   # its tests: a headless browser, Prometheus' parser,
+  openssl                              # and a self-signed certificate for its HTTPS
   libcmocka-dev                        # unit tests
   python3-pytest                       # integration tests
   man-db groff-base                    # make install's man pages; test_manual.py renders them

@@ -24,7 +24,7 @@
 
 #include "cursor.h"
 
-#define TS_PROTO_VERSION 7
+#define TS_PROTO_VERSION 8
 #define TS_FRAME_HEADER 12
 #define TS_FRAME_DEFAULT_MAX (64u << 20) /* payload limit unless configured */
 #define TS_FRAME_LIMIT_MIN 1024u /* the smallest payload limit a daemon takes (--max-frame) */

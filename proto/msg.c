@@ -76,8 +76,20 @@ static int auth_has_mac(uint8_t step) { return step == TS_AUTH_RESPONSE || step 
 
 void ts_msg_auth_write(ts_wr *w, const ts_msg_auth *m) {
   ts_wr_u8(w, m->step);
-  if (auth_has_nonce(m->step)) ts_wr_bytes(w, m->nonce, TS_AUTH_NONCE);
+  if (auth_has_nonce(m->step)) {
+    ts_wr_bytes(w, m->nonce, TS_AUTH_NONCE);
+    ts_wr_u8(w, m->key_kind);
+    ts_wr_str(w, m->key_name);
+  }
   if (auth_has_mac(m->step)) ts_wr_bytes(w, m->mac, TS_AUTH_MAC);
+}
+
+/* A key's name: what a log line and a job's owner field can show as is. */
+static int key_name_ok(const char *s) {
+  for (; *s; s++)
+    if (!((*s >= 'a' && *s <= 'z') || (*s >= 'A' && *s <= 'Z') || (*s >= '0' && *s <= '9') || strchr("._@-", *s)))
+      return 0;
+  return 1;
 }
 
 int ts_msg_auth_read(const ts_frame *f, ts_msg_auth *m, char *err) {
@@ -87,9 +99,17 @@ int ts_msg_auth_read(const ts_frame *f, ts_msg_auth *m, char *err) {
   m->step = ts_rd_u8(&r);
   if (r.failed || m->step < TS_AUTH_CHALLENGE || m->step > TS_AUTH_PROOF) return bad(err, 'A', "unknown step");
   const uint8_t *p;
-  if (auth_has_nonce(m->step) && (p = ts_rd_bytes(&r, TS_AUTH_NONCE)) != NULL) memcpy(m->nonce, p, TS_AUTH_NONCE);
+  if (auth_has_nonce(m->step) && (p = ts_rd_bytes(&r, TS_AUTH_NONCE)) != NULL) {
+    memcpy(m->nonce, p, TS_AUTH_NONCE);
+    m->key_kind = ts_rd_u8(&r);
+    ts_rd_str(&r, m->key_name, sizeof(m->key_name));
+  }
   if (auth_has_mac(m->step) && (p = ts_rd_bytes(&r, TS_AUTH_MAC)) != NULL) memcpy(m->mac, p, TS_AUTH_MAC);
-  return finish(&r, err, 'A');
+  if (finish(&r, err, 'A') != 0) return TS_EPROTO;
+  if (m->key_kind > 4 || !key_name_ok(m->key_name)) return bad(err, 'A', "key kind or name out of range");
+  if (m->step == TS_AUTH_RESPONSE && (m->key_kind == 0 || m->key_name[0] == '\0'))
+    return bad(err, 'A', "a response must name its key");
+  return 0;
 }
 
 /* ---- C ------------------------------------------------------------------ */

@@ -85,14 +85,21 @@ int ts_msg_ident_read(const ts_frame *f, ts_msg_ident *m, char *err);
 #define TS_AUTH_MAC 32
 enum { TS_AUTH_CHALLENGE = 1, TS_AUTH_RESPONSE = 2, TS_AUTH_PROOF = 3 };
 
+#define TS_AUTH_KEY_NAME_MAX 64 /* bytes of a key's name (auth.h) */
 typedef struct {
   uint8_t step;                 /* TS_AUTH_* */
   uint8_t nonce[TS_AUTH_NONCE]; /* challenge and response */
-  uint8_t mac[TS_AUTH_MAC];     /* response and proof */
+  /* Challenge and response: the key the proofs use, by kind (TS_KEY_*,
+   * auth.h) and name. A challenge names none (kind 0, empty name) when the
+   * connecting side is to name its own. */
+  uint8_t key_kind;
+  char key_name[TS_AUTH_KEY_NAME_MAX + 1];
+  uint8_t mac[TS_AUTH_MAC]; /* response and proof */
 } ts_msg_auth;
 
 void ts_msg_auth_write(ts_wr *w, const ts_msg_auth *m);
-/* Strict: the payload size must be exactly the step's. */
+/* Strict: the payload must be exactly the step's fields; a kind above 4,
+ * or a name of other bytes than A-Z a-z 0-9 . _ @ -, is refused. */
 int ts_msg_auth_read(const ts_frame *f, ts_msg_auth *m, char *err);
 
 /* ---- C: calibrate ------------------------------------------------------- */

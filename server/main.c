@@ -28,6 +28,7 @@
 #include "http_page.h"
 #include "image.h"
 #include "jobs.h"
+#include "keyring.h"
 #include "log.h"
 #include "mbplane.h"
 #include "smon.h"
@@ -45,8 +46,16 @@ typedef struct {
   ts_jobs *jobs;
   uint32_t max_frame;
   int quiet;
-  ts_auth auth;
+  ts_auth auth; /* enabled with a ring of keys (keyring.h), or none */
 } server;
+
+/* Who a client connection acts as: the name its jobs are owned and counted
+ * by, and whether it may act on every job (an admin key, or no keys at
+ * all: protected mode trusts its loopback peers). */
+typedef struct {
+  char owner[TS_MSG_NAME_MAX];
+  int all_jobs;
+} principal;
 
 /* TS_CAP_PIECES: joining workers announce their limits in their 'C' replies. */
 static const ts_msg_ident kSelf = {TS_ROLE_COORD, TS_CAP_ALL | TS_CAP_PIECES, 0, 0, "texsyn-server 0.3"};
@@ -76,7 +85,8 @@ static int reply_error(ts_conn *c, uint32_t id, int code, const char *text) {
   return reply(c, TS_MSG_ERROR, id, &w);
 }
 
-static int serve_submit(ts_conn *c, const ts_frame *f, const char *client) {
+static int serve_submit(ts_conn *c, const ts_frame *f, const principal *p) {
+  const char *client = p->owner;
   char err[TS_ERR_LEN];
   ts_msg_submit m;
   int rc = ts_msg_submit_read(f, &m, err);
@@ -93,6 +103,23 @@ static int serve_submit(ts_conn *c, const ts_frame *f, const char *client) {
   return reply(c, TS_MSG_SUBMIT, f->id, &w);
 }
 
+/* 0 if p may act on job id: its owner, or an admin. An unknown job is
+ * left to the action, which names it. */
+static int owner_check(const principal *p, uint64_t id, const char *verb, char *err) {
+  ts_job_status st;
+  if (p->all_jobs || ts_jobs_status(g_server.jobs, id, &st, NULL) != 0 || strcmp(st.owner, p->owner) == 0) return 0;
+  return ts_error(err, TS_EAUTH, "job %" PRIu64 " belongs to %s: only its owner or an admin key may %s it", id,
+                  st.owner, verb);
+}
+
+/* Another owner's job in a listing: its state and progress, not what it
+ * is doing nor what its result is called. */
+static void redact(const principal *p, ts_job_status *st) {
+  if (p->all_jobs || strcmp(st->owner, p->owner) == 0) return;
+  st->text[0] = '\0';
+  snprintf(st->output, sizeof(st->output), "-");
+}
+
 static int send_status(ts_conn *c, uint32_t id, const ts_job_status *s, uint32_t n) {
   ts_wr w;
   ts_wr_init(&w);
@@ -100,7 +127,7 @@ static int send_status(ts_conn *c, uint32_t id, const ts_job_status *s, uint32_t
   return reply(c, TS_MSG_STATUS, id, &w);
 }
 
-static int serve_status(ts_conn *c, const ts_frame *f) {
+static int serve_status(ts_conn *c, const ts_frame *f, const principal *who) {
   char err[TS_ERR_LEN];
   ts_msg_status_req m;
   if (ts_msg_status_req_read(f, &m, err) != 0) return reply_error(c, f->id, TS_EPROTO, err);
@@ -113,6 +140,7 @@ static int serve_status(ts_conn *c, const ts_frame *f) {
     ts_job_status *all = malloc(sizeof(*all) * cap);
     if (all == NULL) return reply_error(c, f->id, TS_ENOMEM, "out of memory");
     uint32_t n = ts_jobs_list(g_server.jobs, all, cap);
+    for (uint32_t i = 0; i < n; i++) redact(who, &all[i]);
     int rc = send_status(c, f->id, all, n);
     free(all);
     return rc;
@@ -123,11 +151,13 @@ static int serve_status(ts_conn *c, const ts_frame *f) {
     snprintf(err, sizeof(err), "no job %" PRIu64, m.id);
     return reply_error(c, f->id, TS_ENOENT, err);
   }
+  redact(who, &st);
   int rc = send_status(c, f->id, &st, 1);
   /* Watch: one record per change until the job ends. */
   while (rc == 0 && m.follow && st.state <= TS_JOB_RUNNING && !atomic_load(&g_stop)) {
     uint64_t seen = version;
     ts_jobs_wait(g_server.jobs, m.id, &version, 1000, &st);
+    redact(who, &st);
     if (version != seen || st.state > TS_JOB_RUNNING) rc = send_status(c, f->id, &st, 1);
   }
   return rc;
@@ -149,10 +179,11 @@ static int fetch_file(const char *path, ts_msg_files *m, uint32_t i, uint8_t **b
   return rc;
 }
 
-static int serve_fetch(ts_conn *c, const ts_frame *f) {
+static int serve_fetch(ts_conn *c, const ts_frame *f, const principal *who) {
   char err[TS_ERR_LEN];
   uint64_t id;
   if (ts_msg_jobid_read(f, &id, err) != 0) return reply_error(c, f->id, TS_EPROTO, err);
+  if (owner_check(who, id, "fetch", err) != 0) return reply_error(c, f->id, TS_EAUTH, err);
   ts_msg_files m;
   memset(&m, 0, sizeof(m));
   char (*p)[4096] = malloc(sizeof(char[TS_FETCH_MAX_FILES][4096]));
@@ -192,10 +223,11 @@ static int read_range(const ts_msg_range *m, const char *path, uint8_t *buf, cha
   return rc;
 }
 
-static int serve_range(ts_conn *c, const ts_frame *f) {
+static int serve_range(ts_conn *c, const ts_frame *f, const principal *who) {
   char err[TS_ERR_LEN];
   ts_msg_range m;
   if (ts_msg_range_read(f, &m, err) != 0) return reply_error(c, f->id, TS_EPROTO, err);
+  if (owner_check(who, m.id, "fetch", err) != 0) return reply_error(c, f->id, TS_EAUTH, err);
   char names[TS_FETCH_MAX_FILES][TS_MSG_NAME_MAX];
   char (*p)[4096] = malloc(sizeof(char[TS_FETCH_MAX_FILES][4096]));
   uint8_t *buf = malloc(m.len);
@@ -213,26 +245,28 @@ static int serve_range(ts_conn *c, const ts_frame *f) {
   return rc;
 }
 
-static int serve_cancel(ts_conn *c, const ts_frame *f) {
+static int serve_cancel(ts_conn *c, const ts_frame *f, const principal *who) {
   char err[TS_ERR_LEN];
   uint64_t id;
   int rc = ts_msg_jobid_read(f, &id, err);
+  if (rc == 0) rc = owner_check(who, id, "cancel", err);
   if (rc == 0) rc = ts_jobs_cancel(g_server.jobs, id, err);
   if (rc != 0) return reply_error(c, f->id, rc, err);
-  ts_log("job %" PRIu64 " canceled by %s", id, c->peer);
+  ts_log("job %" PRIu64 " canceled by %s (%s)", id, c->peer, who->owner);
   ts_wr w;
   ts_wr_init(&w);
   ts_msg_jobid_write(&w, id);
   return reply(c, TS_MSG_CANCEL, f->id, &w);
 }
 
-static int serve_delete(ts_conn *c, const ts_frame *f) {
+static int serve_delete(ts_conn *c, const ts_frame *f, const principal *who) {
   char err[TS_ERR_LEN];
   uint64_t id;
   int rc = ts_msg_jobid_read(f, &id, err);
+  if (rc == 0) rc = owner_check(who, id, "delete", err);
   if (rc == 0) rc = ts_jobs_delete(g_server.jobs, id, err);
   if (rc != 0) return reply_error(c, f->id, rc, err);
-  ts_log("job %" PRIu64 " deleted by %s", id, c->peer);
+  ts_log("job %" PRIu64 " deleted by %s (%s)", id, c->peer, who->owner);
   ts_wr w;
   ts_wr_init(&w);
   ts_msg_jobid_write(&w, id);
@@ -252,14 +286,14 @@ static int serve_pool(ts_conn *c, const ts_frame *f) {
 }
 
 /* Answers one client request; a negative return closes the connection. */
-static int serve_request(ts_conn *c, const ts_frame *f, const char *client) {
+static int serve_request(ts_conn *c, const ts_frame *f, const principal *who) {
   switch (f->type) {
-  case TS_MSG_SUBMIT: return serve_submit(c, f, client);
-  case TS_MSG_STATUS: return serve_status(c, f);
-  case TS_MSG_FETCH: return serve_fetch(c, f);
-  case TS_MSG_RANGE: return serve_range(c, f);
-  case TS_MSG_CANCEL: return serve_cancel(c, f);
-  case TS_MSG_DELETE: return serve_delete(c, f);
+  case TS_MSG_SUBMIT: return serve_submit(c, f, who);
+  case TS_MSG_STATUS: return serve_status(c, f, who);
+  case TS_MSG_FETCH: return serve_fetch(c, f, who);
+  case TS_MSG_RANGE: return serve_range(c, f, who);
+  case TS_MSG_CANCEL: return serve_cancel(c, f, who);
+  case TS_MSG_DELETE: return serve_delete(c, f, who);
   case TS_MSG_POOL: return serve_pool(c, f);
   case TS_MSG_HEARTBEAT: {
     ts_wr w;
@@ -284,9 +318,13 @@ static void note_client_gone(const ts_conn *c, const char *client) {
            "nothing of it was accepted", c->peer, client, held);
 }
 
-static void serve_client(ts_conn *c, const ts_msg_ident *ident) {
-  char client[TS_MSG_NAME_MAX];
-  snprintf(client, sizeof(client), "%s", ident->name);
+/* A client key's jobs are owned by its name; an admin key, or a client in
+ * protected mode, is who it says it is (USER@HOST), as before keys had
+ * names. */
+static void serve_client(ts_conn *c, const ts_msg_ident *ident, const ts_principal *key) {
+  principal who = {"", key->kind != TS_KEY_CLIENT};
+  snprintf(who.owner, sizeof(who.owner), "%s", key->kind == TS_KEY_CLIENT ? key->name : ident->name);
+  const char *client = who.owner;
   while (!atomic_load(&g_stop)) {
     ts_frame f;
     char err[TS_ERR_LEN];
@@ -301,7 +339,7 @@ static void serve_client(ts_conn *c, const ts_msg_ident *ident) {
       reply_error(c, 0, rc, err);
       return;
     }
-    if (serve_request(c, &f, client) != 0) {
+    if (serve_request(c, &f, &who) != 0) {
       ts_log("client %s: request '%c' failed; closing", c->peer, f.type >= 32 && f.type < 127 ? f.type : '?');
       return;
     }
@@ -341,15 +379,17 @@ static void serve_connection(const accepted *ap) {
   ts_conn c;
   ts_conn_init(&c, a.fd, g_server.max_frame, a.peer);
   ts_msg_ident ident;
+  ts_principal key;
   char err[TS_ERR_LEN];
   int rc = ts_auth_peer_allowed(&g_server.auth, (const struct sockaddr *)&a.addr, err);
-  if (rc == 0) rc = ts_auth_accept(&c, &g_server.auth, &kSelf, &ident, IDENT_TIMEOUT_MS, err);
+  if (rc == 0) rc = ts_auth_accept(&c, &g_server.auth, &kSelf, &ident, &key, IDENT_TIMEOUT_MS, err);
   if (rc < 0) {
     end_start(&c, rc, err);
     return;
   }
   if (ident.role == TS_ROLE_WORKER) {
-    ts_log("worker joining from %s (%s)", a.peer, ident.name);
+    ts_log("worker joining from %s (%s)%s%s%s%s", a.peer, ident.name, key.kind ? ", " : "",
+           key.kind ? ts_auth_kind_name(key.kind) : "", key.kind ? " key " : "", key.name);
     /* The cluster owns the connection from here; it stays in the set while
      * it is calibrated, so a shutdown meanwhile does not wait for that. */
     int fd = c.fd;
@@ -357,7 +397,7 @@ static void serve_connection(const accepted *ap) {
     ts_connset_remove(&g_conns, fd);
     return;
   }
-  serve_client(&c, &ident);
+  serve_client(&c, &ident, &key);
   ts_connset_remove(&g_conns, c.fd);
   ts_conn_close(&c);
 }
@@ -410,9 +450,18 @@ static void usage(FILE *f) {
           "                            10), for each running job to finish its step and\n"
           "                            save a checkpoint there; a job still busy then is\n"
           "                            stopped and resumes from its last checkpoint\n"
-          "  --secret-file PATH        shared secret every client and worker must prove\n"
-          "                            (owner-only file); without one only loopback\n"
-          "                            peers are accepted (protected mode)\n"
+          "  --secret-file PATH        an admin key, or the one secret every client and\n"
+          "                            worker shares (owner-only file, 32 bytes or more);\n"
+          "                            without keys only loopback peers are accepted\n"
+          "                            (protected mode)\n"
+          "  --keys DIR                keys peers prove, one per DIR/*.key file made with\n"
+          "                            --gen-secret: admin, worker, client (its name owns\n"
+          "                            its jobs), page (the --http page only); SIGHUP\n"
+          "                            reads them again (SECURITY.md)\n"
+          "  --gen-secret KIND[:NAME] PATH\n"
+          "                            write a fresh key (admin, worker, client or page;\n"
+          "                            NAME defaults to PATH's file name less .key) to\n"
+          "                            PATH, mode 0600, never over a file; then exit\n"
           "  --modbus [ADDR:]PORT      serve the monitoring register map over Modbus TCP\n"
           "                            (off by default; a bare port listens on loopback)\n"
           "  --modbus-control          accept coil writes (pause) on the Modbus plane\n"
@@ -423,14 +472,17 @@ static void usage(FILE *f) {
           "                            shares) or both (default both)\n"
           "  --http [ADDR:]PORT        serve the read-only operations page (jobs, pool,\n"
           "                            /metrics for Prometheus); off by default; PORT or\n"
-          "                            :PORT listens on loopback; same secret rules\n"
+          "                            :PORT listens on loopback; with keys it needs a\n"
+          "                            page or admin key; beyond loopback only with HTTPS\n"
+          "  --http-cert FILE          HTTPS for --http: the certificate chain (PEM)\n"
+          "  --http-key FILE           HTTPS for --http: its private key (PEM)\n"
           "  --quiet                   no startup line\n"
           "  --version                 the texsyn release and wire protocol version\n",
           TS_FRAME_DEFAULT_MAX, (unsigned long long)TS_IMAGE_DEFAULT_MAX_PIXELS);
 }
 
 typedef struct {
-  const char *listen, *workers, *spool, *secret_file, *modbus, *http;
+  const char *listen, *workers, *spool, *secret_file, *keys, *gen_secret, *modbus, *http, *http_cert, *http_key;
   int jobs, quiet, modbus_control;
   uint64_t max_pixels, max_spool;
   uint32_t max_client_jobs;
@@ -501,7 +553,7 @@ static int rebalance_from(const char *s, int *out) {
 }
 
 static int parse_opts(int argc, char **argv, server_opts *o) {
-  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_MAX_WORKERS, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_KEEP, O_CKPT, O_GRACE, O_SECRET, O_MODBUS, O_MB_CONTROL, O_MB_POLL, O_REBAL_FROM, O_HTTP, O_QUIET, O_HELP, O_VERSION };
+  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_MAX_WORKERS, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_KEEP, O_CKPT, O_GRACE, O_SECRET, O_KEYS, O_GEN_SECRET, O_HTTP_CERT, O_HTTP_KEY, O_MODBUS, O_MB_CONTROL, O_MB_POLL, O_REBAL_FROM, O_HTTP, O_QUIET, O_HELP, O_VERSION };
   static const struct option longopts[] = {
       {"listen", required_argument, 0, O_LISTEN}, {"workers", required_argument, 0, O_WORKERS},
       {"spool", required_argument, 0, O_SPOOL}, {"jobs", required_argument, 0, O_JOBS},
@@ -515,7 +567,9 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
       {"max-client-jobs", required_argument, 0, O_CLIENT_JOBS}, {"max-spool", required_argument, 0, O_SPOOL_MAX},
       {"keep-ended", required_argument, 0, O_KEEP},
       {"checkpoint-interval", required_argument, 0, O_CKPT}, {"stop-grace", required_argument, 0, O_GRACE},
-      {"secret-file", required_argument, 0, O_SECRET},
+      {"secret-file", required_argument, 0, O_SECRET}, {"keys", required_argument, 0, O_KEYS},
+      {"gen-secret", required_argument, 0, O_GEN_SECRET}, {"http-cert", required_argument, 0, O_HTTP_CERT},
+      {"http-key", required_argument, 0, O_HTTP_KEY},
       {"modbus", required_argument, 0, O_MODBUS}, {"modbus-control", no_argument, 0, O_MB_CONTROL},
       {"modbus-poll", required_argument, 0, O_MB_POLL}, {"rebalance-from", required_argument, 0, O_REBAL_FROM},
       {"http", required_argument, 0, O_HTTP},
@@ -561,6 +615,10 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
     case O_CKPT: rc = num("--checkpoint-interval", optarg, 0, 86400, &o->checkpoint_interval); break;
     case O_GRACE: rc = num("--stop-grace", optarg, 0, 3600, &o->stop_grace); break;
     case O_SECRET: o->secret_file = optarg; break;
+    case O_KEYS: o->keys = optarg; break;
+    case O_GEN_SECRET: o->gen_secret = optarg; break;
+    case O_HTTP_CERT: o->http_cert = optarg; break;
+    case O_HTTP_KEY: o->http_key = optarg; break;
     case O_MODBUS: o->modbus = optarg; break;
     case O_MB_CONTROL: o->modbus_control = 1; break;
     case O_MB_POLL: rc = num("--modbus-poll", optarg, 0, 3600, &o->co.modbus_poll); break;
@@ -575,10 +633,70 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
     }
     if (rc != 0) return -1;
   }
-  if (optind < argc) {
+  if (o->gen_secret != NULL && optind != argc - 1) {
+    fprintf(stderr, "texsyn-server: --gen-secret %s: give the key file's PATH after it, and nothing else\n",
+            o->gen_secret);
+    return -1;
+  }
+  if (o->gen_secret == NULL && optind < argc) {
     fprintf(stderr, "texsyn-server: unexpected argument '%s'\n", argv[optind]);
     return -1;
   }
+  if ((o->http_cert != NULL) != (o->http_key != NULL) || (o->http_cert != NULL && o->http == NULL)) {
+    fprintf(stderr, "texsyn-server: --http-cert and --http-key go together, with --http\n");
+    return -1;
+  }
+  return 0;
+}
+
+/* --gen-secret KIND[:NAME] PATH: writes the key and says what it is. */
+static int gen_secret(const char *spec, const char *path) {
+  char err[TS_ERR_LEN];
+  ts_principal who;
+  if (ts_auth_init(err) != 0 || ts_auth_generate(spec, path, &who, err) != 0) {
+    fprintf(stderr, "texsyn-server: %s\n", err);
+    return 1;
+  }
+  printf("wrote %s key '%s' to %s\n", ts_auth_kind_name(who.kind), who.name, path);
+  return 0;
+}
+
+/* The coordinator's keys: --secret-file and --keys DIR, read again on
+ * SIGHUP by a thread of its own (the signal is blocked everywhere else),
+ * so a key is added or retired without a restart and without a job lost. */
+static ts_keyring *g_ring;
+
+static void *reload_thread(void *arg) {
+  sigset_t *set = arg;
+  for (;;) {
+    int sig;
+    if (sigwait(set, &sig) != 0) continue;
+    char err[TS_ERR_LEN];
+    uint32_t n[5];
+    if (ts_keyring_reload(g_ring, err) != 0) {
+      ts_log("SIGHUP: keys not reloaded, the ones in use stay: %s", err);
+      continue;
+    }
+    ts_keyring_counts(g_ring, n);
+    ts_log("SIGHUP: keys reloaded: %u admin, %u worker, %u client, %u page", n[TS_KEY_ADMIN], n[TS_KEY_WORKER],
+           n[TS_KEY_CLIENT], n[TS_KEY_PAGE]);
+  }
+  return NULL;
+}
+
+static int load_keys(const server_opts *o, char *err) {
+  if (o->secret_file == NULL && o->keys == NULL) return 0;
+  int rc = ts_keyring_create(&g_ring, o->secret_file, o->keys, err);
+  if (rc != 0) return rc;
+  g_server.auth.enabled = 1;
+  g_server.auth.ring = g_ring;
+  static sigset_t set;
+  sigemptyset(&set);
+  sigaddset(&set, SIGHUP);
+  pthread_sigmask(SIG_BLOCK, &set, NULL); /* before any other thread starts */
+  pthread_t t;
+  if (pthread_create(&t, NULL, reload_thread, &set) != 0) return ts_error(err, TS_ENOMEM, "cannot start a thread");
+  pthread_detach(t);
   return 0;
 }
 
@@ -614,11 +732,13 @@ static int start_http(const server_opts *o, char *at, char *err) {
   int port;
   int rc = ts_http_listen_addr(o->http, addr, sizeof(addr), host, sizeof(host), err);
   if (rc == 0)
-    rc = ts_http_start(addr, &g_server.auth, g_server.jobs, g_server.cluster, o->co.local_threads, &port, err);
+    rc = ts_http_start(addr, &g_server.auth, o->http_cert, o->http_key, g_server.jobs, g_server.cluster,
+                       o->co.local_threads, &port, err);
   if (rc != 0) return rc;
   /* An IPv6 host in brackets: the address is a URL's authority. */
   snprintf(at, TS_NET_ADDR_LEN, strchr(host, ':') ? "[%s]:%d" : "%s:%d", host, port);
-  ts_log("http page on %s%s", at, g_server.auth.enabled ? ", pages need the secret" : ", loopback peers only");
+  ts_log("http page on %s%s%s", at, o->http_cert ? " over HTTPS" : "",
+         g_server.auth.enabled ? ", pages need a page or admin key" : ", loopback peers only");
   return 0;
 }
 
@@ -628,7 +748,8 @@ int main(int argc, char **argv) {
   if (parse_opts(argc, argv, &o) != 0) return 2;
   ts_connset_init(&g_conns);
   char err[TS_ERR_LEN];
-  if (ts_auth_init(err) != 0 || (o.secret_file != NULL && ts_auth_load(&g_server.auth, o.secret_file, err) != 0)) {
+  if (o.gen_secret != NULL) return gen_secret(o.gen_secret, argv[argc - 1]);
+  if (ts_auth_init(err) != 0 || load_keys(&o, err) != 0) {
     fprintf(stderr, "texsyn-server: %s\n", err);
     return 2;
   }
@@ -713,5 +834,5 @@ int main(int argc, char **argv) {
   ts_jobs_destroy(g_server.jobs);
   ts_cluster_destroy(g_server.cluster);
   ts_auth_clear(&g_server.auth);
-  return 0;
+  return 0; /* g_ring stays: the reload thread may be reading it */
 }

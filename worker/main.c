@@ -414,7 +414,7 @@ static int handshake(session *s, const struct sockaddr *addr, char *err) {
     rc = ts_auth_connect(&s->conn, &g_w.auth, &me, &peer, HANDSHAKE_MS, err);
   } else {
     rc = ts_auth_peer_allowed(&g_w.auth, addr, err);
-    if (rc == 0) rc = ts_auth_accept(&s->conn, &g_w.auth, &me, &peer, HANDSHAKE_MS, err);
+    if (rc == 0) rc = ts_auth_accept(&s->conn, &g_w.auth, &me, &peer, NULL, HANDSHAKE_MS, err);
   }
   if (rc == 0 && peer.role != TS_ROLE_COORD) rc = ts_error(err, TS_EPROTO, "peer is not a coordinator");
   if (rc == 0) s->peer_caps = peer.caps;
@@ -531,9 +531,10 @@ static void usage(FILE *f) {
           "                       larger messages come in pieces\n"
           "  --max-message BYTES  largest message taken in pieces (default %llu)\n"
           "  --name NAME          name shown in logs and to the coordinator\n"
-          "  --secret-file PATH   shared secret the coordinator must prove and this worker\n"
-          "                       proves to it (owner-only file); without one a --listen\n"
-          "                       worker accepts loopback peers only (protected mode)\n"
+          "  --secret-file PATH   this worker's key (a worker or admin key, or the shared\n"
+          "                       secret; owner-only file): proved to the coordinator,\n"
+          "                       which proves it back; without one a --listen worker\n"
+          "                       accepts loopback peers only (protected mode)\n"
           "  --modbus [ADDR:]PORT serve the monitoring register map over Modbus TCP\n"
           "                       (off by default; a bare port listens on loopback)\n"
           "  --modbus-control     accept coil writes (drain) on the Modbus plane\n"
@@ -617,6 +618,11 @@ int main(int argc, char **argv) {
   }
   if (ts_auth_init(err) != 0 || (secret_file != NULL && ts_auth_load(&g_w.auth, secret_file, err) != 0)) {
     fprintf(stderr, "texsyn-worker: %s\n", err);
+    return 2;
+  }
+  if (g_w.auth.enabled && !ts_auth_kind_allows(g_w.auth.who.kind, TS_ROLE_WORKER)) {
+    fprintf(stderr, "texsyn-worker: --secret-file %s is a %s key; a worker needs a worker key (texsyn-server "
+            "--gen-secret worker PATH) or an admin key\n", secret_file, ts_auth_kind_name(g_w.auth.who.kind));
     return 2;
   }
   if (ts_l1_select(&g_w.simd, err) != 0) {

@@ -377,6 +377,9 @@ int ts_job_connect(ts_conn *c, const char *addr, const char *path, char *err) {
   if (path != NULL && path[0] == '\0') path = NULL;
   ts_auth auth = {0};
   int rc = path != NULL ? ts_auth_load(&auth, path, err) : 0;
+  if (rc == 0 && auth.enabled && !ts_auth_kind_allows(auth.who.kind, TS_ROLE_CLIENT))
+    rc = ts_error(err, TS_EAUTH, "%s (%s) is a %s key; a client needs a client key (texsyn-server --gen-secret "
+                  "client PATH) or an admin key", path, from, ts_auth_kind_name(auth.who.kind));
   if (rc == 0) {
     rc = ts_client_connect(c, addr, &auth, err);
     if (rc != 0) connect_hint(rc, addr, path, from, err);

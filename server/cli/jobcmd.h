@@ -74,8 +74,8 @@ enum {
   "  --embedded           run in-process even if $TEXSYN_SERVER is set\n"                    \
   "  --detach             with --server: print the job id and return at once\n"             \
   "                       (then texsyn watch/fetch ID)\n"                                    \
-  "  --secret-file PATH   with --server: the shared secret the coordinator\n"               \
-  "                       requires (default: $TEXSYN_SECRET_FILE if set)\n"
+  "  --secret-file PATH   with --server: your client key, an admin key or the shared\n"     \
+  "                       secret (default: $TEXSYN_SECRET_FILE if set)\n"
 extern const char *const ts_job_options_help;
 
 /* A job command for engine e with its defaults. */

@@ -4,6 +4,7 @@
 #include "http.h"
 
 #include <microhttpd.h>
+#include <sodium.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -12,6 +13,7 @@
 
 #include "error.h"
 #include "http_auth.h"
+#include "http_deadline.h"
 #include "http_page.h"
 #include "l1.h"
 #include "log.h"
@@ -22,8 +24,12 @@
 #define HTTP_MAX_JOBS 100    /* the newest jobs listed; the spool may hold thousands */
 #define HTTP_MAX_FRAMES 2048 /* the newest jobs that are video frames, grouped as sequences */
 #define HTTP_REFRESH_S 2     /* the page reloads itself this often */
-#define HTTP_CONNECTIONS 32  /* at once; a page load takes a few */
-#define HTTP_TIMEOUT_S 10    /* an idle connection is closed after this */
+#define HTTP_CONNECTIONS 512 /* at once: each costs a socket, not a thread */
+#define HTTP_PER_ADDRESS 16  /* at once from one address; a page load takes a few */
+#define HTTP_THREADS 4       /* poll every connection; a thumbnail being made holds up one */
+#define HTTP_TIMEOUT_S 10    /* a connection silent this long is closed */
+#define HTTP_REQUEST_S 10    /* and one whose request is not in this long after it opened */
+#define HTTP_PEM_MAX (1 << 20)
 
 static struct {
   struct MHD_Daemon *daemon;
@@ -32,7 +38,20 @@ static struct {
   ts_cluster *cluster;
   int threads, simd;
   double started;
+  char *cert_pem, *key_pem;
 } g_http;
+
+/* The private key is wiped before it goes back to the allocator. */
+static void free_pems_of(char *cert, char *key) {
+  free(cert);
+  if (key != NULL) sodium_memzero(key, strlen(key));
+  free(key);
+}
+
+static void free_pems(void) {
+  free_pems_of(g_http.cert_pem, g_http.key_pem);
+  g_http.cert_pem = g_http.key_pem = NULL;
+}
 
 /* ---- responses ----------------------------------------------------------------- */
 
@@ -173,6 +192,7 @@ static int allowed(struct MHD_Connection *c, unsigned *status, char *err) {
   if (ci == NULL || ci->client_addr == NULL) return ts_error(err, TS_EAUTH, "peer address unknown");
   int rc = ts_auth_peer_allowed(g_http.auth, ci->client_addr, err);
   if (rc != 0 || !g_http.auth->enabled) return rc;
+  /* Only a page or an admin key: a client's or worker's key is for the data plane. */
   *status = MHD_HTTP_UNAUTHORIZED;
   const char *h = MHD_lookup_connection_value(c, MHD_HEADER_KIND, MHD_HTTP_HEADER_AUTHORIZATION);
   return ts_http_auth_check(g_http.auth, h, err);
@@ -181,6 +201,7 @@ static int allowed(struct MHD_Connection *c, unsigned *status, char *err) {
 static enum MHD_Result on_request(void *cls, struct MHD_Connection *c, const char *url, const char *method,
                                   const char *version, const char *upload, size_t *upload_len, void **state) {
   (void)cls, (void)version, (void)upload, (void)upload_len, (void)state;
+  ts_http_deadline_request_in(c);
   if (strcmp(method, MHD_HTTP_METHOD_GET) != 0 && strcmp(method, MHD_HTTP_METHOD_HEAD) != 0)
     return respond_error(c, MHD_HTTP_METHOD_NOT_ALLOWED, "%s: this server is read-only (GET and HEAD)", method);
   char err[TS_ERR_LEN];
@@ -207,14 +228,54 @@ static void on_mhd_log(void *cls, const char *fmt, va_list ap) {
   ts_log("http: %s", msg);
 }
 
-int ts_http_start(const char *listen, const ts_auth *auth, ts_jobs *jobs, ts_cluster *cluster, int threads,
-                  int *port, char *err) {
+/* A PEM file read whole, NUL-terminated (what libmicrohttpd takes). */
+static int read_pem(const char *opt, const char *path, char **out, char *err) {
+  uint8_t *buf;
+  size_t len;
+  char why[TS_ERR_LEN];
+  if (ts_file_read(path, HTTP_PEM_MAX, &buf, &len, why) != 0) return ts_error(err, TS_EIO, "%s %s: %s", opt, path, why);
+  char *s = realloc(buf, len + 1);
+  if (s == NULL) {
+    free(buf);
+    return ts_error(err, TS_ENOMEM, "out of memory");
+  }
+  s[len] = '\0';
+  *out = s;
+  return 0;
+}
+
+/* With keys, a page beyond loopback needs HTTPS: a page key or an admin
+ * key sent in the clear would be anyone's who watches the network. */
+static int check_exposure(const ts_auth *auth, int lfd, int tls, char *err) {
+  struct sockaddr_storage ss;
+  socklen_t sl = sizeof(ss);
+  if (!auth->enabled || tls || getsockname(lfd, (struct sockaddr *)&ss, &sl) != 0 ||
+      ts_auth_is_loopback((struct sockaddr *)&ss))
+    return 0;
+  return ts_error(err, TS_EINVAL,
+                  "the page would send its keys in the clear beyond loopback: give --http-cert and --http-key "
+                  "(HTTPS), or keep --http on loopback behind a TLS reverse proxy (deploy/README.md, \"Who may look\")");
+}
+
+int ts_http_start(const char *listen, const ts_auth *auth, const char *cert, const char *key, ts_jobs *jobs,
+                  ts_cluster *cluster, int threads, int *port, char *err) {
   const ts_l1_impl *simd;
   int rc = ts_l1_select(&simd, err);
   if (rc != 0) return rc;
-  int lfd;
-  rc = ts_net_listen(listen, &lfd, port, err);
-  if (rc != 0) return rc;
+  if (cert != NULL && MHD_is_feature_supported(MHD_FEATURE_TLS) != MHD_YES)
+    return ts_error(err, TS_ENOTSUP, "this libmicrohttpd has no TLS: use a TLS reverse proxy in front of a loopback "
+                    "--http (deploy/README.md, \"Who may look\")");
+  char *cert_pem = NULL, *key_pem = NULL;
+  if (cert != NULL && (rc = read_pem("--http-cert", cert, &cert_pem, err)) == 0)
+    rc = read_pem("--http-key", key, &key_pem, err);
+  int lfd = -1;
+  if (rc == 0) rc = ts_net_listen(listen, &lfd, port, err);
+  if (rc == 0) rc = check_exposure(auth, lfd, cert != NULL, err);
+  if (rc != 0) {
+    if (lfd >= 0) close(lfd);
+    free_pems_of(cert_pem, key_pem);
+    return rc;
+  }
   char warning[TS_ERR_LEN];
   if (ts_auth_listen_warning(auth, lfd, warning)) ts_log("http: %s", warning);
   g_http.auth = auth;
@@ -223,15 +284,32 @@ int ts_http_start(const char *listen, const ts_auth *auth, ts_jobs *jobs, ts_clu
   g_http.threads = threads;
   g_http.simd = simd->id;
   g_http.started = ts_now();
-  /* A thread per connection: a thumbnail being made holds up no page. */
-  g_http.daemon = MHD_start_daemon(
-      MHD_USE_POLL_INTERNAL_THREAD | MHD_USE_THREAD_PER_CONNECTION | MHD_USE_ERROR_LOG, 0, NULL, NULL, on_request,
-      NULL, MHD_OPTION_EXTERNAL_LOGGER, on_mhd_log, NULL, MHD_OPTION_LISTEN_SOCKET, lfd,
-      MHD_OPTION_CONNECTION_LIMIT, (unsigned)HTTP_CONNECTIONS, MHD_OPTION_CONNECTION_TIMEOUT,
-      (unsigned)HTTP_TIMEOUT_S, MHD_OPTION_END);
-  if (g_http.daemon == NULL) {
+  if ((rc = ts_http_deadline_start(HTTP_REQUEST_S, err)) != 0) {
     close(lfd);
-    return ts_error(err, TS_EIO, "libmicrohttpd could not start on %s (see the log above)", listen);
+    free_pems_of(cert_pem, key_pem);
+    return rc;
+  }
+  unsigned flags = MHD_USE_INTERNAL_POLLING_THREAD | MHD_USE_AUTO | MHD_USE_ERROR_LOG | (cert ? MHD_USE_TLS : 0);
+  struct MHD_OptionItem tls[] = {{MHD_OPTION_HTTPS_MEM_CERT, 0, cert_pem},
+                                 {MHD_OPTION_HTTPS_MEM_KEY, 0, key_pem},
+                                 {MHD_OPTION_END, 0, NULL}};
+  g_http.daemon = MHD_start_daemon(
+      flags, 0, NULL, NULL, on_request, NULL, MHD_OPTION_EXTERNAL_LOGGER, on_mhd_log, NULL, MHD_OPTION_LISTEN_SOCKET,
+      lfd, MHD_OPTION_THREAD_POOL_SIZE, (unsigned)HTTP_THREADS, MHD_OPTION_CONNECTION_LIMIT,
+      (unsigned)HTTP_CONNECTIONS, MHD_OPTION_PER_IP_CONNECTION_LIMIT, (unsigned)HTTP_PER_ADDRESS,
+      MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)HTTP_TIMEOUT_S, MHD_OPTION_NOTIFY_CONNECTION,
+      ts_http_deadline_notify, NULL, MHD_OPTION_NOTIFY_COMPLETED, ts_http_deadline_completed, NULL,
+      MHD_OPTION_ARRAY, cert ? tls : tls + 2,
+      MHD_OPTION_END);
+  /* libmicrohttpd reads them at start; they stay until it stops. */
+  g_http.cert_pem = cert_pem;
+  g_http.key_pem = key_pem;
+  if (g_http.daemon == NULL) {
+    ts_http_deadline_stop();
+    free_pems();
+    close(lfd);
+    return ts_error(err, TS_EIO, "libmicrohttpd could not start on %s%s (see the log above)", listen,
+                    cert ? " with that certificate and key" : "");
   }
   return 0;
 }
@@ -240,4 +318,6 @@ void ts_http_stop(void) {
   if (g_http.daemon == NULL) return;
   MHD_stop_daemon(g_http.daemon); /* joins its threads, closes the socket */
   g_http.daemon = NULL;
+  ts_http_deadline_stop();
+  free_pems();
 }

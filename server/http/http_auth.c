@@ -6,17 +6,17 @@
 #include <strings.h>
 
 #include "error.h"
+#include "keyring.h"
 
-/* Compares HMACs of both under the secret itself rather than the bytes:
- * equal-size values, so neither the time taken nor an early exit on
- * length says how long the secret is. */
-static int same_secret(const ts_auth *a, const char *given, size_t n) {
-  uint8_t want[TS_AUTH_MAC], got[TS_AUTH_MAC];
-  ts_auth_hmac(a, a->secret, a->len, want);
-  ts_auth_hmac(a, given, n, got);
-  int same = sodium_memcmp(want, got, sizeof(want)) == 0;
-  sodium_memzero(want, sizeof(want));
-  return same;
+/* A page key or an admin key; a client's or a worker's key is for the
+ * data plane only, and one sent here (a browser, a scrape config) must not
+ * be worth more than the page. */
+static int page_key(const ts_auth *a, const char *given, size_t n) {
+  ts_principal who;
+  if (a->ring != NULL)
+    return ts_keyring_match(a->ring, given, n, (1u << TS_KEY_ADMIN) | (1u << TS_KEY_PAGE), &who);
+  int kind_ok = a->who.kind == 0 || a->who.kind == TS_KEY_ADMIN || a->who.kind == TS_KEY_PAGE;
+  return kind_ok && ts_auth_same_secret(a, given, n);
 }
 
 /* Basic auth: base64("user:password"); the password is the secret. */
@@ -32,17 +32,17 @@ static int check_basic(const ts_auth *a, const char *b64, char *err) {
     return ts_error(err, TS_EAUTH, "Authorization: Basic credentials lack the ':' before the password");
   }
   size_t off = (size_t)(colon + 1 - buf);
-  int ok = same_secret(a, colon + 1, n - off);
+  int ok = page_key(a, colon + 1, n - off);
   sodium_memzero(buf, sizeof(buf));
   return ok ? 0 : ts_error(err, TS_EAUTH, "wrong secret");
 }
 
 int ts_http_auth_check(const ts_auth *a, const char *header, char *err) {
   if (header == NULL)
-    return ts_error(err, TS_EAUTH, "this page needs the server's secret (Basic auth password or Bearer token)");
+    return ts_error(err, TS_EAUTH, "this page needs a page key or an admin key (Basic auth password or Bearer token)");
   if (strlen(header) >= TS_HTTP_AUTH_HEADER_MAX) return ts_error(err, TS_EAUTH, "Authorization header too long");
   if (strncasecmp(header, "Basic ", 6) == 0) return check_basic(a, header + 6, err);
   if (strncasecmp(header, "Bearer ", 7) == 0)
-    return same_secret(a, header + 7, strlen(header + 7)) ? 0 : ts_error(err, TS_EAUTH, "wrong secret");
+    return page_key(a, header + 7, strlen(header + 7)) ? 0 : ts_error(err, TS_EAUTH, "wrong secret");
   return ts_error(err, TS_EAUTH, "Authorization: need the Basic or Bearer scheme");
 }

@@ -34,6 +34,12 @@
 /* Time constant of the measured-rate averages: long enough to smooth the
  * jitter of single small batches, short against `persist`. */
 #define CL_RATE_TAU 0.5
+/* A worker's measured rate counts up to this many times its calibrated
+ * one: its answers report their own scan time and comparisons, and a
+ * worker that claimed to scan ten times faster would otherwise be given
+ * most of the reference at the next rebalance. The margin leaves room for
+ * a worker calibrated while busy, or warmer caches on real batches. */
+#define CL_RATE_CAP 1.25
 /* Batches answered faster than this say nothing reliable about a
  * worker's rate (the round trip dominates). */
 #define CL_MIN_SAMPLE_SECONDS 0.0002

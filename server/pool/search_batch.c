@@ -45,7 +45,7 @@ static void track_rate(cl_worker *w) {
   double keep = exp(-dt / CL_RATE_TAU);
   w->ewma_bytes = w->ewma_bytes * keep + (double)w->answered_bytes;
   w->ewma_secs = w->ewma_secs * keep + dt;
-  w->ewma_rate = w->ewma_bytes / w->ewma_secs;
+  w->ewma_rate = fmin(w->ewma_bytes / w->ewma_secs, w->calib_rate * CL_RATE_CAP);
   w->ewma_weight += dt;
 }
 

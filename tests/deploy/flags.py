@@ -15,6 +15,7 @@ Prints PASS/FAIL lines; exits 1 on any failure.
 import os
 import re
 import shlex
+import shutil
 import socket
 import subprocess
 import sys
@@ -174,13 +175,25 @@ def main(argv):
     port = free_port()
     addr = f"127.0.0.1:{port}"
     units = os.path.join(root, "deploy", "systemd")
-    sd_env = {"CREDENTIALS_DIRECTORY": cred, "STATE_DIRECTORY": os.path.join(tmp, "systemd-state"),
+    # The units' credentials: the coordinator's keys directory as systemd
+    # copies it (keys_NAME.key), the worker's worker.key; `texsyn workers`
+    # uses the admin key.
+    sd_cred = os.path.join(tmp, "systemd-credentials")
+    os.makedirs(sd_cred, exist_ok=True)
+    for kind, file in (("admin:ops", "keys_admin.key"), ("worker:pool", "keys_worker.key")):
+        path = os.path.join(sd_cred, file)
+        if os.path.exists(path):
+            os.unlink(path)
+        subprocess.run([f"{build}/texsyn-server", "--gen-secret", kind, path], check=True, capture_output=True)
+    shutil.copy(os.path.join(sd_cred, "keys_worker.key"), os.path.join(sd_cred, "worker.key"))
+    sd_env = {"CREDENTIALS_DIRECTORY": sd_cred, "STATE_DIRECTORY": os.path.join(tmp, "systemd-state"),
               "TEXSYN_LISTEN": addr, "TEXSYN_COORDINATOR": addr, "TEXSYN_WORKER_OPTS": "--threads 1"}
     bins = [("/usr/local/bin/", build + "/")]
     def systemd():
         server = replace_all(unit_exec(f"{units}/texsyn-server.service", sd_env, {"H": host}), bins)
         worker = replace_all(unit_exec(f"{units}/texsyn-worker@.service", sd_env, {"H": host, "i": "1"}), bins)
-        return run_pair("systemd", build, tmp, server, worker, addr, secret, f"{host}-1", "1")
+        return run_pair("systemd", build, tmp, server, worker, addr, os.path.join(sd_cred, "keys_admin.key"),
+                        f"{host}-1", "1")
     ok &= checked("systemd", systemd)
 
     # Kubernetes: the Service's name and the pod's paths.

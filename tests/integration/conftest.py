@@ -12,7 +12,7 @@ DATA = Path(os.environ.get("TEXSYN_DATA", REPO.parent / "shared" / "data"))
 SANITIZED = os.environ.get("TEXSYN_SANITIZED") == "1"
 LONG = os.environ.get("TEXSYN_LONG_TESTS") == "1"
 # Frame header start: magic and the protocol version (proto/frame.h).
-FRAME_START = b"TS\x07"
+FRAME_START = b"TS\x08"
 
 
 def pytest_configure(config):

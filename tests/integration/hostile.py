@@ -46,7 +46,7 @@ import threading
 import time
 
 HEADER = struct.Struct("<2sBcII")  # magic, version, type, payload length, id
-MAGIC, VERSION = b"TS", 7  # proto/frame.h TS_PROTO_VERSION
+MAGIC, VERSION = b"TS", 8  # proto/frame.h TS_PROTO_VERSION
 PIECE = struct.Struct("<cQQ")  # an 'M' piece: the message's type, total, offset
 
 NO_INDEX = 0xFFFFFFFF

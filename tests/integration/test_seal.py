@@ -327,8 +327,8 @@ def test_a_whole_jobs_traffic_holds_no_image_bytes(data, cluster, tmp_path):
     assert holds_image(bytes(worker_link["c2w"]), b"", planes, w)
 
 
-def test_a_peer_of_protocol_6_is_refused_with_the_version_message(cluster, tmp_path):
-    """Version 6 sent every frame after the start in the clear: a peer of
+def test_a_peer_of_protocol_7_is_refused_with_the_version_message(cluster, tmp_path):
+    """Version 7 named no key in its proofs (one shared secret): a peer of
     it is told to run the same release, whatever it says first."""
     key = secret(tmp_path)
     cluster.server = Daemon([BUILD / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", tmp_path / "spool",
@@ -336,7 +336,7 @@ def test_a_peer_of_protocol_6_is_refused_with_the_version_message(cluster, tmp_p
     host, port = cluster.server.addr.rsplit(":", 1)
     ident = struct.pack("<BIHBH", 3, 1 << 3, 0, 0, 6) + b"old@vm"
     with socket.create_connection((host, int(port)), timeout=10) as s:
-        s.sendall(HEADER.pack(b"TS", 6, b"I", len(ident), 0) + ident)
+        s.sendall(HEADER.pack(b"TS", 7, b"I", len(ident), 0) + ident)
         reply = b""
         while True:
             data = s.recv(4096)
@@ -344,8 +344,8 @@ def test_a_peer_of_protocol_6_is_refused_with_the_version_message(cluster, tmp_p
                 break
             reply += data
     magic, version, kind, length, _ = HEADER.unpack_from(reply)
-    assert (magic, version, kind) == (b"TS", 7, b"E"), reply
-    want = "the peer speaks texsyn protocol version 6, this build 7: run the same release on both sides"
+    assert (magic, version, kind) == (b"TS", 8, b"E"), reply
+    want = "the peer speaks texsyn protocol version 7, this build 8: run the same release on both sides"
     assert want.encode() in reply[HEADER.size:HEADER.size + length], reply
     assert want in cluster.server.read_log()
 

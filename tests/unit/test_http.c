@@ -118,7 +118,7 @@ static void auth_refuses_anything_else(void **state) {
   secret_of(&a, "sesame");
   char err[TS_ERR_LEN], h[256];
   assert_int_equal(ts_http_auth_check(&a, NULL, err), TS_EAUTH);
-  assert_non_null(strstr(err, "needs the server's secret"));
+  assert_non_null(strstr(err, "needs a page key or an admin key"));
   const char *wrong[] = {"Bearer sesam", "Bearer sesame ", "Bearer Sesame", "Bearer ", "Digest sesame", "sesame", ""};
   for (size_t i = 0; i < sizeof(wrong) / sizeof(wrong[0]); i++)
     assert_int_equal(ts_http_auth_check(&a, wrong[i], err), TS_EAUTH);
@@ -421,6 +421,22 @@ static void thumb_keeps_the_first_four_of_more_channels(void **state) {
   ts_image_free(&src);
 }
 
+/* A client's or a worker's key opens the data plane: the page refuses it
+ * even when it is given whole. */
+static void auth_refuses_data_plane_keys(void **state) {
+  (void)state;
+  ts_auth a;
+  char err[TS_ERR_LEN];
+  const uint8_t kinds[] = {TS_KEY_CLIENT, TS_KEY_WORKER};
+  for (size_t i = 0; i < sizeof(kinds); i++) {
+    secret_of(&a, "texsyn:client:alice:0123");
+    a.who.kind = kinds[i];
+    assert_int_equal(ts_http_auth_check(&a, "Bearer texsyn:client:alice:0123", err), TS_EAUTH);
+  }
+  a.who.kind = TS_KEY_PAGE;
+  assert_int_equal(ts_http_auth_check(&a, "Bearer texsyn:client:alice:0123", err), 0);
+}
+
 static const struct CMUnitTest tests[] = {
     cmocka_unit_test(route_names_the_pages),
     cmocka_unit_test(route_refuses_bad_paths_and_ids),
@@ -428,6 +444,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(listen_addr_names_what_is_wrong),
     cmocka_unit_test(auth_takes_basic_and_bearer_with_the_secret),
     cmocka_unit_test(auth_refuses_anything_else),
+cmocka_unit_test(auth_refuses_data_plane_keys),
     cmocka_unit_test(metrics_are_prometheus_text),
     cmocka_unit_test(html_and_json_escape_what_they_show),
     cmocka_unit_test(text_grows_past_its_first_block),

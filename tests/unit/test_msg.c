@@ -856,11 +856,16 @@ static void jobspec_refuses_bad_lines(void **state) {
  * size of another step are refused. */
 static void auth_steps_round_trip_and_are_exact(void **state) {
   (void)state;
-  const size_t sizes[] = {0, 1 + TS_AUTH_NONCE, 1 + TS_AUTH_NONCE + TS_AUTH_MAC, 1 + TS_AUTH_MAC};
+  /* Challenge and response name a key: u8 kind, u16 length, "alice". */
+  const size_t key = 1 + 2 + 5;
+  const size_t sizes[] = {0, 1 + TS_AUTH_NONCE + key, 1 + TS_AUTH_NONCE + key + TS_AUTH_MAC, 1 + TS_AUTH_MAC};
   char err[TS_ERR_LEN];
   for (uint8_t step = TS_AUTH_CHALLENGE; step <= TS_AUTH_PROOF; step++) {
     ts_msg_auth in, out;
+    memset(&in, 0, sizeof(in));
     in.step = step;
+    in.key_kind = 3;
+    snprintf(in.key_name, sizeof(in.key_name), "alice");
     for (int i = 0; i < TS_AUTH_NONCE; i++) in.nonce[i] = (uint8_t)(i + 1);
     for (int i = 0; i < TS_AUTH_MAC; i++) in.mac[i] = (uint8_t)(0xA0 + i);
     ts_wr w;
@@ -870,18 +875,42 @@ static void auth_steps_round_trip_and_are_exact(void **state) {
     ts_frame f = frame_of(&w, 'A');
     assert_int_equal(ts_msg_auth_read(&f, &out, err), 0);
     assert_int_equal(out.step, step);
-    if (step != TS_AUTH_PROOF) assert_memory_equal(out.nonce, in.nonce, TS_AUTH_NONCE);
+    if (step != TS_AUTH_PROOF) {
+      assert_memory_equal(out.nonce, in.nonce, TS_AUTH_NONCE);
+      assert_int_equal(out.key_kind, 3);
+      assert_string_equal(out.key_name, "alice");
+    }
     if (step != TS_AUTH_CHALLENGE) assert_memory_equal(out.mac, in.mac, TS_AUTH_MAC);
     assert_exact(&w, 'A', rd_auth, &out);
     ts_wr_free(&w);
   }
-  uint8_t buf[1 + TS_AUTH_NONCE + TS_AUTH_MAC] = {0};
+  uint8_t buf[1 + TS_AUTH_NONCE + 3 + TS_AUTH_MAC] = {0};
   const uint8_t bad_steps[] = {0, 4, 0xFF};
   for (size_t i = 0; i < sizeof(bad_steps); i++) {
     buf[0] = bad_steps[i];
-    ts_frame f = {'A', 0, 1 + TS_AUTH_NONCE, buf};
+    ts_frame f = {'A', 0, 1 + TS_AUTH_NONCE + 3, buf};
     ts_msg_auth out;
     assert_int_equal(ts_msg_auth_read(&f, &out, err), TS_EPROTO);
+  }
+  /* A response must name its key; a kind past page, or a name with a
+   * byte a log line or an owner field must not hold, is refused. */
+  const struct {
+    uint8_t step, kind;
+    const char *name;
+  } bad[] = {{TS_AUTH_RESPONSE, 0, ""}, {TS_AUTH_RESPONSE, 3, ""}, {TS_AUTH_RESPONSE, 5, "a"},
+             {TS_AUTH_CHALLENGE, 9, ""}, {TS_AUTH_RESPONSE, 3, "a\nb"}, {TS_AUTH_RESPONSE, 3, "a b"}};
+  for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++) {
+    ts_msg_auth in, out;
+    memset(&in, 0, sizeof(in));
+    in.step = bad[i].step;
+    in.key_kind = bad[i].kind;
+    snprintf(in.key_name, sizeof(in.key_name), "%s", bad[i].name);
+    ts_wr w;
+    ts_wr_init(&w);
+    ts_msg_auth_write(&w, &in);
+    ts_frame f = frame_of(&w, 'A');
+    assert_int_equal(ts_msg_auth_read(&f, &out, err), TS_EPROTO);
+    ts_wr_free(&w);
   }
 }
 

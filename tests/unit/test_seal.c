@@ -377,6 +377,7 @@ static void a_handshake_with_a_secret_seals_the_connection(void **state) {
   a.enabled = 1;
   a.len = 6;
   memcpy(a.secret, "shared", 6);
+  a.who = (ts_principal){TS_KEY_ADMIN, "admin"};
   int sv[2];
   assert_int_equal(socketpair(AF_UNIX, SOCK_STREAM, 0, sv), 0);
   side acc = {&a, {0}, {TS_ROLE_COORD, TS_CAP_ALL, 0, 0, "coordinator", 0}, {0}, 0, ""};
@@ -385,7 +386,7 @@ static void a_handshake_with_a_secret_seals_the_connection(void **state) {
   ts_conn_init(&con.conn, sv[1], 0, "acceptor");
   pthread_t t;
   assert_int_equal(pthread_create(&t, NULL, connect_side, &con), 0);
-  acc.rc = ts_auth_accept(&acc.conn, acc.auth, &acc.me, &acc.peer, 5000, acc.err);
+  acc.rc = ts_auth_accept(&acc.conn, acc.auth, &acc.me, &acc.peer, NULL, 5000, acc.err);
   assert_int_equal(acc.rc, 0);
   assert_non_null(acc.conn.seal);
   ts_frame f;
@@ -410,7 +411,7 @@ static void a_handshake_without_a_secret_stays_plain(void **state) {
   ts_conn_init(&con.conn, sv[1], 0, "acceptor");
   pthread_t t;
   assert_int_equal(pthread_create(&t, NULL, connect_side, &con), 0);
-  assert_int_equal(ts_auth_accept(&acc.conn, NULL, &acc.me, &acc.peer, 5000, acc.err), 0);
+  assert_int_equal(ts_auth_accept(&acc.conn, NULL, &acc.me, &acc.peer, NULL, 5000, acc.err), 0);
   ts_frame f;
   assert_int_equal(ts_conn_recv(&acc.conn, &f, 5000, acc.err), 1);
   pthread_join(t, NULL);
