@@ -180,7 +180,8 @@ void ts_auth_session_keys(const ts_auth *a, const uint8_t transcript[TS_AUTH_TRA
 typedef struct {
   ts_conn *c;
   const ts_auth *a;
-  int timeout_ms;
+  int timeout_ms;   /* for the whole start, not each read: a slow sender */
+  double deadline;  /* cannot stretch it frame by frame */
   crypto_generichash_state th;
 } hs;
 
@@ -195,7 +196,10 @@ static const char *role_noun(uint8_t role) { return role == TS_ROLE_WORKER ? "wo
 
 /* The next frame, into the transcript. */
 static int recv_frame(hs *h, ts_frame *f, char *err) {
-  int rc = ts_conn_recv(h->c, f, h->timeout_ms, err);
+  int left = (int)((h->deadline - ts_now()) * 1000.0);
+  int rc = left > 0 ? ts_conn_recv(h->c, f, left, err) : TS_ETIMEDOUT;
+  if (rc == TS_ETIMEDOUT)
+    return ts_error(err, rc, "%s: the connection start did not finish within %d ms", h->c->peer, h->timeout_ms);
   if (rc < 0) return rc;
   hash_frame(h, f->type, f->id, f->payload, f->len);
   return 0;
@@ -342,7 +346,7 @@ static int handshake(handshake_steps *steps, int connector, ts_conn *c, const ts
   uint64_t max_message = c->pieces.max_message;
   c->rd.max_payload = max < HANDSHAKE_MAX_FRAME ? max : HANDSHAKE_MAX_FRAME;
   ts_conn_accept_pieces(c, 0);
-  hs h = {c, a, timeout_ms, {{0}}};
+  hs h = {c, a, timeout_ms, ts_now() + timeout_ms / 1000.0, {{0}}};
   crypto_generichash_init(&h.th, NULL, 0, TS_AUTH_TRANSCRIPT);
   int rc = steps(&h, me, peer, err);
   c->rd.max_payload = max;

@@ -22,6 +22,7 @@
 #include "cluster.h"
 #include "connset.h"
 #include "error.h"
+#include "gate.h"
 #include "http.h"
 #include "http_page.h"
 #include "image.h"
@@ -34,7 +35,6 @@
 #include "stop.h"
 #include "util.h"
 
-#define IDENT_TIMEOUT_MS 10000
 /* How long a refused peer gets to read its 'E' before we close. */
 #define REFUSE_LINGER_MS 1000
 
@@ -57,6 +57,7 @@ static atomic_int g_stop;
 _Static_assert(ATOMIC_INT_LOCK_FREE == 2, "the stop flag must be lock-free to be set in a signal handler");
 
 static ts_connset g_conns;
+static ts_gate g_gate; /* connections that have not authenticated yet */
 
 /* ---- replies ------------------------------------------------------------ */
 
@@ -289,7 +290,8 @@ static void serve_connection(const accepted *ap) {
   ts_msg_ident ident;
   char err[TS_ERR_LEN];
   int rc = ts_auth_peer_allowed(&g_server.auth, (const struct sockaddr *)&a.addr, err);
-  if (rc == 0) rc = ts_auth_accept(&c, &g_server.auth, &kSelf, &ident, IDENT_TIMEOUT_MS, err);
+  if (rc == 0) rc = ts_auth_accept(&c, &g_server.auth, &kSelf, &ident, TS_GATE_HANDSHAKE_MS, err);
+  ts_gate_leave(&g_gate, a.fd);
   if (rc < 0) {
     end_start(&c, rc, err);
     return;
@@ -573,6 +575,7 @@ int main(int argc, char **argv) {
   server_opts o;
   if (parse_opts(argc, argv, &o) != 0) return 2;
   ts_connset_init(&g_conns);
+  ts_gate_init(&g_gate, "job port", ts_warn_msg);
   char err[TS_ERR_LEN];
   if (ts_auth_init(err) != 0 || (o.secret_file != NULL && ts_auth_load(&g_server.auth, o.secret_file, err) != 0)) {
     fprintf(stderr, "texsyn-server: %s\n", err);
@@ -631,7 +634,7 @@ int main(int argc, char **argv) {
   while (!atomic_load(&g_stop)) {
     accepted *a = malloc(sizeof(*a));
     if (a == NULL) break;
-    if (ts_net_accept(lfd, &a->fd, a->peer, sizeof(a->peer), &a->addr) != 0) {
+    if (ts_gate_accept(&g_gate, lfd, &a->fd, a->peer, sizeof(a->peer), &a->addr) != 0) {
       free(a);
       continue;
     }
@@ -642,7 +645,9 @@ int main(int argc, char **argv) {
       free(a);
       continue;
     }
+    ts_gate_enter(&g_gate, a->fd, (const struct sockaddr *)&a->addr);
     if (pthread_create(&t, NULL, connection_thread, a) != 0) {
+      ts_gate_leave(&g_gate, a->fd);
       ts_connset_remove(&g_conns, a->fd);
       close(a->fd);
       free(a);

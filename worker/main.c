@@ -21,6 +21,7 @@
 #include "calib.h"
 #include "connset.h"
 #include "error.h"
+#include "gate.h"
 #include "l1.h"
 #include "log.h"
 #include "mbplane.h"
@@ -50,6 +51,7 @@ typedef struct {
   ts_pool *pool;
   pthread_mutex_t pool_lock; /* ts_pool_run is not reentrant */
   ts_connset conns;
+  ts_gate gate; /* --listen connections that have not authenticated yet */
   ts_auth auth;
   int modbus_port; /* 0: no Modbus plane */
 } worker;
@@ -414,7 +416,8 @@ static int handshake(session *s, const struct sockaddr *addr, char *err) {
     rc = ts_auth_connect(&s->conn, &g_w.auth, &me, &peer, HANDSHAKE_MS, err);
   } else {
     rc = ts_auth_peer_allowed(&g_w.auth, addr, err);
-    if (rc == 0) rc = ts_auth_accept(&s->conn, &g_w.auth, &me, &peer, HANDSHAKE_MS, err);
+    if (rc == 0) rc = ts_auth_accept(&s->conn, &g_w.auth, &me, &peer, TS_GATE_HANDSHAKE_MS, err);
+    ts_gate_leave(&g_w.gate, s->conn.fd);
   }
   if (rc == 0 && peer.role != TS_ROLE_COORD) rc = ts_error(err, TS_EPROTO, "peer is not a coordinator");
   if (rc == 0) s->peer_caps = peer.caps;
@@ -635,6 +638,7 @@ int main(int argc, char **argv) {
     return 1;
   }
   ts_connset_init(&g_w.conns);
+  ts_gate_init(&g_w.gate, "worker port", ts_warn_msg);
   ts_stop_on_signals(&g_stop);
   signal(SIGPIPE, SIG_IGN);
   int lfd = -1;
@@ -665,12 +669,15 @@ int main(int argc, char **argv) {
       continue;
     }
     accepted *a = malloc(sizeof(*a));
-    if (a == NULL || ts_net_accept(lfd, &a->fd, a->peer, sizeof(a->peer), &a->addr) != 0) {
+    if (a == NULL || ts_gate_accept(&g_w.gate, lfd, &a->fd, a->peer, sizeof(a->peer), &a->addr) != 0) {
       free(a);
       continue;
     }
     pthread_t t;
-    if (ts_connset_add(&g_w.conns, a->fd) != 0 || pthread_create(&t, NULL, serve_thread, a) != 0) {
+    int added = ts_connset_add(&g_w.conns, a->fd) == 0;
+    if (added) ts_gate_enter(&g_w.gate, a->fd, (const struct sockaddr *)&a->addr);
+    if (!added || pthread_create(&t, NULL, serve_thread, a) != 0) {
+      if (added) ts_gate_leave(&g_w.gate, a->fd);
       ts_connset_remove(&g_w.conns, a->fd);
       close(a->fd);
       free(a);
