@@ -199,7 +199,7 @@ static int recv_frame(hs *h, ts_frame *f, char *err) {
   int left = (int)((h->deadline - ts_now()) * 1000.0);
   int rc = left > 0 ? ts_conn_recv(h->c, f, left, err) : TS_ETIMEDOUT;
   if (rc == TS_ETIMEDOUT)
-    return ts_error(err, rc, "%s: the connection start did not finish within %d ms", h->c->peer, h->timeout_ms);
+    return ts_error(err, rc, "the connection start did not finish within %d ms", h->timeout_ms);
   if (rc < 0) return rc;
   hash_frame(h, f->type, f->id, f->payload, f->len);
   return 0;

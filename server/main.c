@@ -362,8 +362,13 @@ static void usage(FILE *f) {
           "                            (owner-only file); without one only loopback\n"
           "                            peers are accepted (protected mode)\n"
           "  --modbus [ADDR:]PORT      serve the monitoring register map over Modbus TCP\n"
-          "                            (off by default; a bare port listens on loopback)\n"
-          "  --modbus-control          accept coil writes (pause) on the Modbus plane\n"
+          "                            (off by default; PORT or :PORT listens on loopback,\n"
+          "                            *:PORT on every interface)\n"
+          "  --modbus-allow CIDR,...   peers besides loopback that may connect to the Modbus\n"
+          "                            plane (others are closed at accept), e.g.\n"
+          "                            10.1.0.0/16,192.168.1.7\n"
+          "  --modbus-control          accept coil writes (pause) on the Modbus plane; needs\n"
+          "                            --modbus-allow (give 127.0.0.1 for loopback only)\n"
           "  --modbus-poll S           read each worker's Modbus registers this often:\n"
           "                            drain, liveness, load, 0..3600 (default 1; 0 = off)\n"
           "  --rebalance-from WHAT     what may resize slices: batches (rates timed on the\n"
@@ -380,6 +385,7 @@ static void usage(FILE *f) {
 typedef struct {
   const char *listen, *workers, *spool, *secret_file, *modbus, *http;
   int jobs, quiet, modbus_control;
+  ts_mb_allow modbus_allow; /* n == 0: loopback only */
   uint64_t max_pixels, max_spool;
   uint32_t max_client_jobs;
   double checkpoint_interval, stop_grace, keep_ended;
@@ -437,6 +443,13 @@ static int duration_opt(const char *opt, const char *s, double *out) {
   return 0;
 }
 
+static int modbus_allow(const char *s, ts_mb_allow *a) {
+  char err[TS_ERR_LEN];
+  if (ts_mb_allow_parse(s, a, err) == 0) return 0;
+  fprintf(stderr, "texsyn-server: %s\n", err);
+  return -1;
+}
+
 static int rebalance_from(const char *s, int *out) {
   if (strcmp(s, "both") == 0) *out = TS_REBALANCE_BATCHES | TS_REBALANCE_MODBUS;
   else if (strcmp(s, "batches") == 0) *out = TS_REBALANCE_BATCHES;
@@ -449,7 +462,7 @@ static int rebalance_from(const char *s, int *out) {
 }
 
 static int parse_opts(int argc, char **argv, server_opts *o) {
-  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_MAX_WORKERS, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_KEEP, O_CKPT, O_GRACE, O_SECRET, O_MODBUS, O_MB_CONTROL, O_MB_POLL, O_REBAL_FROM, O_HTTP, O_QUIET, O_HELP, O_VERSION };
+  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_MAX_WORKERS, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_KEEP, O_CKPT, O_GRACE, O_SECRET, O_MODBUS, O_MB_ALLOW, O_MB_CONTROL, O_MB_POLL, O_REBAL_FROM, O_HTTP, O_QUIET, O_HELP, O_VERSION };
   static const struct option longopts[] = {
       {"listen", required_argument, 0, O_LISTEN}, {"workers", required_argument, 0, O_WORKERS},
       {"spool", required_argument, 0, O_SPOOL}, {"jobs", required_argument, 0, O_JOBS},
@@ -465,7 +478,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
       {"checkpoint-interval", required_argument, 0, O_CKPT}, {"stop-grace", required_argument, 0, O_GRACE},
       {"secret-file", required_argument, 0, O_SECRET},
       {"modbus", required_argument, 0, O_MODBUS}, {"modbus-control", no_argument, 0, O_MB_CONTROL},
-      {"modbus-poll", required_argument, 0, O_MB_POLL}, {"rebalance-from", required_argument, 0, O_REBAL_FROM},
+      {"modbus-allow", required_argument, 0, O_MB_ALLOW}, {"modbus-poll", required_argument, 0, O_MB_POLL}, {"rebalance-from", required_argument, 0, O_REBAL_FROM},
       {"http", required_argument, 0, O_HTTP},
       {"quiet", no_argument, 0, O_QUIET}, {"help", no_argument, 0, O_HELP},
       {"version", no_argument, 0, O_VERSION}, {0, 0, 0, 0}};
@@ -511,6 +524,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
     case O_SECRET: o->secret_file = optarg; break;
     case O_MODBUS: o->modbus = optarg; break;
     case O_MB_CONTROL: o->modbus_control = 1; break;
+    case O_MB_ALLOW: rc = modbus_allow(optarg, &o->modbus_allow); break;
     case O_MB_POLL: rc = num("--modbus-poll", optarg, 0, 3600, &o->co.modbus_poll); break;
     case O_REBAL_FROM: rc = rebalance_from(optarg, &o->co.rebalance_from); break;
     case O_HTTP: o->http = optarg; break;
@@ -525,6 +539,11 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
   }
   if (optind < argc) {
     fprintf(stderr, "texsyn-server: unexpected argument '%s'\n", argv[optind]);
+    return -1;
+  }
+  if (o->modbus_control && o->modbus_allow.n == 0) {
+    fprintf(stderr, "texsyn-server: --modbus-control needs --modbus-allow CIDR,... naming who may write coils "
+                    "(--modbus-allow 127.0.0.1 for loopback only): Modbus TCP carries no password\n");
     return -1;
   }
   return 0;
@@ -548,7 +567,7 @@ static int start_modbus(const server_opts *o, char *at, char *err) {
   int port;
   int rc = ts_mb_listen_addr(o->modbus, addr, sizeof(addr), host, sizeof(host), err);
   if (rc == 0)
-    rc = ts_smon_start(addr, o->modbus_control, g_server.jobs, g_server.cluster, o->co.local_threads, ts_warn_msg,
+    rc = ts_smon_start(addr, o->modbus_control, o->modbus_allow.n > 0 ? &o->modbus_allow : NULL, g_server.jobs, g_server.cluster, o->co.local_threads, ts_warn_msg,
                        &port, err);
   if (rc != 0) return rc;
   snprintf(at, TS_NET_ADDR_LEN, "%s:%d", host, port);

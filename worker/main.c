@@ -538,8 +538,14 @@ static void usage(FILE *f) {
           "                       proves to it (owner-only file); without one a --listen\n"
           "                       worker accepts loopback peers only (protected mode)\n"
           "  --modbus [ADDR:]PORT serve the monitoring register map over Modbus TCP\n"
-          "                       (off by default; a bare port listens on loopback)\n"
-          "  --modbus-control     accept coil writes (drain) on the Modbus plane\n"
+          "                       (off by default; PORT or :PORT listens on loopback,\n"
+          "                       *:PORT on every interface)\n"
+          "  --modbus-allow CIDR,...\n"
+          "                       peers besides loopback that may connect to the Modbus\n"
+          "                       plane (others are closed at accept): the coordinator's\n"
+          "                       address, monitoring hosts\n"
+          "  --modbus-control     accept coil writes (drain) on the Modbus plane; needs\n"
+          "                       --modbus-allow (give 127.0.0.1 for loopback only)\n"
           "  --quiet              no log lines\n"
           "  --version            the texsyn release and wire protocol version\n"
           "\n"
@@ -557,11 +563,11 @@ static int parse_num(const char *opt, const char *s, long lo, long hi, long *out
 }
 
 /* Starts the Modbus plane; at gets HOST:PORT for the ready line. */
-static int start_modbus(const char *arg, int control, char *at, char *err) {
+static int start_modbus(const char *arg, int control, const ts_mb_allow *allow, char *at, char *err) {
   char addr[TS_NET_ADDR_LEN], host[TS_NET_ADDR_LEN - 8];
   int port;
   int rc = ts_mb_listen_addr(arg, addr, sizeof(addr), host, sizeof(host), err);
-  if (rc == 0) rc = ts_wmon_start_modbus(addr, control, ts_warn_msg, &port, err);
+  if (rc == 0) rc = ts_wmon_start_modbus(addr, control, allow->n > 0 ? allow : NULL, ts_warn_msg, &port, err);
   if (rc != 0) return rc;
   g_w.modbus_port = port;
   snprintf(at, TS_NET_ADDR_LEN, "%s:%d", host, port);
@@ -570,17 +576,19 @@ static int start_modbus(const char *arg, int control, char *at, char *err) {
 }
 
 int main(int argc, char **argv) {
-  enum { O_LISTEN = 256, O_JOIN, O_THREADS, O_FRAME, O_MESSAGE, O_NAME, O_SECRET, O_MODBUS, O_MB_CONTROL, O_QUIET, O_HELP, O_VERSION };
+  enum { O_LISTEN = 256, O_JOIN, O_THREADS, O_FRAME, O_MESSAGE, O_NAME, O_SECRET, O_MODBUS, O_MB_ALLOW, O_MB_CONTROL, O_QUIET, O_HELP, O_VERSION };
   static const struct option longopts[] = {
       {"listen", required_argument, 0, O_LISTEN}, {"join", required_argument, 0, O_JOIN},
       {"threads", required_argument, 0, O_THREADS}, {"max-frame", required_argument, 0, O_FRAME},
       {"max-message", required_argument, 0, O_MESSAGE},
       {"name", required_argument, 0, O_NAME}, {"secret-file", required_argument, 0, O_SECRET},
       {"modbus", required_argument, 0, O_MODBUS}, {"modbus-control", no_argument, 0, O_MB_CONTROL},
-      {"quiet", no_argument, 0, O_QUIET},
+      {"modbus-allow", required_argument, 0, O_MB_ALLOW}, {"quiet", no_argument, 0, O_QUIET},
       {"help", no_argument, 0, O_HELP}, {"version", no_argument, 0, O_VERSION}, {0, 0, 0, 0}};
   const char *listen_addr = NULL, *join_addr = NULL, *secret_file = NULL, *modbus_addr = NULL;
   int modbus_control = 0, quiet = 0;
+  ts_mb_allow modbus_allow = {0};
+  char err[TS_ERR_LEN];
   long v;
   g_w.threads = (int)sysconf(_SC_NPROCESSORS_ONLN);
   if (g_w.threads < 1) g_w.threads = 1;
@@ -600,6 +608,12 @@ int main(int argc, char **argv) {
     case O_SECRET: secret_file = optarg; break;
     case O_MODBUS: modbus_addr = optarg; break;
     case O_MB_CONTROL: modbus_control = 1; break;
+    case O_MB_ALLOW:
+      if (ts_mb_allow_parse(optarg, &modbus_allow, err) != 0) {
+        fprintf(stderr, "texsyn-worker: %s\n", err);
+        return 2;
+      }
+      break;
     case O_QUIET: quiet = 1; break;
     case O_HELP: case 'h': usage(stdout); return 0;
     case O_VERSION: ts_version_print("texsyn-worker"); return 0;
@@ -612,8 +626,12 @@ int main(int argc, char **argv) {
     fprintf(stderr, "texsyn-worker: give --listen ADDR:PORT and/or --join HOST:PORT (see --help)\n");
     return 2;
   }
+  if (modbus_control && modbus_allow.n == 0) {
+    fprintf(stderr, "texsyn-worker: --modbus-control needs --modbus-allow CIDR,... naming who may write coils "
+                    "(--modbus-allow 127.0.0.1 for loopback only): Modbus TCP carries no password\n");
+    return 2;
+  }
   ts_log_init("texsyn-worker", stderr, quiet);
-  char err[TS_ERR_LEN];
   if (join_addr != NULL && check_join(join_addr, err) != 0) {
     fprintf(stderr, "texsyn-worker: --join %s: %s\n", join_addr, err);
     return 2;
@@ -633,7 +651,7 @@ int main(int argc, char **argv) {
   pthread_mutex_init(&g_w.pool_lock, NULL);
   ts_wmon_init(g_w.threads, g_w.simd->id);
   char modbus_at[TS_NET_ADDR_LEN] = "";
-  if (modbus_addr != NULL && start_modbus(modbus_addr, modbus_control, modbus_at, err) != 0) {
+  if (modbus_addr != NULL && start_modbus(modbus_addr, modbus_control, &modbus_allow, modbus_at, err) != 0) {
     fprintf(stderr, "texsyn-worker: --modbus %s: %s\n", modbus_addr, err);
     return 1;
   }

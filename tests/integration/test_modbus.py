@@ -54,8 +54,8 @@ def u64(regs, at):
 
 def start(cluster, nworkers, *server_args, control=True):
     for _ in range(nworkers):
-        cluster.worker(1, "--modbus", "0", *(["--modbus-control"] if control else []))
-    cluster.start(0, 1, *SERVER_ARGS, "--modbus", "0", *(["--modbus-control"] if control else []), *server_args)
+        cluster.worker(1, "--modbus", "0", *(["--modbus-control", "--modbus-allow", "127.0.0.1"] if control else []))
+    cluster.start(0, 1, *SERVER_ARGS, "--modbus", "0", *(["--modbus-control", "--modbus-allow", "127.0.0.1"] if control else []), *server_args)
     return cluster
 
 
