@@ -24,6 +24,10 @@
 #define HTTP_REFRESH_S 2     /* the page reloads itself this often */
 #define HTTP_CONNECTIONS 32  /* at once; a page load takes a few */
 #define HTTP_TIMEOUT_S 10    /* an idle connection is closed after this */
+/* From one address at once: slow or silent connections from one peer
+ * cannot take the HTTP_CONNECTIONS slots the others need (a browser opens
+ * about six). */
+#define HTTP_PER_ADDRESS 8
 
 static struct {
   struct MHD_Daemon *daemon;
@@ -226,8 +230,8 @@ int ts_http_start(const char *listen, const ts_auth *auth, ts_jobs *jobs, ts_clu
   g_http.daemon = MHD_start_daemon(
       MHD_USE_POLL_INTERNAL_THREAD | MHD_USE_THREAD_PER_CONNECTION | MHD_USE_ERROR_LOG, 0, NULL, NULL, on_request,
       NULL, MHD_OPTION_EXTERNAL_LOGGER, on_mhd_log, NULL, MHD_OPTION_LISTEN_SOCKET, lfd,
-      MHD_OPTION_CONNECTION_LIMIT, (unsigned)HTTP_CONNECTIONS, MHD_OPTION_CONNECTION_TIMEOUT,
-      (unsigned)HTTP_TIMEOUT_S, MHD_OPTION_END);
+      MHD_OPTION_CONNECTION_LIMIT, (unsigned)HTTP_CONNECTIONS, MHD_OPTION_PER_IP_CONNECTION_LIMIT,
+      (unsigned)HTTP_PER_ADDRESS, MHD_OPTION_CONNECTION_TIMEOUT, (unsigned)HTTP_TIMEOUT_S, MHD_OPTION_END);
   if (g_http.daemon == NULL) {
     close(lfd);
     return ts_error(err, TS_EIO, "libmicrohttpd could not start on %s (see the log above)", listen);
