@@ -404,18 +404,9 @@ static int num(const char *opt, const char *s, double lo, double hi, double *out
 
 /* A byte count with an optional binary suffix: 512, 64K, 100M, 16G, 2T. */
 static int bytes_opt(const char *opt, const char *s, uint64_t *out) {
-  char *end;
-  errno = 0;
-  double v = strtod(s, &end);
-  const char *units = "KMGT";
-  const char *u = *end ? strchr(units, *end) : NULL;
-  if (u != NULL && end[1] == '\0') v *= (double)(1ull << (10 * (u - units + 1)));
-  if (errno != 0 || end == s || (*end != '\0' && (u == NULL || end[1] != '\0')) || !(v >= 0 && v < 9.2e18)) {
-    fprintf(stderr, "texsyn-server: %s %s: need a byte count such as 500M or 20G\n", opt, s);
-    return -1;
-  }
-  *out = (uint64_t)v;
-  return 0;
+  if (ts_parse_bytes(s, out) == 0) return 0;
+  fprintf(stderr, "texsyn-server: %s %s: need a byte count such as 500M or 20G\n", opt, s);
+  return -1;
 }
 
 /* A duration: seconds, or a number with a unit s, m, h or d; more than 0

@@ -180,3 +180,49 @@ def test_full_pool_refuses_workers_before_calibrating_them(texsyn, data, cluster
     assert "the pool is full (2 workers, texsyn-server --max-workers); not dialled while it is" in log, log
     calibrated = [w for w in cluster.workers if "calibrated for" in w.read_log()]
     assert len(calibrated) == 2, [w.read_log() for w in cluster.workers]
+
+
+# ---- what one message may make a worker allocate -------------------------------
+
+def vm_rss_kib(pid):
+    for line in open(f"/proc/{pid}/status"):
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    raise AssertionError("no VmRSS")
+
+
+def test_a_tiny_image_message_cannot_grow_a_worker_past_its_budget(cluster, tmp_path):
+    """A 1x1 query image with a copy map, then a 47-byte 'R' asking for its
+    next level at 8192x8192 (about 640 MiB): refused before anything is
+    allocated, with the budget in the message; the connection stays."""
+    w = cluster.worker(1, "--max-replica-memory", "64M")
+    host, port = w.addr.rsplit(":", 1)
+
+    def frame(t, body, fid):
+        return FRAME_START + t + struct.pack("<II", len(body), fid) + body
+
+    def read_frame(s):
+        head = recv_exact(s, 12)
+        return head[3:4], recv_exact(s, struct.unpack_from("<I", head, 4)[0])
+
+    name = b"fake-coordinator"
+    load = (struct.pack("<IBQ", 1, 1, 0) + struct.pack("<IIBIIBH", 1, 1, 1, 0, 0, 0, 1) + b"\x80"
+            + struct.pack("<II", 1, 1) + b"\x40" + struct.pack("<II", 0, 0))
+    nxt = struct.pack("<IBQ", 1, 2, 0) + struct.pack("<IIIIIB", 0, 8192, 8192, 1, 1, 1) + b"\x40"
+    assert len(frame(b"R", nxt, 3)) == 47
+    with socket.create_connection((host, int(port)), timeout=30) as s:
+        s.sendall(frame(b"I", struct.pack("<BIHB", 1, 7, 0, 0) + struct.pack("<H", len(name)) + name, 0))
+        assert read_frame(s)[0] == b"I"
+        s.sendall(frame(b"R", load, 2))
+        assert read_frame(s) == (b"R", struct.pack("<I", 1))
+        before = vm_rss_kib(w.proc.pid)
+        s.sendall(frame(b"R", nxt, 3))
+        kind, body = read_frame(s)
+        grew = vm_rss_kib(w.proc.pid) - before
+        assert kind == b"E", (kind, body)
+        text = body[6:].decode()
+        assert "8192x8192 query image needs" in text and "--max-replica-memory is 64.0 MiB" in text, text
+        assert grew < 16 * 1024, f"the worker grew by {grew} KiB"
+        s.sendall(frame(b"H", b"", 4))  # still served
+        assert read_frame(s) == (b"H", b"")
+    assert w.alive()
