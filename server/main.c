@@ -345,7 +345,11 @@ static void usage(FILE *f) {
           "  --max-client-jobs N       unfinished jobs one client may have, 0..1000000\n"
           "                            (default 100; 0 = no limit)\n"
           "  --max-spool BYTES         disk the spool's jobs may use, e.g. 500M, 20G\n"
-          "                            (default 16G; 0 = no limit); texsyn delete frees it\n"
+          "                            (default 16G; 0 = no limit); texsyn delete frees it;\n"
+          "                            one job may reserve at most half of it\n"
+          "  --max-input-memory BYTES  what one job's input images may decode to, checked\n"
+          "                            from their headers before decoding (default 4G;\n"
+          "                            0 = no limit)\n"
           "  --keep-ended TIME         remove a finished job (done, failed or canceled) and\n"
           "                            its files this long after it ended: seconds, or with\n"
           "                            a unit: 90s, 30m, 12h, 7d (default: keep forever;\n"
@@ -386,7 +390,7 @@ typedef struct {
   const char *listen, *workers, *spool, *secret_file, *modbus, *http;
   int jobs, quiet, modbus_control;
   ts_mb_allow modbus_allow; /* n == 0: loopback only */
-  uint64_t max_pixels, max_spool;
+  uint64_t max_pixels, max_spool, max_input;
   uint32_t max_client_jobs;
   double checkpoint_interval, stop_grace, keep_ended;
   ts_cluster_opts co;
@@ -453,7 +457,7 @@ static int rebalance_from(const char *s, int *out) {
 }
 
 static int parse_opts(int argc, char **argv, server_opts *o) {
-  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_MAX_WORKERS, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_KEEP, O_CKPT, O_GRACE, O_SECRET, O_MODBUS, O_MB_ALLOW, O_MB_CONTROL, O_MB_POLL, O_REBAL_FROM, O_HTTP, O_QUIET, O_HELP, O_VERSION };
+  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_MAX_WORKERS, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_MAX_INPUT, O_KEEP, O_CKPT, O_GRACE, O_SECRET, O_MODBUS, O_MB_ALLOW, O_MB_CONTROL, O_MB_POLL, O_REBAL_FROM, O_HTTP, O_QUIET, O_HELP, O_VERSION };
   static const struct option longopts[] = {
       {"listen", required_argument, 0, O_LISTEN}, {"workers", required_argument, 0, O_WORKERS},
       {"spool", required_argument, 0, O_SPOOL}, {"jobs", required_argument, 0, O_JOBS},
@@ -465,6 +469,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
       {"max-workers", required_argument, 0, O_MAX_WORKERS},
       {"max-frame", required_argument, 0, O_FRAME}, {"max-pixels", required_argument, 0, O_PIX},
       {"max-client-jobs", required_argument, 0, O_CLIENT_JOBS}, {"max-spool", required_argument, 0, O_SPOOL_MAX},
+      {"max-input-memory", required_argument, 0, O_MAX_INPUT},
       {"keep-ended", required_argument, 0, O_KEEP},
       {"checkpoint-interval", required_argument, 0, O_CKPT}, {"stop-grace", required_argument, 0, O_GRACE},
       {"secret-file", required_argument, 0, O_SECRET},
@@ -480,6 +485,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
   o->max_pixels = TS_IMAGE_DEFAULT_MAX_PIXELS;
   o->max_client_jobs = 100;
   o->max_spool = 16ull << 30;
+  o->max_input = 4ull << 30;
   o->checkpoint_interval = 5;
   o->stop_grace = 10;
   ts_cluster_opts_default(&o->co);
@@ -509,6 +515,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
     case O_PIX: rc = num("--max-pixels", optarg, 1, 1e15, &v); o->max_pixels = (uint64_t)v; break;
     case O_CLIENT_JOBS: rc = num("--max-client-jobs", optarg, 0, 1e6, &v); o->max_client_jobs = (uint32_t)v; break;
     case O_SPOOL_MAX: rc = bytes_opt("--max-spool", optarg, &o->max_spool); break;
+    case O_MAX_INPUT: rc = bytes_opt("--max-input-memory", optarg, &o->max_input); break;
     case O_KEEP: rc = duration_opt("--keep-ended", optarg, &o->keep_ended); break;
     case O_CKPT: rc = num("--checkpoint-interval", optarg, 0, 86400, &o->checkpoint_interval); break;
     case O_GRACE: rc = num("--stop-grace", optarg, 0, 3600, &o->stop_grace); break;
@@ -615,7 +622,7 @@ int main(int argc, char **argv) {
   }
   if (o.workers != NULL && add_workers(g_server.cluster, o.workers) != 0) return 2;
   ts_jobs_opts jo = {o.spool, o.jobs, o.max_pixels, o.max_client_jobs, o.max_spool, g_server.cluster,
-                     o.checkpoint_interval, o.stop_grace, o.keep_ended};
+                     o.checkpoint_interval, o.stop_grace, o.keep_ended, o.max_input};
   if (ts_jobs_create(&g_server.jobs, &jo, err) != 0) {
     fprintf(stderr, "texsyn-server: %s\n", err);
     return 1;
