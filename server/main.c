@@ -16,6 +16,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/socket.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include "auth.h"
@@ -589,6 +590,9 @@ static int start_http(const server_opts *o, char *at, char *err) {
 
 int main(int argc, char **argv) {
   ts_log_init("texsyn-server", stderr, 0); /* --quiet drops the ready line only */
+  /* The spool holds users' images and results: directories 0700, files
+   * 0600, whatever umask the daemon was started with. */
+  umask(077);
   server_opts o;
   if (parse_opts(argc, argv, &o) != 0) return 2;
   ts_connset_init(&g_conns);

@@ -267,12 +267,13 @@ def test_an_input_that_decodes_to_16_gib_is_refused_before_decoding(data, cluste
 
 
 def test_one_job_cannot_reserve_most_of_the_spool(data, cluster, tmp_path):
-    """A job whose reserve is more than half of --max-spool is refused,
-    naming the size that would take it; a smaller one is queued."""
-    cluster.start(0, 1, "--max-spool", "2M")
+    """A job whose reserve (33 MiB) fits --max-spool but is more than half
+    of it is refused, naming the size that would take it; a smaller one is
+    queued."""
+    cluster.start(0, 1, "--max-spool", "48M")
     code, _, err = submit(cluster, "dave", data, tmp_path / "d.png", "--size", "1024x1024", "--levels", "3")
     assert code != 0
-    assert "this job alone needs about" in err and "more than half of --max-spool (2.0 MiB)" in err, err
+    assert "this job alone needs about" in err and "more than half of --max-spool (48.0 MiB)" in err, err
     code, job, err = submit(cluster, "dave", data, tmp_path / "d.png", *SMALL)
     assert code == 0, err
     as_client(cluster, "dave", "watch", job, "--quiet")
