@@ -460,8 +460,11 @@ static int handle(session *s, const ts_frame *f, char *err) {
   case TS_MSG_PASS: return on_pass(s, f, err);
   case TS_MSG_HEARTBEAT: {
     if (f->len != 0) return ts_error(err, TS_EPROTO, "malformed 'H' message: payload must be empty");
+    /* The drain coil's state, on the authenticated link: the coordinator
+     * acts on a drain only when this confirms what Modbus says. */
     ts_wr w;
     ts_wr_init(&w);
+    ts_wr_u8(&w, ts_wmon_draining() ? TS_HEARTBEAT_DRAINING : 0);
     return send_reply(s, TS_MSG_HEARTBEAT, f->id, &w);
   }
   default:
