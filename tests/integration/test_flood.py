@@ -228,6 +228,7 @@ def cpu_under_silent_sockets(d, n):
     return used, wait, p
 
 
+@pytest.mark.sanitize
 def test_out_of_descriptors_backs_off_instead_of_spinning(tmp_path):
     # The figures: ulimit -n 256 and 300 silent sockets.
     used, wait, p = cpu_under_silent_sockets(limited_server(tmp_path, "n256", 256), 300)
@@ -240,6 +241,7 @@ def test_out_of_descriptors_backs_off_instead_of_spinning(tmp_path):
     d.wait_log(r"job port: accept failed \d+ times for want of descriptors")
 
 
+@pytest.mark.sanitize
 def test_a_trickled_connection_start_ends_at_one_deadline(tmp_path):
     d = Daemon([BUILD / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", tmp_path / "spool"],
                tmp_path / "server.log")
@@ -264,6 +266,7 @@ def test_a_trickled_connection_start_ends_at_one_deadline(tmp_path):
     assert "the connection start did not finish within 2000 ms" in d.read_log()
 
 
+@pytest.mark.sanitize
 def test_an_unauthenticated_peers_text_is_escaped_in_the_log(tmp_path):
     d = Daemon([BUILD / "texsyn-server", "--listen", "127.0.0.1:0", "--spool", tmp_path / "spool"],
                tmp_path / "server.log")

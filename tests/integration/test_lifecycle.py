@@ -174,6 +174,7 @@ def test_a_job_the_coordinator_died_in_twice_is_set_aside_as_failed(texsyn, data
     assert not (cluster.tmp / "spool" / "jobs" / other / "attempts").exists()  # a run that ended
 
 
+@pytest.mark.sanitize
 def test_the_spool_is_owner_only(texsyn, data, cluster, tmp_path):
     """Directories 0700, files 0600, whatever umask the coordinator was
     started with (the test's is usually 022)."""

@@ -191,6 +191,7 @@ def vm_rss_kib(pid):
     raise AssertionError("no VmRSS")
 
 
+@pytest.mark.sanitize
 def test_a_tiny_image_message_cannot_grow_a_worker_past_its_budget(cluster, tmp_path):
     """A 1x1 query image with a copy map, then a 47-byte 'R' asking for its
     next level at 8192x8192 (about 640 MiB): refused before anything is
@@ -247,6 +248,7 @@ def tiff_header(w, h, channels, bits, sample_format):
     return b"II*\x00" + struct.pack("<IH", 8, len(tags)) + entries + b"\x00" * 4 + extra
 
 
+@pytest.mark.sanitize
 def test_an_input_that_decodes_to_16_gib_is_refused_before_decoding(data, cluster, tmp_path):
     """16384x16384 with 16 float channels: within --max-pixels, 16 GiB
     decoded. Refused from its header, with its size and the option; the
