@@ -2,6 +2,7 @@
 #include "log.h"
 
 #include <stdarg.h>
+#include <pthread.h>
 #include <stddef.h>
 #include <time.h>
 
@@ -56,3 +57,27 @@ void ts_warn(const char *fmt, ...) {
 }
 
 void ts_warn_msg(const char *msg) { ts_warn("%s", msg); }
+
+void ts_log_limited(ts_log_limit *l, const char *fmt, ...) {
+  struct timespec now;
+  clock_gettime(CLOCK_MONOTONIC, &now);
+  double t = (double)now.tv_sec + now.tv_nsec * 1e-9;
+  pthread_mutex_lock(&l->lock);
+  unsigned long long held = l->held;
+  int write = l->last == 0 || t - l->last >= TS_LOG_LIMIT_SECONDS;
+  if (write) {
+    l->last = t;
+    l->held = 0;
+  } else {
+    l->held++;
+  }
+  pthread_mutex_unlock(&l->lock);
+  if (!write) return;
+  char msg[1000];
+  va_list ap;
+  va_start(ap, fmt);
+  vsnprintf(msg, sizeof(msg), fmt, ap);
+  va_end(ap);
+  if (held > 0) ts_warn("%s (and %llu more like it since the last such line)", msg, held);
+  else ts_warn("%s", msg);
+}

@@ -275,7 +275,9 @@ static void *connection_thread(void *arg) {
  * mode, wrong or missing secret) or one that broke the protocol is told
  * why in an 'E' and logged. */
 static void end_start(ts_conn *c, int rc, const char *err) {
+  static ts_log_limit timeouts = TS_LOG_LIMIT_INIT; /* slow or silent strangers, by the thousand */
   if (rc == TS_EAUTH) ts_log("refused %s: %s", c->peer, err);
+  else if (rc == TS_ETIMEDOUT) ts_log_limited(&timeouts, "closed %s: %s", c->peer, err);
   else if (rc != TS_ECONN) ts_log("protocol error from %s: %s; closing", c->peer, err);
   if (rc != TS_ECONN) reply_error(c, 0, rc, err);
   ts_connset_remove(&g_conns, c->fd);

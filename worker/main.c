@@ -517,6 +517,17 @@ static int serve(int fd, const char *peer, const struct sockaddr *addr) {
   }
   int started = rc;
   if (rc == 0) ts_log("coordinator %s connected", peer);
+  /* A start that failed on our port is no news unless it says something:
+   * a peer that left (or was closed to make room, gate.h) is not logged,
+   * and slow or silent ones only a line per TS_LOG_LIMIT_SECONDS. */
+  static ts_log_limit timeouts = TS_LOG_LIMIT_INIT;
+  if (addr != NULL && (rc == TS_ECONN || rc == TS_ETIMEDOUT)) {
+    if (rc == TS_ETIMEDOUT) ts_log_limited(&timeouts, "closed %s: %s", peer, err);
+    ts_connset_remove(&g_w.conns, fd);
+    ts_conn_close(&s->conn);
+    free(s);
+    return rc;
+  }
   while (rc >= 0 && !atomic_load(&g_stop)) {
     ts_frame f;
     rc = ts_conn_recv(&s->conn, &f, 1000, err);

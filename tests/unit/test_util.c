@@ -337,6 +337,20 @@ static void log_escapes_control_bytes(void **state) {
   fclose(f);
 }
 
+static void log_limited_writes_one_line_and_holds_the_rest(void **state) {
+  (void)state;
+  FILE *f = tmpfile();
+  assert_non_null(f);
+  ts_log_init("t", f, 1); /* written even when quiet */
+  ts_log_limit l = TS_LOG_LIMIT_INIT;
+  for (int i = 0; i < 5; i++) ts_log_limited(&l, "closed peer %d", i);
+  char *text = log_text(f);
+  assert_non_null(strstr(text, "Z closed peer 0\n"));
+  assert_null(strstr(text, "peer 1"));
+  assert_int_equal(l.held, 4);
+  fclose(f);
+}
+
 static void parse_bytes_takes_binary_suffixes(void **state) {
   (void)state;
   uint64_t v = 1;
@@ -418,6 +432,7 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(log_quiet_drops_events_not_warnings),
     cmocka_unit_test(log_escapes_control_bytes),
     cmocka_unit_test(parse_bytes_takes_binary_suffixes),
+    cmocka_unit_test(log_limited_writes_one_line_and_holds_the_rest),
 };
 
 TS_TEST_MAIN(tests)
