@@ -57,7 +57,8 @@ int ts_gate_accept(ts_gate *g, int lfd, int *fd_out, char *peer, size_t peercap,
  * the oldest pending one from the same address, or from anywhere (its
  * thread then sees the connection closed). */
 void ts_gate_enter(ts_gate *g, int fd, const struct sockaddr *addr);
-/* The handshake on fd ended, either way: call before fd is closed. */
+/* fd authenticated, or is about to be closed (a refused peer stays
+ * counted while it lingers for its 'E'): call before fd is closed. */
 void ts_gate_leave(ts_gate *g, int fd);
 
 /* The key connections are counted under: IPv4 (also mapped into IPv6)

@@ -281,8 +281,11 @@ static void end_start(ts_conn *c, int rc, const char *err) {
   else if (rc != TS_ECONN) ts_log("protocol error from %s: %s; closing", c->peer, err);
   if (rc != TS_ECONN) reply_error(c, 0, rc, err);
   ts_connset_remove(&g_conns, c->fd);
-  if (rc == TS_EAUTH) ts_conn_close_after_error(c, REFUSE_LINGER_MS);
-  else ts_conn_close(c);
+  /* Counted as pending while it lingers: refused strangers cannot pile
+   * up threads outside the gate's limits. */
+  if (rc == TS_EAUTH) ts_conn_linger(c, REFUSE_LINGER_MS);
+  ts_gate_leave(&g_gate, c->fd);
+  ts_conn_close(c);
 }
 
 /* Takes the connection: closes it, or hands it to the cluster. */
@@ -294,11 +297,11 @@ static void serve_connection(const accepted *ap) {
   char err[TS_ERR_LEN];
   int rc = ts_auth_peer_allowed(&g_server.auth, (const struct sockaddr *)&a.addr, err);
   if (rc == 0) rc = ts_auth_accept(&c, &g_server.auth, &kSelf, &ident, TS_GATE_HANDSHAKE_MS, err);
-  ts_gate_leave(&g_gate, a.fd);
   if (rc < 0) {
     end_start(&c, rc, err);
     return;
   }
+  ts_gate_leave(&g_gate, a.fd);
   if (ident.role == TS_ROLE_WORKER) {
     ts_log("worker joining from %s (%s)", a.peer, ident.name);
     /* The cluster owns the connection from here; it stays in the set while

@@ -486,7 +486,7 @@ static int handshake(session *s, const struct sockaddr *addr, char *err) {
   } else {
     rc = ts_auth_peer_allowed(&g_w.auth, addr, err);
     if (rc == 0) rc = ts_auth_accept(&s->conn, &g_w.auth, &me, &peer, TS_GATE_HANDSHAKE_MS, err);
-    ts_gate_leave(&g_w.gate, s->conn.fd);
+    if (rc == 0) ts_gate_leave(&g_w.gate, s->conn.fd); /* else when it is closed */
   }
   if (rc == 0 && peer.role != TS_ROLE_COORD) rc = ts_error(err, TS_EPROTO, "peer is not a coordinator");
   if (rc == 0) s->peer_caps = peer.caps;
@@ -511,7 +511,9 @@ static int serve(int fd, const char *peer, const struct sockaddr *addr) {
     else ts_warn("join %s refused: %s", peer, err);
     if (addr != NULL) send_error(s, 0, rc, err);
     ts_connset_remove(&g_w.conns, fd);
-    ts_conn_close_after_error(&s->conn, REFUSE_LINGER_MS);
+    ts_conn_linger(&s->conn, REFUSE_LINGER_MS); /* counted as pending meanwhile */
+    ts_gate_leave(&g_w.gate, fd);
+    ts_conn_close(&s->conn);
     free(s);
     return rc;
   }
@@ -524,6 +526,7 @@ static int serve(int fd, const char *peer, const struct sockaddr *addr) {
   if (addr != NULL && (rc == TS_ECONN || rc == TS_ETIMEDOUT)) {
     if (rc == TS_ETIMEDOUT) ts_log_limited(&timeouts, "closed %s: %s", peer, err);
     ts_connset_remove(&g_w.conns, fd);
+    ts_gate_leave(&g_w.gate, fd);
     ts_conn_close(&s->conn);
     free(s);
     return rc;
@@ -544,6 +547,7 @@ static int serve(int fd, const char *peer, const struct sockaddr *addr) {
     send_error(s, 0, rc, err);
   }
   ts_connset_remove(&g_w.conns, fd);
+  ts_gate_leave(&g_w.gate, fd); /* a start that broke the protocol */
   unload_all(s);
   close_images(s);
   ts_conn_close(&s->conn);

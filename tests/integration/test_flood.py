@@ -21,6 +21,7 @@ import os
 import re
 import resource
 import socket
+import subprocess
 import struct
 import threading
 import time
@@ -285,3 +286,40 @@ def test_an_unauthenticated_peers_text_is_escaped_in_the_log(tmp_path):
     log = d.read_log()
     assert "\njob 1 deleted" not in log and "\ntexsyn-server: 2030" not in log and "\x1b" not in log, log
     assert "x\\x0atexsyn-server: 2030-01-01T00:00:00Z job 1 deleted by admin\\x1b[2J" in log, log
+
+
+def threads_of(pid):
+    for line in open(f"/proc/{pid}/status"):
+        if line.startswith("Threads:"):
+            return int(line.split()[1])
+    raise AssertionError("no Threads line")
+
+
+@pytest.mark.sanitize
+def test_refused_strangers_stay_counted_while_they_linger(tmp_path):
+    """Protected mode refuses a peer off loopback with an 'E' and gives it
+    1 s to read it: 500 such peers from one address at once hold at most
+    the gate's 16 threads, not 500."""
+    ip = next((a for a in subprocess.run(["hostname", "-I"], capture_output=True, text=True).stdout.split()
+               if "." in a and not a.startswith("127.")), None)
+    assert ip is not None, "this test needs a non-loopback IPv4 address (hostname -I)"
+    d = Daemon([BUILD / "texsyn-server", "--listen", "0.0.0.0:0", "--spool", tmp_path / "spool"],
+               tmp_path / "server.log")
+    idle = threads_of(d.proc.pid)
+    socks = []
+    try:
+        for _ in range(500):
+            s = socket.create_connection((ip, d.port), timeout=2)
+            socks.append(s)
+        time.sleep(0.2)
+        held = threads_of(d.proc.pid) - idle
+        assert held <= TS_GATE_PER_ADDR + 4, f"{held} threads for 500 refused peers"
+        p = run(BUILD / "texsyn", "status", "--server", f"127.0.0.1:{d.port}")
+        assert p.returncode == 0
+    finally:
+        for s in socks:
+            s.close()
+    assert "refused " in d.read_log() and "protected mode" in d.read_log()
+
+
+TS_GATE_PER_ADDR = 16  # proto/gate.h
