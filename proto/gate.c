@@ -56,19 +56,18 @@ static void note(ts_gate *g) {
   g->logged_at = now;
 }
 
-/* Shuts down the oldest pending connection with this key (NULL: any);
- * 1 if there was one (lock held). Its thread closes it. */
-static int evict_oldest(ts_gate *g, const uint8_t *key) {
+/* Shuts down the oldest pending connection with this key (NULL: any),
+ * if there is one (lock held). Its thread closes it. */
+static void evict_oldest(ts_gate *g, const uint8_t *key) {
   int oldest = -1;
   for (int i = 0; i < TS_GATE_TOTAL; i++)
     if (g->e[i].fd >= 0 && (key == NULL || memcmp(g->e[i].key, key, 16) == 0) &&
         (oldest < 0 || g->e[i].seq < g->e[oldest].seq))
       oldest = i;
-  if (oldest < 0) return 0;
+  if (oldest < 0) return;
   shutdown(g->e[oldest].fd, SHUT_RDWR);
   g->e[oldest].fd = -1;
   g->evicted++;
-  return 1;
 }
 
 static int out_of_resources(int e) { return e == EMFILE || e == ENFILE || e == ENOBUFS || e == ENOMEM; }
