@@ -488,7 +488,8 @@ class Soak:
         where = (["--listen", self.slot_addr[slot] or f"{host}:0"] if mode == "listen"
                  else ["--join", self.join_addr(slot)])
         args = self.in_slot(slot, self.build / "texsyn-worker", *where, "--threads", 1, "--name", name,
-                            "--secret-file", self.secret, "--modbus", f"{host}:0")
+                            "--secret-file", self.secret, "--modbus", f"{host}:0",
+                            "--modbus-allow", self.join_addr(slot).rsplit(":", 1)[0])
         want = r"listening on (\S+)" if mode == "listen" else r"modbus on (\S+)"
         p, got, modbus = start_daemon(args, log_path, want)
         if p is None:

@@ -7,6 +7,7 @@
 #ifndef TS_LOG_H
 #define TS_LOG_H
 
+#include <pthread.h>
 #include <stdio.h>
 
 /* Sets the program name, the stream and whether ts_log lines are dropped
@@ -23,5 +24,19 @@ void ts_warn(const char *fmt, ...) __attribute__((format(printf, 1, 2)));
 
 /* ts_warn("%s", msg), for the log callbacks of the Modbus planes. */
 void ts_warn_msg(const char *msg);
+
+/* Lines a stranger can cause by the thousand (connections refused at a
+ * limit, starts that time out): one limiter writes at most one line per
+ * TS_LOG_LIMIT_SECONDS, and counts the others into the next line it
+ * writes ("... (and 1984 more like it since the last such line)"). Written
+ * even when quiet. */
+#define TS_LOG_LIMIT_SECONDS 10.0
+typedef struct {
+  pthread_mutex_t lock;
+  double last;
+  unsigned long long held;
+} ts_log_limit;
+#define TS_LOG_LIMIT_INIT {PTHREAD_MUTEX_INITIALIZER, 0, 0}
+void ts_log_limited(ts_log_limit *l, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 
 #endif

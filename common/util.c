@@ -118,6 +118,19 @@ int ts_parse_u64(const char *text, uint64_t *out) {
   return 0;
 }
 
+int ts_parse_bytes(const char *text, uint64_t *out) {
+  char *end;
+  errno = 0;
+  double v = strtod(text, &end);
+  const char *units = "KMGT";
+  const char *u = *end ? strchr(units, *end) : NULL;
+  if (u != NULL && end[1] == '\0') v *= (double)(1ull << (10 * (u - units + 1)));
+  if (errno != 0 || end == text || (*end != '\0' && (u == NULL || end[1] != '\0')) || !(v >= 0 && v < 9.2e18))
+    return TS_EINVAL;
+  *out = (uint64_t)v;
+  return 0;
+}
+
 int ts_parse_double(const char *text, double *out) {
   char *end;
   errno = 0;

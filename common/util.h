@@ -69,6 +69,9 @@ int ts_parse_long(const char *text, long lo, long hi, long *out);
 int ts_parse_int(const char *text, int lo, int hi, int *out);
 /* A whole number in 0..2^64-1; a minus sign is refused, not wrapped. */
 int ts_parse_u64(const char *text, uint64_t *out);
+/* A byte count with an optional binary suffix K, M, G or T (512, 64K,
+ * 1.5G), below 2^63. */
+int ts_parse_bytes(const char *text, uint64_t *out);
 /* A finite number (strtod syntax: 2, 0.5, 1e-3); values too large or too
  * small for a double are refused. */
 int ts_parse_double(const char *text, double *out);

@@ -312,7 +312,8 @@ typedef struct {
   const ts_auth *a;
   ts_auth key;
   ts_principal *who;
-  int timeout_ms;
+  int timeout_ms;   /* for the whole start, not each read: a slow sender */
+  double deadline;  /* cannot stretch it frame by frame */
   crypto_generichash_state th;
 } hs;
 
@@ -329,7 +330,10 @@ static const char *role_noun(uint8_t role) {
 
 /* The next frame, into the transcript. */
 static int recv_frame(hs *h, ts_frame *f, char *err) {
-  int rc = ts_conn_recv(h->c, f, h->timeout_ms, err);
+  int left = (int)((h->deadline - ts_now()) * 1000.0);
+  int rc = left > 0 ? ts_conn_recv(h->c, f, left, err) : TS_ETIMEDOUT;
+  if (rc == TS_ETIMEDOUT)
+    return ts_error(err, rc, "the connection start did not finish within %d ms", h->timeout_ms);
   if (rc < 0) return rc;
   hash_frame(h, f->type, f->id, f->payload, f->len);
   return 0;
@@ -585,6 +589,7 @@ static int handshake(handshake_steps *steps, int connector, ts_conn *c, const ts
   h->c = c;
   h->a = a;
   h->timeout_ms = timeout_ms;
+  h->deadline = ts_now() + timeout_ms / 1000.0;
   crypto_generichash_init(&h->th, NULL, 0, TS_AUTH_TRANSCRIPT);
   int rc = steps(h, me, peer, err);
   c->rd.max_payload = max;

@@ -122,6 +122,9 @@ int ts_auth_is_loopback(const struct sockaddr *sa);
  * on lfd beyond loopback, where protected mode will refuse remote peers. */
 int ts_auth_listen_warning(const ts_auth *a, int lfd, char *msg);
 
+/* timeout_ms bounds a whole connection start, not each read: a peer that
+ * trickles its frames cannot stretch it (TS_ETIMEDOUT). */
+
 /* Connection start on the accepting side: reads the peer's 'I' into *peer,
  * refuses a peer whose secret setting differs from ours, answers with our
  * 'I' (me; TS_CAP_AUTH is added when we have a secret), then, with a

@@ -15,6 +15,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <sys/socket.h>
 
 #define TS_MB_MAX_INPUT 256 /* input registers a map may have */
 #define TS_MB_MAX_COILS 16
@@ -28,6 +29,25 @@ typedef void ts_mb_refresh_fn(void *ctx, uint16_t *input, uint8_t *coils);
  * negative TS_E* code: the client then gets a Modbus exception. */
 typedef int ts_mb_write_fn(void *ctx, int addr, int value);
 
+/* Who may connect: loopback peers always, others only inside one of
+ * these networks (--modbus-allow); a peer outside is closed at accept. */
+#define TS_MB_ALLOW_MAX 32
+typedef struct {
+  int family; /* AF_INET or AF_INET6 */
+  int prefix; /* bits */
+  uint8_t addr[16];
+} ts_mb_net;
+typedef struct {
+  int n;
+  ts_mb_net net[TS_MB_ALLOW_MAX];
+} ts_mb_allow;
+
+/* Parses "CIDR,CIDR,..." (10.0.0.0/8, 192.168.1.7, fd00::/8; an address
+ * without a prefix is one host). */
+int ts_mb_allow_parse(const char *list, ts_mb_allow *a, char *err);
+/* 1 if a peer at sa may connect: loopback, or in a (NULL: loopback only). */
+int ts_mb_allowed(const ts_mb_allow *a, const struct sockaddr *sa);
+
 typedef struct {
   const char *listen;   /* ADDR:PORT; port 0 picks one */
   int control;          /* accept coil writes (else: exception 01) */
@@ -36,6 +56,7 @@ typedef struct {
   ts_mb_write_fn *write; /* may be NULL when ncoils is 0 */
   void *ctx;
   void (*log)(const char *msg); /* refused writes, dropped clients (may be NULL) */
+  const ts_mb_allow *allow;     /* NULL: loopback peers only */
 } ts_mbplane_opts;
 
 /* The request side of a plane, without its thread or sockets: a libmodbus
@@ -46,8 +67,9 @@ typedef struct ts_mbserver ts_mbserver;
 
 /* A server for o's map, callbacks and control switch (o->listen unused). */
 int ts_mbserver_new(ts_mbserver **out, const ts_mbplane_opts *o, char *err);
-/* Reads one request from fd (the rest of a request once started may take
- * up to a second) and answers it; peer names the client in log lines.
+/* Reads one request from fd and answers it; peer names the client in log
+ * lines. The request must be there whole (libmodbus waits a millisecond at
+ * most for the rest): the plane peeks first.
  * Returns the request's length, 0 for a request ignored, or -1 when the
  * connection should be closed (why is logged, unless the client left). */
 int ts_mbserver_serve(ts_mbserver *s, int fd, const char *peer);
@@ -58,7 +80,9 @@ int ts_mbplane_start(ts_mbplane **out, const ts_mbplane_opts *o, int *port, char
 /* Stops the thread and closes every socket. */
 void ts_mbplane_stop(ts_mbplane *m);
 
-/* The address a --modbus argument means: a bare PORT is loopback. Writes
+/* The address a --modbus argument means: PORT and :PORT are loopback,
+ * *:PORT every interface (so is 0.0.0.0:PORT or [::]:PORT; whoever
+ * connects there must still be on loopback or in --modbus-allow). Writes
  * HOST:PORT to out and the host alone to host (for display). */
 int ts_mb_listen_addr(const char *arg, char *out, size_t cap, char *host, size_t hostcap, char *err);
 

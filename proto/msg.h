@@ -45,6 +45,9 @@ enum {
   TS_MSG_PASS = 'T',
   TS_MSG_PIECE = TS_FRAME_PIECE, /* transport: a piece of a larger message (pieces.h) */
 };
+/* A worker's answer to 'H': one byte of flags (an empty answer, from a
+ * client's peer, means none). */
+enum { TS_HEARTBEAT_DRAINING = 1 };
 
 /* ---- I: identify -------------------------------------------------------- */
 

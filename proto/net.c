@@ -278,7 +278,7 @@ void ts_conn_close(ts_conn *c) {
   }
 }
 
-void ts_conn_close_after_error(ts_conn *c, int timeout_ms) {
+void ts_conn_linger(ts_conn *c, int timeout_ms) {
   shutdown(c->fd, SHUT_WR);
   double deadline = ts_now() + timeout_ms / 1000.0;
   for (;;) {
@@ -289,7 +289,6 @@ void ts_conn_close_after_error(ts_conn *c, int timeout_ms) {
     ssize_t k = recv(c->fd, buf, sizeof(buf), MSG_DONTWAIT);
     if (k == 0 || (k < 0 && errno != EAGAIN && errno != EINTR)) break;
   }
-  ts_conn_close(c);
 }
 
 int ts_conn_next(ts_conn *c, ts_frame *f, char *err) {

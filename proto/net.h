@@ -58,11 +58,12 @@ int ts_conn_send(ts_conn *c, uint8_t type, uint32_t id, const void *payload, siz
 int ts_conn_wrap(ts_conn *c, ts_wr *out, const void *plain, size_t n, char *err);
 /* Closes the socket and frees the reader. */
 void ts_conn_close(ts_conn *c);
-/* Closes after a final 'E' to a refused peer: half-closes, then discards
- * what the peer still sends until it closes (at most timeout_ms). Closing
- * with its bytes unread would reset the connection, and a reset may
- * destroy the 'E' before the peer reads it. */
-void ts_conn_close_after_error(ts_conn *c, int timeout_ms);
+/* After a final 'E' to a refused peer, before closing: half-closes, then
+ * discards what the peer still sends until it closes (at most
+ * timeout_ms). Closing with its bytes unread would reset the connection,
+ * and a reset may destroy the 'E' before the peer reads it. The caller
+ * closes (gate.h: the connection is counted until then). */
+void ts_conn_linger(ts_conn *c, int timeout_ms);
 /* Next frame, waiting at most timeout_ms (-1 = forever): 1 and *f, or
  * TS_ETIMEDOUT, TS_ECONN (peer closed or reset), TS_EPROTO / TS_ETOOBIG
  * (bad stream: close it). *f stays valid until the next call. */

@@ -24,6 +24,7 @@
 #include "cluster.h"
 #include "connset.h"
 #include "error.h"
+#include "gate.h"
 #include "http.h"
 #include "http_page.h"
 #include "image.h"
@@ -37,7 +38,6 @@
 #include "stop.h"
 #include "util.h"
 
-#define IDENT_TIMEOUT_MS 10000
 /* How long a refused peer gets to read its 'E' before we close. */
 #define REFUSE_LINGER_MS 1000
 
@@ -68,6 +68,7 @@ static atomic_int g_stop;
 _Static_assert(ATOMIC_INT_LOCK_FREE == 2, "the stop flag must be lock-free to be set in a signal handler");
 
 static ts_connset g_conns;
+static ts_gate g_gate; /* connections that have not authenticated yet */
 
 /* ---- replies ------------------------------------------------------------ */
 
@@ -365,12 +366,17 @@ static void *connection_thread(void *arg) {
  * mode, wrong or missing secret) or one that broke the protocol is told
  * why in an 'E' and logged. */
 static void end_start(ts_conn *c, int rc, const char *err) {
+  static ts_log_limit timeouts = TS_LOG_LIMIT_INIT; /* slow or silent strangers, by the thousand */
   if (rc == TS_EAUTH) ts_log("refused %s: %s", c->peer, err);
+  else if (rc == TS_ETIMEDOUT) ts_log_limited(&timeouts, "closed %s: %s", c->peer, err);
   else if (rc != TS_ECONN) ts_log("protocol error from %s: %s; closing", c->peer, err);
   if (rc != TS_ECONN) reply_error(c, 0, rc, err);
   ts_connset_remove(&g_conns, c->fd);
-  if (rc == TS_EAUTH) ts_conn_close_after_error(c, REFUSE_LINGER_MS);
-  else ts_conn_close(c);
+  /* Counted as pending while it lingers: refused strangers cannot pile
+   * up threads outside the gate's limits. */
+  if (rc == TS_EAUTH) ts_conn_linger(c, REFUSE_LINGER_MS);
+  ts_gate_leave(&g_gate, c->fd);
+  ts_conn_close(c);
 }
 
 /* Takes the connection: closes it, or hands it to the cluster. */
@@ -382,11 +388,12 @@ static void serve_connection(const accepted *ap) {
   ts_principal key;
   char err[TS_ERR_LEN];
   int rc = ts_auth_peer_allowed(&g_server.auth, (const struct sockaddr *)&a.addr, err);
-  if (rc == 0) rc = ts_auth_accept(&c, &g_server.auth, &kSelf, &ident, &key, IDENT_TIMEOUT_MS, err);
+  if (rc == 0) rc = ts_auth_accept(&c, &g_server.auth, &kSelf, &ident, &key, TS_GATE_HANDSHAKE_MS, err);
   if (rc < 0) {
     end_start(&c, rc, err);
     return;
   }
+  ts_gate_leave(&g_gate, a.fd);
   if (ident.role == TS_ROLE_WORKER) {
     ts_log("worker joining from %s (%s)%s%s%s%s", a.peer, ident.name, key.kind ? ", " : "",
            key.kind ? ts_auth_kind_name(key.kind) : "", key.kind ? " key " : "", key.name);
@@ -437,7 +444,11 @@ static void usage(FILE *f) {
           "  --max-client-jobs N       unfinished jobs one client may have, 0..1000000\n"
           "                            (default 100; 0 = no limit)\n"
           "  --max-spool BYTES         disk the spool's jobs may use, e.g. 500M, 20G\n"
-          "                            (default 16G; 0 = no limit); texsyn delete frees it\n"
+          "                            (default 16G; 0 = no limit); texsyn delete frees it;\n"
+          "                            one job may reserve at most half of it\n"
+          "  --max-input-memory BYTES  what one job's input images may decode to, checked\n"
+          "                            from their headers before decoding (default 4G;\n"
+          "                            0 = no limit)\n"
           "  --keep-ended TIME         remove a finished job (done, failed or canceled) and\n"
           "                            its files this long after it ended: seconds, or with\n"
           "                            a unit: 90s, 30m, 12h, 7d (default: keep forever;\n"
@@ -463,8 +474,13 @@ static void usage(FILE *f) {
           "                            NAME defaults to PATH's file name less .key) to\n"
           "                            PATH, mode 0600, never over a file; then exit\n"
           "  --modbus [ADDR:]PORT      serve the monitoring register map over Modbus TCP\n"
-          "                            (off by default; a bare port listens on loopback)\n"
-          "  --modbus-control          accept coil writes (pause) on the Modbus plane\n"
+          "                            (off by default; PORT or :PORT listens on loopback,\n"
+          "                            *:PORT on every interface)\n"
+          "  --modbus-allow CIDR,...   peers besides loopback that may connect to the Modbus\n"
+          "                            plane (others are closed at accept), e.g.\n"
+          "                            10.1.0.0/16,192.168.1.7\n"
+          "  --modbus-control          accept coil writes (pause) on the Modbus plane; needs\n"
+          "                            --modbus-allow (give 127.0.0.1 for loopback only)\n"
           "  --modbus-poll S           read each worker's Modbus registers this often:\n"
           "                            drain, liveness, load, 0..3600 (default 1; 0 = off)\n"
           "  --rebalance-from WHAT     what may resize slices: batches (rates timed on the\n"
@@ -484,7 +500,8 @@ static void usage(FILE *f) {
 typedef struct {
   const char *listen, *workers, *spool, *secret_file, *keys, *gen_secret, *modbus, *http, *http_cert, *http_key;
   int jobs, quiet, modbus_control;
-  uint64_t max_pixels, max_spool;
+  ts_mb_allow modbus_allow; /* n == 0: loopback only */
+  uint64_t max_pixels, max_spool, max_input;
   uint32_t max_client_jobs;
   double checkpoint_interval, stop_grace, keep_ended;
   ts_cluster_opts co;
@@ -502,18 +519,9 @@ static int num(const char *opt, const char *s, double lo, double hi, double *out
 
 /* A byte count with an optional binary suffix: 512, 64K, 100M, 16G, 2T. */
 static int bytes_opt(const char *opt, const char *s, uint64_t *out) {
-  char *end;
-  errno = 0;
-  double v = strtod(s, &end);
-  const char *units = "KMGT";
-  const char *u = *end ? strchr(units, *end) : NULL;
-  if (u != NULL && end[1] == '\0') v *= (double)(1ull << (10 * (u - units + 1)));
-  if (errno != 0 || end == s || (*end != '\0' && (u == NULL || end[1] != '\0')) || !(v >= 0 && v < 9.2e18)) {
-    fprintf(stderr, "texsyn-server: %s %s: need a byte count such as 500M or 20G\n", opt, s);
-    return -1;
-  }
-  *out = (uint64_t)v;
-  return 0;
+  if (ts_parse_bytes(s, out) == 0) return 0;
+  fprintf(stderr, "texsyn-server: %s %s: need a byte count such as 500M or 20G\n", opt, s);
+  return -1;
 }
 
 /* A duration: seconds, or a number with a unit s, m, h or d; more than 0
@@ -541,6 +549,13 @@ static int duration_opt(const char *opt, const char *s, double *out) {
   return 0;
 }
 
+static int modbus_allow(const char *s, ts_mb_allow *a) {
+  char err[TS_ERR_LEN];
+  if (ts_mb_allow_parse(s, a, err) == 0) return 0;
+  fprintf(stderr, "texsyn-server: %s\n", err);
+  return -1;
+}
+
 static int rebalance_from(const char *s, int *out) {
   if (strcmp(s, "both") == 0) *out = TS_REBALANCE_BATCHES | TS_REBALANCE_MODBUS;
   else if (strcmp(s, "batches") == 0) *out = TS_REBALANCE_BATCHES;
@@ -553,7 +568,7 @@ static int rebalance_from(const char *s, int *out) {
 }
 
 static int parse_opts(int argc, char **argv, server_opts *o) {
-  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_MAX_WORKERS, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_KEEP, O_CKPT, O_GRACE, O_SECRET, O_KEYS, O_GEN_SECRET, O_HTTP_CERT, O_HTTP_KEY, O_MODBUS, O_MB_CONTROL, O_MB_POLL, O_REBAL_FROM, O_HTTP, O_QUIET, O_HELP, O_VERSION };
+  enum { O_LISTEN = 256, O_WORKERS, O_SPOOL, O_JOBS, O_THREADS, O_CAL, O_TOL, O_AFTER, O_BT, O_REDISPATCH, O_MAX_WORKERS, O_PIPE, O_HB, O_FRAME, O_PIX, O_CLIENT_JOBS, O_SPOOL_MAX, O_MAX_INPUT, O_KEEP, O_CKPT, O_GRACE, O_SECRET, O_KEYS, O_GEN_SECRET, O_HTTP_CERT, O_HTTP_KEY, O_MODBUS, O_MB_ALLOW, O_MB_CONTROL, O_MB_POLL, O_REBAL_FROM, O_HTTP, O_QUIET, O_HELP, O_VERSION };
   static const struct option longopts[] = {
       {"listen", required_argument, 0, O_LISTEN}, {"workers", required_argument, 0, O_WORKERS},
       {"spool", required_argument, 0, O_SPOOL}, {"jobs", required_argument, 0, O_JOBS},
@@ -565,13 +580,14 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
       {"max-workers", required_argument, 0, O_MAX_WORKERS},
       {"max-frame", required_argument, 0, O_FRAME}, {"max-pixels", required_argument, 0, O_PIX},
       {"max-client-jobs", required_argument, 0, O_CLIENT_JOBS}, {"max-spool", required_argument, 0, O_SPOOL_MAX},
+      {"max-input-memory", required_argument, 0, O_MAX_INPUT},
       {"keep-ended", required_argument, 0, O_KEEP},
       {"checkpoint-interval", required_argument, 0, O_CKPT}, {"stop-grace", required_argument, 0, O_GRACE},
       {"secret-file", required_argument, 0, O_SECRET}, {"keys", required_argument, 0, O_KEYS},
       {"gen-secret", required_argument, 0, O_GEN_SECRET}, {"http-cert", required_argument, 0, O_HTTP_CERT},
       {"http-key", required_argument, 0, O_HTTP_KEY},
       {"modbus", required_argument, 0, O_MODBUS}, {"modbus-control", no_argument, 0, O_MB_CONTROL},
-      {"modbus-poll", required_argument, 0, O_MB_POLL}, {"rebalance-from", required_argument, 0, O_REBAL_FROM},
+      {"modbus-allow", required_argument, 0, O_MB_ALLOW}, {"modbus-poll", required_argument, 0, O_MB_POLL}, {"rebalance-from", required_argument, 0, O_REBAL_FROM},
       {"http", required_argument, 0, O_HTTP},
       {"quiet", no_argument, 0, O_QUIET}, {"help", no_argument, 0, O_HELP},
       {"version", no_argument, 0, O_VERSION}, {0, 0, 0, 0}};
@@ -582,6 +598,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
   o->max_pixels = TS_IMAGE_DEFAULT_MAX_PIXELS;
   o->max_client_jobs = 100;
   o->max_spool = 16ull << 30;
+  o->max_input = 4ull << 30;
   o->checkpoint_interval = 5;
   o->stop_grace = 10;
   ts_cluster_opts_default(&o->co);
@@ -611,6 +628,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
     case O_PIX: rc = num("--max-pixels", optarg, 1, 1e15, &v); o->max_pixels = (uint64_t)v; break;
     case O_CLIENT_JOBS: rc = num("--max-client-jobs", optarg, 0, 1e6, &v); o->max_client_jobs = (uint32_t)v; break;
     case O_SPOOL_MAX: rc = bytes_opt("--max-spool", optarg, &o->max_spool); break;
+    case O_MAX_INPUT: rc = bytes_opt("--max-input-memory", optarg, &o->max_input); break;
     case O_KEEP: rc = duration_opt("--keep-ended", optarg, &o->keep_ended); break;
     case O_CKPT: rc = num("--checkpoint-interval", optarg, 0, 86400, &o->checkpoint_interval); break;
     case O_GRACE: rc = num("--stop-grace", optarg, 0, 3600, &o->stop_grace); break;
@@ -621,6 +639,7 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
     case O_HTTP_KEY: o->http_key = optarg; break;
     case O_MODBUS: o->modbus = optarg; break;
     case O_MB_CONTROL: o->modbus_control = 1; break;
+    case O_MB_ALLOW: rc = modbus_allow(optarg, &o->modbus_allow); break;
     case O_MB_POLL: rc = num("--modbus-poll", optarg, 0, 3600, &o->co.modbus_poll); break;
     case O_REBAL_FROM: rc = rebalance_from(optarg, &o->co.rebalance_from); break;
     case O_HTTP: o->http = optarg; break;
@@ -644,6 +663,11 @@ static int parse_opts(int argc, char **argv, server_opts *o) {
   }
   if ((o->http_cert != NULL) != (o->http_key != NULL) || (o->http_cert != NULL && o->http == NULL)) {
     fprintf(stderr, "texsyn-server: --http-cert and --http-key go together, with --http\n");
+    return -1;
+  }
+  if (o->modbus_control && o->modbus_allow.n == 0) {
+    fprintf(stderr, "texsyn-server: --modbus-control needs --modbus-allow CIDR,... naming who may write coils "
+                    "(--modbus-allow 127.0.0.1 for loopback only): Modbus TCP carries no password\n");
     return -1;
   }
   return 0;
@@ -718,7 +742,7 @@ static int start_modbus(const server_opts *o, char *at, char *err) {
   int port;
   int rc = ts_mb_listen_addr(o->modbus, addr, sizeof(addr), host, sizeof(host), err);
   if (rc == 0)
-    rc = ts_smon_start(addr, o->modbus_control, g_server.jobs, g_server.cluster, o->co.local_threads, ts_warn_msg,
+    rc = ts_smon_start(addr, o->modbus_control, o->modbus_allow.n > 0 ? &o->modbus_allow : NULL, g_server.jobs, g_server.cluster, o->co.local_threads, ts_warn_msg,
                        &port, err);
   if (rc != 0) return rc;
   snprintf(at, TS_NET_ADDR_LEN, "%s:%d", host, port);
@@ -744,9 +768,13 @@ static int start_http(const server_opts *o, char *at, char *err) {
 
 int main(int argc, char **argv) {
   ts_log_init("texsyn-server", stderr, 0); /* --quiet drops the ready line only */
+  /* The spool holds users' images and results: directories 0700, files
+   * 0600, whatever umask the daemon was started with. */
+  umask(077);
   server_opts o;
   if (parse_opts(argc, argv, &o) != 0) return 2;
   ts_connset_init(&g_conns);
+  ts_gate_init(&g_gate, "job port", ts_warn_msg);
   char err[TS_ERR_LEN];
   if (o.gen_secret != NULL) return gen_secret(o.gen_secret, argv[argc - 1]);
   if (ts_auth_init(err) != 0 || load_keys(&o, err) != 0) {
@@ -777,7 +805,7 @@ int main(int argc, char **argv) {
   }
   if (o.workers != NULL && add_workers(g_server.cluster, o.workers) != 0) return 2;
   ts_jobs_opts jo = {o.spool, o.jobs, o.max_pixels, o.max_client_jobs, o.max_spool, g_server.cluster,
-                     o.checkpoint_interval, o.stop_grace, o.keep_ended};
+                     o.checkpoint_interval, o.stop_grace, o.keep_ended, o.max_input};
   if (ts_jobs_create(&g_server.jobs, &jo, err) != 0) {
     fprintf(stderr, "texsyn-server: %s\n", err);
     return 1;
@@ -806,7 +834,7 @@ int main(int argc, char **argv) {
   while (!atomic_load(&g_stop)) {
     accepted *a = malloc(sizeof(*a));
     if (a == NULL) break;
-    if (ts_net_accept(lfd, &a->fd, a->peer, sizeof(a->peer), &a->addr) != 0) {
+    if (ts_gate_accept(&g_gate, lfd, &a->fd, a->peer, sizeof(a->peer), &a->addr) != 0) {
       free(a);
       continue;
     }
@@ -817,7 +845,9 @@ int main(int argc, char **argv) {
       free(a);
       continue;
     }
+    ts_gate_enter(&g_gate, a->fd, (const struct sockaddr *)&a->addr);
     if (pthread_create(&t, NULL, connection_thread, a) != 0) {
+      ts_gate_leave(&g_gate, a->fd);
       ts_connset_remove(&g_conns, a->fd);
       close(a->fd);
       free(a);

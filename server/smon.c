@@ -59,8 +59,8 @@ static int write_coil(void *ctx, int addr, int value) {
   return 0;
 }
 
-int ts_smon_start(const char *listen, int control, ts_jobs *jobs, ts_cluster *cluster, int threads,
-                  void (*log)(const char *msg), int *port, char *err) {
+int ts_smon_start(const char *listen, int control, const ts_mb_allow *allow, ts_jobs *jobs, ts_cluster *cluster,
+                  int threads, void (*log)(const char *msg), int *port, char *err) {
   const ts_l1_impl *simd;
   int rc = ts_l1_select(&simd, err);
   if (rc != 0) return rc;
@@ -69,7 +69,7 @@ int ts_smon_start(const char *listen, int control, ts_jobs *jobs, ts_cluster *cl
   g_mon.threads = threads;
   g_mon.simd = simd->id;
   g_mon.started = ts_now();
-  ts_mbplane_opts o = {listen, control, TS_MB_IR_SERVER_END, 1, refresh, write_coil, NULL, log};
+  ts_mbplane_opts o = {listen, control, TS_MB_IR_SERVER_END, 1, refresh, write_coil, NULL, log, allow};
   return ts_mbplane_start(&g_mon.plane, &o, port, err);
 }
 

@@ -21,6 +21,7 @@
 #include "calib.h"
 #include "connset.h"
 #include "error.h"
+#include "gate.h"
 #include "l1.h"
 #include "log.h"
 #include "mbplane.h"
@@ -50,8 +51,14 @@ typedef struct {
   ts_pool *pool;
   pthread_mutex_t pool_lock; /* ts_pool_run is not reentrant */
   ts_connset conns;
+  ts_gate gate; /* --listen connections that have not authenticated yet */
   ts_auth auth;
   int modbus_port; /* 0: no Modbus plane */
+  /* Query images: what an 'R' may make this worker allocate, checked
+   * before allocating (a 47-byte 'R' could ask for gigabytes), and what
+   * every connection's images hold now. */
+  uint64_t max_replica;
+  atomic_uint_fast64_t replica_held;
 } worker;
 
 static worker g_w;
@@ -71,6 +78,7 @@ typedef struct {
   uint32_t image_id[WORKER_MAX_IMAGES];
   ts_replica images[WORKER_MAX_IMAGES];
   int image_used[WORKER_MAX_IMAGES];
+  uint64_t image_bytes[WORKER_MAX_IMAGES]; /* counted in g_w.replica_held */
   ts_query_scratch scratch;
   ts_place *places;
   ts_commit *commits;
@@ -120,9 +128,38 @@ static ts_replica *image_of(session *s, uint32_t id) {
   return NULL;
 }
 
+/* ---- the query images' memory budget ----------------------------------- */
+
+/* Bytes a replica of w x h pixels with nplanes planes holds: its planes,
+ * its done map, a copy map (8 bytes a pixel) when it has one, plus the
+ * coarse (cw x ch) and reference (rw x rh) planes. */
+static uint64_t replica_bytes(uint64_t w, uint64_t h, uint64_t nplanes, int copy, uint64_t cw, uint64_t ch,
+                              uint64_t rw, uint64_t rh) {
+  return w * h * (nplanes + 1 + (copy ? 8 : 0)) + (cw * ch + rw * rh) * nplanes;
+}
+
+/* Takes n bytes of the budget: 0, or TS_ELIMIT with a message. */
+static int reserve_replica(uint64_t n, int w, int h, char *err) {
+  uint64_t held = atomic_fetch_add(&g_w.replica_held, n);
+  if (held + n <= g_w.max_replica) return 0;
+  atomic_fetch_sub(&g_w.replica_held, n);
+  return ts_error(err, TS_ELIMIT,
+                  "a %dx%d query image needs %.1f MiB; this worker holds %.1f MiB of query images and its "
+                  "--max-replica-memory is %.1f MiB",
+                  w, h, n / 1048576.0, held / 1048576.0, g_w.max_replica / 1048576.0);
+}
+
+static void release_replica(uint64_t n) { atomic_fetch_sub(&g_w.replica_held, n); }
+
+static void free_image(session *s, int i) {
+  ts_replica_free(&s->images[i]);
+  release_replica(s->image_bytes[i]);
+  s->image_bytes[i] = 0;
+  s->image_used[i] = 0;
+}
+
 static void close_images(session *s) {
-  for (int i = 0; i < WORKER_MAX_IMAGES; i++) ts_replica_free(&s->images[i]);
-  memset(s->image_used, 0, sizeof(s->image_used));
+  for (int i = 0; i < WORKER_MAX_IMAGES; i++) free_image(s, i);
   ts_query_scratch_free(&s->scratch);
   free(s->places);
   free(s->commits);
@@ -154,6 +191,7 @@ static int place_on(session *s, uint32_t id, ts_replica *r, const uint8_t *place
 static int load_image(ts_replica *r, ts_msg_image *m, char *err) {
   uint32_t *copy = NULL;
   size_t n = 2 * (size_t)m->d.w * (size_t)m->d.h;
+  /* The planes came in the message; the copy map's words are unpacked. */
   if (m->d.block != 0 && m->copy_le != NULL) {
     copy = malloc(sizeof(uint32_t) * n);
     if (copy == NULL) return ts_error(err, TS_ENOMEM, "out of memory for a %dx%d copy map", m->d.w, m->d.h);
@@ -169,34 +207,64 @@ static int load_image(ts_replica *r, ts_msg_image *m, char *err) {
   return rc;
 }
 
+/* 'R' LOAD into slot i: the budget first, then the replica. */
+static int image_load(session *s, int i, ts_msg_image *m, char *err) {
+  const ts_replica_desc *d = &m->d;
+  if (d->w <= 0 || d->h <= 0) return ts_error(err, TS_EINVAL, "a query image of %dx%d", d->w, d->h);
+  uint64_t need = replica_bytes((uint64_t)d->w, (uint64_t)d->h, (uint64_t)d->nplanes, d->block != 0 && m->copy_le,
+                                d->cw > 0 ? (uint64_t)d->cw : 0, d->ch > 0 ? (uint64_t)d->ch : 0,
+                                d->block && d->rw > 0 ? (uint64_t)d->rw : 0, d->block && d->rh > 0 ? (uint64_t)d->rh : 0);
+  int rc = reserve_replica(need, d->w, d->h, err);
+  if (rc == 0 && (rc = load_image(&s->images[i], m, err)) != 0) release_replica(need);
+  if (rc != 0) return rc;
+  s->image_used[i] = 1;
+  s->image_id[i] = m->image;
+  s->image_bytes[i] = need;
+  return 0;
+}
+
+/* 'R' NEXT on slot i: the new level is allocated while the old one is
+ * still held, so both count until it is done. */
+static int image_next(session *s, int i, const ts_msg_image *m, char *err) {
+  ts_replica *r = &s->images[i];
+  if (m->w <= 0 || m->h <= 0 || m->rw <= 0 || m->rh <= 0)
+    return ts_error(err, TS_EINVAL, "a next level of %dx%d from %dx%d", m->w, m->h, m->rw, m->rh);
+  uint64_t need = replica_bytes((uint64_t)m->w, (uint64_t)m->h, (uint64_t)r->nplanes, 1, (uint64_t)r->w,
+                                (uint64_t)r->h, (uint64_t)m->rw, (uint64_t)m->rh);
+  int rc = reserve_replica(need, m->w, m->h, err);
+  if (rc != 0) return rc;
+  rc = place_on(s, m->image, r, m->places, m->nplace, err);
+  if (rc == 0) rc = ts_replica_next_level(r, m->w, m->h, m->rw, m->rh, m->d.ref, err);
+  if (rc != 0) {
+    release_replica(need);
+    return rc;
+  }
+  release_replica(s->image_bytes[i]);
+  s->image_bytes[i] = need;
+  return 0;
+}
+
 /* 'R': loads, advances or frees a query image. */
 static int on_image(session *s, const ts_frame *f, char *err) {
   ts_msg_image m;
   int rc = ts_msg_image_read(f, &m, err);
   if (rc != 0) return rc;
   ts_replica *r = image_of(s, m.image);
+  int i = r != NULL ? (int)(r - s->images) : 0;
   if (m.op == TS_IMAGE_LOAD) {
-    int i = 0;
     while (r == NULL && i < WORKER_MAX_IMAGES && s->image_used[i]) i++;
     if (r == NULL && i == WORKER_MAX_IMAGES)
       return send_error(s, f->id, TS_ETOOBIG, "too many query images on one connection") == 0 ? 1 : TS_ECONN;
-    if (r == NULL) r = &s->images[i];
-    ts_replica_free(r);
-    s->image_used[r - s->images] = 0;
-    if ((rc = load_image(r, &m, err)) != 0) return send_error(s, f->id, rc, err) == 0 ? 1 : TS_ECONN;
-    s->image_used[r - s->images] = 1;
-    s->image_id[r - s->images] = m.image;
+    free_image(s, i);
+    if ((rc = image_load(s, i, &m, err)) != 0) return send_error(s, f->id, rc, err) == 0 ? 1 : TS_ECONN;
   } else if (m.op == TS_IMAGE_NEXT) {
     if (r == NULL || r->seq != m.seq) {
       snprintf(err, TS_ERR_LEN, "query image %u is not at state %llu", m.image, (unsigned long long)m.seq);
       return send_error(s, f->id, TS_EINVAL, err) == 0 ? 1 : TS_ECONN;
     }
-    rc = place_on(s, m.image, r, m.places, m.nplace, err);
-    if (rc == 0) rc = ts_replica_next_level(r, m.w, m.h, m.rw, m.rh, m.d.ref, err);
-    if (rc != 0) return send_error(s, f->id, rc, err) == 0 ? 1 : TS_ECONN;
+    if ((rc = image_next(s, i, &m, err)) != 0) return send_error(s, f->id, rc, err) == 0 ? 1 : TS_ECONN;
   } else if (r != NULL) { /* CLOSE */
-    ts_replica_free(r);
-    s->image_used[r - s->images] = 0;
+    free_image(s, i);
   }
   ts_wr w;
   ts_wr_init(&w);
@@ -392,8 +460,11 @@ static int handle(session *s, const ts_frame *f, char *err) {
   case TS_MSG_PASS: return on_pass(s, f, err);
   case TS_MSG_HEARTBEAT: {
     if (f->len != 0) return ts_error(err, TS_EPROTO, "malformed 'H' message: payload must be empty");
+    /* The drain coil's state, on the authenticated link: the coordinator
+     * acts on a drain only when this confirms what Modbus says. */
     ts_wr w;
     ts_wr_init(&w);
+    ts_wr_u8(&w, ts_wmon_draining() ? TS_HEARTBEAT_DRAINING : 0);
     return send_reply(s, TS_MSG_HEARTBEAT, f->id, &w);
   }
   default:
@@ -414,7 +485,8 @@ static int handshake(session *s, const struct sockaddr *addr, char *err) {
     rc = ts_auth_connect(&s->conn, &g_w.auth, &me, &peer, HANDSHAKE_MS, err);
   } else {
     rc = ts_auth_peer_allowed(&g_w.auth, addr, err);
-    if (rc == 0) rc = ts_auth_accept(&s->conn, &g_w.auth, &me, &peer, NULL, HANDSHAKE_MS, err);
+    if (rc == 0) rc = ts_auth_accept(&s->conn, &g_w.auth, &me, &peer, NULL, TS_GATE_HANDSHAKE_MS, err);
+    if (rc == 0) ts_gate_leave(&g_w.gate, s->conn.fd); /* else when it is closed */
   }
   if (rc == 0 && peer.role != TS_ROLE_COORD) rc = ts_error(err, TS_EPROTO, "peer is not a coordinator");
   if (rc == 0) s->peer_caps = peer.caps;
@@ -439,12 +511,26 @@ static int serve(int fd, const char *peer, const struct sockaddr *addr) {
     else ts_warn("join %s refused: %s", peer, err);
     if (addr != NULL) send_error(s, 0, rc, err);
     ts_connset_remove(&g_w.conns, fd);
-    ts_conn_close_after_error(&s->conn, REFUSE_LINGER_MS);
+    ts_conn_linger(&s->conn, REFUSE_LINGER_MS); /* counted as pending meanwhile */
+    ts_gate_leave(&g_w.gate, fd);
+    ts_conn_close(&s->conn);
     free(s);
     return rc;
   }
   int started = rc;
   if (rc == 0) ts_log("coordinator %s connected", peer);
+  /* A start that failed on our port is no news unless it says something:
+   * a peer that left (or was closed to make room, gate.h) is not logged,
+   * and slow or silent ones only a line per TS_LOG_LIMIT_SECONDS. */
+  static ts_log_limit timeouts = TS_LOG_LIMIT_INIT;
+  if (addr != NULL && (rc == TS_ECONN || rc == TS_ETIMEDOUT)) {
+    if (rc == TS_ETIMEDOUT) ts_log_limited(&timeouts, "closed %s: %s", peer, err);
+    ts_connset_remove(&g_w.conns, fd);
+    ts_gate_leave(&g_w.gate, fd);
+    ts_conn_close(&s->conn);
+    free(s);
+    return rc;
+  }
   while (rc >= 0 && !atomic_load(&g_stop)) {
     ts_frame f;
     rc = ts_conn_recv(&s->conn, &f, 1000, err);
@@ -461,6 +547,7 @@ static int serve(int fd, const char *peer, const struct sockaddr *addr) {
     send_error(s, 0, rc, err);
   }
   ts_connset_remove(&g_w.conns, fd);
+  ts_gate_leave(&g_w.gate, fd); /* a start that broke the protocol */
   unload_all(s);
   close_images(s);
   ts_conn_close(&s->conn);
@@ -530,14 +617,24 @@ static void usage(FILE *f) {
           "  --max-frame BYTES    largest frame payload taken, >= %u (default %u);\n"
           "                       larger messages come in pieces\n"
           "  --max-message BYTES  largest message taken in pieces (default %llu)\n"
+          "  --max-replica-memory BYTES\n"
+          "                       query images every coordinator's messages may make this\n"
+          "                       worker hold, checked before allocating, e.g. 4G\n"
+          "                       (default: half the physical memory)\n"
           "  --name NAME          name shown in logs and to the coordinator\n"
           "  --secret-file PATH   this worker's key (a worker or admin key, or the shared\n"
           "                       secret; owner-only file): proved to the coordinator,\n"
           "                       which proves it back; without one a --listen worker\n"
           "                       accepts loopback peers only (protected mode)\n"
           "  --modbus [ADDR:]PORT serve the monitoring register map over Modbus TCP\n"
-          "                       (off by default; a bare port listens on loopback)\n"
-          "  --modbus-control     accept coil writes (drain) on the Modbus plane\n"
+          "                       (off by default; PORT or :PORT listens on loopback,\n"
+          "                       *:PORT on every interface)\n"
+          "  --modbus-allow CIDR,...\n"
+          "                       peers besides loopback that may connect to the Modbus\n"
+          "                       plane (others are closed at accept): the coordinator's\n"
+          "                       address, monitoring hosts\n"
+          "  --modbus-control     accept coil writes (drain) on the Modbus plane; needs\n"
+          "                       --modbus-allow (give 127.0.0.1 for loopback only)\n"
           "  --quiet              no log lines\n"
           "  --version            the texsyn release and wire protocol version\n"
           "\n"
@@ -555,11 +652,11 @@ static int parse_num(const char *opt, const char *s, long lo, long hi, long *out
 }
 
 /* Starts the Modbus plane; at gets HOST:PORT for the ready line. */
-static int start_modbus(const char *arg, int control, char *at, char *err) {
+static int start_modbus(const char *arg, int control, const ts_mb_allow *allow, char *at, char *err) {
   char addr[TS_NET_ADDR_LEN], host[TS_NET_ADDR_LEN - 8];
   int port;
   int rc = ts_mb_listen_addr(arg, addr, sizeof(addr), host, sizeof(host), err);
-  if (rc == 0) rc = ts_wmon_start_modbus(addr, control, ts_warn_msg, &port, err);
+  if (rc == 0) rc = ts_wmon_start_modbus(addr, control, allow->n > 0 ? allow : NULL, ts_warn_msg, &port, err);
   if (rc != 0) return rc;
   g_w.modbus_port = port;
   snprintf(at, TS_NET_ADDR_LEN, "%s:%d", host, port);
@@ -568,23 +665,26 @@ static int start_modbus(const char *arg, int control, char *at, char *err) {
 }
 
 int main(int argc, char **argv) {
-  enum { O_LISTEN = 256, O_JOIN, O_THREADS, O_FRAME, O_MESSAGE, O_NAME, O_SECRET, O_MODBUS, O_MB_CONTROL, O_QUIET, O_HELP, O_VERSION };
+  enum { O_LISTEN = 256, O_JOIN, O_THREADS, O_FRAME, O_MESSAGE, O_REPLICA, O_NAME, O_SECRET, O_MODBUS, O_MB_ALLOW, O_MB_CONTROL, O_QUIET, O_HELP, O_VERSION };
   static const struct option longopts[] = {
       {"listen", required_argument, 0, O_LISTEN}, {"join", required_argument, 0, O_JOIN},
       {"threads", required_argument, 0, O_THREADS}, {"max-frame", required_argument, 0, O_FRAME},
-      {"max-message", required_argument, 0, O_MESSAGE},
+      {"max-message", required_argument, 0, O_MESSAGE}, {"max-replica-memory", required_argument, 0, O_REPLICA},
       {"name", required_argument, 0, O_NAME}, {"secret-file", required_argument, 0, O_SECRET},
       {"modbus", required_argument, 0, O_MODBUS}, {"modbus-control", no_argument, 0, O_MB_CONTROL},
-      {"quiet", no_argument, 0, O_QUIET},
+      {"modbus-allow", required_argument, 0, O_MB_ALLOW}, {"quiet", no_argument, 0, O_QUIET},
       {"help", no_argument, 0, O_HELP}, {"version", no_argument, 0, O_VERSION}, {0, 0, 0, 0}};
   const char *listen_addr = NULL, *join_addr = NULL, *secret_file = NULL, *modbus_addr = NULL;
   int modbus_control = 0, quiet = 0;
+  ts_mb_allow modbus_allow = {0};
+  char err[TS_ERR_LEN];
   long v;
   g_w.threads = (int)sysconf(_SC_NPROCESSORS_ONLN);
   if (g_w.threads < 1) g_w.threads = 1;
   g_w.max_frame = TS_FRAME_DEFAULT_MAX;
   g_w.max_message = TS_PIECES_DEFAULT_MAX;
   g_w.name = "";
+  g_w.max_replica = (uint64_t)sysconf(_SC_PHYS_PAGES) * (uint64_t)sysconf(_SC_PAGE_SIZE) / 2;
   opterr = 0;
   int c;
   while ((c = getopt_long(argc, argv, "h", longopts, NULL)) != -1) {
@@ -594,10 +694,23 @@ int main(int argc, char **argv) {
     case O_THREADS: if (parse_num("--threads", optarg, 1, 1024, &v) != 0) return 2; g_w.threads = (int)v; break;
     case O_FRAME: if (parse_num("--max-frame", optarg, TS_FRAME_LIMIT_MIN, 0xFFFFFFFFL, &v) != 0) return 2; g_w.max_frame = (uint32_t)v; break;
     case O_MESSAGE: if (parse_num("--max-message", optarg, TS_FRAME_LIMIT_MIN, 0xFFFFFFFFL, &v) != 0) return 2; g_w.max_message = (uint64_t)v; break;
+    case O_REPLICA:
+      if (ts_parse_bytes(optarg, &g_w.max_replica) != 0 || g_w.max_replica == 0) {
+        fprintf(stderr, "texsyn-worker: --max-replica-memory %s: need a byte count above 0 such as 512M or 4G\n",
+                optarg);
+        return 2;
+      }
+      break;
     case O_NAME: g_w.name = optarg; break;
     case O_SECRET: secret_file = optarg; break;
     case O_MODBUS: modbus_addr = optarg; break;
     case O_MB_CONTROL: modbus_control = 1; break;
+    case O_MB_ALLOW:
+      if (ts_mb_allow_parse(optarg, &modbus_allow, err) != 0) {
+        fprintf(stderr, "texsyn-worker: %s\n", err);
+        return 2;
+      }
+      break;
     case O_QUIET: quiet = 1; break;
     case O_HELP: case 'h': usage(stdout); return 0;
     case O_VERSION: ts_version_print("texsyn-worker"); return 0;
@@ -610,8 +723,12 @@ int main(int argc, char **argv) {
     fprintf(stderr, "texsyn-worker: give --listen ADDR:PORT and/or --join HOST:PORT (see --help)\n");
     return 2;
   }
+  if (modbus_control && modbus_allow.n == 0) {
+    fprintf(stderr, "texsyn-worker: --modbus-control needs --modbus-allow CIDR,... naming who may write coils "
+                    "(--modbus-allow 127.0.0.1 for loopback only): Modbus TCP carries no password\n");
+    return 2;
+  }
   ts_log_init("texsyn-worker", stderr, quiet);
-  char err[TS_ERR_LEN];
   if (join_addr != NULL && check_join(join_addr, err) != 0) {
     fprintf(stderr, "texsyn-worker: --join %s: %s\n", join_addr, err);
     return 2;
@@ -636,11 +753,12 @@ int main(int argc, char **argv) {
   pthread_mutex_init(&g_w.pool_lock, NULL);
   ts_wmon_init(g_w.threads, g_w.simd->id);
   char modbus_at[TS_NET_ADDR_LEN] = "";
-  if (modbus_addr != NULL && start_modbus(modbus_addr, modbus_control, modbus_at, err) != 0) {
+  if (modbus_addr != NULL && start_modbus(modbus_addr, modbus_control, &modbus_allow, modbus_at, err) != 0) {
     fprintf(stderr, "texsyn-worker: --modbus %s: %s\n", modbus_addr, err);
     return 1;
   }
   ts_connset_init(&g_w.conns);
+  ts_gate_init(&g_w.gate, "worker port", ts_warn_msg);
   ts_stop_on_signals(&g_stop);
   signal(SIGPIPE, SIG_IGN);
   int lfd = -1;
@@ -671,12 +789,15 @@ int main(int argc, char **argv) {
       continue;
     }
     accepted *a = malloc(sizeof(*a));
-    if (a == NULL || ts_net_accept(lfd, &a->fd, a->peer, sizeof(a->peer), &a->addr) != 0) {
+    if (a == NULL || ts_gate_accept(&g_w.gate, lfd, &a->fd, a->peer, sizeof(a->peer), &a->addr) != 0) {
       free(a);
       continue;
     }
     pthread_t t;
-    if (ts_connset_add(&g_w.conns, a->fd) != 0 || pthread_create(&t, NULL, serve_thread, a) != 0) {
+    int added = ts_connset_add(&g_w.conns, a->fd) == 0;
+    if (added) ts_gate_enter(&g_w.gate, a->fd, (const struct sockaddr *)&a->addr);
+    if (!added || pthread_create(&t, NULL, serve_thread, a) != 0) {
+      if (added) ts_gate_leave(&g_w.gate, a->fd);
       ts_connset_remove(&g_w.conns, a->fd);
       close(a->fd);
       free(a);

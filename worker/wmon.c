@@ -170,8 +170,9 @@ static int write_coil(void *ctx, int addr, int value) {
   return 0;
 }
 
-int ts_wmon_start_modbus(const char *listen, int control, void (*log)(const char *msg), int *port, char *err) {
-  ts_mbplane_opts o = {listen, control, TS_MB_IR_WORKER_END, 1, refresh, write_coil, NULL, log};
+int ts_wmon_start_modbus(const char *listen, int control, const ts_mb_allow *allow, void (*log)(const char *msg),
+                         int *port, char *err) {
+  ts_mbplane_opts o = {listen, control, TS_MB_IR_WORKER_END, 1, refresh, write_coil, NULL, log, allow};
   return ts_mbplane_start(&g_mon.plane, &o, port, err);
 }
 

@@ -6,6 +6,8 @@
 
 #include <stdint.h>
 
+#include "mbplane.h"
+
 void ts_wmon_init(int threads, int simd);
 void ts_wmon_calibrated(uint64_t rate);  /* bytes scanned per second */
 void ts_wmon_loading(int delta);         /* +1 when a slice load starts, -1 when it ends */
@@ -21,7 +23,8 @@ int ts_wmon_draining(void);
 
 /* Serves the worker's register map on listen (see mbplane.h); *port gets
  * the bound port. Coil writes need control. */
-int ts_wmon_start_modbus(const char *listen, int control, void (*log)(const char *msg), int *port, char *err);
+int ts_wmon_start_modbus(const char *listen, int control, const ts_mb_allow *allow, void (*log)(const char *msg),
+                         int *port, char *err);
 void ts_wmon_stop_modbus(void);
 
 #endif

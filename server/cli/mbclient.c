@@ -95,7 +95,7 @@ static int run(const char *addr, const char *set, char *err) {
   if (rc == 0 && set != NULL) rc = parse_set(set, coordinator ? 1 : 2, &coil, &value, err);
   if (rc == 0 && set != NULL && modbus_write_bit(m, coil, value) != 1)
     rc = ts_error(err, TS_EINVAL, "%s: writing %s: %s%s", addr, set, modbus_strerror(errno),
-                  errno == EMBXILFUN ? " (start the daemon with --modbus-control)" : "");
+                  errno == EMBXILFUN ? " (start the daemon with --modbus-control and --modbus-allow)" : "");
   if (rc == 0 && set == NULL) {
     print_common(r);
     if (coordinator) print_coordinator(r);

@@ -225,7 +225,10 @@ static void on_mhd_log(void *cls, const char *fmt, va_list ap) {
   vsnprintf(msg, sizeof(msg), fmt, ap);
   size_t n = strlen(msg);
   if (n > 0 && msg[n - 1] == '\n') msg[n - 1] = '\0';
-  ts_log("http: %s", msg);
+  /* One per refused connection, at a flood: "Server reached connection
+   * limit" by the thousand. */
+  static ts_log_limit limit = TS_LOG_LIMIT_INIT;
+  ts_log_limited(&limit, "http: %s", msg);
 }
 
 /* A PEM file read whole, NUL-terminated (what libmicrohttpd takes). */

@@ -86,6 +86,10 @@ static uint64_t job_reserve(const ts_jobspec *s, size_t inputs_len, const ts_ima
 
 static double mib(uint64_t bytes) { return (double)bytes / (1024.0 * 1024.0); }
 
+/* One job may reserve at most this share of --max-spool: a maximum-size
+ * job would otherwise hold most of the spool, and nobody else's fit. */
+#define JOBS_SPOOL_SHARE 2
+
 /* Checks the limits and takes an id and the disk reserve (lock taken). */
 static int admit(ts_jobs *j, job *jb, size_t inputs_len, const ts_image_info *in, char *err) {
   uint64_t need = job_reserve(&jb->spec, inputs_len, in);
@@ -98,6 +102,11 @@ static int admit(ts_jobs *j, job *jb, size_t inputs_len, const ts_image_info *in
                   "client %s already has %u unfinished jobs, the limit (--max-client-jobs); wait for some to "
                   "finish or cancel some",
                   jb->client, cs->unfinished);
+  else if (j->o.max_spool_bytes > 0 && need > j->o.max_spool_bytes / JOBS_SPOOL_SHARE)
+    rc = ts_error(err, TS_ELIMIT,
+                  "this job alone needs about %.1f MiB of spool, more than half of --max-spool (%.1f MiB): one "
+                  "job may not take the room every other job needs; raise --max-spool to at least %.1f MiB",
+                  mib(need), mib(j->o.max_spool_bytes), mib(need * JOBS_SPOOL_SHARE));
   else if (j->o.max_spool_bytes > 0 && j->spool_bytes + need > j->o.max_spool_bytes)
     rc = ts_error(err, TS_ELIMIT,
                   "the spool is full: %.1f MiB of %.1f MiB (--max-spool) in use and this job needs about "
@@ -160,6 +169,28 @@ static int check_input(ts_jobs *j, const char *name, const uint8_t *data, size_t
   return ts_image_probe_mem(name, data, len, &limits, info, err);
 }
 
+/* The bytes the inputs decode to, from their headers (in; by_region
+ * inputs and files have none), against --max-input-memory: a 256-Mpixel
+ * float RGBA image is within --max-pixels and decodes to 16 GiB. */
+static int check_decoded(const ts_jobs *j, const ts_msg_submit *m, const ts_image_info *in, char *err) {
+  uint64_t total = 0, largest = 0;
+  uint32_t at = 0;
+  for (uint32_t k = 0; k <= m->nmore; k++) {
+    uint64_t b = (uint64_t)in[k].width * (uint64_t)in[k].height * (uint64_t)in[k].channels *
+                 (in[k].width > 0 ? ts_pixtype_size(in[k].type) : 0);
+    total += b;
+    if (b > largest) largest = b, at = k;
+  }
+  if (j->o.max_input_bytes == 0 || total <= j->o.max_input_bytes) return 0;
+  const ts_image_info *w = &in[at];
+  return ts_error(err, TS_ELIMIT,
+                  "the job's input images decode to %.1f MiB, over texsyn-server --max-input-memory (%.1f MiB); the "
+                  "largest, %s, is %dx%d with %d channels of %s (%.1f MiB): convert it to 8 bits or fewer "
+                  "channels, or raise the limit",
+                  mib(total), mib(j->o.max_input_bytes), at == 0 ? m->ref_name : m->more[at - 1].name, w->width,
+                  w->height, w->channels, ts_pixtype_name(w->type), mib(largest));
+}
+
 int ts_jobs_submit(ts_jobs *j, const char *client, const ts_msg_submit *m, uint64_t *id, char *err) {
   job *jb = calloc(1, sizeof(*jb));
   if (jb == NULL) return ts_error(err, TS_ENOMEM, "out of memory");
@@ -183,6 +214,7 @@ int ts_jobs_submit(ts_jobs *j, const char *client, const ts_msg_submit *m, uint6
     bytes += m->more[k].len;
   }
   snprintf(jb->client, sizeof(jb->client), "%s", client);
+  if (rc == 0) rc = check_decoded(j, m, info, err);
   if (rc == 0) rc = admit(j, jb, bytes, info, err);
   if (rc != 0) {
     free(jb);

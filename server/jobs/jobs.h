@@ -44,6 +44,8 @@ typedef struct {
                         stop at a checkpoint of their own */
   double keep_ended; /* seconds a finished job stays after it ended, then it
                         is removed as ts_jobs_delete removes one (0: forever) */
+  uint64_t max_input_bytes; /* one job's input images decoded, checked from
+                               their headers before decoding (0 = no limit) */
 } ts_jobs_opts;
 
 typedef struct ts_jobs ts_jobs;

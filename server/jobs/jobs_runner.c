@@ -252,7 +252,9 @@ void *jobs_runner(void *arg) {
     jobs_changed(j, jb);
     pthread_mutex_unlock(&j->lock);
     char err[TS_ERR_LEN] = "";
+    jobs_attempt_begin(j, jb);
     int rc = run_job(j, jb, err);
+    jobs_attempt_end(j, jb);
     if (rc == TS_ESTOPPED)
       jobs_log(j, "job %" PRIu64 ": %s, checkpoint saved; a restart resumes it there", jb->id, err);
     else if (rc != 0 && atomic_load(&j->stopping)) /* j->stop needs the lock; stopping is set with it */

@@ -24,7 +24,8 @@
 /* Makes directory dir, durably: once this returns, its parent's entry for
  * it survives a power loss. */
 static int make_dir(const char *dir, char *err) {
-  if (mkdir(dir, 0755) != 0) return ts_error(err, TS_EIO, "cannot create %s: %s", dir, strerror(errno));
+  /* Owner only: jobs are users' images (the daemon's umask is 077 too). */
+  if (mkdir(dir, 0700) != 0) return ts_error(err, TS_EIO, "cannot create %s: %s", dir, strerror(errno));
   if (ts_parent_sync(dir) != 0)
     return ts_error(err, TS_EIO, "cannot create %s: syncing its parent: %s", dir, strerror(errno));
   return 0;
@@ -153,6 +154,63 @@ void jobs_finish(ts_jobs *j, job *jb, int state, const char *text) {
   pthread_mutex_unlock(&j->lock);
 }
 
+#define JOBS_ATTEMPTS "attempts"
+
+/* The runs counted in a job's directory (0: none, or unreadable). */
+static unsigned attempts_of(const char *dir) {
+  char path[JOBS_PATH + 16];
+  uint8_t *buf = NULL;
+  size_t len;
+  snprintf(path, sizeof(path), "%s/%s", dir, JOBS_ATTEMPTS);
+  if (ts_file_read(path, 32, &buf, &len, NULL) != 0) return 0;
+  char text[33];
+  memcpy(text, buf, len);
+  text[len] = '\0';
+  free(buf);
+  int n;
+  text[strcspn(text, "\n")] = '\0';
+  return ts_parse_int(text, 0, 1000000, &n) == 0 ? (unsigned)n : 0;
+}
+
+void jobs_attempt_begin(ts_jobs *j, const job *jb) {
+  char path[JOBS_PATH + 16], text[32], err[TS_ERR_LEN];
+  jobs_file_path(jb, JOBS_ATTEMPTS, path, sizeof(path));
+  int n = snprintf(text, sizeof(text), "%u\n", attempts_of(jb->dir) + 1);
+  if (ts_file_write(path, text, (size_t)n, err) != 0)
+    jobs_log(j, "job %" PRIu64 ": cannot count its run (%s): a job that crashes the coordinator may be run again "
+             "and again", jb->id, err);
+}
+
+void jobs_attempt_end(ts_jobs *j, const job *jb) {
+  char path[JOBS_PATH + 16];
+  jobs_file_path(jb, JOBS_ATTEMPTS, path, sizeof(path));
+  if (unlink(path) != 0 && errno != ENOENT)
+    jobs_log(j, "job %" PRIu64 ": cannot remove %s: %s; a restart may count a run that ended as a crash", jb->id,
+             path, strerror(errno));
+}
+
+/* An unfinished job the coordinator died in JOBS_MAX_CRASHES times is
+ * recorded as failed, with why, before it is loaded (and queued again). */
+static void set_aside_crasher(ts_jobs *j, job *jb) {
+  char path[JOBS_PATH + 16], err[TS_ERR_LEN];
+  struct stat st;
+  jobs_file_path(jb, "state", path, sizeof(path));
+  unsigned n = attempts_of(jb->dir);
+  if (n < JOBS_MAX_CRASHES || lstat(path, &st) == 0) return;
+  char text[TS_ERR_LEN];
+  int len = snprintf(text, sizeof(text),
+                     "failed: the coordinator stopped without ending it %u times while it ran (a crash, a kill, "
+                     "or running out of memory): set aside instead of run again; check its size against the "
+                     "machine's memory, then resubmit\n", n);
+  if (ts_file_write(path, text, (size_t)len, err) != 0) {
+    jobs_log(j, "job %" PRIu64 ": cannot set it aside after %u crashed runs: %s; it runs again", jb->id, n, err);
+    return;
+  }
+  jobs_log(j, "job %" PRIu64 ": the coordinator stopped %u times while running it: set aside as failed", jb->id, n);
+  drop_job_checkpoint(j, jb);
+  jobs_attempt_end(j, jb);
+}
+
 /* Where input k of a job lives: ref.EXT for the first, NAME.EXT after. */
 void jobs_input_path(const job *jb, const ts_engine_inputs *names, int k, char *out, size_t cap) {
   if (k == 0) snprintf(out, cap, "%s/ref.%s", jb->dir, jb->ref_ext);
@@ -240,6 +298,7 @@ static void load_job(ts_jobs *j, uint64_t id) {
   }
   jb->id = id;
   snprintf(jb->dir, sizeof(jb->dir), "%s/jobs/%" PRIu64, j->spool, id);
+  set_aside_crasher(j, jb);
   if (judge_job_dir(jb->dir, rec, err) != 0) {
     /* Never acknowledged: its files go, its id stays taken (last-id). */
     jobs_log(j, "%s; removing it", err);
@@ -382,7 +441,7 @@ static int lock_refused(int fd, const char *spool, const char *path, char *err) 
 static int lock_spool(ts_jobs *j, char *err) {
   char path[JOBS_PATH + 16], text[32];
   snprintf(path, sizeof(path), "%s/%s", j->spool, JOBS_LOCK);
-  j->lock_fd = open(path, O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  j->lock_fd = open(path, O_RDWR | O_CREAT | O_CLOEXEC, 0600);
   if (j->lock_fd < 0) return ts_error(err, TS_EIO, "cannot lock the spool: cannot open %s: %s", path, strerror(errno));
   if (flock(j->lock_fd, LOCK_EX | LOCK_NB) != 0)
     return errno == EWOULDBLOCK ? lock_refused(j->lock_fd, j->spool, path, err)

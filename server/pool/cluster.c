@@ -195,8 +195,7 @@ static void cl_queue_unload(ts_cluster *c, cl_worker *w, uint32_t set) {
   if (e == NULL || queue_push(w, e, TS_MSG_UNLOAD, set, write_unload, err) != 0) cl_worker_fail(c, w, err);
 }
 
-/* A heartbeat: an empty payload. */
-static void queue_heartbeat(ts_cluster *c, cl_worker *w) {
+void cl_queue_heartbeat(ts_cluster *c, cl_worker *w) {
   char err[TS_ERR_LEN] = "out of memory for a message to a worker";
   cl_msg *e = queue_slot(w);
   if (e == NULL || queue_push(w, e, TS_MSG_HEARTBEAT, 0, NULL, err) != 0) cl_worker_fail(c, w, err);
@@ -475,7 +474,7 @@ static void heartbeat_idle(ts_cluster *c) {
     ws[n++] = w;
   }
   cl_lease(c, ws, n); /* none is leased: no wait */
-  for (int i = 0; i < n; i++) queue_heartbeat(c, ws[i]);
+  for (int i = 0; i < n; i++) cl_queue_heartbeat(c, ws[i]);
   cl_traffic tr = {0, 0};
   if (n > 0) cl_exchange(c, ws, n, 2 * c->o.heartbeat + 1.0, NULL, 0, NULL, NULL, &tr);
   cl_release(c, ws, n);

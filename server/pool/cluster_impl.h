@@ -254,6 +254,9 @@ int cl_worker_takes(const cl_worker *w, uint64_t bytes);
  * requests it awaits, but for abandoned ones. */
 void cl_out_reset(cl_worker *w);
 
+/* Queues an 'H' to w (leased); its answer carries the worker's drain
+ * flag (TS_HEARTBEAT_DRAINING). A worker it cannot be queued to is failed. */
+void cl_queue_heartbeat(ts_cluster *c, cl_worker *w);
 /* Marks a worker failed (lock held): it leaves every slicing. */
 void cl_worker_fail(ts_cluster *c, cl_worker *w, const char *why);
 /* The ready workers (lock held); returns how many. */

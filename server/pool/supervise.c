@@ -67,6 +67,33 @@ static void begin_drain(ts_cluster *c, cl_worker *w) {
   cl_log(c, "worker %d (%s) draining: its slices are handed back and it gets no new ones", w->id, w->conn.peer);
 }
 
+/* An 'H' answer's drain flag into *ctx (an int: 1 drains, 0 does not). */
+static int read_drain_flag(void *ctx, cl_worker *w, const ts_frame *f, const cl_request *rq, char *err) {
+  (void)w;
+  (void)rq;
+  if (f->type == TS_MSG_ERROR) return cl_reply_error(f, err);
+  if (f->type != TS_MSG_HEARTBEAT || f->len != 1)
+    return ts_error(err, TS_EPROTO, "malformed 'H' answer: one byte of flags expected");
+  *(int *)ctx = (f->payload[0] & TS_HEARTBEAT_DRAINING) != 0;
+  return 0;
+}
+
+/* Whether w's authenticated data plane says it drains (lock held): 1, 0,
+ * or -1 when it did not answer (then it has failed). Modbus carries no
+ * authentication, so its registers are hints: what would take a worker
+ * out of the slicing, or put it back, is asked again here. */
+static int drain_confirmed(ts_cluster *c, cl_worker *w) {
+  int draining = -1;
+  cl_lease(c, &w, 1);
+  if (w->state == TS_WORKER_READY || w->state == TS_WORKER_DRAINING) {
+    cl_queue_heartbeat(c, w);
+    cl_traffic tr = {0, 0};
+    cl_exchange(c, &w, 1, c->o.batch_timeout, NULL, 0, read_drain_flag, &draining, &tr);
+  }
+  cl_release(c, &w, 1);
+  return draining;
+}
+
 /* Acts on one worker's registers, or on their absence (lock held). */
 static void mb_apply(ts_cluster *c, int id, int ok, const uint16_t *regs) {
   cl_worker *w = NULL;
@@ -82,6 +109,15 @@ static void mb_apply(ts_cluster *c, int id, int ok, const uint16_t *regs) {
   w->mb_heard_at = now;
   w->cpu_share = regs[TS_MB_IR_CPU_SHARE] == TS_MB_UNKNOWN ? -1.0 : regs[TS_MB_IR_CPU_SHARE] / 1000.0;
   int draining = regs[TS_MB_IR_STATE] == TS_MB_DRAINING;
+  if (draining != (w->state == TS_WORKER_DRAINING)) {
+    int confirmed = drain_confirmed(c, w);
+    if (confirmed < 0 || (w->state != TS_WORKER_READY && w->state != TS_WORKER_DRAINING)) return;
+    if (confirmed != draining) {
+      cl_log(c, "worker %d (%s): its Modbus plane says %s but its data plane does not; ignored (a forged or "
+             "stale Modbus answer)", w->id, w->conn.peer, draining ? "draining" : "not draining");
+      return;
+    }
+  }
   if (draining && w->state == TS_WORKER_READY) {
     begin_drain(c, w);
   } else if (!draining && w->state == TS_WORKER_DRAINING) {

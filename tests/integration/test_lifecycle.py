@@ -136,6 +136,63 @@ def test_coordinator_killed_while_writing_a_result_reruns_the_job(texsyn, data, 
     assert not [p.name for p in job_dir.iterdir() if ".tmp" in p.name]
 
 
+# ---- a job that crashes the coordinator -----------------------------------------
+
+def kill9(daemon):
+    daemon.proc.send_signal(signal.SIGKILL)
+    daemon.proc.wait()
+    daemon.stop()
+
+
+def test_a_job_the_coordinator_died_in_twice_is_set_aside_as_failed(texsyn, data, cluster, tmp_path):
+    """Killed while the job runs, the coordinator resumes it once; killed in
+    it again, a restart records it failed with the reason instead of
+    running it a third time (as a job that runs it out of memory would
+    crash it for ever). Other jobs run."""
+    cluster.start(2, 1, "--calibrate-ms", "50")
+    job_id = cluster.submit(ref_of(data), *JOB)
+    attempts = cluster.tmp / "spool" / "jobs" / job_id / "attempts"
+    cluster.server.wait_log(rf"job {job_id}: checkpoint after level 1 ")
+    assert attempts.read_text() == "1\n"
+    kill9(cluster.server)
+    cluster.restart_server("--calibrate-ms", "50")
+    cluster.server.wait_log(rf"job {job_id}: resuming")
+    assert attempts.read_text() == "2\n"
+    kill9(cluster.server)
+    cluster.restart_server("--calibrate-ms", "50", log="server3.log")
+    log = cluster.server.wait_log(rf"job {job_id}: the coordinator stopped 2 times while running it: set aside")
+    assert log
+    status = cluster.texsyn("status", job_id).stdout
+    assert " failed" in status and "stopped without ending it 2 times" in status, status
+    assert not attempts.exists()
+    assert not (attempts.parent / "checkpoint").exists()
+    small = tmp_path / "small.png"
+    synth(texsyn, ref_of(data), small, (96, 64), "--levels", "3")
+    other = cluster.submit(ref_of(data), "--size", "96x64", "--levels", "3")
+    cluster.texsyn("watch", other, "--quiet")
+    assert fetch_bytes(cluster, other, tmp_path) == small.read_bytes()
+    assert not (cluster.tmp / "spool" / "jobs" / other / "attempts").exists()  # a run that ended
+
+
+@pytest.mark.sanitize
+def test_the_spool_is_owner_only(texsyn, data, cluster, tmp_path):
+    """Directories 0700, files 0600, whatever umask the coordinator was
+    started with (the test's is usually 022)."""
+    old = os.umask(0o022)
+    try:
+        cluster.start(1, 1)
+    finally:
+        os.umask(old)
+    job_id = cluster.submit(ref_of(data), "--size", "96x64", "--levels", "3")
+    cluster.texsyn("watch", job_id, "--quiet")
+    spool = cluster.tmp / "spool"
+    paths = [spool, *spool.rglob("*")]
+    assert len(paths) > 6, paths
+    for p in paths:
+        mode = os.stat(p).st_mode & 0o777
+        assert mode == (0o700 if p.is_dir() else 0o600), f"{p}: {oct(mode)}"
+
+
 # ---- clients killed ---------------------------------------------------------
 
 class HoldingProxy:

@@ -54,8 +54,8 @@ def u64(regs, at):
 
 def start(cluster, nworkers, *server_args, control=True):
     for _ in range(nworkers):
-        cluster.worker(1, "--modbus", "0", *(["--modbus-control"] if control else []))
-    cluster.start(0, 1, *SERVER_ARGS, "--modbus", "0", *(["--modbus-control"] if control else []), *server_args)
+        cluster.worker(1, "--modbus", "0", *(["--modbus-control", "--modbus-allow", "127.0.0.1"] if control else []))
+    cluster.start(0, 1, *SERVER_ARGS, "--modbus", "0", *(["--modbus-control", "--modbus-allow", "127.0.0.1"] if control else []), *server_args)
     return cluster
 
 
@@ -260,3 +260,134 @@ def test_worker_silent_on_both_planes_is_dropped(data, cluster, tmp_path, expect
     assert job.wait(timeout=300) == 0
     job.stderr.close()
     assert (tmp_path / "out.png").read_bytes() == expected
+
+
+# ---- who reaches the plane ------------------------------------------------------
+
+def non_loopback_ipv4():
+    out = subprocess.run(["hostname", "-I"], capture_output=True, text=True, timeout=10).stdout
+    return next((a for a in out.split() if "." in a and not a.startswith("127.")), None)
+
+
+def read_regs(host, port, count=4):
+    """Input registers 0..count-1 with a raw Modbus TCP request (function
+    04); None if the daemon closed the connection instead of answering."""
+    with socket.create_connection((host, int(port)), timeout=5) as s:
+        s.sendall(struct.pack(">HHHBBHH", 9, 0, 6, 1, 4, 0, count))
+        reply = b""
+        while len(reply) < 9 + 2 * count:
+            try:
+                chunk = s.recv(256)
+            except ConnectionResetError:
+                return None
+            if not chunk:
+                return None
+            reply += chunk
+    return struct.unpack(f">{count}H", reply[9:9 + 2 * count])
+
+
+def test_modbus_listens_on_loopback_unless_told_and_admits_only_the_allow_list(cluster, tmp_path):
+    """`:PORT` is loopback, like a bare PORT (it used to bind every
+    interface); `*:PORT` binds them all, and a peer off loopback is still
+    closed at accept unless --modbus-allow names it; --modbus-control needs
+    an allow-list."""
+    w = cluster.worker(1, "--modbus", ":0")
+    assert w.modbus.startswith("127.0.0.1:"), w.modbus
+    ip = non_loopback_ipv4()
+    assert ip is not None, "this test needs a non-loopback IPv4 address (hostname -I)"
+    open_ = cluster.worker(1, "--modbus", "*:0")
+    port = open_.modbus.rsplit(":", 1)[1]
+    assert read_regs("127.0.0.1", port)[0] == 0x5453
+    assert read_regs(ip, port) is None
+    allowed = cluster.worker(1, "--modbus", "0.0.0.0:0", "--modbus-allow", f"10.255.255.0/24,{ip}/32")
+    assert read_regs(ip, allowed.modbus.rsplit(":", 1)[1])[0] == 0x5453
+    for daemon, extra in ((BUILD / "texsyn-worker", ["--listen", "127.0.0.1:0"]),
+                          (BUILD / "texsyn-server", ["--listen", "127.0.0.1:0", "--spool", tmp_path / "s"])):
+        p = run(daemon, *extra, "--modbus", "0", "--modbus-control", check=False)
+        assert p.returncode == 2 and "--modbus-control needs --modbus-allow" in p.stderr, p.stderr
+    p = run(BUILD / "texsyn-worker", "--listen", "127.0.0.1:0", "--modbus-allow", "10.1.2.3/33", check=False)
+    assert p.returncode == 2 and "'10.1.2.3/33': the prefix must be 0..32" in p.stderr, p.stderr
+
+
+class ForgedModbus:
+    """A Modbus TCP server that answers every read of input registers with
+    zeros but for `state` = draining (proto/mbmap.h): someone on the path,
+    or on the worker's host, answering the coordinator's polls."""
+
+    def __init__(self, host, port):
+        self.sock = socket.socket()
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self.sock.bind((host, port))
+        self.sock.listen(16)
+        self.polls = 0
+        import threading
+        threading.Thread(target=self.serve, daemon=True).start()
+
+    def serve(self):
+        while True:
+            try:
+                c, _ = self.sock.accept()
+            except OSError:
+                return
+            with c:
+                try:
+                    req = c.recv(260)
+                    if len(req) < 12:
+                        continue
+                    tid, count = struct.unpack(">H", req[:2])[0], struct.unpack(">H", req[10:12])[0]
+                    regs = [0] * count
+                    regs[0], regs[4] = 0x5453, 3  # magic; state = draining
+                    body = struct.pack(">BBB", 1, 4, 2 * count) + struct.pack(f">{count}H", *regs)
+                    c.sendall(struct.pack(">HHH", tid, 0, len(body)) + body)
+                    self.polls += 1
+                except OSError:
+                    pass
+
+    def close(self):
+        self.sock.close()
+
+
+def test_forged_modbus_registers_cannot_drain_a_worker(data, cluster, tmp_path, expected):
+    """The coordinator polls a worker's Modbus port at the address its data
+    connection comes from. Here the worker's plane is on 127.0.0.2 and a
+    forger answers on 127.0.0.1 with `draining`: the coordinator asks the
+    worker on the sealed data plane, which says no, so it stays in the
+    pool and the job's bytes are the embedded run's."""
+    w = cluster.worker(1, "--modbus", "127.0.0.2:0")
+    forger = ForgedModbus("127.0.0.1", int(w.modbus.rsplit(":", 1)[1]))
+    try:
+        cluster.worker(1)
+        cluster.start(0, 1, *SERVER_ARGS)
+        cluster.server.wait_log(r"its Modbus plane says draining but its data plane does not; ignored")
+        assert forger.polls >= 1
+        job = cluster.submit(ref_of(data), *JOB)
+        cluster.texsyn("watch", job, "--quiet")
+        out = tmp_path / "out.png"
+        cluster.texsyn("fetch", job, "-o", out)
+        assert out.read_bytes() == expected
+        assert [x["state"] for x in cluster.pool()] == ["active", "active"]
+        assert "draining: its slices are handed back" not in cluster.server.read_log()
+    finally:
+        forger.close()
+
+
+def test_idle_modbus_clients_neither_lock_readers_out_nor_stay(cluster, tmp_path):
+    """The issue's finding: 16 idle sockets took every slot of a plane, for
+    ever. Now 64 idle ones (8 from 127.0.0.1, the rest evicting each other)
+    leave a fresh reader served at once, and an idle client is closed after
+    30 s."""
+    w = cluster.worker(1, "--modbus", "0")
+    host, port = w.modbus.rsplit(":", 1)
+    idle = [socket.create_connection((host, int(port)), timeout=5) for _ in range(64)]
+    t0 = time.monotonic()
+    assert read_regs(host, port)[0] == 0x5453
+    assert time.monotonic() - t0 < 1.0
+    last = idle[-1]  # among the newest: not evicted, so it waits for the idle timeout
+    last.settimeout(40)
+    t0 = time.monotonic()
+    assert last.recv(1) == b""
+    waited = time.monotonic() - t0
+    assert 25 < waited < 35, waited
+    for s in idle:
+        s.close()
+    assert "closed to make room (at most 8 from one address" in w.read_log()

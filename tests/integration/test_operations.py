@@ -12,7 +12,7 @@ import pytest
 from conftest import BUILD, STATUS_HEADER, jobs_listed, run, workers_listed
 
 SMALL = ["--size", "48x32", "--levels", "2"]
-MB = ["--modbus", "0", "--modbus-control"]
+MB = ["--modbus", "0", "--modbus-control", "--modbus-allow", "127.0.0.1"]
 
 
 def ref_of(data):
@@ -185,7 +185,7 @@ def test_workers_shows_names_draining_and_dead(data, cluster, tmp_path):
     at share 0; a killed one listed as dead with when it was dropped,
     until a worker of its name joins again."""
     for _ in range(2):
-        cluster.worker(1, "--modbus", "0", "--modbus-control")
+        cluster.worker(1, "--modbus", "0", "--modbus-control", "--modbus-allow", "127.0.0.1")
     cluster.start(0, 1, "--heartbeat", "0.5", "--calibrate-ms", "50")
     joined = cluster.worker(1, "--join", cluster.server.addr, "--name", "joiner")
     cluster.wait_ready(3)

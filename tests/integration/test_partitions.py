@@ -117,7 +117,8 @@ class NsCluster:
         name = name or f"w{slot}"
         w = Daemon(self.net.in_worker(slot, BUILD / "texsyn-worker", "--listen", addr, "--threads", 1,
                                       "--name", name, "--secret-file", self.secret,
-                                      "--modbus", f"{self.net.worker_ip(slot)}:0"),
+                                      "--modbus", f"{self.net.worker_ip(slot)}:0",
+                                      "--modbus-allow", self.net.coord_ip(slot)),
                    self.tmp / f"{name}.log")
         self.workers[slot] = w
         return w

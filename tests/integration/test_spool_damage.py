@@ -56,7 +56,7 @@ def test_damaged_spool_files_after_a_restart(texsyn, data, cluster, tmp_path):
     want = expected.read_bytes()
 
     # Jobs 1-4 finish; 5-9 stay queued behind a paused queue.
-    start_server(cluster, "server1.log", "--modbus", "0", "--modbus-control")
+    start_server(cluster, "server1.log", "--modbus", "0", "--modbus-control", "--modbus-allow", "127.0.0.1")
     done = [submit(cluster, data) for _ in range(4)]
     assert done == ["1", "2", "3", "4"]
     for job in done:

@@ -340,7 +340,7 @@ def test_a_queued_energy_job_runs_after_a_coordinator_restart(texsyn, scene, clu
     out = tmp_path / "out.png"
     stylize(texsyn, scene, out)
     want = run(texsyn, *energy_args(scene, out, "--sample", "2", "--json", "--embedded")).stdout
-    cluster.start(2, 1, "--modbus", "0", "--modbus-control")
+    cluster.start(2, 1, "--modbus", "0", "--modbus-control", "--modbus-allow", "127.0.0.1")
     run(BUILD / "texsyn", "modbus", cluster.server.modbus, "--set", "pause=1")
     job = cluster.texsyn(*energy_args(scene, out, "--sample", "2", "--detach")).stdout.split()[-1]
     assert cluster.texsyn("status", job).stdout.split()[:2] == [job, "held"]

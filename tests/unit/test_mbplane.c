@@ -183,7 +183,65 @@ static void garbage_and_half_requests_lose_the_connection(void **state) {
   ts_mbplane_stop(m);
 }
 
+static struct sockaddr_storage v4(const char *ip) {
+  struct sockaddr_storage ss = {0};
+  struct sockaddr_in *in = (struct sockaddr_in *)&ss;
+  in->sin_family = AF_INET;
+  assert_int_equal(inet_pton(AF_INET, ip, &in->sin_addr), 1);
+  return ss;
+}
+
+static struct sockaddr_storage v6(const char *ip) {
+  struct sockaddr_storage ss = {0};
+  struct sockaddr_in6 *in = (struct sockaddr_in6 *)&ss;
+  in->sin6_family = AF_INET6;
+  assert_int_equal(inet_pton(AF_INET6, ip, &in->sin6_addr), 1);
+  return ss;
+}
+
+static int allowed(const ts_mb_allow *a, struct sockaddr_storage ss) {
+  return ts_mb_allowed(a, (struct sockaddr *)&ss);
+}
+
+static void allow_list_admits_loopback_and_its_networks(void **state) {
+  (void)state;
+  ts_mb_allow a;
+  char err[TS_ERR_LEN];
+  assert_true(allowed(NULL, v4("127.0.0.1")) && allowed(NULL, v4("127.9.8.7")) && allowed(NULL, v6("::1")));
+  assert_true(allowed(NULL, v6("::ffff:127.0.0.1")));
+  assert_false(allowed(NULL, v4("10.0.0.1")) || allowed(NULL, v6("fd00::1")));
+  assert_int_equal(ts_mb_allow_parse("10.1.0.0/16,192.168.1.7,fd00::/8,172.16.0.0/12", &a, err), 0);
+  assert_int_equal(a.n, 4);
+  assert_true(allowed(&a, v4("10.1.255.3")) && allowed(&a, v4("192.168.1.7")) && allowed(&a, v6("fd12::9")));
+  assert_true(allowed(&a, v4("172.31.0.1")) && allowed(&a, v6("::ffff:10.1.0.1")));
+  assert_false(allowed(&a, v4("10.2.0.1")) || allowed(&a, v4("192.168.1.8")) || allowed(&a, v6("fe80::1")));
+  assert_false(allowed(&a, v4("172.32.0.1")));
+  assert_true(allowed(&a, v4("127.0.0.1")));
+  const char *bad[] = {"", ",", "10.0.0.0/33", "fd00::/129", "10.0.0/8", "host.example", "10.0.0.0/x"};
+  for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++) {
+    assert_int_equal(ts_mb_allow_parse(bad[i], &a, err), TS_EINVAL);
+    assert_non_null(strstr(err, "--modbus-allow"));
+  }
+}
+
+static void listen_address_spellings(void **state) {
+  (void)state;
+  char out[128], host[64], err[TS_ERR_LEN];
+  const struct {
+    const char *arg, *addr, *host;
+  } cases[] = {{"1502", "127.0.0.1:1502", "127.0.0.1"}, {":1502", "127.0.0.1:1502", "127.0.0.1"},
+               {"*:1502", ":1502", "0.0.0.0"},         {"0.0.0.0:1502", "0.0.0.0:1502", "0.0.0.0"},
+               {"[::]:1502", "[::]:1502", "::"},      {"10.0.0.5:0", "10.0.0.5:0", "10.0.0.5"}};
+  for (size_t i = 0; i < sizeof(cases) / sizeof(cases[0]); i++) {
+    assert_int_equal(ts_mb_listen_addr(cases[i].arg, out, sizeof(out), host, sizeof(host), err), 0);
+    assert_string_equal(out, cases[i].addr);
+    assert_string_equal(host, cases[i].host);
+  }
+}
+
 static const struct CMUnitTest tests[] = {
+    cmocka_unit_test(allow_list_admits_loopback_and_its_networks),
+    cmocka_unit_test(listen_address_spellings),
     cmocka_unit_test(registers_and_word_order),
     cmocka_unit_test(coil_writes_need_control),
     cmocka_unit_test(bad_addresses_and_functions_get_exceptions),

@@ -324,6 +324,54 @@ static void log_line_has_the_prefix_and_utc_time(void **state) {
   fclose(f);
 }
 
+static void log_escapes_control_bytes(void **state) {
+  (void)state;
+  FILE *f = tmpfile();
+  assert_non_null(f);
+  ts_log_init("t", f, 0);
+  ts_log("worker joining (%s)", "x\ntexsyn-server: forged\x1b[2J\x7f\t\xc3\xa9");
+  char *text = log_text(f);
+  char *at = strstr(text, "Z worker joining (");
+  assert_non_null(at);
+  assert_string_equal(at, "Z worker joining (x\\x0atexsyn-server: forged\\x1b[2J\\x7f\\x09\xc3\xa9)\n");
+  fclose(f);
+}
+
+static void log_limited_writes_one_line_and_holds_the_rest(void **state) {
+  (void)state;
+  FILE *f = tmpfile();
+  assert_non_null(f);
+  ts_log_init("t", f, 1); /* written even when quiet */
+  ts_log_limit l = TS_LOG_LIMIT_INIT;
+  for (int i = 0; i < 5; i++) ts_log_limited(&l, "closed peer %d", i);
+  char *text = log_text(f);
+  assert_non_null(strstr(text, "Z closed peer 0\n"));
+  assert_null(strstr(text, "peer 1"));
+  assert_int_equal(l.held, 4);
+  fclose(f);
+}
+
+static void parse_bytes_takes_binary_suffixes(void **state) {
+  (void)state;
+  uint64_t v = 1;
+  assert_int_equal(ts_parse_bytes("0", &v), 0);
+  assert_int_equal(v, 0);
+  assert_int_equal(ts_parse_bytes("512", &v), 0);
+  assert_int_equal(v, 512);
+  assert_int_equal(ts_parse_bytes("64K", &v), 0);
+  assert_int_equal(v, 65536);
+  assert_int_equal(ts_parse_bytes("1.5G", &v), 0);
+  assert_int_equal(v, 3ull << 29);
+  assert_int_equal(ts_parse_bytes("2T", &v), 0);
+  assert_int_equal(v, 2ull << 40);
+  const char *bad[] = {"", "M", "1X", "1MB", "-1", "1e30", "nan"};
+  for (size_t i = 0; i < sizeof(bad) / sizeof(bad[0]); i++) {
+    v = 7;
+    assert_int_equal(ts_parse_bytes(bad[i], &v), TS_EINVAL);
+    assert_int_equal(v, 7);
+  }
+}
+
 static void log_quiet_drops_events_not_warnings(void **state) {
   (void)state;
   FILE *f = tmpfile();
@@ -382,6 +430,9 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(file_create_names_a_path_it_cannot_write),
     cmocka_unit_test(log_line_has_the_prefix_and_utc_time),
     cmocka_unit_test(log_quiet_drops_events_not_warnings),
+    cmocka_unit_test(log_escapes_control_bytes),
+    cmocka_unit_test(parse_bytes_takes_binary_suffixes),
+    cmocka_unit_test(log_limited_writes_one_line_and_holds_the_rest),
 };
 
 TS_TEST_MAIN(tests)
