@@ -113,6 +113,8 @@ def main():
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--crop", type=int, default=192)
     ap.add_argument("--halo", type=int, default=0, help="texsyn aerial --halo (0: its default)")
+    ap.add_argument("--seam-cut", type=int, default=None, help="texsyn aerial --seam-cut (default: its default)")
+    ap.add_argument("--out", default="tile_seams", help="the results' name in bench/results/")
     a = ap.parse_args()
     build = Path(a.build)
     results = REPO / "bench" / "results"
@@ -125,7 +127,7 @@ def main():
         t0 = time.time()
         p = subprocess.run([build / "texsyn", "aerial", "--classes", d / "scene-classes.png", "--catalogue",
                             d / "catalogue.json", "-o", out, "--tile", str(a.tile), "--halo", str(a.halo), "--report", report,
-                            "--quiet"],
+                            "--quiet"] + ([] if a.seam_cut is None else ["--seam-cut", str(a.seam_cut)]),
                            capture_output=True, text=True)
         if p.returncode != 0:
             sys.exit(f"tile_seams: texsyn aerial failed: {p.stderr}")

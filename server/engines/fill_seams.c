@@ -1,0 +1,274 @@
+/* fill_seams.c - see fill_seams.h.
+ *
+ * One seam: the pixel pairs across the edge u0 (between u0 - 1 and u0 on
+ * the axis across the seam, u) along a run of rows (v) where the pairs are
+ * of one class, one of them a work pixel, and their copies do not continue
+ * each other. The band is the `reach` pixels on either side; a state k in
+ * -reach..reach is where the row's join goes: k < 0 gives the pixels
+ * [u0 + k, u0) the copy of u0 gone on backwards, k > 0 the pixels
+ * [u0, u0 + k) that of u0 - 1 gone on forwards, 0 leaves the row. A state
+ * is allowed when every pixel it changes may take that copy. The cost of a
+ * row's state is that of its pairs across the seam and, between rows, of
+ * the pairs along it; the least total over the run is found by dynamic
+ * programming, ties to the state nearest 0 (the row as it was), then to
+ * the negative one. */
+#include "fill_seams.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+#include "error.h"
+
+#define BAND (2 * TS_SEAM_MAX_REACH + 2) /* the band's columns and one outside each side */
+#define STATES (2 * TS_SEAM_MAX_REACH + 1)
+#define NO_COST UINT64_MAX
+
+/* A pixel's copy: its class, where in the class's reference, the rows of
+ * its source there, and its values; exists = 0 outside the image. */
+typedef struct {
+  uint8_t exists, cls;
+  int sx, sy, ylo, yhi;
+  uint8_t v[TS_MAX_PLANES];
+} cand;
+
+/* A row of a seam: per band column (u = u0 - reach - 1 + c) the pixel as
+ * it is and the other side's copy gone on (alt_ok: it may take it). */
+typedef struct {
+  cand cur[BAND], alt[BAND];
+  uint8_t alt_ok[BAND];
+} seam_row;
+
+typedef struct {
+  ts_seam_image *im;
+  int U, V;           /* the image's size across and along the seams */
+  int ax, ay, bx, by; /* one pixel across, one along, in (x, y) */
+  int reach, nstates;
+  int order[STATES]; /* states by preference: 0, -1, 1, -2, 2, ... */
+  seam_row *rows;    /* the run's */
+  uint8_t *back;     /* per row of the run and state: the best state before */
+  uint64_t moved;
+} cutter;
+
+static size_t idx(const cutter *c, int u, int v) {
+  return c->ax ? (size_t)v * (size_t)c->im->w + (size_t)u : (size_t)u * (size_t)c->im->w + (size_t)v;
+}
+
+static void source_rows(const ts_seam_ref *r, int y, int *lo, int *hi) {
+  int s = 0;
+  while (s + 1 < r->nsrc && y >= r->y0[s + 1]) s++;
+  *lo = r->y0[s];
+  *hi = r->y0[s] + r->h0[s];
+}
+
+static void cand_pixel(const cutter *c, int u, int v, cand *p) {
+  const ts_seam_image *im = c->im;
+  memset(p, 0, sizeof(*p));
+  if (u < 0 || u >= c->U) return;
+  size_t i = idx(c, u, v);
+  p->exists = 1;
+  p->cls = im->cls[i];
+  for (int k = 0; k < im->nplanes; k++) p->v[k] = im->planes[k][i];
+  if (p->cls == 0) return;
+  p->sx = (int)im->copy[2 * i];
+  p->sy = (int)im->copy[2 * i + 1];
+  source_rows(&im->ref[p->cls - 1], p->sy, &p->ylo, &p->yhi);
+}
+
+/* Whether p's copy goes on by (dx, dy) inside its source; its values. */
+static int go_on(const ts_seam_image *im, const cand *p, int dx, int dy, uint8_t *v) {
+  if (p->cls == 0) return 0;
+  const ts_seam_ref *r = &im->ref[p->cls - 1];
+  int x = p->sx + dx, y = p->sy + dy;
+  if (x < 0 || x >= r->w || y < p->ylo || y >= p->yhi) return 0;
+  size_t o = (size_t)y * (size_t)r->w + (size_t)x;
+  for (int k = 0; k < im->nplanes; k++) v[k] = r->planes[k][o];
+  return 1;
+}
+
+/* How far a's copy gone on by (dx, dy) is from b (a itself where it
+ * cannot go on). */
+static uint32_t miss(const ts_seam_image *im, const cand *a, int dx, int dy, const cand *b) {
+  uint8_t v[TS_MAX_PLANES];
+  const uint8_t *from = go_on(im, a, dx, dy, v) ? v : a->v;
+  uint32_t d = 0;
+  for (int k = 0; k < im->nplanes; k++) d += (uint32_t)abs((int)from[k] - (int)b->v[k]);
+  return d;
+}
+
+/* The cost of neighbours a, b (b one pixel on by (dx, dy)): 0 where their
+ * copies continue each other. */
+static uint32_t pair_cost(const ts_seam_image *im, const cand *a, const cand *b, int dx, int dy) {
+  if (!a->exists || !b->exists) return 0;
+  return miss(im, a, dx, dy, b) + miss(im, b, -dx, -dy, a);
+}
+
+/* Pixel (u0 - 1, v) and (u0, v) make a seam row. */
+static int is_seam(const cutter *c, int u0, int v) {
+  const ts_seam_image *im = c->im;
+  size_t a = idx(c, u0 - 1, v), b = idx(c, u0, v);
+  if (im->cls[a] == 0 || im->cls[a] != im->cls[b] || !(im->movable[a] || im->movable[b])) return 0;
+  return im->copy[2 * b] != im->copy[2 * a] + (uint32_t)c->ax || im->copy[2 * b + 1] != im->copy[2 * a + 1] + (uint32_t)c->ay;
+}
+
+/* Row v of the seam at u0: the pixels and the copies they may take. */
+static void build_row(const cutter *c, int u0, int v, seam_row *r) {
+  const ts_seam_image *im = c->im;
+  cand left, right; /* the pixels whose copies go on past the edge */
+  cand_pixel(c, u0 - 1, v, &left);
+  cand_pixel(c, u0, v, &right);
+  for (int j = 0; j < 2 * c->reach + 2; j++) {
+    int u = u0 - c->reach - 1 + j;
+    cand_pixel(c, u, v, &r->cur[j]);
+    r->alt_ok[j] = 0;
+    if (j == 0 || j == 2 * c->reach + 1 || !r->cur[j].exists || !im->movable[idx(c, u, v)]) continue;
+    const cand *e = u < u0 ? &right : &left;
+    int s = u < u0 ? u - u0 : u - u0 + 1;
+    cand *a = &r->alt[j];
+    *a = *e;
+    if (e->cls != r->cur[j].cls || !go_on(im, e, s * c->ax, s * c->ay, a->v)) continue;
+    a->sx = e->sx + s * c->ax;
+    a->sy = e->sy + s * c->ay;
+    const ts_seam_ref *ref = &im->ref[e->cls - 1];
+    r->alt_ok[j] = ref->usable == NULL || ref->usable[(size_t)a->sy * (size_t)ref->w + (size_t)a->sx];
+  }
+}
+
+/* Whether state k takes the other copy in band column j. */
+static int takes(const cutter *c, int k, int j) {
+  int d = j - c->reach - 1; /* u - u0 */
+  return (k < 0 && d >= k && d < 0) || (k > 0 && d >= 0 && d < k);
+}
+
+static const cand *label(const cutter *c, const seam_row *r, int k, int j) {
+  return takes(c, k, j) ? &r->alt[j] : &r->cur[j];
+}
+
+static int allowed(const cutter *c, const seam_row *r, int k) {
+  for (int j = 1; j <= 2 * c->reach; j++)
+    if (takes(c, k, j) && !r->alt_ok[j]) return 0;
+  return 1;
+}
+
+/* The row's own cost in state k: its pairs across the seam, and along it
+ * to the fixed row before (first) or after (last) the run. */
+static uint64_t row_cost(const cutter *c, const seam_row *r, int k, int u0, int v, int first, int last) {
+  const ts_seam_image *im = c->im;
+  uint64_t s = 0;
+  for (int j = 1; j <= 2 * c->reach + 1; j++) s += pair_cost(im, label(c, r, k, j - 1), label(c, r, k, j), c->ax, c->ay);
+  for (int j = 1; j <= 2 * c->reach && (first || last); j++) {
+    int u = u0 - c->reach - 1 + j;
+    cand o;
+    if (first && v > 0) {
+      cand_pixel(c, u, v - 1, &o);
+      s += pair_cost(im, &o, label(c, r, k, j), c->bx, c->by);
+    }
+    if (last && v + 1 < c->V) {
+      cand_pixel(c, u, v + 1, &o);
+      s += pair_cost(im, label(c, r, k, j), &o, c->bx, c->by);
+    }
+  }
+  return s;
+}
+
+/* The pairs along the seam between row r in state k and the next row n in
+ * state kn. */
+static uint64_t step_cost(const cutter *c, const seam_row *r, int k, const seam_row *n, int kn) {
+  uint64_t s = 0;
+  for (int j = 1; j <= 2 * c->reach; j++)
+    s += pair_cost(c->im, label(c, r, k, j), label(c, n, kn, j), c->bx, c->by);
+  return s;
+}
+
+static void apply(cutter *c, const seam_row *r, int k, int u0, int v) {
+  ts_seam_image *im = c->im;
+  for (int j = 1; j <= 2 * c->reach; j++) {
+    if (!takes(c, k, j)) continue;
+    size_t i = idx(c, u0 - c->reach - 1 + j, v);
+    const cand *a = &r->alt[j];
+    im->copy[2 * i] = (uint32_t)a->sx;
+    im->copy[2 * i + 1] = (uint32_t)a->sy;
+    for (int p = 0; p < im->nplanes; p++) im->planes[p][i] = a->v[p];
+    c->moved++;
+  }
+}
+
+/* The run of seam rows [va, vb) at u0. */
+static void cut_run(cutter *c, int u0, int va, int vb) {
+  int n = vb - va, ns = c->nstates, R = c->reach;
+  uint64_t cost[STATES], next[STATES];
+  for (int i = 0; i < n; i++) build_row(c, u0, va + i, &c->rows[i]);
+  for (int k = -R; k <= R; k++)
+    cost[k + R] = allowed(c, &c->rows[0], k) ? row_cost(c, &c->rows[0], k, u0, va, 1, n == 1) : NO_COST;
+  for (int i = 1; i < n; i++) {
+    const seam_row *r = &c->rows[i - 1], *q = &c->rows[i];
+    for (int kn = -R; kn <= R; kn++) {
+      next[kn + R] = NO_COST;
+      if (!allowed(c, q, kn)) continue;
+      uint64_t own = row_cost(c, q, kn, u0, va + i, 0, i == n - 1);
+      for (int t = 0; t < ns; t++) {
+        int k = c->order[t];
+        if (cost[k + R] == NO_COST) continue;
+        uint64_t total = cost[k + R] + step_cost(c, r, k, q, kn) + own;
+        if (total < next[kn + R]) {
+          next[kn + R] = total;
+          c->back[(size_t)i * STATES + (size_t)(kn + R)] = (uint8_t)(k + R);
+        }
+      }
+    }
+    memcpy(cost, next, sizeof(cost));
+  }
+  int k = 0; /* state 0 is always allowed */
+  for (int t = 0; t < ns; t++)
+    if (cost[c->order[t] + R] < cost[k + R]) k = c->order[t];
+  for (int i = n - 1; i >= 0; i--) {
+    apply(c, &c->rows[i], k, u0, va + i);
+    if (i > 0) k = (int)c->back[(size_t)i * STATES + (size_t)(k + R)] - R;
+  }
+}
+
+/* Every seam across the u axis, edge by edge, run by run. */
+static void cut_all(cutter *c) {
+  for (int u0 = 1; u0 < c->U; u0++)
+    for (int v = 0; v < c->V;) {
+      if (!is_seam(c, u0, v)) {
+        v++;
+        continue;
+      }
+      int vb = v + 1;
+      while (vb < c->V && is_seam(c, u0, vb)) vb++;
+      cut_run(c, u0, v, vb);
+      v = vb;
+    }
+}
+
+int ts_fill_cut_seams(ts_seam_image *im, uint64_t *moved) {
+  *moved = 0;
+  if (im->reach < 1) return 0;
+  int longest = im->w > im->h ? im->w : im->h;
+  cutter c = {.im = im, .reach = im->reach < TS_SEAM_MAX_REACH ? im->reach : TS_SEAM_MAX_REACH};
+  c.nstates = 2 * c.reach + 1;
+  for (int t = 0, k = 0; t < c.nstates; k++) {
+    c.order[t++] = -k;
+    if (k > 0) c.order[t++] = k;
+  }
+  c.rows = malloc(sizeof(seam_row) * (size_t)longest);
+  c.back = malloc((size_t)longest * STATES);
+  if (c.rows == NULL || c.back == NULL) {
+    free(c.rows);
+    free(c.back);
+    return TS_ENOMEM;
+  }
+  for (int dir = 0; dir < 2; dir++) { /* vertical seams (across x), then horizontal */
+    c.ax = dir == 0;
+    c.ay = dir == 1;
+    c.bx = c.ay;
+    c.by = c.ax;
+    c.U = dir == 0 ? im->w : im->h;
+    c.V = dir == 0 ? im->h : im->w;
+    cut_all(&c);
+  }
+  free(c.rows);
+  free(c.back);
+  *moved = c.moved;
+  return 0;
+}
