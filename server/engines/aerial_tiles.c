@@ -329,9 +329,9 @@ static void piece_of(tiler *t, int tx, int ty, const tile_fill *f, const ts_fill
   band *b = band_of_row(t, ty);
   memset(pc, 0, sizeof(*pc));
   size_t o = (size_t)(f->core.y0 - b->y0) * (size_t)t->g.w + (size_t)f->core.x0;
-  *pc = (aerial_piece){(uint32_t)ts_tile_index(&t->g, tx, ty), f->core.x0, f->core.y0, f->core.x1 - f->core.x0,
-                       f->core.y1 - f->core.y0, b->luma + o, b->rgb + 3 * o, b->src + o, NULL, (size_t)t->g.w,
-                       f->nclass};
+  *pc = (aerial_piece){.index = (uint32_t)ts_tile_index(&t->g, tx, ty), .x0 = f->core.x0, .y0 = f->core.y0,
+                       .w = f->core.x1 - f->core.x0, .h = f->core.y1 - f->core.y0, .luma = b->luma + o,
+                       .rgb = b->rgb + 3 * o, .src = b->src + o, .stride = (size_t)t->g.w, .nclass = f->nclass};
   if (res == NULL) return;
   memcpy(pc->rank, f->rank, sizeof(pc->rank));
   pc->nedits = f->nedits;
