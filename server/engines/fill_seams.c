@@ -23,29 +23,46 @@
 #define STATES (2 * TS_SEAM_MAX_REACH + 1)
 #define NO_COST UINT64_MAX
 
+/* The directions a copy may go on in: across the seam forwards and
+ * backwards, along it forwards and backwards (a pair's cost reads the
+ * first pixel's copy forwards and the second's backwards). */
+enum { FWD_U, BACK_U, FWD_V, BACK_V };
+
 /* A pixel's copy: its class, where in the class's reference, the rows of
- * its source there, and its values; exists = 0 outside the image. */
+ * its source there, its values, and the values of its copy gone on by one
+ * pixel in each direction (its own where the copy would leave its
+ * source); exists = 0 outside the image. */
 typedef struct {
   uint8_t exists, cls;
   int sx, sy, ylo, yhi;
   uint8_t v[TS_MAX_PLANES];
+  uint8_t next[4][TS_MAX_PLANES];
 } cand;
 
-/* A row of a seam: per band column (u = u0 - reach - 1 + c) the pixel as
+/* A row of a seam: per band column (u = u0 - reach - 1 + j) the pixel as
  * it is and the other side's copy gone on (alt_ok: it may take it). */
 typedef struct {
   cand cur[BAND], alt[BAND];
   uint8_t alt_ok[BAND];
 } seam_row;
 
+/* The pair costs a row's states are made of, per label (0 the pixel as it
+ * is, 1 the other copy) of each pixel: across the seam, pair (j - 1, j);
+ * along it, column j to the row before in the run; and to the fixed rows
+ * just before and after the run (the first and last rows only). */
+typedef struct {
+  uint32_t across[BAND][2][2], along[BAND][2][2], before[BAND][2], after[BAND][2];
+} row_costs;
+
 typedef struct {
   ts_seam_image *im;
   int U, V;           /* the image's size across and along the seams */
   int ax, ay, bx, by; /* one pixel across, one along, in (x, y) */
   int reach, nstates;
-  int order[STATES]; /* states by preference: 0, -1, 1, -2, 2, ... */
-  seam_row *rows;    /* the run's */
-  uint8_t *back;     /* per row of the run and state: the best state before */
+  int order[STATES];          /* states by preference: 0, -1, 1, -2, 2, ... */
+  uint8_t take[STATES][BAND]; /* state k (at k + reach) gives column j the other copy */
+  seam_row *rows;             /* the run's */
+  uint8_t *back;              /* per row of the run and state: the best state before */
   uint64_t moved;
 } cutter;
 
@@ -60,21 +77,8 @@ static void source_rows(const ts_seam_ref *r, int y, int *lo, int *hi) {
   *hi = r->y0[s] + r->h0[s];
 }
 
-static void cand_pixel(const cutter *c, int u, int v, cand *p) {
-  const ts_seam_image *im = c->im;
-  memset(p, 0, sizeof(*p));
-  if (u < 0 || u >= c->U) return;
-  size_t i = idx(c, u, v);
-  p->exists = 1;
-  p->cls = im->cls[i];
-  for (int k = 0; k < im->nplanes; k++) p->v[k] = im->planes[k][i];
-  if (p->cls == 0) return;
-  p->sx = (int)im->copy[2 * i];
-  p->sy = (int)im->copy[2 * i + 1];
-  source_rows(&im->ref[p->cls - 1], p->sy, &p->ylo, &p->yhi);
-}
-
-/* Whether p's copy goes on by (dx, dy) inside its source; its values. */
+/* The values of p's copy gone on by (dx, dy), into v: 1, or 0 where it
+ * would leave its source. */
 static int go_on(const ts_seam_image *im, const cand *p, int dx, int dy, uint8_t *v) {
   if (p->cls == 0) return 0;
   const ts_seam_ref *r = &im->ref[p->cls - 1];
@@ -85,24 +89,39 @@ static int go_on(const ts_seam_image *im, const cand *p, int dx, int dy, uint8_t
   return 1;
 }
 
-/* How far a's copy gone on by (dx, dy) is from b (a itself where it
- * cannot go on). */
-static uint32_t miss(const ts_seam_image *im, const cand *a, int dx, int dy, const cand *b) {
-  uint8_t v[TS_MAX_PLANES];
-  const uint8_t *from = go_on(im, a, dx, dy, v) ? v : a->v;
+static void cand_next(const cutter *c, cand *p) {
+  const int d[4][2] = {{c->ax, c->ay}, {-c->ax, -c->ay}, {c->bx, c->by}, {-c->bx, -c->by}};
+  for (int k = 0; k < 4; k++)
+    if (!go_on(c->im, p, d[k][0], d[k][1], p->next[k])) memcpy(p->next[k], p->v, sizeof(p->v));
+}
+
+static void cand_pixel(const cutter *c, int u, int v, cand *p) {
+  const ts_seam_image *im = c->im;
+  p->exists = u >= 0 && u < c->U && v >= 0 && v < c->V;
+  if (!p->exists) return;
+  size_t i = idx(c, u, v);
+  p->cls = im->cls[i];
+  for (int k = 0; k < im->nplanes; k++) p->v[k] = im->planes[k][i];
+  if (p->cls != 0) {
+    p->sx = (int)im->copy[2 * i];
+    p->sy = (int)im->copy[2 * i + 1];
+    source_rows(&im->ref[p->cls - 1], p->sy, &p->ylo, &p->yhi);
+  }
+  cand_next(c, p);
+}
+
+/* The cost of neighbours a and b, b the next pixel from a in direction
+ * fwd (FWD_U or FWD_V): how far each one's copy gone on is from the
+ * other; 0 where the two copies continue each other. */
+static uint32_t pair_cost(const ts_seam_image *im, const cand *a, const cand *b, int fwd) {
+  if (!a->exists || !b->exists) return 0;
   uint32_t d = 0;
-  for (int k = 0; k < im->nplanes; k++) d += (uint32_t)abs((int)from[k] - (int)b->v[k]);
+  for (int k = 0; k < im->nplanes; k++)
+    d += (uint32_t)abs((int)a->next[fwd][k] - (int)b->v[k]) + (uint32_t)abs((int)b->next[fwd + 1][k] - (int)a->v[k]);
   return d;
 }
 
-/* The cost of neighbours a, b (b one pixel on by (dx, dy)): 0 where their
- * copies continue each other. */
-static uint32_t pair_cost(const ts_seam_image *im, const cand *a, const cand *b, int dx, int dy) {
-  if (!a->exists || !b->exists) return 0;
-  return miss(im, a, dx, dy, b) + miss(im, b, -dx, -dy, a);
-}
-
-/* Pixel (u0 - 1, v) and (u0, v) make a seam row. */
+/* Pixels (u0 - 1, v) and (u0, v) make a seam row. */
 static int is_seam(const cutter *c, int u0, int v) {
   const ts_seam_image *im = c->im;
   size_t a = idx(c, u0 - 1, v), b = idx(c, u0, v);
@@ -113,15 +132,14 @@ static int is_seam(const cutter *c, int u0, int v) {
 /* Row v of the seam at u0: the pixels and the copies they may take. */
 static void build_row(const cutter *c, int u0, int v, seam_row *r) {
   const ts_seam_image *im = c->im;
-  cand left, right; /* the pixels whose copies go on past the edge */
-  cand_pixel(c, u0 - 1, v, &left);
-  cand_pixel(c, u0, v, &right);
-  for (int j = 0; j < 2 * c->reach + 2; j++) {
+  int n = 2 * c->reach + 2;
+  for (int j = 0; j < n; j++) cand_pixel(c, u0 - c->reach - 1 + j, v, &r->cur[j]);
+  const cand *left = &r->cur[c->reach], *right = &r->cur[c->reach + 1]; /* u0 - 1 and u0 */
+  for (int j = 0; j < n; j++) {
     int u = u0 - c->reach - 1 + j;
-    cand_pixel(c, u, v, &r->cur[j]);
     r->alt_ok[j] = 0;
-    if (j == 0 || j == 2 * c->reach + 1 || !r->cur[j].exists || !im->movable[idx(c, u, v)]) continue;
-    const cand *e = u < u0 ? &right : &left;
+    if (j == 0 || j == n - 1 || !r->cur[j].exists || !im->movable[idx(c, u, v)]) continue;
+    const cand *e = u < u0 ? right : left;
     int s = u < u0 ? u - u0 : u - u0 + 1;
     cand *a = &r->alt[j];
     *a = *e;
@@ -130,59 +148,66 @@ static void build_row(const cutter *c, int u0, int v, seam_row *r) {
     a->sy = e->sy + s * c->ay;
     const ts_seam_ref *ref = &im->ref[e->cls - 1];
     r->alt_ok[j] = ref->usable == NULL || ref->usable[(size_t)a->sy * (size_t)ref->w + (size_t)a->sx];
+    if (r->alt_ok[j]) cand_next(c, a);
   }
-}
-
-/* Whether state k takes the other copy in band column j. */
-static int takes(const cutter *c, int k, int j) {
-  int d = j - c->reach - 1; /* u - u0 */
-  return (k < 0 && d >= k && d < 0) || (k > 0 && d >= 0 && d < k);
-}
-
-static const cand *label(const cutter *c, const seam_row *r, int k, int j) {
-  return takes(c, k, j) ? &r->alt[j] : &r->cur[j];
 }
 
 static int allowed(const cutter *c, const seam_row *r, int k) {
   for (int j = 1; j <= 2 * c->reach; j++)
-    if (takes(c, k, j) && !r->alt_ok[j]) return 0;
+    if (c->take[k + c->reach][j] && !r->alt_ok[j]) return 0;
   return 1;
 }
 
-/* The row's own cost in state k: its pairs across the seam, and along it
- * to the fixed row before (first) or after (last) the run. */
-static uint64_t row_cost(const cutter *c, const seam_row *r, int k, int u0, int v, int first, int last) {
+static const cand *as(const seam_row *r, int j, int l) { return l ? &r->alt[j] : &r->cur[j]; }
+
+/* Row r's pair costs (r is row v of the seam at u0; prev the row before
+ * in the run, or NULL); first, last: r begins, ends the run. */
+static void costs_of(const cutter *c, int u0, int v, const seam_row *r, const seam_row *prev, int first, int last,
+                     row_costs *rc) {
   const ts_seam_image *im = c->im;
-  uint64_t s = 0;
-  for (int j = 1; j <= 2 * c->reach + 1; j++) s += pair_cost(im, label(c, r, k, j - 1), label(c, r, k, j), c->ax, c->ay);
-  for (int j = 1; j <= 2 * c->reach && (first || last); j++) {
-    int u = u0 - c->reach - 1 + j;
+  int n = 2 * c->reach + 1;
+  for (int j = 1; j <= n; j++)
+    for (int la = 0; la <= r->alt_ok[j - 1]; la++)
+      for (int lb = 0; lb <= r->alt_ok[j]; lb++) rc->across[j][la][lb] = pair_cost(im, as(r, j - 1, la), as(r, j, lb), FWD_U);
+  for (int j = 1; j < n; j++) {
+    for (int la = 0; prev != NULL && la <= prev->alt_ok[j]; la++)
+      for (int lb = 0; lb <= r->alt_ok[j]; lb++) rc->along[j][la][lb] = pair_cost(im, as(prev, j, la), as(r, j, lb), FWD_V);
+    rc->before[j][0] = rc->before[j][1] = rc->after[j][0] = rc->after[j][1] = 0;
     cand o;
     if (first && v > 0) {
-      cand_pixel(c, u, v - 1, &o);
-      s += pair_cost(im, &o, label(c, r, k, j), c->bx, c->by);
+      cand_pixel(c, u0 - c->reach - 1 + j, v - 1, &o);
+      for (int l = 0; l <= r->alt_ok[j]; l++) rc->before[j][l] = pair_cost(im, &o, as(r, j, l), FWD_V);
     }
     if (last && v + 1 < c->V) {
-      cand_pixel(c, u, v + 1, &o);
-      s += pair_cost(im, label(c, r, k, j), &o, c->bx, c->by);
+      cand_pixel(c, u0 - c->reach - 1 + j, v + 1, &o);
+      for (int l = 0; l <= r->alt_ok[j]; l++) rc->after[j][l] = pair_cost(im, as(r, j, l), &o, FWD_V);
     }
   }
+}
+
+/* The row's own cost in state k: its pairs across the seam, and along it
+ * to the fixed rows before and after the run. */
+static uint64_t row_cost(const cutter *c, const row_costs *rc, int k) {
+  const uint8_t *t = c->take[k + c->reach];
+  uint64_t s = 0;
+  for (int j = 1; j <= 2 * c->reach + 1; j++) s += rc->across[j][t[j - 1]][t[j]];
+  for (int j = 1; j <= 2 * c->reach; j++) s += rc->before[j][t[j]] + rc->after[j][t[j]];
   return s;
 }
 
-/* The pairs along the seam between row r in state k and the next row n in
- * state kn. */
-static uint64_t step_cost(const cutter *c, const seam_row *r, int k, const seam_row *n, int kn) {
+/* The pairs along the seam between the row before in state k and this one
+ * in state kn. */
+static uint64_t step_cost(const cutter *c, const row_costs *rc, int k, int kn) {
+  const uint8_t *t = c->take[k + c->reach], *tn = c->take[kn + c->reach];
   uint64_t s = 0;
-  for (int j = 1; j <= 2 * c->reach; j++)
-    s += pair_cost(c->im, label(c, r, k, j), label(c, n, kn, j), c->bx, c->by);
+  for (int j = 1; j <= 2 * c->reach; j++) s += rc->along[j][t[j]][tn[j]];
   return s;
 }
 
 static void apply(cutter *c, const seam_row *r, int k, int u0, int v) {
   ts_seam_image *im = c->im;
   for (int j = 1; j <= 2 * c->reach; j++) {
-    if (!takes(c, k, j)) continue;
+    if (!c->take[k + c->reach][j]) continue;
     size_t i = idx(c, u0 - c->reach - 1 + j, v);
     const cand *a = &r->alt[j];
     im->copy[2 * i] = (uint32_t)a->sx;
@@ -196,19 +221,21 @@ static void apply(cutter *c, const seam_row *r, int k, int u0, int v) {
 static void cut_run(cutter *c, int u0, int va, int vb) {
   int n = vb - va, ns = c->nstates, R = c->reach;
   uint64_t cost[STATES], next[STATES];
+  row_costs rc;
   for (int i = 0; i < n; i++) build_row(c, u0, va + i, &c->rows[i]);
-  for (int k = -R; k <= R; k++)
-    cost[k + R] = allowed(c, &c->rows[0], k) ? row_cost(c, &c->rows[0], k, u0, va, 1, n == 1) : NO_COST;
+  costs_of(c, u0, va, &c->rows[0], NULL, 1, n == 1, &rc);
+  for (int k = -R; k <= R; k++) cost[k + R] = allowed(c, &c->rows[0], k) ? row_cost(c, &rc, k) : NO_COST;
   for (int i = 1; i < n; i++) {
-    const seam_row *r = &c->rows[i - 1], *q = &c->rows[i];
+    const seam_row *q = &c->rows[i];
+    costs_of(c, u0, va + i, q, &c->rows[i - 1], 0, i == n - 1, &rc);
     for (int kn = -R; kn <= R; kn++) {
       next[kn + R] = NO_COST;
       if (!allowed(c, q, kn)) continue;
-      uint64_t own = row_cost(c, q, kn, u0, va + i, 0, i == n - 1);
+      uint64_t own = row_cost(c, &rc, kn);
       for (int t = 0; t < ns; t++) {
         int k = c->order[t];
         if (cost[k + R] == NO_COST) continue;
-        uint64_t total = cost[k + R] + step_cost(c, r, k, q, kn) + own;
+        uint64_t total = cost[k + R] + step_cost(c, &rc, k, kn) + own;
         if (total < next[kn + R]) {
           next[kn + R] = total;
           c->back[(size_t)i * STATES + (size_t)(kn + R)] = (uint8_t)(k + R);
@@ -251,6 +278,11 @@ int ts_fill_cut_seams(ts_seam_image *im, uint64_t *moved) {
     c.order[t++] = -k;
     if (k > 0) c.order[t++] = k;
   }
+  for (int k = -c.reach; k <= c.reach; k++)
+    for (int j = 0; j < BAND; j++) {
+      int d = j - c.reach - 1; /* u - u0 */
+      c.take[k + c.reach][j] = (uint8_t)((k < 0 && d >= k && d < 0) || (k > 0 && d >= 0 && d < k));
+    }
   c.rows = malloc(sizeof(seam_row) * (size_t)longest);
   c.back = malloc((size_t)longest * STATES);
   if (c.rows == NULL || c.back == NULL) {
