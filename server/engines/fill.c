@@ -738,9 +738,9 @@ void ts_fill_result_free(ts_fill_result *res) {
 
 void ts_fill_report_params(FILE *f, const ts_fill_params *p) {
   fprintf(f, "\"levels\": %d, \"wn\": %d, \"wb\": %d, \"parity\": %s, \"coarse_weight\": %g, \"order\": \"%s\", "
-             "\"threshold\": %g, \"seed\": %llu",
+             "\"threshold\": %g, \"seed\": %llu, \"seam_cut\": %d",
           p->levels, p->wn, p->wb, p->parity ? "true" : "false", p->coarse_weight,
-          p->order == TS_FILL_THRESHOLD ? "threshold" : "puzzle", p->threshold, (unsigned long long)p->seed);
+          p->order == TS_FILL_THRESHOLD ? "threshold" : "puzzle", p->threshold, (unsigned long long)p->seed, p->seam_cut);
 }
 
 void ts_fill_report_levels(FILE *f, const ts_fill_params *p, const ts_fill_result *r) {

@@ -14,6 +14,7 @@
  * the negative one. */
 #include "fill_seams.h"
 
+#include <stddef.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -58,6 +59,7 @@ typedef struct {
   ts_seam_image *im;
   int U, V;           /* the image's size across and along the seams */
   int ax, ay, bx, by; /* one pixel across, one along, in (x, y) */
+  int dir[4][2];      /* FWD_U .. BACK_V in (x, y) */
   int reach, nstates;
   int order[STATES];          /* states by preference: 0, -1, 1, -2, 2, ... */
   uint8_t take[STATES][BAND]; /* state k (at k + reach) gives column j the other copy */
@@ -89,10 +91,24 @@ static int go_on(const ts_seam_image *im, const cand *p, int dx, int dy, uint8_t
   return 1;
 }
 
+/* p's copy gone on in the four directions (dir[k] of the cutter). */
 static void cand_next(const cutter *c, cand *p) {
-  const int d[4][2] = {{c->ax, c->ay}, {-c->ax, -c->ay}, {c->bx, c->by}, {-c->bx, -c->by}};
-  for (int k = 0; k < 4; k++)
-    if (!go_on(c->im, p, d[k][0], d[k][1], p->next[k])) memcpy(p->next[k], p->v, sizeof(p->v));
+  const ts_seam_image *im = c->im;
+  if (p->cls == 0) {
+    for (int k = 0; k < 4; k++) memcpy(p->next[k], p->v, sizeof(p->v));
+    return;
+  }
+  const ts_seam_ref *r = &im->ref[p->cls - 1];
+  size_t o = (size_t)p->sy * (size_t)r->w + (size_t)p->sx;
+  for (int k = 0; k < 4; k++) {
+    int x = p->sx + c->dir[k][0], y = p->sy + c->dir[k][1];
+    if (x < 0 || x >= r->w || y < p->ylo || y >= p->yhi) {
+      memcpy(p->next[k], p->v, sizeof(p->v));
+      continue;
+    }
+    ptrdiff_t d = (ptrdiff_t)c->dir[k][1] * r->w + c->dir[k][0];
+    for (int q = 0; q < im->nplanes; q++) p->next[k][q] = r->planes[q][(ptrdiff_t)o + d];
+  }
 }
 
 static void cand_pixel(const cutter *c, int u, int v, cand *p) {
@@ -295,6 +311,8 @@ int ts_fill_cut_seams(ts_seam_image *im, uint64_t *moved) {
     c.ay = dir == 1;
     c.bx = c.ay;
     c.by = c.ax;
+    const int d[4][2] = {{c.ax, c.ay}, {-c.ax, -c.ay}, {c.bx, c.by}, {-c.bx, -c.by}};
+    memcpy(c.dir, d, sizeof(d));
     c.U = dir == 0 ? im->w : im->h;
     c.V = dir == 0 ? im->h : im->w;
     cut_all(&c);
