@@ -465,8 +465,8 @@ typedef struct {
 
 /* Progress (under t->lock, so the hook is called by one thread at a
  * time): done and total count tiles, the work is the tiles done plus the
- * shares of those under way; the stage names the step (a line per step in
- * a client's log, not one per class of every tile). */
+ * shares of those under way (the ETA's base: progress.h); the stage names
+ * the tiles done and the step, "12 of 64 tiles, row 3 of 8, phase 2 of 4". */
 static void report_progress(tiler *t) {
   if (t->h->progress == NULL) return;
   int total = ts_tile_count(&t->g);
@@ -474,8 +474,8 @@ static void report_progress(tiler *t) {
   for (int i = 0; i < t->jobs; i++) work += t->share[i];
   ts_progress p = {.level = 0, .levels = 1, .done = (uint64_t)t->tiles_done, .total = (uint64_t)total,
                    .work_done = work, .work_total = total};
-  snprintf(p.stage, sizeof(p.stage), "%d tiles: row %d of %d, phase %d of 4", total, t->row + 1, t->g.ny,
-           t->phase + 1);
+  snprintf(p.stage, sizeof(p.stage), "%d of %d tiles, row %d of %d, phase %d of 4", t->tiles_done, total, t->row + 1,
+           t->g.ny, t->phase + 1);
   t->h->progress(t->h->progress_ctx, &p);
 }
 
