@@ -582,14 +582,12 @@ static int cut_seams(engine *e, char *err) {
     int g = movable[i] || in->given_from == NULL ? 0 : in->given_from[i];
     if (g < 1 || g > in->nclass) continue;
     const atlas *a = &e->at[g - 1];
-    int s = in->given_source ? in->given_source[i] : 0;
-    if (s >= a->nsrc || in->given_copy[2 * i] >= (uint32_t)in->cls[g - 1].src[s].w ||
-        in->given_copy[2 * i + 1] >= (uint32_t)a->h0[s])
+    if (in->given_copy[2 * i] >= (uint32_t)in->cls[g - 1].src[0].w || in->given_copy[2 * i + 1] >= (uint32_t)a->h0[0])
       continue; /* not a copy of this fill's references: it stays as it is */
     cls[i] = (uint8_t)g;
     movable[i] = in->given_cut != NULL && in->given_cut[i];
     e->copy[2 * i] = in->given_copy[2 * i];
-    e->copy[2 * i + 1] = in->given_copy[2 * i + 1] + (uint32_t)a->y0[s];
+    e->copy[2 * i + 1] = in->given_copy[2 * i + 1]; /* the first source's rows start the atlas */
   }
   for (int c = 0; rc == 0 && c < in->nclass; c++) {
     const atlas *a = &e->at[c];
@@ -598,15 +596,14 @@ static int cut_seams(engine *e, char *err) {
   }
   ts_seam_image im = {e->w, e->h, in->nplanes, {NULL}, e->copy, cls, movable, ref, e->p->seam_cut};
   for (int k = 0; k < in->nplanes; k++) im.planes[k] = e->ip.planes[k][0].px;
-  if (rc == 0 && ts_fill_cut_seams(&im, &e->res->seam_moved) != 0)
+  uint64_t moved;
+  if (rc == 0 && ts_fill_cut_seams(&im, &moved) != 0)
     rc = ts_error(err, TS_ENOMEM, "out of memory for the seam cut");
   /* Given pixels have no copy in the result but those the cut changed
    * (given_cut), which take the class they were given with. */
   for (size_t i = 0; rc == 0 && i < npx; i++) {
     if (e->from[i] != 0) continue;
-    int s = in->given_source ? in->given_source[i] : 0;
-    if (movable[i] && (e->copy[2 * i] != in->given_copy[2 * i] ||
-                       e->copy[2 * i + 1] != in->given_copy[2 * i + 1] + (uint32_t)e->at[cls[i] - 1].y0[s]))
+    if (movable[i] && (e->copy[2 * i] != in->given_copy[2 * i] || e->copy[2 * i + 1] != in->given_copy[2 * i + 1]))
       e->from[i] = cls[i];
     else
       e->copy[2 * i] = e->copy[2 * i + 1] = 0;

@@ -123,11 +123,10 @@ typedef struct {
   const char *const *names; /* names[c - 1] names class c in progress; NULL: none */
   /* Optional, for the seam cut: given pixels that are copies too (a
    * neighbouring fill's), so the cut may join the work to them. Per pixel
-   * its class (0: not a copy), and where in that class's source
-   * (given_source: which, NULL: the first) it was copied from. */
+   * its class (0: not a copy), and where in that class's first source it
+   * was copied from. */
   const uint8_t *given_from;
   const uint32_t *given_copy; /* 2 per pixel: x, y */
-  const uint8_t *given_source;
   /* Optional: given pixels (copies) that the cut may change too, so a
    * join between the work and given copies may go either way; the result
    * has a copy for those it changed. */
@@ -166,7 +165,6 @@ typedef struct {
   double seconds;
   ts_fill_level_stats level[TS_FILL_MAX_LEVELS];
   ts_fill_class_stats cls[TS_FILL_MAX_CLASSES];
-  uint64_t seam_moved; /* work pixels the seam cut gave another copy */
 } ts_fill_result;
 
 /* Progress (progress.h's hooks): ts_progress after every step, its stage
