@@ -22,7 +22,7 @@
 
 #define BAND (2 * TS_SEAM_MAX_REACH + 2) /* the band's columns and one outside each side */
 #define STATES (2 * TS_SEAM_MAX_REACH + 1)
-#define NO_COST UINT64_MAX
+#define NO_COST INT64_MAX
 
 /* The directions a copy may go on in: across the seam forwards and
  * backwards, along it forwards and backwards (a pair's cost reads the
@@ -63,6 +63,8 @@ typedef struct {
   int reach, nstates;
   int order[STATES];          /* states by preference: 0, -1, 1, -2, 2, ... */
   uint8_t take[STATES][BAND]; /* state k (at k + reach) gives column j the other copy */
+  uint8_t cols[STATES][BAND]; /* those columns, ncols of them */
+  int ncols[STATES];
   seam_row *rows;             /* the run's */
   uint8_t *back;              /* per row of the run and state: the best state before */
   uint64_t moved;
@@ -91,8 +93,10 @@ static int go_on(const ts_seam_image *im, const cand *p, int dx, int dy, uint8_t
   return 1;
 }
 
-/* p's copy gone on in the four directions (dir[k] of the cutter). */
-static void cand_next(const cutter *c, cand *p) {
+/* p's copy gone on in the directions of `dirs` (bits 1 << FWD_U ...,
+ * c->dir in (x, y)). */
+#define ALL_DIRS 15u
+static void cand_next(const cutter *c, cand *p, unsigned dirs) {
   const ts_seam_image *im = c->im;
   if (p->cls == 0) {
     for (int k = 0; k < 4; k++) memcpy(p->next[k], p->v, sizeof(p->v));
@@ -101,6 +105,7 @@ static void cand_next(const cutter *c, cand *p) {
   const ts_seam_ref *r = &im->ref[p->cls - 1];
   size_t o = (size_t)p->sy * (size_t)r->w + (size_t)p->sx;
   for (int k = 0; k < 4; k++) {
+    if (!(dirs >> k & 1)) continue;
     int x = p->sx + c->dir[k][0], y = p->sy + c->dir[k][1];
     if (x < 0 || x >= r->w || y < p->ylo || y >= p->yhi) {
       memcpy(p->next[k], p->v, sizeof(p->v));
@@ -111,7 +116,7 @@ static void cand_next(const cutter *c, cand *p) {
   }
 }
 
-static void cand_pixel(const cutter *c, int u, int v, cand *p) {
+static void cand_pixel(const cutter *c, int u, int v, cand *p, unsigned dirs) {
   const ts_seam_image *im = c->im;
   p->exists = u >= 0 && u < c->U && v >= 0 && v < c->V;
   if (!p->exists) return;
@@ -123,7 +128,7 @@ static void cand_pixel(const cutter *c, int u, int v, cand *p) {
     p->sy = (int)im->copy[2 * i + 1];
     source_rows(&im->ref[p->cls - 1], p->sy, &p->ylo, &p->yhi);
   }
-  cand_next(c, p);
+  cand_next(c, p, dirs);
 }
 
 /* The cost of neighbours a and b, b the next pixel from a in direction
@@ -149,7 +154,8 @@ static int is_seam(const cutter *c, int u0, int v) {
 static void build_row(const cutter *c, int u0, int v, seam_row *r) {
   const ts_seam_image *im = c->im;
   int n = 2 * c->reach + 2;
-  for (int j = 0; j < n; j++) cand_pixel(c, u0 - c->reach - 1 + j, v, &r->cur[j]);
+  for (int j = 0; j < n; j++) /* the columns outside the band meet it across the seam only */
+    cand_pixel(c, u0 - c->reach - 1 + j, v, &r->cur[j], j == 0 ? 1u << FWD_U : j == n - 1 ? 1u << BACK_U : ALL_DIRS);
   const cand *left = &r->cur[c->reach], *right = &r->cur[c->reach + 1]; /* u0 - 1 and u0 */
   for (int j = 0; j < n; j++) {
     int u = u0 - c->reach - 1 + j;
@@ -164,7 +170,7 @@ static void build_row(const cutter *c, int u0, int v, seam_row *r) {
     a->sy = e->sy + s * c->ay;
     const ts_seam_ref *ref = &im->ref[e->cls - 1];
     r->alt_ok[j] = ref->usable == NULL || ref->usable[(size_t)a->sy * (size_t)ref->w + (size_t)a->sx];
-    if (r->alt_ok[j]) cand_next(c, a);
+    if (r->alt_ok[j]) cand_next(c, a, ALL_DIRS);
   }
 }
 
@@ -191,11 +197,11 @@ static void costs_of(const cutter *c, int u0, int v, const seam_row *r, const se
     rc->before[j][0] = rc->before[j][1] = rc->after[j][0] = rc->after[j][1] = 0;
     cand o;
     if (first && v > 0) {
-      cand_pixel(c, u0 - c->reach - 1 + j, v - 1, &o);
+      cand_pixel(c, u0 - c->reach - 1 + j, v - 1, &o, 1u << FWD_V);
       for (int l = 0; l <= r->alt_ok[j]; l++) rc->before[j][l] = pair_cost(im, &o, as(r, j, l), FWD_V);
     }
     if (last && v + 1 < c->V) {
-      cand_pixel(c, u0 - c->reach - 1 + j, v + 1, &o);
+      cand_pixel(c, u0 - c->reach - 1 + j, v + 1, &o, 1u << BACK_V);
       for (int l = 0; l <= r->alt_ok[j]; l++) rc->after[j][l] = pair_cost(im, as(r, j, l), &o, FWD_V);
     }
   }
@@ -212,11 +218,20 @@ static uint64_t row_cost(const cutter *c, const row_costs *rc, int k) {
 }
 
 /* The pairs along the seam between the row before in state k and this one
- * in state kn. */
-static uint64_t step_cost(const cutter *c, const row_costs *rc, int k, int kn) {
+ * in state kn, less those of both rows as they are (the same for every
+ * pair of states, so the choice is unchanged): only the columns either
+ * state changes count. */
+static int64_t step_cost(const cutter *c, const row_costs *rc, int k, int kn) {
   const uint8_t *t = c->take[k + c->reach], *tn = c->take[kn + c->reach];
-  uint64_t s = 0;
-  for (int j = 1; j <= 2 * c->reach; j++) s += rc->along[j][t[j]][tn[j]];
+  int64_t s = 0;
+  for (int i = 0; i < c->ncols[k + c->reach]; i++) {
+    int j = c->cols[k + c->reach][i];
+    s += (int64_t)rc->along[j][1][tn[j]] - rc->along[j][0][0];
+  }
+  for (int i = 0; i < c->ncols[kn + c->reach]; i++) {
+    int j = c->cols[kn + c->reach][i];
+    if (!t[j]) s += (int64_t)rc->along[j][0][1] - rc->along[j][0][0];
+  }
   return s;
 }
 
@@ -236,22 +251,22 @@ static void apply(cutter *c, const seam_row *r, int k, int u0, int v) {
 /* The run of seam rows [va, vb) at u0. */
 static void cut_run(cutter *c, int u0, int va, int vb) {
   int n = vb - va, ns = c->nstates, R = c->reach;
-  uint64_t cost[STATES], next[STATES];
+  int64_t cost[STATES], next[STATES];
   row_costs rc;
   for (int i = 0; i < n; i++) build_row(c, u0, va + i, &c->rows[i]);
   costs_of(c, u0, va, &c->rows[0], NULL, 1, n == 1, &rc);
-  for (int k = -R; k <= R; k++) cost[k + R] = allowed(c, &c->rows[0], k) ? row_cost(c, &rc, k) : NO_COST;
+  for (int k = -R; k <= R; k++) cost[k + R] = allowed(c, &c->rows[0], k) ? (int64_t)row_cost(c, &rc, k) : NO_COST;
   for (int i = 1; i < n; i++) {
     const seam_row *q = &c->rows[i];
     costs_of(c, u0, va + i, q, &c->rows[i - 1], 0, i == n - 1, &rc);
     for (int kn = -R; kn <= R; kn++) {
       next[kn + R] = NO_COST;
       if (!allowed(c, q, kn)) continue;
-      uint64_t own = row_cost(c, &rc, kn);
+      int64_t own = (int64_t)row_cost(c, &rc, kn);
       for (int t = 0; t < ns; t++) {
         int k = c->order[t];
         if (cost[k + R] == NO_COST) continue;
-        uint64_t total = cost[k + R] + step_cost(c, &rc, k, kn) + own;
+        int64_t total = cost[k + R] + step_cost(c, &rc, k, kn) + own;
         if (total < next[kn + R]) {
           next[kn + R] = total;
           c->back[(size_t)i * STATES + (size_t)(kn + R)] = (uint8_t)(k + R);
@@ -298,6 +313,7 @@ int ts_fill_cut_seams(ts_seam_image *im, uint64_t *moved) {
     for (int j = 0; j < BAND; j++) {
       int d = j - c.reach - 1; /* u - u0 */
       c.take[k + c.reach][j] = (uint8_t)((k < 0 && d >= k && d < 0) || (k > 0 && d >= 0 && d < k));
+      if (c.take[k + c.reach][j]) c.cols[k + c.reach][c.ncols[k + c.reach]++] = (uint8_t)j;
     }
   c.rows = malloc(sizeof(seam_row) * (size_t)longest);
   c.back = malloc((size_t)longest * STATES);
