@@ -76,6 +76,7 @@ typedef struct {
   band bands[BANDS];
   int next_write; /* the next tile row to write */
   int row, phase; /* the step under way */
+  int step_done0; /* tiles done when it began */
   /* Tiles of a step run on `jobs` threads, each with a search session of
    * its own (search.h; sessions[0] is the run's search). Under `lock`:
    * the progress, the resumed count, the first error. */
@@ -466,7 +467,9 @@ typedef struct {
 /* Progress (under t->lock, so the hook is called by one thread at a
  * time): done and total count tiles, the work is the tiles done plus the
  * shares of those under way (the ETA's base: progress.h); the stage names
- * the tiles done and the step, "12 of 64 tiles, row 3 of 8, phase 2 of 4". */
+ * the tiles done when the step began and the step, "12 of 64 tiles done,
+ * row 3 of 8, phase 2 of 4": a line per step in a client's log, not one
+ * per tile or per class of every tile. */
 static void report_progress(tiler *t) {
   if (t->h->progress == NULL) return;
   int total = ts_tile_count(&t->g);
@@ -474,8 +477,8 @@ static void report_progress(tiler *t) {
   for (int i = 0; i < t->jobs; i++) work += t->share[i];
   ts_progress p = {.level = 0, .levels = 1, .done = (uint64_t)t->tiles_done, .total = (uint64_t)total,
                    .work_done = work, .work_total = total};
-  snprintf(p.stage, sizeof(p.stage), "%d of %d tiles, row %d of %d, phase %d of 4", t->tiles_done, total, t->row + 1,
-           t->g.ny, t->phase + 1);
+  snprintf(p.stage, sizeof(p.stage), "%d of %d tiles done, row %d of %d, phase %d of 4", t->step_done0, total,
+           t->row + 1, t->g.ny, t->phase + 1);
   t->h->progress(t->h->progress_ctx, &p);
 }
 
@@ -647,6 +650,7 @@ static int run_step(tiler *t, const ts_tile_step *s, char *err) {
   }
   t->row = s->row;
   t->phase = ts_tile_phase(s->xpar, s->row);
+  t->step_done0 = t->tiles_done;
   atomic_int next = 0;
   tile_worker w[AERIAL_MAX_TILE_JOBS];
   pthread_t th[AERIAL_MAX_TILE_JOBS];
