@@ -90,15 +90,28 @@ typedef struct {
  *
  * Saved through hooks->save_piece as its tile finishes, found again by a
  * run of the same job after a restart: the tile's own pixels (their
- * luminance, which later tiles' halos give, and their colours) and its
+ * luminance, which later tiles' halos give, their colours and copies) and its
  * share of the report's figures. Self-checking (a checksum, the job's
  * tag, the tile's place): anything else is refused and the tile made
  * again, which gives the same bytes. */
+#define AERIAL_EDIT_BYTES 17
+
 typedef struct {
   uint32_t index;            /* the tile's (ts_tile_index) */
   int x0, y0, w, h;          /* its core */
   const uint8_t *luma, *rgb; /* w * h and 3 * w * h bytes, rows `stride` pixels apart */
+  /* Where each pixel was copied from in its class's reference (y * width
+   * + x; the seam cut of later tiles joins to it): to encode, w * h
+   * values, rows `stride` apart; decoded, 4 * w * h little-endian bytes. */
+  const uint32_t *src;
+  const uint8_t *src_le;
   size_t stride;
+  /* The seam cut's changes to the tile's halo (the neighbours' pixels next
+   * to its core), a resumed tile applies them again: nedits of
+   * AERIAL_EDIT_BYTES each, u32 x, y (the scene's), class rank, copy,
+   * and u8 luminance, little-endian. */
+  uint32_t nedits;
+  const uint8_t *edits;
   int nclass;                                /* classes filled in it */
   int rank[TS_FILL_MAX_CLASSES];             /* their fill ranks */
   ts_fill_class_stats cls[TS_FILL_MAX_CLASSES];

@@ -51,7 +51,7 @@ static const ts_engine_output aerial_outputs[OUT_COUNT] = {
 /* In the spec's order; the classes' and colours' lines (classK, colourK)
  * come from the catalogue, after them. */
 static const ts_param aerial_param_table[] = {
-    TS_FILL_PARAMS(F(fill), "3", "7"),
+    TS_FILL_PARAMS(F(fill), "3", "7", "2"),
     {"tile", "tile", "N", TS_PARAM_INT, F(tile), 16, TS_TILE_MAX, "512",
      "side of the tiles the scene is cut into, a fixed grid: a multiple of 16 and of 2^(levels-1); the last "
      "column and row take the rest (merged into the one before when under half a tile); a scene no larger is "

@@ -5,7 +5,8 @@
  *   u32 x0, y0, w, h (the core),
  *   u32 levels, per level u64 blocks, steps, seeds, comparisons,
  *   u32 classes, per class u32 rank, u64 blocks, f64 usage mean, variance,
- *   w * h luminance bytes, 3 * w * h colour bytes (rows top to bottom),
+ *   w * h luminance bytes, 3 * w * h colour bytes, w * h u32 copies
+ *   (rows top to bottom), u32 edits, the edits (aerial.h),
  *   u64 FNV-1a of everything before. */
 #include <string.h>
 
@@ -15,7 +16,7 @@
 #include "error.h"
 
 #define PIECE_MAGIC 0x50415354u /* "TSAP" */
-#define PIECE_VERSION 1u
+#define PIECE_VERSION 2u /* 2: the copies and edits */
 
 static uint64_t bits_of(double v) {
   uint64_t b;
@@ -56,6 +57,10 @@ int ts_aerial_piece_encode(const aerial_piece *pc, int levels, uint64_t tag, uin
   }
   for (int y = 0; y < pc->h; y++) ts_wr_bytes(&w, pc->luma + (size_t)y * pc->stride, (size_t)pc->w);
   for (int y = 0; y < pc->h; y++) ts_wr_bytes(&w, pc->rgb + 3 * (size_t)y * pc->stride, 3 * (size_t)pc->w);
+  for (int y = 0; y < pc->h; y++)
+    for (int x = 0; x < pc->w; x++) ts_wr_u32(&w, pc->src[(size_t)y * pc->stride + (size_t)x]);
+  ts_wr_u32(&w, pc->nedits);
+  if (pc->nedits > 0) ts_wr_bytes(&w, pc->edits, (size_t)pc->nedits * AERIAL_EDIT_BYTES);
   if (ts_wr_status(&w) == 0) ts_wr_u64(&w, ts_checkpoint_tag(w.buf, w.len));
   if (ts_wr_status(&w) != 0) {
     ts_wr_free(&w);
@@ -103,6 +108,10 @@ int ts_aerial_piece_decode(const uint8_t *buf, size_t len, int levels, uint64_t 
   size_t npx = (size_t)w * (size_t)h;
   pc->luma = ts_rd_bytes(&r, npx);
   pc->rgb = ts_rd_bytes(&r, 3 * npx);
+  pc->src_le = ts_rd_bytes(&r, 4 * npx);
+  pc->nedits = ts_rd_u32(&r);
+  if (r.failed || pc->nedits > (len - 8) / AERIAL_EDIT_BYTES) return ts_error(err, TS_EPROTO, "truncated or overlong");
+  pc->edits = ts_rd_bytes(&r, (size_t)pc->nedits * AERIAL_EDIT_BYTES);
   pc->stride = (size_t)w;
   if (ts_rd_done(&r, 1) != 0) return ts_error(err, TS_EPROTO, "truncated or overlong");
   return 0;

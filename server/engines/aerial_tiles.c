@@ -16,7 +16,13 @@
  * band is reused for the row three below once written: the even row r is
  * read by the odd rows r - 1 and r + 1, odd rows by no other row. So the
  * coordinator's memory is three bands and the tiles in flight, whatever
- * the scene's height; a band is 6 bytes a pixel of the scene's width. */
+ * the scene's height; a band is 10 bytes a pixel of the scene's width.
+ *
+ * The finished pixels' copies (where in their class's reference) are kept
+ * too: a later tile's fill gets its halo as copies, so its seam cut
+ * (fill_seams.h) joins its work to its finished neighbours as it joins two
+ * of its own blocks, and a tile border is no more a seam than a block
+ * edge is. */
 #include <pthread.h>
 #include <stdatomic.h>
 #include <stdio.h>
@@ -27,6 +33,7 @@
 #include <unistd.h>
 
 #include "aerial.h"
+#include "cursor.h"
 #include "error.h"
 #include "image_meta.h"
 #include "jobspec.h"
@@ -46,6 +53,7 @@ typedef struct {
   uint8_t *state; /* per pixel: 0 a line, else 1 + its class's fill rank */
   uint8_t *luma;  /* finished pixels: the fill's plane; lines their colour's */
   uint8_t *rgb;   /* finished pixels' colours */
+  uint32_t *src;  /* finished pixels' copies: y * width + x in their class's reference */
   size_t cap;     /* pixels the buffers hold */
   int tiles_done, written;
 } band;
@@ -70,6 +78,7 @@ typedef struct {
   band bands[BANDS];
   int next_write; /* the next tile row to write */
   int row, phase; /* the step under way */
+  int step_done0; /* tiles done when it began */
   /* Tiles of a step run on `jobs` threads, each with a search session of
    * its own (search.h; sessions[0] is the run's search). Under `lock`:
    * the progress, the resumed count, the first error. */
@@ -152,10 +161,12 @@ static int band_load(tiler *t, int row, char *err) {
     free(b->state);
     free(b->luma);
     free(b->rgb);
+    free(b->src);
     b->state = malloc(npx);
     b->luma = malloc(npx);
     b->rgb = malloc(3 * npx);
-    b->cap = b->state && b->luma && b->rgb ? npx : 0;
+    b->src = malloc(sizeof(uint32_t) * npx);
+    b->cap = b->state && b->luma && b->rgb && b->src ? npx : 0;
     if (b->cap == 0) return ts_error(err, TS_ENOMEM, "out of memory for a row of tiles (%dx%d)", w, b->h);
   }
   b->row = row;
@@ -186,8 +197,12 @@ static void preview_rows(tiler *t, const band *b) {
 /* Writes every completed row whose turn it is. */
 static int write_rows(tiler *t, char *err) {
   while (t->next_write < t->g.ny) {
-    band *b = band_of_row(t, t->next_write);
+    band *b = band_of_row(t, t->next_write), *below = band_of_row(t, t->next_write + 1);
     if (b->row != t->next_write || b->tiles_done < t->g.nx) return 0;
+    /* The odd row below an even one changes its last rows (tile_store). */
+    if (t->next_write % 2 == 0 && t->next_write + 1 < t->g.ny &&
+        (below->row != t->next_write + 1 || below->tiles_done < t->g.nx))
+      return 0;
     int rc = t->sink->put(t->sink, 0, b->y0, t->g.w, b->h, b->rgb, err);
     if (rc != 0) return rc;
     preview_rows(t, b);
@@ -204,6 +219,11 @@ typedef struct {
   ts_tile_rect core, area;
   int w, h;
   uint8_t *plane, *state;
+  uint8_t *given_from; /* the halo's copies, for the seam cut (ts_fill_input) */
+  uint32_t *given_copy;
+  uint8_t *given_cut; /* the halo pixels next to the core, which the cut may change */
+  ts_wr edits;        /* those it changed, as the piece keeps them (aerial_piece.c) */
+  uint32_t nedits;
   int nclass;
   int rank[TS_FILL_MAX_CLASSES]; /* fill rank of each of its classes */
   ts_fill_class cls[TS_FILL_MAX_CLASSES];
@@ -213,6 +233,10 @@ typedef struct {
 static void tile_fill_free(tile_fill *f) {
   free(f->plane);
   free(f->state);
+  free(f->given_from);
+  free(f->given_copy);
+  free(f->given_cut);
+  ts_wr_free(&f->edits);
 }
 
 /* The band pixel (x, y) of the scene is in. */
@@ -220,6 +244,18 @@ static size_t band_pixel(tiler *t, int x, int y, band **b) {
   int row = y / t->g.tile < t->g.ny ? y / t->g.tile : t->g.ny - 1;
   *b = band_of_row(t, row);
   return (size_t)(y - (*b)->y0) * (size_t)t->g.w + (size_t)x;
+}
+
+/* Whether a pixel outside the core is one of the `reach` next to it
+ * across one of its edges (not a corner): the halo pixels a tile's seam cut
+ * may change, so a tile border is cut from both sides as a block edge is.
+ * Only tiles of later phases than the pixel's own have it in their halo,
+ * and tiles of one step change disjoint pixels that none of them reads
+ * (a halo is at most half a tile, the reach a few pixels). */
+static int next_to_core(const ts_tile_rect *c, int x, int y, int reach) {
+  int in_x = x >= c->x0 && x < c->x1, in_y = y >= c->y0 && y < c->y1;
+  return (in_y && ((x >= c->x0 - reach && x < c->x0) || (x >= c->x1 && x < c->x1 + reach))) ||
+         (in_x && ((y >= c->y0 - reach && y < c->y0) || (y >= c->y1 && y < c->y1 + reach)));
 }
 
 /* The area's states: the core's from its band, its classes renumbered in
@@ -233,7 +269,12 @@ static int tile_build(tiler *t, int tx, int ty, tile_fill *f) {
   size_t npx = (size_t)f->w * (size_t)f->h;
   f->plane = malloc(npx);
   f->state = malloc(npx);
-  if (f->plane == NULL || f->state == NULL) return TS_ENOMEM;
+  f->given_from = calloc(npx, 1);
+  f->given_copy = calloc(2 * npx, sizeof(uint32_t));
+  f->given_cut = calloc(npx, 1);
+  ts_wr_init(&f->edits);
+  if (f->plane == NULL || f->state == NULL || f->given_from == NULL || f->given_copy == NULL || f->given_cut == NULL)
+    return TS_ENOMEM;
   int present[TS_FILL_MAX_CLASSES] = {0}, local[TS_FILL_MAX_CLASSES];
   band *b = band_of_row(t, ty);
   for (int y = f->core.y0; y < f->core.y1; y++)
@@ -257,6 +298,13 @@ static int tile_build(tiler *t, int tx, int ty, tile_fill *f) {
       int s = core ? pb->state[o] : 0;
       f->state[i] = (uint8_t)(s > 0 ? local[s - 1] : 0);
       f->plane[i] = s > 0 ? 0 : pb->luma[o];
+      int r = core ? 0 : pb->state[o]; /* a finished pixel of class rank r - 1, or a line */
+      if (r > 0 && present[r - 1]) {
+        f->given_from[i] = (uint8_t)local[r - 1];
+        f->given_copy[2 * i] = pb->src[o] % (uint32_t)t->rw[r - 1];
+        f->given_copy[2 * i + 1] = pb->src[o] / (uint32_t)t->rw[r - 1];
+        f->given_cut[i] = (uint8_t)next_to_core(&f->core, x, y, t->p->fill.seam_cut);
+      }
     }
   return 0;
 }
@@ -295,10 +343,13 @@ static void piece_of(tiler *t, int tx, int ty, const tile_fill *f, const ts_fill
   band *b = band_of_row(t, ty);
   memset(pc, 0, sizeof(*pc));
   size_t o = (size_t)(f->core.y0 - b->y0) * (size_t)t->g.w + (size_t)f->core.x0;
-  *pc = (aerial_piece){(uint32_t)ts_tile_index(&t->g, tx, ty), f->core.x0, f->core.y0, f->core.x1 - f->core.x0,
-                       f->core.y1 - f->core.y0, b->luma + o, b->rgb + 3 * o, (size_t)t->g.w, f->nclass};
+  *pc = (aerial_piece){.index = (uint32_t)ts_tile_index(&t->g, tx, ty), .x0 = f->core.x0, .y0 = f->core.y0,
+                       .w = f->core.x1 - f->core.x0, .h = f->core.y1 - f->core.y0, .luma = b->luma + o,
+                       .rgb = b->rgb + 3 * o, .src = b->src + o, .stride = (size_t)t->g.w, .nclass = f->nclass};
   if (res == NULL) return;
   memcpy(pc->rank, f->rank, sizeof(pc->rank));
+  pc->nedits = f->nedits;
+  pc->edits = f->edits.buf;
   memcpy(pc->cls, res->cls, sizeof(pc->cls));
   memcpy(pc->level, res->level, sizeof(pc->level));
 }
@@ -316,6 +367,42 @@ static int save_piece(tiler *t, const aerial_piece *pc, char *err) {
   return rc;
 }
 
+/* A finished pixel (x, y) of class rank r into its band: luminance for
+ * later halos, colour through its copy src. */
+static void store_pixel(tiler *t, int x, int y, uint8_t luma, int r, uint32_t src) {
+  band *b;
+  size_t o = band_pixel(t, x, y, &b);
+  b->luma[o] = luma;
+  b->src[o] = src;
+  memcpy(b->rgb + 3 * o, t->ref_rgb[r] + 3 * (size_t)src, 3);
+}
+
+/* An edit of a halo pixel as a piece keeps it: x, y, rank, copy, luma. */
+static void edit_put(ts_wr *w, int x, int y, int r, uint32_t src, uint8_t luma) {
+  ts_wr_u32(w, (uint32_t)x);
+  ts_wr_u32(w, (uint32_t)y);
+  ts_wr_u32(w, (uint32_t)r);
+  ts_wr_u32(w, src);
+  ts_wr_u8(w, luma);
+}
+
+/* A resumed tile's changes to its halo, as its making made them: 0, or
+ * TS_EPROTO, nothing applied, when an edit is not of a pixel next to the
+ * tile's core c or names no copy of a class (the tile is made again). */
+static int apply_edits(tiler *t, const ts_tile_rect *c, const aerial_piece *fig) {
+  for (int pass = 0; pass < 2; pass++)
+    for (uint32_t k = 0; k < fig->nedits; k++) {
+      const uint8_t *e = fig->edits + (size_t)k * AERIAL_EDIT_BYTES;
+      uint32_t x = (uint32_t)ts_get_le(e, 4), y = (uint32_t)ts_get_le(e + 4, 4), r = (uint32_t)ts_get_le(e + 8, 4);
+      uint32_t src = (uint32_t)ts_get_le(e + 12, 4);
+      if (pass == 1) store_pixel(t, (int)x, (int)y, e[16], (int)r, src);
+      else if (x >= (uint32_t)t->g.w || y >= (uint32_t)t->g.h || !next_to_core(c, (int)x, (int)y, t->p->fill.seam_cut) ||
+               r >= (uint32_t)t->p->nclass || src >= (uint32_t)t->rw[r] * (uint32_t)t->rh[r])
+        return TS_EPROTO;
+    }
+  return 0;
+}
+
 /* A tile an earlier run of the job finished: 1 with its core in its band
  * and its figures in *fig, 0 if there is none that fits (it is made). */
 static int load_piece(tiler *t, int tx, int ty, aerial_piece *fig) {
@@ -328,14 +415,17 @@ static int load_piece(tiler *t, int tx, int ty, aerial_piece *fig) {
   if (t->h->load_piece(t->h->save_ctx, name, &buf, &len, why) != 0) return 0;
   int ok = ts_aerial_piece_decode(buf, len, t->p->fill.levels, t->h->tag, index, c.x0, c.y0, c.x1 - c.x0, c.y1 - c.y0,
                                   fig, why) == 0;
+  if (ok && apply_edits(t, &c, fig) != 0) ok = 0;
   if (ok) {
     band *b = band_of_row(t, ty);
     for (int y = 0; y < fig->h; y++) {
       size_t o = (size_t)(c.y0 + y - b->y0) * (size_t)t->g.w + (size_t)c.x0;
       memcpy(b->luma + o, fig->luma + (size_t)y * (size_t)fig->w, (size_t)fig->w);
       memcpy(b->rgb + 3 * o, fig->rgb + 3 * (size_t)y * (size_t)fig->w, 3 * (size_t)fig->w);
+      for (int x = 0; x < fig->w; x++)
+        b->src[o + (size_t)x] = (uint32_t)ts_get_le(fig->src_le + 4 * ((size_t)y * (size_t)fig->w + (size_t)x), 4);
     }
-    fig->luma = fig->rgb = NULL; /* in buf, freed below */
+    fig->luma = fig->rgb = fig->src_le = NULL; /* in buf, freed below */
     pthread_mutex_lock(&t->lock);
     t->resumed++;
     pthread_mutex_unlock(&t->lock);
@@ -357,20 +447,22 @@ static void tell_resumed(tiler *t) {
   pthread_mutex_unlock(&t->lock);
 }
 
-/* The filled core into its band: luminance for later halos, colour
- * through the copy map. */
-static void tile_store(tiler *t, int ty, const tile_fill *f, const ts_fill_result *res) {
-  band *b = band_of_row(t, ty);
-  for (int y = f->core.y0; y < f->core.y1; y++)
-    for (int x = f->core.x0; x < f->core.x1; x++) {
+/* The filled core into its band, and the halo pixels the seam cut changed
+ * into theirs (kept as the piece's edits). */
+static int tile_store(tiler *t, tile_fill *f, const ts_fill_result *res) {
+  for (int y = f->area.y0; y < f->area.y1; y++)
+    for (int x = f->area.x0; x < f->area.x1; x++) {
       size_t i = (size_t)(y - f->area.y0) * (size_t)f->w + (size_t)(x - f->area.x0);
-      if (f->state[i] == 0) continue;
-      size_t o = (size_t)(y - b->y0) * (size_t)t->g.w + (size_t)x;
-      int r = f->rank[f->state[i] - 1];
-      size_t src = (size_t)res->copy[2 * i + 1] * (size_t)t->rw[r] + (size_t)res->copy[2 * i];
-      b->luma[o] = res->planes[0][i];
-      memcpy(b->rgb + 3 * o, t->ref_rgb[r] + 3 * src, 3);
+      int local = f->state[i] != 0 ? f->state[i] : res->source[i] != TS_FILL_NO_SOURCE ? f->given_from[i] : 0;
+      if (local == 0) continue;
+      int r = f->rank[local - 1];
+      uint32_t src = res->copy[2 * i + 1] * (uint32_t)t->rw[r] + res->copy[2 * i];
+      store_pixel(t, x, y, res->planes[0][i], r, src);
+      if (f->state[i] != 0) continue;
+      edit_put(&f->edits, x, y, r, src, res->planes[0][i]);
+      f->nedits++;
     }
+  return ts_wr_status(&f->edits) == 0 ? 0 : TS_ENOMEM;
 }
 
 /* One thread of a step: its session, its slot in the progress. */
@@ -387,8 +479,10 @@ typedef struct {
 
 /* Progress (under t->lock, so the hook is called by one thread at a
  * time): done and total count tiles, the work is the tiles done plus the
- * shares of those under way; the stage names the step (a line per step in
- * a client's log, not one per class of every tile). */
+ * shares of those under way (the ETA's base: progress.h); the stage names
+ * the tiles done when the step began and the step, "12 of 64 tiles done,
+ * row 3 of 8, phase 2 of 4": a line per step in a client's log, not one
+ * per tile or per class of every tile. */
 static void report_progress(tiler *t) {
   if (t->h->progress == NULL) return;
   int total = ts_tile_count(&t->g);
@@ -396,8 +490,8 @@ static void report_progress(tiler *t) {
   for (int i = 0; i < t->jobs; i++) work += t->share[i];
   ts_progress p = {.level = 0, .levels = 1, .done = (uint64_t)t->tiles_done, .total = (uint64_t)total,
                    .work_done = work, .work_total = total};
-  snprintf(p.stage, sizeof(p.stage), "%d tiles: row %d of %d, phase %d of 4", total, t->row + 1, t->g.ny,
-           t->phase + 1);
+  snprintf(p.stage, sizeof(p.stage), "%d of %d tiles done, row %d of %d, phase %d of 4", t->step_done0, total,
+           t->row + 1, t->g.ny, t->phase + 1);
   t->h->progress(t->h->progress_ctx, &p);
 }
 
@@ -423,20 +517,19 @@ static int make_tile(tile_worker *w, int tx, int ty, aerial_piece *fig, char *er
     ts_fill_params fp = t->p->fill;
     fp.seed = ts_tile_seed(t->p->fill.seed, (uint32_t)ts_tile_index(&t->g, tx, ty));
     ts_fill_input in = {.w = f.w, .h = f.h, .nplanes = 1, .planes = {f.plane}, .state = f.state,
-                        .nclass = f.nclass, .cls = f.cls, .names = f.names};
+                        .nclass = f.nclass, .cls = f.cls, .names = f.names, .given_from = f.given_from,
+                        .given_copy = f.given_copy, .given_cut = f.given_cut};
     ts_progress_hooks ph = {t->h->progress ? on_fill_progress : NULL, w};
     ts_fill_result res;
     rc = ts_fill_synthesize(&fp, &in, w->search, &ph, &res, err);
-    if (rc == 0) {
-      tile_store(t, ty, &f, &res);
-      piece_of(t, tx, ty, &f, &res, fig);
-      ts_fill_result_free(&res);
-    }
+    if (rc == 0 && (rc = tile_store(t, &f, &res)) != 0) ts_error(err, rc, "out of memory");
+    if (rc == 0) piece_of(t, tx, ty, &f, &res, fig);
+    ts_fill_result_free(&res);
   } else {
     piece_of(t, tx, ty, &f, NULL, fig); /* lines only */
   }
-  tile_fill_free(&f);
   if (rc == 0 && t->h->save_piece != NULL) rc = save_piece(t, fig, err);
+  tile_fill_free(&f);
   return rc;
 }
 
@@ -540,6 +633,7 @@ static void tiler_free(tiler *t, int ok) {
     free(t->bands[k].state);
     free(t->bands[k].luma);
     free(t->bands[k].rgb);
+    free(t->bands[k].src);
   }
   free(t->rank_of_id);
   free(t->colour_of_id);
@@ -572,6 +666,7 @@ static int run_step(tiler *t, const ts_tile_step *s, char *err) {
   }
   t->row = s->row;
   t->phase = ts_tile_phase(s->xpar, s->row);
+  t->step_done0 = t->tiles_done;
   atomic_int next = 0;
   tile_worker w[AERIAL_MAX_TILE_JOBS];
   pthread_t th[AERIAL_MAX_TILE_JOBS];

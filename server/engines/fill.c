@@ -20,7 +20,7 @@
 #include "util.h"
 
 const char *const ts_fill_order_names[] = {[TS_FILL_PUZZLE] = "puzzle", [TS_FILL_THRESHOLD] = "threshold", NULL};
-const ts_param ts_fill_param_table[] = {TS_FILL_PARAMS(0, "4", "9"), {NULL}};
+const ts_param ts_fill_param_table[] = {TS_FILL_PARAMS(0, "4", "9", "0"), {NULL}};
 
 void ts_fill_params_default(ts_fill_params *p) {
   memset(p, 0, sizeof(*p));
@@ -566,6 +566,53 @@ static int fill_class(engine *e, int c, char *err) {
   return rc;
 }
 
+/* ---- the seam cut (fill_seams.h) ------------------------------------------ */
+
+/* Cuts the seams of the finished level 0: the work pixels' copies as
+ * filled, and the given pixels' where the input names them. */
+static int cut_seams(engine *e, char *err) {
+  const ts_fill_input *in = e->in;
+  size_t npx = (size_t)e->w * (size_t)e->h;
+  uint8_t *cls = malloc(npx), *movable = malloc(npx);
+  ts_seam_ref ref[TS_FILL_MAX_CLASSES];
+  int rc = cls != NULL && movable != NULL ? 0 : ts_error(err, TS_ENOMEM, "out of memory for the seam cut");
+  for (size_t i = 0; rc == 0 && i < npx; i++) {
+    movable[i] = e->from[i] != 0;
+    cls[i] = e->from[i];
+    int g = movable[i] || in->given_from == NULL ? 0 : in->given_from[i];
+    if (g < 1 || g > in->nclass) continue;
+    const atlas *a = &e->at[g - 1];
+    if (in->given_copy[2 * i] >= (uint32_t)in->cls[g - 1].src[0].w || in->given_copy[2 * i + 1] >= (uint32_t)a->h0[0])
+      continue; /* not a copy of this fill's references: it stays as it is */
+    cls[i] = (uint8_t)g;
+    movable[i] = in->given_cut != NULL && in->given_cut[i];
+    e->copy[2 * i] = in->given_copy[2 * i];
+    e->copy[2 * i + 1] = in->given_copy[2 * i + 1]; /* the first source's rows start the atlas */
+  }
+  for (int c = 0; rc == 0 && c < in->nclass; c++) {
+    const atlas *a = &e->at[c];
+    ref[c] = (ts_seam_ref){a->w, a->h, {NULL}, a->usable[0].px, a->nsrc, a->y0, a->h0};
+    for (int k = 0; k < in->nplanes; k++) ref[c].planes[k] = a->planes[k][0].px;
+  }
+  ts_seam_image im = {e->w, e->h, in->nplanes, {NULL}, e->copy, cls, movable, ref, e->p->seam_cut};
+  for (int k = 0; k < in->nplanes; k++) im.planes[k] = e->ip.planes[k][0].px;
+  uint64_t moved;
+  if (rc == 0 && ts_fill_cut_seams(&im, &moved) != 0)
+    rc = ts_error(err, TS_ENOMEM, "out of memory for the seam cut");
+  /* Given pixels have no copy in the result but those the cut changed
+   * (given_cut), which take the class they were given with. */
+  for (size_t i = 0; rc == 0 && i < npx; i++) {
+    if (e->from[i] != 0) continue;
+    if (movable[i] && (e->copy[2 * i] != in->given_copy[2 * i] || e->copy[2 * i + 1] != in->given_copy[2 * i + 1]))
+      e->from[i] = cls[i];
+    else
+      e->copy[2 * i] = e->copy[2 * i + 1] = 0;
+  }
+  free(cls);
+  free(movable);
+  return rc;
+}
+
 /* ---- levels -------------------------------------------------------------- */
 
 static void level_stats_from(engine *e, const ts_search_stats *base, double t0) {
@@ -667,6 +714,7 @@ int ts_fill_synthesize(const ts_fill_params *p, const ts_fill_input *in, ts_sear
     e.prog.work_total += (double)ts_fill_level_blocks(e.ip.state[l].px, e.ip.state[l].w, e.ip.state[l].h,
                                                       in->nclass, p->wb) * level_cost(l);
   for (int l = p->levels - 1; rc == 0 && l >= 0; l--) rc = fill_level(&e, l, err);
+  if (rc == 0 && p->seam_cut > 0) rc = cut_seams(&e, err);
   if (rc == 0) rc = take_result(&e, err);
   engine_free(&e);
   res->seconds = ts_now() - t0;
@@ -687,9 +735,9 @@ void ts_fill_result_free(ts_fill_result *res) {
 
 void ts_fill_report_params(FILE *f, const ts_fill_params *p) {
   fprintf(f, "\"levels\": %d, \"wn\": %d, \"wb\": %d, \"parity\": %s, \"coarse_weight\": %g, \"order\": \"%s\", "
-             "\"threshold\": %g, \"seed\": %llu",
+             "\"threshold\": %g, \"seed\": %llu, \"seam_cut\": %d",
           p->levels, p->wn, p->wb, p->parity ? "true" : "false", p->coarse_weight,
-          p->order == TS_FILL_THRESHOLD ? "threshold" : "puzzle", p->threshold, (unsigned long long)p->seed);
+          p->order == TS_FILL_THRESHOLD ? "threshold" : "puzzle", p->threshold, (unsigned long long)p->seed, p->seam_cut);
 }
 
 void ts_fill_report_levels(FILE *f, const ts_fill_params *p, const ts_fill_result *r) {

@@ -45,6 +45,7 @@
 #include "param.h"
 #include "progress.h"
 #include "search.h"
+#include "fill_seams.h"
 
 #define TS_FILL_MAX_CLASSES 64
 #define TS_FILL_MAX_SOURCES 8 /* source images of one class's reference */
@@ -63,6 +64,7 @@ typedef struct {
   uint64_t seed;        /* the blocks that start areas without context */
   uint32_t max_batch;   /* split a step's queries into batches of at most
                            this many (0 = whole steps); never changes results */
+  int seam_cut;         /* the seam cut's reach (fill_seams.h), 0: none */
 } ts_fill_params;
 
 /* The fill's parameters (param.h) as entries of a table whose struct
@@ -70,7 +72,7 @@ typedef struct {
  * wn given (the fill job's and the aerial job's differ); the engines'
  * tables start with them, in their spec order. */
 extern const char *const ts_fill_order_names[];
-#define TS_FILL_PARAMS(base, levels_def, wn_def)                                                              \
+#define TS_FILL_PARAMS(base, levels_def, wn_def, seam_def)                                                            \
   {"levels", "levels", "L", TS_PARAM_INT, (base) + offsetof(ts_fill_params, levels), 1, TS_FILL_MAX_LEVELS,   \
    levels_def, "pyramid levels"},                                                                              \
   {"wn", "wn", "N", TS_PARAM_INT, (base) + offsetof(ts_fill_params, wn), 3, TS_MAX_WN, wn_def,                \
@@ -87,7 +89,12 @@ extern const char *const ts_fill_order_names[];
   {"threshold", "threshold", "F", TS_PARAM_DOUBLE, (base) + offsetof(ts_fill_params, threshold), 0, 1,       \
    "0.25", "threshold order: the share of the window a block needs known", .flags = TS_PARAM_MIN_OPEN},      \
   {"seed", "seed", "S", TS_PARAM_U64, (base) + offsetof(ts_fill_params, seed), 0, 0, "1",                    \
-   "seed of the blocks that start areas with nothing known around them", .flags = TS_PARAM_UNBOUNDED}
+   "seed of the blocks that start areas with nothing known around them", .flags = TS_PARAM_UNBOUNDED},         \
+  {"seam_cut", "seam-cut", "N", TS_PARAM_INT, (base) + offsetof(ts_fill_params, seam_cut), 0,                \
+   TS_SEAM_MAX_REACH, seam_def,                                                                               \
+   "after the last level, move each join of two copies (block edges, the edge of the given pixels) up to N " \
+   "pixels to where the two copies agree best (a minimum-cost cut, as image quilting); 0: joins stay on the " \
+   "block grid"}
 
 /* Those entries alone (base 0), with the fill job's defaults. */
 extern const ts_param ts_fill_param_table[];
@@ -114,6 +121,16 @@ typedef struct {
   int nclass;
   const ts_fill_class *cls; /* cls[c - 1] is class c's reference */
   const char *const *names; /* names[c - 1] names class c in progress; NULL: none */
+  /* Optional, for the seam cut: given pixels that are copies too (a
+   * neighbouring fill's), so the cut may join the work to them. Per pixel
+   * its class (0: not a copy), and where in that class's first source it
+   * was copied from. */
+  const uint8_t *given_from;
+  const uint32_t *given_copy; /* 2 per pixel: x, y */
+  /* Optional: given pixels (copies) that the cut may change too, so a
+   * join between the work and given copies may go either way; the result
+   * has a copy for those it changed. */
+  const uint8_t *given_cut;
 } ts_fill_input;
 
 /* Appends the parameters' problems to msg (ts_problem), counting them. */
@@ -141,7 +158,8 @@ typedef struct {
   int w, h, nplanes;
   uint8_t *planes[TS_MAX_PLANES]; /* the filled feature planes */
   /* Per pixel: the source pixel it was copied from (x, y) and the source's
-   * number in its class (TS_FILL_NO_SOURCE for given pixels). */
+   * number in its class (TS_FILL_NO_SOURCE for given pixels, but those
+   * the seam cut changed: ts_fill_input.given_cut). */
   uint32_t *copy;
   uint8_t *source;
   double seconds;

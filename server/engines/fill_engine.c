@@ -51,7 +51,7 @@ static const ts_engine_output fill_outputs[OUT_COUNT] = {
 
 /* In the spec's order: the fill's, then the job's. */
 static const ts_param fill_param_table[] = {
-    TS_FILL_PARAMS(F(fill), "4", "9"),
+    TS_FILL_PARAMS(F(fill), "4", "9", "0"),
     {"refs", NULL, NULL, TS_PARAM_INT, F(refs), 0, FILL_MAX_REFS, "0", "further reference images"},
     {"self", "no-self", NULL, TS_PARAM_FLAG, F(self), 0, 1, "1", "do not copy from IMG itself (needs --ref)",
      .flags = TS_PARAM_NEGATE},

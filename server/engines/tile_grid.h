@@ -66,7 +66,9 @@ typedef struct {
  * against the finished pixels it overlaps, and the border joins as well as
  * two blocks of one tile do (bench/tile_seams.py: with the border on a
  * block edge, 1.17x the mean difference of block seams; so aligned,
- * 1.00-1.05x). 20 for the aerial defaults (3 levels, wn 7, wb 3). */
+ * 1.00-1.05x). The fill's seam cut (fill_seams.h) then moves both kinds of
+ * join to where the copies agree (aerial_tiles.c). 20 for the aerial
+ * defaults (3 levels, wn 7, wb 3). */
 int ts_tile_default_halo(int levels, int wn, int wb);
 
 /* The grid of a w x h scene: 0, or TS_EINVAL for sizes < 1 (tile and halo

@@ -2,6 +2,7 @@
  * images with given and unknown pixels and no torus, the puzzle queue's
  * steps, and whole fills that must not depend on threads or batches. */
 #include <stdlib.h>
+#include <string.h>
 
 #include "error.h"
 #include "fill.h"
@@ -267,6 +268,95 @@ static void areas_without_context_are_seeded(void **state) {
   free(j);
 }
 
+/* ---- the seam cut (fill_seams.h) ---- */
+
+#define SW 12
+#define SH 4
+#define RW 40
+#define SU0 6 /* the seam: columns < SU0 copy from (LX + x, LY + y), the rest from (RX + x, RY + y) */
+#define LX 3
+#define LY 5
+#define RX 20
+#define RY 22
+
+typedef struct {
+  uint8_t ref[RW * RW], img[SW * SH], cls[SW * SH], movable[SW * SH];
+  uint32_t copy[2 * SW * SH];
+  ts_seam_ref sref[2]; /* two classes with the same reference */
+  int y0, h0;
+} seam_job;
+
+/* A seam whose copies agree at columns SU0 and SU0 + 1 and nowhere else
+ * near: the left copy gone on one pixel past the edge is the join of least
+ * cost (0), so the cut moves there, or stays when the left side's copy may
+ * not go on (shift < 0: the right copy would have to go back instead). */
+static void seam_job_init(seam_job *j, int left_movable) {
+  ts_rng rng;
+  ts_rng_seed(&rng, 77, 0);
+  for (int i = 0; i < RW * RW; i++) j->ref[i] = (uint8_t)ts_rng_below(&rng, 256);
+  for (int y = 0; y < SH; y++)
+    for (int d = 0; d <= 1; d++) j->ref[(LY + y) * RW + LX + SU0 + d] = j->ref[(RY + y) * RW + RX + SU0 + d];
+  for (int y = 0; y < SH; y++)
+    for (int x = 0; x < SW; x++) {
+      int i = y * SW + x, left = x < SU0;
+      j->copy[2 * i] = (uint32_t)(left ? LX + x : RX + x);
+      j->copy[2 * i + 1] = (uint32_t)(left ? LY + y : RY + y);
+      j->img[i] = j->ref[j->copy[2 * i + 1] * RW + j->copy[2 * i]];
+      j->cls[i] = 1;
+      j->movable[i] = !left || left_movable;
+    }
+  j->y0 = 0;
+  j->h0 = RW;
+  j->sref[0] = j->sref[1] = (ts_seam_ref){RW, RW, {j->ref}, NULL, 1, &j->y0, &j->h0};
+}
+
+static void cut(seam_job *j, int reach, uint64_t *moved) {
+  ts_seam_image im = {SW, SH, 1, {j->img}, j->copy, j->cls, j->movable, j->sref, reach};
+  assert_int_equal(ts_fill_cut_seams(&im, moved), 0);
+  for (int i = 0; i < SW * SH; i++) /* every pixel still the copy its map says */
+    assert_int_equal(j->img[i], j->ref[j->copy[2 * i + 1] * RW + j->copy[2 * i]]);
+}
+
+static void seam_cut_moves_to_the_join_of_least_cost(void **state) {
+  (void)state;
+  seam_job *j = malloc(sizeof(*j));
+  for (int left_movable = 0; left_movable <= 1; left_movable++) {
+    seam_job_init(j, left_movable);
+    uint64_t moved;
+    cut(j, 2, &moved);
+    assert_int_equal(moved, SH);
+    for (int y = 0; y < SH; y++)
+      for (int x = 0; x < SW; x++) { /* column SU0 now goes on from the left */
+        int i = y * SW + x, left = x <= SU0;
+        assert_int_equal(j->copy[2 * i], (uint32_t)(left ? LX + x : RX + x));
+        assert_int_equal(j->copy[2 * i + 1], (uint32_t)(left ? LY + y : RY + y));
+      }
+  }
+  free(j);
+}
+
+/* Pixels the cut may not change keep their copies; reach 0 changes none. */
+static void seam_cut_keeps_what_may_not_move(void **state) {
+  (void)state;
+  seam_job *j = malloc(sizeof(*j));
+  seam_job_init(j, 1);
+  memset(j->movable + SU0, 0, SW - SU0); /* row 0's right side given */
+  for (int y = 1; y < SH; y++) j->cls[y * SW + SU0] = 2; /* another class: no seam, nothing to take */
+  uint32_t before[2 * SW * SH];
+  memcpy(before, j->copy, sizeof(before));
+  uint64_t moved;
+  ts_seam_image im = {SW, SH, 1, {j->img}, j->copy, j->cls, j->movable, j->sref, 0};
+  assert_int_equal(ts_fill_cut_seams(&im, &moved), 0);
+  assert_int_equal(moved, 0);
+  assert_memory_equal(before, j->copy, sizeof(before));
+  cut(j, 2, &moved);
+  for (int x = SU0; x < SW; x++) { /* given, and the other class's */
+    assert_int_equal(j->copy[2 * x], before[2 * x]);
+    for (int y = 1; y < SH; y++) assert_int_equal(j->copy[2 * (y * SW + SU0)], before[2 * (y * SW + SU0)]);
+  }
+  free(j);
+}
+
 /* Every problem at once, in words a user can act on. */
 static void check_names_every_problem(void **state) {
   (void)state;
@@ -298,6 +388,8 @@ static const struct CMUnitTest tests[] = {
     cmocka_unit_test(fill_is_the_same_whatever_the_threads_and_batches),
     cmocka_unit_test(areas_without_context_are_seeded),
     cmocka_unit_test(check_names_every_problem),
+    cmocka_unit_test(seam_cut_moves_to_the_join_of_least_cost),
+    cmocka_unit_test(seam_cut_keeps_what_may_not_move),
 };
 
 TS_TEST_MAIN(tests)
