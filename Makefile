@@ -328,9 +328,9 @@ test-tsan: deps
 	$(MAKE) -j2 TSAN=1 tsan-build
 	bash tests/run-tsan.sh build-tsan
 
-# What test-tsan runs, with TSAN=1: the programs, the image library, the
-# preloaded shims.
-tsan-build: $(BINS) $(IMAGE_LIB) $(PRELOADS)
+# What test-tsan runs, with TSAN=1: the programs, the image and GIS
+# libraries, the preloaded shims, and the scene maker its aerial tests use.
+tsan-build: $(BINS) $(IMAGE_LIB) $(GIS_LIB) $(PRELOADS) $(BUILD)/bench/mkscene
 
 # Every unit test under valgrind memcheck (about 4 minutes; not in `test`).
 test-valgrind: deps all
