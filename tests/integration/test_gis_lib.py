@@ -33,7 +33,7 @@ def test_the_library_exports_only_its_table():
                          check=True).stdout
     # (ASan adds its own marker symbol, __odr_asan.NAME, beside each global.)
     ours = [line.split()[-1] for line in out.splitlines() if "ts_" in line and "__odr_asan" not in line]
-    assert ours == ["ts_gis_lib_v1"], ours
+    assert ours == ["ts_gis_lib_v2"], ours
 
 
 def mkscene(tmp_path, *args, env=None):

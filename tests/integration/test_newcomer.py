@@ -320,7 +320,8 @@ def test_texsyn_help_is_the_command_table(texsyn):
     lines = p.stdout.splitlines()
     assert lines[0] == "usage: texsyn COMMAND [options]   (texsyn COMMAND --help for details)", p.stdout
     names = [re.match(r"  (\S+) +\S", line).group(1) for line in lines[1:]]
-    assert names == ["synth", "aerial", "stylize", "energy", "apply-nnf", "segment", "video", "flicker", "quality",
+    assert names == ["synth", "aerial", "catalogue", "stylize", "energy", "apply-nnf", "segment", "video", "flicker",
+                     "quality",
                      "shuffle", "simd",
                      "params", "status", "watch", "fetch", "cancel", "delete", "workers", "modbus", "help",
                      "--version"], names
