@@ -65,6 +65,8 @@ SECTIONS = [
      "/usr/bin/python3 bench/seal_cost.py --base BASE_BUILD --build build --reps 5 --json bench/results/seal_cost.json"),
     ("tile_seams", "Aerial tiles: borders against interior pairs", ["tile_seams.md", "tile_seams.json"],
      ["tile_seams-crop.png"], "/usr/bin/python3 bench/tile_seams.py --build build"),
+    ("bigtiff", "A GeoTIFF past 4 GiB through the GIS writer", ["bigtiff.md"], [],
+     "/usr/bin/python3 bench/bigtiff.py --build build"),
     ("video_blend", "The blend between two keys: steps at the seam, ghosting", ["video-blend.md", "video-blend.json"],
      ["video-blend-strip-painting.png"], RUN.format("video_blend.py")),
 ]

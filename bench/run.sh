@@ -64,6 +64,7 @@ if [ "$mode" = full ]; then
   step mix py mix.py
   step ops_page py ops_page.py
   step video_blend env TEXSYN_BUILD="$build" /usr/bin/python3 bench/video_blend.py --out "$out/video-blend"
+  step bigtiff /usr/bin/python3 bench/bigtiff.py --build "$build" --out "$out"
 fi
 if [ -n "${TEXSYN_EBSYNTH:-}" ] && [ -x "$TEXSYN_EBSYNTH" ]; then
   step stylize /usr/bin/python3 bench/stylize.py --build "$build" --out "$out" --ebsynth "$TEXSYN_EBSYNTH" \
