@@ -6,7 +6,7 @@ travel. Here an 18 MB raw copy map (2 ranges) comes back with the
 embedded run's bytes, beside the small image that came inline."""
 from conftest import BUILD, run
 
-ARGS = ("--size", "1500x1500", "--levels", "1", "--wn", "5", "--quiet")
+ARGS = ("--size", "1500x1500", "--levels", "1", "--wb", "9", "--wn", "11", "--quiet")
 
 
 def test_a_result_past_the_inline_limit_comes_in_ranges(data, cluster, tmp_path):

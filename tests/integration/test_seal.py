@@ -22,10 +22,11 @@ from pnm import pixels_of
 
 HEADER = struct.Struct("<2sBcII")  # magic, version, type, payload length, id
 SIZE = ("96x64", "--levels", "3")
-# Rounds of every action both ways, 8 trials a round, each about a second
+# Rounds of every action both ways, 8 trials a round, each a few seconds
 # (TEXSYN_SEAL_ROUNDS; `make test-seal` runs SEAL_ROUNDS of them, 125 = the
-# issue's 1,000 alterations; `make test` one).
-ROUNDS = int(os.environ.get("TEXSYN_SEAL_ROUNDS", "1"))
+# issue's 1,000 alterations). `make test`, without it, runs each action
+# once, the ways alternating: both sides still judge.
+ROUNDS = int(os.environ.get("TEXSYN_SEAL_ROUNDS", "0"))
 # What the receiving side logs for each action (the coordinator for frames
 # the worker sent, the worker for frames the coordinator sent).
 REASONS = {
@@ -220,8 +221,12 @@ def test_every_altered_dropped_replayed_or_reordered_frame_is_detected(texsyn, d
                              "--secret-file", key, "--workers", relay.addr, "--calibrate-ms", 20,
                              "--heartbeat", 0.3, "--threads", 1], tmp_path / "server.log")
     rng = random.Random(29)
+    actions = ("alter", "drop", "replay", "reorder")
     trials = [Trial(action, way, rng.randrange(1, 6), random.Random(rng.random()))
-              for seed in range(ROUNDS) for action in ("alter", "drop", "replay", "reorder") for way in ("c2w", "w2c")]
+              for seed in range(ROUNDS) for action in actions for way in ("c2w", "w2c")]
+    if ROUNDS == 0:
+        trials = [Trial(a, ("c2w", "w2c")[i % 2], rng.randrange(1, 6), random.Random(rng.random()))
+                  for i, a in enumerate(actions)]
     trials += [Trial("ident", way, 0, random.Random(way)) for way in ("c2w", "w2c")]
     ready = r"worker \d+ \(\S+, 1 threads, \S+\) ready"
     cluster.server.wait_log(ready, timeout=30)
